@@ -1,0 +1,88 @@
+"""Typed configuration: presets, TOML loading, overrides and validation errors that name the field."""
+
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from cmcl.config import ConfigError, config_from_dict, dump_toml, load_config, preset
+
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+
+
+@pytest.mark.parametrize("path", sorted(CONFIGS.glob("*.toml")), ids=lambda p: p.name)
+def test_every_shipped_config_loads(path):
+    config = load_config(path)
+    assert config.run.episodes >= 1
+    assert set(config.teams) == ({"agent"} if config.env.task == "spread" else {"predator", "prey"})
+
+
+@pytest.mark.parametrize("algorithm", ["maddpg", "per", "acl", "cmcl"])
+def test_shipped_files_match_presets(algorithm):
+    spread = load_config(CONFIGS / f"spread_{algorithm}.toml")
+    assert spread.teams == preset(algorithm, "spread").teams
+    tag = load_config(CONFIGS / f"tag_{algorithm}.toml")
+    assert tag.teams == preset(algorithm, "tag", opponent="maddpg").teams
+
+
+def test_table1_defaults():
+    config = preset("cmcl")
+    assert (config.maddpg.gamma, config.maddpg.actor_lr, config.maddpg.critic_lr) == (0.99, 1e-3, 1e-3)
+    assert (config.maddpg.tau, config.maddpg.batch_size, config.maddpg.hidden) == (0.01, 128, 64)
+    assert (config.replay.capacity, config.curriculum.lam0, config.env.episode_length) == (5000, 0.1, 30)
+    assert config.run.episodes == 20000 and config.maddpg.exploration_std == 0.1
+    assert config.curriculum_stride() == pytest.approx(3.0e-6)
+
+
+def test_team_semantics_per_algorithm():
+    teams = {a: preset(a).teams["agent"] for a in ("maddpg", "per", "acl", "cmcl")}
+    assert [t.uses_teachers for t in teams.values()] == [False, False, True, True]
+    assert [t.uses_icm for t in teams.values()] == [False, False, False, True]
+    assert [t.importance_weights for t in teams.values()] == [False, True, False, False]
+    assert teams["acl"].effective_eta == 0.0 and teams["cmcl"].effective_eta == 0.5
+
+
+def test_predators_and_prey_can_differ():
+    config = preset("cmcl", "tag", opponent="per")
+    assert config.teams["predator"].algorithm == "cmcl" and config.teams["prey"].algorithm == "per"
+
+
+def test_overrides_set_nested_values():
+    config = load_config(CONFIGS / "spread_cmcl.toml", ["run.episodes=40", "run.dir=runs/smoke",
+                                                        "teams.agent.eta=0.1", "maddpg.discrete=true"])
+    assert config.run.episodes == 40 and config.run.dir == "runs/smoke"
+    assert config.teams["agent"].eta == 0.1 and config.maddpg.discrete is True
+
+
+@pytest.mark.parametrize(
+    ("override", "fragment"),
+    [
+        ("maddpg.gamma=2", "maddpg.gamma"),
+        ("maddpg.gammma=0.9", "maddpg.gammma"),
+        ("replay.capacity=0", "replay.capacity"),
+        ("run.episodes=1.5", "run.episodes"),
+        ("teams.agent.algorithm=dqn", "teams.agent.algorithm"),
+        ("teams.agent.eta=-1", "teams.agent.eta"),
+        ("curriculum.lam0=0", "curriculum.lam0"),
+        ("env.task=tag", "teams"),
+        ("nonsense.key=1", "nonsense"),
+        ("noequals", "section.key=value"),
+    ],
+)
+def test_bad_values_name_the_field(override, fragment):
+    with pytest.raises(ConfigError, match=fragment.replace(".", r"\.")):
+        load_config(CONFIGS / "spread_cmcl.toml", [override])
+
+
+def test_missing_and_malformed_files(tmp_path):
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_config(tmp_path / "absent.toml")
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[run\nepisodes = ")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_config(broken)
+
+
+def test_dump_round_trip():
+    config = preset("per", "tag", opponent="acl")
+    assert config_from_dict(tomllib.loads(dump_toml(config))) == config
