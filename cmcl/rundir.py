@@ -1,0 +1,136 @@
+"""A run directory: resolved config, metrics as JSON lines, atomic checkpoints.
+
+Where it sits: `cmcl.loop` and `services.launch` write here; `cmcl.evaluate` and the plots read here.
+Layout of `<dir>/`:
+  config.toml            the resolved configuration (reloadable with cmcl.config.load_config)
+  metrics.jsonl          one JSON object per line (episode rows and update rows, each with a "kind")
+  checkpoints/ckpt_<episodes:08d>.pt   torch.save of plain state dicts, read with weights_only=True
+  checkpoints/replay_<episodes:08d>.msgpack  replay snapshot (cmcl.codec), when the writer adds one
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from cmcl.config import Config, dump_toml, load_config
+
+CHECKPOINT_GLOB = "ckpt_*.pt"
+
+
+def atomic_write_bytes(path: Path, payload: bytes) -> None:
+    """Write `payload` to `path` via a temp file in the same directory, fsync and rename (all or nothing)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(payload)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _json_safe(value: Any) -> Any:
+    """Convert numpy / torch scalars and arrays to JSON values; non-finite floats become None."""
+    if isinstance(value, Mapping):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(v) for v in value]
+    if hasattr(value, "tolist"):
+        return _json_safe(value.tolist())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+class RunDirectory:
+    """Owns one run's output folder. `create` for a new run, `open` to resume or evaluate one."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.checkpoints = self.path / "checkpoints"
+        self.metrics_path = self.path / "metrics.jsonl"
+        self.config_path = self.path / "config.toml"
+
+    @classmethod
+    def create(cls, path: str | Path, config: Config, *, overwrite: bool = False) -> RunDirectory:
+        """Make the folder and write the resolved config. Refuses a folder that already holds a run."""
+        run = cls(path)
+        if run.config_path.exists() and not overwrite:
+            raise FileExistsError(
+                f"run.dir {str(run.path)!r} already holds a run; pass --resume {run.path} to continue it "
+                f"or choose another run.dir")
+        run.checkpoints.mkdir(parents=True, exist_ok=True)
+        if overwrite and run.metrics_path.exists():
+            run.metrics_path.unlink()
+        atomic_write_bytes(run.config_path, dump_toml(config).encode())
+        return run
+
+    @classmethod
+    def open(cls, path: str | Path) -> RunDirectory:
+        """Open an existing run folder (must hold config.toml)."""
+        run = cls(path)
+        if not run.config_path.is_file():
+            raise FileNotFoundError(f"{str(run.path)!r} is not a run directory (no config.toml)")
+        return run
+
+    def config(self, overrides: tuple[str, ...] = ()) -> Config:
+        """The run's resolved config, with optional overrides."""
+        return load_config(self.config_path, overrides)
+
+    def log(self, row: Mapping[str, Any]) -> None:
+        """Append one metrics row (a flat or nested mapping) as a JSON line."""
+        with self.metrics_path.open("a") as handle:
+            handle.write(json.dumps(_json_safe(row), sort_keys=True) + "\n")
+
+    def rows(self, kind: str | None = None) -> Iterator[dict[str, Any]]:
+        """Metrics rows in order, optionally only those with row["kind"] == kind."""
+        if not self.metrics_path.exists():
+            return
+        with self.metrics_path.open() as handle:
+            for line in handle:
+                if line.strip():
+                    row = json.loads(line)
+                    if kind is None or row.get("kind") == kind:
+                        yield row
+
+    def truncate_rows_after(self, episodes: int) -> None:
+        """On resume: drop rows logged after the checkpoint (row["episodes"] > episodes), atomically."""
+        if not self.metrics_path.exists():
+            return
+        kept = [row for row in self.rows() if row.get("episodes", 0) <= episodes]
+        atomic_write_bytes(self.metrics_path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in kept).encode())
+
+    def checkpoint_path(self, episodes: int) -> Path:
+        return self.checkpoints / f"ckpt_{episodes:08d}.pt"
+
+    def save_checkpoint(self, episodes: int, state: Mapping[str, Any]) -> Path:
+        """torch.save `state` (tensors, numpy-free plain containers) atomically; returns the path."""
+        path = self.checkpoint_path(episodes)
+        tmp = path.with_name(f".{path.name}.tmp")
+        self.checkpoints.mkdir(parents=True, exist_ok=True)
+        torch.save(dict(state), tmp)
+        with open(tmp, "rb") as handle:
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+        return path
+
+    def latest_checkpoint(self) -> Path | None:
+        """The checkpoint with the most episodes, or None."""
+        found = sorted(self.checkpoints.glob(CHECKPOINT_GLOB))
+        return found[-1] if found else None
+
+
+def load_checkpoint(path: str | Path) -> dict[str, Any]:
+    """Load a checkpoint written by RunDirectory.save_checkpoint (weights_only: no arbitrary pickle)."""
+    return torch.load(Path(path), map_location="cpu", weights_only=True)
