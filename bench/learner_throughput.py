@@ -1,0 +1,227 @@
+"""Learner throughput: one full CMCL update with stacked modules vs a per-agent / per-teacher loop peer.
+
+One "update" = MADDPG step for N agents on per-agent minibatches (S = 128) + one fit step of K teachers per agent
+(teacher batches from their own folds, targets from the learner's target nets) + one ICM step per agent.
+Also times a full rescoring of a 5000-row buffer (TD targets, teacher errors, cross-validated difficulty, ICM
+curiosity). Rounds of ours and the peer are interleaved (the machine is shared); the median update round and the
+best rescoring run are reported.
+
+Run: .venv/bin/python bench/learner_throughput.py   (last line: ``ratio: X`` = ours / peer updates per second)
+"""
+
+from __future__ import annotations
+
+import copy
+import statistics
+import time
+
+import numpy as np
+import torch
+from torch import nn
+
+from cmcl.icm import ICM
+from cmcl.maddpg import MADDPG
+from cmcl.nets import joint_input
+from cmcl.teachers import TeacherEnsemble, cross_validated_difficulty, fold_batch_indices, make_fit_batch
+
+N, OD, AD, S, K, M = 4, 18, 2, 128, 5, 5000
+GAMMA, TAU, CLIP = 0.99, 0.01, 0.5
+ROUNDS, UPDATES_PER_ROUND = 7, 12
+
+
+def make_buffer(seed: int = 0) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Random joint rows (obs [M,N,OD], act [M,N,AD], rew [M,N], next_obs, done [M]) and folds by 30-step episode."""
+    rng = np.random.default_rng(seed)
+    rows = {
+        "obs": rng.normal(size=(M, N, OD)).astype(np.float32),
+        "act": rng.uniform(-1, 1, size=(M, N, AD)).astype(np.float32),
+        "rew": rng.normal(size=(M, N)).astype(np.float32),
+        "next_obs": rng.normal(size=(M, N, OD)).astype(np.float32),
+        "done": np.zeros(M, np.float32),
+    }
+    return rows, (np.arange(M) // 30) % K
+
+
+# ----------------------------------------------------------------------------- ours (stacked)
+class Ours:
+    """The cmcl classes: every agent / teacher stacked into one module."""
+
+    def __init__(self) -> None:
+        self.m = MADDPG(N, OD, AD, seed=0)
+        self.t = TeacherEnsemble(N, in_dim=N * (OD + AD), num_folds=K, seed=1)
+        self.icm = ICM(N, OD, AD, seed=2)
+        self.agents = np.arange(N)
+
+    def update(self, rows: dict, fold: np.ndarray, rng: np.random.Generator) -> None:
+        idx = rng.integers(0, M, size=(N, S))
+        self.m.update({k: v[idx] for k, v in rows.items()})
+        tidx = fold_batch_indices(fold, K, S, rng, num_agents=N)
+        self.t.fit_step(*make_fit_batch(tidx, rows, self.agents, self.m.td_targets))
+        i = rng.integers(0, M, size=S)
+        per_agent = [torch.from_numpy(rows[k][i]).transpose(0, 1) for k in ("obs", "act", "next_obs")]
+        self.icm.train_step(*per_agent)
+
+    def rescore(self, rows: dict, fold: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x = joint_input(torch.from_numpy(rows["obs"]), torch.from_numpy(rows["act"]))
+        y = self.m.td_targets(rows["rew"], rows["next_obs"], rows["done"], agents=self.agents)
+        c = cross_validated_difficulty(self.t.errors(x, y), fold)
+        per_agent = [torch.from_numpy(rows[k]).transpose(0, 1) for k in ("obs", "act", "next_obs")]
+        return c, self.icm.curiosity(*per_agent)
+
+
+# ----------------------------------------------------------------------------- peer (loops)
+def mlp(i: int, o: int, hidden=(64, 64), out_act: type[nn.Module] | None = None) -> nn.Sequential:
+    """Plain nn.Sequential MLP."""
+    layers: list[nn.Module] = []
+    for a, b in zip([i, *hidden[:-1]], hidden, strict=True):
+        layers += [nn.Linear(a, b), nn.ReLU()]
+    layers.append(nn.Linear(hidden[-1], o))
+    if out_act is not None:
+        layers.append(out_act())
+    return nn.Sequential(*layers)
+
+
+class Peer:
+    """Straightforward implementation: one nn.Sequential + Adam per agent / teacher / ICM part, Python loops."""
+
+    def __init__(self) -> None:
+        with torch.random.fork_rng():  # nn.Linear init draws from the global generator: keep it untouched
+            torch.manual_seed(0)
+            self._build()
+
+    def _build(self) -> None:
+        cin = N * (OD + AD)
+        self.actors = [mlp(OD, AD, out_act=nn.Tanh) for _ in range(N)]
+        self.critics = [mlp(cin, 1) for _ in range(N)]
+        self.t_actors, self.t_critics = copy.deepcopy(self.actors), copy.deepcopy(self.critics)
+        self.a_opt = [torch.optim.Adam(a.parameters(), lr=1e-3) for a in self.actors]
+        self.c_opt = [torch.optim.Adam(c.parameters(), lr=1e-3) for c in self.critics]
+        self.teachers = [[mlp(cin, 1) for _ in range(K)] for _ in range(N)]
+        self.t_opt = [[torch.optim.Adam(t.parameters(), lr=1e-3) for t in ts] for ts in self.teachers]
+        self.phi = [mlp(OD, 32, (64,)) for _ in range(N)]
+        self.inv = [mlp(64, AD, (64,)) for _ in range(N)]
+        self.fwd = [mlp(32 + AD, 32, (64,)) for _ in range(N)]
+        self.i_opt = [
+            torch.optim.Adam([*p.parameters(), *g.parameters(), *f.parameters()], lr=1e-3)
+            for p, g, f in zip(self.phi, self.inv, self.fwd, strict=True)
+        ]
+
+    def td(self, v: int, rew: torch.Tensor, next_obs: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
+        """Agent v's target y [B] from target nets: rew [B, N], next_obs [B, N, OD], done [B]."""
+        with torch.no_grad():
+            a2 = torch.stack([self.t_actors[u](next_obs[:, u]) for u in range(N)], 1)
+            q2 = self.t_critics[v](torch.cat([next_obs.flatten(1), a2.flatten(1)], 1)).squeeze(-1)
+            return rew[:, v] + GAMMA * (1 - done) * q2
+
+    def agent_step(self, v: int, b: dict[str, torch.Tensor]) -> None:
+        """Critic then actor step of agent v on its own batch b (obs [S, N, OD] ...)."""
+        y = self.td(v, b["rew"], b["next_obs"], b["done"])
+        q = self.critics[v](torch.cat([b["obs"].flatten(1), b["act"].flatten(1)], 1)).squeeze(-1)
+        loss = (y - q).pow(2).mean()
+        self.c_opt[v].zero_grad()
+        loss.backward()
+        nn.utils.clip_grad_norm_(self.critics[v].parameters(), CLIP)
+        self.c_opt[v].step()
+        act = b["act"].clone()
+        act[:, v] = self.actors[v](b["obs"][:, v])
+        a_loss = -self.critics[v](torch.cat([b["obs"].flatten(1), act.flatten(1)], 1)).mean()
+        self.a_opt[v].zero_grad()
+        a_loss.backward()
+        nn.utils.clip_grad_norm_(self.actors[v].parameters(), CLIP)
+        self.a_opt[v].step()
+
+    def soft_update(self) -> None:
+        with torch.no_grad():
+            for src, tgt in zip([*self.actors, *self.critics], [*self.t_actors, *self.t_critics], strict=True):
+                for s, t in zip(src.parameters(), tgt.parameters(), strict=True):
+                    t.mul_(1 - TAU).add_(s, alpha=TAU)
+
+    def teacher_step(self, a: int, i: int, rows_t: dict[str, torch.Tensor], idx: np.ndarray) -> None:
+        b = {k: v[idx] for k, v in rows_t.items()}
+        y = self.td(a, b["rew"], b["next_obs"], b["done"])
+        pred = self.teachers[a][i](torch.cat([b["obs"].flatten(1), b["act"].flatten(1)], 1)).squeeze(-1)
+        loss = (pred - y).pow(2).mean()
+        self.t_opt[a][i].zero_grad()
+        loss.backward()
+        self.t_opt[a][i].step()
+
+    def icm_step(self, a: int, o: torch.Tensor, act: torch.Tensor, o2: torch.Tensor) -> None:
+        f, f2 = self.phi[a](o), self.phi[a](o2)
+        inv = (torch.tanh(self.inv[a](torch.cat([f, f2], 1))) - act).pow(2).sum(1).mean()
+        fwd = 0.5 * (self.fwd[a](torch.cat([f, act], 1)) - f2).pow(2).sum(1).mean()
+        self.i_opt[a].zero_grad()
+        (0.8 * inv + 0.2 * fwd).backward()
+        self.i_opt[a].step()
+
+    def update(self, rows: dict, fold: np.ndarray, rng: np.random.Generator) -> None:
+        rows_t = {k: torch.from_numpy(v) for k, v in rows.items()}
+        idx = rng.integers(0, M, size=(N, S))
+        for v in range(N):
+            self.agent_step(v, {k: t[idx[v]] for k, t in rows_t.items()})
+        self.soft_update()
+        tidx = fold_batch_indices(fold, K, S, rng, num_agents=N)
+        for a in range(N):
+            for i in range(K):
+                self.teacher_step(a, i, rows_t, tidx[a, i])
+        j = rng.integers(0, M, size=S)
+        for a in range(N):
+            self.icm_step(a, rows_t["obs"][j, a], rows_t["act"][j, a], rows_t["next_obs"][j, a])
+
+    @torch.no_grad()
+    def rescore(self, rows: dict, fold: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r = {k: torch.from_numpy(v) for k, v in rows.items()}
+        x = torch.cat([r["obs"].flatten(1), r["act"].flatten(1)], 1)
+        c = np.zeros((N, M), np.float32)
+        rho = np.zeros((N, M), np.float32)
+        for a in range(N):
+            y = self.td(a, r["rew"], r["next_obs"], r["done"])
+            for i in range(K):
+                e = (y - self.teachers[a][i](x).squeeze(-1)).pow(2).numpy()
+                c[a] += np.where(fold != i, e, 0.0)
+            pred = self.fwd[a](torch.cat([self.phi[a](r["obs"][:, a]), r["act"][:, a]], 1))
+            rho[a] = (0.5 * (pred - self.phi[a](r["next_obs"][:, a])).pow(2).sum(1)).numpy()
+        return c, rho
+
+
+# ----------------------------------------------------------------------------- timing
+def time_round(impl, rows, fold, rng, n: int) -> float:
+    """Updates per second over n updates."""
+    t0 = time.perf_counter()
+    for _ in range(n):
+        impl.update(rows, fold, rng)
+    return n / (time.perf_counter() - t0)
+
+
+def time_rescore(impls, rows, fold, reps: int = 5) -> list[float]:
+    """Best-of-reps seconds per full-buffer rescoring for each implementation (interleaved)."""
+    best = [float("inf")] * len(impls)
+    for _ in range(reps):
+        for k, impl in enumerate(impls):
+            t0 = time.perf_counter()
+            impl.rescore(rows, fold)
+            best[k] = min(best[k], time.perf_counter() - t0)
+    return best
+
+
+def main() -> None:
+    torch.set_num_threads(1)
+    rows, fold = make_buffer()
+    ours, peer = Ours(), Peer()
+    rng_o, rng_p = np.random.default_rng(1), np.random.default_rng(1)
+    time_round(ours, rows, fold, rng_o, 3)  # warm-up
+    time_round(peer, rows, fold, rng_p, 3)
+    r_o, r_p = [], []
+    for _ in range(ROUNDS):
+        r_o.append(time_round(ours, rows, fold, rng_o, UPDATES_PER_ROUND))
+        r_p.append(time_round(peer, rows, fold, rng_p, UPDATES_PER_ROUND))
+    u_o, u_p = statistics.median(r_o), statistics.median(r_p)
+    s_o, s_p = time_rescore([ours, peer], rows, fold)
+    print(f"setup: N={N} agents, obs_dim={OD}, act_dim={AD}, batch={S}, K={K} teachers/agent, 1 thread")
+    print(f"full CMCL update  ours (stacked): {u_o:8.1f} updates/s   ({1e3 / u_o:6.2f} ms)")
+    print(f"full CMCL update  peer (loops):   {u_p:8.1f} updates/s   ({1e3 / u_p:6.2f} ms)")
+    print(f"rescore {M} rows  ours: {1e3 * s_o:7.1f} ms   peer: {1e3 * s_p:7.1f} ms   ({s_p / s_o:.2f}x)")
+    print(f"ratio: {u_o / u_p:.2f}")
+
+
+if __name__ == "__main__":
+    main()

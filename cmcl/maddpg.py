@@ -1,0 +1,290 @@
+"""MADDPG for all agents of a run, every agent's networks stacked into one batched module (ALGORITHM.md §2).
+
+Where it sits in the flow: the learner samples one minibatch per agent ("batch owner", §2/§3.6), stacks them as
+``[N, S, ...]`` and calls :meth:`MADDPG.update`; rollout workers call :meth:`MADDPG.act` with weights shipped by
+:meth:`MADDPG.actor_weights`; the teachers (§3.2) and the rescoring pass take their regression targets from
+:meth:`MADDPG.td_targets` (the learner's TARGET actors and critics on the NEXT observations, A2/A19).
+
+Members are agents: ``actor`` maps o_v [obs_dim] -> a_v [act_dim] (tanh, or Gumbel-softmax logits when
+``discrete``); ``critic`` maps the joint input (all obs, then all actions, flattened) -> Q_v. Every agent has the
+same obs_dim (shorter observations zero-padded by the env) and act_dim.
+
+Public boundary: inputs may be numpy arrays or torch tensors (converted once, float32); outputs are numpy.
+Data conventions: joint rows ``obs[M, N, obs_dim], act[M, N, act_dim], rew[M, N], next_obs[M, N, obs_dim],
+done[M]``; per-owner stacks add a leading owner axis: ``obs[N, S, N, obs_dim]``, ``rew[N, S, N]``, ``done[N, S]``.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from cmcl.nets import StackedMLP, as_tensor, clip_grad_norm_per_member_, joint_input, make_adam, soft_update_
+
+__all__ = ["MADDPG"]
+
+ArrayLike = np.ndarray | torch.Tensor
+
+
+class MADDPG:
+    """Stacked MADDPG learner (continuous tanh actions by default; Gumbel-softmax option, A17).
+
+    Args:
+        num_agents: N, agents whose actors/critics this learner owns (all agents of the world).
+        obs_dim, act_dim: per-agent observation / action widths (act_dim 5 for the discrete MPE variant).
+        hidden: hidden width of the 2-layer ReLU MLPs (int) or a tuple of widths.
+        actor_lr, critic_lr: Adam learning rates.  gamma: discount.  tau: Polyak rate of the targets.
+        grad_clip: per-agent gradient-norm clip (actor and critic).  discrete: Gumbel-softmax actors.
+        gumbel_temperature: temperature of the Gumbel-softmax sample.  logit_l2: L2 on actor logits (discrete).
+        seed: initial weights and the internal noise generator.
+    """
+
+    def __init__(
+        self,
+        num_agents: int,
+        obs_dim: int,
+        act_dim: int = 2,
+        hidden: int | Sequence[int] = 64,
+        actor_lr: float = 1e-3,
+        critic_lr: float = 1e-3,
+        gamma: float = 0.99,
+        tau: float = 0.01,
+        grad_clip: float = 0.5,
+        discrete: bool = False,
+        gumbel_temperature: float = 1.0,
+        logit_l2: float = 1e-3,
+        seed: int = 0,
+    ):
+        self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
+        self.gamma, self.tau, self.grad_clip = float(gamma), float(tau), float(grad_clip)
+        self.discrete, self.temperature, self.logit_l2 = bool(discrete), float(gumbel_temperature), float(logit_l2)
+        widths = (hidden, hidden) if isinstance(hidden, int) else tuple(hidden)
+        init_seed, noise_seed = np.random.SeedSequence(seed).generate_state(2)
+        gen = torch.Generator().manual_seed(int(init_seed))
+        n = self.num_agents
+        self.actor = StackedMLP(n, obs_dim, widths, act_dim, out_act=None if discrete else nn.Tanh, generator=gen)
+        self.critic = StackedMLP(n, n * (obs_dim + act_dim), widths, 1, generator=gen)
+        self.target_actor = copy.deepcopy(self.actor).requires_grad_(False)
+        self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
+        self.actor_opt = make_adam(self.actor.parameters(), actor_lr)
+        self.critic_opt = make_adam(self.critic.parameters(), critic_lr)
+        self.noise_gen = torch.Generator().manual_seed(int(noise_seed))
+        self.updates = 0
+        self._agents = torch.arange(n)
+        self._own_mask = torch.eye(n, dtype=torch.bool).view(n, 1, n, 1)  # [owner, 1, agent, 1]
+
+    # ------------------------------------------------------------------ policies
+    def _policy(self, net: StackedMLP, obs: torch.Tensor, sample: bool) -> tuple[torch.Tensor, torch.Tensor]:
+        """obs [N, B, obs_dim] -> (actions [N, B, act_dim], raw outputs [N, B, act_dim]).
+
+        Continuous: the tanh output is the action. Discrete: Gumbel-softmax sample of the logits (``sample``),
+        else their softmax.
+        """
+        out = net(obs)
+        if not self.discrete:
+            return out, out
+        if sample:
+            u = torch.rand(out.shape, generator=self.noise_gen).clamp_(1e-10, 1.0 - 1e-7)
+            return F.softmax((out - torch.log(-torch.log(u))) / self.temperature, dim=-1), out
+        return F.softmax(out, dim=-1), out
+
+    def _joint_actions(self, net: StackedMLP, obs: torch.Tensor, sample: bool) -> torch.Tensor:
+        """Every agent's action from its own obs: obs [..., N, obs_dim] -> act [..., N, act_dim]."""
+        lead = obs.shape[:-2]
+        x = obs.reshape(-1, self.num_agents, self.obs_dim).transpose(0, 1)  # [N, B, obs_dim]
+        a, _ = self._policy(net, x, sample)
+        return a.transpose(0, 1).reshape(*lead, self.num_agents, self.act_dim)
+
+    @torch.no_grad()
+    def act(self, obs: ArrayLike, noise_std: float = 0.1, rng: np.random.Generator | None = None) -> np.ndarray:
+        """Exploration actions: obs float32[B, N, obs_dim] -> float32[B, N, act_dim].
+
+        Continuous: clip(pi_v(o_v) + N(0, noise_std^2), -1, 1). Discrete: a Gumbel-softmax sample when
+        noise_std > 0, the softmax otherwise. Noise comes from ``rng`` (numpy) if given, else the internal
+        torch generator.
+        """
+        o = as_tensor(obs)
+        x = o.transpose(0, 1)  # [N, B, obs_dim]
+        out = self.actor(x).transpose(0, 1)  # [B, N, act_dim]
+        if self.discrete:
+            if noise_std > 0:
+                g = (
+                    torch.from_numpy(rng.gumbel(size=out.shape).astype(np.float32))
+                    if rng is not None
+                    else -torch.log(-torch.log(torch.rand(out.shape, generator=self.noise_gen).clamp_(1e-10, 1 - 1e-7)))
+                )
+                out = (out + g) / self.temperature
+            return F.softmax(out, dim=-1).numpy()
+        if noise_std > 0:
+            noise = (
+                torch.from_numpy(rng.normal(0.0, noise_std, size=out.shape).astype(np.float32))
+                if rng is not None
+                else torch.randn(out.shape, generator=self.noise_gen) * noise_std
+            )
+            out = out + noise
+        return out.clamp_(-1.0, 1.0).numpy()
+
+    # ------------------------------------------------------------------ targets
+    def _td_targets_t(
+        self, rew: torch.Tensor, next_obs: torch.Tensor, done: torch.Tensor | None, agents: torch.Tensor | None
+    ) -> torch.Tensor:
+        """y = r + gamma (1 - done) Q'_v(s', pi'(o')) with TARGET nets (no grad); see :meth:`td_targets`."""
+        ag = self._agents if agents is None else agents
+        if next_obs.dim() == 4 and next_obs.shape[0] != len(ag):
+            raise ValueError(f"per-owner next_obs has {next_obs.shape[0]} owners but {len(ag)} agents are selected")
+        with torch.no_grad():
+            a_next = self._joint_actions(self.target_actor, next_obs, sample=True)
+            x = joint_input(next_obs, a_next)
+            q = self.target_critic(x, None if agents is None else ag).squeeze(-1)
+            if next_obs.dim() == 3:  # joint rows: x [M, in] shared by the selected critics -> q [A, M]
+                r = rew.T[ag]
+                d = torch.zeros(rew.shape[0]) if done is None else done
+                return r + self.gamma * (1.0 - d).unsqueeze(0) * q
+            r = rew[torch.arange(len(ag)), :, ag] if rew.dim() == 3 else rew  # owner's own reward [A, S]
+            d = torch.zeros_like(r) if done is None else done
+            return r + self.gamma * (1.0 - d) * q
+
+    def td_targets(
+        self,
+        rew: ArrayLike,
+        next_obs: ArrayLike,
+        done: ArrayLike | None = None,
+        agents: Sequence[int] | np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Critic/teacher regression targets from the learner's target networks on the NEXT observations.
+
+        Joint rows: rew [M, N], next_obs [M, N, obs_dim], done [M] -> y float32[A, M] (row a = agent agents[a]).
+        Per-owner:  rew [A, S, N] (or the owner's own [A, S]), next_obs [A, S, N, obs_dim], done [A, S]
+                    -> y float32[A, S], owner a being agent agents[a].
+        ``agents`` defaults to all N agents. ``done`` defaults to 0 (always the case in these tasks, §2).
+        Discrete actors use a Gumbel-softmax sample of the target logits (as openai/maddpg).
+        """
+        ag = None if agents is None else torch.as_tensor(np.asarray(agents), dtype=torch.int64)
+        d = None if done is None else as_tensor(done)
+        return self._td_targets_t(as_tensor(rew), as_tensor(next_obs), d, ag).numpy()
+
+    # ------------------------------------------------------------------ update
+    def _unpack(self, batch: Mapping[str, ArrayLike]) -> tuple[torch.Tensor, ...]:
+        """Per-owner minibatch dict -> tensors (obs, act, rew, next_obs, done [N,S], weights [N,S] or None)."""
+        obs, act = as_tensor(batch["obs"]), as_tensor(batch["act"])
+        n, s = obs.shape[0], obs.shape[1]
+        if obs.dim() != 4 or n != self.num_agents or obs.shape[2] != self.num_agents:
+            raise ValueError(f"obs must be [N={self.num_agents}, S, N, obs_dim], got {tuple(obs.shape)}")
+        done = batch.get("done")
+        done = torch.zeros(n, s) if done is None else as_tensor(done)
+        w = batch.get("is_weights")
+        return (obs, act, as_tensor(batch["rew"]), as_tensor(batch["next_obs"]), done,
+                None if w is None else as_tensor(w))
+
+    def _critic_step(self, obs, act, rew, next_obs, done, w) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """One batched critic step. Returns (loss [N], delta [N, S], pre-clip grad norm [N])."""
+        y = self._td_targets_t(rew, next_obs, done, None)  # [N, S]
+        q = self.critic(joint_input(obs, act)).squeeze(-1)  # [N, S]
+        delta = y - q
+        sq = delta.pow(2)
+        loss = (sq * w).mean(1) if w is not None else sq.mean(1)  # [N]
+        self.critic_opt.zero_grad(set_to_none=True)
+        loss.sum().backward()
+        norms = clip_grad_norm_per_member_(self.critic.parameters(), self.grad_clip)
+        self.critic_opt.step()
+        return loss.detach(), delta.detach(), norms
+
+    def _actor_step(self, obs: torch.Tensor, act: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """One batched actor step (eq. 4): owner v's own action -> pi_v(o_v), others from the buffer.
+
+        Returns (loss [N], pre-clip grad norm [N]). Only actor parameters receive gradients.
+        """
+        own_obs = obs[self._agents, :, self._agents]  # [N, S, obs_dim]
+        pi, raw = self._policy(self.actor, own_obs, sample=True)  # [N, S, act_dim]
+        joint_act = torch.where(self._own_mask, pi.unsqueeze(2), act)  # [N, S, N, act_dim]
+        q = self.critic(joint_input(obs, joint_act)).squeeze(-1)  # [N, S]
+        loss = -q.mean(1)
+        if self.discrete:
+            loss = loss + self.logit_l2 * raw.pow(2).mean((1, 2))
+        params = list(self.actor.parameters())
+        self.actor_opt.zero_grad(set_to_none=True)
+        loss.sum().backward(inputs=params)
+        norms = clip_grad_norm_per_member_(params, self.grad_clip)
+        self.actor_opt.step()
+        return loss.detach(), norms
+
+    def update(self, batch: Mapping[str, ArrayLike]) -> dict[str, np.ndarray]:
+        """One MADDPG step for all agents on per-owner minibatches (§2).
+
+        batch: obs [N, S, N, obs_dim], act [N, S, N, act_dim], rew [N, S, N] (or own [N, S]),
+               next_obs [N, S, N, obs_dim], optional done [N, S], optional is_weights [N, S] (critic only).
+        Returns numpy: critic_loss [N] (pre-step, weighted), actor_loss [N], td_abs |y - Q| [N, S] (pre-step,
+        for PER), critic_grad_norm [N], actor_grad_norm [N] (pre-clip).
+        """
+        obs, act, rew, next_obs, done, w = self._unpack(batch)
+        c_loss, delta, c_norm = self._critic_step(obs, act, rew, next_obs, done, w)
+        a_loss, a_norm = self._actor_step(obs, act)
+        soft_update_(self.target_critic, self.critic, self.tau)
+        soft_update_(self.target_actor, self.actor, self.tau)
+        self.updates += 1
+        return {
+            "critic_loss": c_loss.numpy(),
+            "actor_loss": a_loss.numpy(),
+            "td_abs": delta.abs().numpy(),
+            "critic_grad_norm": c_norm.numpy(),
+            "actor_grad_norm": a_norm.numpy(),
+        }
+
+    @torch.no_grad()
+    def critic_loss(self, batch: Mapping[str, ArrayLike]) -> np.ndarray:
+        """Per-agent (weighted) critic MSE on a per-owner batch without updating anything -> float32[N]."""
+        obs, act, rew, next_obs, done, w = self._unpack(batch)
+        y = self._td_targets_t(rew, next_obs, done, None)
+        sq = (y - self.critic(joint_input(obs, act)).squeeze(-1)).pow(2)
+        return ((sq * w).mean(1) if w is not None else sq.mean(1)).numpy()
+
+    # ------------------------------------------------------------------ weights / state
+    def actor_weights(self) -> dict[str, np.ndarray]:
+        """Online actor parameters as numpy copies, e.g. {"layers.0.weight": float32[N, obs_dim, 64], ...}."""
+        return {k: v.detach().numpy().copy() for k, v in self.actor.state_dict().items()}
+
+    def load_actor_weights(self, weights: Mapping[str, ArrayLike]) -> None:
+        """Load :meth:`actor_weights` output into the ONLINE actor (rollout workers); targets untouched."""
+        own = self.actor.state_dict()
+        if set(weights) != set(own):
+            raise ValueError(f"actor weight keys {sorted(weights)} != expected {sorted(own)}")
+        new = {}
+        for k, v in weights.items():
+            t = as_tensor(v)
+            if t.shape != own[k].shape or not torch.isfinite(t).all():
+                raise ValueError(f"actor weight {k!r}: shape {tuple(t.shape)} (expected {tuple(own[k].shape)}) "
+                                 "or non-finite values")
+            new[k] = t
+        self.actor.load_state_dict(new)
+
+    def state_dict(self) -> dict:
+        """Nets, targets, optimisers, noise generator state and update counter (torch.load(weights_only=True) safe).
+
+        Layout: {"actor", "critic", "target_actor", "target_critic": module state dicts with stacked
+        tensors [N, in, out] / [N, out]; "actor_opt", "critic_opt": Adam state dicts; "noise_gen": uint8 tensor;
+        "updates": int}.
+        """
+        return {
+            "actor": self.actor.state_dict(),
+            "critic": self.critic.state_dict(),
+            "target_actor": self.target_actor.state_dict(),
+            "target_critic": self.target_critic.state_dict(),
+            "actor_opt": self.actor_opt.state_dict(),
+            "critic_opt": self.critic_opt.state_dict(),
+            "noise_gen": self.noise_gen.get_state(),
+            "updates": int(self.updates),
+        }
+
+    def load_state_dict(self, state: Mapping) -> None:
+        """Restore everything saved by :meth:`state_dict` (same architecture required)."""
+        for name in ("actor", "critic", "target_actor", "target_critic"):
+            getattr(self, name).load_state_dict(state[name])
+        self.actor_opt.load_state_dict(state["actor_opt"])
+        self.critic_opt.load_state_dict(state["critic_opt"])
+        self.noise_gen.set_state(state["noise_gen"])
+        self.updates = int(state["updates"])

@@ -1,0 +1,189 @@
+"""Stacked (ensemble) MLPs: many independent small MLPs run as one batched matmul per layer.
+
+Where it sits in the flow: the building block of ``maddpg.py`` (member = agent: actors, critics and their
+targets), ``teachers.py`` (member = (agent, fold) teacher critic) and ``icm.py`` (member = agent: encoder,
+inverse and forward models). Every parameter carries a leading *member* axis, so one optimiser and one kernel
+per layer serve all members, while members never share weights or gradients (the per-member loss terms are
+summed before ``backward``; the gradient of member m only depends on member m's loss).
+
+Shapes: a stacked layer holds ``weight float32[members, in, out]`` and ``bias float32[members, out]``.
+``StackedMLP`` maps ``[members, B, in] -> [members, B, out]``; a 2-D input ``[B, in]`` is shared by all members.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+__all__ = [
+    "StackedLinear",
+    "make_adam",
+    "StackedMLP",
+    "as_tensor",
+    "clip_grad_norm_per_member_",
+    "hard_update_",
+    "joint_input",
+    "soft_update_",
+]
+
+
+def make_adam(params: Iterable[torch.Tensor], lr: float) -> torch.optim.Adam:
+    """Adam over (stacked) parameters; the fused CPU kernel when available (~3x faster step, same algorithm).
+
+    Adam is elementwise, so one Adam over stacked [members, ...] parameters equals one Adam per member.
+    """
+    params = list(params)
+    try:
+        return torch.optim.Adam(params, lr=lr, fused=True)
+    except (RuntimeError, TypeError):  # older torch without fused CPU Adam
+        return torch.optim.Adam(params, lr=lr)
+
+
+def as_tensor(x: np.ndarray | torch.Tensor, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    """Numpy array or tensor -> CPU tensor of ``dtype`` (zero-copy for float32 numpy)."""
+    return torch.as_tensor(x, dtype=dtype)
+
+
+def joint_input(obs: torch.Tensor, act: torch.Tensor) -> torch.Tensor:
+    """Centralized-critic input: all observations then all actions, flattened.
+
+    obs float32[..., N, obs_dim], act float32[..., N, act_dim] -> float32[..., N*obs_dim + N*act_dim].
+    """
+    return torch.cat([obs.flatten(-2), act.flatten(-2)], dim=-1)
+
+
+class StackedLinear(nn.Module):
+    """``members`` independent ``nn.Linear(in_dim, out_dim)`` layers as one batched matmul.
+
+    Init matches ``nn.Linear``'s default per member: weight and bias ~ U(-1/sqrt(in_dim), 1/sqrt(in_dim))
+    (kaiming_uniform with a=sqrt(5) reduces to this bound), drawn independently for every member.
+    """
+
+    def __init__(self, members: int, in_dim: int, out_dim: int, generator: torch.Generator | None = None):
+        super().__init__()
+        self.members, self.in_dim, self.out_dim = members, in_dim, out_dim
+        bound = 1.0 / math.sqrt(in_dim) if in_dim > 0 else 0.0
+        w = torch.empty(members, in_dim, out_dim).uniform_(-bound, bound, generator=generator)
+        b = torch.empty(members, out_dim).uniform_(-bound, bound, generator=generator)
+        self.weight = nn.Parameter(w)  # [members, in, out]
+        self.bias = nn.Parameter(b)  # [members, out]
+
+    def forward(self, x: torch.Tensor, members: torch.Tensor | None = None) -> torch.Tensor:
+        """x [m, B, in] (or shared [B, in]) -> [m, B, out]; ``members`` (int64[m]) selects a subset of members."""
+        w, b = self.weight, self.bias
+        if members is not None:
+            w, b = w[members], b[members]
+        if x.dim() == 2:  # one input shared by every member
+            return torch.matmul(x, w) + b.unsqueeze(1)
+        return torch.baddbmm(b.unsqueeze(1), x, w)
+
+    def extra_repr(self) -> str:
+        return f"members={self.members}, in_dim={self.in_dim}, out_dim={self.out_dim}"
+
+
+def _make_act(act: Callable[[], nn.Module] | nn.Module | None) -> nn.Module | None:
+    """Instantiate an activation given as a module class/factory (``nn.ReLU``) or a module instance.
+
+    ``nn.ReLU`` becomes ``nn.ReLU(inplace=True)``: it only ever follows a fresh matmul output (saves an allocation).
+    """
+    if act is None or isinstance(act, nn.Module):
+        return act
+    if act is nn.ReLU:
+        return nn.ReLU(inplace=True)
+    return act()
+
+
+class StackedMLP(nn.Module):
+    """``members`` independent MLPs ``in_dim -> hidden... -> out_dim`` evaluated together.
+
+    Args:
+        members: number of independent networks (agents, or agents x folds).
+        in_dim, out_dim: input / output width.
+        hidden: hidden widths, e.g. (64, 64) (an int means one hidden layer).
+        activation: hidden activation, a module class such as ``nn.ReLU``.
+        out_act: output activation (``nn.Tanh`` for actors) or None.
+        seed / generator: source of the initial weights (a generator wins over a seed).
+    """
+
+    def __init__(
+        self,
+        members: int,
+        in_dim: int,
+        hidden: Sequence[int] | int = (64, 64),
+        out_dim: int = 1,
+        activation: Callable[[], nn.Module] | nn.Module = nn.ReLU,
+        out_act: Callable[[], nn.Module] | nn.Module | None = None,
+        seed: int | None = None,
+        generator: torch.Generator | None = None,
+    ):
+        super().__init__()
+        if generator is None and seed is not None:
+            generator = torch.Generator().manual_seed(int(seed))
+        widths = [in_dim, *([hidden] if isinstance(hidden, int) else list(hidden)), out_dim]
+        self.members, self.in_dim, self.out_dim = members, in_dim, out_dim
+        self.layers = nn.ModuleList(
+            StackedLinear(members, a, b, generator) for a, b in zip(widths[:-1], widths[1:], strict=True)
+        )
+        self.act = _make_act(activation)
+        self.out_act = _make_act(out_act)
+
+    def forward(self, x: torch.Tensor, members: torch.Tensor | None = None) -> torch.Tensor:
+        """x float32[m, B, in_dim] or shared [B, in_dim] -> float32[m, B, out_dim] (m = members or len(subset))."""
+        last = len(self.layers) - 1
+        for k, layer in enumerate(self.layers):
+            x = layer(x, members)
+            if k < last:
+                x = self.act(x)
+        return self.out_act(x) if self.out_act is not None else x
+
+    def member_module(self, m: int) -> nn.Sequential:
+        """A plain ``nn.Sequential`` copy of member ``m`` (tests and the loop baseline)."""
+        mods: list[nn.Module] = []
+        last = len(self.layers) - 1
+        for k, layer in enumerate(self.layers):
+            lin = nn.Linear(layer.in_dim, layer.out_dim)
+            with torch.no_grad():
+                lin.weight.copy_(layer.weight[m].T)
+                lin.bias.copy_(layer.bias[m])
+            mods.append(lin)
+            if k < last:
+                mods.append(type(self.act)())
+        if self.out_act is not None:
+            mods.append(type(self.out_act)())
+        return nn.Sequential(*mods)
+
+
+@torch.no_grad()
+def soft_update_(target: nn.Module, source: nn.Module, tau: float) -> None:
+    """Polyak update in place: theta' <- tau * theta + (1 - tau) * theta' for every (stacked) parameter."""
+    torch._foreach_lerp_(list(target.parameters()), list(source.parameters()), tau)
+
+
+@torch.no_grad()
+def hard_update_(target: nn.Module, source: nn.Module) -> None:
+    """Copy every parameter of ``source`` into ``target`` (same architecture)."""
+    for t, s in zip(target.parameters(), source.parameters(), strict=True):
+        t.copy_(s)
+
+
+@torch.no_grad()
+def clip_grad_norm_per_member_(params: Iterable[torch.Tensor], max_norm: float, eps: float = 1e-6) -> torch.Tensor:
+    """Clip each member's gradient L2 norm to ``max_norm`` separately (in place); returns pre-clip norms [members].
+
+    Equivalent to calling ``torch.nn.utils.clip_grad_norm_(member_m_params, max_norm)`` for every member m:
+    the norm of member m runs over slice m of every parameter's gradient, coef = min(1, max_norm/(norm+eps)).
+    Every parameter must have the member axis first; parameters without a gradient are skipped.
+    """
+    grads = [p.grad for p in params if p.grad is not None]
+    if not grads:
+        return torch.zeros(0)
+    sq = torch.stack([g.pow(2).flatten(1).sum(1) for g in grads]).sum(0)  # [members]
+    norms = sq.sqrt()
+    coef = (max_norm / (norms + eps)).clamp(max=1.0)
+    for g in grads:
+        g.mul_(coef.view(-1, *([1] * (g.dim() - 1))))
+    return norms

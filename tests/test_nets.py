@@ -1,0 +1,90 @@
+"""StackedMLP equals per-member nn.Linear stacks; per-member helpers equal their per-module torch counterparts."""
+
+import copy
+
+import torch
+from torch import nn
+
+from cmcl.nets import StackedMLP, clip_grad_norm_per_member_, hard_update_, joint_input, soft_update_
+
+torch.set_num_threads(1)
+
+
+def test_stacked_mlp_matches_loop_of_linear_layers():
+    net = StackedMLP(5, 7, (16, 12), 3, out_act=nn.Tanh, seed=1)
+    x = torch.randn(5, 9, 7, generator=torch.Generator().manual_seed(2))
+    out = net(x)
+    assert out.shape == (5, 9, 3)
+    for m in range(5):
+        seq = net.member_module(m)
+        assert isinstance(seq[0], nn.Linear) and isinstance(seq[-1], nn.Tanh)
+        torch.testing.assert_close(out[m], seq(x[m]), rtol=1e-5, atol=1e-6)
+
+
+def test_manual_linear_copy_and_shared_input_and_member_subset():
+    net = StackedMLP(3, 4, (8,), 2, seed=3)
+    lins = []
+    for m in range(3):
+        l1, l2 = nn.Linear(4, 8), nn.Linear(8, 2)
+        with torch.no_grad():
+            l1.weight.copy_(net.layers[0].weight[m].T)
+            l1.bias.copy_(net.layers[0].bias[m])
+            l2.weight.copy_(net.layers[1].weight[m].T)
+            l2.bias.copy_(net.layers[1].bias[m])
+        lins.append(nn.Sequential(l1, nn.ReLU(), l2))
+    x = torch.randn(6, 4)
+    shared = net(x)  # [3, 6, 2]
+    for m in range(3):
+        torch.testing.assert_close(shared[m], lins[m](x), rtol=1e-5, atol=1e-6)
+    sub = net(x, torch.tensor([2, 0]))
+    torch.testing.assert_close(sub, shared[[2, 0]])
+
+
+def test_init_matches_nn_linear_bounds_and_members_differ():
+    net = StackedMLP(4, 50, (64,), 1, seed=0)
+    w = net.layers[0].weight
+    assert w.abs().max() <= 1 / 50**0.5 and w.abs().max() > 0.9 / 50**0.5
+    assert not torch.equal(w[0], w[1])
+    # uniform on [-b, b] has std b / sqrt(3); pooled over all members
+    assert abs(w.std().item() - (1 / 50**0.5) / 3**0.5) < 0.01
+    same = StackedMLP(4, 50, (64,), 1, seed=0)
+    assert torch.equal(same.layers[0].weight, w)
+
+
+def test_per_member_grad_clip_equals_clip_grad_norm():
+    net = StackedMLP(4, 6, (10, 10), 2, seed=5)
+    x = torch.randn(4, 32, 6)
+    scale = torch.tensor([0.01, 1.0, 10.0, 100.0]).view(4, 1, 1)  # some members below, some above the limit
+    (net(x) * scale).pow(2).sum().backward()
+    seqs = [net.member_module(m) for m in range(4)]
+    for m, seq in enumerate(seqs):
+        (seq(x[m]) * scale[m]).pow(2).sum().backward()
+    norms = clip_grad_norm_per_member_(net.parameters(), 0.5)
+    for m, seq in enumerate(seqs):
+        ref_norm = torch.nn.utils.clip_grad_norm_(seq.parameters(), 0.5)
+        torch.testing.assert_close(norms[m], ref_norm, rtol=1e-5, atol=1e-7)
+        lin0, lin1, lin2 = seq[0], seq[2], seq[4]
+        for k, lin in enumerate((lin0, lin1, lin2)):
+            torch.testing.assert_close(net.layers[k].weight.grad[m], lin.weight.grad.T, rtol=1e-4, atol=1e-7)
+            torch.testing.assert_close(net.layers[k].bias.grad[m], lin.bias.grad, rtol=1e-4, atol=1e-7)
+    assert norms[0] < 0.5 and norms[3] > 0.5
+
+
+def test_soft_and_hard_update():
+    src = StackedMLP(2, 3, (4,), 1, seed=0)
+    tgt = StackedMLP(2, 3, (4,), 1, seed=1)
+    before = copy.deepcopy(tgt)
+    soft_update_(tgt, src, 0.01)
+    for t, b, s in zip(tgt.parameters(), before.parameters(), src.parameters(), strict=True):
+        torch.testing.assert_close(t, 0.01 * s + 0.99 * b, rtol=0, atol=1e-7)
+    hard_update_(tgt, src)
+    for t, s in zip(tgt.parameters(), src.parameters(), strict=True):
+        assert torch.equal(t, s)
+
+
+def test_joint_input_layout():
+    obs = torch.arange(2 * 3 * 2, dtype=torch.float32).view(2, 3, 2)
+    act = -torch.arange(2 * 3 * 1, dtype=torch.float32).view(2, 3, 1)
+    x = joint_input(obs, act)
+    assert x.shape == (2, 9)
+    torch.testing.assert_close(x[1], torch.cat([obs[1].flatten(), act[1].flatten()]))
