@@ -246,6 +246,10 @@ class Config:
                  f"must name exactly the teams of task {self.env.task!r}: {list(expected)}")
         ordered = {name: self.teams[name] for name in expected}
         object.__setattr__(self, "teams", ordered)
+        _require(self.maddpg.warmup <= self.replay.capacity, "maddpg.warmup", self.maddpg.warmup,
+                 f"must not exceed replay.capacity ({self.replay.capacity})")
+        _require(self.maddpg.batch_size <= max(self.maddpg.warmup, 1) or self.maddpg.warmup == 0,
+                 "maddpg.batch_size", self.maddpg.batch_size, f"must not exceed maddpg.warmup ({self.maddpg.warmup})")
 
     @property
     def total_env_steps(self) -> int:

@@ -1,0 +1,132 @@
+"""Curriculum-factor schedule λ_t (ALGORITHM.md §3.7, A10).
+
+Where it sits in the flow: whoever counts accepted environment steps (the inline loop, or the replay server
+in the service) owns one `CurriculumSchedule`, calls `advance(n)` as steps arrive and passes `lam` to
+`ReplayBuffer.recompute_priorities`. λ does not move during warm-up.
+
+    linear:          λ_t = min(λ_max, λ_0 + Δλ · t_learn)
+    multiplicative:  λ_t = min(λ_max, λ_0 · (1 + κ)^t_learn)       (CHER-style alternative)
+
+with t_learn = max(0, env_steps − warmup_steps), all counted in environment steps (transitions).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+KINDS = ("linear", "multiplicative")
+
+
+def default_stride(total_env_steps: int, lam0: float = 0.1, lam_max: float = 1.0, fraction: float = 0.5) -> float:
+    """Δλ per post-warm-up env step so that λ reaches λ_max after `fraction` of training.
+
+    (λ_max − λ_0) / (fraction · T); 0.9 / 300 000 = 3e-6 for T = 600 000 (20 000 episodes × 30 steps).
+    """
+    steps = fraction * float(total_env_steps)
+    if not steps > 0:
+        raise ValueError(f"total_env_steps * fraction must be > 0, got {total_env_steps!r} * {fraction!r}")
+    return (lam_max - lam0) / steps
+
+
+def default_growth(total_env_steps: int, lam0: float = 0.1, lam_max: float = 1.0, fraction: float = 0.5) -> float:
+    """κ of the multiplicative schedule reaching λ_max after `fraction` of training: (λ_max/λ_0)^(1/(f·T)) − 1."""
+    steps = fraction * float(total_env_steps)
+    if not steps > 0:
+        raise ValueError(f"total_env_steps * fraction must be > 0, got {total_env_steps!r} * {fraction!r}")
+    return math.expm1(math.log(lam_max / lam0) / steps)
+
+
+class CurriculumSchedule:
+    """λ as a function of environment steps; stateful counter plus a pure `value(t_learn)`.
+
+    Args:
+        lam0: initial λ_0 (0 < λ_0 <= λ_max).
+        lam_max: cap λ_max (<= 1, the largest λ for which KP is defined).
+        stride: Δλ per post-warm-up env step (linear kind), >= 0.
+        warmup_steps: env steps before λ starts to move (§5: 3840 = batch 128 × 30-step episodes).
+        kind: "linear" (default) or "multiplicative".
+        growth: κ per post-warm-up env step (multiplicative kind), >= 0. Default reaches 1.0 from 0.1 after
+            300 000 steps, like the default linear stride.
+    """
+
+    def __init__(
+        self,
+        lam0: float = 0.1,
+        lam_max: float = 1.0,
+        stride: float = 3e-6,
+        warmup_steps: int = 3840,
+        kind: str = "linear",
+        growth: float | None = None,
+    ) -> None:
+        if not (0.0 < lam_max <= 1.0):
+            raise ValueError(f"lam_max must lie in (0, 1], got {lam_max!r}")
+        if not (0.0 < lam0 <= lam_max):
+            raise ValueError(f"lam0 must lie in (0, lam_max={lam_max}], got {lam0!r}")
+        if not (math.isfinite(stride) and stride >= 0):
+            raise ValueError(f"stride must be finite and >= 0, got {stride!r}")
+        if int(warmup_steps) != warmup_steps or warmup_steps < 0:
+            raise ValueError(f"warmup_steps must be an integer >= 0, got {warmup_steps!r}")
+        if kind not in KINDS:
+            raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+        if growth is None:
+            growth = default_growth(600_000, lam0=0.1, lam_max=1.0)
+        if not (math.isfinite(growth) and growth >= 0):
+            raise ValueError(f"growth must be finite and >= 0, got {growth!r}")
+        self.lam0 = float(lam0)
+        self.lam_max = float(lam_max)
+        self.stride = float(stride)
+        self.warmup_steps = int(warmup_steps)
+        self.kind = kind
+        self.growth = float(growth)
+        self.env_steps = 0
+
+    def value(self, t_learn: int | float) -> float:
+        """λ after `t_learn` post-warm-up env steps (negative counts as 0)."""
+        t = max(0.0, float(t_learn))
+        if self.kind == "linear":
+            return min(self.lam_max, self.lam0 + self.stride * t)
+        log_ratio = t * math.log1p(self.growth)  # log space: no overflow
+        if log_ratio >= math.log(self.lam_max / self.lam0):
+            return self.lam_max
+        return min(self.lam_max, self.lam0 * math.exp(log_ratio))
+
+    @property
+    def t_learn(self) -> int:
+        """Environment steps counted after warm-up."""
+        return max(0, self.env_steps - self.warmup_steps)
+
+    @property
+    def lam(self) -> float:
+        """Current λ."""
+        return self.value(self.t_learn)
+
+    def advance(self, n_env_steps: int = 1) -> float:
+        """Count `n_env_steps` more environment steps (integer >= 0); returns the new λ."""
+        if int(n_env_steps) != n_env_steps or n_env_steps < 0:
+            raise ValueError(f"n_env_steps must be an integer >= 0, got {n_env_steps!r}")
+        self.env_steps += int(n_env_steps)
+        return self.lam
+
+    def state_dict(self) -> dict:
+        """Plain scalars: env_steps (the only state), plus lam and the settings for inspection."""
+        return {
+            "env_steps": int(self.env_steps),
+            "lam": float(self.lam),
+            "lam0": self.lam0,
+            "lam_max": self.lam_max,
+            "stride": self.stride,
+            "warmup_steps": self.warmup_steps,
+            "kind": self.kind,
+            "growth": self.growth,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore the step counter. Settings come from the constructor; a mismatch raises ValueError."""
+        steps = state.get("env_steps")
+        if not isinstance(steps, numbers.Integral) or isinstance(steps, bool) or steps < 0:
+            raise ValueError(f"env_steps must be an integer >= 0, got {steps!r}")
+        for key in ("lam0", "lam_max", "stride", "warmup_steps", "kind", "growth"):
+            if key in state and state[key] != getattr(self, key):
+                raise ValueError(f"{key} in state ({state[key]!r}) differs from this schedule ({getattr(self, key)!r})")
+        self.env_steps = int(steps)
