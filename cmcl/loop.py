@@ -1,0 +1,318 @@
+"""The synchronous CMCL training loop (Algorithm 1, ALGORITHM.md §3.8), inline in one process without Ray.
+
+Where it sits: the reference implementation and the baseline the distributed service is measured against.
+It runs the same classes the service runs (built by cmcl.system, stepped by cmcl.scoring):
+rollout of B batched worlds -> replay (scored at insertion) -> per update: teacher step, ICM step,
+rescoring every `teachers.rescore_every` env steps, priority recompute at the current λ, one MADDPG update
+of all agents, λ advanced per env step.
+
+Run:  python -m cmcl.loop --config configs/spread_cmcl.toml [--set run.episodes=40 --set run.dir=runs/smoke]
+      python -m cmcl.loop --resume runs/smoke [--set run.episodes=80]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections import deque
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from cmcl import codec
+from cmcl.config import Config, ConfigError, load_config
+from cmcl.rundir import RunDirectory, load_checkpoint
+from cmcl.scoring import Scorers, icm_fit_step, learner_step, rescore, teacher_fit_step
+from cmcl.system import (
+    agent_layout,
+    beta_is,
+    build_icm,
+    build_maddpg,
+    build_replay,
+    build_schedule,
+    build_teachers,
+    make_batched_env,
+    to_env_actions,
+)
+
+SNAPSHOT_LIMITS = codec.Limits(max_bytes=8 << 30, max_elements=2 << 30)  # a 1M-slot buffer fits
+RNG_NAMES = ("env", "noise", "teacher", "icm", "sampler")
+
+
+def replay_snapshot_path(checkpoint: Path) -> Path:
+    """The replay snapshot written beside a checkpoint file."""
+    return checkpoint.with_name(checkpoint.name.replace("ckpt_", "replay_").replace(".pt", ".msgpack"))
+
+
+class InlineLoop:
+    """Algorithm 1 over B lock-stepped worlds. Construct, then `run()`; `state_dict()` is the checkpoint."""
+
+    def __init__(self, config: Config, run_dir: RunDirectory | None = None,
+                 progress: Callable[[str], None] | None = print):
+        torch.set_num_threads(1)
+        self.config, self.run_dir, self.progress = config, run_dir, progress
+        seeds = np.random.SeedSequence(config.run.seed).spawn(len(RNG_NAMES) + 3)
+        self.rng = {name: np.random.default_rng(s) for name, s in zip(RNG_NAMES, seeds, strict=False)}
+        torch_seeds = [int(s.generate_state(1)[0]) for s in seeds[len(RNG_NAMES):]]
+        self.env = make_batched_env(config, seed=self.rng["env"], auto_reset=True)
+        self.layout = agent_layout(config, self.env)
+        self.sampler_rngs = [np.random.default_rng(s) for s in seeds[4].spawn(self.layout.num_agents)]
+        self.maddpg = build_maddpg(config, self.layout, torch_seeds[0])
+        self.replay = build_replay(config, self.layout)
+        self.scorers = Scorers(self.maddpg, build_teachers(config, self.layout, torch_seeds[1]),
+                               build_icm(config, self.layout, torch_seeds[2]), config.teachers.difficulty_error)
+        self.schedule = build_schedule(config)
+        self.prioritized = any(m in ("acl", "cmcl") for m in self.layout.modes)
+        self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "rounds": 0, "last_rescore": 0}
+        self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
+        self.last_stats: dict[str, Any] = {}
+        self.obs = self.env.reset()
+
+    # ------------------------------------------------------------------ one batched env step
+    def env_step(self) -> list[dict[str, Any]]:
+        """Act in all B worlds, store and score the B new transitions, run the updates that are due.
+
+        Returns the episode rows of worlds whose episode ended in this step.
+        """
+        cfg, b = self.config, self.env.num_envs
+        actions = self.maddpg.act(self.obs, cfg.maddpg.exploration_std, rng=self.rng["noise"])  # [B, N, act]
+        next_obs, rew, _, info = self.env.step(to_env_actions(actions, cfg.maddpg.discrete))
+        episode_ids = self.counters["rounds"] * b + np.arange(b)
+        slots = self.replay.add(self.obs, actions, rew, info["final_obs"], np.zeros(b, np.float32), episode_ids,
+                                policy_version=self.maddpg.updates)
+        written = slots[slots >= 0]
+        if written.size:  # A11: score new transitions at insertion
+            rescore(self.replay, self.scorers, self.layout, written)
+        self.obs = next_obs
+        self._run_due_updates(b)
+        rows = self._episode_rows(info) if info["episode_mask"].any() else []
+        if rows:
+            self.counters["rounds"] += 1
+        return rows
+
+    def _run_due_updates(self, new_steps: int) -> None:
+        """Advance env steps by `new_steps`; one update per `update_every` steps once warm; λ moves per step."""
+        cfg = self.config
+        before = self.counters["env_steps"]
+        self.counters["env_steps"] += new_steps
+        if self.replay.size < max(1, cfg.maddpg.warmup):
+            self.schedule.advance(new_steps)
+            return
+        due = self.counters["env_steps"] // cfg.maddpg.update_every - before // cfg.maddpg.update_every
+        advanced = 0
+        for _ in range(due):
+            self.update()
+            step = min(cfg.maddpg.update_every, new_steps - advanced)
+            self.schedule.advance(step)  # Algorithm 1: λ += Δλ after the update of this env step
+            advanced += step
+        self.schedule.advance(new_steps - advanced)
+
+    def update(self) -> dict[str, Any]:
+        """One synchronous CMCL update: teachers, ICM, rescoring if due, priorities at λ, MADDPG (§3.8)."""
+        cfg, c = self.config, self.counters
+        stats: dict[str, Any] = {}
+        teacher_loss = teacher_fit_step(self.replay, self.scorers, self.layout, cfg.teachers.batch_size,
+                                        self.rng["teacher"])
+        if teacher_loss is not None:
+            stats["teacher_loss"] = float(teacher_loss.mean())
+        icm = icm_fit_step(self.replay, self.scorers, self.layout, cfg.icm.batch_size, self.rng["icm"])
+        if icm is not None:
+            stats["icm_inverse_loss"] = float(np.mean(icm["inverse_loss"]))
+            stats["icm_forward_loss"] = float(np.mean(icm["forward_loss"]))
+        if c["env_steps"] - c["last_rescore"] >= cfg.teachers.rescore_every:
+            rescore(self.replay, self.scorers, self.layout)
+            c["last_rescore"] = c["env_steps"]
+        if self.prioritized:
+            self.replay.recompute_priorities(self.schedule.lam)
+        result = learner_step(self.replay, self.scorers, self.layout, cfg.maddpg.batch_size, self.sampler_rngs,
+                              beta_is(cfg, c["env_steps"]), cfg.icm.intrinsic_reward_coef)
+        stats["critic_loss"] = result["critic_loss"]
+        stats["actor_loss"] = result["actor_loss"]
+        c["updates"] += 1
+        self.last_stats = stats
+        return stats
+
+    # ------------------------------------------------------------------ bookkeeping
+    def _episode_rows(self, info: dict[str, Any]) -> list[dict[str, Any]]:
+        """One metrics row per finished episode (final-step coverage / success, or captures / win; returns)."""
+        ep = info["episode"]
+        returns = ep["return"]  # [M, N] unshared per-agent returns
+        rows = []
+        for m in range(returns.shape[0]):
+            self.counters["episodes"] += 1
+            row: dict[str, Any] = {"kind": "episode", "episodes": self.counters["episodes"],
+                                   "env_steps": self.counters["env_steps"], "updates": self.counters["updates"],
+                                   "lambda": self.schedule.lam,
+                                   "reward": {team: float(returns[m, idx].sum())
+                                              for team, idx in self.layout.teams.items()}}
+            for key in ("coverage", "success", "collisions", "wall_hits", "captures", "predator_win"):
+                if key in ep:
+                    row[key] = ep[key][m].item()
+            rows.append(row)
+            self.window.append(row)
+        return rows
+
+    def window_summary(self) -> dict[str, Any]:
+        """Means over the last `run.smoothing_window` episodes."""
+        out: dict[str, Any] = {}
+        if not self.window:
+            return out
+        for key in ("coverage", "success", "predator_win"):
+            if key in self.window[0]:
+                out[key] = float(np.mean([float(r[key]) for r in self.window]))
+        out["reward"] = {t: float(np.mean([r["reward"][t] for r in self.window])) for t in self.layout.teams}
+        return out
+
+    def progress_row(self, elapsed: float, rate: dict[str, float]) -> dict[str, Any]:
+        """A 'progress' metrics row: counters, λ, losses, priority statistics and window means."""
+        c = self.counters
+        row: dict[str, Any] = {"kind": "progress", **{k: c[k] for k in ("episodes", "env_steps", "updates")},
+                               "lambda": self.schedule.lam, "elapsed_s": elapsed, **rate,
+                               "replay_size": self.replay.size, "window": self.window_summary(), **self.last_stats}
+        if self.prioritized and self.replay.size:
+            details = self.replay.recompute_priorities(self.schedule.lam, details=True)
+            row["priority"] = {"agents": details["agents"], "mean": details["priority"].mean(0),
+                               "kp_zero_fraction": (details["kp"] == 0).mean(0),
+                               "c_hat_mean": details["c_hat"].mean(0), "cp_mean": details["cp"].mean(0)}
+        return row
+
+    def format_progress(self, row: dict[str, Any]) -> str:
+        """One terminal line from a progress row."""
+        w = row["window"]
+        parts = [f"ep {row['episodes']}/{self.config.run.episodes}", f"steps {row['env_steps']}",
+                 f"upd {row['updates']}"]
+        for key, label in (("coverage", "cov"), ("success", "succ"), ("predator_win", "win")):
+            if key in w:
+                parts.append(f"{label} {w[key]:.2f}")
+        parts += [f"R[{t}] {v:.1f}" for t, v in w.get("reward", {}).items()]
+        parts += [f"λ {row['lambda']:.4f}", f"{row['updates_per_s']:.0f} upd/s", f"{row['env_steps_per_s']:.0f} st/s",
+                  f"{row['elapsed_s']:.0f}s"]
+        return " | ".join(parts)
+
+    # ------------------------------------------------------------------ checkpoints
+    def state_dict(self) -> dict[str, Any]:
+        """Everything needed to continue the run except the replay contents (saved as a msgpack snapshot)."""
+        return {
+            "maddpg": self.maddpg.state_dict(),
+            "teachers": None if self.scorers.teachers is None else self.scorers.teachers.state_dict(),
+            "icm": None if self.scorers.icm is None else self.scorers.icm.state_dict(),
+            "schedule": {"env_steps": self.schedule.env_steps},
+            "counters": dict(self.counters),
+            "env": {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in self.env.get_state().items()},
+            "obs": torch.from_numpy(self.obs.copy()),
+            "rng": {name: g.bit_generator.state for name, g in self.rng.items()},
+            "sampler_rng": [g.bit_generator.state for g in self.sampler_rngs],
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore a `state_dict()`, world states included, so a resumed run continues exactly."""
+        self.maddpg.load_state_dict(state["maddpg"])
+        for name in ("teachers", "icm"):
+            model = getattr(self.scorers, name)
+            if (model is None) != (state[name] is None):
+                raise ValueError(f"checkpoint {name} presence differs from this config's")
+            if model is not None:
+                model.load_state_dict(state[name])
+        self.schedule.env_steps = int(state["schedule"]["env_steps"])
+        self.counters.update({k: int(v) for k, v in state["counters"].items()})
+        for name, g in self.rng.items():
+            g.bit_generator.state = state["rng"][name]
+        for g, s in zip(self.sampler_rngs, state["sampler_rng"], strict=True):
+            g.bit_generator.state = s
+        self.env.set_state({k: v.numpy() for k, v in state["env"].items()})
+        self.obs = state["obs"].numpy().copy()
+
+    def save_checkpoint(self) -> Path | None:
+        """Write checkpoint + replay snapshot into the run directory (both atomic)."""
+        if self.run_dir is None:
+            return None
+        path = self.run_dir.save_checkpoint(self.counters["episodes"], self.state_dict())
+        codec.write_snapshot_atomic(replay_snapshot_path(path), self.replay.state_dict())
+        return path
+
+    def restore(self, checkpoint: Path) -> None:
+        """Load a checkpoint and its replay snapshot (validated before anything changes)."""
+        state = load_checkpoint(checkpoint)
+        snapshot = codec.read_snapshot(replay_snapshot_path(checkpoint), limits=SNAPSHOT_LIMITS)
+        self.replay.load_state_dict(snapshot)
+        self.load_state_dict(state)
+
+    # ------------------------------------------------------------------ main loop
+    def run(self) -> dict[str, Any]:
+        """Train until run.episodes episodes have finished; returns the final progress row."""
+        cfg, c = self.config, self.counters
+        start, last_t = time.perf_counter(), time.perf_counter()
+        last = {"env_steps": c["env_steps"], "updates": c["updates"]}
+        next_log = (c["episodes"] // cfg.run.log_every + 1) * cfg.run.log_every
+        ce = cfg.run.checkpoint_every
+        next_ckpt = (c["episodes"] // ce + 1) * ce if ce else None
+        row: dict[str, Any] = {}
+        while c["episodes"] < cfg.run.episodes:
+            for episode_row in self.env_step():
+                if self.run_dir is not None:
+                    self.run_dir.log(episode_row)
+            done = c["episodes"] >= cfg.run.episodes
+            if c["episodes"] >= next_log or done:
+                now = time.perf_counter()
+                dt = max(now - last_t, 1e-9)
+                rate = {"env_steps_per_s": (c["env_steps"] - last["env_steps"]) / dt,
+                        "updates_per_s": (c["updates"] - last["updates"]) / dt}
+                row = self.progress_row(now - start, rate)
+                if self.run_dir is not None:
+                    self.run_dir.log(row)
+                if self.progress is not None:
+                    self.progress(self.format_progress(row))
+                last_t, last = now, {"env_steps": c["env_steps"], "updates": c["updates"]}
+                next_log = (c["episodes"] // cfg.run.log_every + 1) * cfg.run.log_every
+            if next_ckpt is not None and (c["episodes"] >= next_ckpt or done):
+                self.save_checkpoint()
+                next_ckpt = (c["episodes"] // ce + 1) * ce
+        if ce == 0:
+            self.save_checkpoint()
+        return row
+
+
+def main(argv: list[str] | None = None) -> int:
+    """CLI entry point: train, or resume, one inline run; write the learning curve at the end."""
+    parser = argparse.ArgumentParser(prog="python -m cmcl.loop", description=__doc__.split("\n")[0])
+    parser.add_argument("--config", help="TOML experiment file (default: built-in CMCL defaults)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="override one config value (repeatable)")
+    parser.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its latest checkpoint")
+    parser.add_argument("--overwrite", action="store_true", help="start over in a run.dir that holds a run")
+    parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    args = parser.parse_args(argv)
+    try:
+        if args.resume:
+            run_dir = RunDirectory.open(args.resume)
+            config = run_dir.config(tuple(args.overrides))
+        else:
+            config = load_config(args.config, args.overrides)
+            run_dir = RunDirectory.create(config.run.dir, config, overwrite=args.overwrite)
+    except (ConfigError, FileExistsError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    loop = InlineLoop(config, run_dir, progress=None if args.quiet else print)
+    if args.resume:
+        checkpoint = run_dir.latest_checkpoint()
+        if checkpoint is None:
+            print(f"error: {args.resume} holds no checkpoint to resume from", file=sys.stderr)
+            return 2
+        loop.restore(checkpoint)
+        run_dir.truncate_rows_after(loop.counters["episodes"])
+        print(f"resumed from {checkpoint} at episode {loop.counters['episodes']}")
+    loop.run()
+    from cmcl.plots import plot_learning_curves
+
+    png = plot_learning_curves([run_dir.path], run_dir.path / "learning_curve.png",
+                               window=min(config.run.smoothing_window, max(1, config.run.episodes // 10)))
+    print(f"run directory: {run_dir.path}  (learning curve: {png})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,176 @@
+"""Builds the learning system of one run from its Config: worlds, agent layout, MADDPG, replay, teachers, ICM, λ.
+
+Where it sits: the single place that maps typed config sections onto the constructors of the pure classes.
+`cmcl.loop` (inline, Algorithm 1) and the Ray service shells in `services/` both call it, so that the two
+modes run identical components with identical settings.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from cmcl.config import Config, ConfigError
+from cmcl.curriculum import CurriculumSchedule
+from cmcl.icm import ICM
+from cmcl.maddpg import MADDPG
+from cmcl.replay import ReplayBuffer
+from cmcl.teachers import TeacherEnsemble
+
+DISCRETE_ACT_DIM = 5  # MPE's discrete action: no-op, +x, -x, +y, -y
+
+
+@dataclass(frozen=True)
+class AgentLayout:
+    """Who is who: agent indices per team and what each agent's algorithm needs.
+
+    modes: replay sampler mode per agent ("maddpg" | "per" | "acl" | "cmcl"), length N.
+    teacher_agents / icm_agents: int64[A_t] / int64[A_c] indices of agents that need teacher / curiosity scores.
+    """
+
+    num_agents: int
+    obs_dim: int
+    env_act_dim: int
+    act_dim: int
+    teams: dict[str, list[int]]
+    modes: tuple[str, ...]
+    eta: tuple[float, ...]
+    importance_weights: tuple[bool, ...]
+    difficulty_source: tuple[str, ...]
+    teacher_agents: np.ndarray
+    icm_agents: np.ndarray
+
+    @property
+    def team_of(self) -> list[str]:
+        """Team name of every agent, length N."""
+        names = [""] * self.num_agents
+        for team, members in self.teams.items():
+            for agent in members:
+                names[agent] = team
+        return names
+
+
+def make_batched_env(config: Config, num_envs: int | None = None, seed: Any = None, auto_reset: bool = True):
+    """The batched numpy twin of config.env.task stepping `num_envs` (default config.env.num_envs) worlds."""
+    from cmcl.envs.batched import BatchedSparseSpread, BatchedSparseTag
+
+    env = config.env
+    b = env.num_envs if num_envs is None else num_envs
+    if env.task == "spread":
+        return BatchedSparseSpread(b, num_agents=env.num_agents, episode_length=env.episode_length,
+                                   agent_radius=env.agent_radius, shared_reward=env.shared_reward,
+                                   seed=seed, auto_reset=auto_reset)
+    return BatchedSparseTag(b, num_predators=env.num_predators, num_prey=env.num_prey,
+                            num_obstacles=env.num_obstacles, obstacle_radius=env.obstacle_radius,
+                            episode_length=env.episode_length, seed=seed, auto_reset=auto_reset)
+
+
+def make_parallel_env(config: Config, render_mode: str | None = None):
+    """The PettingZoo ParallelEnv of config.env.task (reference dynamics, rendering)."""
+    env = config.env
+    if env.task == "spread":
+        from cmcl.envs import sparse_spread_v0
+
+        return sparse_spread_v0.parallel_env(num_agents=env.num_agents, max_cycles=env.episode_length,
+                                             agent_radius=env.agent_radius, shared_reward=env.shared_reward,
+                                             render_mode=render_mode)
+    from cmcl.envs import sparse_tag_v0
+
+    return sparse_tag_v0.parallel_env(num_predators=env.num_predators, num_prey=env.num_prey,
+                                      num_obstacles=env.num_obstacles, obstacle_radius=env.obstacle_radius,
+                                      max_cycles=env.episode_length, render_mode=render_mode)
+
+
+def agent_layout(config: Config, env) -> AgentLayout:
+    """Per-agent modes and score needs from the team configs and the env's team membership."""
+    n = env.num_agents
+    modes, eta, isw, source = [""] * n, [0.0] * n, [False] * n, ["difficulty"] * n
+    teacher, icm = [], []
+    for team, members in env.teams.items():
+        spec = config.teams[team]
+        if spec.priority_sharing != "per_agent":
+            raise ConfigError(f"teams.{team}.priority_sharing={spec.priority_sharing!r} is not implemented yet; "
+                              "use 'per_agent'")
+        for agent in members:
+            modes[agent] = spec.algorithm
+            eta[agent] = spec.effective_eta
+            isw[agent] = spec.importance_weights
+            if spec.algorithm == "acl" and spec.acl_variant == "td_self":
+                source[agent] = "td_abs"
+            if spec.uses_teachers:
+                teacher.append(agent)
+            if spec.uses_icm:
+                icm.append(agent)
+    act_dim = DISCRETE_ACT_DIM if config.maddpg.discrete else env.act_dim
+    return AgentLayout(num_agents=n, obs_dim=env.obs_dim, env_act_dim=env.act_dim, act_dim=act_dim,
+                       teams={k: list(v) for k, v in env.teams.items()}, modes=tuple(modes), eta=tuple(eta),
+                       importance_weights=tuple(isw), difficulty_source=tuple(source),
+                       teacher_agents=np.asarray(sorted(teacher), dtype=np.int64),
+                       icm_agents=np.asarray(sorted(icm), dtype=np.int64))
+
+
+def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
+    """The stacked MADDPG learner of every agent."""
+    m = config.maddpg
+    return MADDPG(layout.num_agents, layout.obs_dim, layout.act_dim, hidden=m.hidden, actor_lr=m.actor_lr,
+                  critic_lr=m.critic_lr, gamma=m.gamma, tau=m.tau, grad_clip=m.grad_clip, discrete=m.discrete,
+                  seed=seed)
+
+
+def build_replay(config: Config, layout: AgentLayout) -> ReplayBuffer:
+    """Replay storage with one sampler per agent in its team's mode (IS β is passed at sample time)."""
+    r = config.replay
+    return ReplayBuffer(capacity=r.capacity, n_agents=layout.num_agents, obs_dim=layout.obs_dim,
+                        act_dim=layout.act_dim, n_folds=config.teachers.num_folds, modes=list(layout.modes),
+                        alpha=r.alpha, eps=r.priority_eps, backend=r.backend, eta=list(layout.eta),
+                        is_beta=0.0, difficulty_norm=config.teachers.difficulty_norm, cp_input=config.icm.cp_input,
+                        difficulty_source=list(layout.difficulty_source),
+                        min_size=max(1, config.maddpg.warmup), lam_max=config.curriculum.lam_max)
+
+
+def build_teachers(config: Config, layout: AgentLayout, seed: int) -> TeacherEnsemble | None:
+    """All K teachers of every teacher-using agent as one ensemble, or None when no team uses teachers."""
+    if layout.teacher_agents.size == 0:
+        return None
+    t = config.teachers
+    in_dim = layout.num_agents * (layout.obs_dim + layout.act_dim)
+    return TeacherEnsemble(int(layout.teacher_agents.size), in_dim=in_dim, num_folds=t.num_folds, hidden=t.hidden,
+                           lr=t.lr, seed=seed)
+
+
+def build_icm(config: Config, layout: AgentLayout, seed: int) -> ICM | None:
+    """Per-agent ICMs of every curiosity-using agent, or None when no team uses curiosity."""
+    if layout.icm_agents.size == 0:
+        return None
+    c = config.icm
+    return ICM(int(layout.icm_agents.size), layout.obs_dim, layout.act_dim, feature_dim=c.feature_dim,
+               hidden=c.hidden, beta_forward=c.beta_forward, lr=c.lr, discrete=config.maddpg.discrete, seed=seed)
+
+
+def build_schedule(config: Config) -> CurriculumSchedule:
+    """λ schedule; the default stride reaches λ_max at half of run.episodes × episode_length env steps."""
+    c = config.curriculum
+    stride = config.curriculum_stride()
+    growth = (c.lam_max / c.lam0) ** (1.0 / max(1, config.total_env_steps // 2)) - 1.0
+    return CurriculumSchedule(lam0=c.lam0, lam_max=c.lam_max, stride=stride, warmup_steps=config.maddpg.warmup,
+                              kind=c.kind, growth=growth)
+
+
+def to_env_actions(actions: np.ndarray, discrete: bool) -> np.ndarray:
+    """Policy output float32[B, N, act_dim] -> env force float32[B, N, 2] in [-1, 1].
+
+    Continuous actions pass through; the discrete MPE action (no-op, +x, -x, +y, -y) maps to
+    (p[+x] - p[-x], p[+y] - p[-y]) as mpe2 does for its continuous action vector.
+    """
+    if not discrete:
+        return actions
+    return np.stack([actions[..., 1] - actions[..., 2], actions[..., 3] - actions[..., 4]], axis=-1)
+
+
+def beta_is(config: Config, env_steps: int) -> float:
+    """PER importance-sampling exponent, annealed linearly from beta_is_start to beta_is_end over the run."""
+    r = config.replay
+    frac = min(1.0, env_steps / max(1, config.total_env_steps))
+    return r.beta_is_start + (r.beta_is_end - r.beta_is_start) * frac
