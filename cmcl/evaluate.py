@@ -1,0 +1,132 @@
+"""Evaluate a trained run: coverage, success, reward and win rate over n episodes; a GIF; the learning curve.
+
+Where it sits: read-only consumer of a run directory written by cmcl.loop or services.launch. Policies act
+without exploration noise in the batched twin (statistics) and in the PettingZoo env (the GIF).
+
+Run:  python -m cmcl.evaluate runs/spread_cmcl [--episodes 100] [--checkpoint PATH] [--gif out.gif]
+      python -m cmcl.evaluate runs/spread_cmcl --random      (the random-policy reference on the same worlds)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from cmcl.config import Config
+from cmcl.maddpg import MADDPG
+from cmcl.rundir import RunDirectory, load_checkpoint
+from cmcl.system import agent_layout, build_maddpg, make_batched_env, make_parallel_env, to_env_actions
+
+EVAL_SEED_OFFSET = 10_000  # evaluation worlds never reuse the training seed's worlds
+
+
+def load_policy(config: Config, checkpoint: str | Path) -> MADDPG:
+    """MADDPG with the weights of `checkpoint` (torch.load(weights_only=True))."""
+    env = make_batched_env(config, num_envs=1)
+    maddpg = build_maddpg(config, agent_layout(config, env), seed=0)
+    maddpg.load_state_dict(load_checkpoint(checkpoint)["maddpg"])
+    return maddpg
+
+
+def evaluate_policy(config: Config, maddpg: MADDPG | None, episodes: int = 100, seed: int = 0,
+                    noise_std: float = 0.0) -> dict[str, Any]:
+    """Run `episodes` episodes in parallel in the batched twin; maddpg=None acts uniformly at random.
+
+    Returns means and standard deviations over episodes: coverage (final step), success, collisions,
+    predator_win, and the team returns {team: mean}.
+    """
+    torch.set_num_threads(1)
+    rng = np.random.default_rng(seed + EVAL_SEED_OFFSET)
+    env = make_batched_env(config, num_envs=episodes, seed=rng, auto_reset=False)
+    obs = env.reset()
+    info: dict[str, Any] = {}
+    for _ in range(env.episode_length):
+        if maddpg is None:
+            actions = rng.uniform(-1.0, 1.0, size=(episodes, env.num_agents, env.act_dim)).astype(np.float32)
+        else:
+            actions = to_env_actions(maddpg.act(obs, noise_std, rng=rng), config.maddpg.discrete)
+        obs, _, _, info = env.step(actions)
+    ep = info["episode"]
+    out: dict[str, Any] = {"episodes": episodes, "policy": "random" if maddpg is None else "trained"}
+    for key in ("coverage", "success", "collisions", "wall_hits", "captures", "predator_win"):
+        if key in ep:
+            values = np.asarray(ep[key], dtype=np.float64)
+            out[key], out[f"{key}_std"] = float(values.mean()), float(values.std())
+    out["reward"] = {team: float(ep["return"][:, idx].sum(1).mean()) for team, idx in env.teams.items()}
+    return out
+
+
+def render_gif(config: Config, maddpg: MADDPG | None, path: str | Path, seed: int = 0, fps: int = 10) -> Path:
+    """One episode of the PettingZoo env with the policy (no noise; random if maddpg is None) as a GIF."""
+    from PIL import Image
+
+    env = make_parallel_env(config, render_mode="rgb_array")
+    rng = np.random.default_rng(seed + EVAL_SEED_OFFSET)
+    observations, _ = env.reset(seed=seed + EVAL_SEED_OFFSET)
+    obs_dim = max(env.observation_space(a).shape[0] for a in env.possible_agents)
+    frames = [env.render()]
+    while env.agents:
+        if maddpg is None:
+            acts = {a: env.action_space(a).sample() for a in env.agents}
+        else:
+            obs = np.zeros((1, len(env.possible_agents), obs_dim), np.float32)
+            for i, agent in enumerate(env.possible_agents):
+                obs[0, i, : observations[agent].shape[0]] = observations[agent]
+            joint = to_env_actions(maddpg.act(obs, 0.0, rng=rng), config.maddpg.discrete)[0]
+            acts = {agent: joint[i] for i, agent in enumerate(env.possible_agents)}
+        observations, *_ = env.step(acts)
+        frames.append(env.render())
+    env.close()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    images = [Image.fromarray(np.asarray(f, dtype=np.uint8)) for f in frames]
+    images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    """CLI: evaluate the latest (or a given) checkpoint of a run, write a GIF and the learning curve."""
+    parser = argparse.ArgumentParser(prog="python -m cmcl.evaluate", description=__doc__.split("\n")[0])
+    parser.add_argument("run_dir", help="a run directory written by cmcl.loop or services.launch")
+    parser.add_argument("--checkpoint", help="checkpoint file (default: the run's latest)")
+    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--random", action="store_true", help="evaluate a uniform random policy instead")
+    parser.add_argument("--gif", help="GIF path (default: <run_dir>/eval.gif)")
+    parser.add_argument("--no-gif", action="store_true")
+    args = parser.parse_args(argv)
+    if args.episodes < 1:
+        print(f"error: --episodes must be >= 1, got {args.episodes}", file=sys.stderr)
+        return 2
+    try:
+        run = RunDirectory.open(args.run_dir)
+        config = run.config()
+        checkpoint = None if args.random else Path(args.checkpoint) if args.checkpoint else run.latest_checkpoint()
+        if not args.random and (checkpoint is None or not checkpoint.is_file()):
+            raise FileNotFoundError(f"no checkpoint to evaluate in {args.run_dir} (pass --checkpoint or --random)")
+    except (FileNotFoundError, ValueError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    maddpg = None if checkpoint is None else load_policy(config, checkpoint)
+    result = evaluate_policy(config, maddpg, args.episodes, args.seed)
+    result["checkpoint"] = None if checkpoint is None else str(checkpoint)
+    print(json.dumps(result, indent=2))
+    if not args.no_gif:
+        gif = render_gif(config, maddpg, args.gif or run.path / ("eval_random.gif" if args.random else "eval.gif"),
+                         args.seed)
+        print(f"gif: {gif}")
+    from cmcl.plots import plot_learning_curves
+
+    if any(True for _ in run.rows("episode")):
+        print(f"learning curve: {plot_learning_curves([run.path], run.path / 'learning_curve.png')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
