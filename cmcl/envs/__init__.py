@@ -1,0 +1,8 @@
+"""Sparse MPE tasks (ALGORITHM.md §6): PettingZoo reference envs and batched numpy twins.
+
+Where it sits: rollout workers step the batched twins (`cmcl.envs.batched`); evaluation, rendering and
+the parity tests use the PettingZoo versions (`cmcl.envs.sparse_spread_v0`, `cmcl.envs.sparse_tag_v0`,
+built on mpe2's World). `cmcl.envs.state` copies a world state between the two; `cmcl.envs.metrics`
+holds coverage / success / predator-win. Submodules are imported on demand so that a rollout worker
+does not pay for pettingzoo and mpe2.
+"""

@@ -1,0 +1,150 @@
+"""Sparse predator-prey (ALGORITHM.md §6.2) as a PettingZoo ParallelEnv on mpe2's World.
+
+Where it sits: the reference version of the pursuit task (evaluation, rendering, parity tests);
+training rollouts use its batched twin `cmcl.envs.batched.BatchedSparseTag`.
+
+m predators ("predator_0".., radius 0.075, accel 3, max speed 1) and n prey ("prey_0".., radius 0.05,
+accel 4, max speed 2) among O immovable, collidable obstacles (radius 0.1) in the walled square
+[-0.5, 0.5]^2. Agents are ordered predators first, then prey.
+Rewards per step:
+  D1: for every (predator, prey) pair in contact (distance < r_pred + r_prey): +5 to every predator
+      and -5 to that prey; prey are not removed;
+  D2: -1 to any agent clamped at a wall this step.
+Observation of agent i (MPE layout; predators 4 + 2O + 2(N-1) + 2n, prey 2 less):
+  [vel(2), pos(2), obstacle_o - pos_i (2O), pos_j - pos_i for j != i ascending (2(N-1)),
+   vel_j for prey j != i ascending].
+Step infos per agent: wall_hit, captures (contact pairs involving this agent); at the last step also
+"episode": captures (pair-steps in contact), predator_win (captures >= 1), wall_hits (agent-steps),
+return (float64[N] returns).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from mpe2._mpe_utils.core import Agent, Landmark
+
+from cmcl.envs import metrics
+from cmcl.envs.common import TagParams, sample_tag
+from cmcl.envs.pz_base import SparseParallelEnv
+
+NAME = "sparse_tag_v0"
+
+
+class SparseTagEnv(SparseParallelEnv):
+    """The predator-prey task; construct through `parallel_env(...)`."""
+
+    metadata = {**SparseParallelEnv.metadata, "name": NAME}
+
+    def __init__(self, params: TagParams, max_cycles: int = 30, render_mode: str | None = None) -> None:
+        self.params = params.validated()
+        self.obs_dims = params.obs_dims
+        super().__init__(max_cycles, render_mode)
+
+    def _build_world(self) -> None:
+        p = self.params
+        self.world.agents = [Agent() for _ in range(p.num_agents)]
+        for i, agent in enumerate(self.world.agents):
+            predator = i < p.num_predators
+            agent.name = f"predator_{i}" if predator else f"prey_{i - p.num_predators}"
+            agent.size = p.predator_radius if predator else p.prey_radius
+            agent.accel = p.predator_accel if predator else p.prey_accel
+            agent.max_speed = p.predator_max_speed if predator else p.prey_max_speed
+            agent.color = np.array([0.85, 0.35, 0.35]) if predator else np.array([0.35, 0.85, 0.35])
+        self.world.landmarks = [Landmark() for _ in range(p.num_obstacles)]
+        for l, lm in enumerate(self.world.landmarks):
+            lm.name = f"obstacle_{l}"
+            lm.collide = True
+            lm.size = p.obstacle_radius
+            lm.color = np.array([0.25, 0.25, 0.25])
+
+    def _sample(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        agents, obstacles = sample_tag(rng, 1, self.params)
+        return agents[0], obstacles[0]
+
+    def _zero_stats(self) -> None:
+        self.stats: dict[str, Any] = {
+            "ep_return": np.zeros(self.params.num_agents),
+            "ep_wall_hits": 0,
+            "ep_captures": 0,
+            "ep_steps": 0,
+        }
+
+    def _observe_agent(self, i: int) -> np.ndarray:
+        """float64[obs_dims[i]] for agent i, mpe2's simple_tag layout."""
+        me = self.world.agents[i]
+        prey = self.world.agents[self.params.num_predators :]
+        parts = [me.state.p_vel, me.state.p_pos]
+        parts += [lm.state.p_pos - me.state.p_pos for lm in self.world.landmarks]
+        parts += [o.state.p_pos - me.state.p_pos for o in self.world.agents if o is not me]
+        parts += [o.state.p_vel for o in prey if o is not me]
+        return np.concatenate(parts)
+
+    def _score(self, wall_hit: np.ndarray) -> tuple[np.ndarray, list[dict[str, Any]]]:
+        p, agents = self.params, self.world.agents
+        m = p.num_predators
+        rewards = np.where(wall_hit, p.wall_reward, 0.0)
+        involved = np.zeros(len(agents), dtype=np.int64)
+        captures = 0
+        for q in range(m, len(agents)):
+            for k in range(m):
+                d = np.sqrt(np.sum(np.square(agents[k].state.p_pos - agents[q].state.p_pos)))
+                if d < agents[k].size + agents[q].size:
+                    captures += 1
+                    involved[k] += 1
+                    involved[q] += 1
+                    rewards[q] -= p.capture_reward
+        rewards[:m] += p.capture_reward * captures
+        s = self.stats
+        s["ep_return"] = s["ep_return"] + rewards
+        s["ep_wall_hits"] += int(wall_hit.sum())
+        s["ep_captures"] += captures
+        s["ep_steps"] += 1
+        infos = [{"wall_hit": bool(wall_hit[i]), "captures": int(involved[i])} for i in range(len(agents))]
+        return rewards, infos
+
+    def _summary(self) -> dict[str, Any]:
+        s = self.stats
+        return {
+            "captures": int(s["ep_captures"]),
+            "predator_win": bool(metrics.predator_win(np.array([s["ep_captures"]]))[0]),
+            "wall_hits": int(s["ep_wall_hits"]),
+            "return": s["ep_return"].copy(),
+        }
+
+
+def parallel_env(
+    num_predators: int = 4,
+    num_prey: int = 2,
+    num_obstacles: int = 3,
+    max_cycles: int = 30,
+    render_mode: str | None = None,
+    predator_radius: float = 0.075,
+    prey_radius: float = 0.05,
+    obstacle_radius: float = 0.1,
+    predator_accel: float = 3.0,
+    predator_max_speed: float = 1.0,
+    prey_accel: float = 4.0,
+    prey_max_speed: float = 2.0,
+    obstacle_spawn: float = 0.3,
+    capture_reward: float = 5.0,
+    wall_reward: float = -1.0,
+) -> SparseTagEnv:
+    """The sparse predator-prey task as a PettingZoo ParallelEnv (predators first, then prey)."""
+    params = TagParams(
+        num_predators=num_predators,
+        num_prey=num_prey,
+        num_obstacles=num_obstacles,
+        predator_radius=predator_radius,
+        prey_radius=prey_radius,
+        obstacle_radius=obstacle_radius,
+        predator_accel=predator_accel,
+        predator_max_speed=predator_max_speed,
+        prey_accel=prey_accel,
+        prey_max_speed=prey_max_speed,
+        obstacle_spawn=obstacle_spawn,
+        capture_reward=capture_reward,
+        wall_reward=wall_reward,
+    )
+    return SparseTagEnv(params, max_cycles=max_cycles, render_mode=render_mode)
