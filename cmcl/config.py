@@ -228,6 +228,40 @@ class RunConfig:
 
 
 @dataclass(frozen=True)
+class ServiceConfig:
+    """Distributed service (services/): actor counts, per-call work, rate-limiter slack, CPUs, metrics."""
+
+    rollout_workers: int = 1
+    updates_per_call: int = 16  # learner updates per learner call (batches sampled per replay call)
+    fit_steps_per_call: int = 8  # teacher / ICM fit steps per call
+    score_rows_per_call: int = 1024  # rows a teacher / the ICM rescores per call
+    slack_updates: int = 256  # how far updates may run ahead of / behind the env-step ratio
+    recompute_every: int = 0  # inserts between bulk priority recomputes (0: one episode of every worker)
+    checkpoint_every_s: float = 300.0  # seconds between service checkpoints (and one at the end)
+    max_restarts: int = 3  # per actor
+    rollout_cpus: float = 0.25
+    learner_cpus: float = 0.5
+    teacher_cpus: float = 0.1
+    icm_cpus: float = 0.1
+    replay_cpus: float = 0.25
+    metrics_port: int = 9100  # 0: pick a free port
+    metrics_host: str = "127.0.0.1"
+    max_seconds: float = 0.0  # wall-clock budget (0: none; run.episodes still applies)
+
+    def __post_init__(self) -> None:
+        for name in ("rollout_workers", "updates_per_call", "fit_steps_per_call", "score_rows_per_call",
+                     "slack_updates"):
+            _require(getattr(self, name) >= 1, f"service.{name}", getattr(self, name), "must be >= 1")
+        _require(self.recompute_every >= 0, "service.recompute_every", self.recompute_every, "must be >= 0")
+        _require(self.max_restarts >= 0, "service.max_restarts", self.max_restarts, "must be >= 0")
+        for name in ("rollout_cpus", "learner_cpus", "teacher_cpus", "icm_cpus", "replay_cpus"):
+            _positive(f"service.{name}", getattr(self, name))
+        _positive("service.checkpoint_every_s", self.checkpoint_every_s)
+        _require(0 <= self.metrics_port <= 65535, "service.metrics_port", self.metrics_port, "must lie in [0, 65535]")
+        _require(self.max_seconds >= 0, "service.max_seconds", self.max_seconds, "must be >= 0")
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole run: one section per component plus one TeamConfig per team of the task."""
 
@@ -238,6 +272,7 @@ class Config:
     teachers: TeacherConfig = field(default_factory=TeacherConfig)
     icm: ICMConfig = field(default_factory=ICMConfig)
     run: RunConfig = field(default_factory=RunConfig)
+    service: ServiceConfig = field(default_factory=ServiceConfig)
     teams: dict[str, TeamConfig] = field(default_factory=lambda: {"agent": TeamConfig()})
 
     def __post_init__(self) -> None:

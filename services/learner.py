@@ -1,0 +1,67 @@
+"""Learner: updates every agent's actor and critic in one batched MADDPG step per minibatch; publishes weights.
+
+Where it sits: replay -> learner -> (|δ| back to replay, weights to rollout workers / teachers). The supervisor
+keeps two update calls in flight, so the replay server samples the next batches while this one computes
+(prefetch). Weights are published once per version as {"version", "weights"} (cmcl.weights).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cmcl.system import agent_layout, build_maddpg, make_batched_env
+from cmcl.weights import published_weights
+from services.common import actor_setup, load_state, new_incarnation, save_state
+
+BATCH_KEYS = ("obs", "act", "rew", "next_obs", "done", "is_weights")
+
+
+class Learner:
+    """The MADDPG learner actor. `checkpoint_path`: where `save()` writes and `__init__` restores from."""
+
+    def __init__(self, config: Any, seed: int, checkpoint_path: str | None = None):
+        self.config = cfg = actor_setup(config)
+        self.incarnation, self.checkpoint_path = new_incarnation(), checkpoint_path
+        self.layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
+        self.maddpg = build_maddpg(cfg, self.layout, seed)
+        self.version, self.losses = 0, {}
+        state = load_state(checkpoint_path)
+        self.resumed = state is not None
+        if state is not None:
+            self.maddpg.load_state_dict(state["maddpg"])
+            self.version = int(state["version"])
+
+    def update(self, batch: dict[str, np.ndarray] | None) -> tuple[dict[str, Any] | None, dict[str, Any]]:
+        """Run one MADDPG update per minibatch of `batch` ([n, N, S, ...] arrays); None does nothing.
+
+        Returns (feedback for the replay server: slots / generations / td_abs [n, N, S], metrics report).
+        """
+        if batch is None:
+            return None, self.report()
+        use_weights = any(self.layout.importance_weights)
+        td = np.empty(batch["slots"].shape, np.float32)
+        for i in range(batch["slots"].shape[0]):
+            minibatch = {k: batch[k][i] for k in BATCH_KEYS if k != "is_weights" or use_weights}
+            stats = self.maddpg.update(minibatch)
+            td[i] = stats["td_abs"]
+        self.version += 1
+        names = [f"agent_{a}" for a in range(self.layout.num_agents)]
+        self.losses = {name: {"critic": float(stats["critic_loss"][a]), "actor": float(stats["actor_loss"][a])}
+                       for a, name in enumerate(names)}
+        return {"slots": batch["slots"], "generations": batch["generations"], "td_abs": td}, self.report()
+
+    def publish(self) -> dict[str, Any]:
+        """The current weights with their version (the supervisor puts this in the object store)."""
+        return {"version": self.version, "weights": published_weights(self.maddpg)}
+
+    def report(self) -> dict[str, Any]:
+        """Metrics report (cumulative updates, published version, last losses per agent)."""
+        return {"source": "learner", "role": "learner", "incarnation": self.incarnation, "resumed": self.resumed,
+                "learner": {"updates": int(self.maddpg.updates), "weight_version": self.version,
+                            "losses": self.losses}}
+
+    def save(self) -> str | None:
+        """Write the learner checkpoint atomically (torch.save of plain state dicts)."""
+        return save_state(self.checkpoint_path, {"maddpg": self.maddpg.state_dict(), "version": self.version})

@@ -1,0 +1,335 @@
+"""Replay server: owns the buffer, folds, score columns, λ, every sampler and the rate limiters.
+
+Where it sits: the hub of the flow. Rollout chunks come in (`insert`, idempotent by writer / incarnation / seq);
+teachers and the ICM ask for work (`teacher_work`, `icm_work`) and send scores back keyed by
+(slot, generation), stale ones dropped (`write_teacher_scores`, `write_curiosity`); the learner receives
+prioritized batches (`sample`) and returns |δ| (`learner_result`). Priorities are recomputed in bulk when λ or
+scores changed, at most every `service.recompute_every` inserts. λ advances with the env steps accepted here.
+
+Distributed deviation from §3.8 (ALGORITHM.md §3.9), measured by `cmcl_teacher_score_age_updates`: teacher k
+scores rows of the other folds asynchronously; c_j is the sum over the K−1 blind teachers of their latest
+errors, (K−1)·mean over those that have scored j so far; new rows sit at ε_p until a teacher has scored them.
+Every method returns (or ends with) a small status dict the supervisor uses to pace its calls.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cmcl import codec
+from cmcl.ratelimit import RateLimiter, limiters_from_config, slack_for
+from cmcl.system import agent_layout, beta_is, build_replay, build_schedule, make_batched_env
+from services.common import actor_setup, new_incarnation
+
+CHUNK_KEYS = ("obs", "act", "rew", "next_obs", "done", "env_index")
+REPORT_SAMPLES = 512
+
+
+class ReplayServer:
+    """The single replay actor. `snapshot_path`: where `snapshot()` writes and `__init__` restores from."""
+
+    def __init__(self, config: Any, snapshot_path: str | None = None, seed: int = 0):
+        self.config = cfg = actor_setup(config)
+        self.incarnation, self.snapshot_path = new_incarnation(), snapshot_path
+        self.layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
+        self.replay = build_replay(cfg, self.layout)
+        self.schedule = build_schedule(cfg)
+        chunk = cfg.env.num_envs * cfg.env.episode_length
+        limiters = limiters_from_config(cfg, insert_chunk=chunk)
+        self.learner_limit = RateLimiter(limiters["learner"].ratio, cfg.maddpg.warmup,
+                                         max(limiters["learner"].slack, float(cfg.service.slack_updates)))
+        k, cap = cfg.teachers.num_folds, cfg.replay.capacity
+        slack_fit = slack_for(cfg.teachers.steps_per_update, sample_chunk=cfg.service.fit_steps_per_call)
+        self.teacher_limits = ([RateLimiter(cfg.teachers.steps_per_update, 0, slack_fit + cfg.service.slack_updates)
+                                for _ in range(k)] if "teachers" in limiters else [])
+        self.icm_limit = (RateLimiter(cfg.icm.steps_per_update, 0, slack_fit + cfg.service.slack_updates)
+                          if "icm" in limiters else None)
+        a_t = len(self.layout.teacher_agents)
+        self.teacher_error = np.zeros((cap, a_t, k), np.float32)  # latest error of teacher i on row j
+        self.teacher_time = np.full((cap, k), -1, np.int64)  # learner updates when teacher i scored j (-1: never)
+        self.curiosity_time = np.full(cap, -1, np.int64)
+        self.seen: dict[str, int] = {}  # "writer:incarnation" -> last seq accepted
+        self.counters = {"inserts": 0, "samples": 0, "updates": 0, "episodes": 0, "icm_steps": 0,
+                         "icm_scores": 0, "chunks": 0}
+        self.teacher_steps, self.teacher_scores = [0] * k, [0] * k
+        self.rejected: dict[str, int] = {}
+        seeds = np.random.SeedSequence([int(seed), 7]).spawn(self.layout.num_agents + 1)
+        self.sampler_rngs = [np.random.default_rng(s) for s in seeds[:-1]]
+        self.rng = np.random.default_rng(seeds[-1])
+        self.dirty, self.inserts_at_recompute = True, -1
+        self.losses: dict[str, Any] = {}
+        self.resumed = bool(snapshot_path and os.path.exists(snapshot_path))
+        if self.resumed:
+            self.restore(snapshot_path)
+
+    # ------------------------------------------------------------------ pacing
+    def status(self) -> dict[str, Any]:
+        """How much work each role may be given now, and the counters the supervisor shows."""
+        allowed = self.learner_limit.allowed_samples() if self.replay.size >= self.replay.min_size else 0
+        for lim in [*self.teacher_limits, *([self.icm_limit] if self.icm_limit else [])]:
+            allowed = min(allowed, lim.allowed_inserts())
+        return {"allowed_updates": allowed, "allowed_inserts": self.learner_limit.allowed_inserts(),
+                "update_deficit": self.learner_limit.deficit if self.learner_limit.warmed_up else 0.0,
+                "teacher_allowed": [lim.allowed_samples() for lim in self.teacher_limits],
+                "icm_allowed": self.icm_limit.allowed_samples() if self.icm_limit else 0,
+                "size": self.replay.size, "env_steps": self.counters["inserts"],
+                "episodes": self.counters["episodes"], "updates": self.counters["updates"],
+                "lambda": self.schedule.lam, "incarnation": self.incarnation}
+
+    def _reject(self, reason: str, detail: str) -> dict[str, Any]:
+        self.rejected[reason] = self.rejected.get(reason, 0) + 1
+        return {"accepted": 0, "error": f"{reason}: {detail}", **self.status()}
+
+    # ------------------------------------------------------------------ rollout -> replay
+    def insert(self, chunk: Any) -> dict[str, Any]:
+        """Store one rollout chunk (B whole episodes); duplicates and bad chunks are refused, nothing stored."""
+        if not isinstance(chunk, dict) or any(k not in chunk for k in (*CHUNK_KEYS, "writer", "incarnation", "seq")):
+            return self._reject("bad_chunk", "not a rollout chunk dict")
+        key, seq = f"{chunk['writer']}:{chunk['incarnation']}", int(chunk["seq"])
+        if seq <= self.seen.get(key, -1):
+            return self._reject("duplicate", f"{key} seq {seq} already accepted")
+        env_index = np.asarray(chunk["env_index"], dtype=np.int64)
+        worlds = int(env_index.max()) + 1 if env_index.size else 0
+        try:
+            slots = self.replay.add(chunk["obs"], chunk["act"], chunk["rew"], chunk["next_obs"], chunk["done"],
+                                    self.counters["episodes"] + env_index, int(chunk.get("policy_version", 0)))
+        except (ValueError, TypeError) as err:
+            return self._reject("invalid", str(err))
+        written = slots[slots >= 0]
+        self.teacher_time[written] = -1
+        self.curiosity_time[written] = -1
+        n = int(env_index.size)
+        self.seen[key] = seq
+        self.counters["inserts"] += n
+        self.counters["episodes"] += worlds
+        self.counters["chunks"] += 1
+        self.learner_limit.record_insert(n)
+        self.schedule.advance(n)
+        self.dirty = True
+        return {"accepted": n, **self.status()}
+
+    # ------------------------------------------------------------------ replay -> learner
+    def _maybe_recompute(self) -> None:
+        """Bulk priority recompute when λ or scores changed, at most every `recompute_every` inserts."""
+        if not any(m in ("acl", "cmcl") for m in self.layout.modes):
+            return
+        every = self.config.service.recompute_every or self.config.env.num_envs * self.config.env.episode_length
+        due = self.counters["inserts"] - self.inserts_at_recompute >= every
+        if self.replay.lam is None or (self.dirty and due) or self.replay.lam != self.schedule.lam and due:
+            self.replay.recompute_priorities(self.schedule.lam)
+            self.dirty, self.inserts_at_recompute = False, self.counters["inserts"]
+
+    def sample(self, n: int) -> tuple[dict[str, np.ndarray] | None, dict[str, Any]]:
+        """Up to n per-owner minibatches, as many as the rate limiters allow (None if none).
+
+        batch: obs [n, N, S, N, od], act, rew [n, N, S, N], next_obs, done [n, N, S], is_weights [n, N, S],
+        slots / generations int64[n, N, S].
+        """
+        n = min(int(n), self.status()["allowed_updates"])
+        if n < 1:
+            return None, self.status()
+        self._maybe_recompute()
+        s, betas = self.config.maddpg.batch_size, beta_is(self.config, self.counters["inserts"])
+        betas = [betas if w else 0.0 for w in self.layout.importance_weights]
+        draws = [self.replay.sample_all(s, self.sampler_rngs, beta=betas) for _ in range(n)]
+        slots = np.stack([d[0] for d in draws])  # [n, N, S]
+        rows = self.replay.get(slots.reshape(-1))
+        batch = {k: rows[k].reshape(*slots.shape, *rows[k].shape[1:]) for k in ("obs", "act", "rew", "next_obs",
+                                                                               "done")}
+        batch.update(is_weights=np.stack([d[1] for d in draws]), slots=slots,
+                     generations=self.replay.generations(slots.reshape(-1)).reshape(slots.shape))
+        self.learner_limit.record_sample(n)
+        for lim in [*self.teacher_limits, *([self.icm_limit] if self.icm_limit else [])]:
+            lim.record_insert(n)
+        self.counters["updates"] += n
+        self.counters["samples"] += int(slots.size)
+        return batch, self.status()
+
+    def learner_result(self, result: dict[str, Any] | None) -> dict[str, Any]:
+        """PER / ACL-td_self feedback: |δ| for the sampled (slot, generation) pairs; stale ones are dropped."""
+        if result is None:
+            return self.status()
+        slots, gens, td = result["slots"], result["generations"], result["td_abs"]  # [n, N, S]
+        self.losses = result.get("losses", {})
+        for agent, mode in enumerate(self.layout.modes):
+            s, g, v = slots[:, agent].reshape(-1), gens[:, agent].reshape(-1), td[:, agent].reshape(-1)
+            if mode == "per":
+                accepted = self.replay.update_priorities(agent, s, v, g)
+            elif self.layout.difficulty_source[agent] == "td_abs":
+                accepted = self.replay.update_scores("td_abs", s, g, v[:, None], agents=[agent])
+                self.dirty = True
+            else:
+                continue
+            self._count_stale(s.size - accepted)
+        return self.status()
+
+    def _count_stale(self, n: int) -> None:
+        if n > 0:
+            self.rejected["stale"] = self.rejected.get("stale", 0) + int(n)
+
+    # ------------------------------------------------------------------ replay -> teachers / ICM
+    def _oldest_rows(self, candidates: np.ndarray, scored_at: np.ndarray, count: int) -> np.ndarray:
+        """Up to `count` candidate slots whose score is oldest (never scored first)."""
+        if candidates.size <= count:
+            return candidates
+        pick = np.argpartition(scored_at[candidates], count - 1)[:count]
+        return np.sort(candidates[pick])
+
+    def _work_rows(self, slots: np.ndarray) -> dict[str, np.ndarray]:
+        rows = self.replay.get(slots)
+        return {**{k: rows[k] for k in ("obs", "act", "rew", "next_obs", "done")}, "slots": slots,
+                "generations": self.replay.generations(slots)}
+
+    def teacher_work(self, fold: int, steps: int) -> tuple[dict[str, Any] | None, dict[str, Any]]:
+        """Fit batches from `fold` only ([steps, S_T] rows) and rows of the other folds to score."""
+        cfg = self.config
+        if not self.teacher_limits or self.replay.size < self.replay.min_size:
+            return None, self.status()
+        steps = min(int(steps), self.teacher_limits[fold].allowed_samples())
+        own = self.replay.fold_slots(fold)
+        if steps < 1 or own.size == 0:
+            return None, self.status()
+        fit = own[self.rng.integers(0, own.size, (steps, cfg.teachers.batch_size))]
+        valid = self.replay.valid_slots()
+        others = valid[self.replay.storage.fold[valid] != fold]
+        score = self._oldest_rows(others, self.teacher_time[:, fold], cfg.service.score_rows_per_call)
+        self.teacher_limits[fold].record_sample(steps)
+        self.teacher_steps[fold] += steps
+        rows = self.replay.get(fit.reshape(-1))
+        fit_rows = {k: rows[k].reshape(*fit.shape, *rows[k].shape[1:]) for k in ("obs", "act", "rew", "next_obs",
+                                                                                "done")}
+        fit_rows["slots"] = fit
+        return {"fold": fold, "fit": fit_rows, "score": self._work_rows(score),
+                "updates": self.counters["updates"]}, self.status()
+
+    def write_teacher_scores(self, scores: dict[str, Any] | None) -> dict[str, Any]:
+        """Teacher k's errors e[M, A_t] on rows of other folds -> c of those rows (sum over blind teachers)."""
+        if scores is None:
+            return self.status()
+        k, slots, gens = int(scores["fold"]), scores["slots"], scores["generations"]
+        fresh = self.replay.storage.fresh_mask(slots, gens)
+        self._count_stale(int((~fresh).sum()))
+        s = slots[fresh]
+        self.teacher_error[s, :, k] = scores["errors"][fresh]
+        self.teacher_time[s, k] = int(scores["updates"])
+        self.teacher_scores[k] += int(s.size)
+        self.losses[f"teacher_{k}"] = float(scores.get("loss", 0.0))
+        folds = self.replay.storage.fold[s]
+        kk = self.teacher_error.shape[2]
+        blind = (folds[:, None] != np.arange(kk)[None, :]) & (self.teacher_time[s] >= 0)  # [M, K]
+        count = blind.sum(1)
+        c = (self.teacher_error[s] * blind[:, None, :]).sum(-1) * ((kk - 1) / np.maximum(count, 1))[:, None]
+        ok = count > 0
+        self.replay.update_scores("difficulty", s[ok], gens[fresh][ok], c[ok], agents=self.layout.teacher_agents)
+        self.dirty = True
+        return self.status()
+
+    def icm_work(self, steps: int) -> tuple[dict[str, Any] | None, dict[str, Any]]:
+        """Uniform fit batches [steps, S] and the rows with the oldest curiosity score."""
+        cfg = self.config
+        if self.icm_limit is None or self.replay.size < self.replay.min_size:
+            return None, self.status()
+        steps = min(int(steps), self.icm_limit.allowed_samples())
+        if steps < 1:
+            return None, self.status()
+        valid = self.replay.valid_slots()
+        fit = valid[self.rng.integers(0, valid.size, (steps, cfg.icm.batch_size))]
+        score = self._oldest_rows(valid, self.curiosity_time, cfg.service.score_rows_per_call)
+        self.icm_limit.record_sample(steps)
+        self.counters["icm_steps"] += steps
+        rows = self.replay.get(fit.reshape(-1))
+        fit_rows = {k: rows[k].reshape(*fit.shape, *rows[k].shape[1:]) for k in ("obs", "act", "next_obs")}
+        return {"fit": fit_rows, "score": self._work_rows(score), "updates": self.counters["updates"]}, self.status()
+
+    def write_curiosity(self, scores: dict[str, Any] | None) -> dict[str, Any]:
+        """ρ[M, A_c] for (slot, generation) pairs from the ICM actor."""
+        if scores is None:
+            return self.status()
+        slots, gens = scores["slots"], scores["generations"]
+        accepted = self.replay.update_scores("curiosity", slots, gens, scores["rho"], agents=self.layout.icm_agents)
+        self._count_stale(slots.size - accepted)
+        fresh = self.replay.storage.fresh_mask(slots, gens)
+        self.curiosity_time[slots[fresh]] = int(scores["updates"])
+        self.counters["icm_scores"] += accepted
+        self.losses["icm"] = float(scores.get("loss", 0.0))
+        self.dirty = True
+        return self.status()
+
+    # ------------------------------------------------------------------ observability and state
+    def report(self) -> dict[str, Any]:
+        """Metrics report: buffer, λ, difficulty / priority distributions, score age and coverage."""
+        replay: dict[str, Any] = {"size": self.replay.size, "capacity": self.replay.capacity,
+                                  "inserts": self.counters["inserts"], "samples": self.counters["samples"],
+                                  "rejected": dict(self.rejected)}
+        size = self.replay.size
+        if size and any(m in ("acl", "cmcl") for m in self.layout.modes):
+            d = self.replay.recompute_priorities(self.schedule.lam, details=True)
+            self.dirty, self.inserts_at_recompute = False, self.counters["inserts"]
+            pick = self.rng.integers(0, size, min(size, REPORT_SAMPLES))
+            scored = d["scored"][pick]
+            replay.update(difficulty=d["c_hat"][pick][scored], priority=d["priority"][pick],
+                          kfold_priority=d["kp"][pick][scored], curiosity_priority=d["cp"][pick])
+        if self.teacher_limits and size:
+            times = self.teacher_time[:size]
+            replay["score_coverage"] = float(self.replay.storage.scored["difficulty"][:size][
+                :, self.layout.teacher_agents].all(1).mean())
+            ages = self.counters["updates"] - times[times >= 0]
+            if ages.size:
+                replay["score_age"] = ages[self.rng.integers(0, ages.size, min(ages.size, REPORT_SAMPLES))]
+        report: dict[str, Any] = {"source": "replay", "role": "replay", "incarnation": self.incarnation,
+                                  "resumed": self.resumed, "replay": replay,
+                                  "curriculum": {"lambda": self.schedule.lam}}
+        if self.teacher_limits:
+            report["teachers"] = {str(k): {"steps": self.teacher_steps[k], "scores": self.teacher_scores[k],
+                                           **({"loss": self.losses[f"teacher_{k}"]}
+                                              if f"teacher_{k}" in self.losses else {})}
+                                  for k in range(len(self.teacher_limits))}
+        if self.icm_limit is not None:
+            report["icm"] = {"steps": self.counters["icm_steps"], "scores": self.counters["icm_scores"],
+                             **({"loss": self.losses["icm"]} if "icm" in self.losses else {})}
+        return report
+
+    def state_dict(self) -> dict[str, Any]:
+        """Codec-ready state: the buffer, score tables, dedupe table, counters, limiters and λ's step count."""
+        return {"replay": self.replay.state_dict(), "teacher_error": self.teacher_error,
+                "teacher_time": self.teacher_time, "curiosity_time": self.curiosity_time,
+                "seen": dict(self.seen), "counters": dict(self.counters), "rejected": dict(self.rejected),
+                "teacher_steps": list(self.teacher_steps), "teacher_scores": list(self.teacher_scores),
+                "learner_limit": self.learner_limit.state_dict(),
+                "teacher_limits": [lim.state_dict() for lim in self.teacher_limits],
+                "icm_limit": self.icm_limit.state_dict() if self.icm_limit else {},
+                "schedule_env_steps": self.schedule.env_steps}
+
+    def snapshot(self, path: str | None = None) -> int:
+        """Write the state atomically (msgpack, no pickle) to `path` or the snapshot path; returns bytes."""
+        target = path or self.snapshot_path
+        if target is None:
+            raise ValueError("snapshot needs a path: none given and no snapshot_path configured")
+        Path(target).parent.mkdir(parents=True, exist_ok=True)
+        return codec.write_snapshot_atomic(target, self.state_dict())
+
+    def restore(self, path: str) -> None:
+        """Load a snapshot written by `snapshot` (validated by the codec and the buffer before use)."""
+        state = codec.read_snapshot(path, limits=codec.Limits(max_bytes=8 << 30, max_elements=2 << 30))
+        self.replay.load_state_dict(state["replay"])
+        for name in ("teacher_error", "teacher_time", "curiosity_time"):
+            value = np.asarray(state[name])
+            if value.shape != getattr(self, name).shape:
+                raise ValueError(f"snapshot {name} has shape {value.shape}, expected {getattr(self, name).shape}")
+            setattr(self, name, value.astype(getattr(self, name).dtype))
+        self.seen = {str(k): int(v) for k, v in state["seen"].items()}
+        self.counters.update({k: int(v) for k, v in state["counters"].items()})
+        self.rejected = {str(k): int(v) for k, v in state["rejected"].items()}
+        self.teacher_steps = [int(v) for v in state["teacher_steps"]]
+        self.teacher_scores = [int(v) for v in state["teacher_scores"]]
+        self.learner_limit.load_state_dict(state["learner_limit"])
+        for lim, s in zip(self.teacher_limits, state["teacher_limits"], strict=True):
+            lim.load_state_dict(s)
+        if self.icm_limit is not None:
+            self.icm_limit.load_state_dict(state["icm_limit"])
+        self.schedule.env_steps = int(state["schedule_env_steps"])
+        self.dirty = True

@@ -1,0 +1,82 @@
+"""Rollout worker: steps B batched worlds with the current policy and returns transition chunks.
+
+Where it sits: first in the flow (rollout -> replay -> learner). The supervisor calls `rollout(weights,
+version)`; the chunk goes, as an object ref owned by the supervisor, straight to the replay server. One call
+is one whole episode in each of the B lock-stepped worlds (episode_length steps), so a chunk holds
+B complete episodes and the replay server can give each a global episode id (and hence a fold).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cmcl.system import agent_layout, build_maddpg, make_batched_env, to_env_actions
+from cmcl.weights import load_published
+from services.common import actor_setup, new_incarnation
+
+
+class RolloutWorker:
+    """One worker: B worlds of the configured task and a copy of the online actors."""
+
+    def __init__(self, config: Any, worker_id: int, seed: int):
+        self.config = actor_setup(config)
+        self.worker_id, self.incarnation = int(worker_id), new_incarnation()
+        # a restarted worker must not replay its predecessor's worlds: mix the incarnation into the seed
+        entropy = [int(seed), int(worker_id), int(self.incarnation, 16)]
+        env_seed, noise_seed, net_seed = np.random.SeedSequence(entropy).spawn(3)
+        self.env = make_batched_env(self.config, seed=np.random.default_rng(env_seed), auto_reset=True)
+        self.layout = agent_layout(self.config, self.env)
+        self.policy = build_maddpg(self.config, self.layout, int(net_seed.generate_state(1)[0]))
+        self.rng = np.random.default_rng(noise_seed)
+        self.version, self.seq = -1, 0
+        self.env_steps, self.episodes = 0, 0
+        self.obs = self.env.reset()
+
+    def rollout(self, published: dict | None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Run one episode in every world with the published policy {"version", "weights"} (+ exploration noise).
+
+        Returns (chunk, report): chunk arrays obs [T*B, N, od], act, rew [T*B, N], next_obs, done [T*B],
+        env_index int64[T*B] (world 0..B-1 of this worker) plus writer / incarnation / seq / policy_version;
+        report is a metrics report (cumulative env steps and episodes, finished-episode statistics).
+        """
+        if published is not None and published["version"] != self.version:
+            load_published(self.policy, published["weights"], parts=("actor",))
+            self.version = int(published["version"])
+        cfg, b, t_len = self.config, self.env.num_envs, self.env.episode_length
+        obs, act, rew, nxt = [], [], [], []
+        info: dict[str, Any] = {}
+        for _ in range(t_len):
+            a = self.policy.act(self.obs, cfg.maddpg.exploration_std, rng=self.rng)
+            next_obs, r, _, info = self.env.step(to_env_actions(a, cfg.maddpg.discrete))
+            obs.append(self.obs)
+            act.append(a)
+            rew.append(r)
+            nxt.append(info["final_obs"])
+            self.obs = next_obs
+        if not info["episode_mask"].all():
+            raise RuntimeError("worlds are expected to end their episodes together (lock-step reset)")
+        self.env_steps += t_len * b
+        self.episodes += b
+        chunk = {"obs": np.concatenate(obs), "act": np.concatenate(act), "rew": np.concatenate(rew),
+                 "next_obs": np.concatenate(nxt), "done": np.zeros(t_len * b, np.float32),
+                 "env_index": np.tile(np.arange(b, dtype=np.int64), t_len),
+                 "writer": self.worker_id, "incarnation": self.incarnation, "seq": self.seq,
+                 "policy_version": max(self.version, 0)}
+        self.seq += 1
+        return chunk, self._report(info["episode"])
+
+    def _report(self, episode: dict[str, np.ndarray]) -> dict[str, Any]:
+        """Metrics report of this call (see services.metrics for the schema)."""
+        teams = self.env.teams
+        finished: dict[str, Any] = {"reward": {t: episode["return"][:, idx].sum(1) for t, idx in teams.items()}}
+        if "coverage" in episode:
+            finished["coverage"] = episode["coverage"]
+            finished["success"] = episode["success"].astype(np.float64)
+        if "predator_win" in episode:
+            win = episode["predator_win"].astype(np.float64)
+            finished["win"] = {"predator": win, "prey": 1.0 - win}
+        return {"source": f"rollout-{self.worker_id}", "role": "rollout", "incarnation": self.incarnation,
+                "weight_version": max(self.version, 0),
+                "rollout": {"env_steps": self.env_steps, "episodes": self.episodes, "finished": finished}}

@@ -1,0 +1,326 @@
+"""Supervisor: creates every role as a Ray actor and keeps a bounded number of calls in flight to each.
+
+Where it sits: the only process that talks to every actor. It never pulls transition data: chunks, batches,
+work and scores travel between actors as object refs owned by this process (so they survive the death of the
+actor that produced them); it `ray.get`s only small status dicts and metrics reports. Data flows one way:
+rollout -> replay -> learner, teachers / ICM read the replay and write scores back, weights go out once per
+version. Pacing comes from the replay server's rate limiters, reported in every reply.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import ray
+
+from cmcl.config import Config
+from cmcl.rundir import RunDirectory, atomic_write_bytes
+from services.curiosity import CuriosityWorker
+from services.learner import Learner
+from services.metrics import ServiceMetrics
+from services.replay_server import ReplayServer
+from services.rollout import RolloutWorker
+from services.teacher import TeacherWorker
+
+LEARNER_CALLS_IN_FLIGHT = 2  # one computing, one prefetched
+REPORT_EVERY_S = 2.0
+
+
+class InfeasibleResources(RuntimeError):
+    """The roles ask for more CPUs than the cluster has."""
+
+
+def required_cpus(config: Config) -> float:
+    """CPUs the roles of `config` request in total."""
+    s, teams = config.service, config.teams.values()
+    total = s.rollout_workers * s.rollout_cpus + s.learner_cpus + s.replay_cpus
+    if any(t.uses_teachers for t in teams):
+        total += config.teachers.num_folds * s.teacher_cpus
+    if any(t.uses_icm for t in teams):
+        total += s.icm_cpus
+    return total
+
+
+def service_paths(run_dir: RunDirectory) -> dict[str, Path]:
+    """Where each role keeps its latest checkpoint inside the run directory."""
+    base = run_dir.checkpoints / "service"
+    base.mkdir(parents=True, exist_ok=True)
+    return {"learner": base / "learner.pt", "icm": base / "icm.pt", "replay": base / "replay.msgpack",
+            "supervisor": base / "supervisor.json", "teacher": base}
+
+
+@dataclass
+class Roles:
+    """Handles of every actor, plus how to make a replacement for a rollout worker."""
+
+    replay: Any
+    learner: Any
+    rollout: list[Any]
+    teachers: list[Any]
+    icm: Any | None
+    make_rollout: Callable[[int], Any] = field(repr=False, default=None)
+
+
+def create_roles(config: Config, run_dir: RunDirectory) -> Roles:
+    """Start every role as a restartable Ray actor with fractional CPUs (after a feasibility check)."""
+    available = ray.cluster_resources().get("CPU", 0.0)
+    need = required_cpus(config)
+    if need > available + 1e-9:
+        raise InfeasibleResources(f"the roles request {need:.2f} CPUs (service.*_cpus) but the cluster has "
+                                  f"{available:g}; lower service.rollout_workers or the per-role CPU requests")
+    s, seed, paths, cfg = config.service, config.run.seed, service_paths(run_dir), config.to_dict()
+
+    def actor(cls: type, cpus: float):
+        return ray.remote(num_cpus=cpus, max_restarts=s.max_restarts, max_task_retries=0)(cls)
+
+    def make_rollout(w: int):
+        return actor(RolloutWorker, s.rollout_cpus).remote(cfg, w, seed * 1000 + w)
+
+    teams = config.teams.values()
+    teachers = []
+    if any(t.uses_teachers for t in teams):
+        teachers = [actor(TeacherWorker, s.teacher_cpus).remote(
+            cfg, k, seed * 1000 + 100 + k, str(paths["teacher"] / f"teacher_{k}.pt"))
+            for k in range(config.teachers.num_folds)]
+    icm = None
+    if any(t.uses_icm for t in teams):
+        icm = actor(CuriosityWorker, s.icm_cpus).remote(cfg, seed * 1000 + 200, str(paths["icm"]))
+    return Roles(replay=actor(ReplayServer, s.replay_cpus).remote(cfg, str(paths["replay"]), seed),
+                 learner=actor(Learner, s.learner_cpus).remote(cfg, seed, str(paths["learner"])),
+                 rollout=[make_rollout(w) for w in range(s.rollout_workers)], teachers=teachers, icm=icm,
+                 make_rollout=make_rollout)
+
+
+class Supervisor:
+    """The pacing loop. `run()` trains until run.episodes episodes are stored (or service.max_seconds)."""
+
+    def __init__(self, config: Config, run_dir: RunDirectory, roles: Roles, metrics: ServiceMetrics,
+                 progress: Callable[[str], None] | None = print):
+        self.config, self.run_dir, self.roles, self.metrics, self.progress = config, run_dir, roles, metrics, progress
+        self.paths = service_paths(run_dir)
+        self.pending: dict[Any, tuple[str, int]] = {}
+        self.busy: set[tuple[str, int]] = set()
+        self.learner_calls = 0
+        self.status: dict[str, Any] = ray.get(roles.replay.status.remote())
+        self.weights = roles.learner.publish.remote()
+        self.version = -1
+        self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
+        self.failures: dict[str, int] = {}
+        self.lags: dict[str, int] = {}  # weight versions each rollout worker / teacher is behind
+        self.episodes_logged = 0
+        self.last_replay_report: dict[str, Any] = {}
+        self.started = time.perf_counter()
+        self.rate_mark = (self.started, self.status["env_steps"], self.status["updates"])
+        self.rates = {"env_steps_per_s": 0.0, "updates_per_s": 0.0}
+
+    # ------------------------------------------------------------------ issuing work
+    def _track(self, ref: Any, kind: str, index: int = 0) -> None:
+        self.pending[ref] = (kind, index)
+
+    def _issue(self, rollouts: bool = True) -> None:
+        """Hand out every piece of work the limiters allow, keeping calls in flight bounded per actor."""
+        st, r = self.status, self.roles
+        chunk = self.config.env.num_envs * self.config.env.episode_length
+        for w, worker in enumerate(r.rollout):
+            if not rollouts:
+                break
+            if ("rollout", w) not in self.busy and st["allowed_inserts"] >= chunk * (1 + self._busy_count("rollout")):
+                chunk_ref, report = worker.rollout.options(num_returns=2).remote(self.weights)
+                self._track(report, "rollout_report", w)
+                self._track(r.replay.insert.remote(chunk_ref), "rollout", w)
+                self.busy.add(("rollout", w))
+        while self.learner_calls < LEARNER_CALLS_IN_FLIGHT and st["allowed_updates"] > 0:
+            batch, _ = r.replay.sample.options(num_returns=2).remote(self.config.service.updates_per_call)
+            feedback, report = r.learner.update.options(num_returns=2).remote(batch)
+            self._track(report, "learner_report")
+            self._track(r.replay.learner_result.remote(feedback), "learner")
+            self.learner_calls += 1
+            st = {**st, "allowed_updates": st["allowed_updates"] - self.config.service.updates_per_call}
+        steps = self.config.service.fit_steps_per_call
+        ready = st["size"] >= max(1, self.config.maddpg.warmup)
+        for k, teacher in enumerate(r.teachers):
+            if ready and ("teacher", k) not in self.busy and st["teacher_allowed"][k] > 0:
+                work, _ = r.replay.teacher_work.options(num_returns=2).remote(k, steps)
+                scores, report = teacher.step.options(num_returns=2).remote(work, self.weights)
+                self._track(report, "teacher_report", k)
+                self._track(r.replay.write_teacher_scores.remote(scores), "teacher", k)
+                self.busy.add(("teacher", k))
+        if r.icm is not None and ready and ("icm", 0) not in self.busy and st["icm_allowed"] > 0:
+            work, _ = r.replay.icm_work.options(num_returns=2).remote(steps)
+            scores, report = r.icm.step.options(num_returns=2).remote(work)
+            self._track(report, "icm_report")
+            self._track(r.replay.write_curiosity.remote(scores), "icm")
+            self.busy.add(("icm", 0))
+
+    def _busy_count(self, kind: str) -> int:
+        return sum(1 for b in self.busy if b[0] == kind)
+
+    # ------------------------------------------------------------------ replies
+    def _collect(self, timeout: float) -> None:
+        """Wait for at least one reply (up to `timeout` s) and apply every reply that is ready."""
+        if not self.pending:
+            return
+        ready, rest = ray.wait(list(self.pending), num_returns=1, timeout=timeout)
+        if ready and rest:  # take everything else that is already done, without waiting
+            more, _ = ray.wait(rest, num_returns=len(rest), timeout=0)
+            ready += more
+        for ref in ready:
+            kind, index = self.pending.pop(ref)
+            try:
+                value = ray.get(ref)
+            except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError,
+                    ray.exceptions.ObjectLostError) as err:
+                self._failed(kind, index, err)
+                continue
+            self._apply(kind, index, value)
+
+    def _apply(self, kind: str, index: int, value: Any) -> None:
+        if kind in ("rollout", "learner", "teacher", "icm"):
+            self.status = value
+            if value.get("error"):
+                self.failures[value["error"].split(":")[0]] = self.failures.get(value["error"].split(":")[0], 0) + 1
+            if kind == "learner":
+                self.learner_calls -= 1
+            else:
+                self.busy.discard((kind, index))
+        elif kind.endswith("_report"):
+            self.metrics.try_apply(value)
+            if "weight_version" in value:
+                self.lags[value["source"]] = max(0, self.version - int(value["weight_version"]))
+            if kind == "learner_report" and value["learner"]["weight_version"] != self.version:
+                self.version = value["learner"]["weight_version"]
+                self.weights = self.roles.learner.publish.remote()
+            if kind == "rollout_report":
+                self._log_episodes(value)
+        elif kind == "replay_report":
+            self.last_replay_report = value
+            self.metrics.try_apply(value)
+
+    def _failed(self, kind: str, index: int, err: Exception) -> None:
+        """A call failed because an actor died: free its slot (Ray restarts the actor) or replace the worker."""
+        role = kind.replace("_report", "")
+        self.failures[role] = self.failures.get(role, 0) + 1
+        if kind == "learner":
+            self.learner_calls -= 1
+        elif kind in ("rollout", "teacher", "icm"):
+            self.busy.discard((kind, index))
+        if kind == "rollout_report" and isinstance(err, ray.exceptions.ActorDiedError) and not _restartable(err):
+            self.roles.rollout[index] = self.roles.make_rollout(index)  # out of restarts: a fresh worker
+
+    def _log_episodes(self, report: dict[str, Any]) -> None:
+        """Append one 'episode' row per finished episode of a rollout report to metrics.jsonl."""
+        finished = report["rollout"]["finished"]
+        rewards = finished["reward"]
+        count = len(next(iter(rewards.values())))
+        for m in range(count):
+            self.episodes_logged += 1
+            row: dict[str, Any] = {"kind": "episode", "episodes": self.episodes_logged,
+                                   "worker": report["source"], "weight_version": report.get("weight_version", 0),
+                                   "reward": {t: float(v[m]) for t, v in rewards.items()}}
+            for key in ("coverage", "success"):
+                if key in finished:
+                    row[key] = float(finished[key][m])
+            if "win" in finished:
+                row["predator_win"] = float(finished["win"]["predator"][m])
+            self.window.append(row)
+            self.run_dir.log(row)
+
+    # ------------------------------------------------------------------ progress, checkpoints
+    def progress_line(self) -> str:
+        """One terminal line: env steps, episodes, coverage / win, reward, λ, rates, buffer, score age, lag."""
+        st, w = self.status, self.window
+        parts = [f"ep {st['episodes']}/{self.config.run.episodes}", f"steps {st['env_steps']}",
+                 f"upd {st['updates']}", f"buf {st['size']}"]
+        if w:
+            for key, label in (("coverage", "cov"), ("predator_win", "win")):
+                if key in w[0]:
+                    parts.append(f"{label} {np.mean([r[key] for r in w]):.2f}")
+            for team in w[0]["reward"]:
+                parts.append(f"R[{team}] {np.mean([r['reward'][team] for r in w]):.1f}")
+        parts += [f"λ {st['lambda']:.4f}", f"{self.rates['updates_per_s']:.0f} upd/s",
+                  f"{self.rates['env_steps_per_s']:.0f} st/s"]
+        ages = self.last_replay_report.get("replay", {}).get("score_age")
+        if ages is not None and len(ages):
+            parts.append(f"score age {float(np.median(ages)):.0f} upd")
+        if self.lags:
+            parts.append("lag " + ",".join(f"{k}:{v}" for k, v in sorted(self.lags.items())))
+        parts.append(f"{time.perf_counter() - self.started:.0f}s")
+        return " | ".join(parts)
+
+    def _refresh_rates(self) -> None:
+        now, st = time.perf_counter(), self.status
+        t0, s0, u0 = self.rate_mark
+        if now - t0 > 0.5:
+            self.rates = {"env_steps_per_s": (st["env_steps"] - s0) / (now - t0),
+                          "updates_per_s": (st["updates"] - u0) / (now - t0)}
+            self.rate_mark = (now, st["env_steps"], st["updates"])
+
+    def drain(self) -> None:
+        """Wait for every call in flight (a consistent cut for checkpoints and the end)."""
+        while self.pending:
+            self._collect(timeout=5.0)
+
+    def checkpoint(self) -> None:
+        """Drain, then have every role save its own state atomically; then the supervisor's counters."""
+        self.drain()
+        r = self.roles
+        saves = [r.learner.save.remote(), r.replay.snapshot.remote()]
+        saves += [t.save.remote() for t in r.teachers] + ([r.icm.save.remote()] if r.icm is not None else [])
+        ray.get(saves)
+        summary = {"episodes_logged": self.episodes_logged, "status": self.status, "time": time.time()}
+        atomic_write_bytes(self.paths["supervisor"], json.dumps(summary).encode())
+
+    def restore_counters(self) -> None:
+        """On resume: continue the episode numbering of metrics.jsonl from the last checkpoint."""
+        path = self.paths["supervisor"]
+        if path.exists():
+            self.episodes_logged = int(json.loads(path.read_text())["episodes_logged"])
+            self.run_dir.truncate_rows_after(self.episodes_logged)
+
+    def run(self) -> dict[str, Any]:
+        """Train until the episode target (or the time budget) is reached; checkpoint periodically and at the end."""
+        cfg = self.config
+        last_report = last_ckpt = time.perf_counter()
+        report_ref = None
+        while True:
+            if cfg.service.max_seconds and time.perf_counter() - self.started > cfg.service.max_seconds:
+                break
+            collecting = self.status["episodes"] < cfg.run.episodes
+            if not collecting and self.status["update_deficit"] < 1 and self.learner_calls == 0:
+                break  # episode target reached and the learner has caught up with the update ratio
+            self._issue(rollouts=collecting)
+            self._collect(timeout=0.5)
+            now = time.perf_counter()
+            if now - last_report >= REPORT_EVERY_S and report_ref is None:
+                report_ref = self.roles.replay.report.remote()
+                self._track(report_ref, "replay_report")
+            if report_ref is not None and report_ref not in self.pending:
+                report_ref, last_report = None, now
+                self._refresh_rates()
+                self.metrics.update_rates()
+                if self.progress is not None:
+                    self.progress(self.progress_line())
+                self.run_dir.log({"kind": "progress", **{k: self.status[k] for k in
+                                                         ("episodes", "env_steps", "updates", "size", "lambda")},
+                                  **self.rates, "elapsed_s": now - self.started})
+            if now - last_ckpt >= cfg.service.checkpoint_every_s:
+                self.checkpoint()
+                last_ckpt = time.perf_counter()
+        self.checkpoint()
+        self._refresh_rates()
+        if self.progress is not None:
+            self.progress(self.progress_line())
+        return {**self.status, **self.rates, "failures": dict(self.failures), "elapsed_s":
+                time.perf_counter() - self.started}
+
+
+def _restartable(err: Exception) -> bool:
+    """Whether Ray will restart the actor behind `err` (it says so in the error's message)."""
+    return "restart" in str(err).lower() and "will not be restarted" not in str(err).lower()

@@ -1,0 +1,81 @@
+"""Teacher trainer k: fits the fold-k critics of every teacher-using agent and scores the other folds.
+
+Where it sits: replay -> teacher -> scores back to replay (ALGORITHM.md §3.2, distributed as in §3.9). Teacher k
+never sees rows outside fold k when fitting, and only scores rows outside fold k. Regression targets come from
+the learner's published target actor and target critic (never from a teacher). One fit batch per step is shared
+by all of this fold's agents (the `idx[1, K, S]` form of cmcl.teachers.make_fit_batch).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+
+from cmcl.nets import joint_input
+from cmcl.system import agent_layout, build_maddpg, make_batched_env
+from cmcl.teachers import TeacherEnsemble
+from cmcl.weights import load_published
+from services.common import actor_setup, load_state, new_incarnation, save_state
+
+
+class TeacherWorker:
+    """The A_t fold-k teacher critics as one stacked ensemble (K = 1 member per agent here)."""
+
+    def __init__(self, config: Any, fold: int, seed: int, checkpoint_path: str | None = None):
+        self.config = cfg = actor_setup(config)
+        self.fold, self.incarnation, self.checkpoint_path = int(fold), new_incarnation(), checkpoint_path
+        self.layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
+        in_dim = self.layout.num_agents * (self.layout.obs_dim + self.layout.act_dim)
+        self.teachers = TeacherEnsemble(len(self.layout.teacher_agents), in_dim=in_dim, num_folds=1,
+                                        hidden=cfg.teachers.hidden, lr=cfg.teachers.lr, seed=seed)
+        self.targets = build_maddpg(cfg, self.layout, seed)  # only its target nets are used
+        self.version, self.steps, self.scores, self.loss = -1, 0, 0, None
+        state = load_state(checkpoint_path)
+        self.resumed = state is not None
+        if state is not None:
+            self.teachers.load_state_dict(state["teachers"])
+            self.steps, self.scores = int(state["steps"]), int(state["scores"])
+
+    def _targets(self, rows: dict[str, np.ndarray]) -> torch.Tensor:
+        """y [A_t, M] from the learner's target nets on joint rows (rew [M, N], next_obs [M, N, od])."""
+        y = self.targets.td_targets(rows["rew"], rows["next_obs"], rows.get("done"), agents=self.layout.teacher_agents)
+        return torch.as_tensor(y)
+
+    def step(self, work: dict[str, Any] | None, published: dict[str, Any] | None
+             ) -> tuple[dict[str, Any] | None, dict[str, Any]]:
+        """Fit on work["fit"] ([steps, S, ...] rows of fold k), then score work["score"] rows.
+
+        Returns (scores {fold, slots, generations, errors float32[M, A_t], updates, loss}, metrics report).
+        """
+        if work is None or published is None:
+            return None, self.report()
+        if published["version"] != self.version:
+            load_published(self.targets, published["weights"], parts=("target_actor", "target_critic"))
+            self.version = int(published["version"])
+        fit, a_t = work["fit"], len(self.layout.teacher_agents)
+        for i in range(fit["obs"].shape[0]):
+            rows = {k: fit[k][i] for k in ("obs", "act", "rew", "next_obs", "done")}
+            x = joint_input(torch.as_tensor(rows["obs"]), torch.as_tensor(rows["act"]))  # [S, in]
+            y = self._targets(rows)  # [A_t, S]
+            loss = self.teachers.fit_step(x.expand(a_t, 1, -1, -1), y.unsqueeze(1))
+            self.loss = float(loss.mean())
+        self.steps += fit["obs"].shape[0]
+        score = work["score"]
+        x = joint_input(torch.as_tensor(score["obs"]), torch.as_tensor(score["act"]))
+        squared = self.config.teachers.difficulty_error == "squared"
+        errors = self.teachers.errors(x, self._targets(score), squared=squared)[..., 0].T.copy()  # [M, A_t]
+        self.scores += int(errors.shape[0])
+        return {"fold": self.fold, "slots": score["slots"], "generations": score["generations"], "errors": errors,
+                "updates": work["updates"], "loss": self.loss if self.loss is not None else 0.0}, self.report()
+
+    def report(self) -> dict[str, Any]:
+        """Metrics report of this teacher (its weight version; steps / scores are reported by the replay)."""
+        return {"source": f"teacher-{self.fold}", "role": "teacher", "incarnation": self.incarnation,
+                "resumed": self.resumed, "weight_version": max(self.version, 0)}
+
+    def save(self) -> str | None:
+        """Write this teacher's checkpoint atomically."""
+        return save_state(self.checkpoint_path, {"teachers": self.teachers.state_dict(), "steps": self.steps,
+                                                 "scores": self.scores})

@@ -1,0 +1,129 @@
+"""The service classes run in-process without Ray, in the order the supervisor chains them."""
+
+import numpy as np
+import pytest
+
+from cmcl.config import config_from_dict, preset
+from services.curiosity import CuriosityWorker
+from services.learner import Learner
+from services.replay_server import ReplayServer
+from services.rollout import RolloutWorker
+from services.teacher import TeacherWorker
+
+SMALL = {"env": {"num_envs": 4}, "maddpg": {"batch_size": 16, "warmup": 96, "hidden": 32},
+         "replay": {"capacity": 360}, "teachers": {"batch_size": 16, "hidden": 32, "num_folds": 3},
+         "icm": {"batch_size": 16}, "service": {"updates_per_call": 4, "fit_steps_per_call": 2,
+                                                "score_rows_per_call": 200}}
+
+
+def small_config(algorithm="cmcl", task="spread"):
+    data = preset(algorithm, task).to_dict()
+    for section, values in SMALL.items():
+        data[section].update(values)
+    return config_from_dict(data).to_dict()
+
+
+def roles(cfg):
+    k = cfg["teachers"]["num_folds"]
+    return (ReplayServer(cfg), Learner(cfg, 0), RolloutWorker(cfg, 0, 0), [TeacherWorker(cfg, i, i) for i in range(k)],
+            CuriosityWorker(cfg, 0))
+
+
+def test_one_round_of_the_data_flow_reaches_every_role():
+    data = small_config("cmcl")
+    cfg = config_from_dict({**data, "service": {**data["service"], "score_rows_per_call": 360}}).to_dict()
+    replay, learner, worker, teachers, icm = roles(cfg)
+    published = learner.publish()
+    for _ in range(3):
+        chunk, report = worker.rollout(published)
+        status = replay.insert(chunk)
+    assert status["size"] == 360 and status["episodes"] == 12 and report["rollout"]["episodes"] == 12
+    lam0 = status["lambda"]
+    for k, teacher in enumerate(teachers):
+        work, _ = replay.teacher_work(k, 2)
+        assert (replay.replay.storage.fold[work["score"]["slots"]] != k).all(), "teacher k scores other folds only"
+        scores, _ = teacher.step(work, published)
+        replay.write_teacher_scores(scores)
+    scored = replay.replay.storage.scored["difficulty"][:360]
+    assert scored.all(), "after all K teachers scored, every row has a difficulty"
+    work, _ = replay.icm_work(2)
+    replay.write_curiosity(icm.step(work)[0])
+    assert replay.replay.storage.scored["curiosity"][:200].any()
+    batch, status = replay.sample(4)
+    assert batch["obs"].shape == (4, 4, 16, 4, 18)
+    feedback, report = learner.update(batch)
+    replay.learner_result(feedback)
+    assert report["learner"]["updates"] == 4 and status["updates"] == 4
+    assert lam0 == pytest.approx(0.1 + (360 - 96) * replay.schedule.stride), "λ moves with env steps after warm-up"
+    assert learner.publish()["version"] == 1
+
+
+def test_teacher_fit_batches_come_only_from_its_own_fold():
+    cfg = small_config("acl")
+    replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
+    for _ in range(3):
+        replay.insert(worker.rollout(None)[0])
+    folds = replay.replay.storage.fold
+    for k in range(3):
+        work, _ = replay.teacher_work(k, 2)
+        assert work["fit"]["obs"].shape[:2] == (2, 16)
+        assert (folds[work["fit"]["slots"]] == k).all()
+        assert (folds[work["score"]["slots"]] != k).all()
+
+
+def test_duplicate_bad_and_stale_inputs_are_refused_and_counted():
+    cfg = small_config("per")
+    replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
+    chunk, _ = worker.rollout(None)
+    assert replay.insert(chunk)["accepted"] == 120
+    again = replay.insert(chunk)
+    assert again["accepted"] == 0 and "duplicate" in again["error"]
+    bad = dict(worker.rollout(None)[0])
+    bad["obs"] = np.full_like(bad["obs"], np.nan)
+    refused = replay.insert(bad)
+    assert refused["accepted"] == 0 and "invalid" in refused["error"] and refused["size"] == 120
+    assert replay.insert({"obs": 1})["error"].startswith("bad_chunk")
+    for _ in range(3):  # wrap the 360-slot buffer: the first chunk's slots get new generations
+        replay.insert(worker.rollout(None)[0])
+    stale = {"slots": np.arange(10), "generations": np.zeros(10, np.int64), "td_abs": np.ones((1, 4, 10))}
+    stale = {k: v.reshape(1, 1, -1).repeat(4, 1) if k != "td_abs" else np.ones((1, 4, 10)) for k, v in stale.items()}
+    replay.learner_result(stale)
+    assert replay.rejected == {"duplicate": 1, "invalid": 1, "bad_chunk": 1, "stale": 40}
+
+
+def test_snapshot_restores_buffer_scores_counters_and_dedupe(tmp_path):
+    cfg = small_config("cmcl")
+    replay, learner, worker, teachers, icm = roles(cfg)
+    chunk = None
+    for _ in range(3):
+        chunk, _ = worker.rollout(None)
+        replay.insert(chunk)
+    scores, _ = teachers[0].step(replay.teacher_work(0, 2)[0], learner.publish())
+    replay.write_teacher_scores(scores)
+    replay.sample(2)
+    path = tmp_path / "replay.msgpack"
+    replay.snapshot(str(path))
+    restored = ReplayServer(cfg, snapshot_path=str(path))
+    assert restored.status()["env_steps"] == 360 and restored.status()["updates"] == 2
+    np.testing.assert_array_equal(restored.replay.storage.obs, replay.replay.storage.obs)
+    np.testing.assert_array_equal(restored.teacher_time, replay.teacher_time)
+    assert "duplicate" in restored.insert(chunk)["error"], "dedupe table survives a restart"
+
+
+def test_learner_and_teacher_restart_from_their_checkpoints(tmp_path):
+    cfg = small_config("cmcl")
+    replay, learner, worker, teachers, _ = roles(cfg)
+    for _ in range(3):
+        replay.insert(worker.rollout(None)[0])
+    learner = Learner(cfg, 0, str(tmp_path / "learner.pt"))
+    learner.update(replay.sample(4)[0])
+    learner.save()
+    again = Learner(cfg, 0, str(tmp_path / "learner.pt"))
+    assert again.resumed and again.version == 1 and again.report()["learner"]["updates"] == 4
+    for key, value in learner.publish()["weights"]["actor"].items():
+        np.testing.assert_array_equal(again.publish()["weights"]["actor"][key], value)
+
+
+def test_icm_actor_refuses_a_config_without_curiosity():
+    with pytest.raises(ValueError, match="curiosity"):
+        CuriosityWorker(small_config("acl"), 0)
