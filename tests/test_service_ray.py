@@ -1,0 +1,122 @@
+"""The service on a real embedded Ray (2 CPUs, one session-scoped cluster): every preset end to end, the
+Prometheus endpoint, resume from a checkpoint, and a killed rollout worker being replaced."""
+
+import re
+import urllib.request
+
+import pytest
+from prometheus_client.parser import text_string_to_metric_families
+
+from cmcl.config import config_from_dict, preset
+from cmcl.rundir import RunDirectory
+from services.launch import run_service
+from services.metrics import ServiceMetrics
+from services.supervisor import InfeasibleResources, Supervisor, create_roles
+
+pytestmark = pytest.mark.ray
+
+TINY = {"env": {"num_envs": 4}, "maddpg": {"batch_size": 16, "warmup": 96, "hidden": 32},
+        "replay": {"capacity": 600}, "teachers": {"batch_size": 16, "hidden": 32, "num_folds": 3},
+        "icm": {"batch_size": 16},
+        "service": {"updates_per_call": 8, "fit_steps_per_call": 4, "score_rows_per_call": 256, "metrics_port": 0,
+                    "max_restarts": 2, "checkpoint_every_s": 3600.0},
+        "run": {"episodes": 12, "smoothing_window": 8}}
+
+REQUIRED = ["cmcl_replay_size", "cmcl_replay_inserts_total", "cmcl_replay_samples_total", "cmcl_replay_rejected_total",
+            "cmcl_curriculum_lambda", "cmcl_difficulty", "cmcl_priority", "cmcl_teacher_scores_total",
+            "cmcl_teacher_score_age_updates", "cmcl_curiosity_scores_total", "cmcl_icm_loss",
+            "cmcl_learner_updates_total", "cmcl_learner_loss", "cmcl_env_steps_total", "cmcl_episodes_total",
+            "cmcl_coverage_rate", "cmcl_episode_reward", "cmcl_actor_restarts_total"]
+
+
+def tiny(algorithm, path, task="spread", **run):
+    data = preset(algorithm, task).to_dict()
+    for section, values in TINY.items():
+        data[section].update(values)
+    data["run"].update(dir=str(path), **run)
+    return config_from_dict(data)
+
+
+def samples(text):
+    """{(name, frozenset(labels)): value} of an exposition text."""
+    out = {}
+    for family in text_string_to_metric_families(text):
+        for s in family.samples:
+            out[(s.name, frozenset(s.labels.items()))] = s.value
+    return out
+
+
+def value(parsed, name, **labels):
+    return sum(v for (n, ls), v in parsed.items() if n == name and set(labels.items()) <= set(ls))
+
+
+@pytest.mark.parametrize("algorithm", ["maddpg", "per", "acl", "cmcl"])
+def test_each_preset_runs_end_to_end(algorithm, tmp_path, ray_cluster):
+    config = tiny(algorithm, tmp_path / algorithm)
+    scraped = {}
+
+    def progress(line):
+        match = re.search(r"http://127\.0\.0\.1:(\d+)/metrics", line)
+        if match:
+            scraped["port"] = match.group(1)
+        elif "port" in scraped and "text" not in scraped and "upd 0 " not in line:
+            url = f"http://127.0.0.1:{scraped['port']}/metrics"
+            scraped["text"] = urllib.request.urlopen(url, timeout=10).read().decode()
+
+    summary = run_service(config, RunDirectory.create(config.run.dir, config), progress=progress)
+    assert summary["episodes"] >= 12 and summary["updates"] > 0
+    assert summary["update_deficit"] < 1, "the learner caught up with one update per env step"
+    parsed = samples(summary["metrics_text"])
+    for name in REQUIRED:
+        assert re.search(rf"^# TYPE {name}", summary["metrics_text"], re.M), name
+    assert value(parsed, "cmcl_replay_size") == min(600, summary["env_steps"])
+    assert value(parsed, "cmcl_learner_updates_total") == summary["updates"]
+    assert value(parsed, "cmcl_env_steps_total") == summary["env_steps"]
+    assert 0.1 < value(parsed, "cmcl_curriculum_lambda") <= 1.0
+    assert 0.0 <= value(parsed, "cmcl_coverage_rate") <= 1.0
+    teacher_scores = value(parsed, "cmcl_teacher_scores_total")
+    assert (teacher_scores > 0) == (algorithm in ("acl", "cmcl"))
+    assert (value(parsed, "cmcl_curiosity_scores_total") > 0) == (algorithm == "cmcl")
+    assert "text" in scraped and "cmcl_replay_size" in scraped["text"], "the live endpoint answered during the run"
+    rows = list(RunDirectory.open(config.run.dir).rows("episode"))
+    assert len(rows) == summary["episodes"]
+
+
+def test_resume_continues_counters(tmp_path, ray_cluster):
+    config = tiny("acl", tmp_path / "resume", episodes=8)
+    run_dir = RunDirectory.create(config.run.dir, config)
+    first = run_service(config, run_dir, progress=None)
+    resumed_config = run_dir.config(("run.episodes=16",))
+    second = run_service(resumed_config, run_dir, resume=True, progress=None)
+    assert second["env_steps"] == first["env_steps"] + 8 * 30, "env steps continue from the snapshot"
+    assert second["updates"] > first["updates"]
+    episodes = [r["episodes"] for r in run_dir.rows("episode")]
+    assert episodes == list(range(1, second["episodes"] + 1))
+
+
+def test_a_killed_rollout_worker_is_replaced_and_training_goes_on(tmp_path, ray_cluster):
+    ray = ray_cluster
+    config = tiny("maddpg", tmp_path / "kill", episodes=16)
+    run_dir = RunDirectory.create(config.run.dir, config)
+    metrics = ServiceMetrics()
+    roles = create_roles(config, run_dir)
+    killed = {}
+
+    def progress(line):
+        if "kill" not in killed and "ep 0/" not in line:
+            ray.kill(roles.rollout[0], no_restart=False)
+            killed["kill"] = line
+
+    summary = Supervisor(config, run_dir, roles, metrics, progress=progress).run()
+    assert "kill" in killed and summary["episodes"] >= 16
+    parsed = samples(metrics.text())
+    assert value(parsed, "cmcl_actor_restarts_total", role="rollout") >= 1
+    for handle in (roles.replay, roles.learner, *roles.rollout):
+        ray.kill(handle)
+
+
+def test_infeasible_resources_are_refused_clearly(tmp_path, ray_cluster):
+    config = tiny("maddpg", tmp_path / "big")
+    config = config_from_dict({**config.to_dict(), "service": {**config.to_dict()["service"], "rollout_workers": 9}})
+    with pytest.raises(InfeasibleResources, match="rollout_workers"):
+        create_roles(config, RunDirectory.create(config.run.dir, config))
