@@ -9,7 +9,7 @@ TORCH  := torch==2.13.0
 RUN_ARGS ?=
 TEST_ARGS ?=
 
-.PHONY: install run test lint bench clean
+.PHONY: install run demo test lint bench clean
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -19,8 +19,13 @@ $(STAMP): pyproject.toml Makefile
 
 install: $(STAMP)
 
+# The main job: the distributed CMCL service on an embedded Ray, 3 minutes of training, then a clean exit.
 run: install
-	$(BIN)/python -m cmcl.demo $(RUN_ARGS)
+	$(BIN)/python -m services.launch --config configs/spread_cmcl.toml --set run.dir=runs/make-run \
+		--set service.max_seconds=180 --overwrite $(RUN_ARGS)
+
+demo: install
+	$(BIN)/python -m cmcl.demo
 
 test: install
 	$(BIN)/python -m pytest $(TEST_ARGS)
@@ -28,8 +33,13 @@ test: install
 lint: install
 	$(BIN)/ruff check .
 
+# Benchmarks print ratios against a peer run in the same process. VMAS (the vectorised peer of the env bench)
+# installs without its dependencies so that it cannot replace the pinned CPU torch.
 bench: install
+	$(BIN)/python -m pip install --quiet --no-deps vmas gym gym-notices
 	$(BIN)/python bench/env_throughput.py
+	$(BIN)/python bench/learner_throughput.py
+	$(BIN)/python bench/replay_throughput.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache

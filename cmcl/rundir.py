@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import tempfile
 from collections.abc import Iterator, Mapping
 from pathlib import Path
@@ -70,9 +71,10 @@ class RunDirectory:
             raise FileExistsError(
                 f"run.dir {str(run.path)!r} already holds a run; pass --resume {run.path} to continue it "
                 f"or choose another run.dir")
+        if overwrite:  # start over: no old metrics, and no old checkpoint a role could restore itself from
+            shutil.rmtree(run.checkpoints, ignore_errors=True)
+            run.metrics_path.unlink(missing_ok=True)
         run.checkpoints.mkdir(parents=True, exist_ok=True)
-        if overwrite and run.metrics_path.exists():
-            run.metrics_path.unlink()
         atomic_write_bytes(run.config_path, dump_toml(config).encode())
         return run
 

@@ -1,0 +1,121 @@
+"""Service vs inline loop: env-steps/s and learner updates/s on the same config, same machine, same ratio.
+
+Both run one update per env step after the same warm-up (the service's rate limiter holds the ratio, and the
+supervisor lets the learner catch up before it stops). Rates are steady-state: measured between the first
+progress row after warm-up and the end of the run, from each run's metrics.jsonl. The service's memory is
+the summed RSS of the driver and every Ray process it started, sampled while it trains.
+
+    python bench/service_throughput.py [--config configs/spread_cmcl.toml] [--episodes 300] [--set k=v ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import threading
+import time
+from pathlib import Path
+
+import psutil
+
+from cmcl.config import load_config
+from cmcl.loop import InlineLoop
+from cmcl.rundir import RunDirectory
+
+
+def steady_rates(run: RunDirectory) -> dict[str, float]:
+    """Updates/s and env-steps/s between the first progress row with updates > 0 and the last row."""
+    rows = [r for r in run.rows("progress") if "elapsed_s" in r]
+    warm = [r for r in rows if r["updates"] > 0]
+    if len(warm) < 2:
+        raise RuntimeError(f"{run.path}: too few progress rows after warm-up to measure a rate")
+    first, last = warm[0], warm[-1]
+    dt = last["elapsed_s"] - first["elapsed_s"]
+    return {"updates_per_s": (last["updates"] - first["updates"]) / dt,
+            "env_steps_per_s": (last["env_steps"] - first["env_steps"]) / dt, "seconds": dt,
+            "updates": last["updates"], "env_steps": last["env_steps"]}
+
+
+class MemorySampler:
+    """Peak summed memory (bytes) of this process and all its descendants, sampled every second in a thread.
+
+    Both RSS (counts shared library pages once per process, an over-estimate) and PSS (shared pages split
+    between the processes that map them: the memory the service really takes) are tracked.
+    """
+
+    def __init__(self) -> None:
+        self.peak_rss = self.peak_pss = self.processes = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+
+    def _loop(self) -> None:
+        me = psutil.Process()
+        while not self._stop.wait(1.0):
+            rss = pss = 0
+            procs = [me, *me.children(recursive=True)]
+            for proc in procs:
+                try:
+                    info = proc.memory_full_info()
+                except psutil.Error:
+                    continue
+                rss, pss = rss + info.rss, pss + getattr(info, "pss", info.rss)
+            self.peak_rss, self.peak_pss = max(self.peak_rss, rss), max(self.peak_pss, pss)
+            self.processes = max(self.processes, len(procs))
+
+    def __enter__(self) -> MemorySampler:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def run_inline(config_path: str, overrides: list[str], out: Path) -> dict[str, float]:
+    config = load_config(config_path, [*overrides, f"run.dir={out}", "run.log_every=16"])
+    run = RunDirectory.create(out, config, overwrite=True)
+    InlineLoop(config, run, progress=None).run()
+    return steady_rates(run)
+
+
+def run_service(config_path: str, overrides: list[str], out: Path) -> tuple[dict[str, float], MemorySampler]:
+    import ray
+
+    from services.launch import run_service as launch
+
+    config = load_config(config_path, [*overrides, f"run.dir={out}", "service.metrics_port=0"])
+    run = RunDirectory.create(out, config, overwrite=True)
+    ray.init(address="local", num_cpus=psutil.cpu_count(), include_dashboard=False, log_to_driver=False)
+    try:
+        with MemorySampler() as memory:
+            launch(config, run, progress=None)
+    finally:
+        ray.shutdown()
+    return steady_rates(run), memory
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--config", default="configs/spread_cmcl.toml")
+    parser.add_argument("--episodes", type=int, default=300)
+    parser.add_argument("--set", dest="overrides", action="append", default=[])
+    parser.add_argument("--out", default="runs/bench_service")
+    args = parser.parse_args()
+    out = Path(args.out)
+    shutil.rmtree(out, ignore_errors=True)
+    overrides = [f"run.episodes={args.episodes}", *args.overrides]
+    started = time.perf_counter()
+    inline = run_inline(args.config, overrides, out / "inline")
+    service, memory = run_service(args.config, overrides, out / "service")
+    print(f"config {args.config} {overrides}; {psutil.cpu_count()} CPUs; {time.perf_counter() - started:.0f}s total")
+    print(f"{'mode':10s} {'updates/s':>10s} {'env steps/s':>12s} {'updates':>8s} {'env steps':>10s} {'window s':>9s}")
+    for name, r in (("inline", inline), ("service", service)):
+        print(f"{name:10s} {r['updates_per_s']:10.1f} {r['env_steps_per_s']:12.1f} {r['updates']:8d} "
+              f"{r['env_steps']:10d} {r['seconds']:9.1f}")
+    print(f"service memory, driver + all {memory.processes} Ray processes: peak PSS {memory.peak_pss / 2**30:.2f} GiB "
+          f"(peak RSS sum {memory.peak_rss / 2**30:.2f} GiB, shared pages counted once per process)")
+    print(f"ratio: {service['updates_per_s'] / inline['updates_per_s']:.2f}")
+
+
+if __name__ == "__main__":
+    main()
