@@ -19,8 +19,6 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from cmcl.config import Config, dump_toml, load_config
 
 CHECKPOINT_GLOB = "ckpt_*.pt"
@@ -118,6 +116,8 @@ class RunDirectory:
 
     def save_checkpoint(self, episodes: int, state: Mapping[str, Any]) -> Path:
         """torch.save `state` (tensors, numpy-free plain containers) atomically; returns the path."""
+        import torch
+
         path = self.checkpoint_path(episodes)
         tmp = path.with_name(f".{path.name}.tmp")
         self.checkpoints.mkdir(parents=True, exist_ok=True)
@@ -135,4 +135,6 @@ class RunDirectory:
 
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
     """Load a checkpoint written by RunDirectory.save_checkpoint (weights_only: no arbitrary pickle)."""
+    import torch
+
     return torch.load(Path(path), map_location="cpu", weights_only=True)

@@ -16,12 +16,17 @@ from cmcl.config import Config, config_from_dict
 from cmcl.rundir import atomic_write_bytes
 
 
-def actor_setup(config: Config | dict[str, Any]) -> Config:
-    """Validate the config and limit torch (and BLAS) to one thread, as every actor on 2 cores should."""
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    import torch
+def actor_setup(config: Config | dict[str, Any], uses_torch: bool = True) -> Config:
+    """Validate the config and limit torch (and BLAS) to one thread, as every actor on 2 cores should.
 
-    torch.set_num_threads(1)
+    Roles that never run a network (replay server, continuous-action rollout workers) pass uses_torch=False
+    and never load torch (~190 MB of private memory each).
+    """
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    if uses_torch:
+        import torch
+
+        torch.set_num_threads(1)
     return config if isinstance(config, Config) else config_from_dict(config)
 
 

@@ -33,7 +33,7 @@ class ReplayServer:
     """The single replay actor. `snapshot_path`: where `snapshot()` writes and `__init__` restores from."""
 
     def __init__(self, config: Any, snapshot_path: str | None = None, seed: int = 0):
-        self.config = cfg = actor_setup(config)
+        self.config = cfg = actor_setup(config, uses_torch=False)
         self.incarnation, self.snapshot_path = new_incarnation(), snapshot_path
         self.layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
         self.replay = build_replay(cfg, self.layout)

@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from cmcl.policy import NumpyPolicy
 from cmcl.system import agent_layout, build_maddpg, make_batched_env, to_env_actions
-from cmcl.weights import load_published
 from services.common import actor_setup, new_incarnation
 
 
@@ -21,14 +21,18 @@ class RolloutWorker:
     """One worker: B worlds of the configured task and a copy of the online actors."""
 
     def __init__(self, config: Any, worker_id: int, seed: int):
-        self.config = actor_setup(config)
+        parsed = actor_setup(config, uses_torch=False)
+        self.config = actor_setup(parsed, uses_torch=parsed.maddpg.discrete)
         self.worker_id, self.incarnation = int(worker_id), new_incarnation()
         # a restarted worker must not replay its predecessor's worlds: mix the incarnation into the seed
         entropy = [int(seed), int(worker_id), int(self.incarnation, 16)]
         env_seed, noise_seed, net_seed = np.random.SeedSequence(entropy).spawn(3)
         self.env = make_batched_env(self.config, seed=np.random.default_rng(env_seed), auto_reset=True)
         self.layout = agent_layout(self.config, self.env)
-        self.policy = build_maddpg(self.config, self.layout, int(net_seed.generate_state(1)[0]))
+        # continuous actors run in numpy (no torch in this process); the discrete variant keeps torch's MADDPG
+        self.net_seed = int(net_seed.generate_state(1)[0])
+        self.policy: Any = build_maddpg(self.config, self.layout, self.net_seed) if self.config.maddpg.discrete \
+            else None
         self.rng = np.random.default_rng(noise_seed)
         self.version, self.seq = -1, 0
         self.env_steps, self.episodes = 0, 0
@@ -42,8 +46,15 @@ class RolloutWorker:
         report is a metrics report (cumulative env steps and episodes, finished-episode statistics).
         """
         if published is not None and published["version"] != self.version:
-            load_published(self.policy, published["weights"], parts=("actor",))
+            if self.config.maddpg.discrete:
+                from cmcl.weights import load_published
+
+                load_published(self.policy, published["weights"], parts=("actor",))
+            else:
+                self.policy = NumpyPolicy(published["weights"]["actor"])
             self.version = int(published["version"])
+        if self.policy is None:  # no weights published yet: a fresh actor, initialised like the learner's
+            self.policy = NumpyPolicy(_initial_actor(self.config, self.layout, self.net_seed))
         cfg, b, t_len = self.config, self.env.num_envs, self.env.episode_length
         obs, act, rew, nxt = [], [], [], []
         info: dict[str, Any] = {}
@@ -80,3 +91,10 @@ class RolloutWorker:
         return {"source": f"rollout-{self.worker_id}", "role": "rollout", "incarnation": self.incarnation,
                 "weight_version": max(self.version, 0),
                 "rollout": {"env_steps": self.env_steps, "episodes": self.episodes, "finished": finished}}
+
+
+def _initial_actor(config: Any, layout: Any, seed: int) -> dict[str, np.ndarray]:
+    """Actor weights of a freshly initialised learner (only used before any weights were published)."""
+    from cmcl.weights import published_weights
+
+    return published_weights(build_maddpg(config, layout, seed))["actor"]

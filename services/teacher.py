@@ -55,13 +55,15 @@ class TeacherWorker:
             load_published(self.targets, published["weights"], parts=("target_actor", "target_critic"))
             self.version = int(published["version"])
         fit, a_t = work["fit"], len(self.layout.teacher_agents)
-        for i in range(fit["obs"].shape[0]):
-            rows = {k: fit[k][i] for k in ("obs", "act", "rew", "next_obs", "done")}
-            x = joint_input(torch.as_tensor(rows["obs"]), torch.as_tensor(rows["act"]))  # [S, in]
-            y = self._targets(rows)  # [A_t, S]
-            loss = self.teachers.fit_step(x.expand(a_t, 1, -1, -1), y.unsqueeze(1))
+        steps, s = fit["obs"].shape[:2]
+        flat = {k: fit[k].reshape(steps * s, *fit[k].shape[2:]) for k in ("obs", "act", "rew", "next_obs", "done")}
+        # the targets of every fit step at once: they come from fixed (published) target nets
+        x_all = joint_input(torch.as_tensor(flat["obs"]), torch.as_tensor(flat["act"])).reshape(steps, s, -1)
+        y_all = self._targets(flat).reshape(a_t, steps, s)  # [A_t, steps, S]
+        for i in range(steps):
+            loss = self.teachers.fit_step(x_all[i].expand(a_t, 1, -1, -1), y_all[:, i].unsqueeze(1))
             self.loss = float(loss.mean())
-        self.steps += fit["obs"].shape[0]
+        self.steps += steps
         score = work["score"]
         x = joint_input(torch.as_tensor(score["obs"]), torch.as_tensor(score["act"]))
         squared = self.config.teachers.difficulty_error == "squared"

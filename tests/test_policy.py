@@ -1,0 +1,40 @@
+"""The numpy actor of the rollout workers computes exactly MADDPG.act (continuous actions)."""
+
+import numpy as np
+import pytest
+
+from cmcl.maddpg import MADDPG
+from cmcl.policy import NumpyPolicy
+from cmcl.weights import load_published, published_weights
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.1])
+def test_numpy_policy_matches_maddpg_act(noise):
+    maddpg = MADDPG(4, 18, seed=3)
+    obs = np.random.default_rng(0).normal(size=(64, 4, 18)).astype(np.float32)
+    policy = NumpyPolicy(published_weights(maddpg)["actor"])
+    ours = policy.act(obs, noise, rng=np.random.default_rng(7))
+    theirs = maddpg.act(obs, noise, rng=np.random.default_rng(7))
+    np.testing.assert_allclose(ours, theirs, atol=1e-5)
+    assert ours.dtype == np.float32 and ours.shape == (64, 4, 2) and np.abs(ours).max() <= 1.0
+
+
+def test_bad_weights_are_refused():
+    weights = published_weights(MADDPG(2, 6, seed=0))["actor"]
+    with pytest.raises(ValueError, match="layers"):
+        NumpyPolicy({k: v for k, v in weights.items() if not k.startswith("layers.1")})
+    broken = dict(weights)
+    broken["layers.0.bias"] = np.full_like(weights["layers.0.bias"], np.nan)
+    with pytest.raises(ValueError, match="finite"):
+        NumpyPolicy(broken)
+
+
+def test_published_weights_round_trip_into_another_learner():
+    source, target = MADDPG(3, 10, seed=1), MADDPG(3, 10, seed=2)
+    load_published(target, published_weights(source))
+    obs = np.ones((5, 3, 10), np.float32)
+    np.testing.assert_array_equal(target.act(obs, 0.0), source.act(obs, 0.0))
+    with pytest.raises(ValueError, match="shape"):
+        bad = published_weights(source)
+        bad["actor"]["layers.0.weight"] = bad["actor"]["layers.0.weight"][:, :5]
+        load_published(target, bad)
