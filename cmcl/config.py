@@ -232,6 +232,7 @@ class ServiceConfig:
     """Distributed service (services/): actor counts, per-call work, rate-limiter slack, CPUs, metrics."""
 
     rollout_workers: int = 1
+    teacher_actors: int = 0  # actors sharing the K folds (0: K actors, one fold each; 1: all folds stacked in one)
     updates_per_call: int = 16  # learner updates per learner call (batches sampled per replay call)
     fit_steps_per_call: int = 8  # teacher / ICM fit steps per call
     score_rows_per_call: int = 1024  # rows a teacher / the ICM rescores per call
@@ -253,6 +254,7 @@ class ServiceConfig:
                      "slack_updates"):
             _require(getattr(self, name) >= 1, f"service.{name}", getattr(self, name), "must be >= 1")
         _require(self.recompute_every >= 0, "service.recompute_every", self.recompute_every, "must be >= 0")
+        _require(self.teacher_actors >= 0, "service.teacher_actors", self.teacher_actors, "must be >= 0")
         _require(self.max_restarts >= 0, "service.max_restarts", self.max_restarts, "must be >= 0")
         for name in ("rollout_cpus", "learner_cpus", "teacher_cpus", "icm_cpus", "replay_cpus"):
             _positive(f"service.{name}", getattr(self, name))
@@ -290,6 +292,12 @@ class Config:
     def total_env_steps(self) -> int:
         """Environment steps of the whole run (per world): episodes × episode length."""
         return self.run.episodes * self.env.episode_length
+
+    def teacher_groups(self) -> list[list[int]]:
+        """Folds hosted by each teacher actor: K actors of one fold by default, else near-equal groups."""
+        k = self.teachers.num_folds
+        actors = min(k, self.service.teacher_actors or k)
+        return [list(range(k))[i::actors] for i in range(actors)]
 
     def curriculum_stride(self) -> float:
         """Δλ per post-warm-up env step: the configured stride, or λ_max reached at half of training."""

@@ -184,43 +184,52 @@ class ReplayServer:
         return {**{k: rows[k] for k in ("obs", "act", "rew", "next_obs", "done")}, "slots": slots,
                 "generations": self.replay.generations(slots)}
 
-    def teacher_work(self, fold: int, steps: int) -> tuple[dict[str, Any] | None, dict[str, Any]]:
-        """Fit batches from `fold` only ([steps, S_T] rows) and rows of the other folds to score."""
+    def teacher_work(self, folds: list[int], steps: int) -> tuple[dict[str, Any] | None, dict[str, Any]]:
+        """For the teacher actor hosting `folds`: fit batches [steps, F, S_T] drawn from each fold only, and the
+        rows (of other folds) whose score from these teachers is oldest, to score."""
         cfg = self.config
         if not self.teacher_limits or self.replay.size < self.replay.min_size:
             return None, self.status()
-        steps = min(int(steps), self.teacher_limits[fold].allowed_samples())
-        own = self.replay.fold_slots(fold)
-        if steps < 1 or own.size == 0:
+        folds = [int(f) for f in folds]
+        steps = min(int(steps), *(self.teacher_limits[f].allowed_samples() for f in folds))
+        own = [self.replay.fold_slots(f) for f in folds]
+        if steps < 1 or min(o.size for o in own) == 0:
             return None, self.status()
-        fit = own[self.rng.integers(0, own.size, (steps, cfg.teachers.batch_size))]
+        fit = np.stack([o[self.rng.integers(0, o.size, (steps, cfg.teachers.batch_size))] for o in own], axis=1)
         valid = self.replay.valid_slots()
-        others = valid[self.replay.storage.fold[valid] != fold]
-        score = self._oldest_rows(others, self.teacher_time[:, fold], cfg.service.score_rows_per_call)
-        self.teacher_limits[fold].record_sample(steps)
-        self.teacher_steps[fold] += steps
+        age = self.teacher_time[valid][:, folds].astype(np.float64)  # [M, F]; a row's own fold never counts
+        age[self.replay.storage.fold[valid][:, None] == np.asarray(folds)[None, :]] = np.inf
+        key = age.min(1)
+        useful = np.isfinite(key)
+        score = self._oldest_rows(valid[useful], _indexed(valid[useful], key[useful], self.replay.capacity),
+                                  cfg.service.score_rows_per_call)
+        for f in folds:
+            self.teacher_limits[f].record_sample(steps)
+            self.teacher_steps[f] += steps
         rows = self.replay.get(fit.reshape(-1))
         fit_rows = {k: rows[k].reshape(*fit.shape, *rows[k].shape[1:]) for k in ("obs", "act", "rew", "next_obs",
                                                                                 "done")}
         fit_rows["slots"] = fit
-        return {"fold": fold, "fit": fit_rows, "score": self._work_rows(score),
+        return {"folds": folds, "fit": fit_rows, "score": self._work_rows(score),
                 "updates": self.counters["updates"]}, self.status()
 
     def write_teacher_scores(self, scores: dict[str, Any] | None) -> dict[str, Any]:
-        """Teacher k's errors e[M, A_t] on rows of other folds -> c of those rows (sum over blind teachers)."""
+        """Errors e[M, A_t, F] of the teachers of `folds` -> c of the rows (sum over the blind teachers only)."""
         if scores is None:
             return self.status()
-        k, slots, gens = int(scores["fold"]), scores["slots"], scores["generations"]
+        folds, slots, gens = scores["folds"], scores["slots"], scores["generations"]
         fresh = self.replay.storage.fresh_mask(slots, gens)
         self._count_stale(int((~fresh).sum()))
-        s = slots[fresh]
-        self.teacher_error[s, :, k] = scores["errors"][fresh]
-        self.teacher_time[s, k] = int(scores["updates"])
-        self.teacher_scores[k] += int(s.size)
-        self.losses[f"teacher_{k}"] = float(scores.get("loss", 0.0))
-        folds = self.replay.storage.fold[s]
+        s, errors = slots[fresh], scores["errors"][fresh]
+        row_fold = self.replay.storage.fold[s]
+        for i, f in enumerate(folds):
+            blind_rows = row_fold != f  # teacher f's error never counts for its own fold
+            self.teacher_error[s[blind_rows], :, f] = errors[blind_rows, :, i]
+            self.teacher_time[s[blind_rows], f] = int(scores["updates"])
+            self.teacher_scores[f] += int(blind_rows.sum())
+            self.losses[f"teacher_{f}"] = float(scores.get("loss", 0.0))
         kk = self.teacher_error.shape[2]
-        blind = (folds[:, None] != np.arange(kk)[None, :]) & (self.teacher_time[s] >= 0)  # [M, K]
+        blind = (row_fold[:, None] != np.arange(kk)[None, :]) & (self.teacher_time[s] >= 0)  # [M, K]
         count = blind.sum(1)
         c = (self.teacher_error[s] * blind[:, None, :]).sum(-1) * ((kk - 1) / np.maximum(count, 1))[:, None]
         ok = count > 0
@@ -333,3 +342,10 @@ class ReplayServer:
             self.icm_limit.load_state_dict(state["icm_limit"])
         self.schedule.env_steps = int(state["schedule_env_steps"])
         self.dirty = True
+
+
+def _indexed(slots: np.ndarray, values: np.ndarray, capacity: int) -> np.ndarray:
+    """A capacity-long array holding values at slots (so `_oldest_rows` can index it by slot)."""
+    out = np.full(capacity, np.inf)
+    out[slots] = values
+    return out

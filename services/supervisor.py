@@ -42,7 +42,7 @@ def required_cpus(config: Config) -> float:
     s, teams = config.service, config.teams.values()
     total = s.rollout_workers * s.rollout_cpus + s.learner_cpus + s.replay_cpus
     if any(t.uses_teachers for t in teams):
-        total += config.teachers.num_folds * s.teacher_cpus
+        total += len(config.teacher_groups()) * s.teacher_cpus
     if any(t.uses_icm for t in teams):
         total += s.icm_cpus
     return total
@@ -87,8 +87,8 @@ def create_roles(config: Config, run_dir: RunDirectory) -> Roles:
     teachers = []
     if any(t.uses_teachers for t in teams):
         teachers = [actor(TeacherWorker, s.teacher_cpus).remote(
-            cfg, k, seed * 1000 + 100 + k, str(paths["teacher"] / f"teacher_{k}.pt"))
-            for k in range(config.teachers.num_folds)]
+            cfg, folds, seed * 1000 + 100 + i, str(paths["teacher"] / f"teacher_{'-'.join(map(str, folds))}.pt"))
+            for i, folds in enumerate(config.teacher_groups())]
     icm = None
     if any(t.uses_icm for t in teams):
         icm = actor(CuriosityWorker, s.icm_cpus).remote(cfg, seed * 1000 + 200, str(paths["icm"]))
@@ -145,9 +145,10 @@ class Supervisor:
             st = {**st, "allowed_updates": st["allowed_updates"] - self.config.service.updates_per_call}
         steps = self.config.service.fit_steps_per_call
         ready = st["size"] >= max(1, self.config.maddpg.warmup)
-        for k, teacher in enumerate(r.teachers):
-            if ready and ("teacher", k) not in self.busy and st["teacher_allowed"][k] > 0:
-                work, _ = r.replay.teacher_work.options(num_returns=2).remote(k, steps)
+        groups = self.config.teacher_groups() if r.teachers else []
+        for k, (teacher, folds) in enumerate(zip(r.teachers, groups, strict=True)):
+            if ready and ("teacher", k) not in self.busy and min(st["teacher_allowed"][f] for f in folds) > 0:
+                work, _ = r.replay.teacher_work.options(num_returns=2).remote(folds, steps)
                 scores, report = teacher.step.options(num_returns=2).remote(work, self.weights)
                 self._track(report, "teacher_report", k)
                 self._track(r.replay.write_teacher_scores.remote(scores), "teacher", k)

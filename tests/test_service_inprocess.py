@@ -25,8 +25,8 @@ def small_config(algorithm="cmcl", task="spread"):
 
 def roles(cfg):
     k = cfg["teachers"]["num_folds"]
-    return (ReplayServer(cfg), Learner(cfg, 0), RolloutWorker(cfg, 0, 0), [TeacherWorker(cfg, i, i) for i in range(k)],
-            CuriosityWorker(cfg, 0))
+    teachers = [TeacherWorker(cfg, [i], i) for i in range(k)]
+    return ReplayServer(cfg), Learner(cfg, 0), RolloutWorker(cfg, 0, 0), teachers, CuriosityWorker(cfg, 0)
 
 
 def test_one_round_of_the_data_flow_reaches_every_role():
@@ -40,7 +40,7 @@ def test_one_round_of_the_data_flow_reaches_every_role():
     assert status["size"] == 360 and status["episodes"] == 12 and report["rollout"]["episodes"] == 12
     lam0 = status["lambda"]
     for k, teacher in enumerate(teachers):
-        work, _ = replay.teacher_work(k, 2)
+        work, _ = replay.teacher_work([k], 2)
         assert (replay.replay.storage.fold[work["score"]["slots"]] != k).all(), "teacher k scores other folds only"
         scores, _ = teacher.step(work, published)
         replay.write_teacher_scores(scores)
@@ -65,8 +65,8 @@ def test_teacher_fit_batches_come_only_from_its_own_fold():
         replay.insert(worker.rollout(None)[0])
     folds = replay.replay.storage.fold
     for k in range(3):
-        work, _ = replay.teacher_work(k, 2)
-        assert work["fit"]["obs"].shape[:2] == (2, 16)
+        work, _ = replay.teacher_work([k], 2)
+        assert work["fit"]["obs"].shape[:3] == (2, 1, 16)
         assert (folds[work["fit"]["slots"]] == k).all()
         assert (folds[work["score"]["slots"]] != k).all()
 
@@ -98,7 +98,7 @@ def test_snapshot_restores_buffer_scores_counters_and_dedupe(tmp_path):
     for _ in range(3):
         chunk, _ = worker.rollout(None)
         replay.insert(chunk)
-    scores, _ = teachers[0].step(replay.teacher_work(0, 2)[0], learner.publish())
+    scores, _ = teachers[0].step(replay.teacher_work([0], 2)[0], learner.publish())
     replay.write_teacher_scores(scores)
     replay.sample(2)
     path = tmp_path / "replay.msgpack"
@@ -127,3 +127,26 @@ def test_learner_and_teacher_restart_from_their_checkpoints(tmp_path):
 def test_icm_actor_refuses_a_config_without_curiosity():
     with pytest.raises(ValueError, match="curiosity"):
         CuriosityWorker(small_config("acl"), 0)
+
+
+def test_one_actor_can_host_every_fold_without_leaking_a_rows_own_fold():
+    data = small_config("acl")
+    cfg = config_from_dict({**data, "service": {**data["service"], "teacher_actors": 1,
+                                                "score_rows_per_call": 360}})
+    assert cfg.teacher_groups() == [[0, 1, 2]]
+    cfg = cfg.to_dict()
+    replay, worker, learner = ReplayServer(cfg), RolloutWorker(cfg, 0, 0), Learner(cfg, 0)
+    teacher = TeacherWorker(cfg, [0, 1, 2], 0)
+    for _ in range(3):
+        replay.insert(worker.rollout(None)[0])
+    work, _ = replay.teacher_work([0, 1, 2], 2)
+    folds = replay.replay.storage.fold
+    assert work["fit"]["obs"].shape[:3] == (2, 3, 16)
+    assert (folds[work["fit"]["slots"]] == np.arange(3)[None, :, None]).all(), "fit batch i comes from fold i"
+    scores, _ = teacher.step(work, learner.publish())
+    assert scores["errors"].shape == (360, 4, 3)  # [M, A_t, F]
+    replay.write_teacher_scores(scores)
+    rows = np.arange(360)
+    assert (replay.teacher_time[rows, folds[rows]] == -1).all(), "no row is scored by its own fold's teacher"
+    assert (replay.teacher_time[rows] >= 0).sum(1).min() == 2, "every row scored by the K-1 blind teachers"
+    assert replay.replay.storage.scored["difficulty"][:360].all()
