@@ -20,11 +20,12 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from dataclasses import dataclass
 
 import msgpack
 import numpy as np
+
+from cmcl.atomic import atomic_write_bytes
 
 SCHEMA_VERSION = 1
 KINDS = ("chunk", "scores", "snapshot")
@@ -307,26 +308,7 @@ def write_snapshot_atomic(path: str | os.PathLike, obj: dict, *, allow_nonfinite
 
     Returns the number of bytes written. A crash leaves either the old file or the new one, never a mix.
     """
-    data = encode_snapshot(obj, allow_nonfinite=allow_nonfinite)
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=os.path.basename(path) + ".", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    dir_fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
-    return len(data)
+    return atomic_write_bytes(path, encode_snapshot(obj, allow_nonfinite=allow_nonfinite))
 
 
 def read_snapshot(path: str | os.PathLike, *, limits: Limits = DEFAULT_LIMITS, allow_nonfinite: bool = False) -> dict:

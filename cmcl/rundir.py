@@ -12,31 +12,15 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import shutil
-import tempfile
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+from cmcl.atomic import atomic_write_bytes
 from cmcl.config import Config, dump_toml, load_config
 
 CHECKPOINT_GLOB = "ckpt_*.pt"
-
-
-def atomic_write_bytes(path: Path, payload: bytes) -> None:
-    """Write `payload` to `path` via a temp file in the same directory, fsync and rename (all or nothing)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(payload)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _json_safe(value: Any) -> Any:
@@ -115,22 +99,26 @@ class RunDirectory:
         return self.checkpoints / f"ckpt_{episodes:08d}.pt"
 
     def save_checkpoint(self, episodes: int, state: Mapping[str, Any]) -> Path:
-        """torch.save `state` (tensors, numpy-free plain containers) atomically; returns the path."""
-        import torch
-
+        """Save `state` as the checkpoint of `episodes` (see `save_torch_atomic`); returns the path."""
         path = self.checkpoint_path(episodes)
-        tmp = path.with_name(f".{path.name}.tmp")
-        self.checkpoints.mkdir(parents=True, exist_ok=True)
-        torch.save(dict(state), tmp)
-        with open(tmp, "rb") as handle:
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
+        save_torch_atomic(path, state)
         return path
 
     def latest_checkpoint(self) -> Path | None:
         """The checkpoint with the most episodes, or None."""
         found = sorted(self.checkpoints.glob(CHECKPOINT_GLOB))
         return found[-1] if found else None
+
+
+def save_torch_atomic(path: str | Path, state: Mapping[str, Any]) -> None:
+    """torch.save `state` (tensors and plain containers, no numpy) to `path`, all or nothing."""
+    import io
+
+    import torch
+
+    buffer = io.BytesIO()
+    torch.save(dict(state), buffer)
+    atomic_write_bytes(path, buffer.getvalue())
 
 
 def load_checkpoint(path: str | Path) -> dict[str, Any]:

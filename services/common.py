@@ -6,14 +6,12 @@ plain dicts (`Config.to_dict()`) and are re-validated on arrival.
 
 from __future__ import annotations
 
-import io
 import os
 import uuid
-from pathlib import Path
 from typing import Any
 
 from cmcl.config import Config, config_from_dict
-from cmcl.rundir import atomic_write_bytes
+from cmcl.rundir import load_checkpoint, save_torch_atomic
 
 
 def actor_setup(config: Config | dict[str, Any], uses_torch: bool = True) -> Config:
@@ -39,11 +37,7 @@ def save_state(path: str | None, state: dict[str, Any]) -> str | None:
     """torch.save `state` (plain state dicts) to `path` atomically; no-op without a path."""
     if path is None:
         return None
-    import torch
-
-    buffer = io.BytesIO()
-    torch.save(state, buffer)
-    atomic_write_bytes(Path(path), buffer.getvalue())
+    save_torch_atomic(path, state)
     return path
 
 
@@ -51,6 +45,4 @@ def load_state(path: str | None) -> dict[str, Any] | None:
     """The state saved by `save_state`, or None when there is none (torch.load with weights_only=True)."""
     if path is None or not os.path.exists(path):
         return None
-    import torch
-
-    return torch.load(path, map_location="cpu", weights_only=True)
+    return load_checkpoint(path)

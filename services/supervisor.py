@@ -20,8 +20,9 @@ from typing import Any
 import numpy as np
 import ray
 
+from cmcl.atomic import atomic_write_bytes
 from cmcl.config import Config
-from cmcl.rundir import RunDirectory, atomic_write_bytes
+from cmcl.rundir import RunDirectory
 from services.curiosity import CuriosityWorker
 from services.learner import Learner
 from services.metrics import ServiceMetrics
