@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,7 +30,12 @@ from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
 from services.teacher import TeacherWorker
 
-LEARNER_CALLS_IN_FLIGHT = 2  # one computing, one prefetched
+CALLS_IN_FLIGHT = 2  # per actor: one computing, one prefetched
+# Outputs of one actor that go to the replay server. They are forwarded only once ready: an actor runs one
+# caller's calls in submission order, so a replay call still waiting for its argument would hold up every
+# call queued behind it (samples, work for teachers) and serialise the whole pipeline.
+FORWARD = {"chunk": ("insert", "rollout"), "feedback": ("learner_result", "learner"),
+           "teacher_scores": ("write_teacher_scores", "teacher"), "icm_scores": ("write_curiosity", "icm")}
 REPORT_EVERY_S = 2.0
 
 
@@ -107,8 +112,7 @@ class Supervisor:
         self.config, self.run_dir, self.roles, self.metrics, self.progress = config, run_dir, roles, metrics, progress
         self.paths = service_paths(run_dir)
         self.pending: dict[Any, tuple[str, int]] = {}
-        self.busy: set[tuple[str, int]] = set()
-        self.learner_calls = 0
+        self.inflight: Counter[tuple[str, int]] = Counter()  # calls in flight per (role, actor index)
         self.status: dict[str, Any] = ray.get(roles.replay.status.remote())
         self.weights = roles.learner.publish.remote()
         self.version = -1
@@ -126,55 +130,65 @@ class Supervisor:
         self.pending[ref] = (kind, index)
 
     def _issue(self, rollouts: bool = True) -> None:
-        """Hand out every piece of work the limiters allow, keeping calls in flight bounded per actor."""
-        st, r = self.status, self.roles
+        """Hand out every piece of work the limiters allow, at most CALLS_IN_FLIGHT calls per actor.
+
+        Two calls in flight per actor pipeline each chain (replay -> actor -> replay): while one computes,
+        the replay server prepares the next (the learner's prefetch; the same for teachers and the ICM).
+        """
+        st, r, svc = self.status, self.roles, self.config.service
         chunk = self.config.env.num_envs * self.config.env.episode_length
+        inserts_room = st["allowed_inserts"] - chunk * sum(self.inflight[("rollout", w)] for w in range(len(r.rollout)))
         for w, worker in enumerate(r.rollout):
-            if not rollouts:
-                break
-            if ("rollout", w) not in self.busy and st["allowed_inserts"] >= chunk * (1 + self._busy_count("rollout")):
+            while rollouts and self.inflight[("rollout", w)] < CALLS_IN_FLIGHT and inserts_room >= chunk:
                 chunk_ref, report = worker.rollout.options(num_returns=2).remote(self.weights)
                 self._track(report, "rollout_report", w)
-                self._track(r.replay.insert.remote(chunk_ref), "rollout", w)
-                self.busy.add(("rollout", w))
-        while self.learner_calls < LEARNER_CALLS_IN_FLIGHT and st["allowed_updates"] > 0:
-            batch, _ = r.replay.sample.options(num_returns=2).remote(self.config.service.updates_per_call)
+                self._track(chunk_ref, "chunk", w)
+                self.inflight[("rollout", w)] += 1
+                inserts_room -= chunk
+        updates_room = st["allowed_updates"] - svc.updates_per_call * self.inflight[("learner", 0)]
+        while self.inflight[("learner", 0)] < CALLS_IN_FLIGHT and updates_room > 0:
+            batch, _ = r.replay.sample.options(num_returns=2).remote(svc.updates_per_call)
             feedback, report = r.learner.update.options(num_returns=2).remote(batch)
             self._track(report, "learner_report")
-            self._track(r.replay.learner_result.remote(feedback), "learner")
-            self.learner_calls += 1
-            st = {**st, "allowed_updates": st["allowed_updates"] - self.config.service.updates_per_call}
-        steps = self.config.service.fit_steps_per_call
-        ready = st["size"] >= max(1, self.config.maddpg.warmup)
+            self._track(feedback, "feedback")
+            self.inflight[("learner", 0)] += 1
+            updates_room -= svc.updates_per_call
+        if st["size"] < max(1, self.config.maddpg.warmup):
+            return
+        steps = svc.fit_steps_per_call
         groups = self.config.teacher_groups() if r.teachers else []
         for k, (teacher, folds) in enumerate(zip(r.teachers, groups, strict=True)):
-            if ready and ("teacher", k) not in self.busy and min(st["teacher_allowed"][f] for f in folds) > 0:
+            room = min(st["teacher_allowed"][f] for f in folds) - steps * self.inflight[("teacher", k)]
+            while self.inflight[("teacher", k)] < CALLS_IN_FLIGHT and room > 0:
                 work, _ = r.replay.teacher_work.options(num_returns=2).remote(folds, steps)
                 scores, report = teacher.step.options(num_returns=2).remote(work, self.weights)
                 self._track(report, "teacher_report", k)
-                self._track(r.replay.write_teacher_scores.remote(scores), "teacher", k)
-                self.busy.add(("teacher", k))
-        if r.icm is not None and ready and ("icm", 0) not in self.busy and st["icm_allowed"] > 0:
+                self._track(scores, "teacher_scores", k)
+                self.inflight[("teacher", k)] += 1
+                room -= steps
+        room = st["icm_allowed"] - steps * self.inflight[("icm", 0)]
+        while r.icm is not None and self.inflight[("icm", 0)] < CALLS_IN_FLIGHT and room > 0:
             work, _ = r.replay.icm_work.options(num_returns=2).remote(steps)
             scores, report = r.icm.step.options(num_returns=2).remote(work)
             self._track(report, "icm_report")
-            self._track(r.replay.write_curiosity.remote(scores), "icm")
-            self.busy.add(("icm", 0))
-
-    def _busy_count(self, kind: str) -> int:
-        return sum(1 for b in self.busy if b[0] == kind)
+            self._track(scores, "icm_scores")
+            self.inflight[("icm", 0)] += 1
+            room -= steps
 
     # ------------------------------------------------------------------ replies
     def _collect(self, timeout: float) -> None:
         """Wait for at least one reply (up to `timeout` s) and apply every reply that is ready."""
         if not self.pending:
             return
-        ready, rest = ray.wait(list(self.pending), num_returns=1, timeout=timeout)
+        ready, rest = ray.wait(list(self.pending), num_returns=1, timeout=timeout, fetch_local=False)
         if ready and rest:  # take everything else that is already done, without waiting
-            more, _ = ray.wait(rest, num_returns=len(rest), timeout=0)
+            more, _ = ray.wait(rest, num_returns=len(rest), timeout=0, fetch_local=False)
             ready += more
         for ref in ready:
             kind, index = self.pending.pop(ref)
+            if kind in FORWARD:  # data for the replay server, now ready: hand over the ref, never the data
+                self._track(getattr(self.roles.replay, FORWARD[kind][0]).remote(ref), FORWARD[kind][1], index)
+                continue
             try:
                 value = ray.get(ref)
             except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError,
@@ -188,10 +202,7 @@ class Supervisor:
             self.status = value
             if value.get("error"):
                 self.failures[value["error"].split(":")[0]] = self.failures.get(value["error"].split(":")[0], 0) + 1
-            if kind == "learner":
-                self.learner_calls -= 1
-            else:
-                self.busy.discard((kind, index))
+            self.inflight[(kind, index)] -= 1
         elif kind.endswith("_report"):
             self.metrics.try_apply(value)
             if "weight_version" in value:
@@ -209,10 +220,8 @@ class Supervisor:
         """A call failed because an actor died: free its slot (Ray restarts the actor) or replace the worker."""
         role = kind.replace("_report", "")
         self.failures[role] = self.failures.get(role, 0) + 1
-        if kind == "learner":
-            self.learner_calls -= 1
-        elif kind in ("rollout", "teacher", "icm"):
-            self.busy.discard((kind, index))
+        if kind in ("rollout", "learner", "teacher", "icm"):
+            self.inflight[(kind, index)] -= 1
         if kind == "rollout_report" and isinstance(err, ray.exceptions.ActorDiedError) and not _restartable(err):
             self.roles.rollout[index] = self.roles.make_rollout(index)  # out of restarts: a fresh worker
 
@@ -295,7 +304,7 @@ class Supervisor:
             if cfg.service.max_seconds and time.perf_counter() - self.started > cfg.service.max_seconds:
                 break
             collecting = self.status["episodes"] < cfg.run.episodes
-            if not collecting and self.status["update_deficit"] < 1 and self.learner_calls == 0:
+            if not collecting and self.status["update_deficit"] < 1 and self.inflight[("learner", 0)] == 0:
                 break  # episode target reached and the learner has caught up with the update ratio
             self._issue(rollouts=collecting)
             self._collect(timeout=0.5)
