@@ -137,14 +137,19 @@ class Supervisor:
         """
         st, r, svc = self.status, self.roles, self.config.service
         chunk = self.config.env.num_envs * self.config.env.episode_length
-        inserts_room = st["allowed_inserts"] - chunk * sum(self.inflight[("rollout", w)] for w in range(len(r.rollout)))
+        chunks_in_flight = sum(self.inflight[("rollout", w)] for w in range(len(r.rollout)))
+        inserts_room = st["allowed_inserts"] - chunk * chunks_in_flight
+        # never collect more than run.episodes: every chunk is num_envs whole episodes
+        episodes_room = self.config.run.episodes - st["episodes"] - self.config.env.num_envs * chunks_in_flight
         for w, worker in enumerate(r.rollout):
-            while rollouts and self.inflight[("rollout", w)] < CALLS_IN_FLIGHT and inserts_room >= chunk:
+            while (rollouts and self.inflight[("rollout", w)] < CALLS_IN_FLIGHT and inserts_room >= chunk
+                   and episodes_room > 0):
                 chunk_ref, report = worker.rollout.options(num_returns=2).remote(self.weights)
                 self._track(report, "rollout_report", w)
                 self._track(chunk_ref, "chunk", w)
                 self.inflight[("rollout", w)] += 1
                 inserts_room -= chunk
+                episodes_room -= self.config.env.num_envs
         updates_room = st["allowed_updates"] - svc.updates_per_call * self.inflight[("learner", 0)]
         while self.inflight[("learner", 0)] < CALLS_IN_FLIGHT and updates_room > 0:
             batch, _ = r.replay.sample.options(num_returns=2).remote(svc.updates_per_call)

@@ -101,21 +101,25 @@ def test_resume_continues_counters(tmp_path, ray_cluster):
 
 def test_a_killed_rollout_worker_is_replaced_and_training_goes_on(tmp_path, ray_cluster):
     ray = ray_cluster
-    config = tiny("maddpg", tmp_path / "kill", episodes=16)
+    config = tiny("maddpg", tmp_path / "kill", episodes=24)
     run_dir = RunDirectory.create(config.run.dir, config)
     metrics = ServiceMetrics()
     roles = create_roles(config, run_dir)
-    killed = {}
+    supervisor = Supervisor(config, run_dir, roles, metrics, progress=None)
+    apply, killed = supervisor._apply, []
 
-    def progress(line):
-        if "kill" not in killed and "ep 0/" not in line:
+    def apply_then_kill(kind, index, value):  # kill the worker as soon as its first chunk has been reported
+        apply(kind, index, value)
+        if kind == "rollout_report" and not killed:
             ray.kill(roles.rollout[0], no_restart=False)
-            killed["kill"] = line
+            killed.append(value["rollout"]["episodes"])
 
-    summary = Supervisor(config, run_dir, roles, metrics, progress=progress).run()
-    assert "kill" in killed and summary["episodes"] >= 16
+    supervisor._apply = apply_then_kill
+    summary = supervisor.run()
+    assert killed and killed[0] < 24 and summary["episodes"] == 24
     parsed = samples(metrics.text())
     assert value(parsed, "cmcl_actor_restarts_total", role="rollout") >= 1
+    assert summary["failures"].get("rollout", 0) + summary["failures"].get("chunk", 0) >= 1
     for handle in (roles.replay, roles.learner, *roles.rollout):
         ray.kill(handle)
 
