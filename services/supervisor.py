@@ -43,12 +43,12 @@ class InfeasibleResources(RuntimeError):
     """The roles ask for more CPUs than the cluster has."""
 
 
-def required_cpus(config: Config) -> float:
+def required_cpus(config: Config, cluster_cpus: float | None = None) -> float:
     """CPUs the roles of `config` request in total."""
     s, teams = config.service, config.teams.values()
     total = s.rollout_workers * s.rollout_cpus + s.learner_cpus + s.replay_cpus
     if any(t.uses_teachers for t in teams):
-        total += len(config.teacher_groups()) * s.teacher_cpus
+        total += len(config.teacher_groups(cluster_cpus)) * s.teacher_cpus
     if any(t.uses_icm for t in teams):
         total += s.icm_cpus
     return total
@@ -71,13 +71,14 @@ class Roles:
     rollout: list[Any]
     teachers: list[Any]
     icm: Any | None
+    teacher_groups: list[list[int]]
     make_rollout: Callable[[int], Any] = field(repr=False, default=None)
 
 
 def create_roles(config: Config, run_dir: RunDirectory) -> Roles:
     """Start every role as a restartable Ray actor with fractional CPUs (after a feasibility check)."""
     available = ray.cluster_resources().get("CPU", 0.0)
-    need = required_cpus(config)
+    need = required_cpus(config, available)
     if need > available + 1e-9:
         raise InfeasibleResources(f"the roles request {need:.2f} CPUs (service.*_cpus) but the cluster has "
                                   f"{available:g}; lower service.rollout_workers or the per-role CPU requests")
@@ -94,13 +95,14 @@ def create_roles(config: Config, run_dir: RunDirectory) -> Roles:
     if any(t.uses_teachers for t in teams):
         teachers = [actor(TeacherWorker, s.teacher_cpus).remote(
             cfg, folds, seed * 1000 + 100 + i, str(paths["teacher"] / f"teacher_{'-'.join(map(str, folds))}.pt"))
-            for i, folds in enumerate(config.teacher_groups())]
+            for i, folds in enumerate(config.teacher_groups(available))]
     icm = None
     if any(t.uses_icm for t in teams):
         icm = actor(CuriosityWorker, s.icm_cpus).remote(cfg, seed * 1000 + 200, str(paths["icm"]))
     return Roles(replay=actor(ReplayServer, s.replay_cpus).remote(cfg, str(paths["replay"]), seed),
                  learner=actor(Learner, s.learner_cpus).remote(cfg, seed, str(paths["learner"])),
                  rollout=[make_rollout(w) for w in range(s.rollout_workers)], teachers=teachers, icm=icm,
+                 teacher_groups=config.teacher_groups(available) if teachers else [],
                  make_rollout=make_rollout)
 
 
@@ -161,8 +163,7 @@ class Supervisor:
         if st["size"] < max(1, self.config.maddpg.warmup):
             return
         steps = svc.fit_steps_per_call
-        groups = self.config.teacher_groups() if r.teachers else []
-        for k, (teacher, folds) in enumerate(zip(r.teachers, groups, strict=True)):
+        for k, (teacher, folds) in enumerate(zip(r.teachers, r.teacher_groups, strict=True)):
             room = min(st["teacher_allowed"][f] for f in folds) - steps * self.inflight[("teacher", k)]
             while self.inflight[("teacher", k)] < CALLS_IN_FLIGHT and room > 0:
                 work, _ = r.replay.teacher_work.options(num_returns=2).remote(folds, steps)

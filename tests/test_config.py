@@ -86,3 +86,12 @@ def test_missing_and_malformed_files(tmp_path):
 def test_dump_round_trip():
     config = preset("per", "tag", opponent="acl")
     assert config_from_dict(tomllib.loads(dump_toml(config))) == config
+
+
+def test_teacher_actor_groups():
+    config = preset("cmcl")
+    assert config.teacher_groups() == [[0], [1], [2], [3], [4]]
+    assert config.teacher_groups(cluster_cpus=2) == [[0, 1, 2, 3, 4]], "automatic: one stacked actor on 2 cores"
+    assert config.teacher_groups(cluster_cpus=16) == [[0], [1], [2], [3], [4]]
+    two = load_config(None, ["service.teacher_actors=2"])
+    assert two.teacher_groups(cluster_cpus=2) == [[0, 2, 4], [1, 3]]

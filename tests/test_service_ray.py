@@ -53,9 +53,9 @@ def value(parsed, name, **labels):
 @pytest.mark.parametrize("algorithm", ["maddpg", "per", "acl", "cmcl"])
 def test_each_preset_runs_end_to_end(algorithm, tmp_path, ray_cluster):
     config = tiny(algorithm, tmp_path / algorithm)
-    if algorithm == "acl":  # cover the stacked variant: one teacher actor hosting all K folds
+    if algorithm == "acl":  # cmcl runs the automatic choice (one stacked actor on 2 CPUs); acl runs K actors
         config = config_from_dict({**config.to_dict(), "service": {**config.to_dict()["service"],
-                                                                   "teacher_actors": 1}})
+                                                                   "teacher_actors": 3}})
     scraped = {}
 
     def progress(line):
