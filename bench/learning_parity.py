@@ -51,6 +51,16 @@ def run_service_one(task: str, algorithm: str, seed: int, episodes: int, out: Pa
     return result
 
 
+def inline_result(args: argparse.Namespace, seed: int, out: Path) -> dict:
+    """The inline run's evaluation: from learning_evidence's results.json when it holds this seed, else a new run."""
+    saved = out / "results.json"
+    if saved.exists():
+        for result in json.loads(saved.read_text()).get(args.algorithm, []):
+            if result.get("seed") == seed:
+                return result
+    return run_one(args.task, args.algorithm, seed, args.episodes, out, args.overrides)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--task", default="spread", choices=["spread", "tag"])
@@ -62,9 +72,12 @@ def main() -> None:
     args = parser.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    table = {"inline": [run_one(args.task, args.algorithm, s, args.episodes, out, args.overrides) for s in args.seeds],
-             "service": [run_service_one(args.task, args.algorithm, s, args.episodes, out, args.overrides)
-                         for s in args.seeds]}
+    table = {"inline": [inline_result(args, s, out) for s in args.seeds], "service": []}
+    for seed in args.seeds:
+        table["service"].append(run_service_one(args.task, args.algorithm, seed, args.episodes, out, args.overrides))
+        r = table["service"][-1]
+        print(f"service seed {seed}: coverage {r.get('coverage', float('nan')):.3f} "
+              f"win {r.get('predator_win', float('nan')):.3f} ({r['train_seconds']:.0f}s)", flush=True)
     (out / f"parity_{args.task}_{args.algorithm}.json").write_text(json.dumps(table, indent=2))
     key = "coverage" if args.task == "spread" else "predator_win"
     print(f"\n{args.task} {args.algorithm}: {args.episodes} episodes per run, seeds {args.seeds}, 200 eval episodes")
