@@ -66,6 +66,13 @@ def _encode_array(arr: np.ndarray, allow_nonfinite: bool, path: str) -> msgpack.
     return msgpack.ExtType(_ND_EXT, msgpack.packb([name, list(arr.shape), raw], use_bin_type=True))
 
 
+def _check_float(value: float, allow_nonfinite: bool, path: str) -> float:
+    """A float scalar, refused when not finite (unless allowed)."""
+    if not allow_nonfinite and not math.isfinite(value):
+        raise CodecError(f"{path}: float {value!r} is not finite")
+    return value
+
+
 def _to_wire(obj, allow_nonfinite: bool, path: str = "body"):
     """Convert a nested value to msgpack-native types, refusing anything outside the format."""
     if isinstance(obj, np.ndarray):
@@ -77,9 +84,7 @@ def _to_wire(obj, allow_nonfinite: bool, path: str = "body"):
     if obj is None or isinstance(obj, bool | int | str):
         return obj
     if isinstance(obj, float):
-        if not allow_nonfinite and not math.isfinite(obj):
-            raise CodecError(f"{path}: float {obj!r} is not finite")
-        return obj
+        return _check_float(obj, allow_nonfinite, path)
     if isinstance(obj, dict):
         bad = [k for k in obj if not isinstance(k, str)]
         if bad:
@@ -152,9 +157,7 @@ def _from_wire(obj, budget: _Budget, allow_nonfinite: bool, depth: int, path: st
     if obj is None or isinstance(obj, bool | int | str):
         return obj
     if isinstance(obj, float):
-        if not allow_nonfinite and not math.isfinite(obj):
-            raise CodecError(f"{path}: float {obj!r} is not finite")
-        return obj
+        return _check_float(obj, allow_nonfinite, path)
     if isinstance(obj, dict):
         if not all(isinstance(k, str) for k in obj):
             raise CodecError(f"{path}: dict keys must be str")

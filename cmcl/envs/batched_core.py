@@ -26,10 +26,10 @@ from cmcl.envs.common import (
     DT,
     check_dtype,
     check_int,
+    check_state_arrays,
     make_rng,
 )
 
-STATE_KEYS = ("positions", "velocities", "landmarks", "step")
 SOFTPLUS_CUT = 50.0  # softplus(x) < 2e-22 for x < -50: computing it exactly only hits slow denormal paths
 SOFTPLUS_TOP = 80.0  # softplus(x) = x to float precision for x > 80 (and exp(88) overflows float32)
 MIN_DIST = 1e-20  # distances below this only occur as exact zeros (agents clamped into one corner)
@@ -300,19 +300,7 @@ class BatchedWorld:
         """Load a state of the get_state form (ep_* keys optional, zero if absent); returns obs [B, N, obs_dim]."""
         b, n, num_l = self.num_envs, self.num_agents, self.num_landmarks
         shapes = {"positions": (b, n, 2), "velocities": (b, n, 2), "landmarks": (b, num_l, 2), "step": (b,)}
-        arrays = {}
-        for key in STATE_KEYS:
-            if key not in state:
-                raise ValueError(f"state is missing {key!r}")
-            arr = np.asarray(state[key])
-            if arr.shape != shapes[key]:
-                raise ValueError(f"state[{key!r}] must have shape {shapes[key]}, got {arr.shape}")
-            if not np.isfinite(arr).all():
-                raise ValueError(f"state[{key!r}] must be finite")
-            arrays[key] = arr
-        unknown = set(state) - set(STATE_KEYS) - set(self._stats)
-        if unknown:
-            raise ValueError(f"state has unknown keys {sorted(unknown)} (wrong task?)")
+        arrays = check_state_arrays(state, shapes, self._stats)
         for key, acc in self._stats.items():
             if key in state:
                 arr = np.asarray(state[key])

@@ -12,7 +12,9 @@ time step dt = 0.1.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -215,3 +217,26 @@ def sample_tag(rng: np.random.Generator, n: int, p: TagParams) -> tuple[np.ndarr
     obstacles = rng.uniform(-p.obstacle_spawn, p.obstacle_spawn, (n, p.num_obstacles, 2))
     agents = sample_agents(rng, n, p.radii, obstacles, p.obstacle_radius)
     return agents, obstacles
+
+
+def check_state_arrays(state: dict[str, Any], shapes: dict[str, tuple[int, ...]],
+                       accumulators: Iterable[str]) -> dict[str, np.ndarray]:
+    """The world-state arrays of `state` (keys of `shapes`), each checked for presence, shape and finiteness.
+
+    Keys other than those of `shapes` and the optional episode `accumulators` are refused (a state of the other
+    task). Raises ValueError naming the key; nothing is loaded by this function.
+    """
+    arrays = {}
+    for key, shape in shapes.items():
+        if key not in state:
+            raise ValueError(f"state is missing {key!r}")
+        arr = np.asarray(state[key])
+        if arr.shape != shape:
+            raise ValueError(f"state[{key!r}] must have shape {shape}, got {arr.shape}")
+        if not np.isfinite(arr).all():
+            raise ValueError(f"state[{key!r}] must be finite")
+        arrays[key] = arr
+    unknown = set(state) - set(shapes) - set(accumulators)
+    if unknown:
+        raise ValueError(f"state has unknown keys {sorted(unknown)} (wrong task?)")
+    return arrays

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from cmcl.envs.common import check_state_arrays
 from cmcl.envs.pz_base import SparseParallelEnv
 
 
@@ -42,19 +43,7 @@ def set_world_state(env: Any, state: dict[str, Any]) -> dict[str, np.ndarray]:
     base = _base(env)
     n, num_l = len(base.world.agents), len(base.world.landmarks)
     shapes = {"positions": (1, n, 2), "velocities": (1, n, 2), "landmarks": (1, num_l, 2), "step": (1,)}
-    arrays = {}
-    for key, shape in shapes.items():
-        if key not in state:
-            raise ValueError(f"state is missing {key!r}")
-        arr = np.asarray(state[key], dtype=np.float64)
-        if arr.shape != shape:
-            raise ValueError(f"state[{key!r}] must have shape {shape}, got {arr.shape}")
-        if not np.isfinite(arr).all():
-            raise ValueError(f"state[{key!r}] must be finite")
-        arrays[key] = arr
-    unknown = set(state) - set(shapes) - set(base.stats)
-    if unknown:
-        raise ValueError(f"state has unknown keys {sorted(unknown)} (wrong task?)")
+    arrays = {k: v.astype(np.float64) for k, v in check_state_arrays(state, shapes, base.stats).items()}
     for key, value in base.stats.items():
         want = (1, *np.shape(value))
         if key in state and np.asarray(state[key]).shape != want:
