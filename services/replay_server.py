@@ -74,11 +74,25 @@ class ReplayServer:
             allowed = min(allowed, lim.allowed_inserts())
         return {"allowed_updates": allowed, "allowed_inserts": self.learner_limit.allowed_inserts(),
                 "update_deficit": self.learner_limit.deficit if self.learner_limit.warmed_up else 0.0,
+                "scoring_deficit": self.scoring_deficit(),
                 "teacher_allowed": [lim.allowed_samples() for lim in self.teacher_limits],
                 "icm_allowed": self.icm_limit.allowed_samples() if self.icm_limit else 0,
                 "size": self.replay.size, "env_steps": self.counters["inserts"],
                 "episodes": self.counters["episodes"], "updates": self.counters["updates"],
                 "lambda": self.schedule.lam, "incarnation": self.incarnation}
+
+    def scoring_deficit(self) -> float:
+        """Teacher / ICM steps still owed to the learner's updates (the largest over those that can get work).
+
+        A teacher whose fold holds no row yet cannot be given work, so it does not count; nothing counts before
+        the buffer reaches its minimum size (no scoring work is handed out before then).
+        """
+        if self.replay.size < self.replay.min_size:
+            return 0.0
+        counts = self.replay.storage.fold_counts()
+        owed = [lim.deficit for f, lim in enumerate(self.teacher_limits) if counts[f] > 0]
+        owed += [self.icm_limit.deficit] if self.icm_limit is not None else []
+        return float(max(owed, default=0.0))
 
     def _reject(self, reason: str, detail: str) -> dict[str, Any]:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1

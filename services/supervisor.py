@@ -284,6 +284,27 @@ class Supervisor:
         while self.pending:
             self._collect(timeout=5.0)
 
+    def _caught_up(self, fresh: bool = False) -> bool:
+        """Whether no learner / teacher / ICM call is in flight and each has caught up with its ratio (< 1 step).
+
+        The status applied last may be older than another reply applied before it (ray.wait returns ready refs
+        in any order); `fresh=True` drains every call in flight and asks the replay server for its status now.
+        """
+        if any(n for (role, _), n in self.inflight.items() if role in ("learner", "teacher", "icm")):
+            return False
+        if fresh:
+            self.drain()
+            self.status = ray.get(self.roles.replay.status.remote())
+        return self.status["update_deficit"] < 1 and self.status["scoring_deficit"] < 1
+
+    def final_cut(self) -> None:
+        """The end of a run as one consistent cut: drain every call in flight, then take one final status and
+        replay report, so the metrics, the summary and the checkpoint all describe the same state."""
+        self.drain()
+        status, report = ray.get([self.roles.replay.status.remote(), self.roles.replay.report.remote()])
+        self.status = status
+        self._apply("replay_report", 0, report)
+
     def checkpoint(self) -> None:
         """Drain, then have every role save its own state atomically; then the supervisor's counters."""
         self.drain()
@@ -310,8 +331,8 @@ class Supervisor:
             if cfg.service.max_seconds and time.perf_counter() - self.started > cfg.service.max_seconds:
                 break
             collecting = self.status["episodes"] < cfg.run.episodes
-            if not collecting and self.status["update_deficit"] < 1 and self.inflight[("learner", 0)] == 0:
-                break  # episode target reached and the learner has caught up with the update ratio
+            if not collecting and self._caught_up() and self._caught_up(fresh=True):
+                break  # episode target reached; the learner, every teacher and the ICM have caught up
             self._issue(rollouts=collecting)
             self._collect(timeout=0.5)
             now = time.perf_counter()
@@ -330,6 +351,7 @@ class Supervisor:
             if now - last_ckpt >= cfg.service.checkpoint_every_s:
                 self.checkpoint()
                 last_ckpt = time.perf_counter()
+        self.final_cut()
         self.checkpoint()
         self._refresh_rates()
         if self.progress is not None:
