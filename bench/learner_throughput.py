@@ -6,7 +6,10 @@ Also times a full rescoring of a 5000-row buffer (TD targets, teacher errors, cr
 curiosity). Rounds of ours and the peer are interleaved (the machine is shared); the median update round and the
 best rescoring run are reported.
 
-Run: .venv/bin/python bench/learner_throughput.py   (last line: ``ratio: X`` = ours / peer updates per second)
+Then one update of the inline loop at the default settings, CMCL against MADDPG on the same filled buffer.
+
+Run: .venv/bin/python bench/learner_throughput.py   (``ratio: X`` = ours / peer updates per second; last line
+``cmcl/maddpg cost: X`` = seconds of one CMCL update over one MADDPG update, target <= 3)
 """
 
 from __future__ import annotations
@@ -14,16 +17,20 @@ from __future__ import annotations
 import copy
 import statistics
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
 
+from cmcl.config import load_config
 from cmcl.icm import ICM
+from cmcl.loop import InlineLoop
 from cmcl.maddpg import MADDPG
 from cmcl.nets import joint_input
 from cmcl.teachers import TeacherEnsemble, cross_validated_difficulty, fold_batch_indices, make_fit_batch
 
+ROOT = Path(__file__).resolve().parents[1]
 N, OD, AD, S, K, M = 4, 18, 2, 128, 5, 5000
 GAMMA, TAU, CLIP = 0.99, 0.01, 0.5
 ROUNDS, UPDATES_PER_ROUND = 7, 12
@@ -221,6 +228,40 @@ def main() -> None:
     print(f"full CMCL update  peer (loops):   {u_p:8.1f} updates/s   ({1e3 / u_p:6.2f} ms)")
     print(f"rescore {M} rows  ours: {1e3 * s_o:7.1f} ms   peer: {1e3 * s_p:7.1f} ms   ({s_p / s_o:.2f}x)")
     print(f"ratio: {u_o / u_p:.2f}")
+    cost = cmcl_vs_maddpg_cost()
+    print(f"cmcl/maddpg cost: {cost:.2f}")
+
+
+# ----------------------------------------------------------------------------- CMCL vs MADDPG, as the loop runs them
+def filled_loop(algorithm: str) -> InlineLoop:
+    """The inline loop of the default spread preset for `algorithm`, its 5000-row buffer filled by the policy."""
+    config = load_config(f"{ROOT}/configs/spread_{algorithm}.toml", ["run.dir=unused", "maddpg.warmup=5000"])
+    loop = InlineLoop(config, None, progress=None)
+    while loop.replay.size < loop.replay.capacity:
+        loop.env_step()
+    return loop
+
+
+def cmcl_vs_maddpg_cost(rounds: int = 7, updates: int = 30) -> float:
+    """Median seconds of one `InlineLoop.update()` of CMCL over one of MADDPG (interleaved rounds).
+
+    A CMCL update here is everything the inline loop does per update at the defaults: the teacher and ICM steps
+    due at their ratios, scoring of new rows plus the rolling rescoring, the priority recompute, the MADDPG step.
+    """
+    loops = {name: filled_loop(name) for name in ("maddpg", "cmcl")}
+    seconds: dict[str, list[float]] = {name: [] for name in loops}
+    for _ in range(rounds):
+        for name, loop in loops.items():
+            t0 = time.perf_counter()
+            for _ in range(updates):
+                loop.update()
+            seconds[name].append((time.perf_counter() - t0) / updates)
+    per = {name: statistics.median(v) for name, v in seconds.items()}
+    print(f"one inline update at the defaults: maddpg {1e3 * per['maddpg']:.2f} ms, cmcl {1e3 * per['cmcl']:.2f} ms "
+          f"(teachers {loops['cmcl'].config.teachers.steps_per_update:g} / ICM "
+          f"{loops['cmcl'].config.icm.steps_per_update:g} steps per update, "
+          f"{loops['cmcl'].config.teachers.rescore_rows_per_update} rows rescored per update)")
+    return per["cmcl"] / per["maddpg"]
 
 
 if __name__ == "__main__":

@@ -50,13 +50,20 @@ class EnvConfig:
 
     task: Literal["spread", "tag"] = "spread"
     num_agents: int = 4  # spread: agents = landmarks
-    num_predators: int = 4  # tag
+    num_predators: int = 2  # tag; calibrated (ALGORITHM.md §6.2 "calibration", bench/tag_calibration.py)
     num_prey: int = 2  # tag
     num_obstacles: int = 3  # tag
     episode_length: int = 30  # steps per episode [P]
     agent_radius: float = 0.05  # spread agents [R]; option 0.15 (simple_spread)
     obstacle_radius: float = 0.1  # tag obstacles [R]; option 0.2 (MPE "large")
-    shared_reward: bool = True  # spread: every agent receives the team sum (MPE collaborative)
+    predator_radius: float = 0.0375  # tag, calibrated [R]: MPE's 0.075 x 0.5 (capture at r_pred + r_prey)
+    prey_radius: float = 0.025  # tag, calibrated [R]: MPE's 0.05 x 0.5
+    # tag D1 (§6.2, revised): False = each (predator, prey) pair in contact pays +5 to that predator only;
+    # True = every predator receives +5 per pair in contact (MPE simple_tag's shared team reward)
+    tag_shared_reward: bool = False
+    # spread: False = each agent receives its own C1 + C2 (ALGORITHM.md §6.1, revised: the team sum hides who
+    # earned what from each agent's critic and blocks learning); True = every agent receives the team sum
+    shared_reward: bool = False
     num_envs: int = 16  # worlds stepped at once by the batched twin (inline loop / rollout worker)
 
     def __post_init__(self) -> None:
@@ -65,6 +72,8 @@ class EnvConfig:
         _require(self.num_obstacles >= 0, "env.num_obstacles", self.num_obstacles, "must be >= 0")
         _positive("env.agent_radius", self.agent_radius)
         _positive("env.obstacle_radius", self.obstacle_radius)
+        _positive("env.predator_radius", self.predator_radius)
+        _positive("env.prey_radius", self.prey_radius)
 
 
 @dataclass(frozen=True)
@@ -81,7 +90,9 @@ class MADDPGConfig:
     exploration_std: float = 0.1  # Gaussian noise on tanh actions
     discrete: bool = False  # Gumbel-softmax variant (A17)
     warmup: int = 3840  # transitions before the first update: batch × episode length (A18)
-    update_every: int = 1  # env steps per learner update (A18)
+    # world steps (one step of one world = one transition) per learner update; 16 solves navigation fastest in
+    # wall clock (README, bench/time_to_solve.py --grid schedule); the paper presets (configs/paper/) use 1 (A18)
+    update_every: int = 16
 
     def __post_init__(self) -> None:
         for name in ("actor_lr", "critic_lr", "grad_clip"):
@@ -137,14 +148,21 @@ class TeacherConfig:
     batch_size: int = 128
     lr: float = 1e-3
     hidden: int = 64
-    rescore_every: int = 30  # env steps between full-buffer rescoring
+    # rows rescored per learner update (never-scored rows first, then a rolling cursor over the buffer): the
+    # whole 5000-row buffer every ~39 updates; the paper preset's 167 = all of it every 30 updates (§3.8)
+    rescore_rows_per_update: int = 128
+    # "shared": one fold batch per fold serves every agent's teacher of that fold (one target pass; the service's
+    # layout); "per_agent": each (agent, fold) teacher draws its own batch (§3.2 literally, A x the target cost)
+    fit_batch: Literal["shared", "per_agent"] = "shared"
     difficulty_norm: Literal["max", "rank"] = "max"
     difficulty_error: Literal["squared", "abs"] = "squared"
-    steps_per_update: float = 1.0  # teacher fit steps per learner update (service rate limiter)
+    # teacher fit steps per learner update, inline and in the service (its rate limiter); §3.8 has 1, the
+    # default 0.5 halves the teachers' cost (CMCL update cost vs MADDPG: bench/learner_throughput.py)
+    steps_per_update: float = 0.5
 
     def __post_init__(self) -> None:
         _require(self.num_folds >= 2, "teachers.num_folds", self.num_folds, "must be >= 2")
-        for name in ("batch_size", "hidden", "rescore_every"):
+        for name in ("batch_size", "hidden", "rescore_rows_per_update"):
             _require(getattr(self, name) >= 1, f"teachers.{name}", getattr(self, name), "must be >= 1")
         _positive("teachers.lr", self.lr)
         _positive("teachers.steps_per_update", self.steps_per_update)
@@ -161,7 +179,7 @@ class ICMConfig:
     batch_size: int = 128
     cp_input: Literal["std", "raw"] = "std"
     intrinsic_reward_coef: float = 0.0  # A6: curiosity feeds priority only
-    steps_per_update: float = 1.0  # ICM steps per learner update (service rate limiter)
+    steps_per_update: float = 0.5  # ICM steps per learner update, inline and in the service (§3.8: 1)
 
     def __post_init__(self) -> None:
         for name in ("feature_dim", "hidden", "batch_size"):
@@ -217,9 +235,16 @@ class RunConfig:
     log_every: int = 10  # episodes between progress lines / metric rows
     checkpoint_every: int = 500  # episodes between checkpoints (0: only at the end)
     smoothing_window: int = 100  # episodes, for curves and moving averages
+    # stop early once the moving average (over smoothing_window episodes) of final-step coverage reaches this
+    # (spread only; 0: off, train all run.episodes)
+    stop_coverage: float = 0.0
+    max_seconds: float = 0.0  # wall-clock budget of training, inline and in the service (0: none)
 
     def __post_init__(self) -> None:
         _require(self.episodes >= 1, "run.episodes", self.episodes, "must be >= 1")
+        _probability("run.stop_coverage", self.stop_coverage)
+        _require(self.max_seconds >= 0 and math.isfinite(self.max_seconds), "run.max_seconds", self.max_seconds,
+                 "must be a finite number >= 0")
         _require(bool(self.dir), "run.dir", self.dir, "must be a non-empty path")
         _require(self.seed >= 0, "run.seed", self.seed, "must be >= 0")
         for name in ("log_every", "smoothing_window"):
@@ -249,7 +274,6 @@ class ServiceConfig:
     replay_cpus: float = 0.25
     metrics_port: int = 9100  # 0: pick a free port
     metrics_host: str = "127.0.0.1"
-    max_seconds: float = 0.0  # wall-clock budget (0: none; run.episodes still applies)
 
     def __post_init__(self) -> None:
         for name in ("rollout_workers", "updates_per_call", "fit_steps_per_call", "score_rows_per_call",
@@ -262,7 +286,6 @@ class ServiceConfig:
             _positive(f"service.{name}", getattr(self, name))
         _positive("service.checkpoint_every_s", self.checkpoint_every_s)
         _require(0 <= self.metrics_port <= 65535, "service.metrics_port", self.metrics_port, "must lie in [0, 65535]")
-        _require(self.max_seconds >= 0, "service.max_seconds", self.max_seconds, "must be >= 0")
 
 
 @dataclass(frozen=True)

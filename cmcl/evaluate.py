@@ -35,22 +35,29 @@ def load_policy(config: Config, checkpoint: str | Path) -> MADDPG:
 
 
 def evaluate_policy(config: Config, maddpg: MADDPG | None, episodes: int = 100, seed: int = 0,
-                    noise_std: float = 0.0) -> dict[str, Any]:
+                    noise_std: float = 0.0, random_teams: tuple[str, ...] = ()) -> dict[str, Any]:
     """Run `episodes` episodes in parallel in the batched twin; maddpg=None acts uniformly at random.
 
-    Returns means and standard deviations over episodes: coverage (final step), success, collisions,
-    predator_win, and the team returns {team: mean}.
+    random_teams: teams whose agents act uniformly at random while the others use `maddpg` (e.g. ("prey",) to
+    pit trained predators against random prey). Returns means and standard deviations over episodes: coverage
+    (final step), success, collisions, predator_win, and the team returns {team: mean}.
     """
     torch.set_num_threads(1)
     rng = np.random.default_rng(seed + EVAL_SEED_OFFSET)
     env = make_batched_env(config, num_envs=episodes, seed=rng, auto_reset=False)
+    unknown = sorted(set(random_teams) - set(env.teams))
+    if unknown:
+        raise ValueError(f"random_teams names {unknown[0]!r}, not a team of this task: {sorted(env.teams)}")
+    random_agents = [a for team in random_teams for a in env.teams[team]]
     obs = env.reset()
     info: dict[str, Any] = {}
     for _ in range(env.episode_length):
+        uniform = rng.uniform(-1.0, 1.0, size=(episodes, env.num_agents, env.act_dim)).astype(np.float32)
         if maddpg is None:
-            actions = rng.uniform(-1.0, 1.0, size=(episodes, env.num_agents, env.act_dim)).astype(np.float32)
+            actions = uniform
         else:
             actions = to_env_actions(maddpg.act(obs, noise_std, rng=rng), config.maddpg.discrete)
+            actions[:, random_agents] = uniform[:, random_agents]
         obs, _, _, info = env.step(actions)
     ep = info["episode"]
     out: dict[str, Any] = {"episodes": episodes, "policy": "random" if maddpg is None else "trained"}

@@ -2,9 +2,9 @@
 
 Where it sits: the reference implementation and the baseline the distributed service is measured against.
 It runs the same classes the service runs (built by cmcl.system, stepped by cmcl.scoring):
-rollout of B batched worlds -> replay (scored at insertion) -> per update: teacher step, ICM step,
-rescoring every `teachers.rescore_every` env steps, priority recompute at the current λ, one MADDPG update
-of all agents, λ advanced per env step.
+rollout of B batched worlds -> replay -> per update (one per `maddpg.update_every` world steps): teacher step,
+ICM step, scoring of the new rows plus `teachers.rescore_rows_per_update` rows of a rolling rescoring, priority
+recompute at the current λ, one MADDPG update of all agents; λ advanced per world step.
 
 Run:  python -m cmcl.loop --config configs/spread_cmcl.toml [--set run.episodes=40 --set run.dir=runs/smoke]
       python -m cmcl.loop --resume runs/smoke [--set run.episodes=80]
@@ -13,6 +13,7 @@ Run:  python -m cmcl.loop --config configs/spread_cmcl.toml [--set run.episodes=
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from collections import deque
@@ -25,8 +26,10 @@ import torch
 
 from cmcl import codec
 from cmcl.config import Config, ConfigError, load_config
+from cmcl.diagnostics import curriculum_diagnostics, sampling_probabilities
+from cmcl.progress import solved
 from cmcl.rundir import RunDirectory, load_checkpoint
-from cmcl.scoring import Scorers, icm_fit_step, learner_step, rescore, teacher_fit_step
+from cmcl.scoring import Scorers, icm_fit_step, learner_step, rolling_rescore, teacher_fit_step
 from cmcl.system import (
     agent_layout,
     beta_is,
@@ -48,6 +51,14 @@ def replay_snapshot_path(checkpoint: Path) -> Path:
     return checkpoint.with_name(checkpoint.name.replace("ckpt_", "replay_").replace(".pt", ".msgpack"))
 
 
+def steps_due(updates: int, ratio: float, counters: dict[str, int], key: str) -> int:
+    """Fit steps to run at update number `updates` (0-based) so that counters[key] == floor((updates + 1) ·
+    ratio) afterwards; counts them in counters[key]."""
+    due = max(0, math.floor((updates + 1) * ratio + 1e-9) - counters[key])
+    counters[key] += due
+    return due
+
+
 class InlineLoop:
     """Algorithm 1 over B lock-stepped worlds. Construct, then `run()`; `state_dict()` is the checkpoint."""
 
@@ -67,14 +78,15 @@ class InlineLoop:
                                build_icm(config, self.layout, torch_seeds[2]), config.teachers.difficulty_error)
         self.schedule = build_schedule(config)
         self.prioritized = any(m in ("acl", "cmcl") for m in self.layout.modes)
-        self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "rounds": 0, "last_rescore": 0}
+        self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "rounds": 0, "rescore_cursor": 0,
+                         "teacher_steps": 0, "icm_steps": 0}
         self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
         self.last_stats: dict[str, Any] = {}
         self.obs = self.env.reset()
 
     # ------------------------------------------------------------------ one batched env step
     def env_step(self) -> list[dict[str, Any]]:
-        """Act in all B worlds, store and score the B new transitions, run the updates that are due.
+        """Act in all B worlds, store the B new transitions, run the updates that are due (which score them).
 
         Returns the episode rows of worlds whose episode ended in this step.
         """
@@ -82,11 +94,8 @@ class InlineLoop:
         actions = self.maddpg.act(self.obs, cfg.maddpg.exploration_std, rng=self.rng["noise"])  # [B, N, act]
         next_obs, rew, _, info = self.env.step(to_env_actions(actions, cfg.maddpg.discrete))
         episode_ids = self.counters["rounds"] * b + np.arange(b)
-        slots = self.replay.add(self.obs, actions, rew, info["final_obs"], np.zeros(b, np.float32), episode_ids,
-                                policy_version=self.maddpg.updates)
-        written = slots[slots >= 0]
-        if written.size:  # A11: score new transitions at insertion
-            rescore(self.replay, self.scorers, self.layout, written)
+        self.replay.add(self.obs, actions, rew, info["final_obs"], np.zeros(b, np.float32), episode_ids,
+                        policy_version=self.maddpg.updates)
         self.obs = next_obs
         self._run_due_updates(b)
         rows = self._episode_rows(info) if info["episode_mask"].any() else []
@@ -112,20 +121,25 @@ class InlineLoop:
         self.schedule.advance(new_steps - advanced)
 
     def update(self) -> dict[str, Any]:
-        """One synchronous CMCL update: teachers, ICM, rescoring if due, priorities at λ, MADDPG (§3.8)."""
+        """One synchronous CMCL update (§3.8): the teacher and ICM steps due at their ratios per update
+        (`teachers.steps_per_update`, `icm.steps_per_update`, the same ratios the service's limiters hold),
+        scoring, priorities at λ, MADDPG."""
         cfg, c = self.config, self.counters
         stats: dict[str, Any] = {}
-        teacher_loss = teacher_fit_step(self.replay, self.scorers, self.layout, cfg.teachers.batch_size,
-                                        self.rng["teacher"])
-        if teacher_loss is not None:
-            stats["teacher_loss"] = float(teacher_loss.mean())
-        icm = icm_fit_step(self.replay, self.scorers, self.layout, cfg.icm.batch_size, self.rng["icm"])
+        for _ in range(steps_due(c["updates"], cfg.teachers.steps_per_update, c, "teacher_steps")):
+            teacher_loss = teacher_fit_step(self.replay, self.scorers, self.layout, cfg.teachers.batch_size,
+                                            self.rng["teacher"], shared=cfg.teachers.fit_batch == "shared")
+            if teacher_loss is not None:
+                stats["teacher_loss"] = float(teacher_loss.mean())
+        icm = None
+        for _ in range(steps_due(c["updates"], cfg.icm.steps_per_update, c, "icm_steps")):
+            icm = icm_fit_step(self.replay, self.scorers, self.layout, cfg.icm.batch_size, self.rng["icm"])
         if icm is not None:
             stats["icm_inverse_loss"] = float(np.mean(icm["inverse_loss"]))
             stats["icm_forward_loss"] = float(np.mean(icm["forward_loss"]))
-        if c["env_steps"] - c["last_rescore"] >= cfg.teachers.rescore_every:
-            rescore(self.replay, self.scorers, self.layout)
-            c["last_rescore"] = c["env_steps"]
+        # A11 and §3.8's rescoring, amortised: new rows are scored before anything samples them
+        _, c["rescore_cursor"] = rolling_rescore(self.replay, self.scorers, self.layout, c["rescore_cursor"],
+                                                 cfg.teachers.rescore_rows_per_update)
         if self.prioritized:
             self.replay.recompute_priorities(self.schedule.lam)
         result = learner_step(self.replay, self.scorers, self.layout, cfg.maddpg.batch_size, self.sampler_rngs,
@@ -178,6 +192,9 @@ class InlineLoop:
             row["priority"] = {"agents": details["agents"], "mean": details["priority"].mean(0),
                                "kp_zero_fraction": (details["kp"] == 0).mean(0),
                                "c_hat_mean": details["c_hat"].mean(0), "cp_mean": details["cp"].mean(0)}
+            probs = sampling_probabilities(details["priority"], self.config.replay.alpha)
+            age = self.maddpg.updates - self.replay.storage.policy_version[:self.replay.size]
+            row["curriculum"] = curriculum_diagnostics(details["c_hat"], probs, self.schedule.lam, age)
         return row
 
     def format_progress(self, row: dict[str, Any]) -> str:
@@ -243,7 +260,8 @@ class InlineLoop:
 
     # ------------------------------------------------------------------ main loop
     def run(self) -> dict[str, Any]:
-        """Train until run.episodes episodes have finished; returns the final progress row."""
+        """Train until run.episodes episodes have finished, the coverage target `run.stop_coverage` is reached
+        or the budget `run.max_seconds` is spent; returns the final progress row."""
         cfg, c = self.config, self.counters
         start, last_t = time.perf_counter(), time.perf_counter()
         last = {"env_steps": c["env_steps"], "updates": c["updates"]}
@@ -253,9 +271,11 @@ class InlineLoop:
         row: dict[str, Any] = {}
         while c["episodes"] < cfg.run.episodes:
             for episode_row in self.env_step():
+                episode_row["elapsed_s"] = time.perf_counter() - start
                 if self.run_dir is not None:
                     self.run_dir.log(episode_row)
-            done = c["episodes"] >= cfg.run.episodes
+            done = (c["episodes"] >= cfg.run.episodes or solved(self.window, cfg.run)
+                    or (cfg.run.max_seconds > 0 and time.perf_counter() - start >= cfg.run.max_seconds))
             if c["episodes"] >= next_log or done:
                 now = time.perf_counter()
                 dt = max(now - last_t, 1e-9)
@@ -271,6 +291,8 @@ class InlineLoop:
             if next_ckpt is not None and (c["episodes"] >= next_ckpt or done):
                 self.save_checkpoint()
                 next_ckpt = (c["episodes"] // ce + 1) * ce
+            if done:
+                break
         if ce == 0:
             self.save_checkpoint()
         return row

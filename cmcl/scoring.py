@@ -35,8 +35,11 @@ class Scorers:
 
 
 def teacher_fit_step(replay: ReplayBuffer, scorers: Scorers, layout: AgentLayout, batch_size: int,
-                     rng: np.random.Generator) -> np.ndarray | None:
+                     rng: np.random.Generator, shared: bool = True) -> np.ndarray | None:
     """One Adam step of every teacher on a batch drawn uniformly from its own fold (§3.2).
+
+    shared: one batch per fold for all agents' teachers of that fold (one TD-target pass, as in the service);
+    False: every (agent, fold) teacher draws its own batch (A times the target cost).
 
     Returns the pre-step loss float32[A_t, K], or None when there are no teachers or some fold is empty.
     """
@@ -47,7 +50,8 @@ def teacher_fit_step(replay: ReplayBuffer, scorers: Scorers, layout: AgentLayout
     folds = replay.storage.fold[slots]
     if np.bincount(folds, minlength=teachers.num_folds).min() == 0:
         return None
-    idx = fold_batch_indices(folds, teachers.num_folds, batch_size, rng, num_agents=len(layout.teacher_agents))
+    batches = 1 if shared else len(layout.teacher_agents)  # shared: one batch per fold serves every agent
+    idx = fold_batch_indices(folds, teachers.num_folds, batch_size, rng, num_agents=batches)
     rows = replay.get(slots[idx.reshape(-1)])  # only the drawn rows: obs [A*K*S_T, N, od] ...
     local = np.arange(idx.size, dtype=np.int64).reshape(idx.shape)  # [A, K, S_T] into `rows`
     x, y = make_fit_batch(local, rows, layout.teacher_agents, scorers.maddpg.td_targets)
@@ -120,6 +124,40 @@ def rescore(replay: ReplayBuffer, scorers: Scorers, layout: AgentLayout, slots: 
         rows = replay.get(part)
         accepted += write_scores(replay, part, replay.generations(part), score_rows(rows, scorers, layout), layout)
     return accepted
+
+
+def needs_scores(layout: AgentLayout) -> bool:
+    """Whether any agent's priority needs score columns (teacher difficulty, curiosity or online |δ|)."""
+    return bool(layout.teacher_agents.size or layout.icm_agents.size or "td_abs" in layout.difficulty_source)
+
+
+def unscored_slots(replay: ReplayBuffer, layout: AgentLayout) -> np.ndarray:
+    """int64[·] valid slots that lack a score some agent needs (new rows since the last scoring pass)."""
+    size, scored = replay.size, replay.storage.scored
+    missing = np.zeros(size, bool)
+    td_agents = [a for a, src in enumerate(layout.difficulty_source) if src == "td_abs"]
+    for column, agents in (("difficulty", layout.teacher_agents), ("curiosity", layout.icm_agents),
+                           ("td_abs", td_agents)):
+        if len(agents):
+            missing |= ~scored[column][:size][:, agents].all(1)
+    return replay.valid_slots()[missing]
+
+
+def rolling_rescore(replay: ReplayBuffer, scorers: Scorers, layout: AgentLayout, cursor: int, rows: int
+                    ) -> tuple[int, int]:
+    """The scoring of one learner update, amortised: every never-scored row (A11: new rows are scored before they
+    can be sampled), then up to `rows` more from a cursor that walks the buffer in slot order and wraps, so the
+    whole buffer is rescored every capacity / rows updates (§3.8's periodic rescoring, spread over updates).
+
+    Returns (rows accepted, the new cursor).
+    """
+    if not needs_scores(layout) or replay.size == 0:
+        return 0, cursor
+    new = unscored_slots(replay, layout)
+    take = min(max(0, rows - new.size), replay.size)
+    walk = (cursor + np.arange(take)) % replay.size
+    slots = np.union1d(new, walk).astype(np.int64)
+    return rescore(replay, scorers, layout, slots), int((cursor + take) % replay.size)
 
 
 def owner_batch(replay: ReplayBuffer, slots: np.ndarray) -> dict[str, np.ndarray]:

@@ -66,6 +66,8 @@ def make_batched_env(config: Config, num_envs: int | None = None, seed: Any = No
                                    seed=seed, auto_reset=auto_reset)
     return BatchedSparseTag(b, num_predators=env.num_predators, num_prey=env.num_prey,
                             num_obstacles=env.num_obstacles, obstacle_radius=env.obstacle_radius,
+                            predator_radius=env.predator_radius, prey_radius=env.prey_radius,
+                            shared_reward=env.tag_shared_reward,
                             episode_length=env.episode_length, seed=seed, auto_reset=auto_reset)
 
 
@@ -82,6 +84,8 @@ def make_parallel_env(config: Config, render_mode: str | None = None):
 
     return sparse_tag_v0.parallel_env(num_predators=env.num_predators, num_prey=env.num_prey,
                                       num_obstacles=env.num_obstacles, obstacle_radius=env.obstacle_radius,
+                                      predator_radius=env.predator_radius, prey_radius=env.prey_radius,
+                                      shared_reward=env.tag_shared_reward,
                                       max_cycles=env.episode_length, render_mode=render_mode)
 
 

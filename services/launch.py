@@ -5,7 +5,7 @@
 
 Where it sits: the entry point. It validates the config, starts (or joins) Ray, opens the Prometheus endpoint,
 creates every role (services.supervisor.create_roles) and runs the supervisor loop until run.episodes episodes
-(or service.max_seconds), then checkpoints, writes the learning curve and shuts down cleanly.
+(or run.max_seconds), then checkpoints, writes the learning curve and shuts down cleanly.
 """
 
 from __future__ import annotations
@@ -32,6 +32,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its service checkpoint")
     parser.add_argument("--overwrite", action="store_true", help="start over in a run.dir that holds a run")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    parser.add_argument("--no-eval", action="store_true",
+                        help="skip the held-out evaluation, the GIF and the learning curve at the end")
     return parser.parse_args(argv)
 
 
@@ -116,15 +118,34 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     finally:
         ray.shutdown()
+    print(f"done: {summary['episodes']} episodes, {summary['env_steps']} env steps, {summary['updates']} updates "
+          f"in {summary['elapsed_s']:.0f}s" + (f" (coverage target {config.run.stop_coverage} reached)"
+                                               if summary.get("solved") else ""))
+    if not args.no_eval:
+        report_trained(config, run_dir)
+    return 0
+
+
+def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -> None:
+    """Held-out evaluation of the learner's final weights (no exploration noise, worlds never trained on), a GIF of
+    one episode and the learning curve, all in the run directory."""
+    from cmcl.evaluate import evaluate_policy, load_policy, render_gif
     from cmcl.plots import plot_learning_curves
 
     if any(True for _ in run_dir.rows("episode")):
         window = min(config.run.smoothing_window, max(1, config.run.episodes // 10))
         png = plot_learning_curves([run_dir.path], run_dir.path / "learning_curve.png", window=window)
         print(f"learning curve: {png}")
-    print(f"done: {summary['episodes']} episodes, {summary['env_steps']} env steps, {summary['updates']} updates "
-          f"in {summary['elapsed_s']:.0f}s")
-    return 0
+    learner = run_dir.checkpoints / "service" / "learner.pt"
+    if not learner.is_file():
+        return
+    policy = load_policy(config, learner)
+    trained, random = evaluate_policy(config, policy, episodes), evaluate_policy(config, None, episodes)
+    keys = [k for k in ("coverage", "success", "collisions", "wall_hits", "predator_win") if k in trained]
+    print(f"held-out evaluation ({episodes} new worlds, no exploration noise): "
+          + ", ".join(f"{k} {trained[k]:.3f}" for k in keys)
+          + "  | random policy: " + ", ".join(f"{k} {random[k]:.3f}" for k in keys))
+    print(f"gif: {render_gif(config, policy, run_dir.path / 'trained.gif')}")
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ import ray
 
 from cmcl.atomic import atomic_write_bytes
 from cmcl.config import Config
+from cmcl.progress import solved
 from cmcl.rundir import RunDirectory
 from services.curiosity import CuriosityWorker
 from services.learner import Learner
@@ -107,7 +108,7 @@ def create_roles(config: Config, run_dir: RunDirectory) -> Roles:
 
 
 class Supervisor:
-    """The pacing loop. `run()` trains until run.episodes episodes are stored (or service.max_seconds)."""
+    """The pacing loop. `run()` trains until run.episodes episodes are stored (or run.max_seconds)."""
 
     def __init__(self, config: Config, run_dir: RunDirectory, roles: Roles, metrics: ServiceMetrics,
                  progress: Callable[[str], None] | None = print):
@@ -122,6 +123,7 @@ class Supervisor:
         self.failures: dict[str, int] = {}
         self.lags: dict[str, int] = {}  # weight versions each rollout worker / teacher is behind
         self.episodes_logged = 0
+        self.solved = False  # the coverage target run.stop_coverage was reached
         self.last_replay_report: dict[str, Any] = {}
         self.started = time.perf_counter()
         self.rate_mark = (self.started, self.status["env_steps"], self.status["updates"])
@@ -239,6 +241,7 @@ class Supervisor:
         for m in range(count):
             self.episodes_logged += 1
             row: dict[str, Any] = {"kind": "episode", "episodes": self.episodes_logged,
+                                   "elapsed_s": time.perf_counter() - self.started,
                                    "worker": report["source"], "weight_version": report.get("weight_version", 0),
                                    "reward": {t: float(v[m]) for t, v in rewards.items()}}
             for key in ("coverage", "success"):
@@ -328,7 +331,10 @@ class Supervisor:
         last_report = last_ckpt = time.perf_counter()
         report_ref = None
         while True:
-            if cfg.service.max_seconds and time.perf_counter() - self.started > cfg.service.max_seconds:
+            if cfg.run.max_seconds and time.perf_counter() - self.started > cfg.run.max_seconds:
+                break
+            if solved(self.window, cfg.run):
+                self.solved = True
                 break
             collecting = self.status["episodes"] < cfg.run.episodes
             if not collecting and self._caught_up() and self._caught_up(fresh=True):
@@ -356,8 +362,8 @@ class Supervisor:
         self._refresh_rates()
         if self.progress is not None:
             self.progress(self.progress_line())
-        return {**self.status, **self.rates, "failures": dict(self.failures), "elapsed_s":
-                time.perf_counter() - self.started}
+        return {**self.status, **self.rates, "failures": dict(self.failures), "solved": self.solved,
+                "elapsed_s": time.perf_counter() - self.started}
 
 
 def _restartable(err: Exception) -> bool:

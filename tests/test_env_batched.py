@@ -16,9 +16,9 @@ def test_default_layouts() -> None:
     spread = BatchedSparseSpread(3)
     assert (spread.num_agents, spread.obs_dim, spread.act_dim, spread.episode_length) == (4, 18, 2, 30)
     assert spread.obs_dims == (18,) * 4 and spread.teams == {"agent": [0, 1, 2, 3]}
-    tag = BatchedSparseTag(3)
-    assert (tag.num_agents, tag.obs_dim) == (6, 24) and tag.obs_dims == (24,) * 4 + (22,) * 2
-    assert tag.teams == {"predator": [0, 1, 2, 3], "prey": [4, 5]}
+    tag = BatchedSparseTag(3)  # calibrated defaults (ALGORITHM.md §6.2): 2 predators, 2 prey, 3 obstacles
+    assert (tag.num_agents, tag.obs_dim) == (4, 20) and tag.obs_dims == (20,) * 2 + (18,) * 2
+    assert tag.teams == {"predator": [0, 1], "prey": [2, 3]}
     for env in (spread, tag):
         obs = env.reset(seed=0)
         assert obs.shape == (3, env.num_agents, env.obs_dim) and obs.dtype == np.float32
@@ -26,7 +26,7 @@ def test_default_layouts() -> None:
         assert rew.shape == (3, env.num_agents) and rew.dtype == np.float32
         assert dones.shape == (3,) and dones.dtype == bool and not dones.any()
         assert info["wall_hit"].shape == (3, env.num_agents) and info["episode_mask"].shape == (3,)
-    assert not obs[:, 4:, 22:].any()  # prey rows are zero-padded past their true length
+    assert not obs[:, 2:, 18:].any()  # prey rows are zero-padded past their true length
 
 
 @pytest.mark.parametrize(
@@ -129,11 +129,11 @@ def test_episode_info_covers_only_finished_worlds() -> None:
     state = env.get_state()
     state["step"] = np.array([29, 3, 29, 10])
     env.set_state(state)
-    _, _, dones, info = env.step(np.zeros((4, 6, 2)))
+    _, _, dones, info = env.step(np.zeros((4, env.num_agents, 2)))
     np.testing.assert_array_equal(dones, [True, False, True, False])
     np.testing.assert_array_equal(info["episode_mask"], dones)
     assert all(len(v) == 2 for v in info["episode"].values())
-    assert info["episode"]["return"].shape == (2, 6)
+    assert info["episode"]["return"].shape == (2, env.num_agents)
     np.testing.assert_array_equal(env.get_state()["step"], [0, 4, 0, 11])
 
 

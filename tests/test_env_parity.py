@@ -12,6 +12,8 @@ step's rounding stays far below 1e-5, so that is the tolerance there.
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import pytest
 
@@ -20,9 +22,16 @@ from cmcl.envs.batched import BatchedSparseSpread, BatchedSparseTag
 from cmcl.envs.state import get_world_state, set_world_state
 
 TOL = 1e-5
+# §6.2's first world with the shared D1 option: many more contacts, every predator paid per pair
+TAG4V2_SHARED = {"num_predators": 4, "predator_radius": 0.075, "prey_radius": 0.05, "shared_reward": True}
 TASKS = {
     "spread": (sparse_spread_v0.parallel_env, BatchedSparseSpread, ("wall_hit", "collided", "covering")),
     "tag": (sparse_tag_v0.parallel_env, BatchedSparseTag, ("wall_hit", "captures")),
+    "tag4v2_shared": (
+        partial(sparse_tag_v0.parallel_env, **TAG4V2_SHARED),
+        partial(BatchedSparseTag, **TAG4V2_SHARED),
+        ("wall_hit", "captures"),
+    ),
 }
 
 
@@ -46,7 +55,7 @@ def _check_episode(pz_episode: dict, twin_episode: dict, pos: int) -> None:
         np.testing.assert_allclose(twin_episode[key][pos], value, atol=TOL, err_msg=key)
 
 
-@pytest.mark.parametrize("task", ["spread", "tag"])
+@pytest.mark.parametrize("task", ["spread", "tag", "tag4v2_shared"])
 @pytest.mark.parametrize("round_seed", [0, 1, 2])
 def test_float64_twin_matches_pettingzoo_over_whole_episodes(task: str, round_seed: int) -> None:
     make_pz, twin_cls, step_keys = TASKS[task]
@@ -90,7 +99,7 @@ def test_float64_twin_matches_pettingzoo_over_whole_episodes(task: str, round_se
                 assert "episode" not in p_info[names[0]]
 
 
-@pytest.mark.parametrize("task", ["spread", "tag"])
+@pytest.mark.parametrize("task", ["spread", "tag", "tag4v2_shared"])
 def test_float32_twin_matches_one_step_from_reference_states(task: str) -> None:
     make_pz, twin_cls, step_keys = TASKS[task]
     b, length = 8, 30

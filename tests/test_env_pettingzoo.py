@@ -19,6 +19,9 @@ MAKERS = {
     "spread3": lambda **kw: sparse_spread_v0.parallel_env(num_agents=3, **kw),
     "tag": sparse_tag_v0.parallel_env,
     "tag3v1": lambda **kw: sparse_tag_v0.parallel_env(num_predators=3, num_prey=1, num_obstacles=2, **kw),
+    "tag4v2_shared": lambda **kw: sparse_tag_v0.parallel_env(
+        num_predators=4, predator_radius=0.075, prey_radius=0.05, shared_reward=True, **kw
+    ),
 }
 
 
@@ -35,9 +38,12 @@ def test_spaces_names_and_world() -> None:
     space = spread.action_space("agent_0")
     assert space.shape == (2,) and space.dtype == np.float32 and space.low.min() == -1 and space.high.max() == 1
     assert spread.observation_space("agent_3").shape == (18,)
-    tag = sparse_tag_v0.parallel_env()
-    assert tag.possible_agents == [f"predator_{i}" for i in range(4)] + ["prey_0", "prey_1"]
-    assert [tag.observation_space(a).shape[0] for a in tag.possible_agents] == [24] * 4 + [22] * 2
+    tag = sparse_tag_v0.parallel_env()  # calibrated defaults (ALGORITHM.md §6.2): 2 predators, 2 prey, 3 obstacles
+    assert tag.possible_agents == ["predator_0", "predator_1", "prey_0", "prey_1"]
+    assert [tag.observation_space(a).shape[0] for a in tag.possible_agents] == [20] * 2 + [18] * 2
+    assert [a.size for a in tag.world.agents] == [0.0375] * 2 + [0.025] * 2
+    big = sparse_tag_v0.parallel_env(num_predators=4)
+    assert [big.observation_space(a).shape[0] for a in big.possible_agents] == [24] * 4 + [22] * 2
     obs, infos = tag.reset(seed=3)
     assert all(obs[a].shape == tag.observation_space(a).shape and obs[a].dtype == np.float32 for a in obs)
     assert infos == {a: {} for a in tag.possible_agents}

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from cmcl.envs import sparse_spread_v0, sparse_tag_v0
 from cmcl.envs.batched import BatchedSparseSpread, BatchedSparseTag
+from cmcl.envs.common import TagParams
 from cmcl.envs.state import set_world_state
 
 VERSIONS = ["pettingzoo", "twin"]
@@ -82,7 +85,7 @@ def test_28_wall_clamp_zeroes_velocity_and_penalises_exactly_when_it_fires(versi
         st, radius = state([[-0.3, -0.3], [0.3, 0.3]], np.zeros((0, 2)), vel=[[-1.0, 0.0], [1.5, 1.0]]), None
     n = st["positions"].shape[1]
     actions = np.sign(st["positions"][0])[None] * rng.uniform(0.2, 1.5, (30, n, 2))  # push outwards
-    radii = np.array([radius]) if radius else np.array([0.075, 0.05])
+    radii = np.array([radius]) if radius else TagParams(**kwargs).radii
     prev_pos, prev_vel = st["positions"][0], st["velocities"][0]
     fired_any = quiet_any = False
     for s in run(version, task, st, actions, **kwargs):
@@ -132,19 +135,54 @@ def test_30_single_agent_away_from_walls_gets_zero(version: str) -> None:
 
 
 # ----- 31: predator-prey rewards and speeds ---------------------------------------------------
-def _tag_state(touching: bool) -> dict:
+# §6.2's first world (4 predators of radius 0.075, 2 prey of radius 0.05: capture below 0.125), given
+# explicitly so that the geometry below does not depend on the calibrated defaults.
+TAG4V2 = {"num_predators": 4, "num_prey": 2, "predator_radius": 0.075, "prey_radius": 0.05}
+OBSTACLES = [[0.0, 0.1], [-0.3, 0.2], [0.2, 0.2]]
+
+
+def _tag_state(touching: bool, second: bool = False) -> dict:
+    """Predator 0 and prey 0 0.1 apart if `touching` (0.4 otherwise); with `second` predator 1 also 0.1 from prey 0."""
     pos = [[-0.2, -0.2], [FAR, -FAR], [-FAR, FAR], [FAR, 0.0], [-0.1 if touching else 0.2, -0.2], [0.0, FAR]]
-    return state(pos, [[0.0, 0.1], [-0.3, 0.2], [0.2, 0.2]])
+    if second:
+        pos[1] = [-0.1, -0.1]  # 0.1 from prey 0 (and 0.141 from predator 0: a push, no reward)
+    return state(pos, OBSTACLES)
 
 
 @pytest.mark.parametrize("version", VERSIONS)
-def test_31_contact_pays_every_predator_and_charges_that_prey(version: str) -> None:
-    s = run(version, "tag", _tag_state(True), np.zeros((1, 6, 2)))[0]  # predator 0 and prey 0 are 0.1 apart
-    np.testing.assert_array_equal(s["rew"], [5.0, 5.0, 5.0, 5.0, -5.0, 0.0])
+def test_31_contact_pays_that_predator_and_charges_that_prey(version: str) -> None:
+    # positions after the first step are the initial ones (mpe2 moves with the old, zero, velocity)
+    s = run(version, "tag", _tag_state(True), np.zeros((1, 6, 2)), **TAG4V2)[0]
+    np.testing.assert_array_equal(s["rew"], [5.0, 0.0, 0.0, 0.0, -5.0, 0.0])
     np.testing.assert_array_equal(s["info"]["captures"], [1, 0, 0, 0, 1, 0])
-    quiet = run(version, "tag", _tag_state(False), np.zeros((3, 6, 2)))
+    both = run(version, "tag", _tag_state(True, second=True), np.zeros((1, 6, 2)), **TAG4V2)[0]
+    np.testing.assert_array_equal(both["rew"], [5.0, 5.0, 0.0, 0.0, -10.0, 0.0])  # one +5 per pair, -5 per pair
+    np.testing.assert_array_equal(both["info"]["captures"], [1, 1, 0, 0, 2, 0])
+    quiet = run(version, "tag", _tag_state(False), np.zeros((3, 6, 2)), **TAG4V2)
     for s in quiet:
         np.testing.assert_array_equal(s["rew"], np.zeros(6))
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_31_shared_option_pays_every_predator_per_pair(version: str) -> None:
+    kwargs = {**TAG4V2, "shared_reward": True}
+    s = run(version, "tag", _tag_state(True), np.zeros((1, 6, 2)), **kwargs)[0]
+    np.testing.assert_array_equal(s["rew"], [5.0, 5.0, 5.0, 5.0, -5.0, 0.0])
+    np.testing.assert_array_equal(s["info"]["captures"], [1, 0, 0, 0, 1, 0])
+    both = run(version, "tag", _tag_state(True, second=True), np.zeros((1, 6, 2)), **kwargs)[0]
+    np.testing.assert_array_equal(both["rew"], [10.0, 10.0, 10.0, 10.0, -10.0, 0.0])
+    for s in run(version, "tag", _tag_state(False), np.zeros((3, 6, 2)), **kwargs):
+        np.testing.assert_array_equal(s["rew"], np.zeros(6))
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+@pytest.mark.parametrize(("gap", "caught"), [(0.06, True), (0.065, False)])
+def test_31_default_capture_distance_is_the_sum_of_the_radii(version: str, gap: float, caught: bool) -> None:
+    """Defaults (2 v 2, radii 0.0375 / 0.025): a pair is in contact below 0.0625."""
+    pos = [[-0.2, -0.2], [FAR, -FAR], [-0.2 + gap, -0.2], [0.0, FAR]]
+    s = run(version, "tag", state(pos, OBSTACLES), np.zeros((1, 4, 2)))[0]
+    np.testing.assert_array_equal(s["rew"], [5.0, 0.0, -5.0, 0.0] if caught else np.zeros(4))
+    np.testing.assert_array_equal(s["info"]["captures"], [1, 0, 1, 0] if caught else np.zeros(4))
 
 
 @pytest.mark.parametrize("version", VERSIONS)
@@ -155,9 +193,30 @@ def test_31_prey_top_speed_is_twice_the_predators(version: str) -> None:
     assert not s["info"]["wall_hit"].any()  # unclamped: 3 * 0.75 + accel * 0.1 = 2.55 and 2.65
     np.testing.assert_allclose(np.linalg.norm(s["vel"], axis=1), [1.0, 2.0], rtol=1e-6)
     default = BatchedSparseTag(1)
-    np.testing.assert_array_equal(default.params.max_speeds, [1.0] * 4 + [2.0] * 2)
+    np.testing.assert_array_equal(default.params.max_speeds, [1.0] * 2 + [2.0] * 2)
     pz = sparse_tag_v0.parallel_env()
-    assert [a.max_speed for a in pz.world.agents] == [1.0] * 4 + [2.0] * 2
+    assert [a.max_speed for a in pz.world.agents] == [1.0] * 2 + [2.0] * 2
+
+
+def test_31_tag_defaults_agree_everywhere() -> None:
+    """TagParams, both env classes and EnvConfig (through make_batched_env / make_parallel_env) share the defaults."""
+    from cmcl.config import EnvConfig, preset
+    from cmcl.system import make_batched_env, make_parallel_env
+
+    calibrated = TagParams(num_predators=2, num_prey=2, num_obstacles=3, predator_radius=0.0375, prey_radius=0.025,
+                           obstacle_radius=0.1, shared_reward=False)
+    assert TagParams() == calibrated
+    assert BatchedSparseTag(1).params == calibrated and sparse_tag_v0.parallel_env().params == calibrated
+    env = EnvConfig()
+    for name in ("num_predators", "num_prey", "num_obstacles", "predator_radius", "prey_radius", "obstacle_radius"):
+        assert getattr(env, name) == getattr(calibrated, name), name
+    assert env.tag_shared_reward is calibrated.shared_reward
+    config = preset("maddpg", "tag")
+    assert make_batched_env(config, num_envs=1).params == calibrated
+    assert make_parallel_env(config).params == calibrated
+    shared = dataclasses.replace(config, env=dataclasses.replace(config.env, tag_shared_reward=True))
+    assert make_batched_env(shared, num_envs=1).params.shared_reward
+    assert make_parallel_env(shared).params.shared_reward
 
 
 # ----- 32: metrics ----------------------------------------------------------------------------
@@ -178,10 +237,10 @@ def test_32_cover_rate_is_taken_at_the_final_step(version: str) -> None:
 def test_32_predator_win_iff_a_capture_happened(version: str) -> None:
     flee = np.zeros((3, 6, 2))
     flee[:, 4] = [1.0, 0.0]  # prey 0 runs away after the first contact
-    won = run(version, "tag", {**_tag_state(True), "step": np.array([27])}, flee)
+    won = run(version, "tag", {**_tag_state(True), "step": np.array([27])}, flee, **TAG4V2)
     assert won[0]["info"]["captures"][4] == 1 and won[-1]["info"]["captures"][4] == 0
     assert won[-1]["done"] and won[-1]["episode"]["predator_win"] and won[-1]["episode"]["captures"] >= 1
-    lost = run(version, "tag", {**_tag_state(False), "step": np.array([27])}, np.zeros((3, 6, 2)))
+    lost = run(version, "tag", {**_tag_state(False), "step": np.array([27])}, np.zeros((3, 6, 2)), **TAG4V2)
     assert lost[-1]["done"] and not lost[-1]["episode"]["predator_win"] and lost[-1]["episode"]["captures"] == 0
 
 

@@ -50,3 +50,15 @@ def test_cli_evaluates_a_trained_smoke_run(tmp_path, capsys):
     result = json.loads(text[: text.index("gif:")])
     assert result["policy"] == "trained" and result["checkpoint"].endswith("ckpt_00000008.pt")
     assert (tmp_path / "e.gif").stat().st_size > 0
+
+
+def test_a_team_can_act_at_random_against_the_policy():
+    config = preset("cmcl", "tag")
+    maddpg = build_maddpg(config, agent_layout(config, make_batched_env(config, num_envs=1)), seed=0)
+    both = evaluate_policy(config, maddpg, episodes=200, seed=3)
+    random_prey = evaluate_policy(config, maddpg, episodes=200, seed=3, random_teams=("prey",))
+    everyone_random = evaluate_policy(config, maddpg, episodes=200, seed=3, random_teams=("predator", "prey"))
+    assert everyone_random == {**evaluate_policy(config, None, episodes=200, seed=3), "policy": "trained"}
+    assert random_prey != both  # the prey's actions changed, the worlds did not
+    with pytest.raises(ValueError, match="'wolves', not a team"):
+        evaluate_policy(config, maddpg, episodes=2, random_teams=("wolves",))

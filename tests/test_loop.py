@@ -12,9 +12,9 @@ from cmcl.rundir import RunDirectory
 
 TINY = {
     "env": {"num_envs": 4},
-    "maddpg": {"batch_size": 16, "warmup": 96, "hidden": 32},
+    "maddpg": {"batch_size": 16, "warmup": 96, "hidden": 32, "update_every": 1},
     "replay": {"capacity": 600},
-    "teachers": {"batch_size": 16, "hidden": 32, "rescore_every": 30},
+    "teachers": {"batch_size": 16, "hidden": 32, "rescore_rows_per_update": 64},
     "icm": {"batch_size": 16},
     "run": {"episodes": 12, "log_every": 4, "checkpoint_every": 4, "smoothing_window": 8},
 }

@@ -118,7 +118,9 @@ def test_limiters_from_config():
     cmcl = limiters_from_config(preset("cmcl"), insert_chunk=16)
     assert set(cmcl) == {"learner", "teachers", "icm"}
     learner = cmcl["learner"]
-    assert learner.ratio == 1.0 and learner.warmup == 3840 and learner.slack == 16
+    every = preset("cmcl").maddpg.update_every  # world steps per update
+    assert learner.ratio == 1.0 / every and learner.warmup == 3840
+    assert learner.slack == max((1 + 1 / every) / 2, 16 / every, 1.0)  # a 16-transition chunk always fits
     learner.record_insert(3840)
     assert learner.can_insert(16)  # a whole chunk fits at the end of warm-up
     assert set(limiters_from_config(preset("maddpg"))) == {"learner"}

@@ -20,6 +20,11 @@ from cmcl.envs.common import TagParams, sample_tag
 class BatchedSparseTag(BatchedWorld):
     """B sparse predator-prey worlds; agents 0..m-1 are predators, m..N-1 prey.
 
+    Defaults: the calibrated world of ALGORITHM.md §6.2 (see `TagParams`). Rewards per step [B, N]:
+    each (predator, prey) pair in contact gives +capture_reward to that predator and -capture_reward to
+    that prey (with shared_reward=True every predator gets +capture_reward per pair in the world), plus
+    wall_reward to each agent clamped at a wall.
+
     obs [B, N, obs_dim] with obs_dim = max(obs_dims): [vel, pos, obstacle rel (2O), other agents rel
     (2(N-1)), other prey's velocities]; prey rows are zero-padded by 2 at the end (obs_dims[i] is the
     true length). info per step: wall_hit bool[B, N], captures int64[B, N] (contact pairs involving the
@@ -32,12 +37,12 @@ class BatchedSparseTag(BatchedWorld):
     def __init__(
         self,
         num_envs: int,
-        num_predators: int = 4,
+        num_predators: int = 2,
         num_prey: int = 2,
         num_obstacles: int = 3,
         episode_length: int = 30,
-        predator_radius: float = 0.075,
-        prey_radius: float = 0.05,
+        predator_radius: float = 0.0375,
+        prey_radius: float = 0.025,
         obstacle_radius: float = 0.1,
         predator_accel: float = 3.0,
         predator_max_speed: float = 1.0,
@@ -46,6 +51,7 @@ class BatchedSparseTag(BatchedWorld):
         obstacle_spawn: float = 0.3,
         capture_reward: float = 5.0,
         wall_reward: float = -1.0,
+        shared_reward: bool = False,
         seed: int | np.random.Generator | None = None,
         auto_reset: bool = False,
         dtype: Any = np.float32,
@@ -64,6 +70,7 @@ class BatchedSparseTag(BatchedWorld):
             obstacle_spawn=obstacle_spawn,
             capture_reward=capture_reward,
             wall_reward=wall_reward,
+            shared_reward=bool(shared_reward),
         ).validated()
         m, q, o, n = p.num_predators, p.num_prey, p.num_obstacles, p.num_agents
         self.obs_dims = p.obs_dims
@@ -140,8 +147,12 @@ class BatchedSparseTag(BatchedWorld):
         np.sum(contact, axis=1, out=self._pred_hits)
         r = self._rew
         np.multiply(self._wall_hit, p.wall_reward, out=r)
-        np.multiply(self._captures, p.capture_reward, out=self._nb[0])
-        r[:m] += self._nb[0]
+        if p.shared_reward:  # every predator: +capture_reward per pair in contact in its world
+            np.multiply(self._captures, p.capture_reward, out=self._nb[0])
+            r[:m] += self._nb[0]
+        else:  # each predator: +capture_reward per prey it touches
+            np.multiply(self._pred_hits, p.capture_reward, out=self._nb[:m])
+            r[:m] += self._nb[:m]
         np.multiply(self._prey_hits, p.capture_reward, out=self._nb[m:])
         r[m:] -= self._nb[m:]
         self._involved[:m] = self._pred_hits

@@ -106,21 +106,28 @@ class SpreadParams:
 
 @dataclass(frozen=True)
 class TagParams:
-    """Sparse predator-prey (ALGORITHM.md §6.2). Predators are agents 0..m-1, prey m..m+n-1."""
+    """Sparse predator-prey (ALGORITHM.md §6.2). Predators are agents 0..m-1, prey m..m+n-1.
 
-    num_predators: int = 4
+    Defaults are the calibrated world of §6.2 ("calibration" row; bench/tag_calibration.py): 2 predators
+    and 2 prey at half MPE's absolute sizes, so that random policies on both sides give the predators
+    ~0.45 of rounds (§6.2's first recommendation, 4 predators of radius 0.075 and prey of radius 0.05,
+    gave 0.90). Radii and spawn ranges in arena units, speeds in arena units per unit time.
+    """
+
+    num_predators: int = 2  # calibrated [R]; §6.2's first recommendation was 4
     num_prey: int = 2
     num_obstacles: int = 3
-    predator_radius: float = 0.075
-    prey_radius: float = 0.05
+    predator_radius: float = 0.0375  # calibrated [R]: MPE's 0.075 x 0.5
+    prey_radius: float = 0.025  # calibrated [R]: MPE's 0.05 x 0.5; capture when distance < 0.0625
     obstacle_radius: float = 0.1
     predator_accel: float = 3.0  # force = action * accel
     predator_max_speed: float = 1.0
     prey_accel: float = 4.0
     prey_max_speed: float = 2.0  # twice the predators'
     obstacle_spawn: float = 0.3  # obstacle centres uniform in [-0.3, 0.3]^2
-    capture_reward: float = 5.0  # D1: +5 to every predator and -5 to the prey, per (predator, prey) pair in contact
+    capture_reward: float = 5.0  # D1, per (predator, prey) pair in contact: +5 to that predator, -5 to that prey
     wall_reward: float = -1.0  # D2: to any agent clamped at a wall this step
+    shared_reward: bool = False  # D1 option: every predator receives +5 per pair in contact anywhere (MPE)
 
     def validated(self) -> TagParams:
         """Raise ValueError naming the first invalid field; return self."""

@@ -3,12 +3,15 @@
 Where it sits: the reference version of the pursuit task (evaluation, rendering, parity tests);
 training rollouts use its batched twin `cmcl.envs.batched.BatchedSparseTag`.
 
-m predators ("predator_0".., radius 0.075, accel 3, max speed 1) and n prey ("prey_0".., radius 0.05,
-accel 4, max speed 2) among O immovable, collidable obstacles (radius 0.1) in the walled square
-[-0.5, 0.5]^2. Agents are ordered predators first, then prey.
+m predators ("predator_0".., default m = 2, radius 0.0375, accel 3, max speed 1) and n prey ("prey_0"..,
+default n = 2, radius 0.025, accel 4, max speed 2) among O immovable, collidable obstacles (default 3,
+radius 0.1, centres uniform in [-0.3, 0.3]^2) in the walled square [-0.5, 0.5]^2. Agents are ordered
+predators first, then prey. The defaults are §6.2's calibrated world: random policies on both sides give
+the predators ~0.45 of rounds (bench/tag_calibration.py); radii in arena units, speeds per unit time.
 Rewards per step:
-  D1: for every (predator, prey) pair in contact (distance < r_pred + r_prey): +5 to every predator
-      and -5 to that prey; prey are not removed;
+  D1: for every (predator, prey) pair in contact (distance < r_pred + r_prey): +5 to that predator
+      and -5 to that prey; prey are not removed. With shared_reward=True every predator receives +5
+      per pair in contact (MPE simple_tag's team reward);
   D2: -1 to any agent clamped at a wall this step.
 Observation of agent i (MPE layout; predators 4 + 2O + 2(N-1) + 2n, prey 2 less):
   [vel(2), pos(2), obstacle_o - pos_i (2O), pos_j - pos_i for j != i ascending (2(N-1)),
@@ -95,7 +98,10 @@ class SparseTagEnv(SparseParallelEnv):
                     involved[k] += 1
                     involved[q] += 1
                     rewards[q] -= p.capture_reward
-        rewards[:m] += p.capture_reward * captures
+                    if not p.shared_reward:
+                        rewards[k] += p.capture_reward
+        if p.shared_reward:
+            rewards[:m] += p.capture_reward * captures
         s = self.stats
         s["ep_return"] = s["ep_return"] + rewards
         s["ep_wall_hits"] += int(wall_hit.sum())
@@ -115,13 +121,13 @@ class SparseTagEnv(SparseParallelEnv):
 
 
 def parallel_env(
-    num_predators: int = 4,
+    num_predators: int = 2,
     num_prey: int = 2,
     num_obstacles: int = 3,
     max_cycles: int = 30,
     render_mode: str | None = None,
-    predator_radius: float = 0.075,
-    prey_radius: float = 0.05,
+    predator_radius: float = 0.0375,
+    prey_radius: float = 0.025,
     obstacle_radius: float = 0.1,
     predator_accel: float = 3.0,
     predator_max_speed: float = 1.0,
@@ -130,6 +136,7 @@ def parallel_env(
     obstacle_spawn: float = 0.3,
     capture_reward: float = 5.0,
     wall_reward: float = -1.0,
+    shared_reward: bool = False,
 ) -> SparseTagEnv:
     """The sparse predator-prey task as a PettingZoo ParallelEnv (predators first, then prey)."""
     params = TagParams(
@@ -146,5 +153,6 @@ def parallel_env(
         obstacle_spawn=obstacle_spawn,
         capture_reward=capture_reward,
         wall_reward=wall_reward,
+        shared_reward=bool(shared_reward),
     )
     return SparseTagEnv(params, max_cycles=max_cycles, render_mode=render_mode)

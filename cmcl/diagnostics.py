@@ -1,0 +1,39 @@
+"""The curriculum's own diagnostics of a sampling distribution: where the sampling mass sits among the KP branches,
+how concentrated it is, and how old and how hard the rows it favours are.
+
+Where it sits: read-only, over the per-row terms `ReplayBuffer.recompute_priorities(details=True)` returns and the
+buffer's row metadata; the inline loop logs it in its progress rows (`metrics.jsonl`, key "curriculum").
+Used to tell a curriculum that reweights the buffer from one that has collapsed onto a few rows or to uniform.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def sampling_probabilities(priority: np.ndarray, alpha: float) -> np.ndarray:
+    """P(j) = p_j^α / Σ_k p_k^α (eq. 20) per agent column: priority float[M, A] -> float64[M, A]."""
+    w = np.power(np.asarray(priority, np.float64), alpha)
+    return w / np.maximum(w.sum(0, keepdims=True), 1e-300)
+
+
+def curriculum_diagnostics(c_hat: np.ndarray, probs: np.ndarray, lam: float, age: np.ndarray) -> dict[str, list]:
+    """Per agent (columns), expected under the sampling distribution P, against the buffer's uniform average:
+
+    c_hat float[M, A] normalised difficulty, probs float[M, A] (columns sum to 1), lam the curriculum factor,
+    age float[M] learner updates since each row was written. Returns lists of length A:
+    share_rising / share_falling / share_excluded: P-mass with ĉ <= λ, λ < ĉ < 2λ, ĉ >= 2λ (eq. 12's branches);
+    ess_fraction: effective sample size 1 / Σ P² over M (1 = uniform); difficulty_sampled / difficulty_buffer:
+    E_P[ĉ] and the plain mean of ĉ; age_sampled / age_buffer: E_P[age] and the plain mean age (updates).
+    """
+    c_hat, probs = np.asarray(c_hat, np.float64), np.asarray(probs, np.float64)
+    m = c_hat.shape[0]
+    rising, falling = c_hat <= lam, (c_hat > lam) & (c_hat < 2 * lam)
+    excluded = ~(rising | falling)
+    age = np.asarray(age, np.float64)[:, None]
+    out = {"share_rising": (probs * rising).sum(0), "share_falling": (probs * falling).sum(0),
+           "share_excluded": (probs * excluded).sum(0),
+           "ess_fraction": 1.0 / np.maximum((probs**2).sum(0), 1e-300) / max(m, 1),
+           "difficulty_sampled": (probs * c_hat).sum(0), "difficulty_buffer": c_hat.mean(0),
+           "age_sampled": (probs * age).sum(0), "age_buffer": np.broadcast_to(age.mean(), (c_hat.shape[1],))}
+    return {k: [round(float(x), 4) for x in v] for k, v in out.items()}
