@@ -9,7 +9,7 @@ TORCH  := torch==2.13.0
 RUN_ARGS ?=
 TEST_ARGS ?=
 
-.PHONY: install run demo test lint bench clean
+.PHONY: install run demo test lint bench peer clean
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -41,6 +41,19 @@ bench: install
 	$(BIN)/python bench/env_throughput.py
 	$(BIN)/python bench/learner_throughput.py
 	$(BIN)/python bench/replay_throughput.py
+
+# The peer of the time-to-solve table: AgileRL's MADDPG in its own venv (never a dependency of this package;
+# --no-deps because agilerl pins pettingzoo<1.27 and would pull another torch). See bench/peer_agilerl.py.
+PEER := .venv-peer
+peer:
+	test -x $(PEER)/bin/python || $(PYTHON) -m venv $(PEER)
+	$(PEER)/bin/python -m pip install --quiet $(TORCH)
+	$(PEER)/bin/python -m pip install --quiet -e .
+	$(PEER)/bin/python -m pip install --quiet --no-deps agilerl==2.58.0 "agilerl-arena>=1.28,<2" tensordict==0.13.0 \
+		accelerate peft transformers wandb dill fastrand xxhash regex
+	$(PEER)/bin/python -m pip install --quiet lazy-loader importlib_metadata orjson pyvers huggingface_hub \
+		safetensors tokenizers typer
+	OMP_NUM_THREADS=1 $(PEER)/bin/python bench/peer_agilerl.py --seed 0 --out bench/results/peer_agilerl/agilerl_seed0.json
 
 clean:
 	rm -rf $(VENV) .pytest_cache

@@ -206,6 +206,8 @@ def main() -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--modes", nargs="+", choices=["inline", "service"], default=["inline", "service"])
     parser.add_argument("--algorithms", nargs="+", choices=ALGORITHMS, default=list(ALGORITHMS))
+    parser.add_argument("--update-every", nargs="+", type=int, default=list(UPDATE_EVERY),
+                        help="schedule grid: only these maddpg.update_every values")
     parser.add_argument("--max-seconds", type=float, default=900.0, help="wall-clock cap of one run's training")
     parser.add_argument("--stop-coverage", type=float, default=0.95, help="moving-average coverage that ends a run")
     parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "time_to_solve"))
@@ -214,7 +216,8 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if not args.report:
-        todo = [r for r in grid(args.grid, args.seeds, args.modes) if r["algorithm"] in args.algorithms]
+        todo = [r for r in grid(args.grid, args.seeds, args.modes) if r["algorithm"] in args.algorithms
+                and r.get("update_every", args.update_every[0]) in args.update_every]
         for run in todo:
             if run["id"] in load_results(out):
                 continue
