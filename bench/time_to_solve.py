@@ -208,6 +208,9 @@ def main() -> None:
     parser.add_argument("--algorithms", nargs="+", choices=ALGORITHMS, default=list(ALGORITHMS))
     parser.add_argument("--update-every", nargs="+", type=int, default=list(UPDATE_EVERY),
                         help="schedule grid: only these maddpg.update_every values")
+    parser.add_argument("--batch-size", nargs="+", type=int, default=list(BATCHES),
+                        help="schedule grid: only these maddpg.batch_size values")
+    parser.add_argument("--skip", nargs="*", default=[], help="run ids to leave out")
     parser.add_argument("--max-seconds", type=float, default=900.0, help="wall-clock cap of one run's training")
     parser.add_argument("--stop-coverage", type=float, default=0.95, help="moving-average coverage that ends a run")
     parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "time_to_solve"))
@@ -217,7 +220,8 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     if not args.report:
         todo = [r for r in grid(args.grid, args.seeds, args.modes) if r["algorithm"] in args.algorithms
-                and r.get("update_every", args.update_every[0]) in args.update_every]
+                and r.get("update_every", args.update_every[0]) in args.update_every
+                and r.get("batch_size", args.batch_size[0]) in args.batch_size and r["id"] not in args.skip]
         for run in todo:
             if run["id"] in load_results(out):
                 continue

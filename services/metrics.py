@@ -32,11 +32,13 @@ Report schema (version 1; every key optional unless stated; unknown keys are ref
                               "reward": {team: arr}, "win": {team: arr}}}}   # since the previous report
 
 Counter rule (N above). Actors send cumulative totals since their process started; the supervisor keeps the last
-total per (source, metric, labels) and adds the difference, so a repeated report adds nothing. A total lower
-than the last one means the actor restarted and counts from zero: the whole new total is added (Prometheus'
-own reset rule). When `incarnation` changes, one restart of `role` is counted and, unless `resumed` is true,
-the source's remembered totals are dropped (the new totals are added whole, even when larger than the old).
-With `resumed` true the totals continue the old series: only the part above the last total seen is added.
+total per (source, metric, labels) and adds the difference, so a repeated report adds nothing. When `incarnation`
+changes, one restart of `role` is counted and, unless `resumed` is true, the source's remembered totals are
+dropped (the new totals are added whole, even when larger than the old). With `resumed` true the totals continue
+the old series: only the part above the last total seen is added. A total lower than the last one from the same
+incarnation is an older report applied late (the supervisor applies replies in the order they become ready,
+which is not the order they were sent) and adds nothing; from a report without an incarnation it means the actor
+restarted and counts from zero: the whole new total is added (Prometheus' own reset rule).
 
 Gauges are last-writer-wins (size, capacity, λ and coverage come from the one replay server). The rates
 `cmcl_env_steps_per_second` / `cmcl_updates_per_second` are counter growth over supervisor time, refreshed by
@@ -387,7 +389,7 @@ class ServiceMetrics:
         source, role, incarnation, resumed, version = plan["meta"][0]
         state = self._source_state(source, role, incarnation, resumed)
         for metric, labels, total in plan["counter"]:
-            delta = self._delta(state, (metric, labels), total, resumed)
+            delta = self._delta(state, (metric, labels), total, resumed or incarnation is not None)
             if delta > 0:
                 counter = self.counters[metric]
                 (counter.labels(*labels) if labels else counter).inc(delta)
@@ -420,13 +422,17 @@ class ServiceMetrics:
         return state
 
     @staticmethod
-    def _delta(state: _SourceState, key: tuple, total: float, resumed: bool) -> float:
-        """Counter increase for a new cumulative `total` (the rule of the module docstring)."""
+    def _delta(state: _SourceState, key: tuple, total: float, continues: bool) -> float:
+        """Counter increase for a new cumulative `total` (the rule of the module docstring).
+
+        `continues`: the report continues the series counted so far (same incarnation, or resumed), so a lower
+        total is no reset.
+        """
         last = state.totals.get(key, 0.0)
         if total >= last:
             state.totals[key] = total
             return total - last
-        if resumed:  # restored totals below what we already counted: nothing new yet
+        if continues:  # an older report of this process, or restored totals below what we counted: nothing new
             return 0.0
         state.totals[key] = total  # reset: the actor counts from zero again
         return total

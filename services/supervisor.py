@@ -114,9 +114,11 @@ class Supervisor:
                  progress: Callable[[str], None] | None = print):
         self.config, self.run_dir, self.roles, self.metrics, self.progress = config, run_dir, roles, metrics, progress
         self.paths = service_paths(run_dir)
-        self.pending: dict[Any, tuple[str, int]] = {}
+        self.pending: dict[Any, tuple[str, int, int]] = {}  # ref -> (kind, actor index, submission number)
+        self.submitted = 0  # calls tracked so far (numbers them in submission order)
         self.inflight: Counter[tuple[str, int]] = Counter()  # calls in flight per (role, actor index)
         self.status: dict[str, Any] = ray.get(roles.replay.status.remote())
+        self.status_number = 0  # submission number of the replay call that returned `status`
         self.weights = roles.learner.publish.remote()
         self.version = -1
         self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
@@ -131,7 +133,9 @@ class Supervisor:
 
     # ------------------------------------------------------------------ issuing work
     def _track(self, ref: Any, kind: str, index: int = 0) -> None:
-        self.pending[ref] = (kind, index)
+        """Remember a call just submitted, numbered in submission order."""
+        self.submitted += 1
+        self.pending[ref] = (kind, index, self.submitted)
 
     def _issue(self, rollouts: bool = True) -> None:
         """Hand out every piece of work the limiters allow, at most CALLS_IN_FLIGHT calls per actor.
@@ -193,7 +197,7 @@ class Supervisor:
             more, _ = ray.wait(rest, num_returns=len(rest), timeout=0, fetch_local=False)
             ready += more
         for ref in ready:
-            kind, index = self.pending.pop(ref)
+            kind, index, number = self.pending.pop(ref)
             if kind in FORWARD:  # data for the replay server, now ready: hand over the ref, never the data
                 self._track(getattr(self.roles.replay, FORWARD[kind][0]).remote(ref), FORWARD[kind][1], index)
                 continue
@@ -203,11 +207,19 @@ class Supervisor:
                     ray.exceptions.ObjectLostError) as err:
                 self._failed(kind, index, err)
                 continue
-            self._apply(kind, index, value)
+            self._apply(kind, index, value, number)
 
-    def _apply(self, kind: str, index: int, value: Any) -> None:
+    def _apply(self, kind: str, index: int, value: Any, number: int = 0) -> None:
+        """Apply one reply; `number` is its call's submission number (see `_track`).
+
+        Replies are applied in any order (`ray.wait` hands out ready refs in no particular order), but the replay
+        server runs this process's calls in submission order, so the status of the call submitted last is the
+        newest: an older one never replaces it (a stale episode count would let `_issue` collect more episodes
+        than run.episodes).
+        """
         if kind in ("rollout", "learner", "teacher", "icm"):
-            self.status = value
+            if number > self.status_number:
+                self.status, self.status_number = value, number
             if value.get("error"):
                 self.failures[value["error"].split(":")[0]] = self.failures.get(value["error"].split(":")[0], 0) + 1
             self.inflight[(kind, index)] -= 1
@@ -290,14 +302,13 @@ class Supervisor:
     def _caught_up(self, fresh: bool = False) -> bool:
         """Whether no learner / teacher / ICM call is in flight and each has caught up with its ratio (< 1 step).
 
-        The status applied last may be older than another reply applied before it (ray.wait returns ready refs
-        in any order); `fresh=True` drains every call in flight and asks the replay server for its status now.
+        `fresh=True` drains every call still in flight and asks the replay server for its status now.
         """
         if any(n for (role, _), n in self.inflight.items() if role in ("learner", "teacher", "icm")):
             return False
         if fresh:
             self.drain()
-            self.status = ray.get(self.roles.replay.status.remote())
+            self.status, self.status_number = ray.get(self.roles.replay.status.remote()), self.submitted
         return self.status["update_deficit"] < 1 and self.status["scoring_deficit"] < 1
 
     def final_cut(self) -> None:
@@ -305,7 +316,7 @@ class Supervisor:
         replay report, so the metrics, the summary and the checkpoint all describe the same state."""
         self.drain()
         status, report = ray.get([self.roles.replay.status.remote(), self.roles.replay.report.remote()])
-        self.status = status
+        self.status, self.status_number = status, self.submitted
         self._apply("replay_report", 0, report)
 
     def checkpoint(self) -> None:

@@ -118,6 +118,8 @@ def test_counter_delta_rule_across_restarts():
     m.apply(report(150, incarnation="a"))
     m.apply(report(150, incarnation="a"))  # a repeated report adds nothing
     assert steps(m) == 150
+    m.apply(report(120, incarnation="a"))  # an older report of the same process, applied late: no reset
+    assert steps(m) == 150
     m.apply(report(20, incarnation="b"))  # restarted from zero: all 20 are new
     assert steps(m) == 170
     m.apply(report(200, incarnation="c"))  # restarted and already past the old total: still all new

@@ -2,6 +2,7 @@
 Prometheus endpoint, resume from a checkpoint, and a killed rollout worker being replaced."""
 
 import re
+import threading
 import urllib.request
 
 import pytest
@@ -100,23 +101,38 @@ def test_resume_continues_counters(tmp_path, ray_cluster):
 
 
 def test_a_killed_rollout_worker_is_replaced_and_training_goes_on(tmp_path, ray_cluster):
+    """Rollout worker 0 is killed (ray.kill, restartable) in the middle of a rollout call: the supervisor sees that
+    call fail, Ray restarts the worker (a new incarnation) and training goes on to the episode target.
+
+    A kill from outside lands at no particular moment: the worker may have no call in flight then (a rollout
+    takes milliseconds) and the supervisor's next call may reach the restarted worker, so no call fails. Hence,
+    once its first report is applied, the worker is armed (calls run in submission order): the first env step
+    of its next rollout kills the worker from inside that call and waits for the kill, so that call fails.
+    """
     ray = ray_cluster
     config = tiny("maddpg", tmp_path / "kill", episodes=24)
     run_dir = RunDirectory.create(config.run.dir, config)
     metrics = ServiceMetrics()
     roles = create_roles(config, run_dir)
     supervisor = Supervisor(config, run_dir, roles, metrics, progress=None)
-    apply, killed = supervisor._apply, []
+    apply, armed = supervisor._apply, []
 
-    def apply_then_kill(kind, index, value):  # kill the worker as soon as its first chunk has been reported
-        apply(kind, index, value)
-        if kind == "rollout_report" and not killed:
-            ray.kill(roles.rollout[0], no_restart=False)
-            killed.append(value["rollout"]["episodes"])
+    def die(*_):  # the armed worker's env step: kill this worker, then wait for the kill to end the process
+        ray.kill(ray.get_runtime_context().current_actor, no_restart=False)
+        threading.Event().wait(60)  # the kill ends this wait; the bound only turns a lost kill into a failure
+        raise RuntimeError("ray.kill did not end the rollout worker within 60 s")
 
-    supervisor._apply = apply_then_kill
+    def arm(worker):  # runs on the worker; a restart runs its constructor, which builds a fresh env
+        worker.env.step = die
+
+    def apply_then_arm(kind, index, value, *number):  # arm the worker once its first chunk has been reported
+        apply(kind, index, value, *number)
+        if kind == "rollout_report" and not armed:
+            armed.append((value["rollout"]["episodes"], roles.rollout[0].__ray_call__.remote(arm)))
+
+    supervisor._apply = apply_then_arm
     summary = supervisor.run()
-    assert killed and killed[0] < 24 and summary["episodes"] == 24
+    assert armed and armed[0][0] < 24 and summary["episodes"] == 24
     parsed = samples(metrics.text())
     assert value(parsed, "cmcl_actor_restarts_total", role="rollout") >= 1
     assert summary["failures"].get("rollout", 0) + summary["failures"].get("chunk", 0) >= 1
