@@ -48,15 +48,16 @@ BATCHES = (128, 512)
 WINDOW, TARGETS = 100, (0.5, 0.9)
 
 
-def grid(name: str, seeds: list[int], modes: list[str]) -> list[dict[str, Any]]:
+def grid(name: str, seeds: list[int], modes: list[str], schedule_algorithm: str = "maddpg") -> list[dict[str, Any]]:
     """The runs of a grid: {id, mode, algorithm, seed, sets (extra --set overrides)}."""
     runs = []
     if name == "schedule":  # seed outermost: every configuration has a first seed before any has a second
         for seed in seeds:
             for every in UPDATE_EVERY:
                 for batch in BATCHES:
-                    runs.append({"id": f"schedule_inline_maddpg_u{every}_b{batch}_s{seed}", "mode": "inline",
-                                 "algorithm": "maddpg", "seed": seed, "update_every": every, "batch_size": batch,
+                    runs.append({"id": f"schedule_inline_{schedule_algorithm}_u{every}_b{batch}_s{seed}",
+                                 "mode": "inline", "algorithm": schedule_algorithm, "seed": seed,
+                                 "update_every": every, "batch_size": batch,
                                  "sets": [f"maddpg.update_every={every}", f"maddpg.batch_size={batch}"]})
     elif name == "tag":
         for seed in seeds:
@@ -211,6 +212,8 @@ def main() -> None:
     parser.add_argument("--batch-size", nargs="+", type=int, default=list(BATCHES),
                         help="schedule grid: only these maddpg.batch_size values")
     parser.add_argument("--skip", nargs="*", default=[], help="run ids to leave out")
+    parser.add_argument("--schedule-algorithm", choices=ALGORITHMS, default="maddpg",
+                        help="schedule grid: the algorithm swept (maddpg; cmcl to confirm the choice)")
     parser.add_argument("--max-seconds", type=float, default=900.0, help="wall-clock cap of one run's training")
     parser.add_argument("--stop-coverage", type=float, default=0.95, help="moving-average coverage that ends a run")
     parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "time_to_solve"))
@@ -219,7 +222,8 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if not args.report:
-        todo = [r for r in grid(args.grid, args.seeds, args.modes) if r["algorithm"] in args.algorithms
+        todo = [r for r in grid(args.grid, args.seeds, args.modes, args.schedule_algorithm)
+                if r["algorithm"] in args.algorithms
                 and r.get("update_every", args.update_every[0]) in args.update_every
                 and r.get("batch_size", args.batch_size[0]) in args.batch_size and r["id"] not in args.skip]
         for run in todo:
