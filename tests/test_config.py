@@ -95,3 +95,17 @@ def test_teacher_actor_groups():
     assert config.teacher_groups(cluster_cpus=16) == [[0], [1], [2], [3], [4]]
     two = load_config(None, ["service.teacher_actors=2"])
     assert two.teacher_groups(cluster_cpus=2) == [[0, 2, 4], [1, 3]]
+
+
+def test_paper_presets_keep_the_papers_schedule_and_nothing_else():
+    paper = sorted(Path("configs/paper").glob("*.toml"))
+    assert [p.stem for p in paper] == [f"{t}_{a}" for t in ("spread", "tag") for a in ("acl", "cmcl", "maddpg", "per")]
+    for path in paper:
+        ours, theirs = load_config(f"configs/{path.name}").to_dict(), load_config(str(path)).to_dict()
+        assert theirs["maddpg"]["update_every"] == 1 and theirs["teachers"]["steps_per_update"] == 1.0
+        assert theirs["icm"]["steps_per_update"] == 1.0 and theirs["teachers"]["fit_batch"] == "per_agent"
+        for section in ("maddpg", "teachers", "icm"):
+            for key in ("update_every", "steps_per_update", "rescore_rows_per_update", "fit_batch"):
+                ours[section].pop(key, None), theirs[section].pop(key, None)
+        ours["run"].pop("dir"), theirs["run"].pop("dir")
+        assert ours == theirs, path
