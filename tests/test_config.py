@@ -98,10 +98,10 @@ def test_teacher_actor_groups():
 
 
 def test_paper_presets_keep_the_papers_schedule_and_nothing_else():
-    paper = sorted(Path("configs/paper").glob("*.toml"))
+    paper = sorted((CONFIGS / "paper").glob("*.toml"))
     assert [p.stem for p in paper] == [f"{t}_{a}" for t in ("spread", "tag") for a in ("acl", "cmcl", "maddpg", "per")]
     for path in paper:
-        ours, theirs = load_config(f"configs/{path.name}").to_dict(), load_config(str(path)).to_dict()
+        ours, theirs = load_config(CONFIGS / path.name).to_dict(), load_config(path).to_dict()
         assert theirs["maddpg"]["update_every"] == 1 and theirs["teachers"]["steps_per_update"] == 1.0
         assert theirs["icm"]["steps_per_update"] == 1.0 and theirs["teachers"]["fit_batch"] == "per_agent"
         for section in ("maddpg", "teachers", "icm"):
