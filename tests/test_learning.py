@@ -8,23 +8,27 @@ The slow tests (`pytest -m slow`) run every algorithm for the full default budge
 require held-out coverage >= 0.9 and success >= 0.8.
 """
 
+from pathlib import Path
+
 import pytest
 
 from cmcl.config import load_config
 from cmcl.evaluate import evaluate_policy
 from cmcl.loop import InlineLoop
 
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+
 
 def train_and_evaluate(config_file: str, sets: list[str]) -> tuple[dict, dict]:
     """Train inline with no run directory; return the held-out evaluation of the policy and of a random one."""
-    config = load_config(config_file, [*sets, "run.dir=unused"])
+    config = load_config(CONFIGS / config_file, [*sets, "run.dir=unused"])
     loop = InlineLoop(config, None, progress=None)
     loop.run()
     return evaluate_policy(config, loop.maddpg, 200, seed=1), evaluate_policy(config, None, 200, seed=1)
 
 
 def test_maddpg_learns_small_sparse_navigation():
-    trained, random = train_and_evaluate("configs/spread_maddpg.toml",
+    trained, random = train_and_evaluate("spread_maddpg.toml",
                                          ["env.num_agents=2", "run.episodes=3000", "run.seed=0"])
     assert random["coverage"] < 0.1
     assert trained["coverage"] >= 0.5, f"held-out coverage {trained['coverage']:.3f} (random {random['coverage']:.3f})"
@@ -34,5 +38,5 @@ def test_maddpg_learns_small_sparse_navigation():
 @pytest.mark.slow
 @pytest.mark.parametrize("algorithm", ["maddpg", "per", "acl", "cmcl"])
 def test_every_algorithm_solves_sparse_navigation_at_the_full_budget(algorithm):
-    trained, random = train_and_evaluate(f"configs/spread_{algorithm}.toml", [])  # all 20,000 episodes
+    trained, random = train_and_evaluate(f"spread_{algorithm}.toml", [])  # all 20,000 episodes
     assert trained["coverage"] >= 0.9 and trained["success"] >= 0.8, (trained, random)
