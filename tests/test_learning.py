@@ -36,6 +36,7 @@ def test_maddpg_learns_small_sparse_navigation():
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(3600)  # 20,000 episodes: 3-10 min on one core, more on a shared machine
 @pytest.mark.parametrize("algorithm", ["maddpg", "per", "acl", "cmcl"])
 def test_every_algorithm_solves_sparse_navigation_at_the_full_budget(algorithm):
     trained, random = train_and_evaluate(f"spread_{algorithm}.toml", [])  # all 20,000 episodes
