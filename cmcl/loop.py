@@ -27,7 +27,7 @@ import torch
 from cmcl import codec
 from cmcl.config import Config, ConfigError, load_config
 from cmcl.diagnostics import curriculum_diagnostics, sampling_probabilities
-from cmcl.progress import solved
+from cmcl.progress import solved, window_mean
 from cmcl.rundir import RunDirectory, load_checkpoint
 from cmcl.scoring import Scorers, icm_fit_step, learner_step, rolling_rescore, teacher_fit_step
 from cmcl.system import (
@@ -177,7 +177,7 @@ class InlineLoop:
             return out
         for key in ("coverage", "success", "predator_win"):
             if key in self.window[0]:
-                out[key] = float(np.mean([float(r[key]) for r in self.window]))
+                out[key] = window_mean(self.window, key)
         out["reward"] = {t: float(np.mean([r["reward"][t] for r in self.window])) for t in self.layout.teams}
         return out
 

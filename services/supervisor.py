@@ -22,7 +22,7 @@ import ray
 
 from cmcl.atomic import atomic_write_bytes
 from cmcl.config import Config
-from cmcl.progress import solved
+from cmcl.progress import solved, window_mean
 from cmcl.rundir import RunDirectory
 from services.curiosity import CuriosityWorker
 from services.learner import Learner
@@ -273,7 +273,7 @@ class Supervisor:
         if w:
             for key, label in (("coverage", "cov"), ("predator_win", "win")):
                 if key in w[0]:
-                    parts.append(f"{label} {np.mean([r[key] for r in w]):.2f}")
+                    parts.append(f"{label} {window_mean(w, key):.2f}")
             for team in w[0]["reward"]:
                 parts.append(f"R[{team}] {np.mean([r['reward'][team] for r in w]):.1f}")
         parts += [f"λ {st['lambda']:.4f}", f"{self.rates['updates_per_s']:.0f} upd/s",
@@ -307,17 +307,19 @@ class Supervisor:
         if any(n for (role, _), n in self.inflight.items() if role in ("learner", "teacher", "icm")):
             return False
         if fresh:
-            self.drain()
-            self.status, self.status_number = ray.get(self.roles.replay.status.remote()), self.submitted
+            self._settle()
         return self.status["update_deficit"] < 1 and self.status["scoring_deficit"] < 1
 
-    def final_cut(self) -> None:
-        """The end of a run as one consistent cut: drain every call in flight, then take one final status and
-        replay report, so the metrics, the summary and the checkpoint all describe the same state."""
+    def _settle(self) -> None:
+        """Drain every call in flight, then take the replay server's status now (newer than any reply)."""
         self.drain()
-        status, report = ray.get([self.roles.replay.status.remote(), self.roles.replay.report.remote()])
-        self.status, self.status_number = status, self.submitted
-        self._apply("replay_report", 0, report)
+        self.status, self.status_number = ray.get(self.roles.replay.status.remote()), self.submitted
+
+    def final_cut(self) -> None:
+        """The end of a run as one consistent cut: settle (drain, fresh status), then one final replay report, so
+        the metrics, the summary and the checkpoint all describe the same state."""
+        self._settle()
+        self._apply("replay_report", 0, ray.get(self.roles.replay.report.remote()))
 
     def checkpoint(self) -> None:
         """Drain, then have every role save its own state atomically; then the supervisor's counters."""
