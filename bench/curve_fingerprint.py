@@ -21,8 +21,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from cmcl.config import load_config  # noqa: E402
+from cmcl.io.rundir import RunDirectory  # noqa: E402
 from cmcl.loop import InlineLoop  # noqa: E402
-from cmcl.rundir import RunDirectory  # noqa: E402
 
 WALL_CLOCK = ("elapsed_s", "env_steps_per_s", "updates_per_s")
 CASES = {  # name -> (config file, extra overrides)
@@ -36,8 +36,15 @@ CASES = {  # name -> (config file, extra overrides)
 }
 
 
-def _strip(row: dict) -> dict:
-    return {k: (_strip(v) if isinstance(v, dict) else v) for k, v in row.items() if k not in WALL_CLOCK}
+def _strip(value):
+    """A metrics row without wall-clock fields, every number as a float (True, 1 and 1.0 hash alike)."""
+    if isinstance(value, dict):
+        return {k: _strip(v) for k, v in value.items() if k not in WALL_CLOCK}
+    if isinstance(value, list):
+        return [_strip(v) for v in value]
+    if isinstance(value, bool | int | float):
+        return float(value)
+    return value
 
 
 def fingerprint(config_path: str, overrides: list[str], episodes: int) -> dict[str, str]:

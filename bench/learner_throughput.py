@@ -24,11 +24,11 @@ import torch
 from torch import nn
 
 from cmcl.config import load_config
-from cmcl.icm import ICM
+from cmcl.learners.icm import ICM
+from cmcl.learners.maddpg import MADDPG
+from cmcl.learners.nets import joint_input
+from cmcl.learners.teachers import TeacherEnsemble, cross_validated_difficulty, fold_batch_indices, make_fit_batch
 from cmcl.loop import InlineLoop
-from cmcl.maddpg import MADDPG
-from cmcl.nets import joint_input
-from cmcl.teachers import TeacherEnsemble, cross_validated_difficulty, fold_batch_indices, make_fit_batch
 
 ROOT = Path(__file__).resolve().parents[1]
 N, OD, AD, S, K, M = 4, 18, 2, 128, 5, 5000

@@ -18,9 +18,9 @@ import numpy as np
 
 from cmcl.config import load_config
 from cmcl.evaluate import evaluate_policy, load_policy
+from cmcl.io.plots import plot_learning_curves
+from cmcl.io.rundir import RunDirectory
 from cmcl.loop import InlineLoop
-from cmcl.plots import plot_learning_curves
-from cmcl.rundir import RunDirectory
 
 
 def run_one(task: str, algorithm: str, seed: int, episodes: int, out: Path, overrides: list[str]) -> dict:

@@ -24,8 +24,8 @@ import time
 
 import numpy as np
 
-from cmcl.priority import curiosity_priority, kfold_priority, normalise_curiosity, normalise_difficulty
-from cmcl.replay import ReplayBuffer
+from cmcl.replay.buffer import ReplayBuffer
+from cmcl.replay.priority import curiosity_priority, kfold_priority, normalise_curiosity, normalise_difficulty
 
 N, S, ALPHA, BETA, EPS, ETA = 4, 128, 0.6, 0.4, 1e-6, 0.5
 CAPACITIES = (5_000, 100_000, 1_000_000)

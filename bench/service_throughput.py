@@ -19,8 +19,8 @@ from pathlib import Path
 import psutil
 
 from cmcl.config import load_config
+from cmcl.io.rundir import RunDirectory
 from cmcl.loop import InlineLoop
-from cmcl.rundir import RunDirectory
 
 
 def steady_rates(run: RunDirectory) -> dict[str, float]:

@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT))
 
 from cmcl.config import load_config  # noqa: E402
 from cmcl.evaluate import evaluate_policy, load_policy  # noqa: E402
-from cmcl.rundir import RunDirectory  # noqa: E402
+from cmcl.io.rundir import RunDirectory  # noqa: E402
 
 ALGORITHMS = ("maddpg", "per", "acl", "cmcl")
 UPDATE_EVERY = (1, 4, 16, 64)

@@ -19,8 +19,8 @@ import numpy as np
 import torch
 
 from cmcl.config import Config
-from cmcl.maddpg import MADDPG
-from cmcl.rundir import RunDirectory, load_checkpoint
+from cmcl.io.rundir import RunDirectory, load_checkpoint
+from cmcl.learners.maddpg import MADDPG
 from cmcl.system import agent_layout, build_maddpg, make_batched_env, make_parallel_env, to_env_actions
 
 EVAL_SEED_OFFSET = 10_000  # evaluation worlds never reuse the training seed's worlds
@@ -128,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
         gif = render_gif(config, maddpg, args.gif or run.path / ("eval_random.gif" if args.random else "eval.gif"),
                          args.seed)
         print(f"gif: {gif}")
-    from cmcl.plots import plot_learning_curves
+    from cmcl.io.plots import plot_learning_curves
 
     if any(True for _ in run.rows("episode")):
         print(f"learning curve: {plot_learning_curves([run.path], run.path / 'learning_curve.png')}")

@@ -24,11 +24,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from cmcl import codec
 from cmcl.config import Config, ConfigError, load_config
 from cmcl.diagnostics import curriculum_diagnostics, sampling_probabilities
+from cmcl.io import codec
+from cmcl.io.rundir import RunDirectory, load_checkpoint
 from cmcl.progress import solved, window_mean
-from cmcl.rundir import RunDirectory, load_checkpoint
 from cmcl.scoring import Scorers, icm_fit_step, learner_step, rolling_rescore, teacher_fit_step
 from cmcl.system import (
     agent_layout,
@@ -328,7 +328,7 @@ def main(argv: list[str] | None = None) -> int:
         run_dir.truncate_rows_after(loop.counters["episodes"])
         print(f"resumed from {checkpoint} at episode {loop.counters['episodes']}")
     loop.run()
-    from cmcl.plots import plot_learning_curves
+    from cmcl.io.plots import plot_learning_curves
 
     png = plot_learning_curves([run_dir.path], run_dir.path / "learning_curve.png",
                                window=min(config.run.smoothing_window, max(1, config.run.episodes // 10)))

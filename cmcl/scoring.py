@@ -14,12 +14,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from cmcl.icm import ICM
-from cmcl.maddpg import MADDPG
-from cmcl.nets import joint_input
-from cmcl.replay import ReplayBuffer
+from cmcl.learners.icm import ICM
+from cmcl.learners.maddpg import MADDPG
+from cmcl.learners.nets import joint_input
+from cmcl.learners.teachers import TeacherEnsemble, cross_validated_difficulty, fold_batch_indices, make_fit_batch
+from cmcl.replay.buffer import ReplayBuffer
 from cmcl.system import AgentLayout
-from cmcl.teachers import TeacherEnsemble, cross_validated_difficulty, fold_batch_indices, make_fit_batch
 
 RESCORE_CHUNK = 2048  # rows per scoring pass (bounds memory of the A×K teacher forward)
 

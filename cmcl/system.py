@@ -13,13 +13,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cmcl.config import Config, ConfigError
-from cmcl.curriculum import CurriculumSchedule
-from cmcl.replay import ReplayBuffer
+from cmcl.replay.buffer import ReplayBuffer
+from cmcl.replay.curriculum import CurriculumSchedule
 
 if TYPE_CHECKING:  # torch-backed classes load lazily: the replay server and rollout workers never need torch
-    from cmcl.icm import ICM
-    from cmcl.maddpg import MADDPG
-    from cmcl.teachers import TeacherEnsemble
+    from cmcl.learners.icm import ICM
+    from cmcl.learners.maddpg import MADDPG
+    from cmcl.learners.teachers import TeacherEnsemble
 
 DISCRETE_ACT_DIM = 5  # MPE's discrete action: no-op, +x, -x, +y, -y
 
@@ -119,7 +119,7 @@ def agent_layout(config: Config, env) -> AgentLayout:
 
 def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
     """The stacked MADDPG learner of every agent."""
-    from cmcl.maddpg import MADDPG
+    from cmcl.learners.maddpg import MADDPG
 
     m = config.maddpg
     return MADDPG(layout.num_agents, layout.obs_dim, layout.act_dim, hidden=m.hidden, actor_lr=m.actor_lr,
@@ -142,7 +142,7 @@ def build_teachers(config: Config, layout: AgentLayout, seed: int) -> TeacherEns
     """All K teachers of every teacher-using agent as one ensemble, or None when no team uses teachers."""
     if layout.teacher_agents.size == 0:
         return None
-    from cmcl.teachers import TeacherEnsemble
+    from cmcl.learners.teachers import TeacherEnsemble
 
     t = config.teachers
     in_dim = layout.num_agents * (layout.obs_dim + layout.act_dim)
@@ -154,7 +154,7 @@ def build_icm(config: Config, layout: AgentLayout, seed: int) -> ICM | None:
     """Per-agent ICMs of every curiosity-using agent, or None when no team uses curiosity."""
     if layout.icm_agents.size == 0:
         return None
-    from cmcl.icm import ICM
+    from cmcl.learners.icm import ICM
 
     c = config.icm
     return ICM(int(layout.icm_agents.size), layout.obs_dim, layout.act_dim, feature_dim=c.feature_dim,

@@ -11,7 +11,7 @@ import uuid
 from typing import Any
 
 from cmcl.config import Config, config_from_dict
-from cmcl.rundir import load_checkpoint, save_torch_atomic
+from cmcl.io.rundir import load_checkpoint, save_torch_atomic
 
 
 def actor_setup(config: Config | dict[str, Any], uses_torch: bool = True) -> Config:

@@ -16,7 +16,7 @@ import sys
 from typing import Any
 
 from cmcl.config import Config, ConfigError, load_config
-from cmcl.rundir import RunDirectory
+from cmcl.io.rundir import RunDirectory
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -130,7 +130,7 @@ def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -
     """Held-out evaluation of the learner's final weights (no exploration noise, worlds never trained on), a GIF of
     one episode and the learning curve, all in the run directory."""
     from cmcl.evaluate import evaluate_policy, load_policy, render_gif
-    from cmcl.plots import plot_learning_curves
+    from cmcl.io.plots import plot_learning_curves
 
     if any(True for _ in run_dir.rows("episode")):
         window = min(config.run.smoothing_window, max(1, config.run.episodes // 10))

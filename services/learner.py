@@ -2,7 +2,7 @@
 
 Where it sits: replay -> learner -> (|δ| back to replay, weights to rollout workers / teachers). The supervisor
 keeps two update calls in flight, so the replay server samples the next batches while this one computes
-(prefetch). Weights are published once per version as {"version", "weights"} (cmcl.weights).
+(prefetch). Weights are published once per version as {"version", "weights"} (cmcl.learners.weights).
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from cmcl.learners.weights import published_weights
 from cmcl.system import agent_layout, build_maddpg, make_batched_env
-from cmcl.weights import published_weights
 from services.common import actor_setup, load_state, new_incarnation, save_state
 
 BATCH_KEYS = ("obs", "act", "rew", "next_obs", "done", "is_weights")

@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from cmcl import codec
-from cmcl.ratelimit import RateLimiter, limiters_from_config, slack_for
+from cmcl.io import codec
+from cmcl.replay.ratelimit import RateLimiter, limiters_from_config, slack_for
 from cmcl.system import agent_layout, beta_is, build_replay, build_schedule, make_batched_env
 from services.common import actor_setup, new_incarnation
 

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.policy import NumpyPolicy
+from cmcl.learners.policy import NumpyPolicy
 from cmcl.system import agent_layout, build_maddpg, make_batched_env, to_env_actions
 from services.common import actor_setup, new_incarnation
 
@@ -47,7 +47,7 @@ class RolloutWorker:
         """
         if published is not None and published["version"] != self.version:
             if self.config.maddpg.discrete:
-                from cmcl.weights import load_published
+                from cmcl.learners.weights import load_published
 
                 load_published(self.policy, published["weights"], parts=("actor",))
             else:
@@ -95,6 +95,6 @@ class RolloutWorker:
 
 def _initial_actor(config: Any, layout: Any, seed: int) -> dict[str, np.ndarray]:
     """Actor weights of a freshly initialised learner (only used before any weights were published)."""
-    from cmcl.weights import published_weights
+    from cmcl.learners.weights import published_weights
 
     return published_weights(build_maddpg(config, layout, seed))["actor"]

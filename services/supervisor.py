@@ -20,10 +20,10 @@ from typing import Any
 import numpy as np
 import ray
 
-from cmcl.atomic import atomic_write_bytes
 from cmcl.config import Config
+from cmcl.io.atomic import atomic_write_bytes
+from cmcl.io.rundir import RunDirectory
 from cmcl.progress import solved, window_mean
-from cmcl.rundir import RunDirectory
 from services.curiosity import CuriosityWorker
 from services.learner import Learner
 from services.metrics import ServiceMetrics

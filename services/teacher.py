@@ -3,7 +3,7 @@
 Where it sits: replay -> teacher -> scores back to replay (ALGORITHM.md §3.2, distributed as in §3.9). Teacher k
 never sees rows outside fold k when fitting; its errors count only for rows outside fold k. Regression targets come from
 the learner's published target actor and target critic (never from a teacher). One fit batch per step is shared
-by all of this fold's agents (the `idx[1, K, S]` form of cmcl.teachers.make_fit_batch).
+by all of this fold's agents (the `idx[1, K, S]` form of cmcl.learners.teachers.make_fit_batch).
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from cmcl.nets import joint_input
+from cmcl.learners.nets import joint_input
+from cmcl.learners.teachers import TeacherEnsemble
+from cmcl.learners.weights import load_published
 from cmcl.system import agent_layout, build_maddpg, make_batched_env
-from cmcl.teachers import TeacherEnsemble
-from cmcl.weights import load_published
 from services.common import actor_setup, load_state, new_incarnation, save_state
 
 

@@ -6,8 +6,8 @@ import msgpack
 import numpy as np
 import pytest
 
-from cmcl import codec
-from cmcl.codec import CodecError, Limits
+from cmcl.io import codec
+from cmcl.io.codec import CodecError, Limits
 
 T, N, OD, AD = 6, 2, 3, 2
 

@@ -2,7 +2,7 @@
 
 import pytest
 
-from cmcl.curriculum import CurriculumSchedule, default_growth, default_stride
+from cmcl.replay.curriculum import CurriculumSchedule, default_growth, default_stride
 
 T = 600_000  # 20 000 episodes × 30 steps
 

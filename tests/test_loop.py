@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from cmcl.config import config_from_dict, preset
+from cmcl.io.rundir import RunDirectory
 from cmcl.loop import InlineLoop, main
-from cmcl.rundir import RunDirectory
 
 TINY = {
     "env": {"num_envs": 4},

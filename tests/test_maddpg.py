@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from cmcl.icm import ICM
-from cmcl.maddpg import MADDPG
-from cmcl.nets import joint_input
+from cmcl.learners.icm import ICM
+from cmcl.learners.maddpg import MADDPG
+from cmcl.learners.nets import joint_input
 
 torch.set_num_threads(1)
 

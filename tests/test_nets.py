@@ -5,7 +5,7 @@ import copy
 import torch
 from torch import nn
 
-from cmcl.nets import StackedMLP, clip_grad_norm_per_member_, hard_update_, joint_input, soft_update_
+from cmcl.learners.nets import StackedMLP, clip_grad_norm_per_member_, hard_update_, joint_input, soft_update_
 
 torch.set_num_threads(1)
 

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from cmcl.maddpg import MADDPG
-from cmcl.policy import NumpyPolicy
-from cmcl.weights import load_published, published_weights
+from cmcl.learners.maddpg import MADDPG
+from cmcl.learners.policy import NumpyPolicy
+from cmcl.learners.weights import load_published, published_weights
 
 
 @pytest.mark.parametrize("noise", [0.0, 0.1])

@@ -6,7 +6,7 @@ import warnings
 import numpy as np
 import pytest
 
-from cmcl.priority import (
+from cmcl.replay.priority import (
     EPS_P,
     curiosity_priority,
     curriculum_index,

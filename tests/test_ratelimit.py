@@ -1,10 +1,10 @@
-"""cmcl/ratelimit.py: the ratio of samples to inserts is held within ±slack under any interleaving."""
+"""cmcl/replay/ratelimit.py: the ratio of samples to inserts is held within ±slack under any interleaving."""
 
 import numpy as np
 import pytest
 
 from cmcl.config import preset
-from cmcl.ratelimit import RateLimiter, limiters_from_config, slack_for
+from cmcl.replay.ratelimit import RateLimiter, limiters_from_config, slack_for
 
 TOL = 1e-6
 

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from cmcl import codec
-from cmcl.curriculum import CurriculumSchedule
-from cmcl.priority import EPS_P
-from cmcl.replay import ReplayBuffer, ReplayNotReady
-from cmcl.sampler import BACKENDS
+from cmcl.io import codec
+from cmcl.replay.buffer import ReplayBuffer, ReplayNotReady
+from cmcl.replay.curriculum import CurriculumSchedule
+from cmcl.replay.priority import EPS_P
+from cmcl.replay.sampler import BACKENDS
 
 pytestmark = pytest.mark.filterwarnings("error")
 N, OD, AD = 3, 4, 2

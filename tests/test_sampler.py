@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from cmcl.sampler import BACKENDS, PrioritySampler, _SumTreeBackend, importance_weights
+from cmcl.replay.sampler import BACKENDS, PrioritySampler, _SumTreeBackend, importance_weights
 
 pytestmark = pytest.mark.filterwarnings("error")
 

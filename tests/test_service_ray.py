@@ -9,7 +9,7 @@ import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
 from cmcl.config import config_from_dict, preset
-from cmcl.rundir import RunDirectory
+from cmcl.io.rundir import RunDirectory
 from services.launch import run_service
 from services.metrics import ServiceMetrics
 from services.supervisor import InfeasibleResources, Supervisor, create_roles

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from cmcl.maddpg import MADDPG
-from cmcl.nets import joint_input
-from cmcl.teachers import TeacherEnsemble, cross_validated_difficulty, fold_batch_indices, make_fit_batch
+from cmcl.learners.maddpg import MADDPG
+from cmcl.learners.nets import joint_input
+from cmcl.learners.teachers import TeacherEnsemble, cross_validated_difficulty, fold_batch_indices, make_fit_batch
 
 torch.set_num_threads(1)
 

@@ -1,4 +1,4 @@
-"""Learning-curve PNGs from a run's metrics.jsonl (episode rows and progress rows of cmcl.rundir).
+"""Learning-curve PNGs from a run's metrics.jsonl (episode rows and progress rows of cmcl.io.rundir).
 
 Where it sits: read-only consumer of run directories; used by cmcl.evaluate, cmcl.loop and services.launch
 at the end of a run.
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cmcl.rundir import RunDirectory
+from cmcl.io.rundir import RunDirectory
 
 
 def moving_average(values: np.ndarray, window: int) -> np.ndarray:

@@ -1,8 +1,8 @@
 """Sampling priorities of CMCL and its baselines (ALGORITHM.md §3.3, §3.5, §3.6, A1, A7, A8).
 
-Where it sits in the flow: the replay buffer (`cmcl.replay`) keeps raw per-agent score columns (teacher
+Where it sits in the flow: the replay buffer (`cmcl.replay.buffer`) keeps raw per-agent score columns (teacher
 difficulty c, ICM curiosity ρ, learner |δ|). Each time λ or the scores change it calls the functions here to
-turn those columns into one priority column per agent, which the per-agent samplers (`cmcl.sampler`) draw from.
+turn those columns into one priority column per agent, which the per-agent samplers (`cmcl.replay.sampler`) draw from.
 
 Shape convention: score matrices are ``[M, A]`` -- M buffer rows (the valid rows of the buffer) by A agents,
 the same layout as the replay's score columns ``float32[capacity, N]``. One-dimensional ``[M]`` input is
@@ -166,7 +166,7 @@ def sampling_probabilities(p, alpha: float) -> np.ndarray:
     Args:
         p: priorities, shape [M] or [M, A]; finite, >= 0, with a positive sum per column.
         alpha: sampling exponent α_s >= 0 (0 gives uniform sampling over the items with p > 0; an item
-            with p = 0 has probability 0 for every α, as in `cmcl.sampler`).
+            with p = 0 has probability 0 for every α, as in `cmcl.replay.sampler`).
     Returns:
         float64 array of p's shape; each column sums to 1.
     """

@@ -1,6 +1,6 @@
 """Ring storage of joint multi-agent transitions plus per-agent score columns (ALGORITHM.md §3.1, §3.9).
 
-Where it sits in the flow: `cmcl.replay.ReplayBuffer` wraps one `TransitionStorage` and adds the per-agent
+Where it sits in the flow: `cmcl.replay.buffer.ReplayBuffer` wraps one `TransitionStorage` and adds the per-agent
 samplers. Rollouts append chunks with `add`; teachers, the ICM and the learner write scores back with
 `update_scores`, identified by (slot, generation) so that results for overwritten slots are dropped.
 

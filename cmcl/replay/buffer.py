@@ -21,7 +21,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from cmcl.priority import (
+from cmcl.replay.priority import (
     EPS_P,
     LAM_MAX,
     canonical_algorithm,
@@ -30,8 +30,8 @@ from cmcl.priority import (
     normalise_curiosity,
     normalise_difficulty,
 )
-from cmcl.sampler import BACKENDS, PrioritySampler, importance_weights
-from cmcl.storage import TransitionStorage
+from cmcl.replay.sampler import BACKENDS, PrioritySampler, importance_weights
+from cmcl.replay.storage import TransitionStorage
 
 DIFFICULTY_SOURCES = ("difficulty", "td_abs")  # "td_abs" = ACL's td_self variant (§5)
 
@@ -54,7 +54,7 @@ class ReplayBuffer:
     """Storage + per-agent samplers.
 
     Args:
-        capacity, n_agents, obs_dim, act_dim, n_folds: storage layout (see `cmcl.storage`).
+        capacity, n_agents, obs_dim, act_dim, n_folds: storage layout (see `cmcl.replay.storage`).
         modes: one mode for all agents or one per agent ("uniform"/"maddpg", "per", "acl", "cmcl").
         alpha: sampling exponent α_s. eps: priority floor ε_p. backend: "cdf" or "sumtree".
         eta: curiosity weight η (scalar or per agent; used by "cmcl" agents only).

@@ -1,6 +1,6 @@
 """Per-agent samplers over replay slots: uniform and proportional prioritized (ALGORITHM.md §3.6, A8, A9).
 
-Where it sits in the flow: `cmcl.replay.ReplayBuffer` owns one sampler per agent. Priorities arrive in bulk
+Where it sits in the flow: `cmcl.replay.buffer.ReplayBuffer` owns one sampler per agent. Priorities arrive in bulk
 (a whole column after each λ change) or as a few leaves (PER |δ| updates, newly written slots); agents
 draw i.i.d. minibatches with P(j) = p_j^α / Σ_k p_k^α and get importance weights.
 

@@ -12,7 +12,7 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 
-from cmcl.maddpg import MADDPG
+from cmcl.learners.maddpg import MADDPG
 
 PARTS = ("actor", "target_actor", "target_critic")
 

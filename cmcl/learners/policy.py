@@ -1,6 +1,6 @@
 """Numpy inference of the stacked tanh actors: what rollout workers run, without loading torch.
 
-Where it sits: rollout workers load the learner's published online actor (cmcl.weights, "actor" part) into a
+Where it sits: rollout workers load the learner's published online actor (cmcl.learners.weights, "actor" part) into a
 `NumpyPolicy` and act with it. It computes exactly MADDPG.act for continuous actions (tanh MLP, Gaussian
 noise, clip to [-1, 1]); a parity test ties the two. Keeping torch out of rollout workers (and the replay
 server) saves ~190 MB of private memory per process.

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from cmcl.nets import StackedMLP, as_tensor, clip_grad_norm_per_member_, make_adam
+from cmcl.learners.nets import StackedMLP, as_tensor, clip_grad_norm_per_member_, make_adam
 
 __all__ = ["ICM"]
 

@@ -5,7 +5,7 @@ Layout of `<dir>/`:
   config.toml            the resolved configuration (reloadable with cmcl.config.load_config)
   metrics.jsonl          one JSON object per line (episode rows and update rows, each with a "kind")
   checkpoints/ckpt_<episodes:08d>.pt   torch.save of plain state dicts, read with weights_only=True
-  checkpoints/replay_<episodes:08d>.msgpack  replay snapshot (cmcl.codec), when the writer adds one
+  checkpoints/replay_<episodes:08d>.msgpack  replay snapshot (cmcl.io.codec), when the writer adds one
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from cmcl.atomic import atomic_write_bytes
 from cmcl.config import Config, dump_toml, load_config
+from cmcl.io.atomic import atomic_write_bytes
 
 CHECKPOINT_GLOB = "ckpt_*.pt"
 

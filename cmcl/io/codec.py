@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import msgpack
 import numpy as np
 
-from cmcl.atomic import atomic_write_bytes
+from cmcl.io.atomic import atomic_write_bytes
 
 SCHEMA_VERSION = 1
 KINDS = ("chunk", "scores", "snapshot")

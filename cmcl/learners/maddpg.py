@@ -24,7 +24,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from cmcl.nets import StackedMLP, as_tensor, clip_grad_norm_per_member_, joint_input, make_adam, soft_update_
+from cmcl.learners.nets import StackedMLP, as_tensor, clip_grad_norm_per_member_, joint_input, make_adam, soft_update_
 
 __all__ = ["MADDPG"]
 

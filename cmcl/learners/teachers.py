@@ -7,7 +7,7 @@ calls :meth:`TeacherEnsemble.fit_step`. Rescoring runs :meth:`TeacherEnsemble.er
 :func:`cross_validated_difficulty` turns the errors into c_{v,j} (sum over the K-1 teachers that never saw j);
 ``priority.py`` normalises c and computes KP.
 
-All A x K teachers are ONE :class:`~cmcl.nets.StackedMLP` with A*K members, member index ``a*K + i`` for agent
+All A x K teachers are ONE :class:`~cmcl.learners.nets.StackedMLP` with A*K members, member index ``a*K + i`` for agent
 slot a (0..A-1, the agents that use teachers) and fold i (0..K-1). Folds are 0-based: f(j) in {0..K-1}.
 Teacher input = the centralized critic input (all obs then all actions, flattened; see ``nets.joint_input``).
 Public boundary: numpy or torch in (converted once, float32 / int64); numpy out.
@@ -20,7 +20,7 @@ from collections.abc import Callable, Mapping, Sequence
 import numpy as np
 import torch
 
-from cmcl.nets import StackedMLP, as_tensor, clip_grad_norm_per_member_, joint_input, make_adam
+from cmcl.learners.nets import StackedMLP, as_tensor, clip_grad_norm_per_member_, joint_input, make_adam
 
 __all__ = ["TeacherEnsemble", "cross_validated_difficulty", "fold_batch_indices", "make_fit_batch"]
 

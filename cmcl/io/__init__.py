@@ -1,0 +1,1 @@
+"""Input/output: the msgpack codec, run directories, atomic writes, plots."""
