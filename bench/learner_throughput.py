@@ -26,9 +26,11 @@ from torch import nn
 from cmcl.config import load_config
 from cmcl.learners.icm import ICM
 from cmcl.learners.maddpg import MADDPG
-from cmcl.learners.nets import joint_input
-from cmcl.learners.teachers import TeacherEnsemble, cross_validated_difficulty, fold_batch_indices, make_fit_batch
+from cmcl.learners.steps import curiosity_values, fit_teachers, teacher_errors
+from cmcl.learners.teachers import TeacherEnsemble
 from cmcl.loop import InlineLoop
+from cmcl.replay.difficulty import cross_validated_difficulty
+from cmcl.replay.steps import fold_draw_indices
 
 ROOT = Path(__file__).resolve().parents[1]
 N, OD, AD, S, K, M = 4, 18, 2, 128, 5, 5000
@@ -62,18 +64,15 @@ class Ours:
     def update(self, rows: dict, fold: np.ndarray, rng: np.random.Generator) -> None:
         idx = rng.integers(0, M, size=(N, S))
         self.m.update({k: v[idx] for k, v in rows.items()})
-        tidx = fold_batch_indices(fold, K, S, rng, num_agents=N)
-        self.t.fit_step(*make_fit_batch(tidx, rows, self.agents, self.m.td_targets))
+        tidx = fold_draw_indices(fold, range(K), S, rng, draws=N)  # [1, N, K, S]
+        fit_teachers(self.t, {k: v[tidx] for k, v in rows.items()}, self.agents, self.m)
         i = rng.integers(0, M, size=S)
         per_agent = [torch.from_numpy(rows[k][i]).transpose(0, 1) for k in ("obs", "act", "next_obs")]
         self.icm.train_step(*per_agent)
 
     def rescore(self, rows: dict, fold: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        x = joint_input(torch.from_numpy(rows["obs"]), torch.from_numpy(rows["act"]))
-        y = self.m.td_targets(rows["rew"], rows["next_obs"], rows["done"], agents=self.agents)
-        c = cross_validated_difficulty(self.t.errors(x, y), fold)
-        per_agent = [torch.from_numpy(rows[k]).transpose(0, 1) for k in ("obs", "act", "next_obs")]
-        return c, self.icm.curiosity(*per_agent)
+        c, _ = cross_validated_difficulty(teacher_errors(self.t, rows, self.agents, self.m), fold)
+        return c.T, curiosity_values(self.icm, rows, self.agents).T
 
 
 # ----------------------------------------------------------------------------- peer (loops)
@@ -166,7 +165,7 @@ class Peer:
         for v in range(N):
             self.agent_step(v, {k: t[idx[v]] for k, t in rows_t.items()})
         self.soft_update()
-        tidx = fold_batch_indices(fold, K, S, rng, num_agents=N)
+        tidx = fold_draw_indices(fold, range(K), S, rng, draws=N)[0]  # [N, K, S]
         for a in range(N):
             for i in range(K):
                 self.teacher_step(a, i, rows_t, tidx[a, i])

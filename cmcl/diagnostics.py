@@ -11,12 +11,6 @@ from __future__ import annotations
 import numpy as np
 
 
-def sampling_probabilities(priority: np.ndarray, alpha: float) -> np.ndarray:
-    """P(j) = p_j^α / Σ_k p_k^α (eq. 20) per agent column: priority float[M, A] -> float64[M, A]."""
-    w = np.power(np.asarray(priority, np.float64), alpha)
-    return w / np.maximum(w.sum(0, keepdims=True), 1e-300)
-
-
 def curriculum_diagnostics(c_hat: np.ndarray, probs: np.ndarray, lam: float, age: np.ndarray) -> dict[str, list]:
     """Per agent (columns), expected under the sampling distribution P, against the buffer's uniform average:
 

@@ -1,7 +1,8 @@
 """The synchronous CMCL training loop (Algorithm 1, ALGORITHM.md §3.8), inline in one process without Ray.
 
 Where it sits: the reference implementation and the baseline the distributed service is measured against.
-It runs the same classes the service runs (built by cmcl.system, stepped by cmcl.scoring):
+It runs the same classes the service runs (built by cmcl.system) through the same step functions
+(cmcl.replay.steps for the buffer side, cmcl.learners.steps for the networks):
 rollout of B batched worlds -> replay -> per update (one per `maddpg.update_every` world steps): teacher step,
 ICM step, scoring of the new rows plus `teachers.rescore_rows_per_update` rows of a rolling rescoring, priority
 recompute at the current λ, one MADDPG update of all agents; λ advanced per world step.
@@ -25,11 +26,15 @@ import numpy as np
 import torch
 
 from cmcl.config import Config, ConfigError, load_config
-from cmcl.diagnostics import curriculum_diagnostics, sampling_probabilities
+from cmcl.diagnostics import curriculum_diagnostics
 from cmcl.io import codec
 from cmcl.io.rundir import RunDirectory, load_checkpoint
-from cmcl.progress import solved, window_mean
-from cmcl.scoring import Scorers, icm_fit_step, learner_step, rolling_rescore, teacher_fit_step
+from cmcl.learners import steps as learn
+from cmcl.messages import LearnerFeedback, Rows
+from cmcl.progress import episode_rows, finished_episodes, progress_line, solved, window_summary
+from cmcl.replay import steps as buffer
+from cmcl.replay.difficulty import DifficultyTable
+from cmcl.replay.priority import sampling_probabilities, uses_curriculum
 from cmcl.system import (
     agent_layout,
     beta_is,
@@ -42,7 +47,7 @@ from cmcl.system import (
     to_env_actions,
 )
 
-SNAPSHOT_LIMITS = codec.Limits(max_bytes=8 << 30, max_elements=2 << 30)  # a 1M-slot buffer fits
+RESCORE_CHUNK = 2048  # rows per scoring pass (bounds memory of the A×K teacher forward)
 RNG_NAMES = ("env", "noise", "teacher", "icm", "sampler")
 
 
@@ -74,10 +79,12 @@ class InlineLoop:
         self.sampler_rngs = [np.random.default_rng(s) for s in seeds[4].spawn(self.layout.num_agents)]
         self.maddpg = build_maddpg(config, self.layout, torch_seeds[0])
         self.replay = build_replay(config, self.layout)
-        self.scorers = Scorers(self.maddpg, build_teachers(config, self.layout, torch_seeds[1]),
-                               build_icm(config, self.layout, torch_seeds[2]), config.teachers.difficulty_error)
+        self.teachers = build_teachers(config, self.layout, torch_seeds[1])
+        self.icm = build_icm(config, self.layout, torch_seeds[2])
+        self.difficulty = DifficultyTable(config.replay.capacity, len(self.layout.teacher_agents),
+                                          config.teachers.num_folds)
         self.schedule = build_schedule(config)
-        self.prioritized = any(m in ("acl", "cmcl") for m in self.layout.modes)
+        self.prioritized = uses_curriculum(self.layout.modes)
         self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "rounds": 0, "rescore_cursor": 0,
                          "teacher_steps": 0, "icm_steps": 0}
         self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
@@ -127,66 +134,92 @@ class InlineLoop:
         cfg, c = self.config, self.counters
         stats: dict[str, Any] = {}
         for _ in range(steps_due(c["updates"], cfg.teachers.steps_per_update, c, "teacher_steps")):
-            teacher_loss = teacher_fit_step(self.replay, self.scorers, self.layout, cfg.teachers.batch_size,
-                                            self.rng["teacher"], shared=cfg.teachers.fit_batch == "shared")
+            teacher_loss = self._teacher_step()
             if teacher_loss is not None:
-                stats["teacher_loss"] = float(teacher_loss.mean())
+                stats["teacher_loss"] = teacher_loss
         icm = None
         for _ in range(steps_due(c["updates"], cfg.icm.steps_per_update, c, "icm_steps")):
-            icm = icm_fit_step(self.replay, self.scorers, self.layout, cfg.icm.batch_size, self.rng["icm"])
+            icm = self._icm_step()
         if icm is not None:
             stats["icm_inverse_loss"] = float(np.mean(icm["inverse_loss"]))
             stats["icm_forward_loss"] = float(np.mean(icm["forward_loss"]))
         # A11 and §3.8's rescoring, amortised: new rows are scored before anything samples them
-        _, c["rescore_cursor"] = rolling_rescore(self.replay, self.scorers, self.layout, c["rescore_cursor"],
-                                                 cfg.teachers.rescore_rows_per_update)
+        slots, c["rescore_cursor"] = buffer.rolling_rescore_slots(self.replay, self.layout, c["rescore_cursor"],
+                                                                  cfg.teachers.rescore_rows_per_update)
+        for start in range(0, slots.size, RESCORE_CHUNK):
+            self._score(buffer.score_rows(self.replay, slots[start:start + RESCORE_CHUNK]))
         if self.prioritized:
             self.replay.recompute_priorities(self.schedule.lam)
-        result = learner_step(self.replay, self.scorers, self.layout, cfg.maddpg.batch_size, self.sampler_rngs,
-                              beta_is(cfg, c["env_steps"]), cfg.icm.intrinsic_reward_coef)
+        result = self._learner_step()
         stats["critic_loss"] = result["critic_loss"]
         stats["actor_loss"] = result["actor_loss"]
         c["updates"] += 1
         self.last_stats = stats
         return stats
 
+    def _teacher_step(self) -> float | None:
+        """One Adam step of every teacher on a batch from its own fold (eq. 9); None until every fold holds rows."""
+        if self.teachers is None or (self.replay.storage.fold_counts() == 0).any():
+            return None
+        t = self.config.teachers
+        draws = 1 if t.fit_batch == "shared" else len(self.layout.teacher_agents)
+        slots = buffer.fold_batch_slots(self.replay, range(t.num_folds), t.batch_size, self.rng["teacher"], draws)
+        return learn.fit_teachers(self.teachers, buffer.rows_at(self.replay, slots), self.layout.teacher_agents,
+                                  self.maddpg)
+
+    def _icm_step(self) -> dict[str, Any] | None:
+        """One ICM step on S rows drawn uniformly from the buffer (§3.4); None without an ICM."""
+        if self.icm is None:
+            return None
+        slots = buffer.uniform_slots(self.replay, (1, self.config.icm.batch_size), self.rng["icm"])
+        rows = buffer.rows_at(self.replay, slots, ("obs", "act", "next_obs"))
+        return learn.fit_icm(self.icm, rows, self.layout.icm_agents)
+
+    def _score(self, work: Rows) -> None:
+        """Score rows with every teacher (c, eqs. 10–11), the ICM (ρ, eq. 18) and, for ACL td_self, the online
+        critics' |δ|; the scores go into the buffer's columns."""
+        rows, slots, gens, layout = work.rows, work.slots, work.generations, self.layout
+        if self.teachers is not None:
+            squared = self.config.teachers.difficulty_error == "squared"
+            errors = learn.teacher_errors(self.teachers, rows, layout.teacher_agents, self.maddpg, squared)
+            buffer.write_difficulty(self.replay, self.difficulty, layout.teacher_agents, slots, gens,
+                                    range(self.config.teachers.num_folds), errors, self.counters["updates"])
+        if self.icm is not None:
+            rho = learn.curiosity_values(self.icm, rows, layout.icm_agents)
+            buffer.write_curiosity(self.replay, layout.icm_agents, slots, gens, rho)
+        if "td_abs" in layout.difficulty_source:
+            self.replay.update_scores("td_abs", slots, gens, learn.online_td_abs(self.maddpg, rows),
+                                      agents=np.arange(layout.num_agents))
+
+    def _learner_step(self) -> dict[str, Any]:
+        """Every agent draws its own minibatch, one batched MADDPG update, PER / td_self |δ| written back."""
+        cfg, layout = self.config, self.layout
+        beta = beta_is(cfg, self.counters["env_steps"])
+        betas = [beta if isw else 0.0 for isw in layout.importance_weights]
+        batch = buffer.sample_owner_batches(self.replay, 1, cfg.maddpg.batch_size, self.sampler_rngs, betas)
+        stats = learn.learner_update(self.maddpg, batch.minibatch(0, any(layout.importance_weights)), self.icm,
+                                     layout.icm_agents, cfg.icm.intrinsic_reward_coef)
+        feedback = LearnerFeedback(batch.slots, batch.generations, np.asarray(stats["td_abs"])[None])
+        buffer.apply_learner_feedback(self.replay, layout, feedback)
+        return stats
+
     # ------------------------------------------------------------------ bookkeeping
     def _episode_rows(self, info: dict[str, Any]) -> list[dict[str, Any]]:
         """One metrics row per finished episode (final-step coverage / success, or captures / win; returns)."""
-        ep = info["episode"]
-        returns = ep["return"]  # [M, N] unshared per-agent returns
-        rows = []
-        for m in range(returns.shape[0]):
-            self.counters["episodes"] += 1
-            row: dict[str, Any] = {"kind": "episode", "episodes": self.counters["episodes"],
-                                   "env_steps": self.counters["env_steps"], "updates": self.counters["updates"],
-                                   "lambda": self.schedule.lam,
-                                   "reward": {team: float(returns[m, idx].sum())
-                                              for team, idx in self.layout.teams.items()}}
-            for key in ("coverage", "success", "collisions", "wall_hits", "captures", "predator_win"):
-                if key in ep:
-                    row[key] = ep[key][m].item()
-            rows.append(row)
-            self.window.append(row)
+        c = self.counters
+        rows = episode_rows(finished_episodes(info["episode"], self.layout.teams), c["episodes"] + 1,
+                            env_steps=c["env_steps"], updates=c["updates"], **{"lambda": self.schedule.lam})
+        c["episodes"] += len(rows)
+        self.window.extend(rows)
         return rows
-
-    def window_summary(self) -> dict[str, Any]:
-        """Means over the last `run.smoothing_window` episodes."""
-        out: dict[str, Any] = {}
-        if not self.window:
-            return out
-        for key in ("coverage", "success", "predator_win"):
-            if key in self.window[0]:
-                out[key] = window_mean(self.window, key)
-        out["reward"] = {t: float(np.mean([r["reward"][t] for r in self.window])) for t in self.layout.teams}
-        return out
 
     def progress_row(self, elapsed: float, rate: dict[str, float]) -> dict[str, Any]:
         """A 'progress' metrics row: counters, λ, losses, priority statistics and window means."""
         c = self.counters
         row: dict[str, Any] = {"kind": "progress", **{k: c[k] for k in ("episodes", "env_steps", "updates")},
                                "lambda": self.schedule.lam, "elapsed_s": elapsed, **rate,
-                               "replay_size": self.replay.size, "window": self.window_summary(), **self.last_stats}
+                               "replay_size": self.replay.size, "window": window_summary(self.window),
+                               **self.last_stats}
         if self.prioritized and self.replay.size:
             details = self.replay.recompute_priorities(self.schedule.lam, details=True)
             row["priority"] = {"agents": details["agents"], "mean": details["priority"].mean(0),
@@ -199,24 +232,16 @@ class InlineLoop:
 
     def format_progress(self, row: dict[str, Any]) -> str:
         """One terminal line from a progress row."""
-        w = row["window"]
-        parts = [f"ep {row['episodes']}/{self.config.run.episodes}", f"steps {row['env_steps']}",
-                 f"upd {row['updates']}"]
-        for key, label in (("coverage", "cov"), ("success", "succ"), ("predator_win", "win")):
-            if key in w:
-                parts.append(f"{label} {w[key]:.2f}")
-        parts += [f"R[{t}] {v:.1f}" for t, v in w.get("reward", {}).items()]
-        parts += [f"λ {row['lambda']:.4f}", f"{row['updates_per_s']:.0f} upd/s", f"{row['env_steps_per_s']:.0f} st/s",
-                  f"{row['elapsed_s']:.0f}s"]
-        return " | ".join(parts)
+        return progress_line(row["episodes"], self.config.run.episodes, row["env_steps"], row["updates"],
+                             row["window"], row["lambda"], row, row["elapsed_s"])
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, Any]:
         """Everything needed to continue the run except the replay contents (saved as a msgpack snapshot)."""
         return {
             "maddpg": self.maddpg.state_dict(),
-            "teachers": None if self.scorers.teachers is None else self.scorers.teachers.state_dict(),
-            "icm": None if self.scorers.icm is None else self.scorers.icm.state_dict(),
+            "teachers": None if self.teachers is None else self.teachers.state_dict(),
+            "icm": None if self.icm is None else self.icm.state_dict(),
             "schedule": {"env_steps": self.schedule.env_steps},
             "counters": dict(self.counters),
             "env": {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in self.env.get_state().items()},
@@ -229,7 +254,7 @@ class InlineLoop:
         """Restore a `state_dict()`, world states included, so a resumed run continues exactly."""
         self.maddpg.load_state_dict(state["maddpg"])
         for name in ("teachers", "icm"):
-            model = getattr(self.scorers, name)
+            model = getattr(self, name)
             if (model is None) != (state[name] is None):
                 raise ValueError(f"checkpoint {name} presence differs from this config's")
             if model is not None:
@@ -248,14 +273,16 @@ class InlineLoop:
         if self.run_dir is None:
             return None
         path = self.run_dir.save_checkpoint(self.counters["episodes"], self.state_dict())
-        codec.write_snapshot_atomic(replay_snapshot_path(path), self.replay.state_dict())
+        codec.write_snapshot_atomic(replay_snapshot_path(path), {"replay": self.replay.state_dict(),
+                                                                 "difficulty": self.difficulty.state_dict()})
         return path
 
     def restore(self, checkpoint: Path) -> None:
         """Load a checkpoint and its replay snapshot (validated before anything changes)."""
         state = load_checkpoint(checkpoint)
-        snapshot = codec.read_snapshot(replay_snapshot_path(checkpoint), limits=SNAPSHOT_LIMITS)
-        self.replay.load_state_dict(snapshot)
+        snapshot = codec.read_snapshot(replay_snapshot_path(checkpoint), limits=codec.SNAPSHOT_LIMITS)
+        self.replay.load_state_dict(snapshot["replay"])
+        self.difficulty.load_state_dict(snapshot["difficulty"])
         self.load_state_dict(state)
 
     # ------------------------------------------------------------------ main loop

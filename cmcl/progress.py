@@ -1,9 +1,9 @@
-"""Training progress shared by the inline loop and the service: moving averages of episode rows and the rule that
-ends a run early once the task is solved.
+"""Training progress shared by the inline loop and the service: episode rows, moving averages, the progress line
+and the rule that ends a run early once the task is solved.
 
-Where it sits: `cmcl.loop.InlineLoop.run` and `services.supervisor.Supervisor.run` both keep a window of the last
-`run.smoothing_window` episode rows (dicts with "coverage" in [0, 1] for the spread task) and ask `solved`.
-No torch, no Ray.
+Where it sits: `cmcl.loop.InlineLoop` and `services.supervisor.Supervisor` both turn finished episodes into
+metrics rows (`finished_episodes` -> `episode_rows`), keep a window of the last `run.smoothing_window` rows (dicts
+with "coverage" in [0, 1] for the spread task), print `progress_line` and ask `solved`. No torch, no Ray.
 """
 
 from __future__ import annotations
@@ -30,3 +30,60 @@ def solved(window: Sequence[dict[str, Any]], run: Any) -> bool:
         return False
     mean = window_mean(window, "coverage")
     return mean is not None and mean >= run.stop_coverage
+
+
+EPISODE_STATS = ("coverage", "success", "collisions", "wall_hits", "captures")  # per-episode env statistics
+REPORTED_STATS = ("coverage", "success")  # the ones the metrics report carries (services.metrics schema)
+WINDOW_KEYS = (("coverage", "cov"), ("success", "succ"), ("predator_win", "win"))  # window means and their labels
+
+
+def finished_episodes(episode: dict[str, np.ndarray], teams: dict[str, list[int]],
+                      stats: Sequence[str] = EPISODE_STATS) -> dict[str, Any]:
+    """The M episodes that just ended, from a batched env's info["episode"] (return float32[M, N], coverage [M], ...):
+    {"reward": {team: float64[M] (sum of the team's returns)}, stat: float64[M] for each of `stats` the env has,
+    "win": {"predator": [M], "prey": [M]} for predator-prey}. This is the 'finished' section of a rollout report."""
+    out: dict[str, Any] = {"reward": {t: episode["return"][:, idx].sum(1).astype(np.float64)
+                                      for t, idx in teams.items()}}
+    for key in stats:
+        if key in episode:
+            out[key] = episode[key].astype(np.float64)
+    if "predator_win" in episode:
+        win = episode["predator_win"].astype(np.float64)
+        out["win"] = {"predator": win, "prey": 1.0 - win}
+    return out
+
+
+def episode_rows(finished: dict[str, Any], first_number: int, **fields: Any) -> list[dict[str, Any]]:
+    """One 'episode' metrics row per finished episode, numbered from `first_number`; `fields` go in every row
+    (the inline loop adds env_steps / updates / λ, the service the worker and its weight version)."""
+    count = len(next(iter(finished["reward"].values())))
+    rows = []
+    for m in range(count):
+        row: dict[str, Any] = {"kind": "episode", "episodes": first_number + m, **fields,
+                               "reward": {t: float(v[m]) for t, v in finished["reward"].items()}}
+        row.update({key: float(finished[key][m]) for key in EPISODE_STATS if key in finished})
+        if "win" in finished:
+            row["predator_win"] = float(finished["win"]["predator"][m])
+        rows.append(row)
+    return rows
+
+
+def window_summary(window: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Means over a window of episode rows: coverage / success / predator_win where present, reward per team."""
+    if not window:
+        return {}
+    out: dict[str, Any] = {key: window_mean(window, key) for key, _ in WINDOW_KEYS if key in window[0]}
+    out["reward"] = {t: float(np.mean([r["reward"][t] for r in window])) for t in window[0]["reward"]}
+    return out
+
+
+def progress_line(episodes: int, target: int, env_steps: int, updates: int, window: dict[str, Any], lam: float,
+                  rates: dict[str, float], elapsed_s: float, extra: Sequence[str] = ()) -> str:
+    """One terminal line: counters, window means (see `window_summary`), λ, update and env-step rates, `extra`
+    parts (the service adds buffer size, score age and weight lag), elapsed seconds."""
+    parts = [f"ep {episodes}/{target}", f"steps {env_steps}", f"upd {updates}"]
+    parts += [f"{label} {window[key]:.2f}" for key, label in WINDOW_KEYS if window.get(key) is not None]
+    parts += [f"R[{t}] {v:.1f}" for t, v in window.get("reward", {}).items()]
+    parts += [f"λ {lam:.4f}", f"{rates.get('updates_per_s', 0.0):.0f} upd/s",
+              f"{rates.get('env_steps_per_s', 0.0):.0f} st/s", *extra, f"{elapsed_s:.0f}s"]
+    return " | ".join(parts)

@@ -1,8 +1,9 @@
 """Learner: updates every agent's actor and critic in one batched MADDPG step per minibatch; publishes weights.
 
-Where it sits: replay -> learner -> (|δ| back to replay, weights to rollout workers / teachers). The supervisor
-keeps two update calls in flight, so the replay server samples the next batches while this one computes
-(prefetch). Weights are published once per version as {"version", "weights"} (cmcl.learners.weights).
+Where it sits: replay -> learner -> (|δ| back to replay, weights to rollout workers / teachers). The shell around
+`cmcl.learners.steps.learner_update`, the same function the inline loop calls. The supervisor keeps two update
+calls in flight, so the replay server samples the next batches while this one computes (prefetch). Weights are
+published once per version as {"version", "weights"} (cmcl.learners.weights).
 """
 
 from __future__ import annotations
@@ -11,11 +12,12 @@ from typing import Any
 
 import numpy as np
 
+from cmcl.config import ConfigError
+from cmcl.learners import steps as learn
 from cmcl.learners.weights import published_weights
+from cmcl.messages import LearnerBatch, LearnerFeedback
 from cmcl.system import agent_layout, build_maddpg, make_batched_env
 from services.common import actor_setup, load_state, new_incarnation, save_state
-
-BATCH_KEYS = ("obs", "act", "rew", "next_obs", "done", "is_weights")
 
 
 class Learner:
@@ -23,6 +25,9 @@ class Learner:
 
     def __init__(self, config: Any, seed: int, checkpoint_path: str | None = None):
         self.config = cfg = actor_setup(config)
+        if cfg.icm.intrinsic_reward_coef > 0:  # ablation A6 needs the ICM inside the learner: inline loop only
+            raise ConfigError(f"icm.intrinsic_reward_coef={cfg.icm.intrinsic_reward_coef!r} is supported by the "
+                              "inline loop only (python -m cmcl.loop); the service's learner holds no ICM")
         self.incarnation, self.checkpoint_path = new_incarnation(), checkpoint_path
         self.layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
         self.maddpg = build_maddpg(cfg, self.layout, seed)
@@ -33,24 +38,23 @@ class Learner:
             self.maddpg.load_state_dict(state["maddpg"])
             self.version = int(state["version"])
 
-    def update(self, batch: dict[str, np.ndarray] | None) -> tuple[dict[str, Any] | None, dict[str, Any]]:
+    def update(self, batch: LearnerBatch | None) -> tuple[LearnerFeedback | None, dict[str, Any]]:
         """Run one MADDPG update per minibatch of `batch` ([n, N, S, ...] arrays); None does nothing.
 
-        Returns (feedback for the replay server: slots / generations / td_abs [n, N, S], metrics report).
+        Returns (feedback for the replay server: |δ| float32[n, N, S] of each sampled row, metrics report).
         """
         if batch is None:
             return None, self.report()
         use_weights = any(self.layout.importance_weights)
-        td = np.empty(batch["slots"].shape, np.float32)
-        for i in range(batch["slots"].shape[0]):
-            minibatch = {k: batch[k][i] for k in BATCH_KEYS if k != "is_weights" or use_weights}
-            stats = self.maddpg.update(minibatch)
+        td = np.empty(batch.slots.shape, np.float32)
+        stats: dict[str, Any] = {}
+        for i in range(batch.count):
+            stats = learn.learner_update(self.maddpg, batch.minibatch(i, use_weights))
             td[i] = stats["td_abs"]
         self.version += 1
-        names = [f"agent_{a}" for a in range(self.layout.num_agents)]
-        self.losses = {name: {"critic": float(stats["critic_loss"][a]), "actor": float(stats["actor_loss"][a])}
-                       for a, name in enumerate(names)}
-        return {"slots": batch["slots"], "generations": batch["generations"], "td_abs": td}, self.report()
+        self.losses = {f"agent_{a}": {"critic": float(stats["critic_loss"][a]), "actor": float(stats["actor_loss"][a])}
+                       for a in range(self.layout.num_agents)}
+        return LearnerFeedback(batch.slots, batch.generations, td, self.losses), self.report()
 
     def publish(self) -> dict[str, Any]:
         """The current weights with their version (the supervisor puts this in the object store)."""

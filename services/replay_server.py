@@ -1,14 +1,16 @@
 """Replay server: owns the buffer, folds, score columns, λ, every sampler and the rate limiters.
 
-Where it sits: the hub of the flow. Rollout chunks come in (`insert`, idempotent by writer / incarnation / seq);
-teachers and the ICM ask for work (`teacher_work`, `icm_work`) and send scores back keyed by
-(slot, generation), stale ones dropped (`write_teacher_scores`, `write_curiosity`); the learner receives
-prioritized batches (`sample`) and returns |δ| (`learner_result`). Priorities are recomputed in bulk when λ or
-scores changed, at most every `service.recompute_every` inserts. λ advances with the env steps accepted here.
+Where it sits: the hub of the flow, and a shell: dedupe, pacing and status around the replay side of Algorithm 1's
+steps (`cmcl.replay.steps`, the same functions the inline loop calls). Rollout `Chunk`s come in (`insert`,
+validated by `cmcl.io.codec.check_chunk`, idempotent by writer / incarnation / seq); teachers and the ICM ask for
+work (`teacher_work`, `icm_work`) and send scores back keyed by (slot, generation), stale ones dropped
+(`write_teacher_scores`, `write_curiosity`); the learner receives prioritized `LearnerBatch`es (`sample`) and
+returns |δ| (`learner_result`). Priorities are recomputed in bulk when λ or scores changed, at most every
+`service.recompute_every` inserts. λ advances with the env steps accepted here.
 
 Distributed deviation from §3.8 (ALGORITHM.md §3.9), measured by `cmcl_teacher_score_age_updates`: teacher k
-scores rows of the other folds asynchronously; c_j is the sum over the K−1 blind teachers of their latest
-errors, (K−1)·mean over those that have scored j so far; new rows sit at ε_p until a teacher has scored them.
+scores rows of the other folds asynchronously; c_j is (K−1)·mean over the blind teachers that have scored j so
+far (`cmcl.replay.difficulty.DifficultyTable`); new rows sit at ε_p until a teacher has scored them.
 Every method returns (or ends with) a small status dict the supervisor uses to pace its calls.
 """
 
@@ -21,11 +23,21 @@ from typing import Any
 import numpy as np
 
 from cmcl.io import codec
+from cmcl.messages import (
+    CuriosityWork,
+    MessageError,
+    TeacherWork,
+    check_curiosity_scores,
+    check_feedback,
+    check_teacher_scores,
+)
+from cmcl.replay import steps as buffer
+from cmcl.replay.difficulty import DifficultyTable, ScoreStamps
+from cmcl.replay.priority import uses_curriculum
 from cmcl.replay.ratelimit import RateLimiter, limiters_from_config, slack_for
 from cmcl.system import agent_layout, beta_is, build_replay, build_schedule, make_batched_env
 from services.common import actor_setup, new_incarnation
 
-CHUNK_KEYS = ("obs", "act", "rew", "next_obs", "done", "env_index")
 REPORT_SAMPLES = 512
 
 
@@ -48,10 +60,8 @@ class ReplayServer:
                                 for _ in range(k)] if "teachers" in limiters else [])
         self.icm_limit = (RateLimiter(cfg.icm.steps_per_update, 0, slack_fit + cfg.service.slack_updates)
                           if "icm" in limiters else None)
-        a_t = len(self.layout.teacher_agents)
-        self.teacher_error = np.zeros((cap, a_t, k), np.float32)  # latest error of teacher i on row j
-        self.teacher_time = np.full((cap, k), -1, np.int64)  # learner updates when teacher i scored j (-1: never)
-        self.curiosity_time = np.full(cap, -1, np.int64)
+        self.difficulty = DifficultyTable(cap, len(self.layout.teacher_agents), k)
+        self.curiosity_stamps = ScoreStamps(cap, 1)
         self.seen: dict[str, int] = {}  # "writer:incarnation" -> last seq accepted
         self.counters = {"inserts": 0, "samples": 0, "updates": 0, "episodes": 0, "icm_steps": 0,
                          "icm_scores": 0, "chunks": 0}
@@ -100,26 +110,25 @@ class ReplayServer:
 
     # ------------------------------------------------------------------ rollout -> replay
     def insert(self, chunk: Any) -> dict[str, Any]:
-        """Store one rollout chunk (B whole episodes); duplicates and bad chunks are refused, nothing stored."""
-        if not isinstance(chunk, dict) or any(k not in chunk for k in (*CHUNK_KEYS, "writer", "incarnation", "seq")):
-            return self._reject("bad_chunk", "not a rollout chunk dict")
-        key, seq = f"{chunk['writer']}:{chunk['incarnation']}", int(chunk["seq"])
+        """Store one rollout Chunk (B whole episodes); duplicates and bad chunks are refused, nothing stored."""
+        try:
+            layout = self.layout
+            chunk = codec.check_chunk(chunk, n_agents=layout.num_agents, obs_dim=layout.obs_dim,
+                                      act_dim=layout.act_dim)
+        except codec.CodecError as err:
+            return self._reject("bad_chunk", str(err))
+        key, seq = chunk.writer_key, int(chunk.seq)
         if seq <= self.seen.get(key, -1):
             return self._reject("duplicate", f"{key} seq {seq} already accepted")
-        env_index = np.asarray(chunk["env_index"], dtype=np.int64)
-        worlds = int(env_index.max()) + 1 if env_index.size else 0
         try:
-            slots = self.replay.add(chunk["obs"], chunk["act"], chunk["rew"], chunk["next_obs"], chunk["done"],
-                                    self.counters["episodes"] + env_index, int(chunk.get("policy_version", 0)))
+            self.replay.add(chunk.obs, chunk.act, chunk.rew, chunk.next_obs, chunk.done,
+                            self.counters["episodes"] + chunk.env_index, int(chunk.policy_version))
         except (ValueError, TypeError) as err:
             return self._reject("invalid", str(err))
-        written = slots[slots >= 0]
-        self.teacher_time[written] = -1
-        self.curiosity_time[written] = -1
-        n = int(env_index.size)
+        n = chunk.rows
         self.seen[key] = seq
         self.counters["inserts"] += n
-        self.counters["episodes"] += worlds
+        self.counters["episodes"] += chunk.worlds
         self.counters["chunks"] += 1
         self.learner_limit.record_insert(n)
         self.schedule.advance(n)
@@ -129,7 +138,7 @@ class ReplayServer:
     # ------------------------------------------------------------------ replay -> learner
     def _maybe_recompute(self) -> None:
         """Bulk priority recompute when λ or scores changed, at most every `recompute_every` inserts."""
-        if not any(m in ("acl", "cmcl") for m in self.layout.modes):
+        if not uses_curriculum(self.layout.modes):
             return
         every = self.config.service.recompute_every or self.config.env.num_envs * self.config.env.episode_length
         due = self.counters["inserts"] - self.inserts_at_recompute >= every
@@ -137,48 +146,34 @@ class ReplayServer:
             self.replay.recompute_priorities(self.schedule.lam)
             self.dirty, self.inserts_at_recompute = False, self.counters["inserts"]
 
-    def sample(self, n: int) -> tuple[dict[str, np.ndarray] | None, dict[str, Any]]:
-        """Up to n per-owner minibatches, as many as the rate limiters allow (None if none).
-
-        batch: obs [n, N, S, N, od], act, rew [n, N, S, N], next_obs, done [n, N, S], is_weights [n, N, S],
-        slots / generations int64[n, N, S].
-        """
+    def sample(self, n: int) -> tuple[Any, dict[str, Any]]:
+        """Up to n per-owner minibatches (a LearnerBatch of [n, N, S] arrays), as many as the rate limiters allow
+        (None if none)."""
         n = min(int(n), self.status()["allowed_updates"])
         if n < 1:
             return None, self.status()
         self._maybe_recompute()
-        s, betas = self.config.maddpg.batch_size, beta_is(self.config, self.counters["inserts"])
-        betas = [betas if w else 0.0 for w in self.layout.importance_weights]
-        draws = [self.replay.sample_all(s, self.sampler_rngs, beta=betas) for _ in range(n)]
-        slots = np.stack([d[0] for d in draws])  # [n, N, S]
-        rows = self.replay.get(slots.reshape(-1))
-        batch = {k: rows[k].reshape(*slots.shape, *rows[k].shape[1:]) for k in ("obs", "act", "rew", "next_obs",
-                                                                               "done")}
-        batch.update(is_weights=np.stack([d[1] for d in draws]), slots=slots,
-                     generations=self.replay.generations(slots.reshape(-1)).reshape(slots.shape))
+        beta = beta_is(self.config, self.counters["inserts"])
+        betas = [beta if w else 0.0 for w in self.layout.importance_weights]
+        batch = buffer.sample_owner_batches(self.replay, n, self.config.maddpg.batch_size, self.sampler_rngs, betas)
         self.learner_limit.record_sample(n)
         for lim in [*self.teacher_limits, *([self.icm_limit] if self.icm_limit else [])]:
             lim.record_insert(n)
         self.counters["updates"] += n
-        self.counters["samples"] += int(slots.size)
+        self.counters["samples"] += int(batch.slots.size)
         return batch, self.status()
 
-    def learner_result(self, result: dict[str, Any] | None) -> dict[str, Any]:
+    def learner_result(self, result: Any) -> dict[str, Any]:
         """PER / ACL-td_self feedback: |δ| for the sampled (slot, generation) pairs; stale ones are dropped."""
         if result is None:
             return self.status()
-        slots, gens, td = result["slots"], result["generations"], result["td_abs"]  # [n, N, S]
-        self.losses = result.get("losses", {})
-        for agent, mode in enumerate(self.layout.modes):
-            s, g, v = slots[:, agent].reshape(-1), gens[:, agent].reshape(-1), td[:, agent].reshape(-1)
-            if mode == "per":
-                accepted = self.replay.update_priorities(agent, s, v, g)
-            elif self.layout.difficulty_source[agent] == "td_abs":
-                accepted = self.replay.update_scores("td_abs", s, g, v[:, None], agents=[agent])
-                self.dirty = True
-            else:
-                continue
-            self._count_stale(s.size - accepted)
+        try:
+            feedback = check_feedback(result, self.layout.num_agents)
+        except MessageError as err:
+            return self._reject("bad_feedback", str(err))
+        stale, scores_changed = buffer.apply_learner_feedback(self.replay, self.layout, feedback)
+        self._count_stale(stale)
+        self.dirty = self.dirty or scores_changed
         return self.status()
 
     def _count_stale(self, n: int) -> None:
@@ -186,99 +181,80 @@ class ReplayServer:
             self.rejected["stale"] = self.rejected.get("stale", 0) + int(n)
 
     # ------------------------------------------------------------------ replay -> teachers / ICM
-    def _oldest_rows(self, candidates: np.ndarray, scored_at: np.ndarray, count: int) -> np.ndarray:
-        """Up to `count` candidate slots whose score is oldest (never scored first)."""
-        if candidates.size <= count:
-            return candidates
-        pick = np.argpartition(scored_at[candidates], count - 1)[:count]
-        return np.sort(candidates[pick])
-
-    def _work_rows(self, slots: np.ndarray) -> dict[str, np.ndarray]:
-        rows = self.replay.get(slots)
-        return {**{k: rows[k] for k in ("obs", "act", "rew", "next_obs", "done")}, "slots": slots,
-                "generations": self.replay.generations(slots)}
-
-    def teacher_work(self, folds: list[int], steps: int) -> tuple[dict[str, Any] | None, dict[str, Any]]:
-        """For the teacher actor hosting `folds`: fit batches [steps, F, S_T] drawn from each fold only, and the
+    def teacher_work(self, folds: list[int], steps: int) -> tuple[TeacherWork | None, dict[str, Any]]:
+        """For the teacher actor hosting `folds`: fit rows [steps, 1, F, S] drawn from each fold only, and the
         rows (of other folds) whose score from these teachers is oldest, to score."""
         cfg = self.config
         if not self.teacher_limits or self.replay.size < self.replay.min_size:
             return None, self.status()
         folds = [int(f) for f in folds]
         steps = min(int(steps), *(self.teacher_limits[f].allowed_samples() for f in folds))
-        own = [self.replay.fold_slots(f) for f in folds]
-        if steps < 1 or min(o.size for o in own) == 0:
+        if steps < 1 or (self.replay.storage.fold_counts()[folds] == 0).any():
             return None, self.status()
-        fit = np.stack([o[self.rng.integers(0, o.size, (steps, cfg.teachers.batch_size))] for o in own], axis=1)
+        fit = buffer.fold_batch_slots(self.replay, folds, cfg.teachers.batch_size, self.rng, steps=steps)
         valid = self.replay.valid_slots()
-        age = self.teacher_time[valid][:, folds].astype(np.float64)  # [M, F]; a row's own fold never counts
-        age[self.replay.storage.fold[valid][:, None] == np.asarray(folds)[None, :]] = np.inf
+        age = self.difficulty.stamps(valid, self.replay.generations(valid))[:, folds].astype(np.float64)  # [M, F]
+        age[self.replay.storage.fold[valid][:, None] == np.asarray(folds)[None, :]] = np.inf  # own fold: never
         key = age.min(1)
         useful = np.isfinite(key)
-        score = self._oldest_rows(valid[useful], _indexed(valid[useful], key[useful], self.replay.capacity),
-                                  cfg.service.score_rows_per_call)
+        score = buffer.oldest_slots(valid[useful], key[useful], cfg.service.score_rows_per_call)
         for f in folds:
             self.teacher_limits[f].record_sample(steps)
             self.teacher_steps[f] += steps
-        rows = self.replay.get(fit.reshape(-1))
-        fit_rows = {k: rows[k].reshape(*fit.shape, *rows[k].shape[1:]) for k in ("obs", "act", "rew", "next_obs",
-                                                                                "done")}
-        fit_rows["slots"] = fit
-        return {"folds": folds, "fit": fit_rows, "score": self._work_rows(score),
-                "updates": self.counters["updates"]}, self.status()
+        return TeacherWork(tuple(folds), buffer.rows_at(self.replay, fit), fit, buffer.score_rows(self.replay, score),
+                           self.counters["updates"]), self.status()
 
-    def write_teacher_scores(self, scores: dict[str, Any] | None) -> dict[str, Any]:
-        """Errors e[M, A_t, F] of the teachers of `folds` -> c of the rows (sum over the blind teachers only)."""
+    def write_teacher_scores(self, scores: Any) -> dict[str, Any]:
+        """Errors e[M, A_t, F] of the teachers of `folds` -> c of the rows (eq. 11 over the blind teachers)."""
         if scores is None:
             return self.status()
-        folds, slots, gens = scores["folds"], scores["slots"], scores["generations"]
-        fresh = self.replay.storage.fresh_mask(slots, gens)
-        self._count_stale(int((~fresh).sum()))
-        s, errors = slots[fresh], scores["errors"][fresh]
-        row_fold = self.replay.storage.fold[s]
-        for i, f in enumerate(folds):
-            blind_rows = row_fold != f  # teacher f's error never counts for its own fold
-            self.teacher_error[s[blind_rows], :, f] = errors[blind_rows, :, i]
-            self.teacher_time[s[blind_rows], f] = int(scores["updates"])
-            self.teacher_scores[f] += int(blind_rows.sum())
-            self.losses[f"teacher_{f}"] = float(scores.get("loss", 0.0))
-        kk = self.teacher_error.shape[2]
-        blind = (row_fold[:, None] != np.arange(kk)[None, :]) & (self.teacher_time[s] >= 0)  # [M, K]
-        count = blind.sum(1)
-        c = (self.teacher_error[s] * blind[:, None, :]).sum(-1) * ((kk - 1) / np.maximum(count, 1))[:, None]
-        ok = count > 0
-        self.replay.update_scores("difficulty", s[ok], gens[fresh][ok], c[ok], agents=self.layout.teacher_agents)
+        try:
+            msg = check_teacher_scores(scores, len(self.layout.teacher_agents), self.config.teachers.num_folds)
+        except MessageError as err:
+            return self._reject("bad_scores", str(err))
+        fresh = self.replay.storage.fresh_mask(msg.slots, msg.generations)
+        row_fold = self.replay.storage.fold[msg.slots[fresh]]
+        _, stale = buffer.write_difficulty(self.replay, self.difficulty, self.layout.teacher_agents, msg.slots,
+                                           msg.generations, msg.folds, msg.errors, msg.updates)
+        self._count_stale(stale)
+        for f in msg.folds:
+            self.teacher_scores[f] += int((row_fold != f).sum())
+            self.losses[f"teacher_{f}"] = float(msg.loss)
         self.dirty = True
         return self.status()
 
-    def icm_work(self, steps: int) -> tuple[dict[str, Any] | None, dict[str, Any]]:
-        """Uniform fit batches [steps, S] and the rows with the oldest curiosity score."""
+    def icm_work(self, steps: int) -> tuple[CuriosityWork | None, dict[str, Any]]:
+        """Uniform fit rows [steps, S] and the rows with the oldest curiosity score."""
         cfg = self.config
         if self.icm_limit is None or self.replay.size < self.replay.min_size:
             return None, self.status()
         steps = min(int(steps), self.icm_limit.allowed_samples())
         if steps < 1:
             return None, self.status()
+        fit = buffer.uniform_slots(self.replay, (steps, cfg.icm.batch_size), self.rng)
         valid = self.replay.valid_slots()
-        fit = valid[self.rng.integers(0, valid.size, (steps, cfg.icm.batch_size))]
-        score = self._oldest_rows(valid, self.curiosity_time, cfg.service.score_rows_per_call)
+        stamps = self.curiosity_stamps.stamps(valid, self.replay.generations(valid))[:, 0]
+        score = buffer.oldest_slots(valid, stamps, cfg.service.score_rows_per_call)
         self.icm_limit.record_sample(steps)
         self.counters["icm_steps"] += steps
-        rows = self.replay.get(fit.reshape(-1))
-        fit_rows = {k: rows[k].reshape(*fit.shape, *rows[k].shape[1:]) for k in ("obs", "act", "next_obs")}
-        return {"fit": fit_rows, "score": self._work_rows(score), "updates": self.counters["updates"]}, self.status()
+        return CuriosityWork(buffer.rows_at(self.replay, fit, ("obs", "act", "next_obs")),
+                             buffer.score_rows(self.replay, score), self.counters["updates"]), self.status()
 
-    def write_curiosity(self, scores: dict[str, Any] | None) -> dict[str, Any]:
-        """ρ[M, A_c] for (slot, generation) pairs from the ICM actor."""
+    def write_curiosity(self, scores: Any) -> dict[str, Any]:
+        """ρ[M, A_c] (eq. 18) for (slot, generation) pairs from the ICM actor."""
         if scores is None:
             return self.status()
-        slots, gens = scores["slots"], scores["generations"]
-        accepted = self.replay.update_scores("curiosity", slots, gens, scores["rho"], agents=self.layout.icm_agents)
-        self._count_stale(slots.size - accepted)
-        fresh = self.replay.storage.fresh_mask(slots, gens)
-        self.curiosity_time[slots[fresh]] = int(scores["updates"])
+        try:
+            msg = check_curiosity_scores(scores, len(self.layout.icm_agents))
+        except MessageError as err:
+            return self._reject("bad_scores", str(err))
+        fresh = self.replay.storage.fresh_mask(msg.slots, msg.generations)
+        accepted, stale = buffer.write_curiosity(self.replay, self.layout.icm_agents, msg.slots, msg.generations,
+                                                 msg.rho)
+        self._count_stale(stale)
+        self.curiosity_stamps.mark(msg.slots[fresh], msg.generations[fresh], 0, msg.updates)
         self.counters["icm_scores"] += accepted
-        self.losses["icm"] = float(scores.get("loss", 0.0))
+        self.losses["icm"] = float(msg.loss)
         self.dirty = True
         return self.status()
 
@@ -289,7 +265,7 @@ class ReplayServer:
                                   "inserts": self.counters["inserts"], "samples": self.counters["samples"],
                                   "rejected": dict(self.rejected)}
         size = self.replay.size
-        if size and any(m in ("acl", "cmcl") for m in self.layout.modes):
+        if size and uses_curriculum(self.layout.modes):
             d = self.replay.recompute_priorities(self.schedule.lam, details=True)
             self.dirty, self.inserts_at_recompute = False, self.counters["inserts"]
             pick = self.rng.integers(0, size, min(size, REPORT_SAMPLES))
@@ -297,7 +273,8 @@ class ReplayServer:
             replay.update(difficulty=d["c_hat"][pick][scored], priority=d["priority"][pick],
                           kfold_priority=d["kp"][pick][scored], curiosity_priority=d["cp"][pick])
         if self.teacher_limits and size:
-            times = self.teacher_time[:size]
+            valid = self.replay.valid_slots()
+            times = self.difficulty.stamps(valid, self.replay.generations(valid))
             replay["score_coverage"] = float(self.replay.storage.scored["difficulty"][:size][
                 :, self.layout.teacher_agents].all(1).mean())
             ages = self.counters["updates"] - times[times >= 0]
@@ -318,8 +295,8 @@ class ReplayServer:
 
     def state_dict(self) -> dict[str, Any]:
         """Codec-ready state: the buffer, score tables, dedupe table, counters, limiters and λ's step count."""
-        return {"replay": self.replay.state_dict(), "teacher_error": self.teacher_error,
-                "teacher_time": self.teacher_time, "curiosity_time": self.curiosity_time,
+        return {"replay": self.replay.state_dict(), "difficulty": self.difficulty.state_dict(),
+                "curiosity_stamps": self.curiosity_stamps.state_dict(),
                 "seen": dict(self.seen), "counters": dict(self.counters), "rejected": dict(self.rejected),
                 "teacher_steps": list(self.teacher_steps), "teacher_scores": list(self.teacher_scores),
                 "learner_limit": self.learner_limit.state_dict(),
@@ -337,13 +314,10 @@ class ReplayServer:
 
     def restore(self, path: str) -> None:
         """Load a snapshot written by `snapshot` (validated by the codec and the buffer before use)."""
-        state = codec.read_snapshot(path, limits=codec.Limits(max_bytes=8 << 30, max_elements=2 << 30))
+        state = codec.read_snapshot(path, limits=codec.SNAPSHOT_LIMITS)
         self.replay.load_state_dict(state["replay"])
-        for name in ("teacher_error", "teacher_time", "curiosity_time"):
-            value = np.asarray(state[name])
-            if value.shape != getattr(self, name).shape:
-                raise ValueError(f"snapshot {name} has shape {value.shape}, expected {getattr(self, name).shape}")
-            setattr(self, name, value.astype(getattr(self, name).dtype))
+        self.difficulty.load_state_dict(state["difficulty"])
+        self.curiosity_stamps.load_state_dict(state["curiosity_stamps"])
         self.seen = {str(k): int(v) for k, v in state["seen"].items()}
         self.counters.update({k: int(v) for k, v in state["counters"].items()})
         self.rejected = {str(k): int(v) for k, v in state["rejected"].items()}
@@ -356,10 +330,3 @@ class ReplayServer:
             self.icm_limit.load_state_dict(state["icm_limit"])
         self.schedule.env_steps = int(state["schedule_env_steps"])
         self.dirty = True
-
-
-def _indexed(slots: np.ndarray, values: np.ndarray, capacity: int) -> np.ndarray:
-    """A capacity-long array holding values at slots (so `_oldest_rows` can index it by slot)."""
-    out = np.full(capacity, np.inf)
-    out[slots] = values
-    return out

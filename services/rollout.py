@@ -13,6 +13,8 @@ from typing import Any
 import numpy as np
 
 from cmcl.learners.policy import NumpyPolicy
+from cmcl.messages import Chunk
+from cmcl.progress import REPORTED_STATS, finished_episodes
 from cmcl.system import agent_layout, build_maddpg, make_batched_env, to_env_actions
 from services.common import actor_setup, new_incarnation
 
@@ -38,12 +40,11 @@ class RolloutWorker:
         self.env_steps, self.episodes = 0, 0
         self.obs = self.env.reset()
 
-    def rollout(self, published: dict | None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    def rollout(self, published: dict | None) -> tuple[Chunk, dict[str, Any]]:
         """Run one episode in every world with the published policy {"version", "weights"} (+ exploration noise).
 
-        Returns (chunk, report): chunk arrays obs [T*B, N, od], act, rew [T*B, N], next_obs, done [T*B],
-        env_index int64[T*B] (world 0..B-1 of this worker) plus writer / incarnation / seq / policy_version;
-        report is a metrics report (cumulative env steps and episodes, finished-episode statistics).
+        Returns (chunk, report): a Chunk of T*B rows (env_index: world 0..B-1 of this worker) and a metrics report
+        (cumulative env steps and episodes, finished-episode statistics).
         """
         if published is not None and published["version"] != self.version:
             if self.config.maddpg.discrete:
@@ -70,27 +71,19 @@ class RolloutWorker:
             raise RuntimeError("worlds are expected to end their episodes together (lock-step reset)")
         self.env_steps += t_len * b
         self.episodes += b
-        chunk = {"obs": np.concatenate(obs), "act": np.concatenate(act), "rew": np.concatenate(rew),
-                 "next_obs": np.concatenate(nxt), "done": np.zeros(t_len * b, np.float32),
-                 "env_index": np.tile(np.arange(b, dtype=np.int64), t_len),
-                 "writer": self.worker_id, "incarnation": self.incarnation, "seq": self.seq,
-                 "policy_version": max(self.version, 0)}
+        chunk = Chunk(obs=np.concatenate(obs), act=np.concatenate(act), rew=np.concatenate(rew),
+                      next_obs=np.concatenate(nxt), done=np.zeros(t_len * b, np.float32),
+                      env_index=np.tile(np.arange(b, dtype=np.int64), t_len), writer=self.worker_id,
+                      incarnation=self.incarnation, seq=self.seq, policy_version=max(self.version, 0))
         self.seq += 1
         return chunk, self._report(info["episode"])
 
     def _report(self, episode: dict[str, np.ndarray]) -> dict[str, Any]:
         """Metrics report of this call (see services.metrics for the schema)."""
-        teams = self.env.teams
-        finished: dict[str, Any] = {"reward": {t: episode["return"][:, idx].sum(1) for t, idx in teams.items()}}
-        if "coverage" in episode:
-            finished["coverage"] = episode["coverage"]
-            finished["success"] = episode["success"].astype(np.float64)
-        if "predator_win" in episode:
-            win = episode["predator_win"].astype(np.float64)
-            finished["win"] = {"predator": win, "prey": 1.0 - win}
         return {"source": f"rollout-{self.worker_id}", "role": "rollout", "incarnation": self.incarnation,
                 "weight_version": max(self.version, 0),
-                "rollout": {"env_steps": self.env_steps, "episodes": self.episodes, "finished": finished}}
+                "rollout": {"env_steps": self.env_steps, "episodes": self.episodes,
+                            "finished": finished_episodes(episode, self.env.teams, REPORTED_STATS)}}
 
 
 def _initial_actor(config: Any, layout: Any, seed: int) -> dict[str, np.ndarray]:

@@ -23,13 +23,13 @@ import ray
 from cmcl.config import Config
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
-from cmcl.progress import solved, window_mean
-from services.curiosity import CuriosityWorker
+from cmcl.progress import episode_rows, progress_line, solved, window_summary
+from services.icm import ICMWorker
 from services.learner import Learner
 from services.metrics import ServiceMetrics
 from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
-from services.teacher import TeacherWorker
+from services.teachers import TeacherWorker
 
 CALLS_IN_FLIGHT = 2  # per actor: one computing, one prefetched
 # Outputs of one actor that go to the replay server. They are forwarded only once ready: an actor runs one
@@ -99,7 +99,7 @@ def create_roles(config: Config, run_dir: RunDirectory) -> Roles:
             for i, folds in enumerate(config.teacher_groups(available))]
     icm = None
     if any(t.uses_icm for t in teams):
-        icm = actor(CuriosityWorker, s.icm_cpus).remote(cfg, seed * 1000 + 200, str(paths["icm"]))
+        icm = actor(ICMWorker, s.icm_cpus).remote(cfg, seed * 1000 + 200, str(paths["icm"]))
     return Roles(replay=actor(ReplayServer, s.replay_cpus).remote(cfg, str(paths["replay"]), seed),
                  learner=actor(Learner, s.learner_cpus).remote(cfg, seed, str(paths["learner"])),
                  rollout=[make_rollout(w) for w in range(s.rollout_workers)], teachers=teachers, icm=icm,
@@ -247,44 +247,27 @@ class Supervisor:
 
     def _log_episodes(self, report: dict[str, Any]) -> None:
         """Append one 'episode' row per finished episode of a rollout report to metrics.jsonl."""
-        finished = report["rollout"]["finished"]
-        rewards = finished["reward"]
-        count = len(next(iter(rewards.values())))
-        for m in range(count):
-            self.episodes_logged += 1
-            row: dict[str, Any] = {"kind": "episode", "episodes": self.episodes_logged,
-                                   "elapsed_s": time.perf_counter() - self.started,
-                                   "worker": report["source"], "weight_version": report.get("weight_version", 0),
-                                   "reward": {t: float(v[m]) for t, v in rewards.items()}}
-            for key in ("coverage", "success"):
-                if key in finished:
-                    row[key] = float(finished[key][m])
-            if "win" in finished:
-                row["predator_win"] = float(finished["win"]["predator"][m])
-            self.window.append(row)
+        rows = episode_rows(report["rollout"]["finished"], self.episodes_logged + 1,
+                            elapsed_s=time.perf_counter() - self.started, worker=report["source"],
+                            weight_version=report.get("weight_version", 0))
+        self.episodes_logged += len(rows)
+        self.window.extend(rows)
+        for row in rows:
             self.run_dir.log(row)
 
     # ------------------------------------------------------------------ progress, checkpoints
     def progress_line(self) -> str:
         """One terminal line: env steps, episodes, coverage / win, reward, λ, rates, buffer, score age, lag."""
-        st, w = self.status, self.window
-        parts = [f"ep {st['episodes']}/{self.config.run.episodes}", f"steps {st['env_steps']}",
-                 f"upd {st['updates']}", f"buf {st['size']}"]
-        if w:
-            for key, label in (("coverage", "cov"), ("predator_win", "win")):
-                if key in w[0]:
-                    parts.append(f"{label} {window_mean(w, key):.2f}")
-            for team in w[0]["reward"]:
-                parts.append(f"R[{team}] {np.mean([r['reward'][team] for r in w]):.1f}")
-        parts += [f"λ {st['lambda']:.4f}", f"{self.rates['updates_per_s']:.0f} upd/s",
-                  f"{self.rates['env_steps_per_s']:.0f} st/s"]
+        st = self.status
+        extra = [f"buf {st['size']}"]
         ages = self.last_replay_report.get("replay", {}).get("score_age")
         if ages is not None and len(ages):
-            parts.append(f"score age {float(np.median(ages)):.0f} upd")
+            extra.append(f"score age {float(np.median(ages)):.0f} upd")
         if self.lags:
-            parts.append("lag " + ",".join(f"{k}:{v}" for k, v in sorted(self.lags.items())))
-        parts.append(f"{time.perf_counter() - self.started:.0f}s")
-        return " | ".join(parts)
+            extra.append("lag " + ",".join(f"{k}:{v}" for k, v in sorted(self.lags.items())))
+        return progress_line(st["episodes"], self.config.run.episodes, st["env_steps"], st["updates"],
+                             window_summary(self.window), st["lambda"], self.rates,
+                             time.perf_counter() - self.started, extra)
 
     def _refresh_rates(self) -> None:
         now, st = time.perf_counter(), self.status

@@ -1,5 +1,6 @@
 """msgpack codec: round trips and refusal of every kind of bad payload (DESIGN.md "State and recovery")."""
 
+import dataclasses
 import os
 
 import msgpack
@@ -8,18 +9,20 @@ import pytest
 
 from cmcl.io import codec
 from cmcl.io.codec import CodecError, Limits
+from cmcl.messages import Chunk
 
 T, N, OD, AD = 6, 2, 3, 2
 
 
 def make_chunk(rng=None, **over):
     rng = rng or np.random.default_rng(0)
-    c = {"obs": rng.normal(size=(T, N, OD)).astype(np.float32), "act": rng.normal(size=(T, N, AD)).astype(np.float32),
-         "rew": rng.normal(size=(T, N)).astype(np.float32), "next_obs": rng.normal(size=(T, N, OD)).astype(np.float32),
-         "done": np.zeros(T, np.float32), "episode": np.arange(T, dtype=np.int64) // 3, "policy_version": 4,
-         "writer": "rollout-0", "seq": 17}
-    c.update(over)
-    return c
+    fields = {"obs": rng.normal(size=(T, N, OD)).astype(np.float32),
+              "act": rng.normal(size=(T, N, AD)).astype(np.float32), "rew": rng.normal(size=(T, N)).astype(np.float32),
+              "next_obs": rng.normal(size=(T, N, OD)).astype(np.float32), "done": np.zeros(T, np.float32),
+              "env_index": np.arange(T, dtype=np.int64) % 3, "writer": 2, "incarnation": "5f0c", "seq": 17,
+              "policy_version": 4}
+    fields.update(over)
+    return Chunk(**fields)
 
 
 def raw_array(dtype_name, shape, raw):
@@ -35,57 +38,51 @@ def test_chunk_round_trip():
     c = make_chunk()
     out = codec.decode_chunk(codec.encode_chunk(c), n_agents=N, obs_dim=OD, act_dim=AD)
     for k in codec.CHUNK_ARRAYS:
-        assert out[k].dtype == c[k].dtype and np.array_equal(out[k], c[k])
-        assert out[k].flags.writeable and out[k].flags.owndata
-    assert (out["policy_version"], out["writer"], out["seq"]) == (4, "rollout-0", 17)
+        assert getattr(out, k).dtype == getattr(c, k).dtype and np.array_equal(getattr(out, k), getattr(c, k))
+        assert getattr(out, k).flags.writeable and getattr(out, k).flags.owndata
+    assert (out.writer, out.incarnation, out.seq, out.policy_version) == (2, "5f0c", 17, 4)
+    assert (out.rows, out.worlds, out.writer_key) == (T, 3, "2:5f0c")
 
 
-def test_chunk_casts_on_encode_but_is_strict_on_decode():
-    c = make_chunk(obs=np.zeros((T, N, OD)), episode=np.zeros(T, np.int32))  # float64 / int32 are cast
-    out = codec.decode_chunk(codec.encode_chunk(c))
-    assert out["obs"].dtype == np.float32 and out["episode"].dtype == np.int64
-    body = {k: v for k, v in make_chunk().items()}
+def test_chunk_dtypes_are_exact_on_both_sides():
+    with pytest.raises(CodecError, match=r"chunk.obs: expected float32 with 3 dims, got float64"):
+        codec.encode_chunk(make_chunk(obs=np.zeros((T, N, OD))))
+    body = {f.name: getattr(make_chunk(), f.name) for f in dataclasses.fields(Chunk)}
     body["obs"] = body["obs"].astype(np.float64)  # forged: wrong dtype on the wire
-    with pytest.raises(CodecError, match="obs: expected float32"):
+    with pytest.raises(CodecError, match="chunk.obs: expected float32"):
+        codec.decode_chunk(codec.encode("chunk", body))
+    body["obs"], body["extra"] = body["obs"].astype(np.float32), 1
+    with pytest.raises(CodecError, match="expected the fields"):
         codec.decode_chunk(codec.encode("chunk", body))
 
 
 @pytest.mark.parametrize("over, match", [
-    ({"rew": np.zeros((T, N + 1), np.float32)}, r"rew: shape"),
-    ({"done": np.zeros(T + 1, np.float32)}, r"done: shape"),
-    ({"episode": -np.ones(T, np.int64)}, "episode"),
-    ({"policy_version": -1}, "policy_version"),
-    ({"writer": 3}, "writer"),
-    ({"act": np.zeros((T, N, AD), dtype=object)}, "act: dtype object"),
+    ({"rew": np.zeros((T, N + 1), np.float32)}, r"chunk.rew: shape"),
+    ({"done": np.zeros(T + 1, np.float32)}, r"chunk.done: shape"),
+    ({"env_index": -np.ones(T, np.int64)}, "chunk.env_index: must be >= 0, got -1"),
+    ({"policy_version": -1}, "chunk.policy_version: expected an integer >= 0, got -1"),
+    ({"writer": "rollout-0"}, "chunk.writer"),
+    ({"incarnation": ""}, "chunk.incarnation"),
+    ({"act": np.zeros((T, N, AD), dtype=object)}, "chunk.act: expected float32"),
+    ({"rew": np.full((T, N), np.inf, np.float32)}, "chunk.rew: must be finite, got inf"),
 ])
 def test_chunk_schema_errors(over, match):
+    with pytest.raises(CodecError, match=match):
+        codec.check_chunk(make_chunk(**over))
     with pytest.raises(CodecError, match=match):
         codec.encode_chunk(make_chunk(**over))
 
 
-def test_chunk_expected_sizes():
+def test_chunk_expected_sizes_and_caps():
     data = codec.encode_chunk(make_chunk())
-    with pytest.raises(CodecError, match="obs_dim"):
+    with pytest.raises(CodecError, match="obs_dim: the chunk has 3, the buffer expects 4"):
         codec.decode_chunk(data, obs_dim=OD + 1)
-    with pytest.raises(CodecError, match="missing"):
-        codec.encode_chunk({k: v for k, v in make_chunk().items() if k != "next_obs"})
-
-
-def test_scores_round_trip_and_errors():
-    data = codec.encode_scores("curiosity", [3, 4], [1, 2], [[0.5], [1.5]], [1], model_version=9)
-    out = codec.decode_scores(data)
-    assert out["column"] == "curiosity" and out["values"].dtype == np.float32 and out["model_version"] == 9
-    assert out["slots"].tolist() == [3, 4] and out["agents"].tolist() == [1]
-    with pytest.raises(CodecError, match="column"):
-        codec.encode_scores("reward", [3], [1], [[0.5]], [0])
-    with pytest.raises(CodecError, match="do not match"):
-        codec.encode_scores("td_abs", [3, 4], [1], [[0.5], [1.0]], [0])
-    with pytest.raises(CodecError, match=">= 0"):
-        codec.encode_scores("td_abs", [3], [1], [[-0.5]], [0])
-    with pytest.raises(CodecError, match="NaN"):
-        codec.encode_scores("td_abs", [3], [1], [[np.nan]], [0])
+    with pytest.raises(CodecError, match="exceed the cap"):
+        codec.check_chunk(make_chunk(), max_rows=T - 1)
+    with pytest.raises(CodecError, match="expected a Chunk, got dict"):
+        codec.check_chunk({"obs": 1})
     with pytest.raises(CodecError, match="kind"):
-        codec.decode_chunk(data)
+        codec.decode_snapshot(data)
 
 
 def test_snapshot_round_trip_all_dtypes():

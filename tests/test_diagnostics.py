@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from cmcl.diagnostics import curriculum_diagnostics, sampling_probabilities
+from cmcl.diagnostics import curriculum_diagnostics
+from cmcl.replay.priority import sampling_probabilities
 
 
 def test_uniform_distribution_has_full_ess_and_buffer_means():

@@ -13,7 +13,6 @@ from cmcl.replay.priority import (
     kfold_priority,
     normalise_curiosity,
     normalise_difficulty,
-    priority_column,
     sampling_probabilities,
 )
 
@@ -109,9 +108,8 @@ def test_ci_range_and_eta_zero_equals_acl():  # property 8
     for eta in (0.0, 0.1, 0.5, 1.0):
         ci = curriculum_index(kfold_priority(c_hat, 0.3), curiosity_priority(rho_hat), eta)
         assert ci.min() >= 0 and ci.max() <= 1 + eta
-    acl = priority_column("acl", c_hat=c_hat, lam=0.3)
-    cmcl0 = priority_column("cmcl", c_hat=c_hat, rho_hat=rho_hat, lam=0.3, eta=0.0)
-    assert np.array_equal(acl, cmcl0)
+    kp = kfold_priority(c_hat, 0.3)
+    assert np.array_equal(curriculum_index(kp, curiosity_priority(rho_hat), 0.0), kp), "η = 0 is ACL's KP"
     with pytest.raises(ValueError, match="eta"):
         curriculum_index(0.5, 0.5, -1.0)
 
@@ -175,19 +173,3 @@ def test_sampling_probabilities():  # property 17
         sampling_probabilities(p, -0.5)
     with pytest.raises(ValueError, match="positive sum"):
         sampling_probabilities(np.zeros(3), 0.6)
-
-
-def test_priority_column_per_algorithm():
-    c_hat = np.array([0.0, 0.1, 0.5, 1.0])
-    td = np.array([0.0, 2.0, 0.5, 1.0])
-    assert np.array_equal(priority_column("uniform", size=4), np.ones(4))
-    assert np.array_equal(priority_column("maddpg", c_hat=c_hat), np.ones(4))
-    assert np.allclose(priority_column("per", td_abs=td), td + EPS_P)
-    acl = priority_column("acl", c_hat=c_hat, lam=0.1)
-    assert acl[2] == EPS_P and acl[3] == EPS_P and acl[1] == pytest.approx(1 + EPS_P)
-    cm = priority_column("cmcl", c_hat=c_hat, rho_hat=np.full(4, 100.0), lam=0.1, eta=0.5)
-    assert np.allclose(cm - acl, 0.5)
-    with pytest.raises(ValueError, match="algo"):
-        priority_column("dqn", size=3)
-    with pytest.raises(ValueError, match="rho_hat"):
-        priority_column("cmcl", c_hat=c_hat, lam=0.1, eta=0.5)

@@ -1,14 +1,17 @@
 """The service classes run in-process without Ray, in the order the supervisor chains them."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from cmcl.config import config_from_dict, preset
-from services.curiosity import CuriosityWorker
+from cmcl.messages import LearnerFeedback
+from services.icm import ICMWorker
 from services.learner import Learner
 from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
-from services.teacher import TeacherWorker
+from services.teachers import TeacherWorker
 
 SMALL = {"env": {"num_envs": 4}, "maddpg": {"batch_size": 16, "warmup": 96, "hidden": 32},
          "replay": {"capacity": 360}, "teachers": {"batch_size": 16, "hidden": 32, "num_folds": 3},
@@ -26,7 +29,7 @@ def small_config(algorithm="cmcl", task="spread"):
 def roles(cfg):
     k = cfg["teachers"]["num_folds"]
     teachers = [TeacherWorker(cfg, [i], i) for i in range(k)]
-    return ReplayServer(cfg), Learner(cfg, 0), RolloutWorker(cfg, 0, 0), teachers, CuriosityWorker(cfg, 0)
+    return ReplayServer(cfg), Learner(cfg, 0), RolloutWorker(cfg, 0, 0), teachers, ICMWorker(cfg, 0)
 
 
 def test_one_round_of_the_data_flow_reaches_every_role():
@@ -41,7 +44,7 @@ def test_one_round_of_the_data_flow_reaches_every_role():
     lam0 = status["lambda"]
     for k, teacher in enumerate(teachers):
         work, _ = replay.teacher_work([k], 2)
-        assert (replay.replay.storage.fold[work["score"]["slots"]] != k).all(), "teacher k scores other folds only"
+        assert (replay.replay.storage.fold[work.score.slots] != k).all(), "teacher k scores other folds only"
         scores, _ = teacher.step(work, published)
         replay.write_teacher_scores(scores)
     scored = replay.replay.storage.scored["difficulty"][:360]
@@ -50,7 +53,7 @@ def test_one_round_of_the_data_flow_reaches_every_role():
     replay.write_curiosity(icm.step(work)[0])
     assert replay.replay.storage.scored["curiosity"][:200].any()
     batch, status = replay.sample(4)
-    assert batch["obs"].shape == (4, 4, 16, 4, 18)
+    assert batch.rows["obs"].shape == (4, 4, 16, 4, 18)
     feedback, report = learner.update(batch)
     replay.learner_result(feedback)
     assert report["learner"]["updates"] == 4 and status["updates"] == 4
@@ -66,9 +69,9 @@ def test_teacher_fit_batches_come_only_from_its_own_fold():
     folds = replay.replay.storage.fold
     for k in range(3):
         work, _ = replay.teacher_work([k], 2)
-        assert work["fit"]["obs"].shape[:3] == (2, 1, 16)
-        assert (folds[work["fit"]["slots"]] == k).all()
-        assert (folds[work["score"]["slots"]] != k).all()
+        assert work.fit["obs"].shape[:4] == (2, 1, 1, 16) and work.fit_slots.shape == (2, 1, 1, 16)
+        assert (folds[work.fit_slots] == k).all()
+        assert (folds[work.score.slots] != k).all()
 
 
 def test_duplicate_bad_and_stale_inputs_are_refused_and_counted():
@@ -78,17 +81,15 @@ def test_duplicate_bad_and_stale_inputs_are_refused_and_counted():
     assert replay.insert(chunk)["accepted"] == 120
     again = replay.insert(chunk)
     assert again["accepted"] == 0 and "duplicate" in again["error"]
-    bad = dict(worker.rollout(None)[0])
-    bad["obs"] = np.full_like(bad["obs"], np.nan)
-    refused = replay.insert(bad)
-    assert refused["accepted"] == 0 and "invalid" in refused["error"] and refused["size"] == 120
+    good = worker.rollout(None)[0]
+    refused = replay.insert(dataclasses.replace(good, obs=np.full_like(good.obs, np.nan)))
+    assert refused["accepted"] == 0 and "chunk.obs: must be finite" in refused["error"] and refused["size"] == 120
     assert replay.insert({"obs": 1})["error"].startswith("bad_chunk")
     for _ in range(3):  # wrap the 360-slot buffer: the first chunk's slots get new generations
         replay.insert(worker.rollout(None)[0])
-    stale = {"slots": np.arange(10), "generations": np.zeros(10, np.int64), "td_abs": np.ones((1, 4, 10))}
-    stale = {k: v.reshape(1, 1, -1).repeat(4, 1) if k != "td_abs" else np.ones((1, 4, 10)) for k, v in stale.items()}
-    replay.learner_result(stale)
-    assert replay.rejected == {"duplicate": 1, "invalid": 1, "bad_chunk": 1, "stale": 40}
+    slots = np.arange(10).reshape(1, 1, -1).repeat(4, 1)  # [n=1, N=4, S=10]
+    replay.learner_result(LearnerFeedback(slots, np.zeros_like(slots), np.ones((1, 4, 10), np.float32)))
+    assert replay.rejected == {"duplicate": 1, "bad_chunk": 2, "stale": 40}
 
 
 def test_snapshot_restores_buffer_scores_counters_and_dedupe(tmp_path):
@@ -106,7 +107,8 @@ def test_snapshot_restores_buffer_scores_counters_and_dedupe(tmp_path):
     restored = ReplayServer(cfg, snapshot_path=str(path))
     assert restored.status()["env_steps"] == 360 and restored.status()["updates"] == 2
     np.testing.assert_array_equal(restored.replay.storage.obs, replay.replay.storage.obs)
-    np.testing.assert_array_equal(restored.teacher_time, replay.teacher_time)
+    for name, value in replay.difficulty.state_dict().items():
+        np.testing.assert_array_equal(restored.difficulty.state_dict()[name], value)
     assert "duplicate" in restored.insert(chunk)["error"], "dedupe table survives a restart"
 
 
@@ -126,7 +128,7 @@ def test_learner_and_teacher_restart_from_their_checkpoints(tmp_path):
 
 def test_icm_actor_refuses_a_config_without_curiosity():
     with pytest.raises(ValueError, match="curiosity"):
-        CuriosityWorker(small_config("acl"), 0)
+        ICMWorker(small_config("acl"), 0)
 
 
 def test_one_actor_can_host_every_fold_without_leaking_a_rows_own_fold():
@@ -141,12 +143,13 @@ def test_one_actor_can_host_every_fold_without_leaking_a_rows_own_fold():
         replay.insert(worker.rollout(None)[0])
     work, _ = replay.teacher_work([0, 1, 2], 2)
     folds = replay.replay.storage.fold
-    assert work["fit"]["obs"].shape[:3] == (2, 3, 16)
-    assert (folds[work["fit"]["slots"]] == np.arange(3)[None, :, None]).all(), "fit batch i comes from fold i"
+    assert work.fit["obs"].shape[:4] == (2, 1, 3, 16)
+    assert (folds[work.fit_slots] == np.arange(3)[None, None, :, None]).all(), "fit batch i comes from fold i"
     scores, _ = teacher.step(work, learner.publish())
-    assert scores["errors"].shape == (360, 4, 3)  # [M, A_t, F]
+    assert scores.errors.shape == (360, 4, 3)  # [M, A_t, F]
     replay.write_teacher_scores(scores)
     rows = np.arange(360)
-    assert (replay.teacher_time[rows, folds[rows]] == -1).all(), "no row is scored by its own fold's teacher"
-    assert (replay.teacher_time[rows] >= 0).sum(1).min() == 2, "every row scored by the K-1 blind teachers"
+    stamps = replay.difficulty.stamps(rows, replay.replay.generations(rows))
+    assert (stamps[rows, folds[rows]] == -1).all(), "no row is scored by its own fold's teacher"
+    assert (stamps >= 0).sum(1).min() == 2, "every row scored by the K-1 blind teachers"
     assert replay.replay.storage.scored["difficulty"][:360].all()

@@ -8,7 +8,10 @@ import torch
 
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.nets import joint_input
-from cmcl.learners.teachers import TeacherEnsemble, cross_validated_difficulty, fold_batch_indices, make_fit_batch
+from cmcl.learners.steps import teacher_fit_batch
+from cmcl.learners.teachers import TeacherEnsemble
+from cmcl.replay.difficulty import cross_validated_difficulty
+from cmcl.replay.steps import fold_draw_indices
 
 torch.set_num_threads(1)
 
@@ -28,6 +31,24 @@ def buffer(m=400, seed=0):
     }, (np.arange(m) // 10) % K
 
 
+def fold_batch_indices(fold, k, s, rng, num_agents=1):
+    """int64[B, K, S] row indices, each [b, i] drawn from fold i only."""
+    return fold_draw_indices(fold, range(k), s, rng, draws=num_agents)[0]
+
+
+def make_fit_batch(idx, data, agents, m):
+    """One fit step's (x [A, K, S, in], y [A, K, S]) for index sets idx [B, K, S] into the rows `data`."""
+    x, y = teacher_fit_batch({k: v[idx][None] for k, v in data.items()}, np.asarray(agents), m)
+    return x[:, 0], y[:, 0]
+
+
+def difficulty(ens, x, y, fold):
+    """c [A, M] of eq. (11) from every teacher's errors on rows x (all K teachers have scored)."""
+    c, ok = cross_validated_difficulty(ens.errors(x, y).transpose(1, 0, 2), fold)
+    assert ok.all()
+    return c.T
+
+
 def test_property_11_fold_batches_only_from_own_fold():
     _, fold = buffer()
     idx = fold_batch_indices(fold, K, 64, np.random.default_rng(0), num_agents=2)
@@ -45,7 +66,7 @@ def test_make_fit_batch_uses_learner_td_targets():
     m = MADDPG(N, OD, AD, seed=0)
     agents = [0, 2]
     idx = fold_batch_indices(fold, K, 16, np.random.default_rng(1), num_agents=2)
-    x, y = make_fit_batch(idx, data, agents, m.td_targets)
+    x, y = make_fit_batch(idx, data, agents, m)
     assert x.shape == (2, K, 16, IN) and y.shape == (2, K, 16)
     y_all = m.td_targets(data["rew"], data["next_obs"], data["done"], agents=agents)  # [2, M]
     x_all = joint_input(torch.as_tensor(data["obs"]), torch.as_tensor(data["act"]))
@@ -72,7 +93,7 @@ def test_property_12_own_fold_teacher_never_scores_its_samples(bad_fold):
     with torch.no_grad():
         for a in range(2):
             last.bias[a * K + bad_fold] += 1e9
-    c = cross_validated_difficulty(ens.errors(x, y), fold)
+    c = difficulty(ens, x, y, fold)
     own = fold == bad_fold
     assert c.shape == (2, len(fold))
     assert np.abs(c[:, own]).max() <= 1e-6
@@ -80,22 +101,27 @@ def test_property_12_own_fold_teacher_never_scores_its_samples(bad_fold):
     other = (bad_fold + 1) % K
     with torch.no_grad():
         last.bias[other] += 0.5  # perturb teacher i != f(j) of agent 0
-    c2 = cross_validated_difficulty(ens.errors(x, y), fold)
+    c2 = difficulty(ens, x, y, fold)
     np.testing.assert_allclose(c2[0, own], 0.25, rtol=1e-3)
     assert np.abs(c2[1, own]).max() <= 1e-6
 
 
-def test_property_13_sum_and_mean_same_after_max_normalisation():
+def test_property_13_sum_over_blind_teachers_and_its_partial_form():
     rng = np.random.default_rng(0)
-    e = rng.exponential(size=(2, 300, K)).astype(np.float32)
+    e = rng.exponential(size=(300, 2, K)).astype(np.float32)  # [M, A, K]
     fold = rng.integers(0, K, size=300)
-    cs, cm = cross_validated_difficulty(e, fold, "sum"), cross_validated_difficulty(e, fold, "mean")
-    np.testing.assert_allclose(cm, cs / (K - 1), rtol=1e-6)
-    np.testing.assert_allclose(cs / cs.max(1, keepdims=True), cm / cm.max(1, keepdims=True), rtol=1e-5)
+    c, ok = cross_validated_difficulty(e, fold)
     mask = fold[:, None] != np.arange(K)[None]
-    np.testing.assert_allclose(cs, (e * mask).sum(-1), rtol=1e-6)
-    with pytest.raises(ValueError):
-        cross_validated_difficulty(e, fold, "max")
+    assert ok.all()
+    np.testing.assert_allclose(c, (e * mask[:, None, :]).sum(-1), rtol=1e-6)  # eq. (11): the sum over i != f(j)
+    # only some blind teachers have scored (the service): (K-1)·mean over those, and nothing without any
+    scored = rng.random((300, K)) < 0.5
+    part, ok = cross_validated_difficulty(e, fold, scored)
+    blind = mask & scored
+    want = (e * blind[:, None, :]).sum(-1) * ((K - 1) / np.maximum(blind.sum(1), 1))[:, None]
+    np.testing.assert_allclose(part, want, rtol=1e-6)
+    np.testing.assert_array_equal(ok, blind.any(1))
+    assert (part[~ok] == 0).all()
 
 
 def test_property_14_difficulty_ignores_online_critic_until_teachers_update():
@@ -107,7 +133,7 @@ def test_property_14_difficulty_ignores_online_critic_until_teachers_update():
 
     def score():
         y = m.td_targets(data["rew"], data["next_obs"], data["done"], agents=agents)
-        return ens.difficulty(x, y, fold)
+        return difficulty(ens, x, y, fold)
 
     c0 = score()
     with torch.no_grad():
@@ -115,7 +141,7 @@ def test_property_14_difficulty_ignores_online_critic_until_teachers_update():
             p.mul_(1.5).add_(0.1)
     np.testing.assert_array_equal(score(), c0)
     idx = fold_batch_indices(fold, K, 32, np.random.default_rng(0), num_agents=N)
-    ens.fit_step(*make_fit_batch(idx, data, agents, m.td_targets))
+    ens.fit_step(*make_fit_batch(idx, data, agents, m))
     assert not np.allclose(score(), c0)
 
 
@@ -124,7 +150,7 @@ def test_fit_step_lowers_loss_on_fixed_fold_batch_and_members_independent():
     m = MADDPG(N, OD, AD, seed=0)
     ens = TeacherEnsemble(2, in_dim=IN, num_folds=K, seed=0)
     idx = fold_batch_indices(fold, K, 64, np.random.default_rng(0), num_agents=2)
-    x, y = make_fit_batch(idx, data, [0, 1], m.td_targets)
+    x, y = make_fit_batch(idx, data, [0, 1], m)
     first = ens.fit_step(x, y)
     assert first.shape == (2, K)
     for _ in range(30):
@@ -158,7 +184,7 @@ def test_state_dict_round_trip():
     m = MADDPG(N, OD, AD, seed=0)
     ens = TeacherEnsemble(2, in_dim=IN, num_folds=K, seed=0)
     idx = fold_batch_indices(fold, K, 16, np.random.default_rng(0), num_agents=2)
-    batch = make_fit_batch(idx, data, [0, 1], m.td_targets)
+    batch = make_fit_batch(idx, data, [0, 1], m)
     ens.fit_step(*batch)
     buf = io.BytesIO()
     torch.save(ens.state_dict(), buf)
@@ -174,10 +200,10 @@ def test_make_fit_batch_shared_fold_batches():
     data, fold = buffer()
     m = MADDPG(N, OD, AD, seed=0)
     idx = fold_batch_indices(fold, K, 16, np.random.default_rng(1), num_agents=1)
-    x, y = make_fit_batch(idx, data, [1, 2], m.td_targets)
+    x, y = make_fit_batch(idx, data, [1, 2], m)
     assert x.shape == (2, K, 16, IN) and y.shape == (2, K, 16)
     torch.testing.assert_close(x[0], x[1])
     y_all = m.td_targets(data["rew"], data["next_obs"], data["done"], agents=[1, 2])
     np.testing.assert_allclose(y.numpy(), y_all[:, idx[0]], rtol=1e-5, atol=1e-5)
     with pytest.raises(ValueError):
-        make_fit_batch(np.zeros((3, K, 4), np.int64), data, [1, 2], m.td_targets)
+        make_fit_batch(np.zeros((3, K, 4), np.int64), data, [1, 2], m)

@@ -1,12 +1,13 @@
-"""msgpack wire and disk format for transition chunks, score updates and snapshots (DESIGN.md "State and
-recovery"; ALGORITHM.md §3.9).
+"""Validation and the msgpack wire / disk format of rollout chunks and snapshots (DESIGN.md "State and recovery";
+ALGORITHM.md §3.9).
 
-Where it sits in the flow: rollout workers encode transition chunks, teachers / ICM encode score updates, the
-replay server decodes both before touching its buffer and writes snapshots of its `state_dict()`; a restarted
-server reads the snapshot back. Everything that crosses a boundary goes through `decode_*`, which validates
-the whole payload before returning, so a bad payload is refused as a unit and nothing is half-applied.
+Where it sits in the flow: the replay server runs `check_chunk` on every rollout `Chunk` before touching its
+buffer (a bad chunk is refused as a unit, naming the field and the value; nothing is half-applied);
+`encode_chunk` / `decode_chunk` carry a chunk as bytes (for a durable replay log). The replay server and the
+inline loop write snapshots of their `state_dict()` and a restarted one reads them back through `read_snapshot`,
+which validates the whole payload before returning.
 
-Format: a msgpack map {"schema": SCHEMA_VERSION, "kind": "chunk" | "scores" | "snapshot", "body": ...}.
+Format: a msgpack map {"schema": SCHEMA_VERSION, "kind": "chunk" | "snapshot", "body": ...}.
 Values in a body: dict (str keys), list, str, int, float, bool, None, and numpy arrays. An array is a msgpack
 ext (type 1) whose data is msgpack [dtype name, shape list, raw little-endian C-order bytes]; only the dtypes
 in ALLOWED_DTYPES are accepted (no object arrays, no pickle anywhere). Decoded arrays are fresh, writable,
@@ -20,22 +21,23 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import msgpack
 import numpy as np
 
 from cmcl.io.atomic import atomic_write_bytes
+from cmcl.messages import Chunk
 
 SCHEMA_VERSION = 1
-KINDS = ("chunk", "scores", "snapshot")
+KINDS = ("chunk", "snapshot")
 ALLOWED_DTYPES = {"float32": "<f4", "float64": "<f8", "int64": "<i8", "int32": "<i4",
                   "int8": "|i1", "uint8": "|u1", "bool": "|b1"}
 _ND_EXT = 1
 _MAX_NDIM = 32
-CHUNK_ARRAYS = {"obs": "float32", "act": "float32", "rew": "float32", "next_obs": "float32",
-                "done": "float32", "episode": "int64"}
-SCORE_COLUMNS = ("difficulty", "curiosity", "td_abs")
+CHUNK_ARRAYS = {"obs": ("float32", 3), "act": ("float32", 3), "rew": ("float32", 2), "next_obs": ("float32", 3),
+                "done": ("float32", 1), "env_index": ("int64", 1)}  # Chunk field -> (dtype, dims)
+CHUNK_MAX_ROWS = 1 << 20  # rows of one chunk (a worker's B worlds × episode length)
 
 
 class CodecError(ValueError):
@@ -52,6 +54,7 @@ class Limits:
 
 
 DEFAULT_LIMITS = Limits()
+SNAPSHOT_LIMITS = Limits(max_bytes=8 << 30, max_elements=2 << 30)  # replay snapshots: a 1M-slot buffer fits
 
 
 # ---------------------------------------------------------------------------------------------- encoding
@@ -190,105 +193,67 @@ def decode(data, kind: str, *, limits: Limits = DEFAULT_LIMITS, allow_nonfinite:
 
 
 # ---------------------------------------------------------------------------------------------- schemas
-def _require_array(body: dict, key: str, dtype: str, ndim: int) -> np.ndarray:
-    arr = body.get(key)
-    if not isinstance(arr, np.ndarray):
-        raise CodecError(f"{key}: missing or not an array")
-    if arr.dtype.name != dtype or arr.ndim != ndim:
-        raise CodecError(f"{key}: expected {dtype} with {ndim} dims, got {arr.dtype} with shape {arr.shape}")
-    return arr
+def _require_int(path: str, value) -> int:
+    """value as an int >= 0 (Python or numpy integer), or CodecError naming `path`."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
+        raise CodecError(f"{path}: expected an integer >= 0, got {value!r}")
+    return int(value)
 
 
-def _require_int(body: dict, key: str, default=None) -> int:
-    val = body.get(key, default)
-    if type(val) is not int or val < 0:
-        raise CodecError(f"{key}: expected an integer >= 0, got {val!r}")
-    return val
+def check_chunk(chunk, *, n_agents: int | None = None, obs_dim: int | None = None, act_dim: int | None = None,
+                max_rows: int = CHUNK_MAX_ROWS) -> Chunk:
+    """A rollout `Chunk` as the replay server accepts it, or CodecError naming the field and the value.
 
-
-def _check_chunk(body, n_agents, obs_dim, act_dim) -> dict:
-    """Schema of a transition chunk (see `encode_chunk`); returns the body."""
-    if not isinstance(body, dict):
-        raise CodecError("chunk body must be a map")
-    arrs = {k: _require_array(body, k, dt, {"obs": 3, "act": 3, "next_obs": 3, "rew": 2}.get(k, 1))
-            for k, dt in CHUNK_ARRAYS.items()}
-    t, n, od = arrs["obs"].shape
-    ad = arrs["act"].shape[2]
-    expected = {"obs": (t, n, od), "next_obs": (t, n, od), "act": (t, n, ad), "rew": (t, n), "done": (t,),
-                "episode": (t,)}
-    for k, shp in expected.items():
-        if arrs[k].shape != shp:
-            raise CodecError(f"{k}: shape {arrs[k].shape} does not match {shp}")
+    Checks: exact dtypes (CHUNK_ARRAYS), shapes obs / next_obs [T, N, od], act [T, N, ad], rew [T, N], done and
+    env_index [T], T <= max_rows, finite floats, env_index >= 0, writer / seq / policy_version integers >= 0,
+    incarnation a non-empty string, and N / od / ad equal to the expected sizes when given.
+    """
+    if not isinstance(chunk, Chunk):
+        raise CodecError(f"chunk: expected a Chunk, got {type(chunk).__name__}")
+    for key, (dtype, ndim) in CHUNK_ARRAYS.items():
+        arr = getattr(chunk, key)
+        if not isinstance(arr, np.ndarray) or arr.dtype.name != dtype or arr.ndim != ndim:
+            got = f"{arr.dtype} with shape {arr.shape}" if isinstance(arr, np.ndarray) else type(arr).__name__
+            raise CodecError(f"chunk.{key}: expected {dtype} with {ndim} dims, got {got}")
+    t, n, od = chunk.obs.shape
+    ad = chunk.act.shape[2]
+    expected = {"next_obs": (t, n, od), "act": (t, n, ad), "rew": (t, n), "done": (t,), "env_index": (t,)}
+    for key, shape in expected.items():
+        if getattr(chunk, key).shape != shape:
+            raise CodecError(f"chunk.{key}: shape {getattr(chunk, key).shape} does not match {shape}")
     for name, want, got in (("n_agents", n_agents, n), ("obs_dim", obs_dim, od), ("act_dim", act_dim, ad)):
         if want is not None and want != got:
-            raise CodecError(f"{name}: chunk has {got}, expected {want}")
-    if t and arrs["episode"].min() < 0:
-        raise CodecError("episode: must be >= 0")
-    _require_int(body, "policy_version", 0)
-    _require_int(body, "seq", 0)
-    if not isinstance(body.get("writer", ""), str):
-        raise CodecError("writer: expected a string")
-    return body
+            raise CodecError(f"chunk {name}: the chunk has {got}, the buffer expects {want}")
+    if t > max_rows:
+        raise CodecError(f"chunk: {t} rows exceed the cap of {max_rows}")
+    for key in ("obs", "act", "rew", "next_obs", "done"):
+        arr = getattr(chunk, key)
+        if not np.isfinite(arr).all():
+            raise CodecError(f"chunk.{key}: must be finite, got {float(arr[~np.isfinite(arr)].ravel()[0])!r}")
+    if t and chunk.env_index.min() < 0:
+        raise CodecError(f"chunk.env_index: must be >= 0, got {int(chunk.env_index.min())}")
+    for key in ("writer", "seq", "policy_version"):
+        _require_int(f"chunk.{key}", getattr(chunk, key))
+    if not isinstance(chunk.incarnation, str) or not chunk.incarnation:
+        raise CodecError(f"chunk.incarnation: expected a non-empty string, got {chunk.incarnation!r}")
+    return chunk
 
 
-def encode_chunk(chunk: dict) -> bytes:
-    """Transition chunk -> bytes. chunk: obs/next_obs float32[T,N,od], act float32[T,N,ad], rew float32[T,N],
-    done float32[T], episode int64[T] (other numeric dtypes are cast), optional policy_version int,
-    writer str, seq int (writer-side sequence number for idempotent ingest)."""
-    body = {}
-    for k, dt in CHUNK_ARRAYS.items():
-        if k not in chunk:
-            raise CodecError(f"{k}: missing")
-        arr = np.asarray(chunk[k])
-        if arr.dtype.kind not in "fiub":
-            raise CodecError(f"{k}: dtype {arr.dtype} is not allowed")
-        body[k] = arr.astype(dt)
-    for k, default in (("policy_version", 0), ("writer", ""), ("seq", 0)):
-        v = chunk.get(k, default)
-        body[k] = v.item() if isinstance(v, np.generic) else v
-    _check_chunk(body, None, None, None)
-    return encode("chunk", body)
+def encode_chunk(chunk: Chunk) -> bytes:
+    """A valid `Chunk` (see `check_chunk`) -> bytes, e.g. for a durable replay log."""
+    check_chunk(chunk)
+    return encode("chunk", {f.name: getattr(chunk, f.name) for f in fields(Chunk)})
 
 
-def decode_chunk(data, *, n_agents=None, obs_dim=None, act_dim=None, limits: Limits = DEFAULT_LIMITS) -> dict:
-    """bytes -> validated chunk dict (exact dtypes, consistent shapes, finite, optional expected sizes)."""
-    return _check_chunk(decode(data, "chunk", limits=limits), n_agents, obs_dim, act_dim)
-
-
-def _check_scores(body) -> dict:
-    """Schema of a score update (see `encode_scores`)."""
-    if not isinstance(body, dict):
-        raise CodecError("scores body must be a map")
-    if body.get("column") not in SCORE_COLUMNS:
-        raise CodecError(f"column: expected one of {SCORE_COLUMNS}, got {body.get('column')!r}")
-    slots = _require_array(body, "slots", "int64", 1)
-    gens = _require_array(body, "generations", "int64", 1)
-    agents = _require_array(body, "agents", "int64", 1)
-    values = _require_array(body, "values", "float32", 2)
-    m = slots.shape[0]
-    if gens.shape != (m,) or values.shape != (m, agents.shape[0]):
-        raise CodecError(f"values {values.shape} / generations {gens.shape} do not match {m} slots "
-                         f"and {agents.shape[0]} agents")
-    if (m and (slots.min() < 0 or gens.min() < 0)) or (agents.size and agents.min() < 0):
-        raise CodecError("slots, generations and agents must be >= 0")
-    if values.size and values.min() < 0:
-        raise CodecError("values: must be >= 0")
-    _require_int(body, "model_version", 0)
-    return body
-
-
-def encode_scores(column: str, slots, generations, values, agents, model_version: int = 0) -> bytes:
-    """Score update -> bytes. slots/generations int64[M], values float32[M, A], agents int64[A]."""
-    body = {"column": column, "slots": np.asarray(slots, np.int64), "generations": np.asarray(generations, np.int64),
-            "values": np.asarray(values, np.float32), "agents": np.asarray(agents, np.int64),
-            "model_version": int(model_version)}
-    _check_scores(body)
-    return encode("scores", body)
-
-
-def decode_scores(data, *, limits: Limits = DEFAULT_LIMITS) -> dict:
-    """bytes -> validated score-update dict with the keys of `encode_scores`."""
-    return _check_scores(decode(data, "scores", limits=limits))
+def decode_chunk(data, *, limits: Limits = DEFAULT_LIMITS, **expected: int) -> Chunk:
+    """bytes -> a validated `Chunk`; `expected` may give n_agents / obs_dim / act_dim (see `check_chunk`)."""
+    body = decode(data, "chunk", limits=limits)
+    names = {f.name for f in fields(Chunk)}
+    if not isinstance(body, dict) or set(body) - names or {f.name for f in fields(Chunk) if f.name != "policy_version"
+                                                           } - set(body):
+        got = sorted(body) if isinstance(body, dict) else type(body).__name__
+        raise CodecError(f"chunk body: expected the fields {sorted(names)}, got {got}")
+    return check_chunk(Chunk(**body), **expected)
 
 
 def encode_snapshot(obj: dict, *, allow_nonfinite: bool = False) -> bytes:

@@ -26,6 +26,7 @@ from cmcl.replay.priority import (
     LAM_MAX,
     canonical_algorithm,
     curiosity_priority,
+    curriculum_index,
     kfold_priority,
     normalise_curiosity,
     normalise_difficulty,
@@ -240,7 +241,7 @@ class ReplayBuffer:
             kp = kfold_priority(c_hat, lam, self.lam_max)
             eta = self.eta[a] if self.modes[a] == "cmcl" else 0.0
             cp = curiosity_priority(rho_hat) if eta > 0 else np.zeros(size)
-            p = np.where(has_c, kp + eta * cp + self.eps, self.eps)
+            p = np.where(has_c, curriculum_index(kp, cp, eta) + self.eps, self.eps)  # ACL: η = 0
             self.samplers[a].set_all(p)
             if details:
                 for key, val in zip(out, (c_hat, kp, cp, p, has_c), strict=True):

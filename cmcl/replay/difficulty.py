@@ -35,6 +35,39 @@ def cross_validated_difficulty(errors: np.ndarray, row_fold: np.ndarray, scored:
     return total * scale[:, None], count > 0
 
 
+class ScoreStamps:
+    """When each of `columns` scorers last scored each slot: the learner update and the slot generation it was for.
+
+    A slot overwritten by a new transition (a new generation) counts as never scored, whatever its old stamps.
+    """
+
+    def __init__(self, capacity: int, columns: int):
+        self.generation = np.full((capacity, columns), -1, np.int64)  # slot generation the score is for
+        self.stamp = np.full((capacity, columns), -1, np.int64)  # learner updates when it was made
+
+    def mark(self, slots: np.ndarray, generations: np.ndarray, column: int, stamp: int) -> None:
+        """Scorer `column` has scored the given (slot, generation) rows at learner update `stamp`."""
+        self.generation[slots, column] = generations
+        self.stamp[slots, column] = int(stamp)
+
+    def scored(self, slots: np.ndarray, generations: np.ndarray) -> np.ndarray:
+        """bool[M, columns]: scorer i has scored the current content (generation) of slot j."""
+        return self.generation[slots] == np.asarray(generations)[:, None]
+
+    def stamps(self, slots: np.ndarray, generations: np.ndarray) -> np.ndarray:
+        """int64[M, columns] learner update at which scorer i last scored the current content of slot j (−1: never)."""
+        return np.where(self.scored(slots, generations), self.stamp[slots], -1)
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        return {"generation": self.generation, "stamp": self.stamp}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore `state_dict()` output (same shape), validated before anything changes."""
+        staged = {name: _same_shape(f"score stamps {name}", state[name], getattr(self, name))
+                  for name in ("generation", "stamp")}
+        self.generation, self.stamp = staged["generation"], staged["stamp"]
+
+
 class DifficultyTable:
     """The latest error of each teacher on each slot, with the learner update it was made at.
 
@@ -43,8 +76,7 @@ class DifficultyTable:
 
     def __init__(self, capacity: int, num_agents: int, num_folds: int):
         self.error = np.zeros((capacity, num_agents, num_folds), np.float32)  # e of teacher i on slot j
-        self.generation = np.full((capacity, num_folds), -1, np.int64)  # slot generation the error is for
-        self.stamp = np.full((capacity, num_folds), -1, np.int64)  # learner updates when teacher i scored j
+        self.clock = ScoreStamps(capacity, num_folds)
 
     @property
     def num_folds(self) -> int:
@@ -57,37 +89,33 @@ class DifficultyTable:
         stored = 0
         for i, f in enumerate(folds):
             blind = row_fold != f
-            rows = slots[blind]
-            self.error[rows, :, f] = errors[blind, :, i]
-            self.generation[rows, f] = generations[blind]
-            self.stamp[rows, f] = int(stamp)
+            self.error[slots[blind], :, f] = errors[blind, :, i]
+            self.clock.mark(slots[blind], generations[blind], f, stamp)
             stored += int(blind.sum())
         return stored
 
-    def scored(self, slots: np.ndarray, generations: np.ndarray) -> np.ndarray:
-        """bool[M, K]: teacher i has scored the current content (generation) of slot j."""
-        return self.generation[slots] == np.asarray(generations)[:, None]
-
     def stamps(self, slots: np.ndarray, generations: np.ndarray) -> np.ndarray:
         """int64[M, K] learner update at which teacher i last scored the current content of slot j (−1: never)."""
-        return np.where(self.scored(slots, generations), self.stamp[slots], -1)
+        return self.clock.stamps(slots, generations)
 
     def difficulty(self, slots: np.ndarray, generations: np.ndarray, row_fold: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
         """(c float32[M, A_t], ok bool[M]) of rows from the stored errors (eq. 11, see `cross_validated_difficulty`)."""
-        return cross_validated_difficulty(self.error[slots], row_fold, self.scored(slots, generations))
+        return cross_validated_difficulty(self.error[slots], row_fold, self.clock.scored(slots, generations))
 
     def state_dict(self) -> dict[str, np.ndarray]:
-        return {"error": self.error, "generation": self.generation, "stamp": self.stamp}
+        return {"error": self.error, **self.clock.state_dict()}
 
     def load_state_dict(self, state: dict) -> None:
         """Restore `state_dict()` output (same capacity, agents and folds), validated before anything changes."""
-        staged = {}
-        for name in ("error", "generation", "stamp"):
-            value = np.asarray(state[name])
-            own = getattr(self, name)
-            if value.shape != own.shape:
-                raise ValueError(f"difficulty table {name} has shape {value.shape}, expected {own.shape}")
-            staged[name] = value.astype(own.dtype)
-        for name, value in staged.items():
-            setattr(self, name, value)
+        error = _same_shape("difficulty table error", state["error"], self.error)
+        self.clock.load_state_dict(state)
+        self.error = error
+
+
+def _same_shape(name: str, value, like: np.ndarray) -> np.ndarray:
+    """value as an array of like's dtype, or ValueError naming `name` if its shape differs."""
+    arr = np.asarray(value)
+    if arr.shape != like.shape:
+        raise ValueError(f"{name} has shape {arr.shape}, expected {like.shape}")
+    return arr.astype(like.dtype)

@@ -19,8 +19,14 @@ import numpy as np
 EPS_P = 1e-6  # ε_p: priority floor keeping every transition reachable
 LAM_MAX = 1.0  # largest admissible curriculum factor (KP is undefined above 1)
 STD_EPS = 1e-8  # added to the std in curiosity normalisation
-ALGORITHMS = ("uniform", "per", "acl", "cmcl")
+ALGORITHMS = ("uniform", "per", "acl", "cmcl")  # sampler modes; config spells "uniform" as "maddpg"
 _ALIASES = {"maddpg": "uniform"}
+CURRICULUM_MODES = ("acl", "cmcl")  # modes whose priority is recomputed from score columns at λ (eqs. 8, 12, 19)
+
+
+def uses_curriculum(modes) -> bool:
+    """Whether any agent's mode samples by the curriculum index (its priorities need recomputing at λ)."""
+    return any(canonical_algorithm(m) in CURRICULUM_MODES for m in modes)
 
 
 def canonical_algorithm(algo: str) -> str:
@@ -89,7 +95,7 @@ def curiosity_priority(rho) -> np.ndarray:
 
 
 def curriculum_index(kp, cp, eta: float) -> np.ndarray:
-    """Curriculum index CI = KP + η·CP (§3.6), in [0, 1+η].
+    """Curriculum index CI = KP + η·CP (eq. 8, §3.6), in [0, 1+η]; the sampling priority of a CMCL agent.
 
     Args:
         kp: KP values, any shape. cp: CP values, broadcastable to kp. eta: curiosity weight η >= 0.
@@ -161,7 +167,8 @@ def normalise_curiosity(rho, method: str = "std") -> np.ndarray:
 
 
 def sampling_probabilities(p, alpha: float) -> np.ndarray:
-    """P(j) = p_j^α / Σ_k p_k^α (eq. 20), per column.
+    """P(j) = p_j^α / Σ_k p_k^α (eq. 20), per column, dense over the buffer (the curriculum diagnostics read it;
+    `cmcl.replay.sampler` holds the same p^α incrementally to draw from).
 
     Args:
         p: priorities, shape [M] or [M, A]; finite, >= 0, with a positive sum per column.
@@ -181,52 +188,3 @@ def sampling_probabilities(p, alpha: float) -> np.ndarray:
     if np.any(total <= 0):
         raise ValueError("p must have a positive sum (after the exponent alpha) in every column")
     return w / total
-
-
-def priority_column(
-    algo: str,
-    *,
-    c_hat=None,
-    rho_hat=None,
-    td_abs=None,
-    lam: float | None = None,
-    eta: float = 0.5,
-    eps: float = EPS_P,
-    lam_max: float = LAM_MAX,
-    size: int | None = None,
-) -> np.ndarray:
-    """Priority p_{v,j} for one agent over the valid buffer rows, by algorithm (§5).
-
-    Args:
-        algo: "uniform" (or "maddpg"), "per", "acl" or "cmcl".
-        c_hat: float[M] normalised difficulty (acl, cmcl).
-        rho_hat: float[M] normalised curiosity (cmcl; ignored when eta == 0).
-        td_abs: float[M] |δ| (per).
-        lam: curriculum factor (acl, cmcl). eta: curiosity weight (cmcl only; acl uses 0).
-        eps: priority floor ε_p. size: M for "uniform" when no array is given.
-    Returns:
-        float64[M]: uniform → ones; per → |δ| + ε; acl → KP + ε; cmcl → KP + η·CP + ε.
-    """
-    name = canonical_algorithm(algo)
-    if name == "uniform":
-        ref = next((x for x in (c_hat, rho_hat, td_abs) if x is not None), None)
-        m = size if ref is None else np.asarray(ref).shape[0]
-        if m is None:
-            raise ValueError("priority_column('uniform') needs size or an input array")
-        return np.ones(int(m))
-    if name == "per":
-        if td_abs is None:
-            raise ValueError("priority_column('per') needs td_abs")
-        td = _finite_array("td_abs", td_abs)
-        return np.abs(td) + eps
-    if c_hat is None or lam is None:
-        raise ValueError(f"priority_column({name!r}) needs c_hat and lam")
-    kp = kfold_priority(c_hat, lam, lam_max)
-    eta_f = float(eta)
-    if not (np.isfinite(eta_f) and eta_f >= 0.0):
-        raise ValueError(f"eta must be finite and >= 0, got {eta!r}")
-    if name == "cmcl" and eta_f > 0:
-        if rho_hat is None:
-            raise ValueError("priority_column('cmcl') with eta > 0 needs rho_hat")
-        return curriculum_index(kp, curiosity_priority(rho_hat), eta) + eps
-    return kp + eps

@@ -1,0 +1,108 @@
+"""The learner side of each step of Algorithm 1 (ALGORITHM.md §3.8): what the networks do with rows from the replay.
+
+Where it sits: one implementation, two runners. `cmcl.loop` calls these on its own models; the service's learner,
+teacher and ICM actors call the same functions on theirs (`services/learner.py`, `teachers.py`, `icm.py`). The
+replay side (what is drawn, what is written back) is `cmcl.replay.steps`.
+
+  learner update ..... learner_update      minibatch [N, S, ...] -> MADDPG step (eqs. 4–6), |δ| [N, S]
+  teacher fit ........ fit_teachers        rows [steps, B, F, S, ...] -> Adam steps of the fold teachers (eq. 9)
+  teacher scores ..... teacher_errors      rows [M, ...] -> e [M, A_t, K'] (eq. 10)
+  ICM fit ............ fit_icm             rows [steps, S, ...] -> Adam steps of L_I, L_F (eqs. 13–17)
+  curiosity scores ... curiosity_values    rows [M, ...] -> ρ [M, A_c] (eq. 18)
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+
+from cmcl.learners.icm import ICM
+from cmcl.learners.maddpg import MADDPG
+from cmcl.learners.nets import joint_input
+from cmcl.learners.teachers import TeacherEnsemble
+
+
+def agent_major(rows: dict[str, np.ndarray], agents: np.ndarray, key: str) -> np.ndarray:
+    """Each agent's own columns of joint rows, agent axis first: rows[key] [..., N, d] -> [A, ..., d]."""
+    return np.ascontiguousarray(np.moveaxis(rows[key][..., agents, :], -2, 0))
+
+
+def learner_update(maddpg: MADDPG, minibatch: dict[str, np.ndarray], icm: ICM | None = None,
+                   icm_agents: np.ndarray | None = None, intrinsic_reward_coef: float = 0.0) -> dict[str, Any]:
+    """One batched MADDPG update of every agent on its own minibatch (eqs. 4–6).
+
+    minibatch: obs [N, S, N, od], act, rew [N, S, N], next_obs, done [N, S], optional is_weights [N, S].
+    Ablation A6: with an ICM and intrinsic_reward_coef > 0, r_v += coef·ρ_v on each curiosity agent's own rows.
+    Returns the MADDPG stats (critic_loss [N], actor_loss [N], td_abs [N, S], ...).
+    """
+    if intrinsic_reward_coef > 0 and icm is not None:
+        a = icm_agents
+        # minibatch[k][a, :, a] -> [A_c, S, ·]: owner a's rows, agent a's own columns
+        rho = icm.curiosity(minibatch["obs"][a, :, a], minibatch["act"][a, :, a], minibatch["next_obs"][a, :, a])
+        minibatch = {**minibatch, "rew": minibatch["rew"].copy()}
+        minibatch["rew"][a, :, a] += intrinsic_reward_coef * rho
+    return maddpg.update(minibatch)
+
+
+def teacher_fit_batch(fit: dict[str, np.ndarray], agents: np.ndarray, targets: MADDPG
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Teacher inputs and regression targets of fit rows [steps, B, F, S, N, ·] (B = 1: one batch per fold shared
+    by the A_t agents; B = A_t: one per agent): x float32[A_t, steps, F, S, in] (the joint critic input) and
+    y float32[A_t, steps, F, S], the learner's TD targets from the target nets of `targets` (eq. 10), computed for
+    every step in one pass (the target nets are fixed meanwhile)."""
+    steps, b, f, s = fit["obs"].shape[:4]
+    a_t = len(agents)
+    if b not in (1, a_t):
+        raise ValueError(f"fit rows must be [steps, B, F, S, ...] with B = 1 or A_t = {a_t}, got B = {b}")
+    major = {k: np.moveaxis(fit[k], 1, 0).reshape(b, steps * f * s, *fit[k].shape[4:]) for k in fit}  # [B, T, ...]
+    if b == 1:
+        major = {k: v[0] for k, v in major.items()}  # [T, ...], shared by every agent
+    y = torch.as_tensor(targets.td_targets(major["rew"], major["next_obs"], major.get("done"), agents=agents))
+    x = joint_input(torch.as_tensor(major["obs"]), torch.as_tensor(major["act"]))  # [(B,) T, in]
+    return (x.reshape(b, steps, f, s, x.shape[-1]).expand(a_t, -1, -1, -1, -1), y.reshape(a_t, steps, f, s))
+
+
+def fit_teachers(teachers: TeacherEnsemble, fit: dict[str, np.ndarray], agents: np.ndarray,
+                 targets: MADDPG) -> float:
+    """Adam steps of every teacher on batches of its own fold (eq. 9), one per leading index of the fit rows
+    [steps, B, F, S, N, ·] (see `teacher_fit_batch`). Returns the last step's mean loss."""
+    x, y = teacher_fit_batch(fit, agents, targets)
+    loss = np.zeros(0)
+    for i in range(x.shape[1]):  # member (a, i) sees only the batch of its own fold
+        loss = teachers.fit_step(x[:, i], y[:, i])
+    return float(loss.mean())
+
+
+def teacher_errors(teachers: TeacherEnsemble, rows: dict[str, np.ndarray], agents: np.ndarray, targets: MADDPG,
+                   squared: bool = True) -> np.ndarray:
+    """e_{j,a,i} = (y_{a,j} − T_{a,i}(x_j))² (eq. 10; |·| if not squared) of every hosted teacher on joint rows
+    obs [M, N, od], act, rew [M, N], next_obs, done [M] -> float32[M, A_t, K'] (K' teachers per agent hosted)."""
+    y = targets.td_targets(rows["rew"], rows["next_obs"], rows.get("done"), agents=agents)  # [A_t, M]
+    x = joint_input(torch.as_tensor(rows["obs"]), torch.as_tensor(rows["act"]))  # [M, in]
+    return teachers.errors(x, y, squared=squared).transpose(1, 0, 2).copy()
+
+
+def fit_icm(icm: ICM, fit: dict[str, np.ndarray], agents: np.ndarray) -> dict[str, np.ndarray | float]:
+    """Adam steps of every curiosity agent's ICM on its own columns of uniform rows [steps, S, N, ·] (eq. 17);
+    returns the last step's losses (inverse_loss [A_c], forward_loss [A_c], total)."""
+    obs, act, nxt = (agent_major(fit, agents, k) for k in ("obs", "act", "next_obs"))  # [A_c, steps, S, ·]
+    out: dict[str, np.ndarray | float] = {}
+    for i in range(obs.shape[1]):
+        out = icm.train_step(obs[:, i], act[:, i], nxt[:, i])
+    return out
+
+
+def curiosity_values(icm: ICM, rows: dict[str, np.ndarray], agents: np.ndarray) -> np.ndarray:
+    """ρ_{j,v} = ½‖F_v(φ_v(o_{v,j}), a_{v,j}) − φ_v(o'_{v,j})‖² (eq. 18) of joint rows [M, N, ·] -> float32[M, A_c]."""
+    return icm.curiosity(*(agent_major(rows, agents, k) for k in ("obs", "act", "next_obs"))).T.copy()
+
+
+@torch.no_grad()
+def online_td_abs(maddpg: MADDPG, rows: dict[str, np.ndarray]) -> np.ndarray:
+    """|y − Q_v(s, a)| of every agent's online critic on joint rows -> float32[M, N] (ACL td_self scores)."""
+    y = torch.as_tensor(maddpg.td_targets(rows["rew"], rows["next_obs"], rows.get("done")))  # [N, M]
+    x = joint_input(torch.as_tensor(rows["obs"]), torch.as_tensor(rows["act"]))  # [M, in]
+    q = maddpg.critic(x.unsqueeze(0).expand(maddpg.num_agents, -1, -1)).squeeze(-1)  # [N, M]
+    return (y - q).abs().T.numpy().copy()

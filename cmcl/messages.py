@@ -1,0 +1,188 @@
+"""Typed messages between the roles of Algorithm 1 (numpy only): what each stage hands to the next.
+
+Where it sits: the data flow rollout -> replay -> learner, and replay -> teachers / ICM -> replay. The inline loop
+passes these objects between function calls; the service passes them between actors as Ray object refs. Producers
+build them; the replay server checks what arrives (`check_*` here and `cmcl.io.codec.check_chunk`) and refuses a
+message that does not fit its buffer, naming the field and the value, before anything is stored.
+
+Shapes: n minibatches per call, N agents, S rows per minibatch, od / ad obs and action widths, M scored rows,
+A_t / A_c teacher / curiosity agents, F folds hosted by one teacher actor, T rows of a chunk.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+ROW_KEYS = ("obs", "act", "rew", "next_obs", "done")  # one joint transition: obs [N, od], act [N, ad], rew [N], ...
+
+
+class MessageError(ValueError):
+    """A message between roles does not match the receiver's layout."""
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """Rollout -> replay: B whole episodes of one worker.
+
+    obs / next_obs float32[T, N, od], act float32[T, N, ad], rew float32[T, N], done float32[T], env_index int64[T]
+    (world 0..B−1 of the worker); writer (worker id), incarnation (its process life), seq (0, 1, ... per
+    incarnation) make the chunk idempotent; policy_version is the weight version that acted.
+    """
+
+    obs: np.ndarray
+    act: np.ndarray
+    rew: np.ndarray
+    next_obs: np.ndarray
+    done: np.ndarray
+    env_index: np.ndarray
+    writer: int
+    incarnation: str
+    seq: int
+    policy_version: int = 0
+
+    @property
+    def rows(self) -> int:
+        return int(self.env_index.shape[0])
+
+    @property
+    def worlds(self) -> int:
+        """B: the worlds (hence whole episodes) in this chunk."""
+        return int(self.env_index.max()) + 1 if self.env_index.size else 0
+
+    @property
+    def writer_key(self) -> str:
+        """'writer:incarnation', the dedupe key of the replay server."""
+        return f"{self.writer}:{self.incarnation}"
+
+
+@dataclass(frozen=True)
+class Rows:
+    """Joint transition rows with their buffer slots: rows[k] [*shape, N, ·] for k in ROW_KEYS; slots and
+    generations int64[*shape] (a score written back for a slot counts only while its generation is unchanged)."""
+
+    rows: dict[str, np.ndarray]
+    slots: np.ndarray
+    generations: np.ndarray
+
+
+@dataclass(frozen=True)
+class LearnerBatch:
+    """Replay -> learner: n per-owner minibatches. rows: obs [n, N, S, N, od], act, rew [n, N, S, N], next_obs,
+    done [n, N, S]; is_weights float32[n, N, S]; slots / generations int64[n, N, S] (owner v's minibatch is [:, v])."""
+
+    rows: dict[str, np.ndarray]
+    is_weights: np.ndarray
+    slots: np.ndarray
+    generations: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return int(self.slots.shape[0])
+
+    def minibatch(self, i: int, importance_weights: bool) -> dict[str, np.ndarray]:
+        """The i-th minibatch as `MADDPG.update` takes it ([N, S, ...]); is_weights only if some agent uses them."""
+        batch = {k: self.rows[k][i] for k in ROW_KEYS}
+        if importance_weights:
+            batch["is_weights"] = self.is_weights[i]
+        return batch
+
+
+@dataclass(frozen=True)
+class LearnerFeedback:
+    """Learner -> replay: |δ| float32[n, N, S] of each sampled (slot, generation) and the last losses per agent."""
+
+    slots: np.ndarray
+    generations: np.ndarray
+    td_abs: np.ndarray
+    losses: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class TeacherWork:
+    """Replay -> teacher actor hosting `folds`: fit rows [steps, B, F, S, ...] of slots fit_slots int64[steps, B, F, S]
+    (fit[:, :, i] all from fold folds[i]; B = 1, one batch shared by the agents) and the rows to score (of other
+    folds), at learner update `updates`."""
+
+    folds: tuple[int, ...]
+    fit: dict[str, np.ndarray]
+    fit_slots: np.ndarray
+    score: Rows
+    updates: int
+
+
+@dataclass(frozen=True)
+class TeacherScores:
+    """Teacher actor -> replay: errors float32[M, A_t, F] (eq. 10) of the teachers of `folds` on the scored rows."""
+
+    folds: tuple[int, ...]
+    slots: np.ndarray
+    generations: np.ndarray
+    errors: np.ndarray
+    updates: int
+    loss: float = 0.0
+
+
+@dataclass(frozen=True)
+class CuriosityWork:
+    """Replay -> ICM actor: uniform fit rows [steps, S, N, ·] and the rows to score."""
+
+    fit: dict[str, np.ndarray]
+    score: Rows
+    updates: int
+
+
+@dataclass(frozen=True)
+class CuriosityScores:
+    """ICM actor -> replay: ρ float32[M, A_c] (eq. 18) of the scored rows."""
+
+    slots: np.ndarray
+    generations: np.ndarray
+    rho: np.ndarray
+    updates: int
+    loss: float = 0.0
+
+
+def _check_rows(name: str, slots: np.ndarray, generations: np.ndarray, values: np.ndarray, width: tuple[int, ...]
+                ) -> None:
+    """slots / generations int[M] and values finite float[M, *width], or MessageError naming the field."""
+    m = np.shape(slots)
+    if len(m) != 1 or np.shape(generations) != m:
+        raise MessageError(f"{name}.slots / generations must be int[M] of one length, got shapes "
+                           f"{np.shape(slots)} and {np.shape(generations)}")
+    if np.shape(values) != (*m, *width):
+        raise MessageError(f"{name} values must have shape {(*m, *width)}, got {np.shape(values)}")
+    if not np.all(np.isfinite(values)):
+        raise MessageError(f"{name} values must be finite, got {float(values[~np.isfinite(values)].ravel()[0])!r}")
+
+
+def check_teacher_scores(msg: Any, num_teacher_agents: int, num_folds: int) -> TeacherScores:
+    """The message if it is a TeacherScores of A_t agents over valid folds; MessageError otherwise."""
+    if not isinstance(msg, TeacherScores):
+        raise MessageError(f"teacher scores must be a TeacherScores, got {type(msg).__name__}")
+    if not msg.folds or any(not 0 <= f < num_folds for f in msg.folds):
+        raise MessageError(f"TeacherScores.folds must lie in 0..{num_folds - 1}, got {list(msg.folds)}")
+    _check_rows("TeacherScores.errors", msg.slots, msg.generations, msg.errors, (num_teacher_agents, len(msg.folds)))
+    return msg
+
+
+def check_curiosity_scores(msg: Any, num_curiosity_agents: int) -> CuriosityScores:
+    """The message if it is a CuriosityScores of A_c agents; MessageError otherwise."""
+    if not isinstance(msg, CuriosityScores):
+        raise MessageError(f"curiosity scores must be a CuriosityScores, got {type(msg).__name__}")
+    _check_rows("CuriosityScores.rho", msg.slots, msg.generations, msg.rho, (num_curiosity_agents,))
+    return msg
+
+
+def check_feedback(msg: Any, num_agents: int) -> LearnerFeedback:
+    """The message if it is a LearnerFeedback of [n, N, S] arrays; MessageError otherwise."""
+    if not isinstance(msg, LearnerFeedback):
+        raise MessageError(f"learner feedback must be a LearnerFeedback, got {type(msg).__name__}")
+    shape = np.shape(msg.slots)
+    if len(shape) != 3 or shape[1] != num_agents or np.shape(msg.generations) != shape:
+        raise MessageError(f"LearnerFeedback.slots / generations must be [n, N={num_agents}, S], got "
+                           f"{np.shape(msg.slots)} and {np.shape(msg.generations)}")
+    _check_rows("LearnerFeedback.td_abs", np.ravel(msg.slots), np.ravel(msg.generations), np.ravel(msg.td_abs), ())
+    return msg
