@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from cmcl.learners import steps as learn
 from cmcl.learners.teachers import TeacherEnsemble
 from cmcl.learners.weights import load_published
@@ -35,7 +37,7 @@ class TeacherWorker:
         self.teachers = TeacherEnsemble(len(self.layout.teacher_agents), in_dim=in_dim, num_folds=len(self.folds),
                                         hidden=cfg.teachers.hidden, lr=cfg.teachers.lr, seed=seed)
         self.targets = build_maddpg(cfg, self.layout, seed)  # only its target nets are used
-        self.version, self.steps, self.scores, self.loss = -1, 0, 0, None
+        self.version, self.steps, self.scores, self.loss = -1, 0, 0, 0.0
         state = load_state(checkpoint_path)
         self.resumed = state is not None
         if state is not None:
@@ -54,7 +56,8 @@ class TeacherWorker:
             load_published(self.targets, published["weights"], parts=("target_actor", "target_critic"))
             self.version = int(published["version"])
         agents = self.layout.teacher_agents
-        self.loss = learn.fit_teachers(self.teachers, work.fit, agents, self.targets)
+        loss = learn.fit_teachers(self.teachers, work.fit, agents, self.targets)
+        self.loss = self.loss if np.isnan(loss) else loss
         self.steps += int(work.fit["obs"].shape[0])
         squared = self.config.teachers.difficulty_error == "squared"
         errors = learn.teacher_errors(self.teachers, work.score.rows, agents, self.targets, squared)  # [M, A_t, F]

@@ -67,12 +67,12 @@ def teacher_fit_batch(fit: dict[str, np.ndarray], agents: np.ndarray, targets: M
 def fit_teachers(teachers: TeacherEnsemble, fit: dict[str, np.ndarray], agents: np.ndarray,
                  targets: MADDPG) -> float:
     """Adam steps of every teacher on batches of its own fold (eq. 9), one per leading index of the fit rows
-    [steps, B, F, S, N, ·] (see `teacher_fit_batch`). Returns the last step's mean loss."""
+    [steps, B, F, S, N, ·] (see `teacher_fit_batch`). Returns the last step's mean loss (NaN with no step)."""
     x, y = teacher_fit_batch(fit, agents, targets)
-    loss = np.zeros(0)
+    loss = float("nan")
     for i in range(x.shape[1]):  # member (a, i) sees only the batch of its own fold
-        loss = teachers.fit_step(x[:, i], y[:, i])
-    return float(loss.mean())
+        loss = float(teachers.fit_step(x[:, i], y[:, i]).mean())
+    return loss
 
 
 def teacher_errors(teachers: TeacherEnsemble, rows: dict[str, np.ndarray], agents: np.ndarray, targets: MADDPG,

@@ -1,0 +1,116 @@
+"""The inline loop and the service shells give the same numbers on the same inputs (issue 8).
+
+Both runners call the same step functions; these tests check that the shells feed them the same things: one
+buffer's contents, teachers with the same weights, the same sampler states. Inline: `cmcl.loop.InlineLoop`.
+Service: `services.replay_server.ReplayServer` with `TeacherWorker`s (one fold each), the `ICMWorker` and the
+`Learner`, run in-process (no Ray needed for the arithmetic).
+"""
+
+import copy
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from cmcl.config import config_from_dict
+from cmcl.learners.steps import learner_update
+from cmcl.loop import InlineLoop
+from cmcl.messages import LearnerFeedback
+from cmcl.replay import steps as buffer
+from cmcl.system import beta_is
+from services.icm import ICMWorker
+from services.learner import Learner
+from services.replay_server import ReplayServer
+from services.rollout import RolloutWorker
+from services.teachers import TeacherWorker
+from tests.test_service_inprocess import small_config
+
+
+def twins(algorithm):
+    """A replay server and an inline loop whose buffers hold the same three rollout chunks."""
+    data = small_config(algorithm)
+    cfg = config_from_dict({**data, "service": {**data["service"], "score_rows_per_call": 360}}).to_dict()
+    server, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
+    loop = InlineLoop(config_from_dict(cfg), progress=None)
+    for _ in range(3):
+        chunk, _ = worker.rollout(None)
+        episodes = server.counters["episodes"]
+        server.insert(chunk)
+        loop.replay.add(chunk.obs, chunk.act, chunk.rew, chunk.next_obs, chunk.done, episodes + chunk.env_index,
+                        chunk.policy_version)
+    assert server.replay.size == loop.replay.size == 360
+    np.testing.assert_array_equal(server.replay.storage.fold, loop.replay.storage.fold)
+    return cfg, server, loop
+
+
+def teacher_worker_like(cfg, loop, fold):
+    """The service's teacher of `fold`, holding the inline ensemble's weights of that fold and its target nets."""
+    worker = TeacherWorker(cfg, [fold], 0)
+    k = loop.teachers.num_folds
+    members = [a * k + fold for a in range(loop.teachers.num_agents)]  # inline member a·K + i -> worker member a
+    with torch.no_grad():
+        for ours, theirs in zip(worker.teachers.net.layers, loop.teachers.net.layers, strict=True):
+            ours.weight.copy_(theirs.weight[members])
+            ours.bias.copy_(theirs.bias[members])
+    worker.targets, worker.version = loop.maddpg, 0  # the learner's target nets, as published at version 0
+    return worker
+
+
+def without_fit(work):
+    """The same work with zero fit steps, so that scoring happens with the weights as they are."""
+    return dataclasses.replace(work, fit={k: v[:0] for k, v in work.fit.items()})
+
+
+@pytest.mark.parametrize("algorithm", ["acl", "cmcl"])
+def test_difficulty_and_priorities_agree(algorithm):
+    cfg, server, loop = twins(algorithm)
+    for fold in range(loop.teachers.num_folds):  # service: every teacher scores the rows of the other folds
+        teacher = teacher_worker_like(cfg, loop, fold)
+        work, _ = server.teacher_work([fold], 1)
+        assert work.score.slots.size == (server.replay.storage.fold[:360] != fold).sum()
+        scores, _ = teacher.step(without_fit(work), {"version": 0, "weights": {}})
+        server.write_teacher_scores(scores)
+    if algorithm == "cmcl":
+        icm = ICMWorker(cfg, 0)
+        icm.icm.load_state_dict(copy.deepcopy(loop.icm.state_dict()))
+        work, _ = server.icm_work(1)
+        server.write_curiosity(icm.step(without_fit(work))[0])
+    everything = np.arange(360)
+    loop._score(buffer.score_rows(loop.replay, everything))  # inline: all K teachers (and the ICM) at once
+    for column in ("difficulty", "curiosity"):
+        ours, theirs = loop.replay.storage, server.replay.storage
+        np.testing.assert_array_equal(ours.scored[column], theirs.scored[column])
+        np.testing.assert_allclose(ours.scores[column], theirs.scores[column], rtol=1e-5, atol=1e-7)
+    lam = 0.4
+    inline = loop.replay.recompute_priorities(lam, details=True)
+    service = server.replay.recompute_priorities(lam, details=True)
+    for key in ("c_hat", "kp", "cp", "priority"):
+        np.testing.assert_allclose(inline[key], service[key], rtol=1e-5, atol=1e-7, err_msg=key)
+
+
+def test_learner_batch_feedback_and_update_agree():
+    cfg, server, loop = twins("per")
+    rngs = [copy.deepcopy(g) for g in server.sampler_rngs]
+    batch, _ = server.sample(1)
+    beta = beta_is(loop.config, server.counters["inserts"])
+    betas = [beta if w else 0.0 for w in loop.layout.importance_weights]
+    inline = buffer.sample_owner_batches(loop.replay, 1, loop.config.maddpg.batch_size, rngs, betas)
+    np.testing.assert_array_equal(batch.slots, inline.slots)
+    np.testing.assert_array_equal(batch.is_weights, inline.is_weights)
+    for key in ("obs", "act", "rew", "next_obs", "done"):
+        np.testing.assert_array_equal(batch.rows[key], inline.rows[key])
+    learner = Learner(cfg, 0)
+    learner.maddpg.load_state_dict(copy.deepcopy(loop.maddpg.state_dict()))
+    feedback, _ = learner.update(batch)
+    inline_stats = learner_update(loop.maddpg, inline.minibatch(0, any(loop.layout.importance_weights)))
+    np.testing.assert_allclose(feedback.td_abs[0], inline_stats["td_abs"], rtol=1e-6)
+    for name, value in loop.maddpg.state_dict()["critic"].items():
+        torch.testing.assert_close(learner.maddpg.state_dict()["critic"][name], value)
+    server.learner_result(feedback)
+    buffer.apply_learner_feedback(loop.replay, loop.layout,
+                                  LearnerFeedback(inline.slots, inline.generations, inline_stats["td_abs"][None]))
+    for agent in range(loop.layout.num_agents):
+        slots = np.unique(batch.slots[0, agent])
+        np.testing.assert_allclose(server.replay.probabilities(agent, slots), loop.replay.probabilities(agent, slots),
+                                   rtol=1e-6)
