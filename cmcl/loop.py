@@ -6,15 +6,11 @@ It runs the same classes the service runs (built by cmcl.system) through the sam
 rollout of B batched worlds -> replay -> per update (one per `maddpg.update_every` world steps): teacher step,
 ICM step, scoring of the new rows plus `teachers.rescore_rows_per_update` rows of a rolling rescoring, priority
 recompute at the current λ, one MADDPG update of all agents; λ advanced per world step.
-
-Run:  python -m cmcl.loop --config configs/spread_cmcl.toml [--set run.episodes=40 --set run.dir=runs/smoke]
-      python -m cmcl.loop --resume runs/smoke [--set run.episodes=80]
+Command line: `python -m cmcl.loop` (cmcl.cli).
 """
 
 from __future__ import annotations
 
-import argparse
-import math
 import sys
 import time
 from collections import deque
@@ -25,7 +21,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from cmcl.config import Config, ConfigError, load_config
+from cmcl.config import Config
 from cmcl.diagnostics import curriculum_diagnostics
 from cmcl.io import codec
 from cmcl.io.rundir import RunDirectory, load_checkpoint
@@ -35,6 +31,7 @@ from cmcl.progress import episode_rows, finished_episodes, progress_line, solved
 from cmcl.replay import steps as buffer
 from cmcl.replay.difficulty import DifficultyTable
 from cmcl.replay.priority import sampling_probabilities, uses_curriculum
+from cmcl.replay.ratelimit import steps_due
 from cmcl.system import (
     agent_layout,
     beta_is,
@@ -54,14 +51,6 @@ RNG_NAMES = ("env", "noise", "teacher", "icm", "sampler")
 def replay_snapshot_path(checkpoint: Path) -> Path:
     """The replay snapshot written beside a checkpoint file."""
     return checkpoint.with_name(checkpoint.name.replace("ckpt_", "replay_").replace(".pt", ".msgpack"))
-
-
-def steps_due(updates: int, ratio: float, counters: dict[str, int], key: str) -> int:
-    """Fit steps to run at update number `updates` (0-based) so that counters[key] == floor((updates + 1) ·
-    ratio) afterwards; counts them in counters[key]."""
-    due = max(0, math.floor((updates + 1) * ratio + 1e-9) - counters[key])
-    counters[key] += due
-    return due
 
 
 class InlineLoop:
@@ -325,43 +314,7 @@ class InlineLoop:
         return row
 
 
-def main(argv: list[str] | None = None) -> int:
-    """CLI entry point: train, or resume, one inline run; write the learning curve at the end."""
-    parser = argparse.ArgumentParser(prog="python -m cmcl.loop", description=__doc__.split("\n")[0])
-    parser.add_argument("--config", help="TOML experiment file (default: built-in CMCL defaults)")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                        help="override one config value (repeatable)")
-    parser.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its latest checkpoint")
-    parser.add_argument("--overwrite", action="store_true", help="start over in a run.dir that holds a run")
-    parser.add_argument("--quiet", action="store_true", help="no progress lines")
-    args = parser.parse_args(argv)
-    try:
-        if args.resume:
-            run_dir = RunDirectory.open(args.resume)
-            config = run_dir.config(tuple(args.overrides))
-        else:
-            config = load_config(args.config, args.overrides)
-            run_dir = RunDirectory.create(config.run.dir, config, overwrite=args.overwrite)
-    except (ConfigError, FileExistsError, FileNotFoundError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    loop = InlineLoop(config, run_dir, progress=None if args.quiet else print)
-    if args.resume:
-        checkpoint = run_dir.latest_checkpoint()
-        if checkpoint is None:
-            print(f"error: {args.resume} holds no checkpoint to resume from", file=sys.stderr)
-            return 2
-        loop.restore(checkpoint)
-        run_dir.truncate_rows_after(loop.counters["episodes"])
-        print(f"resumed from {checkpoint} at episode {loop.counters['episodes']}")
-    loop.run()
-    from cmcl.io.plots import plot_learning_curves
-
-    png = plot_learning_curves([run_dir.path], run_dir.path / "learning_curve.png",
-                               window=min(config.run.smoothing_window, max(1, config.run.episodes // 10)))
-    print(f"run directory: {run_dir.path}  (learning curve: {png})")
-    return 0
-
-
 if __name__ == "__main__":
+    from cmcl.cli import main
+
     sys.exit(main())

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 import torch
 
+from cmcl.cli import main
 from cmcl.config import config_from_dict, preset
 from cmcl.io.rundir import RunDirectory
-from cmcl.loop import InlineLoop, main
+from cmcl.loop import InlineLoop
 
 TINY = {
     "env": {"num_envs": 4},

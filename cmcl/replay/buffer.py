@@ -22,14 +22,12 @@ from collections.abc import Sequence
 import numpy as np
 
 from cmcl.replay.priority import (
+    CURRICULUM_MODES,
     EPS_P,
     LAM_MAX,
     canonical_algorithm,
-    curiosity_priority,
-    curriculum_index,
+    curriculum_priority,
     kfold_priority,
-    normalise_curiosity,
-    normalise_difficulty,
 )
 from cmcl.replay.sampler import BACKENDS, PrioritySampler, importance_weights
 from cmcl.replay.storage import TransitionStorage
@@ -201,29 +199,6 @@ class ReplayBuffer:
             self.max_priority[agent] = max(self.max_priority[agent], float(p.max()))
         return accepted
 
-    def _normalised_inputs(self, agent: int, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(ĉ float64[size], ρ̂ float64[size], difficulty-scored bool[size]) for one agent."""
-        col = self.difficulty_source[agent]
-        has_c = self.storage.scored[col][:size, agent]
-        c_hat = self._normalise_scored(self.storage.scores[col][:size, agent], has_c,
-                                       lambda x: normalise_difficulty(x, self.difficulty_norm))
-        rho_hat = np.zeros(size)
-        if self.modes[agent] == "cmcl" and self.eta[agent] > 0:
-            rho_hat = self._normalise_scored(self.storage.scores["curiosity"][:size, agent],
-                                             self.storage.scored["curiosity"][:size, agent],
-                                             lambda x: normalise_curiosity(x, self.cp_input))
-        return c_hat, rho_hat, has_c
-
-    @staticmethod
-    def _normalise_scored(values: np.ndarray, scored: np.ndarray, fn) -> np.ndarray:
-        """fn applied over the scored rows only (float[M] -> float64[M], 0 on unscored rows)."""
-        if scored.all():  # the common case: no gather/scatter
-            return fn(values)
-        out = np.zeros(values.shape[0])
-        if scored.any():
-            out[scored] = fn(values[scored])
-        return out
-
     def recompute_priorities(self, lam: float, details: bool = False) -> dict | None:
         """Rebuild every ACL/CMCL agent's priorities from the score columns at curriculum factor `lam`.
 
@@ -233,15 +208,17 @@ class ReplayBuffer:
         "scored": bool[size, A']} for the A' recomputed agents.
         """
         kfold_priority(0.0, lam, self.lam_max)  # validates lam before anything changes
-        agents = [a for a, m in enumerate(self.modes) if m in ("acl", "cmcl")]
+        agents = [a for a, m in enumerate(self.modes) if m in CURRICULUM_MODES]
         size = self.storage.size
         out = {k: [] for k in ("c_hat", "kp", "cp", "priority", "scored")}
         for a in agents:  # one fully vectorised pass over the buffer per agent
-            c_hat, rho_hat, has_c = self._normalised_inputs(a, size)
-            kp = kfold_priority(c_hat, lam, self.lam_max)
-            eta = self.eta[a] if self.modes[a] == "cmcl" else 0.0
-            cp = curiosity_priority(rho_hat) if eta > 0 else np.zeros(size)
-            p = np.where(has_c, curriculum_index(kp, cp, eta) + self.eps, self.eps)  # ACL: η = 0
+            col = self.difficulty_source[a]
+            eta = self.eta[a] if self.modes[a] == "cmcl" else 0.0  # ACL: η = 0
+            c_hat, kp, cp, p, has_c = curriculum_priority(
+                self.storage.scores[col][:size, a], self.storage.scored[col][:size, a],
+                self.storage.scores["curiosity"][:size, a], self.storage.scored["curiosity"][:size, a],
+                lam, eta, eps=self.eps, difficulty_norm=self.difficulty_norm, cp_input=self.cp_input,
+                lam_max=self.lam_max)
             self.samplers[a].set_all(p)
             if details:
                 for key, val in zip(out, (c_hat, kp, cp, p, has_c), strict=True):

@@ -188,3 +188,35 @@ def sampling_probabilities(p, alpha: float) -> np.ndarray:
     if np.any(total <= 0):
         raise ValueError("p must have a positive sum (after the exponent alpha) in every column")
     return w / total
+
+
+def _over_scored(values: np.ndarray, scored: np.ndarray, normalise) -> np.ndarray:
+    """normalise applied over the scored rows only (float[M] -> float64[M], 0 on unscored rows)."""
+    if scored.all():  # the common case: no gather/scatter
+        return normalise(values)
+    out = np.zeros(values.shape[0])
+    if scored.any():
+        out[scored] = normalise(values[scored])
+    return out
+
+
+def curriculum_priority(difficulty: np.ndarray, has_difficulty: np.ndarray, curiosity: np.ndarray,
+                        has_curiosity: np.ndarray, lam: float, eta: float, *, eps: float = EPS_P,
+                        difficulty_norm: str = "max", cp_input: str = "std", lam_max: float = LAM_MAX
+                        ) -> tuple[np.ndarray, ...]:
+    """One ACL / CMCL agent's sampling priority over the M valid rows from its raw score columns.
+
+    ĉ = normalised c over the rows that have one (§3.3); ρ̂ = normalised ρ likewise (§3.5, only when η > 0);
+    p = CI(KP(ĉ, λ), CP(ρ̂), η) + ε_p (eqs. 12, 19, 8), and ε_p on rows without a difficulty score (A11).
+    difficulty, curiosity float[M]; has_* bool[M]; eta = 0 gives ACL. Returns float64[M] arrays
+    (c_hat, kp, cp, p) and has_difficulty.
+    """
+    m = difficulty.shape[0]
+    c_hat = _over_scored(difficulty, has_difficulty, lambda x: normalise_difficulty(x, difficulty_norm))
+    kp = kfold_priority(c_hat, lam, lam_max)
+    cp = np.zeros(m)
+    if eta > 0:
+        rho_hat = _over_scored(curiosity, has_curiosity, lambda x: normalise_curiosity(x, cp_input))
+        cp = curiosity_priority(rho_hat)
+    p = np.where(has_difficulty, curriculum_index(kp, cp, eta) + eps, eps)
+    return c_hat, kp, cp, p, has_difficulty

@@ -151,3 +151,12 @@ def limiters_from_config(config: Any, insert_chunk: int = 1) -> dict[str, RateLi
         if used:
             limiters[name] = RateLimiter(section.steps_per_update, slack=slack_for(section.steps_per_update))
     return limiters
+
+
+def steps_due(updates: int, ratio: float, counters: dict[str, int], key: str) -> int:
+    """The inline loop's form of a ratio limit: fit steps to run at update number `updates` (0-based) so that
+    counters[key] == floor((updates + 1) · ratio) afterwards (the ratio the service's limiters hold); counts them
+    in counters[key]."""
+    due = max(0, math.floor((updates + 1) * ratio + 1e-9) - counters[key])
+    counters[key] += due
+    return due

@@ -1,0 +1,52 @@
+"""Command line of the inline loop: `python -m cmcl.loop` trains (or resumes) one run and plots its learning curve.
+
+Run:  python -m cmcl.loop --config configs/spread_cmcl.toml [--set run.episodes=40 --set run.dir=runs/smoke]
+      python -m cmcl.loop --resume runs/smoke [--set run.episodes=80]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from cmcl.config import ConfigError, load_config
+from cmcl.io.rundir import RunDirectory
+from cmcl.loop import InlineLoop
+
+
+def main(argv: list[str] | None = None) -> int:
+    """CLI entry point: train, or resume, one inline run; write the learning curve at the end."""
+    parser = argparse.ArgumentParser(prog="python -m cmcl.loop", description=__doc__.split("\n")[0])
+    parser.add_argument("--config", help="TOML experiment file (default: built-in CMCL defaults)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="override one config value (repeatable)")
+    parser.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its latest checkpoint")
+    parser.add_argument("--overwrite", action="store_true", help="start over in a run.dir that holds a run")
+    parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    args = parser.parse_args(argv)
+    try:
+        if args.resume:
+            run_dir = RunDirectory.open(args.resume)
+            config = run_dir.config(tuple(args.overrides))
+        else:
+            config = load_config(args.config, args.overrides)
+            run_dir = RunDirectory.create(config.run.dir, config, overwrite=args.overwrite)
+    except (ConfigError, FileExistsError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    loop = InlineLoop(config, run_dir, progress=None if args.quiet else print)
+    if args.resume:
+        checkpoint = run_dir.latest_checkpoint()
+        if checkpoint is None:
+            print(f"error: {args.resume} holds no checkpoint to resume from", file=sys.stderr)
+            return 2
+        loop.restore(checkpoint)
+        run_dir.truncate_rows_after(loop.counters["episodes"])
+        print(f"resumed from {checkpoint} at episode {loop.counters['episodes']}")
+    loop.run()
+    from cmcl.io.plots import plot_learning_curves
+
+    png = plot_learning_curves([run_dir.path], run_dir.path / "learning_curve.png",
+                               window=min(config.run.smoothing_window, max(1, config.run.episodes // 10)))
+    print(f"run directory: {run_dir.path}  (learning curve: {png})")
+    return 0
