@@ -83,7 +83,8 @@ class ICM:
             )
 
     def _losses(self, obs, act, next_obs) -> tuple[torch.Tensor, torch.Tensor]:
-        """Per-agent inverse and forward losses, each float32[A] (batch means); gradients flow into phi."""
+        """Per-agent inverse loss L_I (eqs. 13–14) and forward loss L_F (eqs. 15–16), each float32[A] (batch means);
+        gradients flow into phi."""
         f, f_next = self.phi(torch.cat([obs, next_obs], dim=1)).chunk(2, dim=1)  # [A, S, feat] each, one pass
         g = self.inverse(torch.cat([f, f_next], dim=-1))  # [A, S, act_dim]
         if self.discrete:
@@ -96,7 +97,7 @@ class ICM:
         return inv, fwd
 
     def train_step(self, obs: ArrayLike, act: ArrayLike, next_obs: ArrayLike) -> dict[str, np.ndarray | float]:
-        """One Adam step for every agent's ICM.
+        """One Adam step for every agent's ICM on (1 − β_F)·L_I + β_F·L_F (eq. 17).
 
         obs float32[A, S, obs_dim], act float32[A, S, act_dim], next_obs float32[A, S, obs_dim]
         -> {"inverse_loss": float32[A], "forward_loss": float32[A], "total": float (sum over agents of

@@ -133,7 +133,7 @@ class MADDPG:
     def _td_targets_t(
         self, rew: torch.Tensor, next_obs: torch.Tensor, done: torch.Tensor | None, agents: torch.Tensor | None
     ) -> torch.Tensor:
-        """y = r + gamma (1 - done) Q'_v(s', pi'(o')) with TARGET nets (no grad); see :meth:`td_targets`."""
+        """y = r + gamma (1 - done) Q'_v(s', pi'(o')) with TARGET nets (eqs. 5, 10; no grad); see :meth:`td_targets`."""
         ag = self._agents if agents is None else agents
         if next_obs.dim() == 4 and next_obs.shape[0] != len(ag):
             raise ValueError(f"per-owner next_obs has {next_obs.shape[0]} owners but {len(ag)} agents are selected")
@@ -182,7 +182,7 @@ class MADDPG:
                 None if w is None else as_tensor(w))
 
     def _critic_step(self, obs, act, rew, next_obs, done, w) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """One batched critic step. Returns (loss [N], delta [N, S], pre-clip grad norm [N])."""
+        """One batched critic step on (y − Q_v(s, a))² (eq. 5). Returns (loss [N], delta [N, S], grad norm [N])."""
         y = self._td_targets_t(rew, next_obs, done, None)  # [N, S]
         q = self.critic(joint_input(obs, act)).squeeze(-1)  # [N, S]
         delta = y - q
@@ -214,7 +214,7 @@ class MADDPG:
         return loss.detach(), norms
 
     def update(self, batch: Mapping[str, ArrayLike]) -> dict[str, np.ndarray]:
-        """One MADDPG step for all agents on per-owner minibatches (§2).
+        """One MADDPG step for all agents on per-owner minibatches (§2): critic (eq. 5), actor (eq. 4), targets (eq. 6).
 
         batch: obs [N, S, N, obs_dim], act [N, S, N, act_dim], rew [N, S, N] (or own [N, S]),
                next_obs [N, S, N, obs_dim], optional done [N, S], optional is_weights [N, S] (critic only).

@@ -159,7 +159,7 @@ class StackedMLP(nn.Module):
 
 @torch.no_grad()
 def soft_update_(target: nn.Module, source: nn.Module, tau: float) -> None:
-    """Polyak update in place: theta' <- tau * theta + (1 - tau) * theta' for every (stacked) parameter."""
+    """Polyak update in place (eq. 6): theta' <- tau * theta + (1 - tau) * theta' for every (stacked) parameter."""
     torch._foreach_lerp_(list(target.parameters()), list(source.parameters()), tau)
 
 

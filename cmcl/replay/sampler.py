@@ -204,13 +204,13 @@ class PrioritySampler:
         return self._impl.total()
 
     def probabilities(self, slots) -> np.ndarray:
-        """P(j) for slots int[k] -> float64[k]."""
+        """P(j) = p_j^α / Σ_k p_k^α (eq. 20) for slots int[k] -> float64[k]."""
         s = _check_slots(slots, self.capacity)
         total = self.total
         return self._impl.leaves(s) / total if total > 0 else np.zeros(s.shape)
 
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        """Draw n i.i.d. slots with probability P(j) -> int64[n]. ValueError if all priorities are 0."""
+        """Draw n i.i.d. slots with probability P(j) (eq. 20) -> int64[n]. ValueError if all priorities are 0."""
         if not self.total > 0:
             raise ValueError("cannot sample: all priorities are 0")
         return self._impl.draw(rng.random(int(n)))
