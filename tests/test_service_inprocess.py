@@ -6,6 +6,7 @@ import pytest
 from cmcl.config import config_from_dict, preset
 from services.curiosity import CuriosityWorker
 from services.learner import Learner
+from services.placement import teacher_groups
 from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
 from services.teacher import TeacherWorker
@@ -133,7 +134,7 @@ def test_one_actor_can_host_every_fold_without_leaking_a_rows_own_fold():
     data = small_config("acl")
     cfg = config_from_dict({**data, "service": {**data["service"], "teacher_actors": 1,
                                                 "score_rows_per_call": 360}})
-    assert cfg.teacher_groups() == [[0, 1, 2]]
+    assert teacher_groups(cfg) == [[0, 1, 2]]
     cfg = cfg.to_dict()
     replay, worker, learner = ReplayServer(cfg), RolloutWorker(cfg, 0, 0), Learner(cfg, 0)
     teacher = TeacherWorker(cfg, [0, 1, 2], 0)
