@@ -259,7 +259,7 @@ class ServiceConfig:
     rollout_workers: int = 1
     # actors sharing the K teacher folds: K = one fold each, 1 = all folds stacked in one actor; 0 = automatic:
     # K when the cluster has at least 2K CPUs, else 1 (on 2 cores one stacked actor is 1.4x faster than K)
-    teacher_actors: int = 0
+    teacher_actors: int = 0  # placement policy: services.placement.teacher_groups
     updates_per_call: int = 16  # learner updates per learner call (batches sampled per replay call)
     fit_steps_per_call: int = 8  # teacher / ICM fit steps per call
     score_rows_per_call: int = 1024  # rows a teacher / the ICM rescores per call
@@ -317,14 +317,6 @@ class Config:
     def total_env_steps(self) -> int:
         """Environment steps of the whole run (per world): episodes × episode length."""
         return self.run.episodes * self.env.episode_length
-
-    def teacher_groups(self, cluster_cpus: float | None = None) -> list[list[int]]:
-        """Folds hosted by each teacher actor (near-equal groups); see service.teacher_actors for the automatic
-        choice, which needs the cluster's CPU count (None: K actors)."""
-        k = self.teachers.num_folds
-        auto = k if cluster_cpus is None or cluster_cpus >= 2 * k else 1
-        actors = min(k, self.service.teacher_actors or auto)
-        return [list(range(k))[i::actors] for i in range(actors)]
 
     def curriculum_stride(self) -> float:
         """Δλ per post-warm-up env step: the configured stride, or λ_max reached at half of training."""
