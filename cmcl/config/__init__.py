@@ -12,26 +12,10 @@ Errors: any unknown key, wrong type or out-of-range value raises `ConfigError` n
 (e.g. ``maddpg.gamma``) and the offending value.
 """
 
+from cmcl.config import sections
 from cmcl.config.experiment import Config, preset
-from cmcl.config.sections import (
-    ALGORITHMS,
-    TASK_TEAMS,
-    TASKS,
-    ConfigError,
-    CurriculumConfig,
-    EnvConfig,
-    ICMConfig,
-    MADDPGConfig,
-    ReplayConfig,
-    RunConfig,
-    ServiceConfig,
-    TeacherConfig,
-    TeamConfig,
-)
+from cmcl.config.sections import *  # noqa: F403 (the section dataclasses, ConfigError, ALGORITHMS, TASKS, TASK_TEAMS)
 from cmcl.config.toml_io import apply_overrides, config_from_dict, dump_toml, load_config, parse_override
 
-__all__ = [
-    "ALGORITHMS", "TASKS", "TASK_TEAMS", "Config", "ConfigError", "CurriculumConfig", "EnvConfig", "ICMConfig",
-    "MADDPGConfig", "ReplayConfig", "RunConfig", "ServiceConfig", "TeacherConfig", "TeamConfig", "apply_overrides",
-    "config_from_dict", "dump_toml", "load_config", "parse_override", "preset",
-]
+__all__ = [*sections.__all__, "Config", "apply_overrides", "config_from_dict", "dump_toml", "load_config",
+           "parse_override", "preset"]

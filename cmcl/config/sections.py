@@ -17,6 +17,8 @@ TaskName = Literal["spread", "tag"]
 ALGORITHMS: tuple[str, ...] = typing.get_args(AlgorithmName)  # the four compared algorithms (ALGORITHM.md §5)
 TASKS: tuple[str, ...] = typing.get_args(TaskName)
 TASK_TEAMS = {"spread": ("agent",), "tag": ("predator", "prey")}  # teams of each task, in agent order
+__all__ = ["ALGORITHMS", "TASKS", "TASK_TEAMS", "ConfigError", "CurriculumConfig", "EnvConfig", "ICMConfig",
+           "MADDPGConfig", "ReplayConfig", "RunConfig", "ServiceConfig", "TeacherConfig", "TeamConfig"]
 
 
 class ConfigError(ValueError):
