@@ -4,7 +4,7 @@
                               [--metrics-port P] [--metrics-host H] [--resume DIR] [--num-cpus N]
 
 Where it sits: the entry point. It validates the config, starts (or joins) Ray, opens the Prometheus endpoint,
-creates every role (services.supervisor.create_roles) and runs the supervisor loop until run.episodes episodes
+creates every role (services.placement.create_roles) and runs the supervisor loop until run.episodes episodes
 (or run.max_seconds), then checkpoints, writes the learning curve and shuts down cleanly.
 """
 
@@ -72,7 +72,8 @@ def run_service(config: Config, run_dir: RunDirectory, *, resume: bool = False, 
                 ) -> dict[str, Any]:
     """Run the service on the Ray already initialised; returns the supervisor's final summary."""
     from services.metrics import ServiceMetrics
-    from services.supervisor import Supervisor, create_roles
+    from services.placement import create_roles
+    from services.supervisor import Supervisor
 
     metrics = ServiceMetrics(seed=config.run.seed)
     port = metrics.serve(config.service.metrics_port, config.service.metrics_host)
@@ -101,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     import ray
 
-    from services.supervisor import InfeasibleResources
+    from services.placement import InfeasibleResources
 
     try:
         start_ray(args.address, args.num_cpus)

@@ -1,10 +1,11 @@
-"""Supervisor: creates every role as a Ray actor and keeps a bounded number of calls in flight to each.
+"""Supervisor: the pacing loop, keeping a bounded number of calls in flight to every role's Ray actor.
 
 Where it sits: the only process that talks to every actor. It never pulls transition data: chunks, batches,
 work and scores travel between actors as object refs owned by this process (so they survive the death of the
 actor that produced them); it `ray.get`s only small status dicts and metrics reports. Data flows one way:
 rollout -> replay -> learner, teachers / ICM read the replay and write scores back, weights go out once per
-version. Pacing comes from the replay server's rate limiters, reported in every reply.
+version. Pacing comes from the replay server's rate limiters, reported in every reply. The actors themselves
+are started by services.placement.create_roles.
 """
 
 from __future__ import annotations
@@ -13,8 +14,6 @@ import json
 import time
 from collections import Counter, deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -24,12 +23,8 @@ from cmcl.config import Config
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
 from cmcl.progress import episode_rows, progress_line, solved, window_summary
-from services.icm import ICMWorker
-from services.learner import Learner
 from services.metrics import ServiceMetrics
-from services.replay_server import ReplayServer
-from services.rollout import RolloutWorker
-from services.teachers import TeacherWorker
+from services.placement import Roles, service_paths
 
 CALLS_IN_FLIGHT = 2  # per actor: one computing, one prefetched
 # Outputs of one actor that go to the replay server. They are forwarded only once ready: an actor runs one
@@ -38,73 +33,6 @@ CALLS_IN_FLIGHT = 2  # per actor: one computing, one prefetched
 FORWARD = {"chunk": ("insert", "rollout"), "feedback": ("learner_result", "learner"),
            "teacher_scores": ("write_teacher_scores", "teacher"), "icm_scores": ("write_curiosity", "icm")}
 REPORT_EVERY_S = 2.0
-
-
-class InfeasibleResources(RuntimeError):
-    """The roles ask for more CPUs than the cluster has."""
-
-
-def required_cpus(config: Config, cluster_cpus: float | None = None) -> float:
-    """CPUs the roles of `config` request in total."""
-    s, teams = config.service, config.teams.values()
-    total = s.rollout_workers * s.rollout_cpus + s.learner_cpus + s.replay_cpus
-    if any(t.uses_teachers for t in teams):
-        total += len(config.teacher_groups(cluster_cpus)) * s.teacher_cpus
-    if any(t.uses_icm for t in teams):
-        total += s.icm_cpus
-    return total
-
-
-def service_paths(run_dir: RunDirectory) -> dict[str, Path]:
-    """Where each role keeps its latest checkpoint inside the run directory."""
-    base = run_dir.checkpoints / "service"
-    base.mkdir(parents=True, exist_ok=True)
-    return {"learner": base / "learner.pt", "icm": base / "icm.pt", "replay": base / "replay.msgpack",
-            "supervisor": base / "supervisor.json", "teacher": base}
-
-
-@dataclass
-class Roles:
-    """Handles of every actor, plus how to make a replacement for a rollout worker."""
-
-    replay: Any
-    learner: Any
-    rollout: list[Any]
-    teachers: list[Any]
-    icm: Any | None
-    teacher_groups: list[list[int]]
-    make_rollout: Callable[[int], Any] = field(repr=False, default=None)
-
-
-def create_roles(config: Config, run_dir: RunDirectory) -> Roles:
-    """Start every role as a restartable Ray actor with fractional CPUs (after a feasibility check)."""
-    available = ray.cluster_resources().get("CPU", 0.0)
-    need = required_cpus(config, available)
-    if need > available + 1e-9:
-        raise InfeasibleResources(f"the roles request {need:.2f} CPUs (service.*_cpus) but the cluster has "
-                                  f"{available:g}; lower service.rollout_workers or the per-role CPU requests")
-    s, seed, paths, cfg = config.service, config.run.seed, service_paths(run_dir), config.to_dict()
-
-    def actor(cls: type, cpus: float):
-        return ray.remote(num_cpus=cpus, max_restarts=s.max_restarts, max_task_retries=0)(cls)
-
-    def make_rollout(w: int):
-        return actor(RolloutWorker, s.rollout_cpus).remote(cfg, w, seed * 1000 + w)
-
-    teams = config.teams.values()
-    teachers = []
-    if any(t.uses_teachers for t in teams):
-        teachers = [actor(TeacherWorker, s.teacher_cpus).remote(
-            cfg, folds, seed * 1000 + 100 + i, str(paths["teacher"] / f"teacher_{'-'.join(map(str, folds))}.pt"))
-            for i, folds in enumerate(config.teacher_groups(available))]
-    icm = None
-    if any(t.uses_icm for t in teams):
-        icm = actor(ICMWorker, s.icm_cpus).remote(cfg, seed * 1000 + 200, str(paths["icm"]))
-    return Roles(replay=actor(ReplayServer, s.replay_cpus).remote(cfg, str(paths["replay"]), seed),
-                 learner=actor(Learner, s.learner_cpus).remote(cfg, seed, str(paths["learner"])),
-                 rollout=[make_rollout(w) for w in range(s.rollout_workers)], teachers=teachers, icm=icm,
-                 teacher_groups=config.teacher_groups(available) if teachers else [],
-                 make_rollout=make_rollout)
 
 
 class Supervisor:

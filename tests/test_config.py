@@ -88,15 +88,6 @@ def test_dump_round_trip():
     assert config_from_dict(tomllib.loads(dump_toml(config))) == config
 
 
-def test_teacher_actor_groups():
-    config = preset("cmcl")
-    assert config.teacher_groups() == [[0], [1], [2], [3], [4]]
-    assert config.teacher_groups(cluster_cpus=2) == [[0, 1, 2, 3, 4]], "automatic: one stacked actor on 2 cores"
-    assert config.teacher_groups(cluster_cpus=16) == [[0], [1], [2], [3], [4]]
-    two = load_config(None, ["service.teacher_actors=2"])
-    assert two.teacher_groups(cluster_cpus=2) == [[0, 2, 4], [1, 3]]
-
-
 def test_paper_presets_keep_the_papers_schedule_and_nothing_else():
     paper = sorted((CONFIGS / "paper").glob("*.toml"))
     assert [p.stem for p in paper] == [f"{t}_{a}" for t in ("spread", "tag") for a in ("acl", "cmcl", "maddpg", "per")]

@@ -9,6 +9,7 @@ from cmcl.config import config_from_dict, preset
 from cmcl.messages import LearnerFeedback
 from services.icm import ICMWorker
 from services.learner import Learner
+from services.placement import teacher_groups
 from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
 from services.teachers import TeacherWorker
@@ -135,7 +136,7 @@ def test_one_actor_can_host_every_fold_without_leaking_a_rows_own_fold():
     data = small_config("acl")
     cfg = config_from_dict({**data, "service": {**data["service"], "teacher_actors": 1,
                                                 "score_rows_per_call": 360}})
-    assert cfg.teacher_groups() == [[0, 1, 2]]
+    assert teacher_groups(cfg) == [[0, 1, 2]]
     cfg = cfg.to_dict()
     replay, worker, learner = ReplayServer(cfg), RolloutWorker(cfg, 0, 0), Learner(cfg, 0)
     teacher = TeacherWorker(cfg, [0, 1, 2], 0)

@@ -12,7 +12,8 @@ from cmcl.config import config_from_dict, preset
 from cmcl.io.rundir import RunDirectory
 from services.launch import run_service
 from services.metrics import ServiceMetrics
-from services.supervisor import InfeasibleResources, Supervisor, create_roles
+from services.placement import InfeasibleResources, create_roles
+from services.supervisor import Supervisor
 
 pytestmark = pytest.mark.ray
 

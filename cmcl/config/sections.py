@@ -1,28 +1,24 @@
-"""Typed, validated run configuration: one frozen dataclass per component, loaded from TOML.
+"""The section dataclasses of a run configuration: one frozen, self-validating dataclass per component.
 
-Where it sits: every entry point (`cmcl.loop`, `cmcl.evaluate`, `services.launch`) builds a `Config` with
-`load_config(path, overrides)` and hands each component its section. Defaults are the paper's Table 1 values
-and the resolutions of ../shared/ALGORITHM.md §5 (each [R] choice is an option here with that default).
-
-Errors: any unknown key, wrong type or out-of-range value raises `ConfigError` naming the full key
-(e.g. ``maddpg.gamma``) and the offending value.
+Every field has the paper's Table 1 value or the resolution of ../shared/ALGORITHM.md §5 as its default. Each
+`__post_init__` checks ranges and raises `ConfigError` naming the full key (e.g. ``maddpg.gamma``) and the value.
+The whole run (`Config`) is in cmcl.config.experiment; TOML loading in cmcl.config.toml_io.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
-import tomllib
-import types
 import typing
-from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Any, Literal
 
-ALGORITHMS = ("maddpg", "per", "acl", "cmcl")
-TASKS = ("spread", "tag")
-TASK_TEAMS = {"spread": ("agent",), "tag": ("predator", "prey")}
+AlgorithmName = Literal["maddpg", "per", "acl", "cmcl"]
+TaskName = Literal["spread", "tag"]
+ALGORITHMS: tuple[str, ...] = typing.get_args(AlgorithmName)  # the four compared algorithms (ALGORITHM.md §5)
+TASKS: tuple[str, ...] = typing.get_args(TaskName)
+TASK_TEAMS = {"spread": ("agent",), "tag": ("predator", "prey")}  # teams of each task, in agent order
+__all__ = ["ALGORITHMS", "TASKS", "TASK_TEAMS", "ConfigError", "CurriculumConfig", "EnvConfig", "ICMConfig",
+           "MADDPGConfig", "ReplayConfig", "RunConfig", "ServiceConfig", "TeacherConfig", "TeamConfig"]
 
 
 class ConfigError(ValueError):
@@ -48,7 +44,7 @@ def _probability(key: str, value: float, *, open_low: bool = False) -> None:
 class EnvConfig:
     """Sparse MPE world (ALGORITHM.md §6)."""
 
-    task: Literal["spread", "tag"] = "spread"
+    task: TaskName = "spread"
     num_agents: int = 4  # spread: agents = landmarks
     num_predators: int = 2  # tag; calibrated (ALGORITHM.md §6.2 "calibration", bench/tag_calibration.py)
     num_prey: int = 2  # tag
@@ -195,7 +191,7 @@ class ICMConfig:
 class TeamConfig:
     """Which algorithm a team of agents learns with (ALGORITHM.md §5)."""
 
-    algorithm: Literal["maddpg", "per", "acl", "cmcl"] = "cmcl"
+    algorithm: AlgorithmName = "cmcl"
     eta: float = 0.5  # curiosity weight in CI (A15); forced to 0 for acl
     is_correction: bool | None = None  # None: on for per, off for acl/cmcl (A9)
     acl_variant: Literal["teachers", "td_self"] = "teachers"
@@ -259,7 +255,7 @@ class ServiceConfig:
     rollout_workers: int = 1
     # actors sharing the K teacher folds: K = one fold each, 1 = all folds stacked in one actor; 0 = automatic:
     # K when the cluster has at least 2K CPUs, else 1 (on 2 cores one stacked actor is 1.4x faster than K)
-    teacher_actors: int = 0
+    teacher_actors: int = 0  # placement policy: services.placement.teacher_groups
     updates_per_call: int = 16  # learner updates per learner call (batches sampled per replay call)
     fit_steps_per_call: int = 8  # teacher / ICM fit steps per call
     score_rows_per_call: int = 1024  # rows a teacher / the ICM rescores per call
@@ -288,210 +284,3 @@ class ServiceConfig:
         _require(0 <= self.metrics_port <= 65535, "service.metrics_port", self.metrics_port, "must lie in [0, 65535]")
 
 
-@dataclass(frozen=True)
-class Config:
-    """The whole run: one section per component plus one TeamConfig per team of the task."""
-
-    env: EnvConfig = field(default_factory=EnvConfig)
-    maddpg: MADDPGConfig = field(default_factory=MADDPGConfig)
-    replay: ReplayConfig = field(default_factory=ReplayConfig)
-    curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
-    teachers: TeacherConfig = field(default_factory=TeacherConfig)
-    icm: ICMConfig = field(default_factory=ICMConfig)
-    run: RunConfig = field(default_factory=RunConfig)
-    service: ServiceConfig = field(default_factory=ServiceConfig)
-    teams: dict[str, TeamConfig] = field(default_factory=lambda: {"agent": TeamConfig()})
-
-    def __post_init__(self) -> None:
-        expected = TASK_TEAMS[self.env.task]
-        _require(set(self.teams) == set(expected), "teams", sorted(self.teams),
-                 f"must name exactly the teams of task {self.env.task!r}: {list(expected)}")
-        ordered = {name: self.teams[name] for name in expected}
-        object.__setattr__(self, "teams", ordered)
-        _require(self.maddpg.warmup <= self.replay.capacity, "maddpg.warmup", self.maddpg.warmup,
-                 f"must not exceed replay.capacity ({self.replay.capacity})")
-        _require(self.maddpg.batch_size <= max(self.maddpg.warmup, 1) or self.maddpg.warmup == 0,
-                 "maddpg.batch_size", self.maddpg.batch_size, f"must not exceed maddpg.warmup ({self.maddpg.warmup})")
-
-    @property
-    def total_env_steps(self) -> int:
-        """Environment steps of the whole run (per world): episodes × episode length."""
-        return self.run.episodes * self.env.episode_length
-
-    def teacher_groups(self, cluster_cpus: float | None = None) -> list[list[int]]:
-        """Folds hosted by each teacher actor (near-equal groups); see service.teacher_actors for the automatic
-        choice, which needs the cluster's CPU count (None: K actors)."""
-        k = self.teachers.num_folds
-        auto = k if cluster_cpus is None or cluster_cpus >= 2 * k else 1
-        actors = min(k, self.service.teacher_actors or auto)
-        return [list(range(k))[i::actors] for i in range(actors)]
-
-    def curriculum_stride(self) -> float:
-        """Δλ per post-warm-up env step: the configured stride, or λ_max reached at half of training."""
-        if self.curriculum.stride > 0:
-            return self.curriculum.stride
-        half = max(1, self.total_env_steps // 2)
-        return (self.curriculum.lam_max - self.curriculum.lam0) / half
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain nested dict (TOML/JSON friendly; None values dropped)."""
-        return _drop_none(dataclasses.asdict(self))
-
-
-def _drop_none(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _drop_none(v) for k, v in value.items() if v is not None}
-    return value
-
-
-_SECTIONS = {f.name: f for f in dataclasses.fields(Config) if f.name != "teams"}
-
-
-def _coerce(key: str, value: Any, hint: Any) -> Any:
-    """Check `value` against the type hint `hint` (bool, int, float, str, Literal, Optional)."""
-    origin = typing.get_origin(hint)
-    if origin is Literal:
-        choices = typing.get_args(hint)
-        _require(value in choices, key, value, f"must be one of {list(choices)}")
-        return value
-    if origin in (typing.Union, types.UnionType):
-        args = typing.get_args(hint)
-        if value is None and type(None) in args:
-            return None
-        inner = [a for a in args if a is not type(None)]
-        return _coerce(key, value, inner[0])
-    if hint is bool:
-        _require(isinstance(value, bool), key, value, "must be true or false")
-        return value
-    if hint is int:
-        _require(isinstance(value, int) and not isinstance(value, bool), key, value, "must be an integer")
-        return value
-    if hint is float:
-        ok = isinstance(value, int | float) and not isinstance(value, bool)
-        _require(ok, key, value, "must be a number")
-        return float(value)
-    if hint is str:
-        _require(isinstance(value, str), key, value, "must be a string")
-        return value
-    raise ConfigError(f"{key}: unsupported field type {hint!r}")
-
-
-def _build(cls: type, data: Mapping[str, Any], prefix: str) -> Any:
-    """Build dataclass `cls` from `data`, rejecting unknown keys and values of the wrong type."""
-    if not isinstance(data, Mapping):
-        raise ConfigError(f"{prefix} must be a table, got {data!r}")
-    hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - names)
-    if unknown:
-        raise ConfigError(f"unknown key {prefix}.{unknown[0]} (known: {sorted(names)})")
-    kwargs = {k: _coerce(f"{prefix}.{k}", v, hints[k]) for k, v in data.items()}
-    try:
-        return cls(**kwargs)
-    except ConfigError as err:
-        # __post_init__ messages use the section name; re-prefix team checks with the team's path.
-        msg = str(err)
-        raise ConfigError(msg.replace("team.", f"{prefix}.", 1) if msg.startswith("team.") else msg) from None
-
-
-def config_from_dict(data: Mapping[str, Any]) -> Config:
-    """Build and validate a Config from a nested mapping (as parsed from TOML)."""
-    unknown = sorted(set(data) - set(_SECTIONS) - {"teams"})
-    if unknown:
-        raise ConfigError(f"unknown section {unknown[0]!r} (known: {sorted([*_SECTIONS, 'teams'])})")
-    sections = {name: _build(f.default_factory, data.get(name, {}), name) for name, f in _SECTIONS.items()}
-    teams_data = data.get("teams")
-    if teams_data is None:
-        teams_data = {name: {} for name in TASK_TEAMS[sections["env"].task]}
-    if not isinstance(teams_data, Mapping):
-        raise ConfigError(f"teams must be a table of team tables, got {teams_data!r}")
-    teams = {name: _build(TeamConfig, spec, f"teams.{name}") for name, spec in teams_data.items()}
-    return Config(**sections, teams=teams)
-
-
-def preset(algorithm: str, task: str = "spread", opponent: str = "maddpg") -> Config:
-    """Config of one of the four compared algorithms (ALGORITHM.md §5).
-
-    For `task="tag"` the predators learn with `algorithm` and the prey with `opponent` (Fig. 12: MADDPG prey).
-    """
-    _require(algorithm in ALGORITHMS, "algorithm", algorithm, f"must be one of {list(ALGORITHMS)}")
-    _require(opponent in ALGORITHMS, "opponent", opponent, f"must be one of {list(ALGORITHMS)}")
-    _require(task in TASKS, "env.task", task, f"must be one of {list(TASKS)}")
-    if task == "spread":
-        teams = {"agent": {"algorithm": algorithm}}
-    else:
-        teams = {"predator": {"algorithm": algorithm}, "prey": {"algorithm": opponent}}
-    return config_from_dict({"env": {"task": task}, "teams": teams})
-
-
-def parse_override(text: str) -> tuple[list[str], Any]:
-    """Parse 'section.key=value' (value in TOML syntax; bare words are strings) into (path, value)."""
-    if "=" not in text:
-        raise ConfigError(f"override must look like section.key=value, got {text!r}")
-    dotted, raw = text.split("=", 1)
-    path = [part.strip() for part in dotted.strip().split(".")]
-    if len(path) < 2 or not all(path):
-        raise ConfigError(f"override key must be section.key, got {dotted!r}")
-    try:
-        value = tomllib.loads(f"v = {raw.strip()}")["v"]
-    except tomllib.TOMLDecodeError:
-        value = raw.strip()
-    return path, value
-
-
-def apply_overrides(data: dict[str, Any], overrides: Iterable[str]) -> dict[str, Any]:
-    """Return a copy of nested `data` with each 'a.b.c=value' override set."""
-    result = _deep_copy(data)
-    for text in overrides:
-        path, value = parse_override(text)
-        node = result
-        for part in path[:-1]:
-            child = node.setdefault(part, {})
-            if not isinstance(child, dict):
-                raise ConfigError(f"override {text!r}: {part} is not a table")
-            node = child
-        node[path[-1]] = value
-    return result
-
-
-def _deep_copy(data: Mapping[str, Any]) -> dict[str, Any]:
-    return {k: _deep_copy(v) if isinstance(v, Mapping) else v for k, v in data.items()}
-
-
-def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -> Config:
-    """Load a TOML file (or the defaults when `path` is None) and apply `--set` overrides."""
-    data: dict[str, Any] = {}
-    if path is not None:
-        path = Path(path)
-        if not path.is_file():
-            raise ConfigError(f"config file {str(path)!r} does not exist")
-        try:
-            data = tomllib.loads(path.read_text())
-        except tomllib.TOMLDecodeError as err:
-            raise ConfigError(f"config file {str(path)!r} is not valid TOML: {err}") from None
-    return config_from_dict(apply_overrides(data, overrides))
-
-
-def dump_toml(config: Config) -> str:
-    """Render a Config as TOML text that `load_config` reads back to an equal Config."""
-    data = config.to_dict()
-    lines: list[str] = []
-    for section, values in data.items():
-        if section == "teams":
-            continue
-        lines.append(f"[{section}]")
-        lines.extend(f"{k} = {_toml_value(v)}" for k, v in values.items())
-        lines.append("")
-    for team, values in data["teams"].items():
-        lines.append(f"[teams.{team}]")
-        lines.extend(f"{k} = {_toml_value(v)}" for k, v in values.items())
-        lines.append("")
-    return "\n".join(lines)
-
-
-def _toml_value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    return repr(value)

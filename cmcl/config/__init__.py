@@ -1,0 +1,21 @@
+"""Typed, validated run configuration: one frozen dataclass per component, loaded from TOML.
+
+Where it sits: every entry point (`cmcl.loop`, `cmcl.evaluate`, `services.launch`) builds a `Config` with
+`load_config(path, overrides)` and hands each component its section. Defaults are the paper's Table 1 values
+and the resolutions of ../shared/ALGORITHM.md §5 (each [R] choice is an option here with that default).
+
+Layout: `sections` (the section dataclasses and their range checks), `experiment` (`Config`, its derived
+quantities, `preset`), `toml_io` (mapping / TOML loading, `--set` overrides, type coercion, `dump_toml`).
+Import every name from `cmcl.config`; the submodules are an implementation detail.
+
+Errors: any unknown key, wrong type or out-of-range value raises `ConfigError` naming the full key
+(e.g. ``maddpg.gamma``) and the offending value.
+"""
+
+from cmcl.config import sections
+from cmcl.config.experiment import Config, preset
+from cmcl.config.sections import *  # noqa: F403 (the section dataclasses, ConfigError, ALGORITHMS, TASKS, TASK_TEAMS)
+from cmcl.config.toml_io import apply_overrides, config_from_dict, dump_toml, load_config, parse_override
+
+__all__ = [*sections.__all__, "Config", "apply_overrides", "config_from_dict", "dump_toml", "load_config",
+           "parse_override", "preset"]

@@ -1,0 +1,90 @@
+"""The whole run: `Config` (one section per component plus one TeamConfig per team), derived quantities, presets.
+
+Loading a Config from TOML or a nested mapping is cmcl.config.toml_io; the sections are cmcl.config.sections.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+from cmcl.config.sections import (
+    ALGORITHMS,
+    TASK_TEAMS,
+    TASKS,
+    CurriculumConfig,
+    EnvConfig,
+    ICMConfig,
+    MADDPGConfig,
+    ReplayConfig,
+    RunConfig,
+    ServiceConfig,
+    TeacherConfig,
+    TeamConfig,
+    _require,
+)
+
+
+@dataclass(frozen=True)
+class Config:
+    """The whole run: one section per component plus one TeamConfig per team of the task."""
+
+    env: EnvConfig = field(default_factory=EnvConfig)
+    maddpg: MADDPGConfig = field(default_factory=MADDPGConfig)
+    replay: ReplayConfig = field(default_factory=ReplayConfig)
+    curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
+    teachers: TeacherConfig = field(default_factory=TeacherConfig)
+    icm: ICMConfig = field(default_factory=ICMConfig)
+    run: RunConfig = field(default_factory=RunConfig)
+    service: ServiceConfig = field(default_factory=ServiceConfig)
+    teams: dict[str, TeamConfig] = field(default_factory=lambda: {"agent": TeamConfig()})
+
+    def __post_init__(self) -> None:
+        expected = TASK_TEAMS[self.env.task]
+        _require(set(self.teams) == set(expected), "teams", sorted(self.teams),
+                 f"must name exactly the teams of task {self.env.task!r}: {list(expected)}")
+        ordered = {name: self.teams[name] for name in expected}
+        object.__setattr__(self, "teams", ordered)
+        _require(self.maddpg.warmup <= self.replay.capacity, "maddpg.warmup", self.maddpg.warmup,
+                 f"must not exceed replay.capacity ({self.replay.capacity})")
+        _require(self.maddpg.batch_size <= max(self.maddpg.warmup, 1) or self.maddpg.warmup == 0,
+                 "maddpg.batch_size", self.maddpg.batch_size, f"must not exceed maddpg.warmup ({self.maddpg.warmup})")
+
+    @property
+    def total_env_steps(self) -> int:
+        """Environment steps of the whole run (per world): episodes × episode length."""
+        return self.run.episodes * self.env.episode_length
+
+    def curriculum_stride(self) -> float:
+        """Δλ per post-warm-up env step: the configured stride, or λ_max reached at half of training."""
+        if self.curriculum.stride > 0:
+            return self.curriculum.stride
+        half = max(1, self.total_env_steps // 2)
+        return (self.curriculum.lam_max - self.curriculum.lam0) / half
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain nested dict (TOML/JSON friendly; None values dropped)."""
+        return _drop_none(dataclasses.asdict(self))
+
+
+def _drop_none(value: Any) -> Any:
+    """`value` with every None dropped from its (nested) dicts."""
+    if isinstance(value, dict):
+        return {k: _drop_none(v) for k, v in value.items() if v is not None}
+    return value
+
+
+def preset(algorithm: str, task: str = "spread", opponent: str = "maddpg") -> Config:
+    """Config of one of the four compared algorithms (ALGORITHM.md §5), every other value at its default.
+
+    For `task="tag"` the predators learn with `algorithm` and the prey with `opponent` (Fig. 12: MADDPG prey).
+    """
+    _require(algorithm in ALGORITHMS, "algorithm", algorithm, f"must be one of {list(ALGORITHMS)}")
+    _require(opponent in ALGORITHMS, "opponent", opponent, f"must be one of {list(ALGORITHMS)}")
+    _require(task in TASKS, "env.task", task, f"must be one of {list(TASKS)}")
+    if task == "spread":
+        teams = {"agent": TeamConfig(algorithm=algorithm)}
+    else:
+        teams = {"predator": TeamConfig(algorithm=algorithm), "prey": TeamConfig(algorithm=opponent)}
+    return Config(env=EnvConfig(task=task), teams=teams)

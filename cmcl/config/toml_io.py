@@ -1,0 +1,160 @@
+"""TOML in and out: build a validated `Config` from a nested mapping or a TOML file with `--set` overrides, and
+render one back as TOML.
+
+Errors: any unknown key or value of the wrong type raises `ConfigError` naming the full key and the value
+(range checks are the sections' own, cmcl.config.sections).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+import types
+import typing
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any, Literal
+
+from cmcl.config.experiment import Config
+from cmcl.config.sections import TASK_TEAMS, ConfigError, TeamConfig, _require
+
+_SECTIONS = {f.name: f for f in dataclasses.fields(Config) if f.name != "teams"}
+
+
+def _coerce(key: str, value: Any, hint: Any) -> Any:
+    """Check `value` against the type hint `hint` (bool, int, float, str, Literal, Optional)."""
+    origin = typing.get_origin(hint)
+    if origin is Literal:
+        choices = typing.get_args(hint)
+        _require(value in choices, key, value, f"must be one of {list(choices)}")
+        return value
+    if origin in (typing.Union, types.UnionType):
+        args = typing.get_args(hint)
+        if value is None and type(None) in args:
+            return None
+        inner = [a for a in args if a is not type(None)]
+        return _coerce(key, value, inner[0])
+    if hint is bool:
+        _require(isinstance(value, bool), key, value, "must be true or false")
+        return value
+    if hint is int:
+        _require(isinstance(value, int) and not isinstance(value, bool), key, value, "must be an integer")
+        return value
+    if hint is float:
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        _require(ok, key, value, "must be a number")
+        return float(value)
+    if hint is str:
+        _require(isinstance(value, str), key, value, "must be a string")
+        return value
+    raise ConfigError(f"{key}: unsupported field type {hint!r}")
+
+
+def _build(cls: type, data: Mapping[str, Any], prefix: str) -> Any:
+    """Build dataclass `cls` from `data`, rejecting unknown keys and values of the wrong type."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{prefix} must be a table, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ConfigError(f"unknown key {prefix}.{unknown[0]} (known: {sorted(names)})")
+    kwargs = {k: _coerce(f"{prefix}.{k}", v, hints[k]) for k, v in data.items()}
+    try:
+        return cls(**kwargs)
+    except ConfigError as err:
+        # __post_init__ messages use the section name; re-prefix team checks with the team's path.
+        msg = str(err)
+        raise ConfigError(msg.replace("team.", f"{prefix}.", 1) if msg.startswith("team.") else msg) from None
+
+
+def config_from_dict(data: Mapping[str, Any]) -> Config:
+    """Build and validate a Config from a nested mapping (as parsed from TOML)."""
+    unknown = sorted(set(data) - set(_SECTIONS) - {"teams"})
+    if unknown:
+        raise ConfigError(f"unknown section {unknown[0]!r} (known: {sorted([*_SECTIONS, 'teams'])})")
+    sections = {name: _build(f.default_factory, data.get(name, {}), name) for name, f in _SECTIONS.items()}
+    teams_data = data.get("teams")
+    if teams_data is None:
+        teams_data = {name: {} for name in TASK_TEAMS[sections["env"].task]}
+    if not isinstance(teams_data, Mapping):
+        raise ConfigError(f"teams must be a table of team tables, got {teams_data!r}")
+    teams = {name: _build(TeamConfig, spec, f"teams.{name}") for name, spec in teams_data.items()}
+    return Config(**sections, teams=teams)
+
+
+
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """Parse 'section.key=value' (value in TOML syntax; bare words are strings) into (path, value)."""
+    if "=" not in text:
+        raise ConfigError(f"override must look like section.key=value, got {text!r}")
+    dotted, raw = text.split("=", 1)
+    path = [part.strip() for part in dotted.strip().split(".")]
+    if len(path) < 2 or not all(path):
+        raise ConfigError(f"override key must be section.key, got {dotted!r}")
+    try:
+        value = tomllib.loads(f"v = {raw.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()
+    return path, value
+
+
+def apply_overrides(data: dict[str, Any], overrides: Iterable[str]) -> dict[str, Any]:
+    """Return a copy of nested `data` with each 'a.b.c=value' override set."""
+    result = _deep_copy(data)
+    for text in overrides:
+        path, value = parse_override(text)
+        node = result
+        for part in path[:-1]:
+            child = node.setdefault(part, {})
+            if not isinstance(child, dict):
+                raise ConfigError(f"override {text!r}: {part} is not a table")
+            node = child
+        node[path[-1]] = value
+    return result
+
+
+def _deep_copy(data: Mapping[str, Any]) -> dict[str, Any]:
+    """A copy of nested `data` whose mappings are fresh dicts (leaf values shared)."""
+    return {k: _deep_copy(v) if isinstance(v, Mapping) else v for k, v in data.items()}
+
+
+def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -> Config:
+    """Load a TOML file (or the defaults when `path` is None) and apply `--set` overrides."""
+    data: dict[str, Any] = {}
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"config file {str(path)!r} does not exist")
+        try:
+            data = tomllib.loads(path.read_text())
+        except tomllib.TOMLDecodeError as err:
+            raise ConfigError(f"config file {str(path)!r} is not valid TOML: {err}") from None
+    return config_from_dict(apply_overrides(data, overrides))
+
+
+def dump_toml(config: Config) -> str:
+    """Render a Config as TOML text that `load_config` reads back to an equal Config."""
+    data = config.to_dict()
+    lines: list[str] = []
+    for section, values in data.items():
+        if section == "teams":
+            continue
+        lines.append(f"[{section}]")
+        lines.extend(f"{k} = {_toml_value(v)}" for k, v in values.items())
+        lines.append("")
+    for team, values in data["teams"].items():
+        lines.append(f"[teams.{team}]")
+        lines.extend(f"{k} = {_toml_value(v)}" for k, v in values.items())
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _toml_value(value: Any) -> str:
+    """One scalar as a TOML literal (bool, quoted string, or the number's repr)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    return repr(value)
+

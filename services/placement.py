@@ -1,0 +1,103 @@
+"""Ray placement policy: which actors a run needs, how many CPUs they ask for, and starting them.
+
+Where it sits: `services.launch` calls `create_roles(config, run_dir)` once; the supervisor then drives the
+returned `Roles`. The pure core (cmcl/) knows nothing of actors or CPUs: every placement decision (teacher folds
+per actor, the CPU budget, the feasibility check) lives here. Ray itself is imported only by `create_roles`, so
+the policy functions can be used and tested without a cluster.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cmcl.config import Config
+from cmcl.io.rundir import RunDirectory
+from services.icm import ICMWorker
+from services.learner import Learner
+from services.replay_server import ReplayServer
+from services.rollout import RolloutWorker
+from services.teachers import TeacherWorker
+
+
+class InfeasibleResources(RuntimeError):
+    """The roles ask for more CPUs than the cluster has."""
+
+
+def teacher_groups(config: Config, cluster_cpus: float | None = None) -> list[list[int]]:
+    """Fold indices hosted by each teacher actor: near-equal groups, fold i in group i mod actors.
+
+    The number of actors is service.teacher_actors, or when that is 0 (automatic) K = teachers.num_folds if the
+    cluster has at least 2K CPUs (`cluster_cpus`; None counts as enough), else 1 (one actor stacks every fold).
+    """
+    k = config.teachers.num_folds
+    auto = k if cluster_cpus is None or cluster_cpus >= 2 * k else 1
+    actors = min(k, config.service.teacher_actors or auto)
+    return [list(range(k))[i::actors] for i in range(actors)]
+
+
+def required_cpus(config: Config, cluster_cpus: float | None = None) -> float:
+    """CPUs the roles of `config` request in total (service.*_cpus summed over the actors started)."""
+    s, teams = config.service, config.teams.values()
+    total = s.rollout_workers * s.rollout_cpus + s.learner_cpus + s.replay_cpus
+    if any(t.uses_teachers for t in teams):
+        total += len(teacher_groups(config, cluster_cpus)) * s.teacher_cpus
+    if any(t.uses_icm for t in teams):
+        total += s.icm_cpus
+    return total
+
+
+def service_paths(run_dir: RunDirectory) -> dict[str, Path]:
+    """Where each role keeps its latest checkpoint inside the run directory (created if missing)."""
+    base = run_dir.checkpoints / "service"
+    base.mkdir(parents=True, exist_ok=True)
+    return {"learner": base / "learner.pt", "icm": base / "icm.pt", "replay": base / "replay.msgpack",
+            "supervisor": base / "supervisor.json", "teacher": base}
+
+
+@dataclass
+class Roles:
+    """Handles of every actor, plus how to make a replacement for a rollout worker."""
+
+    replay: Any
+    learner: Any
+    rollout: list[Any]
+    teachers: list[Any]
+    icm: Any | None
+    teacher_groups: list[list[int]]
+    make_rollout: Callable[[int], Any] = field(repr=False, default=None)
+
+
+def create_roles(config: Config, run_dir: RunDirectory) -> Roles:
+    """Start every role as a restartable Ray actor with fractional CPUs (after a feasibility check)."""
+    import ray  # only here: the policy above needs no cluster
+
+    available = ray.cluster_resources().get("CPU", 0.0)
+    need = required_cpus(config, available)
+    if need > available + 1e-9:
+        raise InfeasibleResources(f"the roles request {need:.2f} CPUs (service.*_cpus) but the cluster has "
+                                  f"{available:g}; lower service.rollout_workers or the per-role CPU requests")
+    s, seed, paths, cfg = config.service, config.run.seed, service_paths(run_dir), config.to_dict()
+
+    def actor(cls: type, cpus: float):
+        return ray.remote(num_cpus=cpus, max_restarts=s.max_restarts, max_task_retries=0)(cls)
+
+    def make_rollout(w: int):
+        return actor(RolloutWorker, s.rollout_cpus).remote(cfg, w, seed * 1000 + w)
+
+    teams = config.teams.values()
+    groups = teacher_groups(config, available)
+    teachers = []
+    if any(t.uses_teachers for t in teams):
+        teachers = [actor(TeacherWorker, s.teacher_cpus).remote(
+            cfg, folds, seed * 1000 + 100 + i, str(paths["teacher"] / f"teacher_{'-'.join(map(str, folds))}.pt"))
+            for i, folds in enumerate(groups)]
+    icm = None
+    if any(t.uses_icm for t in teams):
+        icm = actor(ICMWorker, s.icm_cpus).remote(cfg, seed * 1000 + 200, str(paths["icm"]))
+    return Roles(replay=actor(ReplayServer, s.replay_cpus).remote(cfg, str(paths["replay"]), seed),
+                 learner=actor(Learner, s.learner_cpus).remote(cfg, seed, str(paths["learner"])),
+                 rollout=[make_rollout(w) for w in range(s.rollout_workers)], teachers=teachers, icm=icm,
+                 teacher_groups=groups if teachers else [], make_rollout=make_rollout)
