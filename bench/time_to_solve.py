@@ -1,7 +1,7 @@
 """Time to solve sparse navigation: episodes and seconds until the 100-episode moving average of final-step coverage
 reaches 0.9 (and 0.5), then a held-out evaluation, for a grid of runs, inline or on the service.
 
-Grids (every run: sparse navigation N=4, the shared defaults of cmcl/config.py, at most 20,000 episodes, stopped
+Grids (every run: sparse navigation N=4, the shared defaults of cmcl/config/sections.py, at most 20,000 episodes, stopped
 once the moving average reaches --stop-coverage (default 0.95, so that the policy measured on held-out worlds
 has gone past the 0.9 it is timed at), and at most --max-seconds of wall clock):
 
@@ -38,11 +38,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from cmcl.config import load_config  # noqa: E402
+from cmcl.config import ALGORITHMS, load_config  # noqa: E402
 from cmcl.evaluate import evaluate_policy, load_policy  # noqa: E402
 from cmcl.io.rundir import RunDirectory  # noqa: E402
 
-ALGORITHMS = ("maddpg", "per", "acl", "cmcl")
 UPDATE_EVERY = (1, 4, 16, 64)
 BATCHES = (128, 512)
 WINDOW, TARGETS = 100, (0.5, 0.9)

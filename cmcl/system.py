@@ -14,7 +14,7 @@ import numpy as np
 
 from cmcl.config import Config, ConfigError
 from cmcl.replay.buffer import ReplayBuffer
-from cmcl.replay.curriculum import CurriculumSchedule
+from cmcl.replay.curriculum import CurriculumSchedule, default_growth
 
 if TYPE_CHECKING:  # torch-backed classes load lazily: the replay server and rollout workers never need torch
     from cmcl.learners.icm import ICM
@@ -165,7 +165,7 @@ def build_schedule(config: Config) -> CurriculumSchedule:
     """λ schedule; the default stride reaches λ_max at half of run.episodes × episode_length env steps."""
     c = config.curriculum
     stride = config.curriculum_stride()
-    growth = (c.lam_max / c.lam0) ** (1.0 / max(1, config.total_env_steps // 2)) - 1.0
+    growth = default_growth(config.total_env_steps, c.lam0, c.lam_max)
     return CurriculumSchedule(lam0=c.lam0, lam_max=c.lam_max, stride=stride, warmup_steps=config.maddpg.warmup,
                               kind=c.kind, growth=growth)
 

@@ -15,6 +15,7 @@ from cmcl.learners import steps as learn
 from cmcl.messages import CuriosityScores, CuriosityWork
 from cmcl.system import agent_layout, build_icm, make_batched_env
 from services.common import actor_setup, load_state, new_incarnation, save_state
+from services.report_schema import Report
 
 
 class ICMWorker:
@@ -33,7 +34,7 @@ class ICMWorker:
         if state is not None:
             self.icm.load_state_dict(state["icm"])
 
-    def step(self, work: CuriosityWork | None) -> tuple[CuriosityScores | None, dict[str, Any]]:
+    def step(self, work: CuriosityWork | None) -> tuple[CuriosityScores | None, Report]:
         """Fit on work.fit ([steps, S, N, ·] rows), then return ρ float32[M, A_c] of the work.score rows."""
         if work is None:
             return None, self.report()
@@ -44,9 +45,9 @@ class ICMWorker:
         rho = learn.curiosity_values(self.icm, work.score.rows, agents)
         return CuriosityScores(work.score.slots, work.score.generations, rho, work.updates, self.loss), self.report()
 
-    def report(self) -> dict[str, Any]:
+    def report(self) -> Report:
         """Metrics report (steps / scores are counted by the replay server)."""
-        return {"source": "icm", "role": "icm", "incarnation": self.incarnation, "resumed": self.resumed}
+        return Report(source="icm", role="icm", incarnation=self.incarnation, resumed=self.resumed)
 
     def save(self) -> str | None:
         """Write the ICM checkpoint atomically."""

@@ -18,6 +18,7 @@ from cmcl.learners.weights import published_weights
 from cmcl.messages import LearnerBatch, LearnerFeedback
 from cmcl.system import agent_layout, build_maddpg, make_batched_env
 from services.common import actor_setup, load_state, new_incarnation, save_state
+from services.report_schema import LearnerReport, Report
 
 
 class Learner:
@@ -38,7 +39,7 @@ class Learner:
             self.maddpg.load_state_dict(state["maddpg"])
             self.version = int(state["version"])
 
-    def update(self, batch: LearnerBatch | None) -> tuple[LearnerFeedback | None, dict[str, Any]]:
+    def update(self, batch: LearnerBatch | None) -> tuple[LearnerFeedback | None, Report]:
         """Run one MADDPG update per minibatch of `batch` ([n, N, S, ...] arrays); None does nothing.
 
         Returns (feedback for the replay server: |δ| float32[n, N, S] of each sampled row, metrics report).
@@ -60,11 +61,11 @@ class Learner:
         """The current weights with their version (the supervisor puts this in the object store)."""
         return {"version": self.version, "weights": published_weights(self.maddpg)}
 
-    def report(self) -> dict[str, Any]:
+    def report(self) -> Report:
         """Metrics report (cumulative updates, published version, last losses per agent)."""
-        return {"source": "learner", "role": "learner", "incarnation": self.incarnation, "resumed": self.resumed,
-                "learner": {"updates": int(self.maddpg.updates), "weight_version": self.version,
-                            "losses": self.losses}}
+        return Report(source="learner", role="learner", incarnation=self.incarnation, resumed=self.resumed,
+                      learner=LearnerReport(updates=int(self.maddpg.updates), weight_version=self.version,
+                                            losses=self.losses))
 
     def save(self) -> str | None:
         """Write the learner checkpoint atomically (torch.save of plain state dicts)."""

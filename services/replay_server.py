@@ -37,6 +37,7 @@ from cmcl.replay.priority import uses_curriculum
 from cmcl.replay.ratelimit import RateLimiter, limiters_from_config, slack_for
 from cmcl.system import agent_layout, beta_is, build_replay, build_schedule, make_batched_env
 from services.common import actor_setup, new_incarnation
+from services.report_schema import CurriculumReport, FitReport, ReplayReport, Report
 
 REPORT_SAMPLES = 512
 
@@ -259,7 +260,7 @@ class ReplayServer:
         return self.status()
 
     # ------------------------------------------------------------------ observability and state
-    def report(self) -> dict[str, Any]:
+    def report(self) -> Report:
         """Metrics report: buffer, λ, difficulty / priority distributions, score age and coverage."""
         replay: dict[str, Any] = {"size": self.replay.size, "capacity": self.replay.capacity,
                                   "inserts": self.counters["inserts"], "samples": self.counters["samples"],
@@ -280,18 +281,14 @@ class ReplayServer:
             ages = self.counters["updates"] - times[times >= 0]
             if ages.size:
                 replay["score_age"] = ages[self.rng.integers(0, ages.size, min(ages.size, REPORT_SAMPLES))]
-        report: dict[str, Any] = {"source": "replay", "role": "replay", "incarnation": self.incarnation,
-                                  "resumed": self.resumed, "replay": replay,
-                                  "curriculum": {"lambda": self.schedule.lam}}
-        if self.teacher_limits:
-            report["teachers"] = {str(k): {"steps": self.teacher_steps[k], "scores": self.teacher_scores[k],
-                                           **({"loss": self.losses[f"teacher_{k}"]}
-                                              if f"teacher_{k}" in self.losses else {})}
-                                  for k in range(len(self.teacher_limits))}
-        if self.icm_limit is not None:
-            report["icm"] = {"steps": self.counters["icm_steps"], "scores": self.counters["icm_scores"],
-                             **({"loss": self.losses["icm"]} if "icm" in self.losses else {})}
-        return report
+        teachers = {str(k): FitReport(steps=self.teacher_steps[k], scores=self.teacher_scores[k],
+                                      loss=self.losses.get(f"teacher_{k}"))
+                    for k in range(len(self.teacher_limits))} if self.teacher_limits else None
+        icm = FitReport(steps=self.counters["icm_steps"], scores=self.counters["icm_scores"],
+                        loss=self.losses.get("icm")) if self.icm_limit is not None else None
+        return Report(source="replay", role="replay", incarnation=self.incarnation, resumed=self.resumed,
+                      replay=ReplayReport(**replay), curriculum=CurriculumReport(lam=self.schedule.lam),
+                      teachers=teachers, icm=icm)
 
     def state_dict(self) -> dict[str, Any]:
         """Codec-ready state: the buffer, score tables, dedupe table, counters, limiters and λ's step count."""

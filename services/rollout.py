@@ -17,6 +17,7 @@ from cmcl.messages import Chunk
 from cmcl.progress import REPORTED_STATS, finished_episodes
 from cmcl.system import agent_layout, build_maddpg, make_batched_env, to_env_actions
 from services.common import actor_setup, new_incarnation
+from services.report_schema import FinishedEpisodes, Report, RolloutReport
 
 
 class RolloutWorker:
@@ -40,7 +41,7 @@ class RolloutWorker:
         self.env_steps, self.episodes = 0, 0
         self.obs = self.env.reset()
 
-    def rollout(self, published: dict | None) -> tuple[Chunk, dict[str, Any]]:
+    def rollout(self, published: dict | None) -> tuple[Chunk, Report]:
         """Run one episode in every world with the published policy {"version", "weights"} (+ exploration noise).
 
         Returns (chunk, report): a Chunk of T*B rows (env_index: world 0..B-1 of this worker) and a metrics report
@@ -78,12 +79,12 @@ class RolloutWorker:
         self.seq += 1
         return chunk, self._report(info["episode"])
 
-    def _report(self, episode: dict[str, np.ndarray]) -> dict[str, Any]:
-        """Metrics report of this call (see services.metrics for the schema)."""
-        return {"source": f"rollout-{self.worker_id}", "role": "rollout", "incarnation": self.incarnation,
-                "weight_version": max(self.version, 0),
-                "rollout": {"env_steps": self.env_steps, "episodes": self.episodes,
-                            "finished": finished_episodes(episode, self.env.teams, REPORTED_STATS)}}
+    def _report(self, episode: dict[str, np.ndarray]) -> Report:
+        """Metrics report of this call: cumulative env steps and episodes, the episodes that just finished."""
+        finished = FinishedEpisodes(**finished_episodes(episode, self.env.teams, REPORTED_STATS))
+        return Report(source=f"rollout-{self.worker_id}", role="rollout", incarnation=self.incarnation,
+                      weight_version=max(self.version, 0),
+                      rollout=RolloutReport(env_steps=self.env_steps, episodes=self.episodes, finished=finished))
 
 
 def _initial_actor(config: Any, layout: Any, seed: int) -> dict[str, np.ndarray]:

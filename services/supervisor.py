@@ -25,6 +25,7 @@ from cmcl.io.rundir import RunDirectory
 from cmcl.progress import episode_rows, progress_line, solved, window_summary
 from services.metrics import ServiceMetrics
 from services.placement import Roles, service_paths
+from services.report_schema import Report
 
 CALLS_IN_FLIGHT = 2  # per actor: one computing, one prefetched
 # Outputs of one actor that go to the replay server. They are forwarded only once ready: an actor runs one
@@ -54,7 +55,7 @@ class Supervisor:
         self.lags: dict[str, int] = {}  # weight versions each rollout worker / teacher is behind
         self.episodes_logged = 0
         self.solved = False  # the coverage target run.stop_coverage was reached
-        self.last_replay_report: dict[str, Any] = {}
+        self.last_replay_report: Report | None = None
         self.started = time.perf_counter()
         self.rate_mark = (self.started, self.status["env_steps"], self.status["updates"])
         self.rates = {"env_steps_per_s": 0.0, "updates_per_s": 0.0}
@@ -151,18 +152,18 @@ class Supervisor:
             if value.get("error"):
                 self.failures[value["error"].split(":")[0]] = self.failures.get(value["error"].split(":")[0], 0) + 1
             self.inflight[(kind, index)] -= 1
+        elif kind == "replay_report":  # before the other reports: its kind ends in "_report" too
+            self.last_replay_report = value
+            self.metrics.try_apply(value)
         elif kind.endswith("_report"):
             self.metrics.try_apply(value)
-            if "weight_version" in value:
-                self.lags[value["source"]] = max(0, self.version - int(value["weight_version"]))
-            if kind == "learner_report" and value["learner"]["weight_version"] != self.version:
-                self.version = value["learner"]["weight_version"]
+            if value.weight_version is not None:
+                self.lags[value.source] = max(0, self.version - int(value.weight_version))
+            if kind == "learner_report" and value.learner.weight_version != self.version:
+                self.version = value.learner.weight_version
                 self.weights = self.roles.learner.publish.remote()
             if kind == "rollout_report":
                 self._log_episodes(value)
-        elif kind == "replay_report":
-            self.last_replay_report = value
-            self.metrics.try_apply(value)
 
     def _failed(self, kind: str, index: int, err: Exception) -> None:
         """A call failed because an actor died: free its slot (Ray restarts the actor) or replace the worker."""
@@ -173,11 +174,11 @@ class Supervisor:
         if kind == "rollout_report" and isinstance(err, ray.exceptions.ActorDiedError) and not _restartable(err):
             self.roles.rollout[index] = self.roles.make_rollout(index)  # out of restarts: a fresh worker
 
-    def _log_episodes(self, report: dict[str, Any]) -> None:
+    def _log_episodes(self, report: Report) -> None:
         """Append one 'episode' row per finished episode of a rollout report to metrics.jsonl."""
-        rows = episode_rows(report["rollout"]["finished"], self.episodes_logged + 1,
-                            elapsed_s=time.perf_counter() - self.started, worker=report["source"],
-                            weight_version=report.get("weight_version", 0))
+        rows = episode_rows(report.rollout.finished.to_dict(), self.episodes_logged + 1,
+                            elapsed_s=time.perf_counter() - self.started, worker=report.source,
+                            weight_version=report.weight_version or 0)
         self.episodes_logged += len(rows)
         self.window.extend(rows)
         for row in rows:
@@ -188,7 +189,8 @@ class Supervisor:
         """One terminal line: env steps, episodes, coverage / win, reward, λ, rates, buffer, score age, lag."""
         st = self.status
         extra = [f"buf {st['size']}"]
-        ages = self.last_replay_report.get("replay", {}).get("score_age")
+        replay = self.last_replay_report.replay if self.last_replay_report is not None else None
+        ages = replay.score_age if replay is not None else None
         if ages is not None and len(ages):
             extra.append(f"score age {float(np.median(ages)):.0f} upd")
         if self.lags:

@@ -19,6 +19,7 @@ from cmcl.learners.weights import load_published
 from cmcl.messages import TeacherScores, TeacherWork
 from cmcl.system import agent_layout, build_maddpg, make_batched_env
 from services.common import actor_setup, load_state, new_incarnation, save_state
+from services.report_schema import Report
 
 
 class TeacherWorker:
@@ -45,7 +46,7 @@ class TeacherWorker:
             self.steps, self.scores = int(state["steps"]), int(state["scores"])
 
     def step(self, work: TeacherWork | None, published: dict[str, Any] | None
-             ) -> tuple[TeacherScores | None, dict[str, Any]]:
+             ) -> tuple[TeacherScores | None, Report]:
         """Fit on work.fit ([steps, 1, F, S, ...]: rows of each hosted fold), then score the work.score rows.
 
         Returns (TeacherScores with errors float32[M, A_t, F], metrics report).
@@ -65,10 +66,10 @@ class TeacherWorker:
         return TeacherScores(tuple(self.folds), work.score.slots, work.score.generations, errors, work.updates,
                              self.loss), self.report()
 
-    def report(self) -> dict[str, Any]:
+    def report(self) -> Report:
         """Metrics report of this teacher (its weight version; steps / scores are reported by the replay)."""
-        return {"source": self.name, "role": "teacher", "incarnation": self.incarnation,
-                "resumed": self.resumed, "weight_version": max(self.version, 0)}
+        return Report(source=self.name, role="teacher", incarnation=self.incarnation, resumed=self.resumed,
+                      weight_version=max(self.version, 0))
 
     def save(self) -> str | None:
         """Write this teacher's checkpoint atomically."""

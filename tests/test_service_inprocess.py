@@ -41,7 +41,7 @@ def test_one_round_of_the_data_flow_reaches_every_role():
     for _ in range(3):
         chunk, report = worker.rollout(published)
         status = replay.insert(chunk)
-    assert status["size"] == 360 and status["episodes"] == 12 and report["rollout"]["episodes"] == 12
+    assert status["size"] == 360 and status["episodes"] == 12 and report.rollout.episodes == 12
     lam0 = status["lambda"]
     for k, teacher in enumerate(teachers):
         work, _ = replay.teacher_work([k], 2)
@@ -57,7 +57,7 @@ def test_one_round_of_the_data_flow_reaches_every_role():
     assert batch.rows["obs"].shape == (4, 4, 16, 4, 18)
     feedback, report = learner.update(batch)
     replay.learner_result(feedback)
-    assert report["learner"]["updates"] == 4 and status["updates"] == 4
+    assert report.learner.updates == 4 and status["updates"] == 4
     assert lam0 == pytest.approx(0.1 + (360 - 96) * replay.schedule.stride), "λ moves with env steps after warm-up"
     assert learner.publish()["version"] == 1
 
@@ -122,7 +122,7 @@ def test_learner_and_teacher_restart_from_their_checkpoints(tmp_path):
     learner.update(replay.sample(4)[0])
     learner.save()
     again = Learner(cfg, 0, str(tmp_path / "learner.pt"))
-    assert again.resumed and again.version == 1 and again.report()["learner"]["updates"] == 4
+    assert again.resumed and again.version == 1 and again.report().learner.updates == 4
     for key, value in learner.publish()["weights"]["actor"].items():
         np.testing.assert_array_equal(again.publish()["weights"]["actor"][key], value)
 

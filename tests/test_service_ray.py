@@ -61,6 +61,7 @@ def test_each_preset_runs_end_to_end(algorithm, tmp_path, ray_cluster):
     scraped = {}
 
     def progress(line):
+        scraped["line"] = line
         match = re.search(r"http://127\.0\.0\.1:(\d+)/metrics", line)
         if match:
             scraped["port"] = match.group(1)
@@ -87,6 +88,8 @@ def test_each_preset_runs_end_to_end(algorithm, tmp_path, ray_cluster):
     assert value(live, "cmcl_learner_updates_total") == summary["updates"], "the live endpoint served the run"
     rows = list(RunDirectory.open(config.run.dir).rows("episode"))
     assert len(rows) == summary["episodes"]
+    # the final line shows the age of the teachers' scores (from the final replay report) where there are teachers
+    assert ("score age" in scraped["line"]) == (algorithm in ("acl", "cmcl")), scraped["line"]
 
 
 def test_resume_continues_counters(tmp_path, ray_cluster):
@@ -129,7 +132,7 @@ def test_a_killed_rollout_worker_is_replaced_and_training_goes_on(tmp_path, ray_
     def apply_then_arm(kind, index, value, *number):  # arm the worker once its first chunk has been reported
         apply(kind, index, value, *number)
         if kind == "rollout_report" and not armed:
-            armed.append((value["rollout"]["episodes"], roles.rollout[0].__ray_call__.remote(arm)))
+            armed.append((value.rollout.episodes, roles.rollout[0].__ray_call__.remote(arm)))
 
     supervisor._apply = apply_then_arm
     summary = supervisor.run()

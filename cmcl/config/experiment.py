@@ -24,6 +24,7 @@ from cmcl.config.sections import (
     TeamConfig,
     _require,
 )
+from cmcl.replay.curriculum import default_stride
 
 
 @dataclass(frozen=True)
@@ -60,8 +61,7 @@ class Config:
         """Δλ per post-warm-up env step: the configured stride, or λ_max reached at half of training."""
         if self.curriculum.stride > 0:
             return self.curriculum.stride
-        half = max(1, self.total_env_steps // 2)
-        return (self.curriculum.lam_max - self.curriculum.lam0) / half
+        return default_stride(self.total_env_steps, self.curriculum.lam0, self.curriculum.lam_max)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict (TOML/JSON friendly; None values dropped)."""

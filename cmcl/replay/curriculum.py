@@ -18,23 +18,22 @@ import numbers
 KINDS = ("linear", "multiplicative")
 
 
-def default_stride(total_env_steps: int, lam0: float = 0.1, lam_max: float = 1.0, fraction: float = 0.5) -> float:
-    """Δλ per post-warm-up env step so that λ reaches λ_max after `fraction` of training.
-
-    (λ_max − λ_0) / (fraction · T); 0.9 / 300 000 = 3e-6 for T = 600 000 (20 000 episodes × 30 steps).
-    """
-    steps = fraction * float(total_env_steps)
-    if not steps > 0:
-        raise ValueError(f"total_env_steps * fraction must be > 0, got {total_env_steps!r} * {fraction!r}")
-    return (lam_max - lam0) / steps
+def ramp_steps(total_env_steps: int) -> int:
+    """Post-warm-up env steps over which the default schedules take λ from λ_0 to λ_max: half of training."""
+    if int(total_env_steps) != total_env_steps or total_env_steps < 1:
+        raise ValueError(f"total_env_steps must be an integer >= 1, got {total_env_steps!r}")
+    return max(1, int(total_env_steps) // 2)
 
 
-def default_growth(total_env_steps: int, lam0: float = 0.1, lam_max: float = 1.0, fraction: float = 0.5) -> float:
-    """κ of the multiplicative schedule reaching λ_max after `fraction` of training: (λ_max/λ_0)^(1/(f·T)) − 1."""
-    steps = fraction * float(total_env_steps)
-    if not steps > 0:
-        raise ValueError(f"total_env_steps * fraction must be > 0, got {total_env_steps!r} * {fraction!r}")
-    return math.expm1(math.log(lam_max / lam0) / steps)
+def default_stride(total_env_steps: int, lam0: float = 0.1, lam_max: float = 1.0) -> float:
+    """Δλ per post-warm-up env step of the linear schedule reaching λ_max at half of training:
+    (λ_max − λ_0) / ⌊T/2⌋; 0.9 / 300 000 = 3e-6 for T = 600 000 (20 000 episodes × 30 steps)."""
+    return (lam_max - lam0) / ramp_steps(total_env_steps)
+
+
+def default_growth(total_env_steps: int, lam0: float = 0.1, lam_max: float = 1.0) -> float:
+    """κ of the multiplicative schedule reaching λ_max at half of training: (λ_max/λ_0)^(1/⌊T/2⌋) − 1."""
+    return (lam_max / lam0) ** (1.0 / ramp_steps(total_env_steps)) - 1.0
 
 
 class CurriculumSchedule:

@@ -19,7 +19,7 @@ import numpy as np
 EPS_P = 1e-6  # ε_p: priority floor keeping every transition reachable
 LAM_MAX = 1.0  # largest admissible curriculum factor (KP is undefined above 1)
 STD_EPS = 1e-8  # added to the std in curiosity normalisation
-ALGORITHMS = ("uniform", "per", "acl", "cmcl")  # sampler modes; config spells "uniform" as "maddpg"
+SAMPLER_MODES = ("uniform", "per", "acl", "cmcl")  # sampler modes: the algorithm "maddpg" samples uniformly
 _ALIASES = {"maddpg": "uniform"}
 CURRICULUM_MODES = ("acl", "cmcl")  # modes whose priority is recomputed from score columns at λ (eqs. 8, 12, 19)
 
@@ -30,10 +30,10 @@ def uses_curriculum(modes) -> bool:
 
 
 def canonical_algorithm(algo: str) -> str:
-    """Map an algorithm name (``maddpg`` is an alias of ``uniform``) to one of `ALGORITHMS`."""
+    """Map an algorithm name (``maddpg`` is an alias of ``uniform``) to one of `SAMPLER_MODES`."""
     name = _ALIASES.get(algo, algo)
-    if name not in ALGORITHMS:
-        raise ValueError(f"algo must be one of {ALGORITHMS + tuple(_ALIASES)}, got {algo!r}")
+    if name not in SAMPLER_MODES:
+        raise ValueError(f"algo must be one of {SAMPLER_MODES + tuple(_ALIASES)}, got {algo!r}")
     return name
 
 
