@@ -34,9 +34,9 @@ from cmcl.messages import (
 from cmcl.replay import steps as buffer
 from cmcl.replay.difficulty import DifficultyTable, ScoreStamps
 from cmcl.replay.priority import uses_curriculum
-from cmcl.replay.ratelimit import RateLimiter, limiters_from_config, slack_for
 from cmcl.system import agent_layout, beta_is, build_replay, build_schedule, make_batched_env
 from services.common import actor_setup, new_incarnation
+from services.replay_pacing import ReplayPacing
 from services.report_schema import CurriculumReport, FitReport, ReplayReport, Report
 
 REPORT_SAMPLES = 512
@@ -51,16 +51,8 @@ class ReplayServer:
         self.layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
         self.replay = build_replay(cfg, self.layout)
         self.schedule = build_schedule(cfg)
-        chunk = cfg.env.num_envs * cfg.env.episode_length
-        limiters = limiters_from_config(cfg, insert_chunk=chunk)
-        self.learner_limit = RateLimiter(limiters["learner"].ratio, cfg.maddpg.warmup,
-                                         max(limiters["learner"].slack, float(cfg.service.slack_updates)))
+        self.pacing = ReplayPacing(cfg)
         k, cap = cfg.teachers.num_folds, cfg.replay.capacity
-        slack_fit = slack_for(cfg.teachers.steps_per_update, sample_chunk=cfg.service.fit_steps_per_call)
-        self.teacher_limits = ([RateLimiter(cfg.teachers.steps_per_update, 0, slack_fit + cfg.service.slack_updates)
-                                for _ in range(k)] if "teachers" in limiters else [])
-        self.icm_limit = (RateLimiter(cfg.icm.steps_per_update, 0, slack_fit + cfg.service.slack_updates)
-                          if "icm" in limiters else None)
         self.difficulty = DifficultyTable(cap, len(self.layout.teacher_agents), k)
         self.curiosity_stamps = ScoreStamps(cap, 1)
         self.seen: dict[str, int] = {}  # "writer:incarnation" -> last seq accepted
@@ -79,31 +71,12 @@ class ReplayServer:
 
     # ------------------------------------------------------------------ pacing
     def status(self) -> dict[str, Any]:
-        """How much work each role may be given now, and the counters the supervisor shows."""
-        allowed = self.learner_limit.allowed_samples() if self.replay.size >= self.replay.min_size else 0
-        for lim in [*self.teacher_limits, *([self.icm_limit] if self.icm_limit else [])]:
-            allowed = min(allowed, lim.allowed_inserts())
-        return {"allowed_updates": allowed, "allowed_inserts": self.learner_limit.allowed_inserts(),
-                "update_deficit": self.learner_limit.deficit if self.learner_limit.warmed_up else 0.0,
-                "scoring_deficit": self.scoring_deficit(),
-                "teacher_allowed": [lim.allowed_samples() for lim in self.teacher_limits],
-                "icm_allowed": self.icm_limit.allowed_samples() if self.icm_limit else 0,
+        """How much work each role may be given now (`ReplayPacing.status`), and the counters the supervisor shows."""
+        ready = self.replay.size >= self.replay.min_size
+        return {**self.pacing.status(ready, self.replay.storage.fold_counts()),
                 "size": self.replay.size, "env_steps": self.counters["inserts"],
                 "episodes": self.counters["episodes"], "updates": self.counters["updates"],
                 "lambda": self.schedule.lam, "incarnation": self.incarnation}
-
-    def scoring_deficit(self) -> float:
-        """Teacher / ICM steps still owed to the learner's updates (the largest over those that can get work).
-
-        A teacher whose fold holds no row yet cannot be given work, so it does not count; nothing counts before
-        the buffer reaches its minimum size (no scoring work is handed out before then).
-        """
-        if self.replay.size < self.replay.min_size:
-            return 0.0
-        counts = self.replay.storage.fold_counts()
-        owed = [lim.deficit for f, lim in enumerate(self.teacher_limits) if counts[f] > 0]
-        owed += [self.icm_limit.deficit] if self.icm_limit is not None else []
-        return float(max(owed, default=0.0))
 
     def _reject(self, reason: str, detail: str) -> dict[str, Any]:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
@@ -131,7 +104,7 @@ class ReplayServer:
         self.counters["inserts"] += n
         self.counters["episodes"] += chunk.worlds
         self.counters["chunks"] += 1
-        self.learner_limit.record_insert(n)
+        self.pacing.record_insert(n)
         self.schedule.advance(n)
         self.dirty = True
         return {"accepted": n, **self.status()}
@@ -157,9 +130,7 @@ class ReplayServer:
         beta = beta_is(self.config, self.counters["inserts"])
         betas = [beta if w else 0.0 for w in self.layout.importance_weights]
         batch = buffer.sample_owner_batches(self.replay, n, self.config.maddpg.batch_size, self.sampler_rngs, betas)
-        self.learner_limit.record_sample(n)
-        for lim in [*self.teacher_limits, *([self.icm_limit] if self.icm_limit else [])]:
-            lim.record_insert(n)
+        self.pacing.record_updates(n)
         self.counters["updates"] += n
         self.counters["samples"] += int(batch.slots.size)
         return batch, self.status()
@@ -186,10 +157,10 @@ class ReplayServer:
         """For the teacher actor hosting `folds`: fit rows [steps, 1, F, S] drawn from each fold only, and the
         rows (of other folds) whose score from these teachers is oldest, to score."""
         cfg = self.config
-        if not self.teacher_limits or self.replay.size < self.replay.min_size:
+        if not self.pacing.teachers or self.replay.size < self.replay.min_size:
             return None, self.status()
         folds = [int(f) for f in folds]
-        steps = min(int(steps), *(self.teacher_limits[f].allowed_samples() for f in folds))
+        steps = min(int(steps), *(self.pacing.teachers[f].allowed_samples() for f in folds))
         if steps < 1 or (self.replay.storage.fold_counts()[folds] == 0).any():
             return None, self.status()
         fit = buffer.fold_batch_slots(self.replay, folds, cfg.teachers.batch_size, self.rng, steps=steps)
@@ -200,7 +171,7 @@ class ReplayServer:
         useful = np.isfinite(key)
         score = buffer.oldest_slots(valid[useful], key[useful], cfg.service.score_rows_per_call)
         for f in folds:
-            self.teacher_limits[f].record_sample(steps)
+            self.pacing.teachers[f].record_sample(steps)
             self.teacher_steps[f] += steps
         return TeacherWork(tuple(folds), buffer.rows_at(self.replay, fit), fit, buffer.score_rows(self.replay, score),
                            self.counters["updates"]), self.status()
@@ -227,16 +198,16 @@ class ReplayServer:
     def icm_work(self, steps: int) -> tuple[CuriosityWork | None, dict[str, Any]]:
         """Uniform fit rows [steps, S] and the rows with the oldest curiosity score."""
         cfg = self.config
-        if self.icm_limit is None or self.replay.size < self.replay.min_size:
+        if self.pacing.icm is None or self.replay.size < self.replay.min_size:
             return None, self.status()
-        steps = min(int(steps), self.icm_limit.allowed_samples())
+        steps = min(int(steps), self.pacing.icm.allowed_samples())
         if steps < 1:
             return None, self.status()
         fit = buffer.uniform_slots(self.replay, (steps, cfg.icm.batch_size), self.rng)
         valid = self.replay.valid_slots()
         stamps = self.curiosity_stamps.stamps(valid, self.replay.generations(valid))[:, 0]
         score = buffer.oldest_slots(valid, stamps, cfg.service.score_rows_per_call)
-        self.icm_limit.record_sample(steps)
+        self.pacing.icm.record_sample(steps)
         self.counters["icm_steps"] += steps
         return CuriosityWork(buffer.rows_at(self.replay, fit, ("obs", "act", "next_obs")),
                              buffer.score_rows(self.replay, score), self.counters["updates"]), self.status()
@@ -273,7 +244,7 @@ class ReplayServer:
             scored = d["scored"][pick]
             replay.update(difficulty=d["c_hat"][pick][scored], priority=d["priority"][pick],
                           kfold_priority=d["kp"][pick][scored], curiosity_priority=d["cp"][pick])
-        if self.teacher_limits and size:
+        if self.pacing.teachers and size:
             valid = self.replay.valid_slots()
             times = self.difficulty.stamps(valid, self.replay.generations(valid))
             replay["score_coverage"] = float(self.replay.storage.scored["difficulty"][:size][
@@ -283,9 +254,9 @@ class ReplayServer:
                 replay["score_age"] = ages[self.rng.integers(0, ages.size, min(ages.size, REPORT_SAMPLES))]
         teachers = {str(k): FitReport(steps=self.teacher_steps[k], scores=self.teacher_scores[k],
                                       loss=self.losses.get(f"teacher_{k}"))
-                    for k in range(len(self.teacher_limits))} if self.teacher_limits else None
+                    for k in range(len(self.pacing.teachers))} if self.pacing.teachers else None
         icm = FitReport(steps=self.counters["icm_steps"], scores=self.counters["icm_scores"],
-                        loss=self.losses.get("icm")) if self.icm_limit is not None else None
+                        loss=self.losses.get("icm")) if self.pacing.icm is not None else None
         return Report(source="replay", role="replay", incarnation=self.incarnation, resumed=self.resumed,
                       replay=ReplayReport(**replay), curriculum=CurriculumReport(lam=self.schedule.lam),
                       teachers=teachers, icm=icm)
@@ -296,9 +267,7 @@ class ReplayServer:
                 "curiosity_stamps": self.curiosity_stamps.state_dict(),
                 "seen": dict(self.seen), "counters": dict(self.counters), "rejected": dict(self.rejected),
                 "teacher_steps": list(self.teacher_steps), "teacher_scores": list(self.teacher_scores),
-                "learner_limit": self.learner_limit.state_dict(),
-                "teacher_limits": [lim.state_dict() for lim in self.teacher_limits],
-                "icm_limit": self.icm_limit.state_dict() if self.icm_limit else {},
+                **self.pacing.state_dict(),
                 "schedule_env_steps": self.schedule.env_steps}
 
     def snapshot(self, path: str | None = None) -> int:
@@ -320,10 +289,6 @@ class ReplayServer:
         self.rejected = {str(k): int(v) for k, v in state["rejected"].items()}
         self.teacher_steps = [int(v) for v in state["teacher_steps"]]
         self.teacher_scores = [int(v) for v in state["teacher_scores"]]
-        self.learner_limit.load_state_dict(state["learner_limit"])
-        for lim, s in zip(self.teacher_limits, state["teacher_limits"], strict=True):
-            lim.load_state_dict(s)
-        if self.icm_limit is not None:
-            self.icm_limit.load_state_dict(state["icm_limit"])
+        self.pacing.load_state_dict(state)
         self.schedule.env_steps = int(state["schedule_env_steps"])
         self.dirty = True
