@@ -8,7 +8,11 @@ Used to tell a curriculum that reweights the buffer from one that has collapsed 
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+
+from cmcl.replay.priority import sampling_probabilities
 
 
 def curriculum_diagnostics(c_hat: np.ndarray, probs: np.ndarray, lam: float, age: np.ndarray) -> dict[str, list]:
@@ -31,3 +35,20 @@ def curriculum_diagnostics(c_hat: np.ndarray, probs: np.ndarray, lam: float, age
            "difficulty_sampled": (probs * c_hat).sum(0), "difficulty_buffer": c_hat.mean(0),
            "age_sampled": (probs * age).sum(0), "age_buffer": np.broadcast_to(age.mean(), (c_hat.shape[1],))}
     return {k: [round(float(x), 4) for x in v] for k, v in out.items()}
+
+
+def buffer_diagnostics(replay: Any, lam: float, alpha: float, updates: int) -> dict[str, dict]:
+    """The priority statistics and the curriculum diagnostics of a buffer's ACL / CMCL agents at λ.
+
+    Recomputes the priorities (`ReplayBuffer.recompute_priorities(lam, details=True)`); `updates` is the learner's
+    update count, so a row's age is updates − the policy version that wrote it. Returns {"priority": {"agents",
+    "mean", "kp_zero_fraction", "c_hat_mean", "cp_mean"} (lists over agents), "curriculum": see
+    `curriculum_diagnostics`}.
+    """
+    details = replay.recompute_priorities(lam, details=True)
+    priority = {"agents": details["agents"], "mean": details["priority"].mean(0),
+                "kp_zero_fraction": (details["kp"] == 0).mean(0), "c_hat_mean": details["c_hat"].mean(0),
+                "cp_mean": details["cp"].mean(0)}
+    probs = sampling_probabilities(details["priority"], alpha)
+    age = updates - replay.storage.policy_version[:replay.size]
+    return {"priority": priority, "curriculum": curriculum_diagnostics(details["c_hat"], probs, lam, age)}

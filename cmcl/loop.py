@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from cmcl.config import Config
-from cmcl.diagnostics import curriculum_diagnostics
+from cmcl.diagnostics import buffer_diagnostics
 from cmcl.io import codec
 from cmcl.io.rundir import RunDirectory, load_checkpoint
 from cmcl.learners import steps as learn
@@ -30,7 +30,7 @@ from cmcl.messages import LearnerFeedback, Rows
 from cmcl.progress import episode_rows, finished_episodes, progress_line, solved, window_summary
 from cmcl.replay import steps as buffer
 from cmcl.replay.difficulty import DifficultyTable
-from cmcl.replay.priority import sampling_probabilities, uses_curriculum
+from cmcl.replay.priority import uses_curriculum
 from cmcl.replay.ratelimit import steps_due
 from cmcl.system import (
     agent_layout,
@@ -210,13 +210,8 @@ class InlineLoop:
                                "replay_size": self.replay.size, "window": window_summary(self.window),
                                **self.last_stats}
         if self.prioritized and self.replay.size:
-            details = self.replay.recompute_priorities(self.schedule.lam, details=True)
-            row["priority"] = {"agents": details["agents"], "mean": details["priority"].mean(0),
-                               "kp_zero_fraction": (details["kp"] == 0).mean(0),
-                               "c_hat_mean": details["c_hat"].mean(0), "cp_mean": details["cp"].mean(0)}
-            probs = sampling_probabilities(details["priority"], self.config.replay.alpha)
-            age = self.maddpg.updates - self.replay.storage.policy_version[:self.replay.size]
-            row["curriculum"] = curriculum_diagnostics(details["c_hat"], probs, self.schedule.lam, age)
+            row.update(buffer_diagnostics(self.replay, self.schedule.lam, self.config.replay.alpha,
+                                          self.maddpg.updates))
         return row
 
     def format_progress(self, row: dict[str, Any]) -> str:
