@@ -53,7 +53,7 @@ def service_paths(run_dir: RunDirectory) -> dict[str, Path]:
     """Where each role keeps its latest checkpoint inside the run directory (created if missing)."""
     base = run_dir.checkpoints / "service"
     base.mkdir(parents=True, exist_ok=True)
-    return {"learner": base / "learner.pt", "icm": base / "icm.pt", "replay": base / "replay.msgpack",
+    return {"learner": base / "learner.pt", "icm": base / "icm.pt", "replay": base / "replay",
             "supervisor": base / "supervisor.json", "teacher": base}
 
 

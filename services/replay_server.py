@@ -16,13 +16,12 @@ Every method returns (or ends with) a small status dict the supervisor uses to p
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from cmcl.io import codec
+from cmcl.io.durable import ReplayStore
 from cmcl.messages import (
     CuriosityWork,
     MessageError,
@@ -32,6 +31,7 @@ from cmcl.messages import (
     check_teacher_scores,
 )
 from cmcl.replay import steps as buffer
+from cmcl.replay.dedupe import InsertLedger
 from cmcl.replay.difficulty import DifficultyTable, ScoreStamps
 from cmcl.replay.priority import uses_curriculum
 from cmcl.system import agent_layout, beta_is, build_replay, build_schedule, make_batched_env
@@ -43,11 +43,13 @@ REPORT_SAMPLES = 512
 
 
 class ReplayServer:
-    """The single replay actor. `snapshot_path`: where `snapshot()` writes and `__init__` restores from."""
+    """The single replay actor. `store_dir`: its durable store (`cmcl.io.durable.ReplayStore`), which `snapshot()`
+    and every insert write and `__init__` restores from."""
 
-    def __init__(self, config: Any, snapshot_path: str | None = None, seed: int = 0):
+    def __init__(self, config: Any, store_dir: str | None = None, seed: int = 0):
         self.config = cfg = actor_setup(config, uses_torch=False)
-        self.incarnation, self.snapshot_path = new_incarnation(), snapshot_path
+        self.incarnation = new_incarnation()
+        self.store = ReplayStore(store_dir, fsync=cfg.service.replay_log_fsync) if store_dir else None
         self.layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
         self.replay = build_replay(cfg, self.layout)
         self.schedule = build_schedule(cfg)
@@ -55,9 +57,9 @@ class ReplayServer:
         k, cap = cfg.teachers.num_folds, cfg.replay.capacity
         self.difficulty = DifficultyTable(cap, len(self.layout.teacher_agents), k)
         self.curiosity_stamps = ScoreStamps(cap, 1)
-        self.seen: dict[str, int] = {}  # "writer:incarnation" -> last seq accepted
+        self.ledger = InsertLedger()  # which (writer:incarnation, seq) chunks are stored
         self.counters = {"inserts": 0, "samples": 0, "updates": 0, "episodes": 0, "icm_steps": 0,
-                         "icm_scores": 0, "chunks": 0}
+                         "icm_scores": 0, "chunks": 0, "restored_records": 0}
         self.teacher_steps, self.teacher_scores = [0] * k, [0] * k
         self.rejected: dict[str, int] = {}
         seeds = np.random.SeedSequence([int(seed), 7]).spawn(self.layout.num_agents + 1)
@@ -65,9 +67,9 @@ class ReplayServer:
         self.rng = np.random.default_rng(seeds[-1])
         self.dirty, self.inserts_at_recompute = True, -1
         self.losses: dict[str, Any] = {}
-        self.resumed = bool(snapshot_path and os.path.exists(snapshot_path))
+        self.resumed = self.store is not None and self.store.exists()
         if self.resumed:
-            self.restore(snapshot_path)
+            self.restore()
 
     # ------------------------------------------------------------------ pacing
     def status(self) -> dict[str, Any]:
@@ -84,30 +86,58 @@ class ReplayServer:
 
     # ------------------------------------------------------------------ rollout -> replay
     def insert(self, chunk: Any) -> dict[str, Any]:
-        """Store one rollout Chunk (B whole episodes); duplicates and bad chunks are refused, nothing stored."""
+        """Store one rollout Chunk (B whole episodes) exactly once, whatever order chunks arrive in; bad chunks are
+        refused and nothing is stored. An accepted chunk is in the durable log before this returns."""
         try:
             layout = self.layout
             chunk = codec.check_chunk(chunk, n_agents=layout.num_agents, obs_dim=layout.obs_dim,
-                                      act_dim=layout.act_dim)
+                                      act_dim=layout.act_dim, num_worlds=self.config.env.num_envs)
         except codec.CodecError as err:
             return self._reject("bad_chunk", str(err))
-        key, seq = chunk.writer_key, int(chunk.seq)
-        if seq <= self.seen.get(key, -1):
-            return self._reject("duplicate", f"{key} seq {seq} already accepted")
+        if self.ledger.seen(chunk.writer_key, chunk.seq):
+            return self._reject("duplicate", f"{chunk.writer_key} seq {chunk.seq} already stored")
         try:
-            self.replay.add(chunk.obs, chunk.act, chunk.rew, chunk.next_obs, chunk.done,
-                            self.counters["episodes"] + chunk.env_index, int(chunk.policy_version))
+            self._store(chunk)
         except (ValueError, TypeError) as err:
             return self._reject("invalid", str(err))
+        if self.store is not None:
+            self.store.append(codec.encode_chunk(chunk))
+        return {"accepted": chunk.rows, **self.status()}
+
+    def _event(self, name: str, count: int, folds: list[int] | tuple[int, ...] = ()) -> None:
+        """Apply work handed out (learner updates, teacher / ICM fit steps) and log it, so that a restarted server's
+        counters and limits never go back."""
+        self._apply_event({"name": name, "count": int(count), "folds": list(folds)})
+        if self.store is not None:
+            self.store.append(codec.encode_event(name, count, folds))
+
+    def _apply_event(self, event: dict[str, Any]) -> None:
+        """Counters and limiters after an event of `_event` (also log replay)."""
+        n = int(event["count"])
+        if event["name"] == "updates":
+            self.pacing.record_updates(n)
+            self.counters["updates"] += n
+            self.counters["samples"] += n * self.layout.num_agents * self.config.maddpg.batch_size
+        elif event["name"] == "teacher_steps":
+            for f in event["folds"]:
+                self.pacing.teachers[f].record_sample(n)
+                self.teacher_steps[f] += n
+        else:
+            self.pacing.icm.record_sample(n)
+            self.counters["icm_steps"] += n
+
+    def _store(self, chunk: Any) -> None:
+        """Add a valid, new chunk to the buffer and advance the counters, the limiters and λ (also log replay)."""
+        self.replay.add(chunk.obs, chunk.act, chunk.rew, chunk.next_obs, chunk.done,
+                        self.counters["episodes"] + chunk.env_index, int(chunk.policy_version))
+        self.ledger.accept(chunk.writer_key, chunk.seq)
         n = chunk.rows
-        self.seen[key] = seq
         self.counters["inserts"] += n
         self.counters["episodes"] += chunk.worlds
         self.counters["chunks"] += 1
         self.pacing.record_insert(n)
         self.schedule.advance(n)
         self.dirty = True
-        return {"accepted": n, **self.status()}
 
     # ------------------------------------------------------------------ replay -> learner
     def _maybe_recompute(self) -> None:
@@ -130,9 +160,7 @@ class ReplayServer:
         beta = beta_is(self.config, self.counters["inserts"])
         betas = [beta if w else 0.0 for w in self.layout.importance_weights]
         batch = buffer.sample_owner_batches(self.replay, n, self.config.maddpg.batch_size, self.sampler_rngs, betas)
-        self.pacing.record_updates(n)
-        self.counters["updates"] += n
-        self.counters["samples"] += int(batch.slots.size)
+        self._event("updates", n)
         return batch, self.status()
 
     def learner_result(self, result: Any) -> dict[str, Any]:
@@ -170,9 +198,7 @@ class ReplayServer:
         key = age.min(1)
         useful = np.isfinite(key)
         score = buffer.oldest_slots(valid[useful], key[useful], cfg.service.score_rows_per_call)
-        for f in folds:
-            self.pacing.teachers[f].record_sample(steps)
-            self.teacher_steps[f] += steps
+        self._event("teacher_steps", steps, folds)
         return TeacherWork(tuple(folds), buffer.rows_at(self.replay, fit), fit, buffer.score_rows(self.replay, score),
                            self.counters["updates"]), self.status()
 
@@ -207,8 +233,7 @@ class ReplayServer:
         valid = self.replay.valid_slots()
         stamps = self.curiosity_stamps.stamps(valid, self.replay.generations(valid))[:, 0]
         score = buffer.oldest_slots(valid, stamps, cfg.service.score_rows_per_call)
-        self.pacing.icm.record_sample(steps)
-        self.counters["icm_steps"] += steps
+        self._event("icm_steps", steps)
         return CuriosityWork(buffer.rows_at(self.replay, fit, ("obs", "act", "next_obs")),
                              buffer.score_rows(self.replay, score), self.counters["updates"]), self.status()
 
@@ -262,29 +287,42 @@ class ReplayServer:
                       teachers=teachers, icm=icm)
 
     def state_dict(self) -> dict[str, Any]:
-        """Codec-ready state: the buffer, score tables, dedupe table, counters, limiters and λ's step count."""
+        """Codec-ready state: the buffer, score tables, insert ledger, counters, limiters and λ's step count."""
         return {"replay": self.replay.state_dict(), "difficulty": self.difficulty.state_dict(),
                 "curiosity_stamps": self.curiosity_stamps.state_dict(),
-                "seen": dict(self.seen), "counters": dict(self.counters), "rejected": dict(self.rejected),
+                "ledger": self.ledger.state_dict(), "counters": dict(self.counters), "rejected": dict(self.rejected),
                 "teacher_steps": list(self.teacher_steps), "teacher_scores": list(self.teacher_scores),
                 **self.pacing.state_dict(),
                 "schedule_env_steps": self.schedule.env_steps}
 
-    def snapshot(self, path: str | None = None) -> int:
-        """Write the state atomically (msgpack, no pickle) to `path` or the snapshot path; returns bytes."""
-        target = path or self.snapshot_path
-        if target is None:
-            raise ValueError("snapshot needs a path: none given and no snapshot_path configured")
-        Path(target).parent.mkdir(parents=True, exist_ok=True)
-        return codec.write_snapshot_atomic(target, self.state_dict())
+    def snapshot(self) -> int:
+        """Write the state as a new snapshot generation of the store (msgpack, no pickle; the log restarts empty);
+        returns bytes written."""
+        if self.store is None:
+            raise ValueError("snapshot needs a store: this replay server was created without store_dir")
+        return self.store.snapshot(self.state_dict())
 
-    def restore(self, path: str) -> None:
-        """Load a snapshot written by `snapshot` (validated by the codec and the buffer before use)."""
-        state = codec.read_snapshot(path, limits=codec.SNAPSHOT_LIMITS)
+    def restore(self) -> None:
+        """Load the store's snapshot (checked against its manifest), then replay the chunks logged since it."""
+        state, frames, problem = self.store.load()
+        if state is not None:
+            self._load_state(state)
+        for payload in frames:  # in the order they were applied
+            record = codec.decode_log_record(payload)
+            if isinstance(record, dict):
+                self._apply_event(record)
+            elif not self.ledger.seen(record.writer_key, record.seq):
+                self._store(record)
+        self.counters["restored_records"] = len(frames)
+        if problem is not None:
+            self.rejected["log_truncated"] = self.rejected.get("log_truncated", 0) + 1
+
+    def _load_state(self, state: dict[str, Any]) -> None:
+        """Apply a `state_dict()` (each part validated by its owner before use)."""
         self.replay.load_state_dict(state["replay"])
         self.difficulty.load_state_dict(state["difficulty"])
         self.curiosity_stamps.load_state_dict(state["curiosity_stamps"])
-        self.seen = {str(k): int(v) for k, v in state["seen"].items()}
+        self.ledger.load_state_dict(state["ledger"])
         self.counters.update({k: int(v) for k, v in state["counters"].items()})
         self.rejected = {str(k): int(v) for k, v in state["rejected"].items()}
         self.teacher_steps = [int(v) for v in state["teacher_steps"]]

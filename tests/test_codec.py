@@ -17,7 +17,8 @@ T, N, OD, AD = 6, 2, 3, 2
 def make_chunk(rng=None, **over):
     rng = rng or np.random.default_rng(0)
     fields = {"obs": rng.normal(size=(T, N, OD)).astype(np.float32),
-              "act": rng.normal(size=(T, N, AD)).astype(np.float32), "rew": rng.normal(size=(T, N)).astype(np.float32),
+              "act": rng.uniform(-1, 1, size=(T, N, AD)).astype(np.float32),
+              "rew": rng.normal(size=(T, N)).astype(np.float32),
               "next_obs": rng.normal(size=(T, N, OD)).astype(np.float32), "done": np.zeros(T, np.float32),
               "env_index": np.arange(T, dtype=np.int64) % 3, "writer": 2, "incarnation": "5f0c", "seq": 17,
               "policy_version": 4}

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cmcl.config import config_from_dict, preset
+from cmcl.io.durable import ReplayStore, StoreError
 from cmcl.messages import LearnerFeedback
 from services.icm import ICMWorker
 from services.learner import Learner
@@ -103,9 +104,9 @@ def test_snapshot_restores_buffer_scores_counters_and_dedupe(tmp_path):
     scores, _ = teachers[0].step(replay.teacher_work([0], 2)[0], learner.publish())
     replay.write_teacher_scores(scores)
     replay.sample(2)
-    path = tmp_path / "replay.msgpack"
-    replay.snapshot(str(path))
-    restored = ReplayServer(cfg, snapshot_path=str(path))
+    replay.store = ReplayStore(tmp_path / "replay")
+    replay.snapshot()
+    restored = ReplayServer(cfg, store_dir=str(tmp_path / "replay"))
     assert restored.status()["env_steps"] == 360 and restored.status()["updates"] == 2
     np.testing.assert_array_equal(restored.replay.storage.obs, replay.replay.storage.obs)
     for name, value in replay.difficulty.state_dict().items():
@@ -154,3 +155,73 @@ def test_one_actor_can_host_every_fold_without_leaking_a_rows_own_fold():
     assert (stamps[rows, folds[rows]] == -1).all(), "no row is scored by its own fold's teacher"
     assert (stamps >= 0).sum(1).min() == 2, "every row scored by the K-1 blind teachers"
     assert replay.replay.storage.scored["difficulty"][:360].all()
+
+
+def test_chunks_are_stored_exactly_once_in_any_order():
+    cfg = small_config("maddpg")
+    replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
+    chunks = [worker.rollout(None)[0] for _ in range(3)]
+    for chunk in (chunks[2], chunks[0], chunks[1]):  # the later chunk arrives first: none is lost
+        assert replay.insert(chunk)["accepted"] == 120
+    for chunk in chunks:
+        assert "duplicate" in replay.insert(chunk)["error"], "none is stored twice"
+    assert replay.replay.size == 360 and replay.counters["episodes"] == 12
+    assert replay.ledger.watermark[chunks[0].writer_key] == 2 and not replay.ledger.pending[chunks[0].writer_key]
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("env_index", lambda c: c.env_index + 10**9, "chunk.env_index: must be < 4"),
+    ("act", lambda c: np.full_like(c.act, 5.0), "actions must lie in"),
+    ("done", lambda c: np.full_like(c.done, 0.5), "chunk.done: must be 0 or 1"),
+])
+def test_a_chunk_that_would_corrupt_the_accounting_is_refused(field, value, message):
+    cfg = small_config("maddpg")
+    replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
+    chunk = worker.rollout(None)[0]
+    refused = replay.insert(dataclasses.replace(chunk, **{field: value(chunk)}))
+    assert message in refused["error"] and refused["episodes"] == 0 and replay.replay.size == 0
+    assert replay.insert(chunk)["accepted"] == 120, "the good chunk with the same seq is still accepted"
+
+
+def test_no_acknowledged_chunk_is_lost_across_a_restart(tmp_path):
+    cfg = small_config("acl")
+    store = str(tmp_path / "replay")
+    replay, worker = ReplayServer(cfg, store_dir=store), RolloutWorker(cfg, 0, 0)
+    chunks = [worker.rollout(None)[0] for _ in range(3)]
+    replay.insert(chunks[0])
+    assert ReplayServer(cfg, store_dir=store).replay.size == 120, "the log alone restores, before any snapshot"
+    replay.insert(chunks[1])
+    replay.snapshot()
+    replay.insert(chunks[2])  # acknowledged after the snapshot: only in the log
+    replay.sample(3)
+    replay.teacher_work([1], 2)
+    restored = ReplayServer(cfg, store_dir=store)  # a crash: a new process on the same store
+    assert restored.resumed and restored.counters["restored_records"] == 3  # a chunk, 3 updates, 2 fit steps
+    assert (restored.counters["updates"], restored.teacher_steps) == (3, [0, 2, 0]), "counters never go back"
+    assert restored.pacing.state_dict() == replay.pacing.state_dict()
+    for key in ("obs", "act", "rew", "episode", "fold"):
+        np.testing.assert_array_equal(getattr(restored.replay.storage, key), getattr(replay.replay.storage, key))
+    assert restored.status()["env_steps"] == replay.status()["env_steps"] == 360
+    assert restored.status()["lambda"] == replay.status()["lambda"]
+    assert all("duplicate" in restored.insert(c)["error"] for c in chunks), "a retried chunk is not stored twice"
+
+
+def test_a_torn_log_tail_is_cut_and_a_bad_snapshot_refused(tmp_path):
+    cfg = small_config("maddpg")
+    store = tmp_path / "replay"
+    replay, worker = ReplayServer(cfg, store_dir=str(store)), RolloutWorker(cfg, 0, 0)
+    for _ in range(2):
+        replay.insert(worker.rollout(None)[0])
+    log = store / "log-000000.bin"
+    with open(log, "r+b") as f:  # a crash in the middle of the second frame
+        f.truncate(log.stat().st_size - 100)
+    restored = ReplayServer(cfg, store_dir=str(store))
+    assert restored.replay.size == 120 and restored.rejected == {"log_truncated": 1}
+    assert restored.insert(worker.rollout(None)[0])["accepted"] == 120, "appends continue after the good frames"
+    restored.snapshot()
+    snapshot = next(store.glob("snapshot-*.msgpack"))
+    data = bytearray(snapshot.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    snapshot.write_bytes(bytes(data))
+    with pytest.raises(StoreError, match="SHA-256 does not match"):
+        ReplayServer(cfg, store_dir=str(store))

@@ -260,6 +260,7 @@ class ServiceConfig:
     fit_steps_per_call: int = 8  # teacher / ICM fit steps per call
     score_rows_per_call: int = 1024  # rows a teacher / the ICM rescores per call
     slack_updates: int = 256  # how far updates may run ahead of / behind the env-step ratio
+    replay_log_fsync: bool = False  # fsync every replay-log append (survives power loss; flush-only survives crashes)
     recompute_every: int = 0  # inserts between bulk priority recomputes (0: one episode of every worker)
     checkpoint_every_s: float = 300.0  # seconds between service checkpoints (and one at the end)
     max_restarts: int = 3  # per actor

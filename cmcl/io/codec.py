@@ -30,7 +30,8 @@ from cmcl.io.atomic import atomic_write_bytes
 from cmcl.messages import Chunk
 
 SCHEMA_VERSION = 1
-KINDS = ("chunk", "snapshot")
+KINDS = ("chunk", "event", "snapshot")
+EVENTS = ("updates", "teacher_steps", "icm_steps")  # replay-log events that move counters and rate limits
 ALLOWED_DTYPES = {"float32": "<f4", "float64": "<f8", "int64": "<i8", "int32": "<i4",
                   "int8": "|i1", "uint8": "|u1", "bool": "|b1"}
 _ND_EXT = 1
@@ -38,6 +39,7 @@ _MAX_NDIM = 32
 CHUNK_ARRAYS = {"obs": ("float32", 3), "act": ("float32", 3), "rew": ("float32", 2), "next_obs": ("float32", 3),
                 "done": ("float32", 1), "env_index": ("int64", 1)}  # Chunk field -> (dtype, dims)
 CHUNK_MAX_ROWS = 1 << 20  # rows of one chunk (a worker's B worlds × episode length)
+ACTION_BOUND = 1.0  # every action (continuous force or discrete probabilities) lies in [−1, 1]
 
 
 class CodecError(ValueError):
@@ -173,6 +175,14 @@ def _from_wire(obj, budget: _Budget, allow_nonfinite: bool, depth: int, path: st
 
 def decode(data, kind: str, *, limits: Limits = DEFAULT_LIMITS, allow_nonfinite: bool = False):
     """bytes -> body of an envelope of `kind`, fully validated (CodecError otherwise)."""
+    found, body = unwrap(data, limits=limits, allow_nonfinite=allow_nonfinite)
+    if found != kind:
+        raise CodecError(f"payload kind is {found!r}, expected {kind!r}")
+    return body
+
+
+def unwrap(data, *, limits: Limits = DEFAULT_LIMITS, allow_nonfinite: bool = False) -> tuple[str, object]:
+    """bytes -> (kind, body) of an envelope of any kind, fully validated (CodecError otherwise)."""
     if not isinstance(data, bytes | bytearray | memoryview):
         raise CodecError(f"payload must be bytes, got {type(data).__name__}")
     size = memoryview(data).nbytes
@@ -187,9 +197,9 @@ def decode(data, kind: str, *, limits: Limits = DEFAULT_LIMITS, allow_nonfinite:
         raise CodecError("payload must be a map with exactly the keys schema, kind, body")
     if type(wire["schema"]) is not int or wire["schema"] != SCHEMA_VERSION:
         raise CodecError(f"schema version {wire['schema']!r} is not supported (expected {SCHEMA_VERSION})")
-    if wire["kind"] != kind:
-        raise CodecError(f"payload kind is {wire['kind']!r}, expected {kind!r}")
-    return _from_wire(wire["body"], _Budget(limits), allow_nonfinite, 1, "body")
+    if wire["kind"] not in KINDS:
+        raise CodecError(f"payload kind {wire['kind']!r} is not one of {KINDS}")
+    return wire["kind"], _from_wire(wire["body"], _Budget(limits), allow_nonfinite, 1, "body")
 
 
 # ---------------------------------------------------------------------------------------------- schemas
@@ -201,12 +211,13 @@ def _require_int(path: str, value) -> int:
 
 
 def check_chunk(chunk, *, n_agents: int | None = None, obs_dim: int | None = None, act_dim: int | None = None,
-                max_rows: int = CHUNK_MAX_ROWS) -> Chunk:
+                num_worlds: int | None = None, max_rows: int = CHUNK_MAX_ROWS) -> Chunk:
     """A rollout `Chunk` as the replay server accepts it, or CodecError naming the field and the value.
 
     Checks: exact dtypes (CHUNK_ARRAYS), shapes obs / next_obs [T, N, od], act [T, N, ad], rew [T, N], done and
-    env_index [T], T <= max_rows, finite floats, env_index >= 0, writer / seq / policy_version integers >= 0,
-    incarnation a non-empty string, and N / od / ad equal to the expected sizes when given.
+    env_index [T], T <= max_rows, finite floats, actions in [−1, 1] (ACTION_BOUND), done in {0, 1}, env_index
+    in [0, num_worlds) (the worlds of one worker) when given, else >= 0, writer / seq / policy_version integers
+    >= 0, incarnation a non-empty string, and N / od / ad equal to the expected sizes when given.
     """
     if not isinstance(chunk, Chunk):
         raise CodecError(f"chunk: expected a Chunk, got {type(chunk).__name__}")
@@ -232,6 +243,13 @@ def check_chunk(chunk, *, n_agents: int | None = None, obs_dim: int | None = Non
             raise CodecError(f"chunk.{key}: must be finite, got {float(arr[~np.isfinite(arr)].ravel()[0])!r}")
     if t and chunk.env_index.min() < 0:
         raise CodecError(f"chunk.env_index: must be >= 0, got {int(chunk.env_index.min())}")
+    if t and num_worlds is not None and chunk.env_index.max() >= num_worlds:
+        raise CodecError(f"chunk.env_index: must be < {num_worlds} (env.num_envs), got {int(chunk.env_index.max())}")
+    if t and np.abs(chunk.act).max() > ACTION_BOUND:
+        raise CodecError(f"chunk.act: actions must lie in [-{ACTION_BOUND:g}, {ACTION_BOUND:g}], got "
+                         f"{float(chunk.act.ravel()[np.abs(chunk.act).argmax()])!r}")
+    if t and not np.isin(chunk.done, (0.0, 1.0)).all():
+        raise CodecError(f"chunk.done: must be 0 or 1, got {float(chunk.done[~np.isin(chunk.done, (0.0, 1.0))][0])!r}")
     for key in ("writer", "seq", "policy_version"):
         _require_int(f"chunk.{key}", getattr(chunk, key))
     if not isinstance(chunk.incarnation, str) or not chunk.incarnation:
@@ -246,14 +264,45 @@ def encode_chunk(chunk: Chunk) -> bytes:
 
 
 def decode_chunk(data, *, limits: Limits = DEFAULT_LIMITS, **expected: int) -> Chunk:
-    """bytes -> a validated `Chunk`; `expected` may give n_agents / obs_dim / act_dim (see `check_chunk`)."""
-    body = decode(data, "chunk", limits=limits)
+    """bytes -> a validated `Chunk`; `expected` may give n_agents / obs_dim / act_dim / num_worlds (see
+    `check_chunk`)."""
+    return _chunk_from_body(decode(data, "chunk", limits=limits), **expected)
+
+
+def _chunk_from_body(body, **expected: int) -> Chunk:
+    """A decoded chunk body (exactly the Chunk fields; policy_version optional) -> a checked Chunk."""
     names = {f.name for f in fields(Chunk)}
-    if not isinstance(body, dict) or set(body) - names or {f.name for f in fields(Chunk) if f.name != "policy_version"
-                                                           } - set(body):
+    if not isinstance(body, dict) or set(body) - names or names - {"policy_version"} - set(body):
         got = sorted(body) if isinstance(body, dict) else type(body).__name__
         raise CodecError(f"chunk body: expected the fields {sorted(names)}, got {got}")
     return check_chunk(Chunk(**body), **expected)
+
+
+def _check_event(body) -> dict:
+    """A replay-log event {"name" in EVENTS, "count" int >= 0, "folds" [int >= 0]}, or CodecError."""
+    if not isinstance(body, dict) or set(body) != {"name", "count", "folds"} or body["name"] not in EVENTS:
+        raise CodecError(f"event: expected {{name in {EVENTS}, count, folds}}, got {body!r}")
+    _require_int("event.count", body["count"])
+    if not isinstance(body["folds"], list):
+        raise CodecError(f"event.folds: expected a list, got {body['folds']!r}")
+    for f in body["folds"]:
+        _require_int("event.folds", f)
+    return body
+
+
+def encode_event(name: str, count: int, folds: list[int] | tuple[int, ...] = ()) -> bytes:
+    """A replay-log event: `count` learner updates / teacher fit steps (of `folds`) / ICM fit steps handed out."""
+    return encode("event", _check_event({"name": name, "count": int(count), "folds": [int(f) for f in folds]}))
+
+
+def decode_log_record(data, *, limits: Limits = DEFAULT_LIMITS) -> Chunk | dict:
+    """One replay-log payload -> a validated Chunk or event dict (CodecError otherwise)."""
+    kind, body = unwrap(data, limits=limits)
+    if kind == "event":
+        return _check_event(body)
+    if kind != "chunk":
+        raise CodecError(f"a replay-log record must be a chunk or an event, got {kind!r}")
+    return _chunk_from_body(body)
 
 
 def encode_snapshot(obj: dict, *, allow_nonfinite: bool = False) -> bytes:

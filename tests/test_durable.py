@@ -1,0 +1,128 @@
+"""Exactly-once inserts, the durable replay store, and bad bytes at the chunk boundary (issue 9)."""
+
+import dataclasses
+import pickle
+import re
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+
+from cmcl.io import codec
+from cmcl.io.durable import FRAME, ReplayStore, StoreError, frame, read_frames
+from cmcl.replay.dedupe import InsertLedger
+from tests.test_codec import make_chunk
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_ledger_accepts_each_seq_once_in_any_order_and_stays_bounded():
+    ledger = InsertLedger()
+    order = np.random.default_rng(0).permutation(100)
+    assert all(ledger.accept("w:1", int(s)) for s in order)
+    assert not any(ledger.accept("w:1", int(s)) for s in order), "every seq only once"
+    assert ledger.watermark["w:1"] == 99 and not ledger.pending["w:1"]
+    assert not ledger.seen("w:1", 100)
+    bounded = InsertLedger(max_pending=8)
+    assert bounded.accept("w:2", 0)
+    for s in range(2, 12):  # seq 1 never arrives: the gap is given up once more than 8 seqs wait above it
+        bounded.accept("w:2", s)
+    assert bounded.gaps_given_up == 1 and len(bounded.pending["w:2"]) <= 8 and bounded.watermark["w:2"] == 11
+    other = InsertLedger()
+    other.load_state_dict(bounded.state_dict())
+    assert other.state_dict() == bounded.state_dict()
+    with pytest.raises(ValueError, match="above its watermark"):
+        other.load_state_dict({"watermark": {"w": 5}, "pending": {"w": [3]}})
+    with pytest.raises(ValueError, match="seq must be >= 0"):
+        ledger.accept("w:3", -1)
+
+
+def test_frames_round_trip_and_every_cut_or_flip_stops_at_the_last_good_frame():
+    payloads = [bytes([i]) * (10 + i) for i in range(5)]
+    data = b"".join(frame(p) for p in payloads)
+    assert read_frames(data) == (payloads, len(data), None)
+    ends = np.cumsum([FRAME.size + len(p) for p in payloads])
+    for cut in range(len(data)):  # a crash can tear the log at any byte
+        frames, good, problem = read_frames(data[:cut])
+        assert frames == payloads[:int((ends <= cut).sum())] and good == (ends[ends <= cut][-1] if cut >= ends[0]
+                                                                          else 0)
+        assert (problem is None) == (cut in (0, *ends))
+    for pos in range(0, len(data), 7):  # a flipped bit anywhere loses that frame and the ones after, no more
+        flipped = bytearray(data)
+        flipped[pos] ^= 0x40
+        frames, _, problem = read_frames(bytes(flipped))
+        assert problem is not None and frames == payloads[:int((ends <= pos).sum())]
+
+
+def test_store_snapshots_switch_atomically_and_missing_files_are_named(tmp_path):
+    store = ReplayStore(tmp_path / "s")
+    store.append(b"one")
+    store.snapshot({"x": np.arange(3)})
+    store.append(b"two")
+    store.close()
+    again = ReplayStore(tmp_path / "s")
+    state, frames, problem = again.load()
+    assert state["x"].tolist() == [0, 1, 2] and frames == [b"two"] and problem is None
+    assert sorted(p.name for p in (tmp_path / "s").iterdir()) == ["log-000001.bin", "manifest.json",
+                                                                  "snapshot-000001.msgpack"]
+    (tmp_path / "s" / "snapshot-000001.msgpack").unlink()
+    with pytest.raises(StoreError, match="snapshot-000001.msgpack: missing"):
+        ReplayStore(tmp_path / "s").load()
+    (tmp_path / "s" / "manifest.json").write_text("{not json")
+    with pytest.raises(StoreError, match="manifest.json: unreadable"):
+        ReplayStore(tmp_path / "s").load()
+
+
+def test_random_bytes_truncations_bombs_and_pickles_are_refused_by_the_chunk_decoder():
+    rng = np.random.default_rng(0)
+    good = codec.encode_chunk(make_chunk())
+    refused, tried = np.zeros(4, int), np.zeros(4, int)
+    for i in range(10_000):
+        kind = i % 4
+        if kind == 0:  # random bytes
+            data = rng.bytes(int(rng.integers(0, 400)))
+        elif kind == 1:  # a truncated good payload
+            data = good[:int(rng.integers(0, len(good)))]
+        elif kind == 2:  # random bit flips in a good payload
+            flipped = bytearray(good)
+            for pos in rng.integers(0, len(good), int(rng.integers(1, 8))):
+                flipped[pos] ^= 1 << int(rng.integers(0, 8))
+            data = bytes(flipped)
+        else:  # random msgpack structures
+            data = msgpack.packb({"schema": 1, "kind": "chunk", "body": {"obs": int(rng.integers(0, 9)),
+                                                                      "x": rng.bytes(5)}}, use_bin_type=True)
+        tried[kind] += 1
+        try:
+            chunk = codec.decode_chunk(data)
+        except codec.CodecError:
+            refused[kind] += 1
+            continue
+        assert kind == 2 and isinstance(chunk, codec.Chunk)  # a flip inside a float can leave a valid chunk
+    assert (refused[[0, 1, 3]] == tried[[0, 1, 3]]).all(), (refused, tried)
+    assert refused[2] > tried[2] // 2, "most flips hit a header, a shape, a range or a finiteness check"
+    bomb = msgpack.packb({"schema": 1, "kind": "chunk", "body": {"obs": msgpack.ExtType(
+        1, msgpack.packb(["float32", [1 << 40, 1 << 40], b""], use_bin_type=True))}}, use_bin_type=True)
+    with pytest.raises(codec.CodecError):
+        codec.decode_chunk(bomb)
+    with pytest.raises(codec.CodecError):
+        codec.decode_chunk(pickle.dumps(dataclasses.asdict(make_chunk())))
+    with pytest.raises(codec.CodecError, match="exceeds"):
+        codec.decode_chunk(good, limits=codec.Limits(max_bytes=len(good) - 1))
+
+
+def unsafe_lines(text: str) -> list[str]:
+    """Lines that load pickles: pickle / marshal imports, allow_pickle=True, torch.load without weights_only=True."""
+    banned = re.compile(r"^\s*(import|from) (pickle|marshal|dill|cloudpickle)\b|allow_pickle\s*=\s*True")
+    return [line for line in text.splitlines()
+            if banned.search(line) or ("torch.load(" in line and "weights_only=True" not in line)]
+
+
+def test_no_pickle_on_any_boundary_the_project_owns():
+    hits = [f"{path.relative_to(ROOT)}: {line.strip()}"
+            for path in [*ROOT.glob("cmcl/**/*.py"), *ROOT.glob("services/**/*.py"), *ROOT.glob("bench/*.py")]
+            for line in unsafe_lines(path.read_text())]
+    assert not hits, hits
+    assert unsafe_lines("x = torch.load(f)\nimport pickle\nnp.load(p, allow_pickle=True)") == [
+        "x = torch.load(f)", "import pickle", "np.load(p, allow_pickle=True)"], "the scan finds each kind"
+    assert not unsafe_lines('torch.load(Path(p), map_location="cpu", weights_only=True)')
