@@ -2,7 +2,7 @@
 
 Where it sits: the data flow rollout -> replay -> learner, and replay -> teachers / ICM -> replay. The inline loop
 passes these objects between function calls; the service passes them between actors as Ray object refs. Producers
-build them; the replay server checks what arrives (`check_*` here and `cmcl.io.codec.check_chunk`) and refuses a
+build them; the replay server checks what arrives (`check_*` here and `cmcl.io.records.check_chunk`) and refuses a
 message that does not fit its buffer, naming the field and the value, before anything is stored.
 
 Shapes: n minibatches per call, N agents, S rows per minibatch, od / ad obs and action widths, M scored rows,

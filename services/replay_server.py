@@ -2,7 +2,7 @@
 
 Where it sits: the hub of the flow, and a shell: dedupe, pacing and status around the replay side of Algorithm 1's
 steps (`cmcl.replay.steps`, the same functions the inline loop calls). Rollout `Chunk`s come in (`insert`,
-validated by `cmcl.io.codec.check_chunk`, idempotent by writer / incarnation / seq); teachers and the ICM ask for
+validated by `cmcl.io.records.check_chunk`, idempotent by writer / incarnation / seq); teachers and the ICM ask for
 work (`teacher_work`, `icm_work`) and send scores back keyed by (slot, generation), stale ones dropped
 (`write_teacher_scores`, `write_curiosity`); the learner receives prioritized `LearnerBatch`es (`sample`) and
 returns |δ| (`learner_result`). Priorities are recomputed in bulk when λ or scores changed, at most every
@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.io import codec
+from cmcl.io import codec, records
 from cmcl.io.durable import ReplayStore
 from cmcl.messages import (
     CuriosityWork,
@@ -37,9 +37,8 @@ from cmcl.replay.priority import uses_curriculum
 from cmcl.system import agent_layout, beta_is, build_replay, build_schedule, make_batched_env
 from services.common import actor_setup, new_incarnation
 from services.replay_pacing import ReplayPacing
-from services.report_schema import CurriculumReport, FitReport, ReplayReport, Report
-
-REPORT_SAMPLES = 512
+from services.replay_report import replay_report
+from services.report_schema import Report
 
 
 class ReplayServer:
@@ -90,7 +89,7 @@ class ReplayServer:
         refused and nothing is stored. An accepted chunk is in the durable log before this returns."""
         try:
             layout = self.layout
-            chunk = codec.check_chunk(chunk, n_agents=layout.num_agents, obs_dim=layout.obs_dim,
+            chunk = records.check_chunk(chunk, n_agents=layout.num_agents, obs_dim=layout.obs_dim,
                                       act_dim=layout.act_dim, num_worlds=self.config.env.num_envs)
         except codec.CodecError as err:
             return self._reject("bad_chunk", str(err))
@@ -101,7 +100,7 @@ class ReplayServer:
         except (ValueError, TypeError) as err:
             return self._reject("invalid", str(err))
         if self.store is not None:
-            self.store.append(codec.encode_chunk(chunk))
+            self.store.append(records.encode_chunk(chunk))
         return {"accepted": chunk.rows, **self.status()}
 
     def _event(self, name: str, count: int, folds: list[int] | tuple[int, ...] = ()) -> None:
@@ -109,7 +108,7 @@ class ReplayServer:
         counters and limits never go back."""
         self._apply_event({"name": name, "count": int(count), "folds": list(folds)})
         if self.store is not None:
-            self.store.append(codec.encode_event(name, count, folds))
+            self.store.append(records.encode_event(name, count, folds))
 
     def _apply_event(self, event: dict[str, Any]) -> None:
         """Counters and limiters after an event of `_event` (also log replay)."""
@@ -258,33 +257,9 @@ class ReplayServer:
     # ------------------------------------------------------------------ observability and state
     def report(self) -> Report:
         """Metrics report: buffer, λ, difficulty / priority distributions, score age and coverage."""
-        replay: dict[str, Any] = {"size": self.replay.size, "capacity": self.replay.capacity,
-                                  "inserts": self.counters["inserts"], "samples": self.counters["samples"],
-                                  "rejected": dict(self.rejected)}
-        size = self.replay.size
-        if size and uses_curriculum(self.layout.modes):
-            d = self.replay.recompute_priorities(self.schedule.lam, details=True)
+        if self.replay.size and uses_curriculum(self.layout.modes):  # the report reads priorities at the current λ
             self.dirty, self.inserts_at_recompute = False, self.counters["inserts"]
-            pick = self.rng.integers(0, size, min(size, REPORT_SAMPLES))
-            scored = d["scored"][pick]
-            replay.update(difficulty=d["c_hat"][pick][scored], priority=d["priority"][pick],
-                          kfold_priority=d["kp"][pick][scored], curiosity_priority=d["cp"][pick])
-        if self.pacing.teachers and size:
-            valid = self.replay.valid_slots()
-            times = self.difficulty.stamps(valid, self.replay.generations(valid))
-            replay["score_coverage"] = float(self.replay.storage.scored["difficulty"][:size][
-                :, self.layout.teacher_agents].all(1).mean())
-            ages = self.counters["updates"] - times[times >= 0]
-            if ages.size:
-                replay["score_age"] = ages[self.rng.integers(0, ages.size, min(ages.size, REPORT_SAMPLES))]
-        teachers = {str(k): FitReport(steps=self.teacher_steps[k], scores=self.teacher_scores[k],
-                                      loss=self.losses.get(f"teacher_{k}"))
-                    for k in range(len(self.pacing.teachers))} if self.pacing.teachers else None
-        icm = FitReport(steps=self.counters["icm_steps"], scores=self.counters["icm_scores"],
-                        loss=self.losses.get("icm")) if self.pacing.icm is not None else None
-        return Report(source="replay", role="replay", incarnation=self.incarnation, resumed=self.resumed,
-                      replay=ReplayReport(**replay), curriculum=CurriculumReport(lam=self.schedule.lam),
-                      teachers=teachers, icm=icm)
+        return replay_report(self)
 
     def state_dict(self) -> dict[str, Any]:
         """Codec-ready state: the buffer, score tables, insert ledger, counters, limiters and λ's step count."""
@@ -308,7 +283,7 @@ class ReplayServer:
         if state is not None:
             self._load_state(state)
         for payload in frames:  # in the order they were applied
-            record = codec.decode_log_record(payload)
+            record = records.decode_log_record(payload)
             if isinstance(record, dict):
                 self._apply_event(record)
             elif not self.ledger.seen(record.writer_key, record.seq):

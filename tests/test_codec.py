@@ -7,7 +7,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from cmcl.io import codec
+from cmcl.io import codec, records
 from cmcl.io.codec import CodecError, Limits
 from cmcl.messages import Chunk
 
@@ -37,8 +37,8 @@ def envelope(body, kind="snapshot", schema=codec.SCHEMA_VERSION):
 
 def test_chunk_round_trip():
     c = make_chunk()
-    out = codec.decode_chunk(codec.encode_chunk(c), n_agents=N, obs_dim=OD, act_dim=AD)
-    for k in codec.CHUNK_ARRAYS:
+    out = records.decode_chunk(records.encode_chunk(c), n_agents=N, obs_dim=OD, act_dim=AD)
+    for k in records.CHUNK_ARRAYS:
         assert getattr(out, k).dtype == getattr(c, k).dtype and np.array_equal(getattr(out, k), getattr(c, k))
         assert getattr(out, k).flags.writeable and getattr(out, k).flags.owndata
     assert (out.writer, out.incarnation, out.seq, out.policy_version) == (2, "5f0c", 17, 4)
@@ -47,14 +47,14 @@ def test_chunk_round_trip():
 
 def test_chunk_dtypes_are_exact_on_both_sides():
     with pytest.raises(CodecError, match=r"chunk.obs: expected float32 with 3 dims, got float64"):
-        codec.encode_chunk(make_chunk(obs=np.zeros((T, N, OD))))
+        records.encode_chunk(make_chunk(obs=np.zeros((T, N, OD))))
     body = {f.name: getattr(make_chunk(), f.name) for f in dataclasses.fields(Chunk)}
     body["obs"] = body["obs"].astype(np.float64)  # forged: wrong dtype on the wire
     with pytest.raises(CodecError, match="chunk.obs: expected float32"):
-        codec.decode_chunk(codec.encode("chunk", body))
+        records.decode_chunk(codec.encode("chunk", body))
     body["obs"], body["extra"] = body["obs"].astype(np.float32), 1
     with pytest.raises(CodecError, match="expected the fields"):
-        codec.decode_chunk(codec.encode("chunk", body))
+        records.decode_chunk(codec.encode("chunk", body))
 
 
 @pytest.mark.parametrize("over, match", [
@@ -69,19 +69,19 @@ def test_chunk_dtypes_are_exact_on_both_sides():
 ])
 def test_chunk_schema_errors(over, match):
     with pytest.raises(CodecError, match=match):
-        codec.check_chunk(make_chunk(**over))
+        records.check_chunk(make_chunk(**over))
     with pytest.raises(CodecError, match=match):
-        codec.encode_chunk(make_chunk(**over))
+        records.encode_chunk(make_chunk(**over))
 
 
 def test_chunk_expected_sizes_and_caps():
-    data = codec.encode_chunk(make_chunk())
+    data = records.encode_chunk(make_chunk())
     with pytest.raises(CodecError, match="obs_dim: the chunk has 3, the buffer expects 4"):
-        codec.decode_chunk(data, obs_dim=OD + 1)
+        records.decode_chunk(data, obs_dim=OD + 1)
     with pytest.raises(CodecError, match="exceed the cap"):
-        codec.check_chunk(make_chunk(), max_rows=T - 1)
+        records.check_chunk(make_chunk(), max_rows=T - 1)
     with pytest.raises(CodecError, match="expected a Chunk, got dict"):
-        codec.check_chunk({"obs": 1})
+        records.check_chunk({"obs": 1})
     with pytest.raises(CodecError, match="kind"):
         codec.decode_snapshot(data)
 

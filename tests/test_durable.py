@@ -9,8 +9,9 @@ import msgpack
 import numpy as np
 import pytest
 
-from cmcl.io import codec
+from cmcl.io import codec, records
 from cmcl.io.durable import FRAME, ReplayStore, StoreError, frame, read_frames
+from cmcl.messages import Chunk
 from cmcl.replay.dedupe import InsertLedger
 from tests.test_codec import make_chunk
 
@@ -76,7 +77,7 @@ def test_store_snapshots_switch_atomically_and_missing_files_are_named(tmp_path)
 
 def test_random_bytes_truncations_bombs_and_pickles_are_refused_by_the_chunk_decoder():
     rng = np.random.default_rng(0)
-    good = codec.encode_chunk(make_chunk())
+    good = records.encode_chunk(make_chunk())
     refused, tried = np.zeros(4, int), np.zeros(4, int)
     for i in range(10_000):
         kind = i % 4
@@ -94,21 +95,21 @@ def test_random_bytes_truncations_bombs_and_pickles_are_refused_by_the_chunk_dec
                                                                       "x": rng.bytes(5)}}, use_bin_type=True)
         tried[kind] += 1
         try:
-            chunk = codec.decode_chunk(data)
+            chunk = records.decode_chunk(data)
         except codec.CodecError:
             refused[kind] += 1
             continue
-        assert kind == 2 and isinstance(chunk, codec.Chunk)  # a flip inside a float can leave a valid chunk
+        assert kind == 2 and isinstance(chunk, Chunk)  # a flip inside a float can leave a valid chunk
     assert (refused[[0, 1, 3]] == tried[[0, 1, 3]]).all(), (refused, tried)
     assert refused[2] > tried[2] // 2, "most flips hit a header, a shape, a range or a finiteness check"
     bomb = msgpack.packb({"schema": 1, "kind": "chunk", "body": {"obs": msgpack.ExtType(
         1, msgpack.packb(["float32", [1 << 40, 1 << 40], b""], use_bin_type=True))}}, use_bin_type=True)
     with pytest.raises(codec.CodecError):
-        codec.decode_chunk(bomb)
+        records.decode_chunk(bomb)
     with pytest.raises(codec.CodecError):
-        codec.decode_chunk(pickle.dumps(dataclasses.asdict(make_chunk())))
+        records.decode_chunk(pickle.dumps(dataclasses.asdict(make_chunk())))
     with pytest.raises(codec.CodecError, match="exceeds"):
-        codec.decode_chunk(good, limits=codec.Limits(max_bytes=len(good) - 1))
+        records.decode_chunk(good, limits=codec.Limits(max_bytes=len(good) - 1))
 
 
 def unsafe_lines(text: str) -> list[str]:

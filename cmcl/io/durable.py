@@ -2,7 +2,7 @@
 accepted since that snapshot.
 
 Where it sits: `services.replay_server.ReplayServer` owns one `ReplayStore`. Every accepted chunk is appended to
-the log (one frame: magic, payload length, SHA-256 of the payload, the payload = `codec.encode_chunk` bytes) and
+the log (one frame: magic, payload length, SHA-256 of the payload, the payload = `cmcl.io.records` bytes) and
 flushed before the insert is acknowledged; `snapshot` writes the whole server state atomically under a new
 generation, then the manifest (atomically) that names the snapshot, its SHA-256 and the new, empty log; only then
 are the old files removed. A restarted server `load`s the manifest, checks the snapshot's hash, and replays the

@@ -1,0 +1,46 @@
+"""The replay server's metrics report: buffer, λ, difficulty / priority distributions, score age and coverage.
+
+Where it sits: `services.replay_server.ReplayServer.report` calls `replay_report` on itself every few seconds; the
+supervisor applies the Report to the Prometheus metrics (`services.metrics`). Read-only except that computing the
+distributions recomputes the curriculum agents' priorities at the current λ. Arrays are uniform subsamples of at
+most REPORT_SAMPLES rows, drawn with the server's own generator.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from cmcl.replay.priority import uses_curriculum
+from services.report_schema import CurriculumReport, FitReport, ReplayReport, Report
+
+REPORT_SAMPLES = 512
+
+
+def replay_report(server: Any) -> Report:
+    """The Report of a `ReplayServer` now."""
+    replay: dict[str, Any] = {"size": server.replay.size, "capacity": server.replay.capacity,
+                              "inserts": server.counters["inserts"], "samples": server.counters["samples"],
+                              "rejected": dict(server.rejected)}
+    size = server.replay.size
+    if size and uses_curriculum(server.layout.modes):
+        d = server.replay.recompute_priorities(server.schedule.lam, details=True)
+        pick = server.rng.integers(0, size, min(size, REPORT_SAMPLES))
+        scored = d["scored"][pick]
+        replay.update(difficulty=d["c_hat"][pick][scored], priority=d["priority"][pick],
+                      kfold_priority=d["kp"][pick][scored], curiosity_priority=d["cp"][pick])
+    if server.pacing.teachers and size:
+        valid = server.replay.valid_slots()
+        times = server.difficulty.stamps(valid, server.replay.generations(valid))
+        replay["score_coverage"] = float(server.replay.storage.scored["difficulty"][:size][
+            :, server.layout.teacher_agents].all(1).mean())
+        ages = server.counters["updates"] - times[times >= 0]
+        if ages.size:
+            replay["score_age"] = ages[server.rng.integers(0, ages.size, min(ages.size, REPORT_SAMPLES))]
+    teachers = {str(k): FitReport(steps=server.teacher_steps[k], scores=server.teacher_scores[k],
+                                  loss=server.losses.get(f"teacher_{k}"))
+                for k in range(len(server.pacing.teachers))} if server.pacing.teachers else None
+    icm = FitReport(steps=server.counters["icm_steps"], scores=server.counters["icm_scores"],
+                    loss=server.losses.get("icm")) if server.pacing.icm is not None else None
+    return Report(source="replay", role="replay", incarnation=server.incarnation, resumed=server.resumed,
+                  replay=ReplayReport(**replay), curriculum=CurriculumReport(lam=server.schedule.lam),
+                  teachers=teachers, icm=icm)
