@@ -23,6 +23,7 @@ from cmcl.config import Config
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
 from cmcl.progress import episode_rows, progress_line, solved, window_summary
+from services.health import CallWatch, actor_of, check_not_dead_for_good, owner, restartable
 from services.metrics import ServiceMetrics
 from services.placement import Roles, service_paths
 from services.report_schema import Report
@@ -51,7 +52,9 @@ class Supervisor:
         self.weights = roles.learner.publish.remote()
         self.version = -1
         self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
-        self.failures: dict[str, int] = {}
+        self.failures: dict[str, int] = {}  # failed calls per role of the actor that ran them
+        self.hung: dict[str, int] = {}  # actors killed for a call in flight longer than service.call_timeout_s
+        self.watch = CallWatch(config.service.call_timeout_s)
         self.lags: dict[str, int] = {}  # weight versions each rollout worker / teacher is behind
         self.episodes_logged = 0
         self.solved = False  # the coverage target run.stop_coverage was reached
@@ -65,6 +68,7 @@ class Supervisor:
         """Remember a call just submitted, numbered in submission order."""
         self.submitted += 1
         self.pending[ref] = (kind, index, self.submitted)
+        self.watch.submitted(ref)
 
     def _issue(self, rollouts: bool = True) -> None:
         """Hand out every piece of work the limiters allow, at most CALLS_IN_FLIGHT calls per actor.
@@ -127,6 +131,7 @@ class Supervisor:
             ready += more
         for ref in ready:
             kind, index, number = self.pending.pop(ref)
+            self.watch.done(ref)
             if kind in FORWARD:  # data for the replay server, now ready: hand over the ref, never the data
                 self._track(getattr(self.roles.replay, FORWARD[kind][0]).remote(ref), FORWARD[kind][1], index)
                 continue
@@ -166,13 +171,24 @@ class Supervisor:
                 self._log_episodes(value)
 
     def _failed(self, kind: str, index: int, err: Exception) -> None:
-        """A call failed because an actor died: free its slot (Ray restarts the actor) or replace the worker."""
-        role = kind.replace("_report", "")
+        """A call failed because an actor died: free its slot (Ray restarts the actor) or replace a rollout worker
+        out of restarts; any other role out of restarts ends the run (`ServiceFailed`)."""
+        role = owner(kind)
         self.failures[role] = self.failures.get(role, 0) + 1
         if kind in ("rollout", "learner", "teacher", "icm"):
             self.inflight[(kind, index)] -= 1
-        if kind == "rollout_report" and isinstance(err, ray.exceptions.ActorDiedError) and not _restartable(err):
-            self.roles.rollout[index] = self.roles.make_rollout(index)  # out of restarts: a fresh worker
+        if isinstance(err, ray.exceptions.ActorDiedError):
+            check_not_dead_for_good(role, err, self.config.service.max_restarts)
+            if kind == "rollout_report" and not restartable(err):
+                self.roles.rollout[index] = self.roles.make_rollout(index)  # out of restarts: a fresh worker
+
+    def _kill_hung(self) -> None:
+        """Kill (for Ray to restart) every actor with a call in flight longer than service.call_timeout_s."""
+        for role, index in self.watch.overdue(self.pending):
+            ray.kill(actor_of(self.roles, role, index), no_restart=False)
+            self.hung[role] = self.hung.get(role, 0) + 1
+            self.watch.restart_clock([ref for ref, (kind, i, _) in self.pending.items() if owner(kind) == role
+                                      and (i == index or role not in ("rollout", "teacher"))])
 
     def _log_episodes(self, report: Report) -> None:
         """Append one 'episode' row per finished episode of a rollout report to metrics.jsonl."""
@@ -267,6 +283,7 @@ class Supervisor:
                 break  # episode target reached; the learner, every teacher and the ICM have caught up
             self._issue(rollouts=collecting)
             self._collect(timeout=0.5)
+            self._kill_hung()
             now = time.perf_counter()
             if now - last_report >= REPORT_EVERY_S and report_ref is None:
                 report_ref = self.roles.replay.report.remote()
@@ -288,10 +305,6 @@ class Supervisor:
         self._refresh_rates()
         if self.progress is not None:
             self.progress(self.progress_line())
-        return {**self.status, **self.rates, "failures": dict(self.failures), "solved": self.solved,
+        return {**self.status, **self.rates, "failures": dict(self.failures), "hung": dict(self.hung),
+                "solved": self.solved,
                 "elapsed_s": time.perf_counter() - self.started}
-
-
-def _restartable(err: Exception) -> bool:
-    """Whether Ray will restart the actor behind `err` (it says so in the error's message)."""
-    return "restart" in str(err).lower() and "will not be restarted" not in str(err).lower()

@@ -260,6 +260,7 @@ class ServiceConfig:
     fit_steps_per_call: int = 8  # teacher / ICM fit steps per call
     score_rows_per_call: int = 1024  # rows a teacher / the ICM rescores per call
     slack_updates: int = 256  # how far updates may run ahead of / behind the env-step ratio
+    call_timeout_s: float = 300.0  # a call in flight longer than this marks its actor hung: killed, restarted (0: off)
     replay_log_fsync: bool = False  # fsync every replay-log append (survives power loss; flush-only survives crashes)
     recompute_every: int = 0  # inserts between bulk priority recomputes (0: one episode of every worker)
     checkpoint_every_s: float = 300.0  # seconds between service checkpoints (and one at the end)
@@ -279,6 +280,7 @@ class ServiceConfig:
         _require(self.recompute_every >= 0, "service.recompute_every", self.recompute_every, "must be >= 0")
         _require(self.teacher_actors >= 0, "service.teacher_actors", self.teacher_actors, "must be >= 0")
         _require(self.max_restarts >= 0, "service.max_restarts", self.max_restarts, "must be >= 0")
+        _require(self.call_timeout_s >= 0, "service.call_timeout_s", self.call_timeout_s, "must be >= 0 (0: off)")
         for name in ("rollout_cpus", "learner_cpus", "teacher_cpus", "icm_cpus", "replay_cpus"):
             _positive(f"service.{name}", getattr(self, name))
         _positive("service.checkpoint_every_s", self.checkpoint_every_s)

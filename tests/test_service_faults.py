@@ -1,0 +1,105 @@
+"""Faults injected into the service on a real embedded Ray: a replay server killed (SIGKILL) in the middle of an
+insert, a hung rollout worker, a role out of restarts. After each, training goes on (or stops with a clear error),
+counters never go back, no acknowledged transition is missing and none is stored twice."""
+
+import os
+import signal
+import threading
+
+import pytest
+
+from cmcl.config import config_from_dict
+from cmcl.io.rundir import RunDirectory
+from services.health import ServiceFailed
+from services.metrics import ServiceMetrics
+from services.placement import create_roles
+from services.supervisor import Supervisor
+from tests.test_service_ray import samples, tiny, value
+
+pytestmark = pytest.mark.ray
+
+
+def supervised(config, progress=None):
+    run_dir = RunDirectory.create(config.run.dir, config)
+    metrics = ServiceMetrics()
+    roles = create_roles(config, run_dir)
+    return roles, metrics, Supervisor(config, run_dir, roles, metrics, progress=progress)
+
+
+def with_service(config, **service):
+    data = config.to_dict()
+    return config_from_dict({**data, "service": {**data["service"], **service}})
+
+
+def kill_all(ray, roles):
+    for handle in (roles.replay, roles.learner, *roles.rollout, *roles.teachers, *([roles.icm] if roles.icm else [])):
+        ray.kill(handle)
+
+
+def test_a_replay_server_killed_mid_insert_loses_no_acknowledged_transition(tmp_path, ray_cluster):
+    ray = ray_cluster
+    config = tiny("acl", tmp_path / "replay-kill", episodes=24)
+    roles, metrics, supervisor = supervised(config)
+
+    def arm(server):  # SIGKILL the replay server's process inside its 3rd insert, before it stores the chunk
+        store, calls = server._store, []
+
+        def dying_store(chunk):
+            calls.append(1)
+            if len(calls) == 3:
+                os.kill(os.getpid(), signal.SIGKILL)
+            return store(chunk)
+        server._store = dying_store
+
+    ray.get(roles.replay.__ray_call__.remote(arm))
+    summary = supervisor.run()
+    episode_length = config.env.episode_length
+    assert summary["episodes"] == 24, summary
+    assert summary["env_steps"] == 24 * episode_length, "every stored episode stored once, none lost"
+    parsed = samples(metrics.text())
+    assert value(parsed, "cmcl_actor_restarts_total", role="replay") >= 1
+    assert value(parsed, "cmcl_env_steps_total") == summary["env_steps"], "the counter never went back"
+    assert summary["failures"].get("replay", 0) >= 1
+    kill_all(ray, roles)
+
+
+def test_a_hung_rollout_worker_is_killed_and_restarted(tmp_path, ray_cluster):
+    ray = ray_cluster
+    config = with_service(tiny("maddpg", tmp_path / "hung", episodes=24), call_timeout_s=3.0)
+    roles, metrics, supervisor = supervised(config)
+    apply, armed = supervisor._apply, []
+
+    def hang(*_):  # the armed worker's env step never returns
+        threading.Event().wait(600)
+
+    def arm(worker):  # a restart runs the constructor, which builds a fresh env: the new worker does not hang
+        worker.env.step = hang
+
+    def apply_then_arm(kind, index, value_, *number):
+        apply(kind, index, value_, *number)
+        if kind == "rollout_report" and index == 0 and not armed:
+            armed.append(roles.rollout[0].__ray_call__.remote(arm))
+
+    supervisor._apply = apply_then_arm
+    summary = supervisor.run()
+    assert armed and summary["episodes"] == 24
+    assert summary["hung"].get("rollout", 0) >= 1, summary
+    assert value(samples(metrics.text()), "cmcl_actor_restarts_total", role="rollout") >= 1
+    kill_all(ray, roles)
+
+
+def test_a_role_out_of_restarts_ends_the_run_with_a_clear_error(tmp_path, ray_cluster):
+    ray = ray_cluster
+    config = tiny("maddpg", tmp_path / "dead", episodes=400)
+    roles, metrics, supervisor = supervised(config)
+    apply, killed = supervisor._apply, []
+
+    def apply_then_kill(kind, index, value_, *number):
+        apply(kind, index, value_, *number)
+        if kind == "learner_report" and not killed:
+            killed.append(ray.kill(roles.learner, no_restart=True))
+
+    supervisor._apply = apply_then_kill
+    with pytest.raises(ServiceFailed, match="the learner actor died and will not be restarted"):
+        supervisor.run()
+    kill_all(ray, roles)
