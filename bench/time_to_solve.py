@@ -1,7 +1,7 @@
 """Time to solve sparse navigation: episodes and seconds until the 100-episode moving average of final-step coverage
 reaches 0.9 (and 0.5), then a held-out evaluation, for a grid of runs, inline or on the service.
 
-Grids (every run: sparse navigation N=4, the shared defaults of cmcl/config/sections.py, at most 20,000 episodes, stopped
+Grids (every run: sparse navigation N=4, the shared defaults of cmcl/config/, at most 20,000 episodes, stopped
 once the moving average reaches --stop-coverage (default 0.95, so that the policy measured on held-out worlds
 has gone past the 0.9 it is timed at), and at most --max-seconds of wall clock):
 
