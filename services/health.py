@@ -17,6 +17,9 @@ OWNER = {"rollout_report": "rollout", "chunk": "rollout", "learner_report": "lea
          "teacher_report": "teacher", "teacher_scores": "teacher", "icm_report": "icm", "icm_scores": "icm"}
 
 
+ARGUMENT_LOST = "input arguments for this task could not be computed"  # Ray's text: an argument's producer died
+
+
 class ServiceFailed(RuntimeError):
     """A role other than a rollout worker died for good: the run cannot go on."""
 
@@ -24,6 +27,14 @@ class ServiceFailed(RuntimeError):
 def owner(kind: str) -> str:
     """The role whose actor runs a call of this kind: rollout, learner, teacher, icm or replay."""
     return OWNER.get(kind, "replay")
+
+
+def failed_role(kind: str, err: Exception) -> tuple[str, bool]:
+    """(the role whose actor failed a call of `kind`, whether that actor itself died). A replay-server call whose
+    argument (a chunk, feedback, scores) could not be computed failed because the producer died, not the replay."""
+    if kind in ("rollout", "learner", "teacher", "icm") and ARGUMENT_LOST in str(err):
+        return kind, False
+    return owner(kind), True
 
 
 def actor_of(roles: Any, role: str, index: int) -> Any:

@@ -23,7 +23,7 @@ from cmcl.config import Config
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
 from cmcl.progress import episode_rows, progress_line, solved, window_summary
-from services.health import CallWatch, actor_of, check_not_dead_for_good, owner, restartable
+from services.health import CallWatch, actor_of, check_not_dead_for_good, failed_role, owner, restartable
 from services.metrics import ServiceMetrics
 from services.placement import Roles, service_paths
 from services.report_schema import Report
@@ -173,11 +173,11 @@ class Supervisor:
     def _failed(self, kind: str, index: int, err: Exception) -> None:
         """A call failed because an actor died: free its slot (Ray restarts the actor) or replace a rollout worker
         out of restarts; any other role out of restarts ends the run (`ServiceFailed`)."""
-        role = owner(kind)
+        role, own_death = failed_role(kind, err)
         self.failures[role] = self.failures.get(role, 0) + 1
         if kind in ("rollout", "learner", "teacher", "icm"):
             self.inflight[(kind, index)] -= 1
-        if isinstance(err, ray.exceptions.ActorDiedError):
+        if own_death and isinstance(err, ray.exceptions.ActorDiedError):
             check_not_dead_for_good(role, err, self.config.service.max_restarts)
             if kind == "rollout_report" and not restartable(err):
                 self.roles.rollout[index] = self.roles.make_rollout(index)  # out of restarts: a fresh worker
