@@ -57,6 +57,7 @@ class ReplayServer:
         self.difficulty = DifficultyTable(cap, len(self.layout.teacher_agents), k)
         self.curiosity_stamps = ScoreStamps(cap, 1)
         self.ledger = InsertLedger()  # which (writer:incarnation, seq) chunks are stored
+        self.logged_rows = 0  # transitions in the durable log since the last snapshot
         self.counters = {"inserts": 0, "samples": 0, "updates": 0, "episodes": 0, "icm_steps": 0,
                          "icm_scores": 0, "chunks": 0, "restored_records": 0}
         self.teacher_steps, self.teacher_scores = [0] * k, [0] * k
@@ -101,6 +102,9 @@ class ReplayServer:
             return self._reject("invalid", str(err))
         if self.store is not None:
             self.store.append(records.encode_chunk(chunk))
+            self.logged_rows += chunk.rows
+            if self.logged_rows >= self.replay.capacity:  # the log never holds more than one buffer's worth
+                self.snapshot()
         return {"accepted": chunk.rows, **self.status()}
 
     def _event(self, name: str, count: int, folds: list[int] | tuple[int, ...] = ()) -> None:
@@ -275,6 +279,7 @@ class ReplayServer:
         returns bytes written."""
         if self.store is None:
             raise ValueError("snapshot needs a store: this replay server was created without store_dir")
+        self.logged_rows = 0
         return self.store.snapshot(self.state_dict())
 
     def restore(self) -> None:
@@ -286,8 +291,10 @@ class ReplayServer:
             record = records.decode_log_record(payload)
             if isinstance(record, dict):
                 self._apply_event(record)
-            elif not self.ledger.seen(record.writer_key, record.seq):
-                self._store(record)
+            else:
+                self.logged_rows += record.rows
+                if not self.ledger.seen(record.writer_key, record.seq):
+                    self._store(record)
         self.counters["restored_records"] = len(frames)
         if problem is not None:
             self.rejected["log_truncated"] = self.rejected.get("log_truncated", 0) + 1

@@ -251,12 +251,19 @@ class Supervisor:
         self._apply("replay_report", 0, ray.get(self.roles.replay.report.remote()))
 
     def checkpoint(self) -> None:
-        """Drain, then have every role save its own state atomically; then the supervisor's counters."""
+        """Drain, then have every role save its own state atomically; then the supervisor's counters. A role that
+        dies while saving keeps its previous checkpoint (every save is atomic) and is counted as a failure."""
         self.drain()
         r = self.roles
-        saves = [r.learner.save.remote(), r.replay.snapshot.remote()]
-        saves += [t.save.remote() for t in r.teachers] + ([r.icm.save.remote()] if r.icm is not None else [])
-        ray.get(saves)
+        saves = {"learner": [r.learner.save.remote()], "replay": [r.replay.snapshot.remote()],
+                 "teacher": [t.save.remote() for t in r.teachers], "icm": [r.icm.save.remote()] if r.icm else []}
+        for role, refs in saves.items():
+            for ref in refs:
+                try:
+                    ray.get(ref)
+                except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError) as err:
+                    self.failures[role] = self.failures.get(role, 0) + 1
+                    check_not_dead_for_good(role, err, self.config.service.max_restarts)
         summary = {"episodes_logged": self.episodes_logged, "status": self.status, "time": time.time()}
         atomic_write_bytes(self.paths["supervisor"], json.dumps(summary).encode())
 

@@ -9,6 +9,7 @@ import threading
 import pytest
 
 from cmcl.config import config_from_dict
+from cmcl.io import codec
 from cmcl.io.rundir import RunDirectory
 from services.health import ServiceFailed
 from services.metrics import ServiceMetrics
@@ -111,4 +112,69 @@ def test_a_role_out_of_restarts_ends_the_run_with_a_clear_error(tmp_path, ray_cl
     supervisor._apply = apply_then_kill
     with pytest.raises(ServiceFailed, match="the learner actor died and will not be restarted"):
         supervisor.run()
+    kill_all(ray, roles)
+
+
+def die(*_):
+    """SIGKILL this process (a real crash: no cleanup, no reply)."""
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def arm_after_first(supervisor, kind, arm_call):
+    """Run arm_call() once, right after the first reply of `kind` is applied; returns the list it appends to."""
+    apply, armed = supervisor._apply, []
+
+    def apply_then_arm(kind_, index, value_, *number):
+        apply(kind_, index, value_, *number)
+        if kind_ == kind and not armed:
+            armed.append(arm_call())
+
+    supervisor._apply = apply_then_arm
+    return armed
+
+
+@pytest.mark.parametrize("role", ["learner", "teacher", "icm"])
+def test_a_learner_teacher_or_icm_killed_mid_step_is_restarted_and_training_goes_on(role, tmp_path, ray_cluster):
+    ray = ray_cluster
+    config = tiny("cmcl", tmp_path / f"kill-{role}", episodes=48)
+    roles, metrics, supervisor = supervised(config)
+
+    def arm(actor):  # the next step of this actor kills its process from inside the step
+        if role == "learner":
+            actor.maddpg.update = die
+        elif role == "teacher":
+            actor.teachers.fit_step = die
+        else:
+            actor.icm.train_step = die
+
+    handle = {"learner": roles.learner, "teacher": roles.teachers[0], "icm": roles.icm}[role]
+    armed = arm_after_first(supervisor, f"{role}_report", lambda: handle.__ray_call__.remote(arm))
+    summary = supervisor.run()
+    assert armed and summary["episodes"] == 48 and summary["env_steps"] == 48 * config.env.episode_length
+    assert summary["failures"].get(role, 0) >= 1, summary["failures"]
+    assert value(samples(metrics.text()), "cmcl_actor_restarts_total", role=role) >= 1
+    assert summary["update_deficit"] < 1 and summary["scoring_deficit"] < 1, "every role caught up after the restart"
+    kill_all(ray, roles)
+
+
+def test_a_replay_server_killed_mid_snapshot_keeps_the_previous_one(tmp_path, ray_cluster):
+    ray = ray_cluster
+    config = with_service(tiny("acl", tmp_path / "snapshot-kill", episodes=60), checkpoint_every_s=1.0)
+    roles, metrics, supervisor = supervised(config)
+
+    def arm(server):  # the next snapshot writes half of its file, then the process dies before the manifest
+        store = server.store
+
+        def torn_snapshot(state):
+            data = codec.encode_snapshot(state)
+            store.root.mkdir(parents=True, exist_ok=True)
+            (store.root / f"snapshot-{store.generation + 1:06d}.msgpack").write_bytes(data[:len(data) // 2])
+            die()
+        store.snapshot = torn_snapshot
+
+    armed = arm_after_first(supervisor, "replay_report", lambda: roles.replay.__ray_call__.remote(arm))
+    summary = supervisor.run()
+    assert armed and summary["episodes"] == 60 and summary["env_steps"] == 60 * config.env.episode_length
+    assert summary["failures"].get("replay", 0) >= 1, summary["failures"]
+    assert value(samples(metrics.text()), "cmcl_replay_inserts_total") == summary["env_steps"]
     kill_all(ray, roles)

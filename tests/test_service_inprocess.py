@@ -225,3 +225,16 @@ def test_a_torn_log_tail_is_cut_and_a_bad_snapshot_refused(tmp_path):
     snapshot.write_bytes(bytes(data))
     with pytest.raises(StoreError, match="SHA-256 does not match"):
         ReplayServer(cfg, store_dir=str(store))
+
+
+def test_the_log_never_holds_more_than_one_buffer_of_transitions(tmp_path):
+    cfg = small_config("maddpg")  # capacity 360 = 3 chunks of 120
+    store = tmp_path / "replay"
+    replay, worker = ReplayServer(cfg, store_dir=str(store)), RolloutWorker(cfg, 0, 0)
+    for _ in range(2):
+        replay.insert(worker.rollout(None)[0])
+    assert replay.store.generation == 0 and replay.logged_rows == 240
+    replay.insert(worker.rollout(None)[0])  # the third reaches the capacity: a snapshot, then an empty log
+    assert replay.store.generation == 1 and replay.logged_rows == 0
+    assert (store / "log-000001.bin").stat().st_size == 0
+    assert ReplayServer(cfg, store_dir=str(store)).replay.size == 360
