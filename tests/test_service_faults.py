@@ -115,11 +115,6 @@ def test_a_role_out_of_restarts_ends_the_run_with_a_clear_error(tmp_path, ray_cl
     kill_all(ray, roles)
 
 
-def die(*_):
-    """SIGKILL this process (a real crash: no cleanup, no reply)."""
-    os.kill(os.getpid(), signal.SIGKILL)
-
-
 def arm_after_first(supervisor, kind, arm_call):
     """Run arm_call() once, right after the first reply of `kind` is applied; returns the list it appends to."""
     apply, armed = supervisor._apply, []
@@ -139,7 +134,10 @@ def test_a_learner_teacher_or_icm_killed_mid_step_is_restarted_and_training_goes
     config = tiny("cmcl", tmp_path / f"kill-{role}", episodes=48)
     roles, metrics, supervisor = supervised(config)
 
-    def arm(actor):  # the next step of this actor kills its process from inside the step
+    def arm(actor):  # the next step of this actor kills its process (SIGKILL: no cleanup) from inside the step
+        def die(*_):
+            os.kill(os.getpid(), signal.SIGKILL)
+
         if role == "learner":
             actor.maddpg.update = die
         elif role == "teacher":
@@ -150,6 +148,7 @@ def test_a_learner_teacher_or_icm_killed_mid_step_is_restarted_and_training_goes
     handle = {"learner": roles.learner, "teacher": roles.teachers[0], "icm": roles.icm}[role]
     armed = arm_after_first(supervisor, f"{role}_report", lambda: handle.__ray_call__.remote(arm))
     summary = supervisor.run()
+    ray.get(armed[0])  # the arming call itself succeeded
     assert armed and summary["episodes"] == 48 and summary["env_steps"] == 48 * config.env.episode_length
     assert summary["failures"].get(role, 0) >= 1, summary["failures"]
     assert value(samples(metrics.text()), "cmcl_actor_restarts_total", role=role) >= 1
@@ -165,6 +164,9 @@ def test_a_replay_server_killed_mid_snapshot_keeps_the_previous_one(tmp_path, ra
     def arm(server):  # the next snapshot writes half of its file, then the process dies before the manifest
         store = server.store
 
+        def die():
+            os.kill(os.getpid(), signal.SIGKILL)
+
         def torn_snapshot(state):
             data = codec.encode_snapshot(state)
             store.root.mkdir(parents=True, exist_ok=True)
@@ -174,6 +176,7 @@ def test_a_replay_server_killed_mid_snapshot_keeps_the_previous_one(tmp_path, ra
 
     armed = arm_after_first(supervisor, "replay_report", lambda: roles.replay.__ray_call__.remote(arm))
     summary = supervisor.run()
+    ray.get(armed[0])
     assert armed and summary["episodes"] == 60 and summary["env_steps"] == 60 * config.env.episode_length
     assert summary["failures"].get("replay", 0) >= 1, summary["failures"]
     assert value(samples(metrics.text()), "cmcl_replay_inserts_total") == summary["env_steps"]
