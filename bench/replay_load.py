@@ -14,6 +14,7 @@ durable server's insert throughput to the in-memory one.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import tempfile
 import time
@@ -51,7 +52,7 @@ def drive(server: ReplayServer, chunks: list, seconds: float, snapshot_every: fl
     seq = 0
     while (now := time.perf_counter()) - start < seconds:
         chunk = chunks[seq % len(chunks)]
-        status = timed(latencies, "insert", server.insert, type(chunk)(**{**chunk.__dict__, "seq": seq}))
+        status = timed(latencies, "insert", server.insert, dataclasses.replace(chunk, seq=seq))
         seq += 1
         while status["allowed_updates"] >= cfg.service.updates_per_call:
             batch, status = timed(latencies, "sample", server.sample, cfg.service.updates_per_call)

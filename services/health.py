@@ -37,6 +37,13 @@ def failed_role(kind: str, err: Exception) -> tuple[str, bool]:
     return owner(kind), True
 
 
+def actor_key(kind: str, index: int) -> tuple[str, int]:
+    """(role, actor index) of the actor that runs a call: rollout workers and teacher actors are indexed, the
+    learner, the ICM and the replay server are single (index 0)."""
+    role = owner(kind)
+    return role, index if role in ("rollout", "teacher") else 0
+
+
 def actor_of(roles: Any, role: str, index: int) -> Any:
     """The handle of the actor of `role` (index: which rollout worker / teacher actor)."""
     return {"rollout": lambda: roles.rollout[index], "learner": lambda: roles.learner,
@@ -77,12 +84,12 @@ class CallWatch:
         if self.timeout_s <= 0:
             return set()
         now = time.monotonic() if now is None else now
-        late = {(owner(kind), index) for ref, (kind, index, _) in pending.items()
+        return {actor_key(kind, index) for ref, (kind, index, _) in pending.items()
                 if now - self.since.get(ref, now) > self.timeout_s}
-        return {(role, index if role in ("rollout", "teacher") else 0) for role, index in late}
 
-    def restart_clock(self, refs: list[Any]) -> None:
-        """Count these calls' wait from now (after their actor was killed, until their failure arrives)."""
+    def restart_clock(self, pending: dict[Any, tuple[str, int, int]], actor: tuple[str, int]) -> None:
+        """Count the wait of `actor`'s calls from now (after it was killed, until their failures arrive)."""
         now = time.monotonic()
-        for ref in refs:
-            self.since[ref] = now
+        for ref, (kind, index, _) in pending.items():
+            if actor_key(kind, index) == actor:
+                self.since[ref] = now

@@ -1,29 +1,29 @@
 """The replay server's metrics report: buffer, λ, difficulty / priority distributions, score age and coverage.
 
 Where it sits: `services.replay_server.ReplayServer.report` calls `replay_report` on itself every few seconds; the
-supervisor applies the Report to the Prometheus metrics (`services.metrics`). Read-only except that computing the
-distributions recomputes the curriculum agents' priorities at the current λ. Arrays are uniform subsamples of at
-most REPORT_SAMPLES rows, drawn with the server's own generator.
+supervisor applies the Report to the Prometheus metrics (`services.metrics`). Read-only: the server passes the
+per-row priority terms it has just recomputed at the current λ. Arrays are uniform subsamples of at most
+REPORT_SAMPLES rows, drawn with the server's own generator.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from cmcl.replay.priority import uses_curriculum
 from services.report_schema import CurriculumReport, FitReport, ReplayReport, Report
 
 REPORT_SAMPLES = 512
 
 
-def replay_report(server: Any) -> Report:
-    """The Report of a `ReplayServer` now."""
+def replay_report(server: Any, details: dict[str, Any] | None) -> Report:
+    """The Report of a `ReplayServer` now; details: `ReplayBuffer.recompute_priorities(lam, details=True)` output
+    for the curriculum agents (None when there are none or the buffer is empty)."""
     replay: dict[str, Any] = {"size": server.replay.size, "capacity": server.replay.capacity,
                               "inserts": server.counters["inserts"], "samples": server.counters["samples"],
                               "rejected": dict(server.rejected)}
     size = server.replay.size
-    if size and uses_curriculum(server.layout.modes):
-        d = server.replay.recompute_priorities(server.schedule.lam, details=True)
+    if details is not None:
+        d = details
         pick = server.rng.integers(0, size, min(size, REPORT_SAMPLES))
         scored = d["scored"][pick]
         replay.update(difficulty=d["c_hat"][pick][scored], priority=d["priority"][pick],

@@ -261,9 +261,11 @@ class ReplayServer:
     # ------------------------------------------------------------------ observability and state
     def report(self) -> Report:
         """Metrics report: buffer, λ, difficulty / priority distributions, score age and coverage."""
+        details = None
         if self.replay.size and uses_curriculum(self.layout.modes):  # the report reads priorities at the current λ
+            details = self.replay.recompute_priorities(self.schedule.lam, details=True)
             self.dirty, self.inserts_at_recompute = False, self.counters["inserts"]
-        return replay_report(self)
+        return replay_report(self, details)
 
     def state_dict(self) -> dict[str, Any]:
         """Codec-ready state: the buffer, score tables, insert ledger, counters, limiters and λ's step count."""

@@ -23,7 +23,7 @@ from cmcl.config import Config
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
 from cmcl.progress import episode_rows, progress_line, solved, window_summary
-from services.health import CallWatch, actor_of, check_not_dead_for_good, failed_role, owner, restartable
+from services.health import CallWatch, actor_of, check_not_dead_for_good, failed_role, restartable
 from services.metrics import ServiceMetrics
 from services.placement import Roles, service_paths
 from services.report_schema import Report
@@ -187,8 +187,7 @@ class Supervisor:
         for role, index in self.watch.overdue(self.pending):
             ray.kill(actor_of(self.roles, role, index), no_restart=False)
             self.hung[role] = self.hung.get(role, 0) + 1
-            self.watch.restart_clock([ref for ref, (kind, i, _) in self.pending.items() if owner(kind) == role
-                                      and (i == index or role not in ("rollout", "teacher"))])
+            self.watch.restart_clock(self.pending, (role, index))
 
     def _log_episodes(self, report: Report) -> None:
         """Append one 'episode' row per finished episode of a rollout report to metrics.jsonl."""
