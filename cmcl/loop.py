@@ -76,6 +76,7 @@ class InlineLoop:
         self.prioritized = uses_curriculum(self.layout.modes)
         self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "rounds": 0, "rescore_cursor": 0,
                          "teacher_steps": 0, "icm_steps": 0}
+        self.elapsed_s = 0.0  # training wall clock so far, seconds (kept across checkpoint + resume)
         self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
         self.last_stats: dict[str, Any] = {}
         self.obs = self.env.reset()
@@ -228,6 +229,7 @@ class InlineLoop:
             "icm": None if self.icm is None else self.icm.state_dict(),
             "schedule": {"env_steps": self.schedule.env_steps},
             "counters": dict(self.counters),
+            "elapsed_s": self.elapsed_s,
             "env": {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in self.env.get_state().items()},
             "obs": torch.from_numpy(self.obs.copy()),
             "rng": {name: g.bit_generator.state for name, g in self.rng.items()},
@@ -245,6 +247,7 @@ class InlineLoop:
                 model.load_state_dict(state[name])
         self.schedule.env_steps = int(state["schedule"]["env_steps"])
         self.counters.update({k: int(v) for k, v in state["counters"].items()})
+        self.elapsed_s = float(state.get("elapsed_s", 0.0))  # checkpoints before the clock was kept: 0
         for name, g in self.rng.items():
             g.bit_generator.state = state["rng"][name]
         for g, s in zip(self.sampler_rngs, state["sampler_rng"], strict=True):
@@ -274,7 +277,8 @@ class InlineLoop:
         """Train until run.episodes episodes have finished, the coverage target `run.stop_coverage` is reached
         or the budget `run.max_seconds` is spent; returns the final progress row."""
         cfg, c = self.config, self.counters
-        start, last_t = time.perf_counter(), time.perf_counter()
+        start = time.perf_counter() - self.elapsed_s  # a resumed run's clock goes on from its checkpoint
+        last_t = time.perf_counter()
         last = {"env_steps": c["env_steps"], "updates": c["updates"]}
         next_log = (c["episodes"] // cfg.run.log_every + 1) * cfg.run.log_every
         ce = cfg.run.checkpoint_every
@@ -299,6 +303,7 @@ class InlineLoop:
                     self.progress(self.format_progress(row))
                 last_t, last = now, {"env_steps": c["env_steps"], "updates": c["updates"]}
                 next_log = (c["episodes"] // cfg.run.log_every + 1) * cfg.run.log_every
+            self.elapsed_s = time.perf_counter() - start
             if next_ckpt is not None and (c["episodes"] >= next_ckpt or done):
                 self.save_checkpoint()
                 next_ckpt = (c["episodes"] // ce + 1) * ce

@@ -1,0 +1,192 @@
+"""Reproduce the paper's comparisons: a resumable grid of (task, algorithm per team, seed) runs at the paper's budget.
+
+Grids (the shared defaults of cmcl/config/ for every algorithm, 20,000 episodes each, no early stop):
+
+* ``spread``: sparse cooperative navigation N=4 with maddpg, per, acl and cmcl (the paper's Figs. 8-9);
+* ``tag``: predator-prey, predators learning with each algorithm against MADDPG prey (Fig. 12);
+* ``winrate``: CMCL predators against ACL prey and against PER-MADDPG prey (Fig. 13).
+
+Every run trains in its own subprocess (``python -m cmcl.loop``, inline) and checkpoints every 2,000 episodes.
+A rerun skips the runs whose summary exists and resumes an interrupted one from its latest checkpoint (its clock
+goes on from the checkpoint, so seconds stay comparable). Each finished run writes ``<out>/summaries/<id>.json``
+(measures, held-out evaluation, and 100-episode window curves, a few KB), and ``<out>/results.csv`` is rebuilt
+from all summaries. The figures and tables come from ``bench/reproduce_report.py``.
+
+    python bench/reproduce.py --grid spread --seeds 0 1 2 3 4 --jobs 2
+    python bench/reproduce.py --grid tag winrate --seeds 0 1 2 3 4
+    python bench/reproduce_report.py      # tables (mean ± 95% CI), tests, figures, into docs/RESULTS.md's inputs
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import ctypes
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from cmcl.config import ALGORITHMS  # noqa: E402
+from cmcl.evaluate import evaluate_policy, load_policy  # noqa: E402
+from cmcl.io.atomic import atomic_write_bytes  # noqa: E402
+from cmcl.io.plots import episode_series  # noqa: E402
+from cmcl.io.rundir import RunDirectory  # noqa: E402
+
+EPISODES, WINDOW, TARGETS, HELD_OUT = 20_000, 100, (0.5, 0.9), 200
+CSV_COLUMNS = ("id", "grid", "task", "algorithm", "prey_algorithm", "seed", "budget", "episodes", "env_steps",
+               "updates", "wall_s", "episodes_to_50", "episodes_to_90", "seconds_to_50", "seconds_to_90",
+               "auc_coverage", "final_ma_coverage", "final_ma_success", "mean_reward", "mean_reward_predator",
+               "mean_reward_prey", "final_ma_predator_win", "held_out_coverage", "held_out_success",
+               "held_out_collisions", "held_out_wall_hits", "win_vs_trained_prey", "win_vs_random_prey")
+
+
+def grid(names: list[str], seeds: list[int], algorithms: list[str], budget: int = EPISODES) -> list[dict[str, Any]]:
+    """The runs of the grids, seed outermost (every cell has seed k before any has seed k+1):
+    [{id, grid, task, algorithm, prey_algorithm, seed, budget (episodes)}]."""
+    runs = []
+    for seed in seeds:
+        for name in names:
+            if name == "spread":
+                cells = [("spread", a, None) for a in reversed(algorithms)]  # the longest (cmcl) first
+            elif name == "tag":
+                cells = [("tag", a, "maddpg") for a in reversed(algorithms)]
+            else:
+                cells = [("tag", "cmcl", prey) for prey in ("acl", "per")]
+            for task, algorithm, prey in cells:
+                run_id = f"{task}_{algorithm}_s{seed}" if prey in (None, "maddpg") else \
+                    f"{task}_{algorithm}_vs_{prey}_s{seed}"
+                runs.append({"id": run_id, "grid": name, "task": task, "algorithm": algorithm,
+                             "prey_algorithm": prey, "seed": seed, "budget": budget})
+    return list({r["id"]: r for r in runs}.values())
+
+
+def train(run: dict[str, Any], out: Path) -> Path:
+    """Train (or resume) one run in a subprocess; returns its run directory."""
+    run_path = out / "runs" / run["id"]
+    if run_path.exists() and RunDirectory.open(run_path).latest_checkpoint() is not None:
+        cmd = [sys.executable, "-m", "cmcl.loop", "--resume", str(run_path), "--quiet"]
+    else:
+        sets = [f"run.seed={run['seed']}", f"run.dir={run_path}", f"run.episodes={run['budget']}", "run.log_every=500",
+                "run.checkpoint_every=2000"]
+        if run["prey_algorithm"] is not None:
+            sets.append(f"teams.prey.algorithm={run['prey_algorithm']}")
+        config_file = ROOT / "configs" / f"{run['task']}_{run['algorithm']}.toml"
+        cmd = [sys.executable, "-m", "cmcl.loop", "--config", str(config_file),
+               *[a for s in sets for a in ("--set", s)], "--overwrite", "--quiet"]
+    subprocess.run(cmd, cwd=ROOT, check=True, stdout=subprocess.DEVNULL, preexec_fn=die_with_parent)
+    return run_path
+
+
+def die_with_parent() -> None:
+    """In the child, before exec: ask Linux to SIGKILL it when its parent goes (prctl PR_SET_PDEATHSIG), so a
+    killed grid never leaves an orphan training that a rerun's resume would then race on the same run directory."""
+    ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
+
+
+def first_reaching(values: np.ndarray, target: float) -> int | None:
+    """Index of the first episode whose trailing WINDOW-episode mean is >= target (None: never)."""
+    if values.size < WINDOW:
+        return None
+    moving = np.convolve(values, np.ones(WINDOW) / WINDOW, mode="valid")  # moving[i] ends at episode i+W-1
+    hit = np.flatnonzero(moving >= target - 1e-12)
+    return int(hit[0]) + WINDOW - 1 if hit.size else None
+
+
+def window_curves(series: dict[str, np.ndarray]) -> dict[str, list[float]]:
+    """Means over consecutive WINDOW-episode windows of every per-episode column: {name: [T // WINDOW]}."""
+    n = series["episode"].size // WINDOW * WINDOW
+    return {k: np.round(v[:n].reshape(-1, WINDOW).mean(axis=1), 5).tolist()
+            for k, v in series.items() if k != "episode"}
+
+
+def summarise(run: dict[str, Any], run_path: Path) -> dict[str, Any]:
+    """The measures of one finished run (training curves, time to 0.5/0.9, area, final rates, held-out)."""
+    run_dir = RunDirectory.open(run_path)
+    config = run_dir.config()
+    series = episode_series(run_dir)
+    elapsed = np.array([r.get("elapsed_s", np.nan) for r in run_dir.rows("episode")], dtype=np.float64)
+    progress = list(run_dir.rows("progress"))
+    policy = load_policy(config, run_dir.latest_checkpoint())
+    held_out = evaluate_policy(config, policy, episodes=HELD_OUT, seed=run["seed"])
+    result: dict[str, Any] = {**run, "episodes": int(series["episode"].size),
+                              "env_steps": progress[-1]["env_steps"], "updates": progress[-1]["updates"],
+                              "wall_s": float(elapsed[-1])}
+    if run["task"] == "spread":
+        coverage = series["coverage"]
+        for target in TARGETS:
+            i = first_reaching(coverage, target)
+            tag = f"{int(target * 100)}"
+            result[f"episodes_to_{tag}"] = None if i is None else i + 1
+            result[f"seconds_to_{tag}"] = None if i is None else float(elapsed[i])
+        result.update(auc_coverage=float(coverage.mean()), final_ma_coverage=float(coverage[-WINDOW:].mean()),
+                      final_ma_success=float(series["success"][-WINDOW:].mean()),
+                      mean_reward=float(series["reward_agent"].sum() / run["budget"]),  # Fig. 9's definition (§6.3)
+                      held_out_coverage=held_out["coverage"], held_out_success=held_out["success"],
+                      held_out_collisions=held_out["collisions"], held_out_wall_hits=held_out["wall_hits"])
+    else:
+        result.update(mean_reward_predator=float(series["reward_predator"].sum() / run["budget"]),
+                      mean_reward_prey=float(series["reward_prey"].sum() / run["budget"]),
+                      final_ma_predator_win=float(series["predator_win"][-WINDOW:].mean()),
+                      win_vs_trained_prey=held_out["predator_win"],
+                      win_vs_random_prey=evaluate_policy(config, policy, HELD_OUT, run["seed"],
+                                                         random_teams=("prey",))["predator_win"])
+    result["curves"] = window_curves(series)
+    return result
+
+
+def write_csv(out: Path) -> Path:
+    """Rebuild <out>/results.csv from every summary (one row per finished run; curves left out)."""
+    rows = [json.loads(p.read_text()) for p in sorted((out / "summaries").glob("*.json"))]
+    path = out / "results.csv"
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=CSV_COLUMNS, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+    return path
+
+
+def run_one(run: dict[str, Any], out: Path) -> str:
+    """Train, summarise and store one run; returns a one-line report."""
+    started = time.perf_counter()
+    summary = summarise(run, train(run, out))
+    atomic_write_bytes(out / "summaries" / f"{run['id']}.json", json.dumps(summary).encode())
+    keys = ("held_out_coverage", "held_out_success", "episodes_to_90", "win_vs_trained_prey", "wall_s")
+    return f"{run['id']} done in {time.perf_counter() - started:.0f} s: " + \
+        ", ".join(f"{k}={summary[k]}" for k in keys if k in summary)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--grid", nargs="+", choices=["spread", "tag", "winrate"], default=["spread"])
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
+    parser.add_argument("--algorithms", nargs="+", choices=ALGORITHMS, default=list(ALGORITHMS))
+    parser.add_argument("--episodes", type=int, default=EPISODES, help="budget of every run (the paper: 20,000)")
+    parser.add_argument("--jobs", type=int, default=1, help="runs trained at once (one core each)")
+    parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "reproduce"))
+    args = parser.parse_args()
+    out = Path(args.out)
+    (out / "summaries").mkdir(parents=True, exist_ok=True)
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    todo = [r for r in grid(args.grid, args.seeds, args.algorithms, args.episodes)
+            if not (out / "summaries" / f"{r['id']}.json").exists()]
+    print(f"{len(todo)} runs to do: {' '.join(r['id'] for r in todo)}", flush=True)
+    with ThreadPoolExecutor(max_workers=args.jobs) as pool:
+        for future in as_completed([pool.submit(run_one, r, out) for r in todo]):
+            print(future.result(), flush=True)
+            write_csv(out)
+    print(f"results: {write_csv(out)}")
+
+
+if __name__ == "__main__":
+    main()
