@@ -8,10 +8,25 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from cmcl.config import ConfigError, load_config
-from cmcl.io.rundir import RunDirectory
+from cmcl.io import codec
+from cmcl.io.rundir import CHECKPOINT_GLOB, RunDirectory
+from cmcl.io.verified import CheckpointError
 from cmcl.loop import InlineLoop
+
+
+def restore_newest_good(loop: InlineLoop, run_dir: RunDirectory) -> Path | None:
+    """Restore the newest checkpoint that passes its checks (manifest digest, snapshot limits); each refused one
+    is named on stderr and the one before it is tried. Returns the checkpoint restored, None if none passed."""
+    for checkpoint in sorted(run_dir.checkpoints.glob(CHECKPOINT_GLOB), reverse=True):
+        try:
+            loop.restore(checkpoint)
+            return checkpoint
+        except (CheckpointError, codec.CodecError, OSError) as err:
+            print(f"checkpoint refused: {err}", file=sys.stderr)
+    return None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -36,11 +51,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     loop = InlineLoop(config, run_dir, progress=None if args.quiet else print)
     if args.resume:
-        checkpoint = run_dir.latest_checkpoint()
+        checkpoint = restore_newest_good(loop, run_dir)
         if checkpoint is None:
-            print(f"error: {args.resume} holds no checkpoint to resume from", file=sys.stderr)
+            print(f"error: {args.resume} holds no checkpoint to resume from that passes its checks", file=sys.stderr)
             return 2
-        loop.restore(checkpoint)
         run_dir.truncate_rows_after(loop.counters["episodes"])
         print(f"resumed from {checkpoint} at episode {loop.counters['episodes']}")
     loop.run()

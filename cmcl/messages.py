@@ -98,6 +98,7 @@ class LearnerFeedback:
     generations: np.ndarray
     td_abs: np.ndarray
     losses: dict[str, Any] = field(default_factory=dict)
+    incarnation: str = ""  # the learner actor's incarnation id ("" inline)
 
 
 @dataclass(frozen=True)
@@ -123,6 +124,7 @@ class TeacherScores:
     errors: np.ndarray
     updates: int
     loss: float = 0.0
+    incarnation: str = ""  # the teacher actor's incarnation id ("" inline)
 
 
 @dataclass(frozen=True)
@@ -143,6 +145,7 @@ class CuriosityScores:
     rho: np.ndarray
     updates: int
     loss: float = 0.0
+    incarnation: str = ""  # the ICM actor's incarnation id ("" inline)
 
 
 def _check_rows(name: str, slots: np.ndarray, generations: np.ndarray, values: np.ndarray, width: tuple[int, ...]
@@ -158,12 +161,19 @@ def _check_rows(name: str, slots: np.ndarray, generations: np.ndarray, values: n
         raise MessageError(f"{name} values must be finite, got {float(values[~np.isfinite(values)].ravel()[0])!r}")
 
 
+def _check_incarnation(name: str, incarnation: Any) -> None:
+    """An incarnation id is a short string (services.common.new_incarnation: 12 hex digits; "" inline)."""
+    if not isinstance(incarnation, str) or len(incarnation) > 64:
+        raise MessageError(f"{name}.incarnation must be a string of at most 64 characters, got {incarnation!r:.80}")
+
+
 def check_teacher_scores(msg: Any, num_teacher_agents: int, num_folds: int) -> TeacherScores:
     """The message if it is a TeacherScores of A_t agents over valid folds; MessageError otherwise."""
     if not isinstance(msg, TeacherScores):
         raise MessageError(f"teacher scores must be a TeacherScores, got {type(msg).__name__}")
     if not msg.folds or any(not 0 <= f < num_folds for f in msg.folds):
         raise MessageError(f"TeacherScores.folds must lie in 0..{num_folds - 1}, got {list(msg.folds)}")
+    _check_incarnation("TeacherScores", msg.incarnation)
     _check_rows("TeacherScores.errors", msg.slots, msg.generations, msg.errors, (num_teacher_agents, len(msg.folds)))
     return msg
 
@@ -172,6 +182,7 @@ def check_curiosity_scores(msg: Any, num_curiosity_agents: int) -> CuriosityScor
     """The message if it is a CuriosityScores of A_c agents; MessageError otherwise."""
     if not isinstance(msg, CuriosityScores):
         raise MessageError(f"curiosity scores must be a CuriosityScores, got {type(msg).__name__}")
+    _check_incarnation("CuriosityScores", msg.incarnation)
     _check_rows("CuriosityScores.rho", msg.slots, msg.generations, msg.rho, (num_curiosity_agents,))
     return msg
 
@@ -180,6 +191,7 @@ def check_feedback(msg: Any, num_agents: int) -> LearnerFeedback:
     """The message if it is a LearnerFeedback of [n, N, S] arrays; MessageError otherwise."""
     if not isinstance(msg, LearnerFeedback):
         raise MessageError(f"learner feedback must be a LearnerFeedback, got {type(msg).__name__}")
+    _check_incarnation("LearnerFeedback", msg.incarnation)
     shape = np.shape(msg.slots)
     if len(shape) != 3 or shape[1] != num_agents or np.shape(msg.generations) != shape:
         raise MessageError(f"LearnerFeedback.slots / generations must be [n, N={num_agents}, S], got "

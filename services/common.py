@@ -11,7 +11,7 @@ import uuid
 from typing import Any
 
 from cmcl.config import Config, config_from_dict
-from cmcl.io.rundir import load_checkpoint, save_torch_atomic
+from cmcl.io.verified import VerifiedFile
 
 
 def actor_setup(config: Config | dict[str, Any], uses_torch: bool = True) -> Config:
@@ -34,15 +34,38 @@ def new_incarnation() -> str:
 
 
 def save_state(path: str | None, state: dict[str, Any]) -> str | None:
-    """torch.save `state` (plain state dicts) to `path` atomically; no-op without a path."""
+    """torch.save `state` (plain state dicts) as the next checkpoint generation at `path` (`VerifiedFile`: file,
+    then manifest with its SHA-256, the previous generation kept); no-op without a path. Returns the file."""
     if path is None:
         return None
-    save_torch_atomic(path, state)
-    return path
+    import io
+
+    import torch
+
+    buffer = io.BytesIO()
+    torch.save(dict(state), buffer)
+    return str(VerifiedFile(path).save(buffer.getvalue()))
 
 
-def load_state(path: str | None) -> dict[str, Any] | None:
-    """The state saved by `save_state`, or None when there is none (torch.load with weights_only=True)."""
-    if path is None or not os.path.exists(path):
-        return None
-    return load_checkpoint(path)
+def load_state(path: str | None) -> tuple[dict[str, Any] | None, list[str]]:
+    """(the newest state saved by `save_state` that passes its manifest check, or None; the files refused on the
+    way, "file: reason"). Checked before decoding; decoded with torch.load(weights_only=True). A refused file is
+    reported on stderr and the previous generation is tried; with none usable the role starts fresh."""
+    if path is None:
+        return None, []
+    import io
+    import sys
+
+    import torch
+
+    loaded = VerifiedFile(path).load()
+    refused = list(loaded.refused)
+    state = None
+    if loaded.payload is not None:
+        try:
+            state = torch.load(io.BytesIO(loaded.payload), map_location="cpu", weights_only=True)
+        except Exception as err:  # noqa: BLE001 - a payload torch cannot decode is refused like a corrupt one
+            refused.append(f"{path} generation {loaded.generation}: not a torch checkpoint ({type(err).__name__})")
+    for reason in refused:
+        print(f"checkpoint refused: {reason}", file=sys.stderr)
+    return state, refused

@@ -93,3 +93,22 @@ class CallWatch:
         for ref, (kind, index, _) in pending.items():
             if actor_key(kind, index) == actor:
                 self.since[ref] = now
+
+
+class RecoveryClock:
+    """Recovery times per role: from a call failing because its actor died to the next reply of that actor (its
+    restarted incarnation). Seconds, monotonic clock; `times` = {role: [seconds, ...]} in order of recovery."""
+
+    def __init__(self) -> None:
+        self.failed_at: dict[tuple[str, int], float] = {}
+        self.times: dict[str, list[float]] = {}
+
+    def failed(self, actor: tuple[str, int], now: float | None = None) -> None:
+        """An actor's call failed; the first failure of an outage starts its clock."""
+        self.failed_at.setdefault(actor, time.monotonic() if now is None else now)
+
+    def replied(self, actor: tuple[str, int], now: float | None = None) -> None:
+        """An actor replied: if it was down, its outage ends here."""
+        since = self.failed_at.pop(actor, None)
+        if since is not None:
+            self.times.setdefault(actor[0], []).append((time.monotonic() if now is None else now) - since)

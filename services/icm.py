@@ -29,7 +29,8 @@ class ICMWorker:
         if self.icm is None:
             raise ValueError("no team uses curiosity: the ICM actor is not needed for this config")
         self.loss = 0.0
-        state = load_state(checkpoint_path)
+        state, refused = load_state(checkpoint_path)
+        self.checkpoints_refused = len(refused)  # files refused at this start (manifest checks)
         self.resumed = state is not None
         if state is not None:
             self.icm.load_state_dict(state["icm"])
@@ -43,11 +44,13 @@ class ICMWorker:
         if out:
             self.loss = float(np.mean(out["inverse_loss"]) + np.mean(out["forward_loss"]))
         rho = learn.curiosity_values(self.icm, work.score.rows, agents)
-        return CuriosityScores(work.score.slots, work.score.generations, rho, work.updates, self.loss), self.report()
+        return CuriosityScores(work.score.slots, work.score.generations, rho, work.updates, self.loss,
+                               self.incarnation), self.report()
 
     def report(self) -> Report:
         """Metrics report (steps / scores are counted by the replay server)."""
-        return Report(source="icm", role="icm", incarnation=self.incarnation, resumed=self.resumed)
+        return Report(source="icm", role="icm", incarnation=self.incarnation, resumed=self.resumed,
+                      checkpoints_refused=self.checkpoints_refused)
 
     def save(self) -> str | None:
         """Write the ICM checkpoint atomically."""

@@ -33,7 +33,8 @@ class Learner:
         self.layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
         self.maddpg = build_maddpg(cfg, self.layout, seed)
         self.version, self.losses = 0, {}
-        state = load_state(checkpoint_path)
+        state, refused = load_state(checkpoint_path)
+        self.checkpoints_refused = len(refused)  # files refused at this start (manifest checks)
         self.resumed = state is not None
         if state is not None:
             self.maddpg.load_state_dict(state["maddpg"])
@@ -55,7 +56,7 @@ class Learner:
         self.version += 1
         self.losses = {f"agent_{a}": {"critic": float(stats["critic_loss"][a]), "actor": float(stats["actor_loss"][a])}
                        for a in range(self.layout.num_agents)}
-        return LearnerFeedback(batch.slots, batch.generations, td, self.losses), self.report()
+        return LearnerFeedback(batch.slots, batch.generations, td, self.losses, self.incarnation), self.report()
 
     def publish(self) -> dict[str, Any]:
         """The current weights with their version (the supervisor puts this in the object store)."""
@@ -64,6 +65,7 @@ class Learner:
     def report(self) -> Report:
         """Metrics report (cumulative updates, published version, last losses per agent)."""
         return Report(source="learner", role="learner", incarnation=self.incarnation, resumed=self.resumed,
+                      checkpoints_refused=self.checkpoints_refused,
                       learner=LearnerReport(updates=int(self.maddpg.updates), weight_version=self.version,
                                             losses=self.losses))
 

@@ -92,6 +92,8 @@ def define_metrics(r: CollectorRegistry) -> tuple[dict[str, Gauge], dict[str, Co
         "env_steps": c("cmcl_env_steps_total", "Environment steps taken by rollout workers (per world)."),
         "episodes": c("cmcl_episodes_total", "Episodes finished by rollout workers."),
         "restarts": c("cmcl_actor_restarts_total", "Actor restarts seen as a new incarnation.", ["role"]),
+        "checkpoints_refused": c("cmcl_checkpoints_refused_total",
+                                 "Checkpoint files refused by their manifest check when a role started.", ["role"]),
         "reports": c("cmcl_metrics_reports_total", "Reports applied to the metrics endpoint."),
         "reports_rejected": c("cmcl_metrics_reports_rejected_total", "Reports refused.", ["reason"]),
     }

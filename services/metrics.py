@@ -117,6 +117,8 @@ class ServiceMetrics:
     def _plan(self, report: Report) -> _Plan:
         """The operations of a parsed report, section by section; draws the histogram subsamples."""
         plan = _Plan()
+        if report.checkpoints_refused is not None:
+            plan.count("checkpoints_refused", report.checkpoints_refused, (report.role,))
         if (replay := report.replay) is not None:
             plan.gauge("replay_size", replay.size)
             plan.gauge("replay_capacity", replay.capacity)

@@ -21,6 +21,8 @@ from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
 from services.teachers import TeacherWorker
 
+ROLLOUT_RESOURCE_SHARE = 0.01  # units of service.rollout_resource each rollout worker requires
+
 
 class InfeasibleResources(RuntimeError):
     """The roles ask for more CPUs than the cluster has."""
@@ -81,11 +83,14 @@ def create_roles(config: Config, run_dir: RunDirectory) -> Roles:
                                   f"{available:g}; lower service.rollout_workers or the per-role CPU requests")
     s, seed, paths, cfg = config.service, config.run.seed, service_paths(run_dir), config.to_dict()
 
-    def actor(cls: type, cpus: float):
-        return ray.remote(num_cpus=cpus, max_restarts=s.max_restarts, max_task_retries=0)(cls)
+    def actor(cls: type, cpus: float, resources: dict[str, float] | None = None):
+        return ray.remote(num_cpus=cpus, resources=resources or {}, max_restarts=s.max_restarts,
+                          max_task_retries=0)(cls)
+
+    rollout_resources = {s.rollout_resource: ROLLOUT_RESOURCE_SHARE} if s.rollout_resource else None
 
     def make_rollout(w: int):
-        return actor(RolloutWorker, s.rollout_cpus).remote(cfg, w, seed * 1000 + w)
+        return actor(RolloutWorker, s.rollout_cpus, rollout_resources).remote(cfg, w, seed * 1000 + w)
 
     teams = config.teams.values()
     groups = teacher_groups(config, available)

@@ -29,7 +29,7 @@ SCHEMA_VERSION = 1
 # ReplayReport's sample fields, in the order they are validated and subsampled (the seeded draws follow it)
 SAMPLE_KEYS = ("difficulty", "priority", "kfold_priority", "curiosity_priority", "score_age")
 _LABEL_RE = re.compile(r"^[A-Za-z0-9_.:\-]{1,64}$")
-_TOP_KEYS = {"schema", "source", "role", "incarnation", "resumed", "weight_version"}
+_TOP_KEYS = {"schema", "source", "role", "incarnation", "resumed", "weight_version", "checkpoints_refused"}
 
 
 class ReportError(ValueError):
@@ -129,6 +129,7 @@ class Report(_Section):
     incarnation: str | None = None  # label, new in every actor __init__: a change counts one restart
     resumed: bool = False  # the new incarnation restored its totals from a checkpoint
     weight_version: int | None = None  # int >= 0: policy version in use (cmcl_weight_version_lag{actor=source})
+    checkpoints_refused: float | None = None  # N: checkpoint files this incarnation refused when it started
     replay: ReplayReport | None = None
     curriculum: CurriculumReport | None = None
     teachers: Mapping[str, FitReport] | None = None
@@ -285,6 +286,8 @@ def parse_report(report: Any) -> Report:
             "role": _label("role", report.get("role", "unknown")),
             "incarnation": None if incarnation is None else _label("incarnation", incarnation),
             "resumed": bool(resumed),
-            "weight_version": None if version is None else int(_number("weight_version", version, lo=0))}
+            "weight_version": None if version is None else int(_number("weight_version", version, lo=0)),
+            "checkpoints_refused": None if report.get("checkpoints_refused") is None else
+            _number("checkpoints_refused", report["checkpoints_refused"], lo=0)}
     sections = {name: parse(report[name]) for name, parse in _SECTIONS.items() if name in report}
     return Report(**meta, **sections)

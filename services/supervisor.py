@@ -23,7 +23,15 @@ from cmcl.config import Config
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
 from cmcl.progress import episode_rows, progress_line, solved, window_summary
-from services.health import CallWatch, actor_of, check_not_dead_for_good, failed_role, restartable
+from services.health import (
+    CallWatch,
+    RecoveryClock,
+    actor_key,
+    actor_of,
+    check_not_dead_for_good,
+    failed_role,
+    restartable,
+)
 from services.metrics import ServiceMetrics
 from services.placement import Roles, service_paths
 from services.report_schema import Report
@@ -55,6 +63,7 @@ class Supervisor:
         self.failures: dict[str, int] = {}  # failed calls per role of the actor that ran them
         self.hung: dict[str, int] = {}  # actors killed for a call in flight longer than service.call_timeout_s
         self.watch = CallWatch(config.service.call_timeout_s)
+        self.recovery = RecoveryClock()  # seconds from a dead actor's failed call to its next reply, per role
         self.lags: dict[str, int] = {}  # weight versions each rollout worker / teacher is behind
         self.episodes_logged = 0
         self.solved = False  # the coverage target run.stop_coverage was reached
@@ -151,6 +160,7 @@ class Supervisor:
         newest: an older one never replaces it (a stale episode count would let `_issue` collect more episodes
         than run.episodes).
         """
+        self.recovery.replied(actor_key(kind, index))
         if kind in ("rollout", "learner", "teacher", "icm"):
             if number > self.status_number:
                 self.status, self.status_number = value, number
@@ -175,6 +185,8 @@ class Supervisor:
         out of restarts; any other role out of restarts ends the run (`ServiceFailed`)."""
         role, own_death = failed_role(kind, err)
         self.failures[role] = self.failures.get(role, 0) + 1
+        if own_death:
+            self.recovery.failed(actor_key(kind, index))
         if kind in ("rollout", "learner", "teacher", "icm"):
             self.inflight[(kind, index)] -= 1
         if own_death and isinstance(err, ray.exceptions.ActorDiedError):
@@ -312,5 +324,5 @@ class Supervisor:
         if self.progress is not None:
             self.progress(self.progress_line())
         return {**self.status, **self.rates, "failures": dict(self.failures), "hung": dict(self.hung),
-                "solved": self.solved,
+                "recovery_s": {k: list(v) for k, v in self.recovery.times.items()}, "solved": self.solved,
                 "elapsed_s": time.perf_counter() - self.started}

@@ -39,7 +39,8 @@ class TeacherWorker:
                                         hidden=cfg.teachers.hidden, lr=cfg.teachers.lr, seed=seed)
         self.targets = build_maddpg(cfg, self.layout, seed)  # only its target nets are used
         self.version, self.steps, self.scores, self.loss = -1, 0, 0, 0.0
-        state = load_state(checkpoint_path)
+        state, refused = load_state(checkpoint_path)
+        self.checkpoints_refused = len(refused)  # files refused at this start (manifest checks)
         self.resumed = state is not None
         if state is not None:
             self.teachers.load_state_dict(state["teachers"])
@@ -64,11 +65,12 @@ class TeacherWorker:
         errors = learn.teacher_errors(self.teachers, work.score.rows, agents, self.targets, squared)  # [M, A_t, F]
         self.scores += int(errors.shape[0])
         return TeacherScores(tuple(self.folds), work.score.slots, work.score.generations, errors, work.updates,
-                             self.loss), self.report()
+                             self.loss, self.incarnation), self.report()
 
     def report(self) -> Report:
         """Metrics report of this teacher (its weight version; steps / scores are reported by the replay)."""
         return Report(source=self.name, role="teacher", incarnation=self.incarnation, resumed=self.resumed,
+                      checkpoints_refused=self.checkpoints_refused,
                       weight_version=max(self.version, 0))
 
     def save(self) -> str | None:

@@ -1,16 +1,23 @@
 """Faults injected into the service on a real embedded Ray: a replay server killed (SIGKILL) in the middle of an
-insert, a hung rollout worker, a role out of restarts. After each, training goes on (or stops with a clear error),
-counters never go back, no acknowledged transition is missing and none is stored twice."""
+insert and of a snapshot, a learner / teacher / ICM killed mid-step, a rollout worker killed three times, a hung
+rollout worker, a role out of restarts, and (on a 2-node cluster of its own) the loss of the worker node. After
+each, training goes on (or stops with a clear error), counters never go back, no acknowledged transition is
+missing and none is stored twice."""
 
+import json
 import os
 import signal
+import subprocess
+import sys
 import threading
+from pathlib import Path
 
 import pytest
 
 from cmcl.config import config_from_dict
 from cmcl.io import codec
 from cmcl.io.rundir import RunDirectory
+from services.faults import actor_entry, sigkill_actor
 from services.health import ServiceFailed
 from services.metrics import ServiceMetrics
 from services.placement import create_roles
@@ -18,6 +25,7 @@ from services.supervisor import Supervisor
 from tests.test_service_ray import samples, tiny, value
 
 pytestmark = pytest.mark.ray
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def supervised(config, progress=None):
@@ -181,3 +189,44 @@ def test_a_replay_server_killed_mid_snapshot_keeps_the_previous_one(tmp_path, ra
     assert summary["failures"].get("replay", 0) >= 1, summary["failures"]
     assert value(samples(metrics.text()), "cmcl_replay_inserts_total") == summary["env_steps"]
     kill_all(ray, roles)
+
+
+def test_a_rollout_worker_killed_three_times_with_sigkill_loses_nothing_acknowledged(tmp_path, ray_cluster):
+    """The only rollout worker's process is found in the GCS actor table and SIGKILLed three times, each time once
+    its newest incarnation has reported: every restart gets the current weights with its next call, the run ends
+    at its exact episode target, nothing is stored twice, and each outage's recovery time is recorded."""
+    ray = ray_cluster
+    config = with_service(tiny("maddpg", tmp_path / "rollout-kills", episodes=120), max_restarts=4)
+    roles, metrics, supervisor = supervised(config)
+    apply, kills = supervisor._apply, []
+
+    def apply_then_kill(kind, index, value_, *number):  # kill the worker once each incarnation has reported
+        apply(kind, index, value_, *number)
+        if kind == "rollout_report" and len(kills) < 3 and value_.incarnation not in {k[0] for k in kills}:
+            pid, _ = sigkill_actor(roles.rollout[0], exclude=frozenset(k[1] for k in kills))
+            kills.append((value_.incarnation, pid))
+
+    supervisor._apply = apply_then_kill
+    summary = supervisor.run()
+    assert len(kills) == 3, kills
+    assert summary["episodes"] == 120 and summary["env_steps"] == 120 * config.env.episode_length
+    parsed = samples(metrics.text())
+    assert value(parsed, "cmcl_actor_restarts_total", role="rollout") == 3
+    assert value(parsed, "cmcl_replay_inserts_total") == summary["env_steps"], "each stored chunk stored once"
+    assert actor_entry(roles.rollout[0])["NumRestarts"] == 3
+    assert len(summary["recovery_s"]["rollout"]) == 3 and all(t > 0 for t in summary["recovery_s"]["rollout"])
+    kill_all(ray, roles)
+
+
+def test_the_loss_of_the_worker_node_is_survived(tmp_path):
+    """A 2-node `ray.cluster_utils.Cluster` (its own process: tests/node_loss_scenario.py) loses the node running
+    the rollout worker; the worker restarts on the replacement node and the run ends at its exact target."""
+    done = subprocess.run([sys.executable, "-m", "tests.node_loss_scenario", str(tmp_path / "node-loss")],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    assert result["dead_nodes"] == 1 and result["node_now"] == result["node_after_expected"] != result["node_before"]
+    assert result["episodes"] == result["target"] and result["env_steps"] == result["target"] * result["episode_length"]
+    assert result["inserts"] == result["env_steps"], "every stored chunk stored once, none lost"
+    assert result["restarts"] == 1 and result["num_restarts"] == 1 and result["failures"].get("rollout", 0) >= 1
+    assert result["recovered_after_s"] > 0

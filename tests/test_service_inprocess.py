@@ -238,3 +238,25 @@ def test_the_log_never_holds_more_than_one_buffer_of_transitions(tmp_path):
     assert replay.store.generation == 1 and replay.logged_rows == 0
     assert (store / "log-000001.bin").stat().st_size == 0
     assert ReplayServer(cfg, store_dir=str(store)).replay.size == 360
+
+
+def test_every_reply_carries_its_actors_incarnation_and_a_bad_one_is_refused():
+    cfg = small_config("cmcl")
+    replay, learner, worker, teachers, icm = roles(cfg)
+    for _ in range(3):
+        chunk, report = worker.rollout(None)
+        assert chunk.incarnation == report.incarnation == worker.incarnation
+        replay.insert(chunk)
+    feedback, report = learner.update(replay.sample(2)[0])
+    assert feedback.incarnation == report.incarnation == learner.incarnation
+    scores, report = teachers[0].step(replay.teacher_work([0], 2)[0], learner.publish())
+    assert scores.incarnation == report.incarnation == teachers[0].incarnation
+    curiosity, report = icm.step(replay.icm_work(2)[0])
+    assert curiosity.incarnation == report.incarnation == icm.incarnation
+    assert replay.status()["incarnation"] == replay.incarnation
+    assert len({worker.incarnation, learner.incarnation, teachers[0].incarnation, icm.incarnation}) == 4
+    refused = replay.write_teacher_scores(dataclasses.replace(scores, incarnation=["not", "a", "string"]))
+    assert refused["error"].startswith("bad_scores: TeacherScores.incarnation must be a string")
+    refused = replay.learner_result(dataclasses.replace(feedback, incarnation="x" * 65))
+    assert refused["error"].startswith("bad_feedback: LearnerFeedback.incarnation")
+    assert replay.rejected["bad_scores"] == 1 and replay.rejected["bad_feedback"] == 1

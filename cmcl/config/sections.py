@@ -270,6 +270,9 @@ class ServiceConfig:
     teacher_cpus: float = 0.1
     icm_cpus: float = 0.1
     replay_cpus: float = 0.25
+    # a custom Ray resource the rollout workers require (0.01 of it each), to keep them on the nodes that
+    # advertise it (e.g. `ray start --resources='{"rollout": 100}'` on CPU worker nodes); "" = any node
+    rollout_resource: str = ""
     metrics_port: int = 9100  # 0: pick a free port
     metrics_host: str = "127.0.0.1"
 
@@ -284,6 +287,8 @@ class ServiceConfig:
         for name in ("rollout_cpus", "learner_cpus", "teacher_cpus", "icm_cpus", "replay_cpus"):
             _positive(f"service.{name}", getattr(self, name))
         _positive("service.checkpoint_every_s", self.checkpoint_every_s)
+        _require(self.rollout_resource == "" or self.rollout_resource.replace("_", "").replace("-", "").isalnum(),
+                 "service.rollout_resource", self.rollout_resource, "must be a Ray resource name ([A-Za-z0-9_-]+)")
         _require(0 <= self.metrics_port <= 65535, "service.metrics_port", self.metrics_port, "must lie in [0, 65535]")
 
 

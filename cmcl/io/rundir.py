@@ -111,18 +111,43 @@ class RunDirectory:
 
 
 def save_torch_atomic(path: str | Path, state: Mapping[str, Any]) -> None:
-    """torch.save `state` (tensors and plain containers, no numpy) to `path`, all or nothing."""
+    """torch.save `state` (tensors and plain containers, no numpy) to `path`, all or nothing, then its manifest
+    `<path>.sha256` ("<hex digest> <bytes>"), which `load_checkpoint` checks before decoding."""
+    import hashlib
     import io
 
     import torch
 
     buffer = io.BytesIO()
     torch.save(dict(state), buffer)
-    atomic_write_bytes(path, buffer.getvalue())
+    payload = buffer.getvalue()
+    atomic_write_bytes(path, payload)
+    atomic_write_bytes(digest_path(path), f"{hashlib.sha256(payload).hexdigest()} {len(payload)}".encode())
+
+
+def digest_path(path: str | Path) -> Path:
+    """Where the manifest (SHA-256 and size) of checkpoint `path` lives."""
+    return Path(str(path) + ".sha256")
 
 
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
-    """Load a checkpoint written by RunDirectory.save_checkpoint (weights_only: no arbitrary pickle)."""
+    """Load a checkpoint written by `save_torch_atomic`: checked against its manifest first (a truncated or
+    corrupted file raises `CheckpointError` naming it), then torch.load(weights_only=True): no arbitrary pickle.
+    Checkpoints written before manifests existed (no `.sha256` beside them) are decoded without the check."""
+    import io
+
     import torch
 
-    return torch.load(Path(path), map_location="cpu", weights_only=True)
+    from cmcl.io.verified import CheckpointError, check
+
+    path, manifest = Path(path), digest_path(path)
+    if manifest.exists():
+        try:
+            digest, size = manifest.read_text().split()
+            payload = check(path, int(size), digest)
+        except ValueError as err:
+            if isinstance(err, CheckpointError):
+                raise
+            raise CheckpointError(f"{manifest}: not a checkpoint manifest ({err})") from err
+        return torch.load(io.BytesIO(payload), map_location="cpu", weights_only=True)
+    return torch.load(path, map_location="cpu", weights_only=True)
