@@ -1,0 +1,256 @@
+"""Tables and figures of the reproduction grid (bench/reproduce.py): mean ± 95% CI over seeds, Welch tests of CMCL
+against each baseline, and the paper's figures in its form, each labelled with the budget it rests on.
+
+    python bench/reproduce_report.py [--out bench/results/reproduce] [--update docs/RESULTS.md]
+
+Reads <out>/summaries/*.json; writes <out>/figures/*.png; prints the markdown tables (and with --update, replaces
+the text between the `<!-- name:begin -->` / `<!-- name:end -->` markers of that file).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+ROOT = Path(__file__).resolve().parents[1]
+ORDER = ("maddpg", "per", "acl", "cmcl")
+LABEL = {"maddpg": "MADDPG", "per": "PER-MADDPG", "acl": "ACL", "cmcl": "CMCL"}
+COLOUR = {"maddpg": "tab:blue", "per": "tab:orange", "acl": "tab:green", "cmcl": "tab:red"}
+WINDOW = 100
+
+
+def load(out: Path) -> list[dict[str, Any]]:
+    return [json.loads(p.read_text()) for p in sorted((out / "summaries").glob("*.json"))]
+
+
+def mean_ci(values: list[float]) -> tuple[float, float]:
+    """(mean, half-width of the two-sided 95% t interval); half-width nan for fewer than 2 values."""
+    x = np.asarray(values, dtype=np.float64)
+    if x.size < 2:
+        return float(x.mean()) if x.size else float("nan"), float("nan")
+    return float(x.mean()), float(stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
+
+
+def fmt(values: list[float | None], digits: int = 3) -> str:
+    """'mean ± ci' over the values that exist, with 'k/n never' for missing (None) ones."""
+    got = [v for v in values if v is not None]
+    never = len(values) - len(got)
+    if not got:
+        return f"never ({never}/{len(values)})"
+    m, h = mean_ci(got)
+    text = f"{m:.{digits}f}" + ("" if np.isnan(h) else f" ± {h:.{digits}f}")
+    return text + (f", {never}/{len(values)} never" if never else "")
+
+
+def welch(a: list[float], b: list[float]) -> str:
+    """'Δ = mean(a) − mean(b) [95% CI], p' by Welch's unequal-variance t-test (two-sided)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if a.size < 2 or b.size < 2:
+        return "n/a"
+    va, vb = a.var(ddof=1) / a.size, b.var(ddof=1) / b.size
+    diff, se = a.mean() - b.mean(), np.sqrt(va + vb)
+    if se == 0:
+        return f"{diff:+.3f} (no spread)"
+    dof = (va + vb) ** 2 / (va ** 2 / (a.size - 1) + vb ** 2 / (b.size - 1))
+    half = stats.t.ppf(0.975, dof) * se
+    p = stats.ttest_ind(a, b, equal_var=False).pvalue
+    return f"{diff:+.3f} [{diff - half:+.3f}, {diff + half:+.3f}], p = {p:.3f}"
+
+
+SPREAD_COLUMNS = [("held-out coverage", "held_out_coverage", 3), ("held-out success", "held_out_success", 3),
+                  ("episodes to MA 0.5", "episodes_to_50", 0), ("episodes to MA 0.9", "episodes_to_90", 0),
+                  ("area under coverage", "auc_coverage", 3), ("final MA success", "final_ma_success", 3),
+                  ("mean reward per episode", "mean_reward", 1), ("seconds to MA 0.9", "seconds_to_90", 0),
+                  ("wall s", "wall_s", 0)]
+
+
+def spread_table(runs: list[dict[str, Any]]) -> str:
+    """One row per algorithm: mean ± 95% CI over its seeds of each measure."""
+    lines = ["| algorithm | seeds | " + " | ".join(c[0] for c in SPREAD_COLUMNS) + " |",
+             "| --- " * (len(SPREAD_COLUMNS) + 2) + "|"]
+    for algorithm in ORDER:
+        rs = [r for r in runs if r["algorithm"] == algorithm]
+        if rs:
+            lines.append(f"| {LABEL[algorithm]} | {len(rs)} | " +
+                         " | ".join(fmt([r.get(key) for r in rs], d) for _, key, d in SPREAD_COLUMNS) + " |")
+    return "\n".join(lines)
+
+
+def tests_table(runs: list[dict[str, Any]]) -> str:
+    """CMCL minus each baseline, per measure, by Welch's t-test (runs that never reached 0.9 are left out of that
+    measure and counted in the main table)."""
+    keys = [("mean reward", "mean_reward"), ("area under coverage", "auc_coverage"),
+            ("held-out success", "held_out_success"), ("episodes to MA 0.9", "episodes_to_90")]
+    cmcl = [r for r in runs if r["algorithm"] == "cmcl"]
+    lines = ["| CMCL minus | " + " | ".join(k[0] for k in keys) + " |", "| --- " * (len(keys) + 1) + "|"]
+    for base in ("maddpg", "per", "acl"):
+        rs = [r for r in runs if r["algorithm"] == base]
+        if rs and cmcl:
+            cells = [welch([r[k] for r in cmcl if r.get(k) is not None], [r[k] for r in rs if r.get(k) is not None])
+                     for _, k in keys]
+            lines.append(f"| {LABEL[base]} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def tag_table(runs: list[dict[str, Any]]) -> str:
+    """Predator-prey rows: predators' algorithm vs prey's; reward, win rates."""
+    lines = ["| predators | prey | seeds | mean predator reward per episode | final MA win | win vs trained prey "
+             "(held-out) | win vs random prey | wall s |", "| --- " * 8 + "|"]
+    for (pred, prey) in sorted({(r["algorithm"], r["prey_algorithm"]) for r in runs}):
+        rs = [r for r in runs if (r["algorithm"], r["prey_algorithm"]) == (pred, prey)]
+        lines.append(f"| {LABEL[pred]} | {LABEL[prey]} | {len(rs)} | " + " | ".join(
+            fmt([r[k] for r in rs], d) for k, d in (("mean_reward_predator", 1), ("final_ma_predator_win", 3),
+                                                   ("win_vs_trained_prey", 3), ("win_vs_random_prey", 3),
+                                                   ("wall_s", 0))) + " |")
+    return "\n".join(lines)
+
+
+def band(ax: Any, curves: list[list[float]], colour: str, label: str) -> None:
+    """Mean curve over seeds with its 95% t band; x in episodes (window ends)."""
+    n = min(len(c) for c in curves)
+    y = np.array([c[:n] for c in curves], dtype=np.float64)
+    x = (np.arange(n) + 1) * WINDOW
+    m = y.mean(0)
+    ax.plot(x, m, color=colour, label=f"{label} ({len(curves)} seeds)")
+    if len(curves) > 1:
+        h = stats.t.ppf(0.975, len(curves) - 1) * y.std(0, ddof=1) / np.sqrt(len(curves))
+        ax.fill_between(x, m - h, m + h, color=colour, alpha=0.2, linewidth=0)
+
+
+def budget(runs: list[dict[str, Any]]) -> str:
+    return f"{max(r['budget'] for r in runs):,} episodes per run, inline"
+
+
+def figures(runs: list[dict[str, Any]], out: Path) -> list[Path]:
+    """The paper's figures of whatever has finished; returns the PNGs written."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    spread = [r for r in runs if r["task"] == "spread"]
+    by_alg = {a: [r for r in spread if r["algorithm"] == a] for a in ORDER}
+    if spread:
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4))  # Fig. 8: average reward and landmark cover rate
+        for a, rs in by_alg.items():
+            if rs:
+                band(axes[0], [r["curves"]["reward_agent"] for r in rs], COLOUR[a], LABEL[a])
+                band(axes[1], [r["curves"]["coverage"] for r in rs], COLOUR[a], LABEL[a])
+        axes[0].set(xlabel="episode", ylabel="team return per episode (100-episode windows)",
+                    title="(a) average reward")
+        axes[1].set(xlabel="episode", ylabel="final-step landmark cover rate", title="(b) landmark cover rate",
+                    ylim=(0, 1.02))
+        axes[1].legend(loc="lower right")
+        fig.suptitle(f"Sparse cooperative navigation N=4 (Fig. 8 form); mean and 95% CI over seeds; {budget(spread)}")
+        written.append(save(fig, out / "fig8_spread_curves.png"))
+
+        fig, ax = plt.subplots(figsize=(6, 4))  # Fig. 9: mean reward bars
+        present = [a for a in ORDER if by_alg[a]]
+        means = [mean_ci([r["mean_reward"] for r in by_alg[a]]) for a in present]
+        ax.bar([LABEL[a] for a in present], [m for m, _ in means], yerr=[0 if np.isnan(h) else h for _, h in means],
+               color=[COLOUR[a] for a in present], capsize=6)
+        for i, a in enumerate(present):
+            ax.scatter([i] * len(by_alg[a]), [r["mean_reward"] for r in by_alg[a]], color="black", s=10, zorder=3)
+        ax.set(ylabel="total reward / episodes (team, per episode)",
+               title=f"Mean reward (Fig. 9 form), 95% CI, dots = seeds\n{budget(spread)}")
+        written.append(save(fig, out / "fig9_spread_mean_reward.png"))
+
+        fig, ax = plt.subplots(figsize=(6, 4))
+        for a, rs in by_alg.items():
+            if rs:
+                band(ax, [r["curves"]["success"] for r in rs], COLOUR[a], LABEL[a])
+        ax.set(xlabel="episode", ylabel="success rate (all landmarks, distinct agents)", ylim=(0, 1.02),
+               title=f"Success rate, mean and 95% CI over seeds\n{budget(spread)}")
+        ax.legend(loc="upper left")
+        written.append(save(fig, out / "spread_success_curves.png"))
+
+        fig, ax = plt.subplots(figsize=(6, 4))
+        for i, a in enumerate(present):
+            for j, key in enumerate(("episodes_to_50", "episodes_to_90")):
+                ys = [r[key] for r in by_alg[a]]
+                got = [y for y in ys if y is not None]
+                ax.scatter([i + (j - 0.5) * 0.3] * len(got), got, color=COLOUR[a], marker="o" if j else "^", s=18)
+                if len(got) < len(ys):
+                    ax.annotate(f"{len(ys) - len(got)} never", (i + (j - 0.5) * 0.3, 20_000), ha="center",
+                                fontsize=7)
+        ax.set_xticks(range(len(present)), [LABEL[a] for a in present])
+        ax.set(ylabel="episodes until the 100-episode MA reaches it", ylim=(0, 21_000),
+               title=f"Episodes to a cover rate of 0.5 (triangles) and 0.9 (dots)\n{budget(spread)}")
+        written.append(save(fig, out / "spread_episodes_to_solve.png"))
+    tag = [r for r in runs if r["task"] == "tag" and r["prey_algorithm"] == "maddpg"]
+    if tag:
+        fig, ax = plt.subplots(figsize=(6, 4))  # Fig. 12: predator reward against MADDPG prey
+        for a in ORDER:
+            rs = [r for r in tag if r["algorithm"] == a]
+            if rs:
+                band(ax, [r["curves"]["reward_predator"] for r in rs], COLOUR[a], LABEL[a])
+        ax.set(xlabel="episode", ylabel="predator team return per episode",
+               title=f"Predator-prey: predators vs MADDPG prey (Fig. 12 form)\n{budget(tag)}")
+        ax.legend()
+        written.append(save(fig, out / "fig12_tag_predator_reward.png"))
+    duel = [r for r in runs if r["task"] == "tag" and r["algorithm"] == "cmcl" and r["prey_algorithm"] in
+            ("acl", "per")]
+    if duel:
+        fig, ax = plt.subplots(figsize=(6, 4))  # Fig. 13: CMCL predators' win rate against ACL / PER prey
+        for prey in ("acl", "per"):
+            rs = [r for r in duel if r["prey_algorithm"] == prey]
+            if rs:
+                band(ax, [r["curves"]["predator_win"] for r in rs], COLOUR[prey],
+                     f"CMCL predators vs {LABEL[prey]} prey")
+        ax.axhline(0.85, color="grey", linestyle=":", label="paper: > 0.85 vs PER-MADDPG")
+        ax.set(xlabel="episode", ylabel="predator win rate (>= 1 capture per round)", ylim=(0, 1.02),
+               title=f"Win rate of CMCL predators (Fig. 13 form)\n{budget(duel)}")
+        ax.legend(loc="lower right")
+        written.append(save(fig, out / "fig13_cmcl_win_rate.png"))
+    return written
+
+
+def save(fig: Any, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return path
+
+
+def update(path: Path, blocks: dict[str, str]) -> None:
+    """Replace each `<!-- name:begin -->...<!-- name:end -->` block of `path` by its new text."""
+    text = path.read_text()
+    for name, body in blocks.items():
+        text = re.sub(rf"(<!-- {name}:begin -->\n).*?(<!-- {name}:end -->)",
+                      lambda m, body=body: m[1] + body + "\n" + m[2], text, flags=re.S)
+    path.write_text(text)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "reproduce"))
+    parser.add_argument("--update", help="a markdown file whose marked blocks get the new tables")
+    args = parser.parse_args()
+    out = Path(args.out)
+    runs = load(out)
+    spread = [r for r in runs if r["task"] == "spread"]
+    tag = [r for r in runs if r["task"] == "tag"]
+    blocks = {"spread": spread_table(spread), "tests": tests_table(spread)}
+    if tag:
+        blocks["tag"] = tag_table(tag)
+    for name, body in blocks.items():
+        print(f"{name}:\n{body}\n")
+    for png in figures(runs, out / "figures"):
+        print(f"figure: {png.relative_to(ROOT) if png.is_relative_to(ROOT) else png}")
+    if args.update:
+        update(Path(args.update), blocks)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
