@@ -9,7 +9,7 @@ TORCH  := torch==2.13.0
 RUN_ARGS ?=
 TEST_ARGS ?=
 
-.PHONY: install run demo test lint bench peer clean
+.PHONY: install system-deps run demo test lint bench peer clean
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -28,7 +28,16 @@ run: install
 demo: install
 	$(BIN)/python -m cmcl.demo
 
-test: install
+# The live-dashboard tests need a real Prometheus and a real Chromium (Debian packages). As root with apt-get they
+# are installed when missing; elsewhere a note is printed and those tests skip, saying why.
+system-deps:
+	@if command -v prometheus >/dev/null && command -v chromium >/dev/null; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq prometheus chromium >/dev/null; \
+	else echo "note: prometheus / chromium missing and not installable here (not root or no apt-get):" \
+		"tests/test_live_dashboard.py will skip"; fi
+
+test: install system-deps
 	$(BIN)/python -m pytest $(TEST_ARGS)
 
 lint: install

@@ -15,6 +15,23 @@ import numpy as np
 from cmcl.replay.priority import sampling_probabilities
 
 
+def ess_fraction(probs: np.ndarray) -> np.ndarray:
+    """Effective sample size 1 / Σ P² of each column of probs float[M, A] (columns sum to 1), as a fraction of M:
+    float[A] (1 = uniform, 1/M = all mass on one row)."""
+    probs = np.asarray(probs, np.float64)
+    return 1.0 / np.maximum((probs ** 2).sum(0), 1e-300) / max(probs.shape[0], 1)
+
+
+def buffer_branch_shares(c_hat: np.ndarray, scored: np.ndarray, lam: float) -> dict[str, float]:
+    """Share of the scored (row, agent) entries of the buffer in each branch of KP (eq. 12): rising ĉ <= λ,
+    ramp λ < ĉ < 2λ, excluded ĉ >= 2λ. c_hat float[M, A], scored bool[M, A]; {} when nothing is scored."""
+    c = np.asarray(c_hat)[np.asarray(scored, bool)]
+    if not c.size:
+        return {}
+    return {"rising": float((c <= lam).mean()), "ramp": float(((c > lam) & (c < 2 * lam)).mean()),
+            "excluded": float((c >= 2 * lam).mean())}
+
+
 def curriculum_diagnostics(c_hat: np.ndarray, probs: np.ndarray, lam: float, age: np.ndarray) -> dict[str, list]:
     """Per agent (columns), expected under the sampling distribution P, against the buffer's uniform average:
 
@@ -25,13 +42,12 @@ def curriculum_diagnostics(c_hat: np.ndarray, probs: np.ndarray, lam: float, age
     E_P[ĉ] and the plain mean of ĉ; age_sampled / age_buffer: E_P[age] and the plain mean age (updates).
     """
     c_hat, probs = np.asarray(c_hat, np.float64), np.asarray(probs, np.float64)
-    m = c_hat.shape[0]
     rising, falling = c_hat <= lam, (c_hat > lam) & (c_hat < 2 * lam)
     excluded = ~(rising | falling)
     age = np.asarray(age, np.float64)[:, None]
     out = {"share_rising": (probs * rising).sum(0), "share_falling": (probs * falling).sum(0),
            "share_excluded": (probs * excluded).sum(0),
-           "ess_fraction": 1.0 / np.maximum((probs**2).sum(0), 1e-300) / max(m, 1),
+           "ess_fraction": ess_fraction(probs),
            "difficulty_sampled": (probs * c_hat).sum(0), "difficulty_buffer": c_hat.mean(0),
            "age_sampled": (probs * age).sum(0), "age_buffer": np.broadcast_to(age.mean(), (c_hat.shape[1],))}
     return {k: [round(float(x), 4) for x in v] for k, v in out.items()}

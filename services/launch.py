@@ -29,6 +29,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--num-cpus", type=int, default=None, help="CPUs of the embedded Ray (default: all)")
     parser.add_argument("--metrics-port", type=int, default=None, help="Prometheus port (default service.metrics_port)")
     parser.add_argument("--metrics-host", default=None, help="bind address (default 127.0.0.1, loopback only)")
+    parser.add_argument("--ray-metrics-port", type=int, default=None,
+                        help="embedded Ray only: port of Ray's own Prometheus metrics (default: Ray picks one)")
     parser.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its service checkpoint")
     parser.add_argument("--overwrite", action="store_true", help="start over in a run.dir that holds a run")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -51,7 +53,7 @@ def resolve(args: argparse.Namespace) -> tuple[Config, RunDirectory]:
     return config, RunDirectory.create(config.run.dir, config, overwrite=args.overwrite)
 
 
-def start_ray(address: str | None, num_cpus: int | None) -> None:
+def start_ray(address: str | None, num_cpus: int | None, metrics_export_port: int | None = None) -> None:
     """Join `address`, or start an embedded Ray sized to this machine (no dashboard)."""
     import ray
 
@@ -65,7 +67,8 @@ def start_ray(address: str | None, num_cpus: int | None) -> None:
             raise ConnectionError(f"cannot join the Ray cluster at --address {address}: {err}. Start one with "
                                   f"`ray start --head`, or omit --address for an embedded Ray") from None
         return
-    ray.init(address="local", num_cpus=num_cpus or os.cpu_count(), include_dashboard=False, log_to_driver=False)
+    ray.init(address="local", num_cpus=num_cpus or os.cpu_count(), include_dashboard=False, log_to_driver=False,
+             _metrics_export_port=metrics_export_port)
 
 
 def run_service(config: Config, run_dir: RunDirectory, *, resume: bool = False, progress: Any = print
@@ -105,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     from services.placement import InfeasibleResources
 
     try:
-        start_ray(args.address, args.num_cpus)
+        start_ray(args.address, args.num_cpus, args.ray_metrics_port)
     except ConnectionError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

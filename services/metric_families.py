@@ -28,6 +28,10 @@ HISTOGRAMS = {  # sample key of ReplayReport (SAMPLE_KEYS) -> (metric name, help
     "curiosity_priority": ("cmcl_curiosity_priority", "Curiosity priority CP of buffer samples.", UNIT_BUCKETS),
     "score_age": ("cmcl_teacher_score_age_updates", "Learner updates since each teacher score was computed.",
                   AGE_BUCKETS),
+    "curiosity_age": ("cmcl_curiosity_score_age_updates", "Learner updates since each curiosity score was computed.",
+                      AGE_BUCKETS),
+    "sample_age": ("cmcl_sample_age_updates", "Learner updates since insertion of the rows the learner sampled.",
+                   AGE_BUCKETS),
 }
 
 
@@ -67,6 +71,12 @@ def define_metrics(r: CollectorRegistry) -> tuple[dict[str, Gauge], dict[str, Co
         "replay_size": g("cmcl_replay_size", "Transitions stored in the replay buffer."),
         "replay_capacity": g("cmcl_replay_capacity", "Capacity of the replay buffer in transitions."),
         "score_coverage": g("cmcl_teacher_score_coverage", "Fraction of the buffer with teacher scores (0-1)."),
+        "fold_score_coverage": g("cmcl_fold_score_coverage",
+                                 "Fraction of each fold's rows with a teacher difficulty score (0-1).", ["fold"]),
+        "kp_branch": g("cmcl_kp_branch_fraction", "Fraction of the scored buffer in each KP branch (eq. 12): "
+                       "rising (c <= lambda), ramp (lambda < c < 2 lambda), excluded (c >= 2 lambda).", ["branch"]),
+        "sampling_ess": g("cmcl_sampling_ess_fraction",
+                          "Effective sample size of the curriculum sampling distribution / buffer size (1 = uniform)."),
         "lambda": g("cmcl_curriculum_lambda", "Curriculum factor lambda owned by the replay server."),
         "teacher_loss": g("cmcl_teacher_loss", "Last fit loss of each teacher critic.", ["teacher"]),
         "icm_loss": g("cmcl_icm_loss", "Last ICM training loss (inverse + forward)."),

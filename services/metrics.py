@@ -123,6 +123,11 @@ class ServiceMetrics:
             plan.gauge("replay_size", replay.size)
             plan.gauge("replay_capacity", replay.capacity)
             plan.gauge("score_coverage", replay.score_coverage)
+            plan.gauge("sampling_ess", replay.sampling_ess)
+            for branch, share in (replay.kp_branches or {}).items():
+                plan.gauge("kp_branch", share, (branch,))
+            for fold, share in (replay.fold_score_coverage or {}).items():
+                plan.gauge("fold_score_coverage", share, (fold,))
             plan.count("replay_inserts", replay.inserts)
             plan.count("replay_samples", replay.samples)
             for reason, total in (replay.rejected or {}).items():

@@ -10,6 +10,10 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
+from cmcl.diagnostics import buffer_branch_shares, ess_fraction
+from cmcl.replay.priority import sampling_probabilities
 from services.report_schema import CurriculumReport, FitReport, ReplayReport, Report
 
 REPORT_SAMPLES = 512
@@ -27,15 +31,29 @@ def replay_report(server: Any, details: dict[str, Any] | None) -> Report:
         pick = server.rng.integers(0, size, min(size, REPORT_SAMPLES))
         scored = d["scored"][pick]
         replay.update(difficulty=d["c_hat"][pick][scored], priority=d["priority"][pick],
-                      kfold_priority=d["kp"][pick][scored], curiosity_priority=d["cp"][pick])
+                      kfold_priority=d["kp"][pick][scored], curiosity_priority=d["cp"][pick],
+                      kp_branches=buffer_branch_shares(d["c_hat"], d["scored"], server.schedule.lam),
+                      sampling_ess=float(np.mean(ess_fraction(sampling_probabilities(d["priority"],
+                                                                                     server.config.replay.alpha)))))
     if server.pacing.teachers and size:
         valid = server.replay.valid_slots()
         times = server.difficulty.stamps(valid, server.replay.generations(valid))
         replay["score_coverage"] = float(server.replay.storage.scored["difficulty"][:size][
             :, server.layout.teacher_agents].all(1).mean())
+        scored = server.replay.storage.scored["difficulty"][:size][:, server.layout.teacher_agents].all(1)
+        folds = server.replay.storage.fold[:size]
+        replay["fold_score_coverage"] = {str(f): float(scored[folds == f].mean()) for f in np.unique(folds)}
         ages = server.counters["updates"] - times[times >= 0]
         if ages.size:
             replay["score_age"] = ages[server.rng.integers(0, ages.size, min(ages.size, REPORT_SAMPLES))]
+    if server.pacing.icm is not None and size:
+        valid = server.replay.valid_slots()
+        stamps = server.curiosity_stamps.stamps(valid, server.replay.generations(valid))[:, 0]
+        ages = server.counters["updates"] - stamps[stamps >= 0]
+        if ages.size:
+            replay["curiosity_age"] = ages[server.rng.integers(0, ages.size, min(ages.size, REPORT_SAMPLES))]
+    if server.sample_ages.size:
+        replay["sample_age"] = server.sample_ages
     teachers = {str(k): FitReport(steps=server.teacher_steps[k], scores=server.teacher_scores[k],
                                   loss=server.losses.get(f"teacher_{k}"))
                 for k in range(len(server.pacing.teachers))} if server.pacing.teachers else None
@@ -44,3 +62,4 @@ def replay_report(server: Any, details: dict[str, Any] | None) -> Report:
     return Report(source="replay", role="replay", incarnation=server.incarnation, resumed=server.resumed,
                   replay=ReplayReport(**replay), curriculum=CurriculumReport(lam=server.schedule.lam),
                   teachers=teachers, icm=icm)
+

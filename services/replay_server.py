@@ -37,7 +37,7 @@ from cmcl.replay.priority import uses_curriculum
 from cmcl.system import agent_layout, beta_is, build_replay, build_schedule, make_batched_env
 from services.common import actor_setup, new_incarnation
 from services.replay_pacing import ReplayPacing
-from services.replay_report import replay_report
+from services.replay_report import REPORT_SAMPLES, replay_report
 from services.report_schema import Report
 
 
@@ -56,6 +56,8 @@ class ReplayServer:
         k, cap = cfg.teachers.num_folds, cfg.replay.capacity
         self.difficulty = DifficultyTable(cap, len(self.layout.teacher_agents), k)
         self.curiosity_stamps = ScoreStamps(cap, 1)
+        self.inserted_at = np.zeros(cap, np.int64)  # learner updates handed out when each slot was written
+        self.sample_ages = np.zeros(0)  # updates since insertion of (a subsample of) the rows last sampled
         self.ledger = InsertLedger()  # which (writer:incarnation, seq) chunks are stored
         self.logged_rows = 0  # transitions in the durable log since the last snapshot
         self.counters = {"inserts": 0, "samples": 0, "updates": 0, "episodes": 0, "icm_steps": 0,
@@ -131,8 +133,9 @@ class ReplayServer:
 
     def _store(self, chunk: Any) -> None:
         """Add a valid, new chunk to the buffer and advance the counters, the limiters and λ (also log replay)."""
-        self.replay.add(chunk.obs, chunk.act, chunk.rew, chunk.next_obs, chunk.done,
-                        self.counters["episodes"] + chunk.env_index, int(chunk.policy_version))
+        slots = self.replay.add(chunk.obs, chunk.act, chunk.rew, chunk.next_obs, chunk.done,
+                                self.counters["episodes"] + chunk.env_index, int(chunk.policy_version))
+        self.inserted_at[slots[slots >= 0]] = self.counters["updates"]
         self.ledger.accept(chunk.writer_key, chunk.seq)
         n = chunk.rows
         self.counters["inserts"] += n
@@ -163,6 +166,8 @@ class ReplayServer:
         beta = beta_is(self.config, self.counters["inserts"])
         betas = [beta if w else 0.0 for w in self.layout.importance_weights]
         batch = buffer.sample_owner_batches(self.replay, n, self.config.maddpg.batch_size, self.sampler_rngs, betas)
+        ages = (self.counters["updates"] - self.inserted_at[batch.slots.ravel()]).astype(np.float64)
+        self.sample_ages = ages[self.rng.integers(0, ages.size, min(ages.size, REPORT_SAMPLES))]
         self._event("updates", n)
         return batch, self.status()
 
@@ -274,7 +279,7 @@ class ReplayServer:
                 "ledger": self.ledger.state_dict(), "counters": dict(self.counters), "rejected": dict(self.rejected),
                 "teacher_steps": list(self.teacher_steps), "teacher_scores": list(self.teacher_scores),
                 **self.pacing.state_dict(),
-                "schedule_env_steps": self.schedule.env_steps}
+                "schedule_env_steps": self.schedule.env_steps, "inserted_at": self.inserted_at}
 
     def snapshot(self) -> int:
         """Write the state as a new snapshot generation of the store (msgpack, no pickle; the log restarts empty);
@@ -313,4 +318,7 @@ class ReplayServer:
         self.teacher_scores = [int(v) for v in state["teacher_scores"]]
         self.pacing.load_state_dict(state)
         self.schedule.env_steps = int(state["schedule_env_steps"])
+        inserted_at = np.asarray(state.get("inserted_at", np.zeros(0)), np.int64)  # older snapshots: none
+        if inserted_at.shape == self.inserted_at.shape:
+            self.inserted_at = inserted_at.copy()
         self.dirty = True

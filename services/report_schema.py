@@ -27,7 +27,8 @@ import numpy as np
 
 SCHEMA_VERSION = 1
 # ReplayReport's sample fields, in the order they are validated and subsampled (the seeded draws follow it)
-SAMPLE_KEYS = ("difficulty", "priority", "kfold_priority", "curiosity_priority", "score_age")
+SAMPLE_KEYS = ("difficulty", "priority", "kfold_priority", "curiosity_priority", "score_age", "curiosity_age",
+               "sample_age")
 _LABEL_RE = re.compile(r"^[A-Za-z0-9_.:\-]{1,64}$")
 _TOP_KEYS = {"schema", "source", "role", "incarnation", "resumed", "weight_version", "checkpoints_refused"}
 
@@ -73,6 +74,11 @@ class ReplayReport(_Section):
     kfold_priority: np.ndarray | None = None  # arr >= 0: K-fold priority KP
     curiosity_priority: np.ndarray | None = None  # arr >= 0: curiosity priority CP
     score_age: np.ndarray | None = None  # arr >= 0: learner updates since each row's teacher score
+    curiosity_age: np.ndarray | None = None  # arr >= 0: learner updates since each row's curiosity score
+    sample_age: np.ndarray | None = None  # arr >= 0: learner updates since insertion, of rows the learner sampled
+    kp_branches: Mapping[str, float] | None = None  # {rising|ramp|excluded: x in [0, 1]}: buffer share per branch
+    fold_score_coverage: Mapping[str, float] | None = None  # {fold label: x in [0, 1]}: rows of fold scored
+    sampling_ess: float | None = None  # x in [0, 1]: effective sample size of P / buffer size (1 = uniform)
 
 
 @dataclass(frozen=True)
@@ -211,13 +217,17 @@ def _labelled(path: str, value: Any, parse: Any) -> dict[str, Any]:
 
 def _parse_replay(section: Any) -> ReplayReport:
     """Validate ``replay``."""
-    keys = {"size", "capacity", "inserts", "samples", "rejected", "score_coverage", *SAMPLE_KEYS}
+    keys = {"size", "capacity", "inserts", "samples", "rejected", "score_coverage", "kp_branches",
+            "fold_score_coverage", "sampling_ess", *SAMPLE_KEYS}
     section = _mapping("replay", section, keys)
     values: dict[str, Any] = _numbers("replay", section, (("size", 0, None), ("capacity", 0, None),
                                                            ("score_coverage", 0, 1), ("inserts", 0, None),
-                                                           ("samples", 0, None)))
+                                                           ("samples", 0, None), ("sampling_ess", 0, 1)))
     if "rejected" in section:
         values["rejected"] = _labelled("replay.rejected", section["rejected"], lambda p, v: _number(p, v, lo=0))
+    for key in ("kp_branches", "fold_score_coverage"):
+        if key in section:
+            values[key] = _labelled(f"replay.{key}", section[key], lambda p, v: _number(p, v, lo=0, hi=1))
     values.update({key: _array(f"replay.{key}", section[key], lo=0) for key in SAMPLE_KEYS if key in section})
     return ReplayReport(**values)
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from cmcl.diagnostics import curriculum_diagnostics
+from cmcl.diagnostics import buffer_branch_shares, curriculum_diagnostics, ess_fraction
 from cmcl.replay.priority import sampling_probabilities
 
 
@@ -26,3 +26,12 @@ def test_concentrated_distribution_is_reported_as_such():
     assert d["ess_fraction"][0] < 0.011 and d["ess_fraction"][1] < 0.011
     assert d["share_excluded"][0] > 0.99 and d["share_rising"][1] > 0.99
     assert d["difficulty_sampled"][0] > 0.89 and d["age_sampled"][0] > 49
+
+
+def test_buffer_branch_shares_count_only_scored_entries():
+    c_hat = np.array([[0.05, 0.9], [0.15, 0.3], [0.25, 0.0], [0.5, 0.0]])
+    scored = np.array([[True, True], [True, True], [True, False], [True, False]])
+    shares = buffer_branch_shares(c_hat, scored, lam=0.1)  # scored: 0.05 | 0.15 | 0.25 0.5 0.9 0.3 (>= 0.2)
+    assert shares == {"rising": 1 / 6, "ramp": 1 / 6, "excluded": 4 / 6}
+    assert buffer_branch_shares(c_hat, np.zeros_like(scored), 0.1) == {}
+    np.testing.assert_allclose(ess_fraction(np.array([[0.25, 1.0], [0.25, 0], [0.25, 0], [0.25, 0]])), [1.0, 0.25])

@@ -28,7 +28,8 @@ REQUIRED = ["cmcl_replay_size", "cmcl_replay_inserts_total", "cmcl_replay_sample
             "cmcl_curriculum_lambda", "cmcl_difficulty", "cmcl_priority", "cmcl_teacher_scores_total",
             "cmcl_teacher_score_age_updates", "cmcl_curiosity_scores_total", "cmcl_icm_loss",
             "cmcl_learner_updates_total", "cmcl_learner_loss", "cmcl_env_steps_total", "cmcl_episodes_total",
-            "cmcl_coverage_rate", "cmcl_episode_reward", "cmcl_actor_restarts_total"]
+            "cmcl_coverage_rate", "cmcl_episode_reward", "cmcl_actor_restarts_total", "cmcl_kp_branch_fraction",
+            "cmcl_fold_score_coverage", "cmcl_sampling_ess_fraction", "cmcl_sample_age_updates"]
 
 
 def tiny(algorithm, path, task="spread", **run):
@@ -84,6 +85,13 @@ def test_each_preset_runs_end_to_end(algorithm, tmp_path, ray_cluster):
     teacher_scores = value(parsed, "cmcl_teacher_scores_total")
     assert (teacher_scores > 0) == (algorithm in ("acl", "cmcl"))
     assert (value(parsed, "cmcl_curiosity_scores_total") > 0) == (algorithm == "cmcl")
+    assert value(parsed, "cmcl_sample_age_updates_count") > 0, "the ages of sampled rows are reported"
+    if algorithm in ("acl", "cmcl"):  # the curriculum's own gauges
+        shares = [value(parsed, "cmcl_kp_branch_fraction", branch=b) for b in ("rising", "ramp", "excluded")]
+        assert abs(sum(shares) - 1) < 1e-6, shares
+        folds = [value(parsed, "cmcl_fold_score_coverage", fold=str(f)) for f in range(config.teachers.num_folds)]
+        assert all(0 <= f <= 1 for f in folds) and max(folds) > 0, folds
+        assert 0 < value(parsed, "cmcl_sampling_ess_fraction") <= 1
     live = samples(scraped["text"])  # the last scrape of the live endpoint, at the final progress line
     assert value(live, "cmcl_learner_updates_total") == summary["updates"], "the live endpoint served the run"
     rows = list(RunDirectory.open(config.run.dir).rows("episode"))
