@@ -192,3 +192,48 @@ def test_promtool_parses_every_dashboard_expression(tmp_path):
     path.write_text(yaml.safe_dump({"groups": [{"name": "dashboard", "rules": rules}]}))
     result = subprocess.run([PROMTOOL, "check", "rules", str(path)], capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def kuberay_containers() -> dict[str, dict]:
+    """Every container of the KubeRay manifests that runs Ray, by role."""
+    cluster = yaml.safe_load((DEPLOY / "kuberay/raycluster.yaml").read_text())
+    job = yaml.safe_load((DEPLOY / "kuberay/rayjob.yaml").read_text())
+    (workers,) = cluster["spec"]["workerGroupSpecs"]
+    return {"head": cluster["spec"]["headGroupSpec"]["template"]["spec"]["containers"][0],
+            "worker": workers["template"]["spec"]["containers"][0],
+            "submitter": job["spec"]["submitterPodTemplate"]["spec"]["containers"][0]}
+
+
+def test_every_ray_node_and_client_has_token_auth_on_and_one_image():
+    for name in ("cmcl-head", "cmcl-worker"):
+        env = SERVICES[name]["environment"]
+        assert env["RAY_AUTH_MODE"] == "token" and env["RAY_AUTH_TOKEN"].startswith("${CMCL_RAY_TOKEN:?"), name
+    images = {SERVICES["cmcl-head"]["image"], SERVICES["cmcl-worker"]["image"]}
+    for role, container in kuberay_containers().items():
+        env = {e["name"]: e for e in container["env"]}
+        assert env["RAY_AUTH_MODE"]["value"] == "token", role
+        assert env["RAY_AUTH_TOKEN"]["valueFrom"]["secretKeyRef"]["name"] == "cmcl-ray-token", role
+        images.add(container["image"])
+    assert images == {"cmcl-service:0.1.0"}, "compose and KubeRay run one image"
+    cluster = yaml.safe_load((DEPLOY / "kuberay/raycluster.yaml").read_text())
+    assert cluster["spec"]["headGroupSpec"]["serviceType"] == "ClusterIP", "the dashboard stays inside the cluster"
+
+
+def test_every_launch_command_is_accepted_by_the_launch_parser():
+    from services.launch import parse_args
+
+    job = yaml.safe_load((DEPLOY / "kuberay/rayjob.yaml").read_text())
+    commands = {"compose head": head_args(), "rayjob": shlex.split(job["spec"]["entrypoint"])[3:]}
+    assert shlex.split(job["spec"]["entrypoint"])[:3] == ["python", "-m", "services.launch"]
+    for name, args in commands.items():
+        parsed = parse_args(args)  # argparse exits (SystemExit) on an unknown or malformed flag
+        assert parsed.address == "auto", name
+
+
+def test_compose_prometheus_is_the_debian_one_and_serves_the_console_dashboard():
+    prometheus = SERVICES["prometheus"]
+    assert (ROOT / prometheus["build"]["dockerfile"]).read_text().count("apt-get install") == 1
+    assert mounts("prometheus")["/etc/prometheus/consoles"] == "./deploy/prometheus/consoles"
+    assert mounts("prometheus")["/etc/prometheus/console_libraries"] == "./deploy/prometheus/console_libraries"
+    assert {"--web.console.templates=/etc/prometheus/consoles",
+            "--web.console.libraries=/etc/prometheus/console_libraries"} <= set(prometheus["command"])
