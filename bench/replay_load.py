@@ -49,9 +49,9 @@ class LatencyHistogram:
         self.calls, self.max = self.calls + 1, max(self.max, seconds)
 
     def percentile(self, q: float) -> float:
-        """The q-th percentile in seconds (the upper edge of the bin it falls in)."""
+        """The q-th percentile in seconds (the upper edge of the bin it falls in, at most the largest call)."""
         k = np.searchsorted(np.cumsum(self.counts), q / 100.0 * self.calls)
-        return float(self.EDGES[min(k, self.EDGES.size - 1)])
+        return min(float(self.EDGES[min(k, self.EDGES.size - 1)]), self.max)
 
 
 def timed(latencies: dict[str, LatencyHistogram], name: str, fn, *args):
