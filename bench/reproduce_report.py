@@ -49,7 +49,7 @@ def fmt(values: list[float | None], digits: int = 3) -> str:
     return text + (f", {never}/{len(values)} never" if never else "")
 
 
-def welch(a: list[float], b: list[float]) -> str:
+def welch(a: list[float], b: list[float], digits: int = 3) -> str:
     """'Δ = mean(a) − mean(b) [95% CI], p' by Welch's unequal-variance t-test (two-sided)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     if a.size < 2 or b.size < 2:
@@ -57,11 +57,11 @@ def welch(a: list[float], b: list[float]) -> str:
     va, vb = a.var(ddof=1) / a.size, b.var(ddof=1) / b.size
     diff, se = a.mean() - b.mean(), np.sqrt(va + vb)
     if se == 0:
-        return f"{diff:+.3f} (no spread)"
+        return f"{diff:+.{digits}f} (no spread)"
     dof = (va + vb) ** 2 / (va ** 2 / (a.size - 1) + vb ** 2 / (b.size - 1))
     half = stats.t.ppf(0.975, dof) * se
     p = stats.ttest_ind(a, b, equal_var=False).pvalue
-    return f"{diff:+.3f} [{diff - half:+.3f}, {diff + half:+.3f}], p = {p:.3f}"
+    return f"{diff:+.{digits}f} [{diff - half:+.{digits}f}, {diff + half:+.{digits}f}], p = {p:.3f}"
 
 
 SPREAD_COLUMNS = [("held-out coverage", "held_out_coverage", 3), ("held-out success", "held_out_success", 3),
@@ -83,18 +83,35 @@ def spread_table(runs: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def seeds_table(runs: list[dict[str, Any]]) -> str:
+    """Per run: held-out coverage / success and episodes to MA 0.9, one row per algorithm, one column per seed
+    (which runs meet the target of coverage >= 0.9 and success >= 0.8)."""
+    seeds = sorted({r["seed"] for r in runs})
+    lines = ["| algorithm | " + " | ".join(f"seed {s}" for s in seeds) + " | runs meeting coverage ≥ 0.9 and "
+             "success ≥ 0.8 |", "| --- " * (len(seeds) + 2) + "|"]
+    for algorithm in ORDER:
+        rs = {r["seed"]: r for r in runs if r["algorithm"] == algorithm}
+        if not rs:
+            continue
+        cells = [(f"{rs[s]['held_out_coverage']:.3f} / {rs[s]['held_out_success']:.2f} / "
+                  f"{rs[s]['episodes_to_90'] or 'never'}") if s in rs else "" for s in seeds]
+        met = sum(r["held_out_coverage"] >= 0.9 and r["held_out_success"] >= 0.8 for r in rs.values())
+        lines.append(f"| {LABEL[algorithm]} | " + " | ".join(cells) + f" | {met} of {len(rs)} |")
+    return "\n".join(lines)
+
+
 def tests_table(runs: list[dict[str, Any]]) -> str:
     """CMCL minus each baseline, per measure, by Welch's t-test (runs that never reached 0.9 are left out of that
     measure and counted in the main table)."""
-    keys = [("mean reward", "mean_reward"), ("area under coverage", "auc_coverage"),
-            ("held-out success", "held_out_success"), ("episodes to MA 0.9", "episodes_to_90")]
+    keys = [("mean reward", "mean_reward", 1), ("area under coverage", "auc_coverage", 3),
+            ("held-out success", "held_out_success", 3), ("episodes to MA 0.9", "episodes_to_90", 0)]
     cmcl = [r for r in runs if r["algorithm"] == "cmcl"]
     lines = ["| CMCL minus | " + " | ".join(k[0] for k in keys) + " |", "| --- " * (len(keys) + 1) + "|"]
     for base in ("maddpg", "per", "acl"):
         rs = [r for r in runs if r["algorithm"] == base]
         if rs and cmcl:
-            cells = [welch([r[k] for r in cmcl if r.get(k) is not None], [r[k] for r in rs if r.get(k) is not None])
-                     for _, k in keys]
+            cells = [welch([r[k] for r in cmcl if r.get(k) is not None], [r[k] for r in rs if r.get(k) is not None],
+                           d) for _, k, d in keys]
             lines.append(f"| {LABEL[base]} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -241,7 +258,7 @@ def main() -> None:
     runs = load(out)
     spread = [r for r in runs if r["task"] == "spread"]
     tag = [r for r in runs if r["task"] == "tag"]
-    blocks = {"spread": spread_table(spread), "tests": tests_table(spread)}
+    blocks = {"spread": spread_table(spread), "seeds": seeds_table(spread), "tests": tests_table(spread)}
     if tag:
         blocks["tag"] = tag_table(tag)
     for name, body in blocks.items():
