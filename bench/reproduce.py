@@ -4,7 +4,9 @@ Grids (the shared defaults of cmcl/config/ for every algorithm, 20,000 episodes 
 
 * ``spread``: sparse cooperative navigation N=4 with maddpg, per, acl and cmcl (the paper's Figs. 8-9);
 * ``tag``: predator-prey, predators learning with each algorithm against MADDPG prey (Fig. 12);
-* ``winrate``: CMCL predators against ACL prey and against PER-MADDPG prey (Fig. 13).
+* ``winrate``: CMCL predators against ACL prey and against PER-MADDPG prey (Fig. 13);
+* ``ablations``: CMCL on navigation with one setting changed at a time (ABLATIONS below; the unchanged CMCL runs
+  of ``spread`` are their reference: η = 0.5, K = 5, ``max`` normalisation, the default λ stride, IS off).
 
 Every run trains in its own subprocess (``python -m cmcl.loop``, inline) and checkpoints every 2,000 episodes.
 A rerun skips the runs whose summary exists and resumes an interrupted one from its latest checkpoint (its clock
@@ -44,11 +46,23 @@ from cmcl.io.plots import episode_series  # noqa: E402
 from cmcl.io.rundir import RunDirectory  # noqa: E402
 
 EPISODES, WINDOW, TARGETS, HELD_OUT = 20_000, 100, (0.5, 0.9), 200
-CSV_COLUMNS = ("id", "grid", "task", "algorithm", "prey_algorithm", "seed", "budget", "episodes", "env_steps",
-               "updates", "wall_s", "episodes_to_50", "episodes_to_90", "seconds_to_50", "seconds_to_90",
+CSV_COLUMNS = ("id", "grid", "task", "algorithm", "prey_algorithm", "ablation", "seed", "budget", "episodes",
+               "env_steps", "updates", "wall_s", "episodes_to_50", "episodes_to_90", "seconds_to_50", "seconds_to_90",
                "auc_coverage", "final_ma_coverage", "final_ma_success", "mean_reward", "mean_reward_predator",
                "mean_reward_prey", "final_ma_predator_win", "held_out_coverage", "held_out_success",
                "held_out_collisions", "held_out_wall_hits", "win_vs_trained_prey", "win_vs_random_prey")
+
+
+ABLATIONS = {  # name -> (config file, --set overrides) of CMCL navigation variants
+    "eta0": ("spread_cmcl.toml", ["teams.agent.eta=0.0"]),
+    "eta1": ("spread_cmcl.toml", ["teams.agent.eta=1.0"]),
+    "k2": ("spread_cmcl.toml", ["teachers.num_folds=2"]),
+    "rank": ("spread_cmcl.toml", ["teachers.difficulty_norm=rank"]),
+    "stride_x2": ("spread_cmcl.toml", ["curriculum.stride=6e-6"]),  # λ_max at a quarter of training
+    "stride_half": ("spread_cmcl.toml", ["curriculum.stride=1.5e-6"]),  # λ_max at the end
+    "is_on": ("spread_cmcl.toml", ["teams.agent.is_correction=true"]),
+    "paper_schedule": ("paper/spread_cmcl.toml", []),  # one update per world step: ~16x the updates
+}
 
 
 def grid(names: list[str], seeds: list[int], algorithms: list[str], budget: int = EPISODES) -> list[dict[str, Any]]:
@@ -57,6 +71,12 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str], budget: int 
     runs = []
     for seed in seeds:
         for name in names:
+            if name == "ablations":
+                for ablation, (config, sets) in ABLATIONS.items():
+                    runs.append({"id": f"ablation_{ablation}_s{seed}", "grid": name, "task": "spread",
+                                 "algorithm": "cmcl", "prey_algorithm": None, "seed": seed, "budget": budget,
+                                 "ablation": ablation, "config": config, "sets": sets})
+                continue
             if name == "spread":
                 cells = [("spread", a, None) for a in reversed(algorithms)]  # the longest (cmcl) first
             elif name == "tag":
@@ -81,7 +101,8 @@ def train(run: dict[str, Any], out: Path) -> Path:
                 "run.checkpoint_every=2000"]
         if run["prey_algorithm"] is not None:
             sets.append(f"teams.prey.algorithm={run['prey_algorithm']}")
-        config_file = ROOT / "configs" / f"{run['task']}_{run['algorithm']}.toml"
+        sets += run.get("sets", [])
+        config_file = ROOT / "configs" / run.get("config", f"{run['task']}_{run['algorithm']}.toml")
         cmd = [sys.executable, "-m", "cmcl.loop", "--config", str(config_file),
                *[a for s in sets for a in ("--set", s)], "--overwrite", "--quiet"]
     subprocess.run(cmd, cwd=ROOT, check=True, stdout=subprocess.DEVNULL, preexec_fn=die_with_parent)
@@ -168,7 +189,9 @@ def run_one(run: dict[str, Any], out: Path) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--grid", nargs="+", choices=["spread", "tag", "winrate"], default=["spread"])
+    parser.add_argument("--grid", nargs="+", choices=["spread", "tag", "winrate", "ablations"], default=["spread"])
+    parser.add_argument("--ablations", nargs="+", choices=list(ABLATIONS), default=list(ABLATIONS),
+                        help="ablations grid: only these variants")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
     parser.add_argument("--algorithms", nargs="+", choices=ALGORITHMS, default=list(ALGORITHMS))
     parser.add_argument("--episodes", type=int, default=EPISODES, help="budget of every run (the paper: 20,000)")
@@ -179,7 +202,8 @@ def main() -> None:
     (out / "summaries").mkdir(parents=True, exist_ok=True)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     todo = [r for r in grid(args.grid, args.seeds, args.algorithms, args.episodes)
-            if not (out / "summaries" / f"{r['id']}.json").exists()]
+            if not (out / "summaries" / f"{r['id']}.json").exists() and r.get("ablation", args.ablations[0])
+            in args.ablations]
     print(f"{len(todo)} runs to do: {' '.join(r['id'] for r in todo)}", flush=True)
     with ThreadPoolExecutor(max_workers=args.jobs) as pool:
         for future in as_completed([pool.submit(run_one, r, out) for r in todo]):

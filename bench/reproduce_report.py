@@ -116,6 +116,25 @@ def tests_table(runs: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def ablation_table(ablations: list[dict[str, Any]], reference: list[dict[str, Any]]) -> str:
+    """One row per CMCL variant (and the unchanged CMCL runs as reference): mean ± 95% CI of the main measures,
+    and the variant minus the reference in area under coverage (Welch)."""
+    keys = [("held-out coverage", "held_out_coverage", 3), ("held-out success", "held_out_success", 3),
+            ("episodes to MA 0.9", "episodes_to_90", 0), ("area under coverage", "auc_coverage", 3),
+            ("mean reward per episode", "mean_reward", 1)]
+    lines = ["| CMCL variant | seeds | " + " | ".join(k[0] for k in keys) + " | area: variant − reference |",
+             "| --- " * (len(keys) + 3) + "|"]
+    groups = {"reference (η 0.5, K 5, max, default stride, IS off)": reference}
+    for r in ablations:
+        groups.setdefault(r["ablation"], []).append(r)
+    for name, rs in groups.items():
+        diff = "" if rs is reference else welch([r["auc_coverage"] for r in rs],
+                                                [r["auc_coverage"] for r in reference], 3)
+        lines.append(f"| {name} | {len(rs)} | " + " | ".join(fmt([r.get(k) for r in rs], d) for _, k, d in keys)
+                     + f" | {diff} |")
+    return "\n".join(lines)
+
+
 def tag_table(runs: list[dict[str, Any]]) -> str:
     """Predator-prey rows: predators' algorithm vs prey's; reward, win rates."""
     lines = ["| predators | prey | seeds | mean predator reward per episode | final MA win | win vs trained prey "
@@ -154,7 +173,7 @@ def figures(runs: list[dict[str, Any]], out: Path) -> list[Path]:
 
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    spread = [r for r in runs if r["task"] == "spread"]
+    spread = [r for r in runs if r.get("grid", "spread") == "spread"]
     by_alg = {a: [r for r in spread if r["algorithm"] == a] for a in ORDER}
     if spread:
         fig, axes = plt.subplots(1, 2, figsize=(11, 4))  # Fig. 8: average reward and landmark cover rate
@@ -256,9 +275,12 @@ def main() -> None:
     args = parser.parse_args()
     out = Path(args.out)
     runs = load(out)
-    spread = [r for r in runs if r["task"] == "spread"]
+    spread = [r for r in runs if r.get("grid", "spread") == "spread"]
+    ablations = [r for r in runs if r.get("grid") == "ablations"]
     tag = [r for r in runs if r["task"] == "tag"]
     blocks = {"spread": spread_table(spread), "seeds": seeds_table(spread), "tests": tests_table(spread)}
+    if ablations:
+        blocks["ablations"] = ablation_table(ablations, [r for r in spread if r["algorithm"] == "cmcl"])
     if tag:
         blocks["tag"] = tag_table(tag)
     for name, body in blocks.items():
