@@ -3,7 +3,8 @@ with `ray job submit -- python -m services.launch --address auto ...` (a short b
 trained. A submission with a wrong token is refused.
 
 The head runs as `ray start --head --block` in its own process group and is stopped by signalling that group
-(never `ray stop`, which would stop every Ray on the machine, the test session's own included).
+(never `ray stop`, which would stop every Ray on the machine, the test session's own included). Every port the
+head opens is chosen free, so that it never collides with another Ray on the machine (the session's included).
 """
 
 from __future__ import annotations
@@ -41,10 +42,13 @@ def head(tmp_path):
     """A token-auth Ray head on loopback: yields (dashboard address, environment with the token)."""
     token = secrets.token_hex(16)
     env = {**os.environ, "RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": token}
-    gcs, dashboard = free_port(), free_port()
+    gcs, dashboard, agent, agent_grpc = free_port(), free_port(), free_port(), free_port()
     proc = subprocess.Popen(
         [str(RAY), "start", "--head", "--block", "--node-ip-address=127.0.0.1", f"--port={gcs}",
          "--num-cpus=2", "--include-dashboard=true", "--dashboard-host=127.0.0.1", f"--dashboard-port={dashboard}",
+         # the dashboard agent's HTTP port defaults to 52365 for every Ray on the machine: the test session's own
+         # Ray holds it, and an agent that cannot bind it leaves the job API answering "No available agent"
+         f"--dashboard-agent-listen-port={agent}", f"--dashboard-agent-grpc-port={agent_grpc}",
          "--disable-usage-stats"], env=env, cwd=tmp_path, stdout=open(tmp_path / "head.log", "w"),
         stderr=subprocess.STDOUT, start_new_session=True)
     try:
