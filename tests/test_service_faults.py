@@ -156,7 +156,9 @@ def test_a_learner_teacher_or_icm_killed_mid_step_is_restarted_and_training_goes
     handle = {"learner": roles.learner, "teacher": roles.teachers[0], "icm": roles.icm}[role]
     armed = arm_after_first(supervisor, f"{role}_report", lambda: handle.__ray_call__.remote(arm))
     summary = supervisor.run()
-    ray.get(armed[0])  # the arming call itself succeeded
+    # not ray.get(armed[0]): the armed step kills the process right after the arming call returns, so that call's
+    # reply can be lost with it (ActorUnavailableError, found by the 10-run loop); the failure counted below is
+    # what shows the arming took effect
     assert armed and summary["episodes"] == 48 and summary["env_steps"] == 48 * config.env.episode_length
     assert summary["failures"].get(role, 0) >= 1, summary["failures"]
     assert value(samples(metrics.text()), "cmcl_actor_restarts_total", role=role) >= 1
@@ -183,8 +185,7 @@ def test_a_replay_server_killed_mid_snapshot_keeps_the_previous_one(tmp_path, ra
         store.snapshot = torn_snapshot
 
     armed = arm_after_first(supervisor, "replay_report", lambda: roles.replay.__ray_call__.remote(arm))
-    summary = supervisor.run()
-    ray.get(armed[0])
+    summary = supervisor.run()  # (the arming call's own reply may be lost with the process: see above)
     assert armed and summary["episodes"] == 60 and summary["env_steps"] == 60 * config.env.episode_length
     assert summary["failures"].get("replay", 0) >= 1, summary["failures"]
     assert value(samples(metrics.text()), "cmcl_replay_inserts_total") == summary["env_steps"]
