@@ -229,5 +229,6 @@ def test_the_loss_of_the_worker_node_is_survived(tmp_path):
     assert result["dead_nodes"] == 1 and result["node_now"] == result["node_after_expected"] != result["node_before"]
     assert result["episodes"] == result["target"] and result["env_steps"] == result["target"] * result["episode_length"]
     assert result["inserts"] == result["env_steps"], "every stored chunk stored once, none lost"
-    assert result["restarts"] == 1 and result["num_restarts"] == 1 and result["failures"].get("rollout", 0) >= 1
+    # restarts, not failed calls: whether a call was in flight when the node went is timing (the 10-run loop saw 0)
+    assert result["restarts"] == 1 and result["num_restarts"] == 1
     assert result["recovered_after_s"] > 0
