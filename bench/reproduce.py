@@ -45,7 +45,10 @@ from cmcl.io.atomic import atomic_write_bytes  # noqa: E402
 from cmcl.io.plots import episode_series  # noqa: E402
 from cmcl.io.rundir import RunDirectory  # noqa: E402
 
-EPISODES, WINDOW, TARGETS, HELD_OUT = 20_000, 100, (0.5, 0.9), 200
+sys.path.insert(0, str(ROOT / "bench"))
+from time_to_solve import WINDOW, first_reaching  # noqa: E402  (the one moving-average threshold rule of both benches)
+
+EPISODES, TARGETS, HELD_OUT = 20_000, (0.5, 0.9), 200
 CSV_COLUMNS = ("id", "grid", "task", "algorithm", "prey_algorithm", "ablation", "seed", "budget", "episodes",
                "env_steps", "updates", "wall_s", "episodes_to_50", "episodes_to_90", "seconds_to_50", "seconds_to_90",
                "auc_coverage", "final_ma_coverage", "final_ma_success", "mean_reward", "mean_reward_predator",
@@ -113,15 +116,6 @@ def die_with_parent() -> None:
     """In the child, before exec: ask Linux to SIGKILL it when its parent goes (prctl PR_SET_PDEATHSIG), so a
     killed grid never leaves an orphan training that a rerun's resume would then race on the same run directory."""
     ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
-
-
-def first_reaching(values: np.ndarray, target: float) -> int | None:
-    """Index of the first episode whose trailing WINDOW-episode mean is >= target (None: never)."""
-    if values.size < WINDOW:
-        return None
-    moving = np.convolve(values, np.ones(WINDOW) / WINDOW, mode="valid")  # moving[i] ends at episode i+W-1
-    hit = np.flatnonzero(moving >= target - 1e-12)
-    return int(hit[0]) + WINDOW - 1 if hit.size else None
 
 
 def window_curves(series: dict[str, np.ndarray]) -> dict[str, list[float]]:
