@@ -61,6 +61,7 @@ class Supervisor:
         self.version = -1
         self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
         self.failures: dict[str, int] = {}  # failed calls per role of the actor that ran them
+        self.reports_rejected: dict[str, int] = {}  # reports the metrics refused, per kind (each also logged)
         self.hung: dict[str, int] = {}  # actors killed for a call in flight longer than service.call_timeout_s
         self.watch = CallWatch(config.service.call_timeout_s)
         self.recovery = RecoveryClock()  # seconds from a dead actor's failed call to its next reply, per role
@@ -169,9 +170,9 @@ class Supervisor:
             self.inflight[(kind, index)] -= 1
         elif kind == "replay_report":  # before the other reports: its kind ends in "_report" too
             self.last_replay_report = value
-            self.metrics.try_apply(value)
+            self._apply_metrics(kind, value)
         elif kind.endswith("_report"):
-            self.metrics.try_apply(value)
+            self._apply_metrics(kind, value)
             if value.weight_version is not None:
                 self.lags[value.source] = max(0, self.version - int(value.weight_version))
             if kind == "learner_report" and value.learner.weight_version != self.version:
@@ -179,6 +180,14 @@ class Supervisor:
                 self.weights = self.roles.learner.publish.remote()
             if kind == "rollout_report":
                 self._log_episodes(value)
+
+    def _apply_metrics(self, kind: str, report: Report) -> None:
+        """Apply a report to the metrics; a refused one is counted per kind and logged with its error, never
+        dropped silently (a refused final replay report once left the inserts counter a few chunks behind)."""
+        error = self.metrics.try_apply(report)
+        if error is not None:
+            self.reports_rejected[kind] = self.reports_rejected.get(kind, 0) + 1
+            self.run_dir.log({"kind": "report_rejected", "report": kind, "error": error})
 
     def _failed(self, kind: str, index: int, err: Exception) -> None:
         """A call failed because an actor died: free its slot (Ray restarts the actor) or replace a rollout worker
@@ -324,5 +333,6 @@ class Supervisor:
         if self.progress is not None:
             self.progress(self.progress_line())
         return {**self.status, **self.rates, "failures": dict(self.failures), "hung": dict(self.hung),
+                "reports_rejected": dict(self.reports_rejected),
                 "recovery_s": {k: list(v) for k, v in self.recovery.times.items()}, "solved": self.solved,
                 "elapsed_s": time.perf_counter() - self.started}

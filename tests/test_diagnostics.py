@@ -35,3 +35,12 @@ def test_buffer_branch_shares_count_only_scored_entries():
     assert shares == {"rising": 1 / 6, "ramp": 1 / 6, "excluded": 4 / 6}
     assert buffer_branch_shares(c_hat, np.zeros_like(scored), 0.1) == {}
     np.testing.assert_allclose(ess_fraction(np.array([[0.25, 1.0], [0.25, 0], [0.25, 0], [0.25, 0]])), [1.0, 0.25])
+
+
+def test_ess_fraction_never_exceeds_one_for_uniform_columns_of_any_size():
+    """Σ P² of a uniform column rounds below 1/M for many M (M = 21 gave 1.0000000000000087), which the report
+    schema refuses as out of [0, 1]: that refusal once dropped a service's final replay report."""
+    sizes = np.arange(1, 3001)
+    ess = np.array([ess_fraction(np.full((m, 1), 1.0 / m))[0] for m in sizes])
+    assert (ess <= 1.0).all(), sizes[ess > 1.0][:5]
+    np.testing.assert_allclose(ess, 1.0)
