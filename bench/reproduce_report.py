@@ -259,6 +259,31 @@ def save(fig: Any, path: Path) -> Path:
     return path
 
 
+def tag_tests_table(runs: list[dict[str, Any]]) -> str:
+    """The tests behind the predator-prey verdicts. Fig. 12: CMCL predators minus each baseline's predators (all
+    against MADDPG prey), Welch. Fig. 13: CMCL predators' held-out win rate against ACL and PER-MADDPG prey, with a
+    one-sample t-test of the mean against the paper's 0.85."""
+    vs_maddpg = {a: [r for r in runs if r["algorithm"] == a and r["prey_algorithm"] == "maddpg"] for a in ORDER}
+    keys = [("mean predator reward", "mean_reward_predator", 1), ("win vs trained prey", "win_vs_trained_prey", 3),
+            ("win vs random prey", "win_vs_random_prey", 3)]
+    lines = ["| CMCL predators minus (prey: MADDPG) | " + " | ".join(k[0] for k in keys) + " |",
+             "| --- " * (len(keys) + 1) + "|"]
+    for base in ("maddpg", "per", "acl"):
+        if vs_maddpg["cmcl"] and vs_maddpg[base]:
+            lines.append(f"| {LABEL[base]} predators | " + " | ".join(
+                welch([r[k] for r in vs_maddpg["cmcl"]], [r[k] for r in vs_maddpg[base]], d) for _, k, d in keys)
+                + " |")
+    lines += ["", "| CMCL predators against | seeds | held-out win rate | t-test of the mean against 0.85 |",
+              "| --- | --- | --- | --- |"]
+    for prey in ("acl", "per"):
+        wins = [r["win_vs_trained_prey"] for r in runs if r["algorithm"] == "cmcl" and r["prey_algorithm"] == prey]
+        if wins:
+            test = (f"mean − 0.85 = {np.mean(wins) - 0.85:+.3f}, p = {stats.ttest_1samp(wins, 0.85).pvalue:.3f}"
+                    if len(wins) > 1 else "n/a")
+            lines.append(f"| {LABEL[prey]} prey | {len(wins)} | {fmt(wins, 3)} | {test} |")
+    return "\n".join(lines)
+
+
 def update(path: Path, blocks: dict[str, str]) -> None:
     """Replace each `<!-- name:begin -->...<!-- name:end -->` block of `path` by its new text."""
     text = path.read_text()
@@ -282,7 +307,7 @@ def main() -> None:
     if ablations:
         blocks["ablations"] = ablation_table(ablations, [r for r in spread if r["algorithm"] == "cmcl"])
     if tag:
-        blocks["tag"] = tag_table(tag)
+        blocks["tag"], blocks["tagtests"] = tag_table(tag), tag_tests_table(tag)
     for name, body in blocks.items():
         print(f"{name}:\n{body}\n")
     for png in figures(runs, out / "figures"):
