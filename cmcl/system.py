@@ -124,7 +124,7 @@ def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
     m = config.maddpg
     return MADDPG(layout.num_agents, layout.obs_dim, layout.act_dim, hidden=m.hidden, actor_lr=m.actor_lr,
                   critic_lr=m.critic_lr, gamma=m.gamma, tau=m.tau, grad_clip=m.grad_clip, discrete=m.discrete,
-                  seed=seed)
+                  seed=seed, share_parameters=m.share_parameters)
 
 
 def build_replay(config: Config, layout: AgentLayout) -> ReplayBuffer:

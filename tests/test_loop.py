@@ -58,6 +58,26 @@ def test_each_algorithm_runs_and_learns_from_its_own_priorities(algorithm, tmp_p
     assert len(list(Path(config.run.dir, "checkpoints").glob("ckpt_*.pt"))) == 3
 
 
+def test_eight_agents_with_shared_networks_run_and_resume_their_weights(tmp_path):
+    """Scale (issue 11): N = 8 navigation with one shared actor and critic; the learner's weights change and a
+    checkpoint restores them into a fresh loop."""
+    data = tiny_config("cmcl", dir=str(tmp_path / "n8")).to_dict()
+    data["env"]["num_agents"], data["maddpg"]["share_parameters"] = 8, True
+    config = config_from_dict(data)
+    loop = InlineLoop(config, RunDirectory.create(config.run.dir, config), progress=None)
+    before = {k: v.clone() for k, v in loop.maddpg.actor.state_dict().items()}
+    loop.run()
+    assert loop.counters["episodes"] == 12 and loop.maddpg.actor.layers[1].weight.shape[0] == 1
+    after = loop.maddpg.actor.state_dict()
+    assert loop.maddpg.actor.layers[0].bias.shape == (8, 32), "each agent keeps its own first-layer bias"
+    assert any(not torch.equal(before[k], after[k]) for k in before)
+    run_dir = RunDirectory.open(config.run.dir)
+    resumed = InlineLoop(run_dir.config(()), run_dir, progress=None)
+    resumed.restore(run_dir.latest_checkpoint())
+    for k, v in after.items():
+        assert torch.equal(resumed.maddpg.actor.state_dict()[k], v), k
+
+
 def test_predator_prey_pits_cmcl_predators_against_per_prey(tmp_path):
     config = tiny_config("cmcl", task="tag", opponent="per", dir=str(tmp_path / "tag"), episodes=8)
     loop = InlineLoop(config, None, progress=None)

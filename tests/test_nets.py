@@ -88,3 +88,34 @@ def test_joint_input_layout():
     x = joint_input(obs, act)
     assert x.shape == (2, 9)
     torch.testing.assert_close(x[1], torch.cat([obs[1].flatten(), act[1].flatten()]))
+
+
+def test_a_shared_mlp_is_one_network_with_a_per_member_first_layer_bias():
+    shared, own = StackedMLP(5, 7, (16, 16), 3, seed=0, share=True), StackedMLP(5, 7, (16, 16), 3, seed=0)
+    shapes = [tuple(p.shape) for p in shared.parameters()]
+    assert shapes == [(1, 7, 16), (5, 16), (1, 16, 16), (1, 16), (1, 16, 3), (1, 3)], shapes
+    assert sum(p.numel() for p in shared.parameters()) < sum(p.numel() for p in own.parameters()) / 4
+    x = torch.randn(5, 11, 7)
+    out = shared(x)
+    for m in range(5):
+        torch.testing.assert_close(out[m], shared.member_module(m)(x[m]))
+    subset = torch.tensor([3, 1])
+    torch.testing.assert_close(shared(x[subset], subset), out[subset])
+    torch.testing.assert_close(shared(x[0])[2], shared.member_module(2)(x[0]))  # one input shared by all members
+    with torch.no_grad():
+        shared.layers[0].bias[4].copy_(shared.layers[0].bias[0])
+    same = shared(x[0].expand(5, 11, 7))
+    torch.testing.assert_close(same[4], same[0])  # only the first-layer bias tells members apart
+    assert not torch.allclose(same[1], same[0])
+
+
+def test_the_grad_clip_of_a_shared_network_is_one_global_norm():
+    net = StackedMLP(4, 6, (8,), 2, seed=1, share=True)
+    twin = copy.deepcopy(net)
+    for model in (net, twin):
+        (model(torch.randn(4, 9, 6, generator=torch.Generator().manual_seed(2))) * 50).sum().backward()
+    norms = clip_grad_norm_per_member_(net.parameters(), 0.5)
+    expected = torch.nn.utils.clip_grad_norm_(list(twin.parameters()), 0.5)
+    torch.testing.assert_close(norms, expected.expand(4))
+    for p, q in zip(net.parameters(), twin.parameters(), strict=True):
+        torch.testing.assert_close(p.grad, q.grad)

@@ -8,9 +8,10 @@ from cmcl.learners.policy import NumpyPolicy
 from cmcl.learners.weights import load_published, published_weights
 
 
+@pytest.mark.parametrize("share", [False, True])
 @pytest.mark.parametrize("noise", [0.0, 0.1])
-def test_numpy_policy_matches_maddpg_act(noise):
-    maddpg = MADDPG(4, 18, seed=3)
+def test_numpy_policy_matches_maddpg_act(noise, share):
+    maddpg = MADDPG(4, 18, seed=3, share_parameters=share)
     obs = np.random.default_rng(0).normal(size=(64, 4, 18)).astype(np.float32)
     policy = NumpyPolicy(published_weights(maddpg)["actor"])
     ours = policy.act(obs, noise, rng=np.random.default_rng(7))

@@ -89,6 +89,9 @@ class MADDPGConfig:
     # world steps (one step of one world = one transition) per learner update; 16 solves navigation fastest in
     # wall clock (README, bench/time_to_solve.py --grid schedule); the paper presets (configs/paper/) use 1 (A18)
     update_every: int = 16
+    # one actor and one critic network for all agents, each with its own first-layer bias (an agent-id embedding,
+    # cmcl.learners.nets); for N = 8 / 16 (bench/scale.py). False = the paper's per-agent networks
+    share_parameters: bool = False
 
     def __post_init__(self) -> None:
         for name in ("actor_lr", "critic_lr", "grad_clip"):

@@ -42,6 +42,8 @@ class MADDPG:
         grad_clip: per-agent gradient-norm clip (actor and critic).  discrete: Gumbel-softmax actors.
         gumbel_temperature: temperature of the Gumbel-softmax sample.  logit_l2: L2 on actor logits (discrete).
         seed: initial weights and the internal noise generator.
+        share_parameters: one actor and one critic network for all agents, each agent keeping its own first-layer
+            bias (an agent-id embedding; cmcl.learners.nets). Off by default (the paper's per-agent networks).
     """
 
     def __init__(
@@ -59,6 +61,7 @@ class MADDPG:
         gumbel_temperature: float = 1.0,
         logit_l2: float = 1e-3,
         seed: int = 0,
+        share_parameters: bool = False,
     ):
         self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
         self.gamma, self.tau, self.grad_clip = float(gamma), float(tau), float(grad_clip)
@@ -67,8 +70,10 @@ class MADDPG:
         init_seed, noise_seed = np.random.SeedSequence(seed).generate_state(2)
         gen = torch.Generator().manual_seed(int(init_seed))
         n = self.num_agents
-        self.actor = StackedMLP(n, obs_dim, widths, act_dim, out_act=None if discrete else nn.Tanh, generator=gen)
-        self.critic = StackedMLP(n, n * (obs_dim + act_dim), widths, 1, generator=gen)
+        share = self.share_parameters = bool(share_parameters)
+        self.actor = StackedMLP(n, obs_dim, widths, act_dim, out_act=None if discrete else nn.Tanh, generator=gen,
+                                share=share)
+        self.critic = StackedMLP(n, n * (obs_dim + act_dim), widths, 1, generator=gen, share=share)
         self.target_actor = copy.deepcopy(self.actor).requires_grad_(False)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
         self.actor_opt = make_adam(self.actor.parameters(), actor_lr)

@@ -8,6 +8,12 @@ summed before ``backward``; the gradient of member m only depends on member m's 
 
 Shapes: a stacked layer holds ``weight float32[members, in, out]`` and ``bias float32[members, out]``.
 ``StackedMLP`` maps ``[members, B, in] -> [members, B, out]``; a 2-D input ``[B, in]`` is shared by all members.
+
+Parameter sharing (``StackedMLP(share=True)``): every layer holds ONE weight ``[1, in, out]`` and, past the first
+layer, one bias ``[1, out]``, broadcast to all members; only the first layer's bias stays per member. That bias is
+exactly a learned agent-id embedding (W·[x; onehot(m)] = W_x·x + b_m), so members share one network yet can still
+tell who they are. The member count then barely changes the parameter count (N·hidden extra), which is the
+point at N = 8 or 16 (issue 11's scale study).
 """
 
 from __future__ import annotations
@@ -63,23 +69,28 @@ class StackedLinear(nn.Module):
     (kaiming_uniform with a=sqrt(5) reduces to this bound), drawn independently for every member.
     """
 
-    def __init__(self, members: int, in_dim: int, out_dim: int, generator: torch.Generator | None = None):
+    def __init__(self, members: int, in_dim: int, out_dim: int, generator: torch.Generator | None = None,
+                 shared_weight: bool = False, shared_bias: bool = False):
         super().__init__()
         self.members, self.in_dim, self.out_dim = members, in_dim, out_dim
         bound = 1.0 / math.sqrt(in_dim) if in_dim > 0 else 0.0
-        w = torch.empty(members, in_dim, out_dim).uniform_(-bound, bound, generator=generator)
-        b = torch.empty(members, out_dim).uniform_(-bound, bound, generator=generator)
-        self.weight = nn.Parameter(w)  # [members, in, out]
-        self.bias = nn.Parameter(b)  # [members, out]
+        w = torch.empty(1 if shared_weight else members, in_dim, out_dim).uniform_(-bound, bound, generator=generator)
+        b = torch.empty(1 if shared_bias else members, out_dim).uniform_(-bound, bound, generator=generator)
+        self.weight = nn.Parameter(w)  # [members, in, out], or [1, in, out] when shared
+        self.bias = nn.Parameter(b)  # [members, out], or [1, out] when shared
 
     def forward(self, x: torch.Tensor, members: torch.Tensor | None = None) -> torch.Tensor:
-        """x [m, B, in] (or shared [B, in]) -> [m, B, out]; ``members`` (int64[m]) selects a subset of members."""
+        """x [m, B, in] (or shared [B, in]) -> [m, B, out]; ``members`` (int64[m]) selects a subset of members.
+        A shared weight or bias ([1, ...]) is broadcast to every member."""
         w, b = self.weight, self.bias
+        m = (self.members if members is None else len(members)) if x.dim() == 2 else x.shape[0]
         if members is not None:
-            w, b = w[members], b[members]
-        if x.dim() == 2:  # one input shared by every member
-            return torch.matmul(x, w) + b.unsqueeze(1)
-        return torch.baddbmm(b.unsqueeze(1), x, w)
+            w = w if w.shape[0] == 1 else w[members]
+            b = b if b.shape[0] == 1 else b[members]
+        if x.dim() == 3 and w.shape[0] == x.shape[0] and b.shape[0] == x.shape[0]:
+            return torch.baddbmm(b.unsqueeze(1), x, w)
+        out = torch.matmul(x, w) + b.unsqueeze(1)  # [B, in] or [m, B, in] @ [m or 1, in, out]
+        return out.expand(m, *out.shape[1:]) if out.shape[0] != m else out
 
     def extra_repr(self) -> str:
         return f"members={self.members}, in_dim={self.in_dim}, out_dim={self.out_dim}"
@@ -107,6 +118,7 @@ class StackedMLP(nn.Module):
         activation: hidden activation, a module class such as ``nn.ReLU``.
         out_act: output activation (``nn.Tanh`` for actors) or None.
         seed / generator: source of the initial weights (a generator wins over a seed).
+        share: one network for all members, with a per-member first-layer bias (module docstring).
     """
 
     def __init__(
@@ -119,14 +131,16 @@ class StackedMLP(nn.Module):
         out_act: Callable[[], nn.Module] | nn.Module | None = None,
         seed: int | None = None,
         generator: torch.Generator | None = None,
+        share: bool = False,
     ):
         super().__init__()
         if generator is None and seed is not None:
             generator = torch.Generator().manual_seed(int(seed))
         widths = [in_dim, *([hidden] if isinstance(hidden, int) else list(hidden)), out_dim]
-        self.members, self.in_dim, self.out_dim = members, in_dim, out_dim
+        self.members, self.in_dim, self.out_dim, self.share = members, in_dim, out_dim, bool(share)
         self.layers = nn.ModuleList(
-            StackedLinear(members, a, b, generator) for a, b in zip(widths[:-1], widths[1:], strict=True)
+            StackedLinear(members, a, b, generator, shared_weight=self.share, shared_bias=self.share and k > 0)
+            for k, (a, b) in enumerate(zip(widths[:-1], widths[1:], strict=True))
         )
         self.act = _make_act(activation)
         self.out_act = _make_act(out_act)
@@ -147,8 +161,8 @@ class StackedMLP(nn.Module):
         for k, layer in enumerate(self.layers):
             lin = nn.Linear(layer.in_dim, layer.out_dim)
             with torch.no_grad():
-                lin.weight.copy_(layer.weight[m].T)
-                lin.bias.copy_(layer.bias[m])
+                lin.weight.copy_(layer.weight[m if layer.weight.shape[0] > 1 else 0].T)
+                lin.bias.copy_(layer.bias[m if layer.bias.shape[0] > 1 else 0])
             mods.append(lin)
             if k < last:
                 mods.append(type(self.act)())
@@ -176,11 +190,20 @@ def clip_grad_norm_per_member_(params: Iterable[torch.Tensor], max_norm: float, 
 
     Equivalent to calling ``torch.nn.utils.clip_grad_norm_(member_m_params, max_norm)`` for every member m:
     the norm of member m runs over slice m of every parameter's gradient, coef = min(1, max_norm/(norm+eps)).
-    Every parameter must have the member axis first; parameters without a gradient are skipped.
+    Every parameter must have the member axis first; parameters without a gradient are skipped. When some are
+    shared (leading axis 1, ``StackedMLP(share=True)``), the members form one network: one norm over every
+    gradient is clipped, and returned once per member.
     """
     grads = [p.grad for p in params if p.grad is not None]
     if not grads:
         return torch.zeros(0)
+    members = max(g.shape[0] for g in grads)
+    if any(g.shape[0] != members for g in grads):  # parameter sharing: one network, one norm
+        norm = torch.stack([g.pow(2).sum() for g in grads]).sum().sqrt()
+        coef = (max_norm / (norm + eps)).clamp(max=1.0)
+        for g in grads:
+            g.mul_(coef)
+        return norm.expand(members).clone()
     sq = torch.stack([g.pow(2).flatten(1).sum(1) for g in grads]).sum(0)  # [members]
     norms = sq.sqrt()
     coef = (max_norm / (norms + eps)).clamp(max=1.0)

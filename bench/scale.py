@@ -1,0 +1,129 @@
+"""Scale past the paper's N = 4: what one update costs, and how learning goes, at N = 4, 8 and 16 agents.
+
+Cost (default): for each N and each of per-agent networks (the paper's) and `maddpg.share_parameters = true`,
+the inline loop of cooperative navigation (N agents, N landmarks) is filled to its buffer capacity by its own
+policy, then timed over interleaved rounds of `InlineLoop.update()` (everything the loop does per update at the
+defaults: the MADDPG step, and for CMCL the teacher and ICM steps, scoring and the priority recompute). Printed:
+median milliseconds per update, parameter counts of the actors + critics (+ teachers), and the ratio of each
+cell against N = 4 per-agent measured in the same process.
+
+Learning (`--learn EPISODES`): one inline training run per (N, sharing, seed) with early stop off, reporting the
+final moving-average coverage and success, episodes to MA 0.5 / 0.9 and wall seconds. Writes one JSON per run to
+`--out` (default bench/results/scale/); finished runs are skipped on a rerun (resumable).
+
+Run: .venv/bin/python bench/scale.py [--algorithm cmcl] [--agents 4 8 16]
+     .venv/bin/python bench/scale.py --learn 20000 --agents 8 --seeds 0 1 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from bench.time_to_solve import WINDOW, first_reaching  # noqa: E402
+from cmcl.config import load_config  # noqa: E402
+from cmcl.loop import InlineLoop  # noqa: E402
+
+
+def overrides(n: int, share: bool, extra: list[str] = ()) -> list[str]:
+    """Config overrides of the navigation preset for N agents (and N landmarks) with or without sharing."""
+    return [f"env.num_agents={n}", f"maddpg.share_parameters={'true' if share else 'false'}", *extra]
+
+
+def filled_loop(algorithm: str, n: int, share: bool) -> InlineLoop:
+    """The inline loop of spread with N agents, its buffer filled by its own policy (warm-up = capacity)."""
+    config = load_config(f"{ROOT}/configs/spread_{algorithm}.toml",
+                         ["run.dir=unused", "maddpg.warmup=5000", *overrides(n, share)])
+    loop = InlineLoop(config, None, progress=None)
+    while loop.replay.size < loop.replay.capacity:
+        loop.env_step()
+    return loop
+
+
+def parameter_counts(loop: InlineLoop) -> tuple[int, int]:
+    """Trainable parameters of (the learner's actors + critics, the teacher critics; 0 without teachers)."""
+    learner = sum(p.numel() for m in (loop.maddpg.actor, loop.maddpg.critic) for p in m.parameters())
+    teachers = loop.teachers
+    modules = [] if teachers is None else [m for m in vars(teachers).values() if hasattr(m, "parameters")]
+    return learner, sum(p.numel() for m in modules for p in m.parameters())
+
+
+def update_cost(algorithm: str, agents: list[int], rounds: int, updates: int) -> None:
+    """Median ms per inline update for every (N, sharing) cell, interleaved, and the ratio to N = 4 per-agent."""
+    cells = {(n, share): filled_loop(algorithm, n, share) for n in agents for share in (False, True)}
+    seconds: dict[tuple[int, bool], list[float]] = {cell: [] for cell in cells}
+    for _ in range(rounds):
+        for cell, loop in cells.items():
+            t0 = time.perf_counter()
+            for _ in range(updates):
+                loop.update()
+            seconds[cell].append((time.perf_counter() - t0) / updates)
+    median = {cell: statistics.median(v) for cell, v in seconds.items()}
+    peer = median[(min(agents), False)]
+    print(f"{algorithm}: one inline update at the defaults, median of {rounds} rounds of {updates}")
+    print(f"| N | actors and critics | ms per update | actor + critic parameters | teacher parameters | "
+          f"cost / N={min(agents)} per-agent |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for (n, share), loop in cells.items():
+        learner, teachers = parameter_counts(loop)
+        print(f"| {n} | {'shared' if share else 'per-agent'} | {1e3 * median[(n, share)]:.2f} | {learner:,} | "
+              f"{teachers:,} | {median[(n, share)] / peer:.2f} |")
+
+
+def learn(algorithm: str, agents: list[int], seeds: list[int], episodes: int, out: Path) -> None:
+    """One inline run per (N, sharing, seed), each in its own process; one summary JSON per run (resumable)."""
+    out.mkdir(parents=True, exist_ok=True)
+    for n in agents:
+        for share in (False, True):
+            for seed in seeds:
+                name = f"{algorithm}_n{n}_{'shared' if share else 'own'}_s{seed}"
+                if (out / f"{name}.json").exists():
+                    continue
+                run_dir = out / "runs" / name
+                settings = [f"run.dir={run_dir}", f"run.seed={seed}", f"run.episodes={episodes}",
+                            "run.stop_coverage=0", *overrides(n, share)]
+                args = [sys.executable, "-m", "cmcl.loop", "--config", f"{ROOT}/configs/spread_{algorithm}.toml",
+                        "--quiet", "--overwrite", *[a for kv in settings for a in ("--set", kv)]]
+                t0 = time.perf_counter()
+                subprocess.run(args, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
+                rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+                coverage = np.array([r["coverage"] for r in rows if r.get("kind") == "episode"], np.float64)
+                success = np.array([r["success"] for r in rows if r.get("kind") == "episode"], np.float64)
+                summary = {"algorithm": algorithm, "agents": n, "shared": share, "seed": seed,
+                           "episodes": len(coverage), "wall_s": time.perf_counter() - t0,
+                           "final_ma_coverage": float(coverage[-WINDOW:].mean()),
+                           "final_ma_success": float(success[-WINDOW:].mean()),
+                           "episodes_to_50": first_reaching(coverage, 0.5),
+                           "episodes_to_90": first_reaching(coverage, 0.9)}
+                (out / f"{name}.json").write_text(json.dumps(summary, indent=1))
+                print(json.dumps(summary), flush=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--algorithm", default="cmcl", choices=["maddpg", "per", "acl", "cmcl"])
+    parser.add_argument("--agents", type=int, nargs="+", default=[4, 8, 16])
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--updates", type=int, default=20)
+    parser.add_argument("--learn", type=int, default=0, metavar="EPISODES", help="train instead of timing")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0])
+    parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "scale"))
+    args = parser.parse_args()
+    if args.learn:
+        learn(args.algorithm, args.agents, args.seeds, args.learn, Path(args.out))
+    else:
+        update_cost(args.algorithm, args.agents, args.rounds, args.updates)
+
+
+if __name__ == "__main__":
+    main()
