@@ -80,11 +80,12 @@ def update_cost(algorithm: str, agents: list[int], rounds: int, updates: int) ->
               f"{teachers:,} | {median[(n, share)] / peer:.2f} |")
 
 
-def learn(algorithm: str, agents: list[int], seeds: list[int], episodes: int, out: Path) -> None:
+def learn(algorithm: str, agents: list[int], seeds: list[int], episodes: int, out: Path,
+          networks: list[str]) -> None:
     """One inline run per (N, sharing, seed), each in its own process; one summary JSON per run (resumable)."""
     out.mkdir(parents=True, exist_ok=True)
     for n in agents:
-        for share in (False, True):
+        for share in [kind == "shared" for kind in networks]:
             for seed in seeds:
                 name = f"{algorithm}_n{n}_{'shared' if share else 'own'}_s{seed}"
                 if (out / f"{name}.json").exists():
@@ -117,10 +118,12 @@ def main() -> None:
     parser.add_argument("--updates", type=int, default=20)
     parser.add_argument("--learn", type=int, default=0, metavar="EPISODES", help="train instead of timing")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
+    parser.add_argument("--networks", nargs="+", default=["own", "shared"], choices=["own", "shared"],
+                        help="per-agent networks, shared ones, or both (--learn; two processes can split them)")
     parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "scale"))
     args = parser.parse_args()
     if args.learn:
-        learn(args.algorithm, args.agents, args.seeds, args.learn, Path(args.out))
+        learn(args.algorithm, args.agents, args.seeds, args.learn, Path(args.out), args.networks)
     else:
         update_cost(args.algorithm, args.agents, args.rounds, args.updates)
 
