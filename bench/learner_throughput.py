@@ -232,9 +232,11 @@ def main() -> None:
 
 
 # ----------------------------------------------------------------------------- CMCL vs MADDPG, as the loop runs them
-def filled_loop(algorithm: str) -> InlineLoop:
-    """The inline loop of the default spread preset for `algorithm`, its 5000-row buffer filled by the policy."""
-    config = load_config(f"{ROOT}/configs/spread_{algorithm}.toml", ["run.dir=unused", "maddpg.warmup=5000"])
+def filled_loop(algorithm: str, overrides: list[str] = ()) -> InlineLoop:
+    """The inline loop of the default spread preset for `algorithm` (plus config `overrides`), its 5000-row buffer
+    filled by the policy."""
+    config = load_config(f"{ROOT}/configs/spread_{algorithm}.toml",
+                         ["run.dir=unused", "maddpg.warmup=5000", *overrides])
     loop = InlineLoop(config, None, progress=None)
     while loop.replay.size < loop.replay.capacity:
         loop.env_step()

@@ -30,24 +30,15 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.learner_throughput import filled_loop  # noqa: E402
 from bench.time_to_solve import WINDOW, first_reaching  # noqa: E402
-from cmcl.config import load_config  # noqa: E402
+from cmcl.io.rundir import RunDirectory  # noqa: E402
 from cmcl.loop import InlineLoop  # noqa: E402
 
 
-def overrides(n: int, share: bool, extra: list[str] = ()) -> list[str]:
+def overrides(n: int, share: bool) -> list[str]:
     """Config overrides of the navigation preset for N agents (and N landmarks) with or without sharing."""
-    return [f"env.num_agents={n}", f"maddpg.share_parameters={'true' if share else 'false'}", *extra]
-
-
-def filled_loop(algorithm: str, n: int, share: bool) -> InlineLoop:
-    """The inline loop of spread with N agents, its buffer filled by its own policy (warm-up = capacity)."""
-    config = load_config(f"{ROOT}/configs/spread_{algorithm}.toml",
-                         ["run.dir=unused", "maddpg.warmup=5000", *overrides(n, share)])
-    loop = InlineLoop(config, None, progress=None)
-    while loop.replay.size < loop.replay.capacity:
-        loop.env_step()
-    return loop
+    return [f"env.num_agents={n}", f"maddpg.share_parameters={'true' if share else 'false'}"]
 
 
 def parameter_counts(loop: InlineLoop) -> tuple[int, int]:
@@ -60,7 +51,7 @@ def parameter_counts(loop: InlineLoop) -> tuple[int, int]:
 
 def update_cost(algorithm: str, agents: list[int], rounds: int, updates: int) -> None:
     """Median ms per inline update for every (N, sharing) cell, interleaved, and the ratio to N = 4 per-agent."""
-    cells = {(n, share): filled_loop(algorithm, n, share) for n in agents for share in (False, True)}
+    cells = {(n, share): filled_loop(algorithm, overrides(n, share)) for n in agents for share in (False, True)}
     seconds: dict[tuple[int, bool], list[float]] = {cell: [] for cell in cells}
     for _ in range(rounds):
         for cell, loop in cells.items():
@@ -97,9 +88,9 @@ def learn(algorithm: str, agents: list[int], seeds: list[int], episodes: int, ou
                         "--quiet", "--overwrite", *[a for kv in settings for a in ("--set", kv)]]
                 t0 = time.perf_counter()
                 subprocess.run(args, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
-                rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
-                coverage = np.array([r["coverage"] for r in rows if r.get("kind") == "episode"], np.float64)
-                success = np.array([r["success"] for r in rows if r.get("kind") == "episode"], np.float64)
+                rows = list(RunDirectory.open(run_dir).rows("episode"))
+                coverage = np.array([r["coverage"] for r in rows], np.float64)
+                success = np.array([r["success"] for r in rows], np.float64)
                 summary = {"algorithm": algorithm, "agents": n, "shared": share, "seed": seed,
                            "episodes": len(coverage), "wall_s": time.perf_counter() - t0,
                            "final_ma_coverage": float(coverage[-WINDOW:].mean()),
