@@ -72,6 +72,19 @@ class Supervisor:
         self.started = time.perf_counter()
         self.rate_mark = (self.started, self.status["env_steps"], self.status["updates"])
         self.rates = {"env_steps_per_s": 0.0, "updates_per_s": 0.0}
+        self._first_reports()
+
+    def _first_reports(self) -> None:
+        """Apply one report from every role that has a `report` call before any work, so each actor's
+        incarnation is known from the start: a role that dies before its first periodic report (a replay server
+        killed in its first insert) is still counted as a restart when its new incarnation reports."""
+        r = self.roles
+        handles = [("replay_report", r.replay), ("learner_report", r.learner),
+                   *(("teacher_report", t) for t in r.teachers), *([("icm_report", r.icm)] if r.icm else [])]
+        for (kind, _), report in zip(handles, ray.get([h.report.remote() for _, h in handles]), strict=True):
+            self._apply_metrics(kind, report)
+            if kind == "replay_report":
+                self.last_replay_report = report
 
     # ------------------------------------------------------------------ issuing work
     def _track(self, ref: Any, kind: str, index: int = 0) -> None:

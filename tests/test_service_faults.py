@@ -50,7 +50,7 @@ def test_a_replay_server_killed_mid_insert_loses_no_acknowledged_transition(tmp_
     config = tiny("acl", tmp_path / "replay-kill", episodes=60)
     roles, metrics, supervisor = supervised(config)
 
-    def arm(server):  # SIGKILL the replay server's process inside its next insert, before it stores the chunk
+    def arm(server):  # SIGKILL the replay server's process inside its first insert, before it stores the chunk
         store, calls = server._store, []
 
         def dying_store(chunk):
@@ -60,16 +60,11 @@ def test_a_replay_server_killed_mid_insert_loses_no_acknowledged_transition(tmp_
             return store(chunk)
         server._store = dying_store
 
-    apply, armed = supervisor._apply, []
-
-    def apply_then_arm(kind, index, value_, *number):  # arm once a replay report was applied, so that the new
-        apply(kind, index, value_, *number)           # incarnation's reports count as a restart
-        if kind == "replay_report" and not armed:
-            armed.append(roles.replay.__ray_call__.remote(arm))
-
-    supervisor._apply = apply_then_arm
+    # armed before the run (the supervisor already holds the first incarnation's report), so the kill always
+    # lands: arming after a periodic report raced a fast run whose inserts were all done by then
+    ray.get(roles.replay.__ray_call__.remote(arm))
+    assert value(samples(metrics.text()), "cmcl_replay_capacity") > 0, "the first report precedes any work"
     summary = supervisor.run()
-    assert armed, "the replay server was armed"
     episode_length = config.env.episode_length
     assert summary["episodes"] == 60, summary
     assert summary["env_steps"] == 60 * episode_length, "every stored episode stored once, none lost"
