@@ -11,7 +11,7 @@ git -C "$repo" worktree add --detach "$work/tree" "$commit" >/dev/null
 trap 'git -C "$repo" worktree remove --force "$work/tree"' EXIT
 for i in $(seq "$runs"); do
   start=$(date +%s)
-  (cd "$work/tree" && PYTHONPATH="$work/tree" "$repo/.venv/bin/python" -m pytest -p no:cacheprovider -q -rfE \
+  (cd "$work/tree" && PYTHONPATH="$work/tree" "$repo/.venv/bin/python" -m pytest -p no:cacheprovider -rfE \
     > "$work/run_$i.log" 2>&1)
   rc=$?
   echo "run $i rc=$rc $(( $(date +%s) - start )) s $(grep -E '^(FAILED|ERROR) ' "$work/run_$i.log" | tr '\n' ' ')" \
