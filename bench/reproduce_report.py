@@ -116,22 +116,41 @@ def tests_table(runs: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def paired(variant: dict[int, float], reference: dict[int, float], digits: int = 3) -> str:
+    """'Δ = mean(variant − reference) [95% CI], p' over the seeds both have, by a paired two-sided t-test.
+
+    variant, reference: {seed: value}. Inline runs are deterministic for a seed, so a variant and the reference of
+    the same seed share their initial weights and worlds until the changed setting first acts."""
+    seeds = sorted(set(variant) & set(reference))
+    d = np.asarray([variant[s] - reference[s] for s in seeds], dtype=np.float64)
+    if d.size < 2:
+        return f"n/a ({d.size} paired seed{'s' if d.size != 1 else ''})"
+    m, h = mean_ci(list(d))
+    if np.all(d == d[0]):
+        return f"{m:+.{digits}f} (no spread, n = {d.size})"
+    p = stats.ttest_1samp(d, 0.0).pvalue
+    return f"{m:+.{digits}f} [{m - h:+.{digits}f}, {m + h:+.{digits}f}], p = {p:.3f}, n = {d.size}"
+
+
 def ablation_table(ablations: list[dict[str, Any]], reference: list[dict[str, Any]]) -> str:
     """One row per CMCL variant (and the unchanged CMCL runs as reference): mean ± 95% CI of the main measures,
-    and the variant minus the reference in area under coverage (Welch)."""
+    and the variant minus the reference of the same seeds in area under coverage and held-out success (paired t)."""
     keys = [("held-out coverage", "held_out_coverage", 3), ("held-out success", "held_out_success", 3),
             ("episodes to MA 0.9", "episodes_to_90", 0), ("area under coverage", "auc_coverage", 3),
             ("mean reward per episode", "mean_reward", 1)]
-    lines = ["| CMCL variant | seeds | " + " | ".join(k[0] for k in keys) + " | area: variant − reference |",
-             "| --- " * (len(keys) + 3) + "|"]
+    lines = ["| CMCL variant | seeds | " + " | ".join(k[0] for k in keys)
+             + " | area: variant − reference, same seeds | held-out success: variant − reference, same seeds |",
+             "| --- " * (len(keys) + 4) + "|"]
     groups = {"reference (η 0.5, K 5, max, default stride, IS off)": reference}
     for r in ablations:
         groups.setdefault(r["ablation"], []).append(r)
     for name, rs in groups.items():
-        diff = "" if rs is reference else welch([r["auc_coverage"] for r in rs],
-                                                [r["auc_coverage"] for r in reference], 3)
-        lines.append(f"| {name} | {len(rs)} | " + " | ".join(fmt([r.get(k) for r in rs], d) for _, k, d in keys)
-                     + f" | {diff} |")
+        diffs = ["", ""] if rs is reference else [
+            paired({r["seed"]: r[k] for r in rs}, {r["seed"]: r[k] for r in reference}, 3)
+            for k in ("auc_coverage", "held_out_success")]
+        seeds = ",".join(str(s) for s in sorted(r["seed"] for r in rs))
+        lines.append(f"| {name} | {seeds} | " + " | ".join(fmt([r.get(k) for r in rs], d) for _, k, d in keys)
+                     + f" | {diffs[0]} | {diffs[1]} |")
     return "\n".join(lines)
 
 

@@ -1,0 +1,37 @@
+"""The statistics of the reproduction report (bench/reproduce_report.py): intervals and paired differences."""
+
+import numpy as np
+from scipy import stats
+
+from bench.reproduce_report import ablation_table, mean_ci, paired
+
+
+def test_mean_ci_is_the_student_t_interval():
+    values = [0.1, 0.4, 0.35, 0.2]
+    m, h = mean_ci(values)
+    lo, hi = stats.t.interval(0.95, len(values) - 1, loc=np.mean(values), scale=stats.sem(values))
+    assert np.isclose(m, np.mean(values)) and np.isclose(m - h, lo) and np.isclose(m + h, hi)
+
+
+def test_paired_uses_only_the_seeds_both_have_and_the_differences_of_each():
+    variant = {0: 0.70, 1: 0.80, 2: 0.75, 7: 5.0}
+    reference = {0: 0.60, 1: 0.72, 2: 0.64, 3: -9.0}
+    text = paired(variant, reference, 3)
+    d = [0.10, 0.08, 0.11]
+    assert text.startswith(f"{np.mean(d):+.3f} [") and text.endswith(", n = 3")
+    assert f"p = {stats.ttest_1samp(d, 0.0).pvalue:.3f}" in text
+
+
+def test_paired_says_when_there_are_too_few_common_seeds():
+    assert paired({0: 1.0, 1: 2.0}, {1: 1.5, 2: 0.0}) == "n/a (1 paired seed)"
+
+
+def test_ablation_table_lists_each_variant_with_its_seeds():
+    def run(ablation, seed, auc):
+        return {"ablation": ablation, "seed": seed, "auc_coverage": auc, "held_out_coverage": 0.9,
+                "held_out_success": 0.5 + auc / 10, "episodes_to_90": None, "mean_reward": 1.0}
+    reference = [run(None, s, 0.7 + s / 100) for s in range(3)]
+    table = ablation_table([run("eta0", 0, 0.5), run("eta0", 2, 0.55)], reference).splitlines()
+    assert len(table) == 4 and table[3].startswith("| eta0 | 0,2 |")
+    assert "-0.185" in table[3] and "n = 2" in table[3]
+    assert "never (3/3)" in table[2]
