@@ -1,6 +1,7 @@
 """Scale past the paper's N = 4: what one update costs, and how learning goes, at N = 4, 8 and 16 agents.
 
-Cost (default): for each N and each of per-agent networks (the paper's) and `maddpg.share_parameters = true`,
+Cost (default): for each N and each network kind (NETWORKS: per-agent networks, the paper's; `maddpg.
+share_parameters = true`; and that plus `teachers.share_parameters = true`, one teacher network per fold),
 the inline loop of cooperative navigation (N agents, N landmarks) is filled to its buffer capacity by its own
 policy, then timed over interleaved rounds of `InlineLoop.update()` (everything the loop does per update at the
 defaults: the MADDPG step, and for CMCL the teacher and ICM steps, scoring and the priority recompute). Printed:
@@ -35,10 +36,18 @@ from bench.time_to_solve import WINDOW, first_reaching  # noqa: E402
 from cmcl.io.rundir import RunDirectory  # noqa: E402
 from cmcl.loop import InlineLoop  # noqa: E402
 
+NETWORKS = {  # network kind -> (maddpg.share_parameters, teachers.share_parameters)
+    "own": (False, False),  # per-agent actors, critics and (agent, fold) teachers: the paper's
+    "shared": (True, False),  # one actor and one critic for all agents
+    "shared_teachers": (True, True),  # ... and one teacher per fold for all agents
+}
 
-def overrides(n: int, share: bool) -> list[str]:
-    """Config overrides of the navigation preset for N agents (and N landmarks) with or without sharing."""
-    return [f"env.num_agents={n}", f"maddpg.share_parameters={'true' if share else 'false'}"]
+
+def overrides(n: int, kind: str) -> list[str]:
+    """Config overrides of the navigation preset for N agents (and N landmarks) with the networks of `kind`."""
+    maddpg, teachers = NETWORKS[kind]
+    return [f"env.num_agents={n}", f"maddpg.share_parameters={str(maddpg).lower()}",
+            f"teachers.share_parameters={str(teachers).lower()}"]
 
 
 def parameter_counts(loop: InlineLoop) -> tuple[int, int]:
@@ -49,10 +58,11 @@ def parameter_counts(loop: InlineLoop) -> tuple[int, int]:
     return learner, sum(p.numel() for m in modules for p in m.parameters())
 
 
-def update_cost(algorithm: str, agents: list[int], rounds: int, updates: int) -> None:
-    """Median ms per inline update for every (N, sharing) cell, interleaved, and the ratio to N = 4 per-agent."""
-    cells = {(n, share): filled_loop(algorithm, overrides(n, share)) for n in agents for share in (False, True)}
-    seconds: dict[tuple[int, bool], list[float]] = {cell: [] for cell in cells}
+def update_cost(algorithm: str, agents: list[int], rounds: int, updates: int, networks: list[str]) -> None:
+    """Median ms per inline update for every (N, network kind) cell, interleaved, and the ratio to the first
+    cell (the smallest N with the first kind)."""
+    cells = {(n, kind): filled_loop(algorithm, overrides(n, kind)) for n in agents for kind in networks}
+    seconds: dict[tuple[int, str], list[float]] = {cell: [] for cell in cells}
     for _ in range(rounds):
         for cell, loop in cells.items():
             t0 = time.perf_counter()
@@ -60,15 +70,15 @@ def update_cost(algorithm: str, agents: list[int], rounds: int, updates: int) ->
                 loop.update()
             seconds[cell].append((time.perf_counter() - t0) / updates)
     median = {cell: statistics.median(v) for cell, v in seconds.items()}
-    peer = median[(min(agents), False)]
+    peer = median[(min(agents), networks[0])]
     print(f"{algorithm}: one inline update at the defaults, median of {rounds} rounds of {updates}")
-    print(f"| N | actors and critics | ms per update | actor + critic parameters | teacher parameters | "
-          f"cost / N={min(agents)} per-agent |")
+    print(f"| N | networks | ms per update | actor + critic parameters | teacher parameters | "
+          f"cost / N={min(agents)} {networks[0]} |")
     print("| --- | --- | --- | --- | --- | --- |")
-    for (n, share), loop in cells.items():
+    for (n, kind), loop in cells.items():
         learner, teachers = parameter_counts(loop)
-        print(f"| {n} | {'shared' if share else 'per-agent'} | {1e3 * median[(n, share)]:.2f} | {learner:,} | "
-              f"{teachers:,} | {median[(n, share)] / peer:.2f} |")
+        print(f"| {n} | {kind} | {1e3 * median[(n, kind)]:.2f} | {learner:,} | "
+              f"{teachers:,} | {median[(n, kind)] / peer:.2f} |")
 
 
 def learn(algorithm: str, agents: list[int], seeds: list[int], episodes: int, out: Path,
@@ -76,14 +86,14 @@ def learn(algorithm: str, agents: list[int], seeds: list[int], episodes: int, ou
     """One inline run per (N, sharing, seed), each in its own process; one summary JSON per run (resumable)."""
     out.mkdir(parents=True, exist_ok=True)
     for n in agents:
-        for share in [kind == "shared" for kind in networks]:
+        for kind in networks:
             for seed in seeds:
-                name = f"{algorithm}_n{n}_{'shared' if share else 'own'}_s{seed}"
+                name = f"{algorithm}_n{n}_{kind}_s{seed}"
                 if (out / f"{name}.json").exists():
                     continue
                 run_dir = out / "runs" / name
                 settings = [f"run.dir={run_dir}", f"run.seed={seed}", f"run.episodes={episodes}",
-                            "run.stop_coverage=0", *overrides(n, share)]
+                            "run.stop_coverage=0", *overrides(n, kind)]
                 args = [sys.executable, "-m", "cmcl.loop", "--config", f"{ROOT}/configs/spread_{algorithm}.toml",
                         "--quiet", "--overwrite", *[a for kv in settings for a in ("--set", kv)]]
                 t0 = time.perf_counter()
@@ -91,7 +101,8 @@ def learn(algorithm: str, agents: list[int], seeds: list[int], episodes: int, ou
                 rows = list(RunDirectory.open(run_dir).rows("episode"))
                 coverage = np.array([r["coverage"] for r in rows], np.float64)
                 success = np.array([r["success"] for r in rows], np.float64)
-                summary = {"algorithm": algorithm, "agents": n, "shared": share, "seed": seed,
+                summary = {"algorithm": algorithm, "agents": n, "networks": kind, "shared": NETWORKS[kind][0],
+                           "shared_teachers": NETWORKS[kind][1], "seed": seed,
                            "episodes": len(coverage), "wall_s": time.perf_counter() - t0,
                            "final_ma_coverage": float(coverage[-WINDOW:].mean()),
                            "final_ma_success": float(success[-WINDOW:].mean()),
@@ -109,14 +120,14 @@ def main() -> None:
     parser.add_argument("--updates", type=int, default=20)
     parser.add_argument("--learn", type=int, default=0, metavar="EPISODES", help="train instead of timing")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
-    parser.add_argument("--networks", nargs="+", default=["own", "shared"], choices=["own", "shared"],
-                        help="per-agent networks, shared ones, or both (--learn; two processes can split them)")
+    parser.add_argument("--networks", nargs="+", default=list(NETWORKS), choices=list(NETWORKS),
+                        help="network kinds (NETWORKS; with --learn, two processes can split them)")
     parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "scale"))
     args = parser.parse_args()
     if args.learn:
         learn(args.algorithm, args.agents, args.seeds, args.learn, Path(args.out), args.networks)
     else:
-        update_cost(args.algorithm, args.agents, args.rounds, args.updates)
+        update_cost(args.algorithm, args.agents, args.rounds, args.updates, args.networks)
 
 
 if __name__ == "__main__":

@@ -147,7 +147,7 @@ def build_teachers(config: Config, layout: AgentLayout, seed: int) -> TeacherEns
     t = config.teachers
     in_dim = layout.num_agents * (layout.obs_dim + layout.act_dim)
     return TeacherEnsemble(int(layout.teacher_agents.size), in_dim=in_dim, num_folds=t.num_folds, hidden=t.hidden,
-                           lr=t.lr, seed=seed)
+                           lr=t.lr, seed=seed, share_parameters=t.share_parameters)
 
 
 def build_icm(config: Config, layout: AgentLayout, seed: int) -> ICM | None:

@@ -36,7 +36,8 @@ class TeacherWorker:
         self.layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
         in_dim = self.layout.num_agents * (self.layout.obs_dim + self.layout.act_dim)
         self.teachers = TeacherEnsemble(len(self.layout.teacher_agents), in_dim=in_dim, num_folds=len(self.folds),
-                                        hidden=cfg.teachers.hidden, lr=cfg.teachers.lr, seed=seed)
+                                        hidden=cfg.teachers.hidden, lr=cfg.teachers.lr, seed=seed,
+                                        share_parameters=cfg.teachers.share_parameters)
         self.targets = build_maddpg(cfg, self.layout, seed)  # only its target nets are used
         self.version, self.steps, self.scores, self.loss = -1, 0, 0, 0.0
         state, refused = load_state(checkpoint_path)

@@ -59,15 +59,22 @@ def test_each_algorithm_runs_and_learns_from_its_own_priorities(algorithm, tmp_p
 
 
 def test_eight_agents_with_shared_networks_run_and_resume_their_weights(tmp_path):
-    """Scale (issue 11): N = 8 navigation with one shared actor and critic; the learner's weights change and a
-    checkpoint restores them into a fresh loop."""
+    """Scale (issue 11): N = 8 navigation with one shared actor and critic and one teacher per fold; the
+    learner's and the teachers' weights change, every row is scored, and a checkpoint restores them."""
     data = tiny_config("cmcl", dir=str(tmp_path / "n8")).to_dict()
     data["env"]["num_agents"], data["maddpg"]["share_parameters"] = 8, True
+    data["teachers"]["share_parameters"] = True
     config = config_from_dict(data)
     loop = InlineLoop(config, RunDirectory.create(config.run.dir, config), progress=None)
     before = {k: v.clone() for k, v in loop.maddpg.actor.state_dict().items()}
+    teachers_before = {k: v.clone() for k, v in loop.teachers.net.state_dict().items()}
     loop.run()
     assert loop.counters["episodes"] == 12 and loop.maddpg.actor.layers[1].weight.shape[0] == 1
+    folds = config.teachers.num_folds
+    assert loop.teachers.net.layers[1].weight.shape[0] == folds, "one teacher network per fold"
+    assert any(not torch.equal(teachers_before[k], v) for k, v in loop.teachers.net.state_dict().items())
+    valid = loop.replay.valid_slots()
+    assert loop.replay.storage.scored["difficulty"][valid].all()
     after = loop.maddpg.actor.state_dict()
     assert loop.maddpg.actor.layers[0].bias.shape == (8, 32), "each agent keeps its own first-layer bias"
     assert any(not torch.equal(before[k], after[k]) for k in before)

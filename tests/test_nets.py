@@ -2,6 +2,7 @@
 
 import copy
 
+import pytest
 import torch
 from torch import nn
 
@@ -119,3 +120,47 @@ def test_the_grad_clip_of_a_shared_network_is_one_global_norm():
     torch.testing.assert_close(norms, expected.expand(4))
     for p, q in zip(net.parameters(), twin.parameters(), strict=True):
         torch.testing.assert_close(p.grad, q.grad)
+
+
+def test_grouped_sharing_gives_member_m_the_network_of_group_m_mod_g():
+    net = StackedMLP(6, 5, (8,), 1, seed=3, share=True, share_groups=3)
+    shapes = [tuple(p.shape) for p in net.parameters()]
+    assert shapes == [(3, 5, 8), (6, 8), (3, 8, 1), (3, 1)], shapes
+    x = torch.randn(6, 4, 5)
+    out = net(x)
+    for m in range(6):
+        torch.testing.assert_close(out[m], net.member_module(m)(x[m]))
+    subset = torch.tensor([5, 0])
+    torch.testing.assert_close(net(x[subset], subset), out[subset])
+    with torch.no_grad():  # members 1 and 4 share group 1: equal first-layer biases make them one function
+        net.layers[0].bias[4].copy_(net.layers[0].bias[1])
+        net.layers[0].bias[3].copy_(net.layers[0].bias[1])
+    same = net(x[0])
+    torch.testing.assert_close(same[4], same[1])
+    assert not torch.allclose(same[3], same[1])  # member 3 is in group 0: another network
+    with pytest.raises(ValueError, match="groups must divide members=6, got 4"):
+        StackedMLP(6, 5, (8,), 1, share=True, share_groups=4)
+
+
+def test_a_group_never_gets_the_gradient_of_another_groups_members():
+    net = StackedMLP(6, 5, (8,), 1, seed=3, share=True, share_groups=3)
+    loss = net(torch.randn(6, 4, 5))[[0, 3]].sum()  # members 0 and 3: group 0 only
+    loss.backward()
+    for p in net.parameters():
+        rows = p.grad.reshape(p.shape[0], -1).abs().sum(1)
+        owners = torch.arange(p.shape[0]) % 3 if p.shape[0] == 6 else torch.arange(3)
+        assert (rows[owners != 0] == 0).all() and (rows[owners == 0] > 0).any()
+
+
+def test_the_grad_clip_of_grouped_networks_is_one_norm_per_group():
+    net = StackedMLP(6, 5, (8,), 2, seed=4, share=True, share_groups=2)
+    (net(torch.randn(6, 9, 5, generator=torch.Generator().manual_seed(5))) * 50).sum().backward()
+    before = [p.grad.clone() for p in net.parameters()]
+    norms = clip_grad_norm_per_member_(net.parameters(), 0.5)
+    for group in range(2):  # the group's slices of every parameter, as one network
+        slices = [g.reshape(g.shape[0] // 2, 2, -1)[:, group] for g in before]
+        expected = torch.cat([s.flatten() for s in slices]).norm()
+        torch.testing.assert_close(norms[group::2], expected.expand(3))
+        clipped = [p.grad.reshape(p.shape[0] // 2, 2, -1)[:, group] for p in net.parameters()]
+        torch.testing.assert_close(torch.cat([c.flatten() for c in clipped]).norm(), torch.tensor(0.5), rtol=1e-4,
+                                   atol=0)

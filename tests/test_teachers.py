@@ -207,3 +207,30 @@ def test_make_fit_batch_shared_fold_batches():
     np.testing.assert_allclose(y.numpy(), y_all[:, idx[0]], rtol=1e-5, atol=1e-5)
     with pytest.raises(ValueError):
         make_fit_batch(np.zeros((3, K, 4), np.int64), data, [1, 2], m)
+
+
+def test_shared_teachers_are_one_network_per_fold_and_folds_stay_independent():
+    """share_parameters: parameters ~A times fewer; a corrupt target in fold 3 moves only fold 3's teachers
+    (of every agent, since they share fold 3's network), never another fold's (eq. 11 needs that)."""
+    data, fold = buffer()
+    m = MADDPG(N, OD, AD, seed=0)
+    own = TeacherEnsemble(N, in_dim=IN, num_folds=K, seed=5)
+    shared = TeacherEnsemble(N, in_dim=IN, num_folds=K, seed=5, share_parameters=True)
+    count = [sum(p.numel() for p in e.net.parameters()) for e in (own, shared)]
+    assert count[1] < count[0] / (N - 1), count
+    idx = fold_batch_indices(fold, K, 64, np.random.default_rng(0), num_agents=N)
+    x, y = make_fit_batch(idx, data, list(range(N)), m)
+    y_bad = y.clone()
+    y_bad[1, 3] += 100.0
+    first = shared.fit_step(x, y)
+    for _ in range(30):
+        last = shared.fit_step(x, y)
+    assert (last < first).all()
+    clean = TeacherEnsemble(N, in_dim=IN, num_folds=K, seed=5, share_parameters=True)
+    corrupt = TeacherEnsemble(N, in_dim=IN, num_folds=K, seed=5, share_parameters=True)
+    for _ in range(3):
+        la, lb = clean.fit_step(x, y), corrupt.fit_step(x, y_bad)
+    np.testing.assert_allclose(la[:, :3], lb[:, :3], rtol=1e-6)  # folds 0-2 never see fold 3's targets
+    assert (la[:, 3] != lb[:, 3]).all()  # fold 3's network is shared: every agent's fold-3 teacher moved
+    errors = corrupt.errors(x[0, 0], y[:, 0])  # [A, S, K]: still one prediction per (agent, fold)
+    assert errors.shape == (N, x.shape[2], K)

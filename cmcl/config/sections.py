@@ -158,6 +158,9 @@ class TeacherConfig:
     # teacher fit steps per learner update, inline and in the service (its rate limiter); §3.8 has 1, the
     # default 0.5 halves the teachers' cost (CMCL update cost vs MADDPG: bench/learner_throughput.py)
     steps_per_update: float = 0.5
+    # one teacher network per fold for all agents, each agent with its own first-layer bias (cmcl.learners.nets,
+    # grouped sharing); the folds stay separate. For N = 8 / 16 (bench/scale.py). False = per-(agent, fold) networks
+    share_parameters: bool = False
 
     def __post_init__(self) -> None:
         _require(self.num_folds >= 2, "teachers.num_folds", self.num_folds, "must be >= 2")

@@ -14,6 +14,11 @@ layer, one bias ``[1, out]``, broadcast to all members; only the first layer's b
 exactly a learned agent-id embedding (W·[x; onehot(m)] = W_x·x + b_m), so members share one network yet can still
 tell who they are. The member count then barely changes the parameter count (N·hidden extra), which is the
 point at N = 8 or 16 (issue 11's scale study).
+
+Grouped sharing (``StackedMLP(share=True, share_groups=G)``): G networks instead of one; member m uses network
+``m % G``. With the teachers' layout (member ``a*K + i`` for agent a and fold i) and G = K, each fold keeps its own
+network, shared by every agent, so the K-fold cross-validation stays intact (a fold's network never sees the other
+folds' rows). Shared parameters then carry a leading axis of G, and G = 1 is the plain sharing above.
 """
 
 from __future__ import annotations
@@ -70,19 +75,27 @@ class StackedLinear(nn.Module):
     """
 
     def __init__(self, members: int, in_dim: int, out_dim: int, generator: torch.Generator | None = None,
-                 shared_weight: bool = False, shared_bias: bool = False):
+                 shared_weight: bool = False, shared_bias: bool = False, groups: int = 1):
         super().__init__()
+        if groups < 1 or members % groups:
+            raise ValueError(f"groups must divide members={members}, got {groups}")
         self.members, self.in_dim, self.out_dim = members, in_dim, out_dim
         bound = 1.0 / math.sqrt(in_dim) if in_dim > 0 else 0.0
-        w = torch.empty(1 if shared_weight else members, in_dim, out_dim).uniform_(-bound, bound, generator=generator)
-        b = torch.empty(1 if shared_bias else members, out_dim).uniform_(-bound, bound, generator=generator)
-        self.weight = nn.Parameter(w)  # [members, in, out], or [1, in, out] when shared
-        self.bias = nn.Parameter(b)  # [members, out], or [1, out] when shared
+        w = torch.empty(groups if shared_weight else members, in_dim, out_dim).uniform_(-bound, bound,
+                                                                                        generator=generator)
+        b = torch.empty(groups if shared_bias else members, out_dim).uniform_(-bound, bound, generator=generator)
+        self.weight = nn.Parameter(w)  # [members, in, out], or [groups, in, out] when shared
+        self.bias = nn.Parameter(b)  # [members, out], or [groups, out] when shared
 
     def forward(self, x: torch.Tensor, members: torch.Tensor | None = None) -> torch.Tensor:
         """x [m, B, in] (or shared [B, in]) -> [m, B, out]; ``members`` (int64[m]) selects a subset of members.
-        A shared weight or bias ([1, ...]) is broadcast to every member."""
+        A shared weight or bias ([1, ...]) is broadcast to every member; one of G > 1 groups is tiled so that
+        member j uses group j % G."""
         w, b = self.weight, self.bias
+        if 1 < w.shape[0] < self.members:
+            w = w.repeat(self.members // w.shape[0], 1, 1)  # [members, in, out]; gradients sum into the groups
+        if 1 < b.shape[0] < self.members:
+            b = b.repeat(self.members // b.shape[0], 1)
         m = (self.members if members is None else len(members)) if x.dim() == 2 else x.shape[0]
         if members is not None:
             w = w if w.shape[0] == 1 else w[members]
@@ -119,6 +132,7 @@ class StackedMLP(nn.Module):
         out_act: output activation (``nn.Tanh`` for actors) or None.
         seed / generator: source of the initial weights (a generator wins over a seed).
         share: one network for all members, with a per-member first-layer bias (module docstring).
+        share_groups: with ``share``, G networks, member m using network m % G (module docstring).
     """
 
     def __init__(
@@ -132,6 +146,7 @@ class StackedMLP(nn.Module):
         seed: int | None = None,
         generator: torch.Generator | None = None,
         share: bool = False,
+        share_groups: int = 1,
     ):
         super().__init__()
         if generator is None and seed is not None:
@@ -139,7 +154,8 @@ class StackedMLP(nn.Module):
         widths = [in_dim, *([hidden] if isinstance(hidden, int) else list(hidden)), out_dim]
         self.members, self.in_dim, self.out_dim, self.share = members, in_dim, out_dim, bool(share)
         self.layers = nn.ModuleList(
-            StackedLinear(members, a, b, generator, shared_weight=self.share, shared_bias=self.share and k > 0)
+            StackedLinear(members, a, b, generator, shared_weight=self.share, shared_bias=self.share and k > 0,
+                          groups=int(share_groups) if self.share else 1)
             for k, (a, b) in enumerate(zip(widths[:-1], widths[1:], strict=True))
         )
         self.act = _make_act(activation)
@@ -161,8 +177,8 @@ class StackedMLP(nn.Module):
         for k, layer in enumerate(self.layers):
             lin = nn.Linear(layer.in_dim, layer.out_dim)
             with torch.no_grad():
-                lin.weight.copy_(layer.weight[m if layer.weight.shape[0] > 1 else 0].T)
-                lin.bias.copy_(layer.bias[m if layer.bias.shape[0] > 1 else 0])
+                lin.weight.copy_(layer.weight[m % layer.weight.shape[0]].T)
+                lin.bias.copy_(layer.bias[m % layer.bias.shape[0]])
             mods.append(lin)
             if k < last:
                 mods.append(type(self.act)())
@@ -191,22 +207,17 @@ def clip_grad_norm_per_member_(params: Iterable[torch.Tensor], max_norm: float, 
     Equivalent to calling ``torch.nn.utils.clip_grad_norm_(member_m_params, max_norm)`` for every member m:
     the norm of member m runs over slice m of every parameter's gradient, coef = min(1, max_norm/(norm+eps)).
     Every parameter must have the member axis first; parameters without a gradient are skipped. When some are
-    shared (leading axis 1, ``StackedMLP(share=True)``), the members form one network: one norm over every
-    gradient is clipped, and returned once per member.
+    shared (``StackedMLP(share=True)``, leading axis G < members), the members of each group (m % G) form one
+    network: one norm per group over every gradient of that group is clipped, and returned once per member.
     """
     grads = [p.grad for p in params if p.grad is not None]
     if not grads:
         return torch.zeros(0)
-    members = max(g.shape[0] for g in grads)
-    if any(g.shape[0] != members for g in grads):  # parameter sharing: one network, one norm
-        norm = torch.stack([g.pow(2).sum() for g in grads]).sum().sqrt()
-        coef = (max_norm / (norm + eps)).clamp(max=1.0)
-        for g in grads:
-            g.mul_(coef)
-        return norm.expand(members).clone()
-    sq = torch.stack([g.pow(2).flatten(1).sum(1) for g in grads]).sum(0)  # [members]
+    members, groups = max(g.shape[0] for g in grads), min(g.shape[0] for g in grads)
+    # a gradient with leading axis L = r*G viewed as [r, G, -1]: slice [:, i] is everything of group i
+    sq = torch.stack([g.reshape(g.shape[0] // groups, groups, -1).pow(2).sum((0, 2)) for g in grads]).sum(0)  # [G]
     norms = sq.sqrt()
     coef = (max_norm / (norms + eps)).clamp(max=1.0)
     for g in grads:
-        g.mul_(coef.view(-1, *([1] * (g.dim() - 1))))
-    return norms
+        g.view(g.shape[0] // groups, groups, -1).mul_(coef.view(1, groups, 1))
+    return norms.repeat(members // groups)

@@ -9,6 +9,9 @@ rows (eq. 10, `cmcl.learners.steps.teacher_errors`) and `cmcl.replay.difficulty`
 
 All A x K teachers are ONE :class:`~cmcl.learners.nets.StackedMLP` with A*K members, member index ``a*K + i`` for agent
 slot a (0..A-1, the agents that use teachers) and fold i (0..K-1). Folds are 0-based: f(j) in {0..K-1}.
+With ``share_parameters`` the A teachers of each fold are one network (``StackedMLP(share=True, share_groups=K)``:
+member ``a*K + i`` uses network i), each agent keeping its own first-layer bias; the K folds stay separate networks,
+so a fold's network is still fitted on its own fold only and the cross-validation of eq. (11) holds.
 Teacher input = the centralized critic input (all obs then all actions, flattened; see ``nets.joint_input``).
 Public boundary: numpy or torch in (converted once, float32 / int64); numpy out.
 """
@@ -37,6 +40,8 @@ class TeacherEnsemble:
         grad_clip: optional per-teacher gradient-norm clip (None: none; §3.2 specifies plain Adam).
         chunk_size: rows per forward pass in :meth:`errors` (bounds memory at A*K*chunk*hidden floats).
         seed: initial weights (every teacher independently initialised).
+        share_parameters: one network per fold for all A agents, a per-(agent, fold) first-layer bias (module
+            docstring); parameters ~A times fewer, for N = 8 / 16.
     """
 
     def __init__(
@@ -50,11 +55,14 @@ class TeacherEnsemble:
         grad_clip: float | None = None,
         chunk_size: int = 1024,
         seed: int = 0,
+        share_parameters: bool = False,
     ):
         self.num_agents, self.num_folds, self.in_dim = int(num_agents), int(num_folds), int(in_dim)
         self.grad_clip, self.chunk_size = grad_clip, int(chunk_size)
         widths = (hidden, hidden) if isinstance(hidden, int) else tuple(hidden)
-        self.net = StackedMLP(self.num_agents * self.num_folds, self.in_dim, widths, 1, seed=seed)
+        self.share_parameters = bool(share_parameters)
+        self.net = StackedMLP(self.num_agents * self.num_folds, self.in_dim, widths, 1, seed=seed,
+                              share=self.share_parameters, share_groups=self.num_folds)
         self.opt = make_adam(self.net.parameters(), lr)
         self.steps = 0
 
