@@ -91,17 +91,22 @@ def test_joint_input_layout():
     torch.testing.assert_close(x[1], torch.cat([obs[1].flatten(), act[1].flatten()]))
 
 
+def assert_each_member_is_its_own_module(net: StackedMLP, x: torch.Tensor, subset: list[int]) -> torch.Tensor:
+    """net(x) equals member_module(m)(x[m]) for every member, and a member subset equals those rows; -> net(x)."""
+    out = net(x)
+    for m in range(net.members):
+        torch.testing.assert_close(out[m], net.member_module(m)(x[m]))
+    torch.testing.assert_close(net(x[subset], torch.tensor(subset)), out[subset])
+    return out
+
+
 def test_a_shared_mlp_is_one_network_with_a_per_member_first_layer_bias():
     shared, own = StackedMLP(5, 7, (16, 16), 3, seed=0, share=True), StackedMLP(5, 7, (16, 16), 3, seed=0)
     shapes = [tuple(p.shape) for p in shared.parameters()]
     assert shapes == [(1, 7, 16), (5, 16), (1, 16, 16), (1, 16), (1, 16, 3), (1, 3)], shapes
     assert sum(p.numel() for p in shared.parameters()) < sum(p.numel() for p in own.parameters()) / 4
     x = torch.randn(5, 11, 7)
-    out = shared(x)
-    for m in range(5):
-        torch.testing.assert_close(out[m], shared.member_module(m)(x[m]))
-    subset = torch.tensor([3, 1])
-    torch.testing.assert_close(shared(x[subset], subset), out[subset])
+    assert_each_member_is_its_own_module(shared, x, [3, 1])
     torch.testing.assert_close(shared(x[0])[2], shared.member_module(2)(x[0]))  # one input shared by all members
     with torch.no_grad():
         shared.layers[0].bias[4].copy_(shared.layers[0].bias[0])
@@ -127,11 +132,7 @@ def test_grouped_sharing_gives_member_m_the_network_of_group_m_mod_g():
     shapes = [tuple(p.shape) for p in net.parameters()]
     assert shapes == [(3, 5, 8), (6, 8), (3, 8, 1), (3, 1)], shapes
     x = torch.randn(6, 4, 5)
-    out = net(x)
-    for m in range(6):
-        torch.testing.assert_close(out[m], net.member_module(m)(x[m]))
-    subset = torch.tensor([5, 0])
-    torch.testing.assert_close(net(x[subset], subset), out[subset])
+    assert_each_member_is_its_own_module(net, x, [5, 0])
     with torch.no_grad():  # members 1 and 4 share group 1: equal first-layer biases make them one function
         net.layers[0].bias[4].copy_(net.layers[0].bias[1])
         net.layers[0].bias[3].copy_(net.layers[0].bias[1])
