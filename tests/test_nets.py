@@ -165,3 +165,12 @@ def test_the_grad_clip_of_grouped_networks_is_one_norm_per_group():
         clipped = [p.grad.reshape(p.shape[0] // 2, 2, -1)[:, group] for p in net.parameters()]
         torch.testing.assert_close(torch.cat([c.flatten() for c in clipped]).norm(), torch.tensor(0.5), rtol=1e-4,
                                    atol=0)
+
+
+def test_one_input_per_group_equals_that_input_given_to_every_member_of_the_group():
+    net = StackedMLP(6, 5, (8,), 2, seed=6, share=True, share_groups=3)
+    per_group = torch.randn(3, 4, 5)
+    per_member = per_group.repeat(2, 1, 1)  # member m reads per_group[m % 3]
+    torch.testing.assert_close(net(per_group), net(per_member))
+    shared = per_group[0]
+    torch.testing.assert_close(net(shared), net(shared.expand(6, 4, 5)))

@@ -234,3 +234,18 @@ def test_shared_teachers_are_one_network_per_fold_and_folds_stay_independent():
     assert (la[:, 3] != lb[:, 3]).all()  # fold 3's network is shared: every agent's fold-3 teacher moved
     errors = corrupt.errors(x[0, 0], y[:, 0])  # [A, S, K]: still one prediction per (agent, fold)
     assert errors.shape == (N, x.shape[2], K)
+
+
+def test_a_fold_batch_shared_by_the_agents_fits_shared_teachers_as_its_copies_do():
+    """The fast path of shared teachers (first layer once per fold when x is one batch expanded over agents)
+    takes the same Adam steps as the same rows copied to every agent."""
+    data, fold = buffer()
+    m = MADDPG(N, OD, AD, seed=0)
+    idx = fold_batch_indices(fold, K, 32, np.random.default_rng(1), num_agents=1)
+    x, y = make_fit_batch(idx, data, list(range(N)), m)
+    x_shared = x[:1].expand(N, -1, -1, -1)
+    fast, slow = (TeacherEnsemble(N, in_dim=IN, num_folds=K, seed=7, share_parameters=True) for _ in range(2))
+    for _ in range(3):
+        np.testing.assert_allclose(fast.fit_step(x_shared, y), slow.fit_step(x_shared.contiguous(), y), rtol=1e-5)
+    for p, q in zip(fast.net.parameters(), slow.net.parameters(), strict=True):
+        torch.testing.assert_close(p, q)

@@ -90,8 +90,14 @@ class StackedLinear(nn.Module):
     def forward(self, x: torch.Tensor, members: torch.Tensor | None = None) -> torch.Tensor:
         """x [m, B, in] (or shared [B, in]) -> [m, B, out]; ``members`` (int64[m]) selects a subset of members.
         A shared weight or bias ([1, ...]) is broadcast to every member; one of G > 1 groups is tiled so that
-        member j uses group j % G."""
+        member j uses group j % G. With G groups, x may also be one input per group [G, B, in] (every member of
+        group g reads x[g]) or shared [B, in]: the matmul then runs once per group, not once per member."""
         w, b = self.weight, self.bias
+        groups = w.shape[0]
+        if members is None and 1 < groups < self.members and (x.dim() == 2 or x.shape[0] == groups):
+            per_group = torch.matmul(x, w)  # [G, B, out]: the members of a group share weight and input
+            b = b if b.shape[0] == self.members else b.repeat(self.members // b.shape[0], 1)
+            return per_group.repeat(self.members // groups, 1, 1) + b.unsqueeze(1)
         if 1 < w.shape[0] < self.members:
             w = w.repeat(self.members // w.shape[0], 1, 1)  # [members, in, out]; gradients sum into the groups
         if 1 < b.shape[0] < self.members:
@@ -162,7 +168,8 @@ class StackedMLP(nn.Module):
         self.out_act = _make_act(out_act)
 
     def forward(self, x: torch.Tensor, members: torch.Tensor | None = None) -> torch.Tensor:
-        """x float32[m, B, in_dim] or shared [B, in_dim] -> float32[m, B, out_dim] (m = members or len(subset))."""
+        """x float32[m, B, in_dim] or shared [B, in_dim] -> float32[m, B, out_dim] (m = members or len(subset)).
+        With ``share_groups`` G > 1, x may also be one input per group, float32[G, B, in_dim] (StackedLinear)."""
         last = len(self.layers) - 1
         for k, layer in enumerate(self.layers):
             x = layer(x, members)

@@ -75,7 +75,10 @@ class TeacherEnsemble:
         a_n, k_n, s_n, _ = x_t.shape
         if (a_n, k_n) != (self.num_agents, self.num_folds):
             raise ValueError(f"x must be [A={self.num_agents}, K={self.num_folds}, S, in], got {tuple(x_t.shape)}")
-        pred = self.net(x_t.reshape(a_n * k_n, s_n, -1)).squeeze(-1)  # [A*K, S]
+        if self.share_parameters and x_t.stride(0) == 0:  # one fold batch for all agents (fit_batch "shared")
+            pred = self.net(x_t[0]).squeeze(-1)  # [K, S, in] per fold network -> [A*K, S], first layer once per fold
+        else:
+            pred = self.net(x_t.reshape(a_n * k_n, s_n, -1)).squeeze(-1)  # [A*K, S]
         loss = (pred - y_t.reshape(a_n * k_n, s_n)).pow(2).mean(1)  # [A*K]
         self.opt.zero_grad(set_to_none=True)
         loss.sum().backward()
