@@ -133,14 +133,16 @@ def test_icm_actor_refuses_a_config_without_curiosity():
         ICMWorker(small_config("acl"), 0)
 
 
-def test_one_actor_can_host_every_fold_without_leaking_a_rows_own_fold():
+@pytest.mark.parametrize("shared", [False, True], ids=["own_teachers", "shared_teachers"])
+def test_one_actor_can_host_every_fold_without_leaking_a_rows_own_fold(shared):
     data = small_config("acl")
-    cfg = config_from_dict({**data, "service": {**data["service"], "teacher_actors": 1,
-                                                "score_rows_per_call": 360}})
+    cfg = config_from_dict({**data, "service": {**data["service"], "teacher_actors": 1, "score_rows_per_call": 360},
+                            "teachers": {**data["teachers"], "share_parameters": shared}})
     assert teacher_groups(cfg) == [[0, 1, 2]]
     cfg = cfg.to_dict()
     replay, worker, learner = ReplayServer(cfg), RolloutWorker(cfg, 0, 0), Learner(cfg, 0)
     teacher = TeacherWorker(cfg, [0, 1, 2], 0)
+    assert teacher.teachers.net.layers[1].weight.shape[0] == (3 if shared else 12)  # per fold, or per (agent, fold)
     for _ in range(3):
         replay.insert(worker.rollout(None)[0])
     work, _ = replay.teacher_work([0, 1, 2], 2)
