@@ -56,15 +56,18 @@ CSV_COLUMNS = ("id", "grid", "task", "algorithm", "prey_algorithm", "ablation", 
                "held_out_collisions", "held_out_wall_hits", "win_vs_trained_prey", "win_vs_random_prey")
 
 
-ABLATIONS = {  # name -> (config file, --set overrides) of CMCL navigation variants
-    "eta0": ("spread_cmcl.toml", ["teams.agent.eta=0.0"]),
-    "eta1": ("spread_cmcl.toml", ["teams.agent.eta=1.0"]),
-    "k2": ("spread_cmcl.toml", ["teachers.num_folds=2"]),
-    "rank": ("spread_cmcl.toml", ["teachers.difficulty_norm=rank"]),
-    "stride_x2": ("spread_cmcl.toml", ["curriculum.stride=6e-6"]),  # λ_max at a quarter of training
-    "stride_half": ("spread_cmcl.toml", ["curriculum.stride=1.5e-6"]),  # λ_max at the end
-    "is_on": ("spread_cmcl.toml", ["teams.agent.is_correction=true"]),
-    "paper_schedule": ("paper/spread_cmcl.toml", []),  # one update per world step: ~16x the updates
+ABLATIONS = {  # name -> (config file, --set overrides, episode budget or None for the grid's) of CMCL variants
+    "eta0": ("spread_cmcl.toml", ["teams.agent.eta=0.0"], None),
+    "eta1": ("spread_cmcl.toml", ["teams.agent.eta=1.0"], None),
+    "k2": ("spread_cmcl.toml", ["teachers.num_folds=2"], None),
+    "rank": ("spread_cmcl.toml", ["teachers.difficulty_norm=rank"], None),
+    "stride_x2": ("spread_cmcl.toml", ["curriculum.stride=6e-6"], None),  # λ_max at a quarter of training
+    "stride_half": ("spread_cmcl.toml", ["curriculum.stride=1.5e-6"], None),  # λ_max at the end
+    "is_on": ("spread_cmcl.toml", ["teams.agent.is_correction=true"], None),
+    # One update per world step: 16 times the updates (≈ 116,000 by episode 4,000), about 25 min a run here, so
+    # it runs the first 4,000 episodes only and is compared with the reference runs' first 4,000 episodes
+    # (their checkpoint at 4,000; see prefix_reference_runs).
+    "paper_schedule": ("paper/spread_cmcl.toml", [], 4_000),
 }
 
 
@@ -75,10 +78,11 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str], budget: int 
     for seed in seeds:
         for name in names:
             if name == "ablations":
-                for ablation, (config, sets) in ABLATIONS.items():
+                for ablation, (config, sets, own_budget) in ABLATIONS.items():
                     runs.append({"id": f"ablation_{ablation}_s{seed}", "grid": name, "task": "spread",
-                                 "algorithm": "cmcl", "prey_algorithm": None, "seed": seed, "budget": budget,
-                                 "ablation": ablation, "config": config, "sets": sets})
+                                 "algorithm": "cmcl", "prey_algorithm": None, "seed": seed,
+                                 "budget": min(budget, own_budget or budget), "ablation": ablation,
+                                 "config": config, "sets": sets})
                 continue
             if name == "spread":
                 cells = [("spread", a, None) for a in reversed(algorithms)]  # the longest (cmcl) first
@@ -125,17 +129,34 @@ def window_curves(series: dict[str, np.ndarray]) -> dict[str, list[float]]:
             for k, v in series.items() if k != "episode"}
 
 
-def summarise(run: dict[str, Any], run_path: Path) -> dict[str, Any]:
-    """The measures of one finished run (training curves, time to 0.5/0.9, area, final rates, held-out)."""
+def prefix_reference_runs(runs: list[dict[str, Any]], full_budget: int) -> list[dict[str, Any]]:
+    """For every ablation run with a smaller budget than the grid's, the unchanged CMCL run of its seed read up to
+    that budget (same measures, held-out from its checkpoint at that episode): [{id "reference_e<B>_s<seed>",
+    grid "ablation_reference", source (the spread run's id), budget B, ...}]."""
+    refs = [{"id": f"reference_e{r['budget']}_s{r['seed']}", "grid": "ablation_reference", "task": "spread",
+             "algorithm": "cmcl", "prey_algorithm": None, "seed": r["seed"], "budget": r["budget"],
+             "ablation": None, "source": f"spread_cmcl_s{r['seed']}"}
+            for r in runs if r.get("grid") == "ablations" and r["budget"] < full_budget]
+    return list({r["id"]: r for r in refs}.values())
+
+
+def summarise(run: dict[str, Any], run_path: Path, upto: int | None = None) -> dict[str, Any]:
+    """The measures of one finished run (training curves, time to 0.5/0.9, area, final rates, held-out), or of
+    its first `upto` episodes (held-out from its checkpoint at episode `upto`, which must exist)."""
     run_dir = RunDirectory.open(run_path)
     config = run_dir.config()
-    series = episode_series(run_dir)
-    elapsed = np.array([r.get("elapsed_s", np.nan) for r in run_dir.rows("episode")], dtype=np.float64)
-    progress = list(run_dir.rows("progress"))
-    policy = load_policy(config, run_dir.latest_checkpoint())
+    rows = list(run_dir.rows("episode"))[:upto]
+    series = {k: v[:upto] for k, v in episode_series(run_dir).items()}
+    elapsed = np.array([r.get("elapsed_s", np.nan) for r in rows], dtype=np.float64)
+    checkpoint = run_dir.latest_checkpoint() if upto is None else run_dir.checkpoint_path(upto)
+    if upto is not None and (len(rows) < upto or not checkpoint.exists()):
+        raise ValueError(f"{run_path}: no {upto} episodes to read (has {len(rows)}, checkpoint {checkpoint.name} "
+                         f"{'exists' if checkpoint.exists() else 'missing'})")
+    policy = load_policy(config, checkpoint)
     held_out = evaluate_policy(config, policy, episodes=HELD_OUT, seed=run["seed"])
+    last = rows[-1] if upto is not None else list(run_dir.rows("progress"))[-1]
     result: dict[str, Any] = {**run, "episodes": int(series["episode"].size),
-                              "env_steps": progress[-1]["env_steps"], "updates": progress[-1]["updates"],
+                              "env_steps": last["env_steps"], "updates": last["updates"],
                               "wall_s": float(elapsed[-1])}
     if run["task"] == "spread":
         coverage = series["coverage"]
@@ -172,9 +193,13 @@ def write_csv(out: Path) -> Path:
 
 
 def run_one(run: dict[str, Any], out: Path) -> str:
-    """Train, summarise and store one run; returns a one-line report."""
+    """Train, summarise and store one run (a prefix reference only reads its source run); returns a one-line
+    report."""
     started = time.perf_counter()
-    summary = summarise(run, train(run, out))
+    if "source" in run:
+        summary = summarise(run, out / "runs" / run["source"], upto=run["budget"])
+    else:
+        summary = summarise(run, train(run, out))
     atomic_write_bytes(out / "summaries" / f"{run['id']}.json", json.dumps(summary).encode())
     keys = ("held_out_coverage", "held_out_success", "episodes_to_90", "win_vs_trained_prey", "wall_s")
     return f"{run['id']} done in {time.perf_counter() - started:.0f} s: " + \
@@ -195,9 +220,10 @@ def main() -> None:
     out = Path(args.out)
     (out / "summaries").mkdir(parents=True, exist_ok=True)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    todo = [r for r in grid(args.grid, args.seeds, args.algorithms, args.episodes)
-            if not (out / "summaries" / f"{r['id']}.json").exists() and r.get("ablation", args.ablations[0])
-            in args.ablations]
+    runs = [r for r in grid(args.grid, args.seeds, args.algorithms, args.episodes)
+            if r.get("ablation", args.ablations[0]) in args.ablations]
+    runs += prefix_reference_runs(runs, args.episodes)
+    todo = [r for r in runs if not (out / "summaries" / f"{r['id']}.json").exists()]
     print(f"{len(todo)} runs to do: {' '.join(r['id'] for r in todo)}", flush=True)
     with ThreadPoolExecutor(max_workers=args.jobs) as pool:
         for future in as_completed([pool.submit(run_one, r, out) for r in todo]):

@@ -133,24 +133,36 @@ def paired(variant: dict[int, float], reference: dict[int, float], digits: int =
 
 
 def ablation_table(ablations: list[dict[str, Any]], reference: list[dict[str, Any]]) -> str:
-    """One row per CMCL variant (and the unchanged CMCL runs as reference): mean ± 95% CI of the main measures,
-    and the variant minus the reference of the same seeds in area under coverage and held-out success (paired t)."""
+    """One row per CMCL variant and per reference (the unchanged CMCL runs, and those runs read up to a smaller
+    budget that a variant ran): mean ± 95% CI of the main measures, and the variant minus the reference of the
+    same seeds and the same budget in area under coverage and held-out success (paired t)."""
     keys = [("held-out coverage", "held_out_coverage", 3), ("held-out success", "held_out_success", 3),
             ("episodes to MA 0.9", "episodes_to_90", 0), ("area under coverage", "auc_coverage", 3),
-            ("mean reward per episode", "mean_reward", 1)]
-    lines = ["| CMCL variant | seeds | " + " | ".join(k[0] for k in keys)
+            ("mean reward per episode", "mean_reward", 1), ("wall s", "wall_s", 0)]
+    lines = ["| CMCL variant | episodes | seeds | " + " | ".join(k[0] for k in keys)
              + " | area: variant − reference, same seeds | held-out success: variant − reference, same seeds |",
-             "| --- " * (len(keys) + 4) + "|"]
-    groups = {"reference (η 0.5, K 5, max, default stride, IS off)": reference}
+             "| --- " * (len(keys) + 5) + "|"]
+    references: dict[int, list[dict[str, Any]]] = {}
+    for r in reference:
+        references.setdefault(r["budget"], []).append(r)
+    groups: dict[str, list[dict[str, Any]]] = {}
     for r in ablations:
         groups.setdefault(r["ablation"], []).append(r)
-    for name, rs in groups.items():
-        diffs = ["", ""] if rs is reference else [
-            paired({r["seed"]: r[k] for r in rs}, {r["seed"]: r[k] for r in reference}, 3)
+    rows: list[tuple[str, list[dict[str, Any]], list[dict[str, Any]] | None]] = []
+    full = max(references, default=0)
+    for budget in sorted(references, reverse=True):
+        label = "reference (η 0.5, K 5, max, default stride, IS off)" if budget == full else \
+            f"reference, its first {budget:,} episodes"
+        rows.append((label, references[budget], None))
+        rows += [(name, rs, references[budget]) for name, rs in groups.items() if rs[0]["budget"] == budget]
+    rows += [(name, rs, []) for name, rs in groups.items() if rs[0]["budget"] not in references]
+    for name, rs, ref in rows:
+        diffs = ["", ""] if ref is None else [
+            paired({r["seed"]: r[k] for r in rs}, {r["seed"]: r[k] for r in ref}, 3)
             for k in ("auc_coverage", "held_out_success")]
         seeds = ",".join(str(s) for s in sorted(r["seed"] for r in rs))
-        lines.append(f"| {name} | {seeds} | " + " | ".join(fmt([r.get(k) for r in rs], d) for _, k, d in keys)
-                     + f" | {diffs[0]} | {diffs[1]} |")
+        lines.append(f"| {name} | {rs[0]['budget']:,} | {seeds} | "
+                     + " | ".join(fmt([r.get(k) for r in rs], d) for _, k, d in keys) + f" | {diffs[0]} | {diffs[1]} |")
     return "\n".join(lines)
 
 
@@ -324,7 +336,8 @@ def main() -> None:
     tag = [r for r in runs if r["task"] == "tag"]
     blocks = {"spread": spread_table(spread), "seeds": seeds_table(spread), "tests": tests_table(spread)}
     if ablations:
-        blocks["ablations"] = ablation_table(ablations, [r for r in spread if r["algorithm"] == "cmcl"])
+        blocks["ablations"] = ablation_table(ablations, [r for r in spread if r["algorithm"] == "cmcl"]
+                                             + [r for r in runs if r.get("grid") == "ablation_reference"])
     if tag:
         blocks["tag"], blocks["tagtests"] = tag_table(tag), tag_tests_table(tag)
     for name, body in blocks.items():

@@ -26,12 +26,27 @@ def test_paired_says_when_there_are_too_few_common_seeds():
     assert paired({0: 1.0, 1: 2.0}, {1: 1.5, 2: 0.0}) == "n/a (1 paired seed)"
 
 
+def ablation_run(ablation, seed, auc, budget=20_000):
+    return {"ablation": ablation, "seed": seed, "budget": budget, "auc_coverage": auc, "held_out_coverage": 0.9,
+            "held_out_success": 0.5 + auc / 10, "episodes_to_90": None, "mean_reward": 1.0, "wall_s": 100.0}
+
+
 def test_ablation_table_lists_each_variant_with_its_seeds():
-    def run(ablation, seed, auc):
-        return {"ablation": ablation, "seed": seed, "auc_coverage": auc, "held_out_coverage": 0.9,
-                "held_out_success": 0.5 + auc / 10, "episodes_to_90": None, "mean_reward": 1.0}
-    reference = [run(None, s, 0.7 + s / 100) for s in range(3)]
-    table = ablation_table([run("eta0", 0, 0.5), run("eta0", 2, 0.55)], reference).splitlines()
-    assert len(table) == 4 and table[3].startswith("| eta0 | 0,2 |")
+    reference = [ablation_run(None, s, 0.7 + s / 100) for s in range(3)]
+    table = ablation_table([ablation_run("eta0", 0, 0.5), ablation_run("eta0", 2, 0.55)], reference).splitlines()
+    assert len(table) == 4 and table[3].startswith("| eta0 | 20,000 | 0,2 |")
     assert "-0.185" in table[3] and "n = 2" in table[3]
     assert "never (3/3)" in table[2]
+
+
+def test_a_shorter_variant_is_paired_with_the_reference_read_to_its_budget():
+    full = [ablation_run(None, s, 0.7) for s in range(2)]
+    prefix = [ablation_run(None, s, 0.2 + s / 100, budget=4_000) for s in range(2)]
+    variants = [ablation_run("paper_schedule", s, 0.3 + s / 50, budget=4_000) for s in range(2)]
+    table = ablation_table(variants + [ablation_run("k2", 0, 0.6), ablation_run("k2", 1, 0.6)], full + prefix)
+    lines = table.splitlines()[2:]
+    assert [line.split(" | ")[0] for line in lines] == [
+        "| reference (η 0.5, K 5, max, default stride, IS off)", "| k2", "| reference, its first 4,000 episodes",
+        "| paper_schedule"]
+    assert "+0.105 [" in lines[3]  # paper_schedule against the prefix: 0.30 − 0.20 and 0.32 − 0.21
+    assert "-0.100 (no spread, n = 2)" in lines[1]  # k2 against the full runs

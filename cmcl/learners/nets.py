@@ -96,12 +96,8 @@ class StackedLinear(nn.Module):
         groups = w.shape[0]
         if members is None and 1 < groups < self.members and (x.dim() == 2 or x.shape[0] == groups):
             per_group = torch.matmul(x, w)  # [G, B, out]: the members of a group share weight and input
-            b = b if b.shape[0] == self.members else b.repeat(self.members // b.shape[0], 1)
-            return per_group.repeat(self.members // groups, 1, 1) + b.unsqueeze(1)
-        if 1 < w.shape[0] < self.members:
-            w = w.repeat(self.members // w.shape[0], 1, 1)  # [members, in, out]; gradients sum into the groups
-        if 1 < b.shape[0] < self.members:
-            b = b.repeat(self.members // b.shape[0], 1)
+            return self._tiled(per_group) + self._tiled(b).unsqueeze(1)
+        w, b = self._tiled(w), self._tiled(b)  # [members, in, out], [members, out]; gradients sum into the groups
         m = (self.members if members is None else len(members)) if x.dim() == 2 else x.shape[0]
         if members is not None:
             w = w if w.shape[0] == 1 else w[members]
@@ -110,6 +106,14 @@ class StackedLinear(nn.Module):
             return torch.baddbmm(b.unsqueeze(1), x, w)
         out = torch.matmul(x, w) + b.unsqueeze(1)  # [B, in] or [m, B, in] @ [m or 1, in, out]
         return out.expand(m, *out.shape[1:]) if out.shape[0] != m else out
+
+    def _tiled(self, grouped: torch.Tensor) -> torch.Tensor:
+        """A per-group tensor [G, ...] with 1 < G < members tiled to [members, ...] (member j gets group j % G);
+        a per-member or a single shared ([1, ...], broadcast) tensor is returned as it is."""
+        groups = grouped.shape[0]
+        if 1 < groups < self.members:
+            return grouped.repeat(self.members // groups, *([1] * (grouped.dim() - 1)))
+        return grouped
 
     def extra_repr(self) -> str:
         return f"members={self.members}, in_dim={self.in_dim}, out_dim={self.out_dim}"

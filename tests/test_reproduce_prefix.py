@@ -1,0 +1,49 @@
+"""The grid runner's reading of a run's first episodes (bench/reproduce.py): the same-budget reference that a
+shorter ablation (the paper's schedule) is compared with."""
+
+import numpy as np
+import pytest
+
+from bench.reproduce import ABLATIONS, grid, prefix_reference_runs, summarise
+from cmcl.io.rundir import RunDirectory
+from cmcl.loop import InlineLoop
+from tests.test_loop import tiny_config
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    """A tiny CMCL navigation run of 12 episodes with checkpoints at 4, 8 and 12."""
+    path = tmp_path_factory.mktemp("reproduce") / "spread_cmcl_s0"
+    config = tiny_config("cmcl", dir=str(path))
+    InlineLoop(config, RunDirectory.create(path, config), progress=None).run()
+    return path
+
+
+def test_the_first_episodes_of_a_run_are_measured_from_those_episodes_and_their_checkpoint(finished_run):
+    run = {"id": "spread_cmcl_s0", "task": "spread", "seed": 0, "budget": 12}
+    whole = summarise(run, finished_run)
+    first = summarise({**run, "budget": 8}, finished_run, upto=8)
+    rows = list(RunDirectory.open(finished_run).rows("episode"))
+    assert whole["episodes"] == 12 and first["episodes"] == 8
+    assert first["env_steps"] == rows[7]["env_steps"] < whole["env_steps"]
+    assert first["updates"] == rows[7]["updates"] < whole["updates"]
+    assert first["wall_s"] == rows[7]["elapsed_s"]
+    coverage = np.array([r["coverage"] for r in rows])
+    assert np.isclose(first["auc_coverage"], coverage[:8].mean())
+    assert np.isclose(whole["auc_coverage"], coverage.mean())
+
+
+def test_reading_past_a_checkpointed_prefix_names_the_run_and_the_missing_checkpoint(finished_run):
+    with pytest.raises(ValueError, match=r"ckpt_00000006\.pt missing"):
+        summarise({"task": "spread", "seed": 0, "budget": 6}, finished_run, upto=6)
+
+
+def test_a_shorter_ablation_gets_one_prefix_reference_per_seed_from_the_unchanged_cmcl_run():
+    runs = [r for r in grid(["ablations"], [0, 1], ["cmcl"], budget=20_000)]
+    short = [r for r in runs if r["budget"] < 20_000]
+    assert {r["ablation"] for r in short} == {a for a, (_, _, b) in ABLATIONS.items() if b is not None}
+    refs = prefix_reference_runs(runs + runs, 20_000)  # duplicates collapse
+    budget = ABLATIONS["paper_schedule"][2]
+    assert sorted(r["id"] for r in refs) == [f"reference_e{budget}_s0", f"reference_e{budget}_s1"]
+    assert {r["source"] for r in refs} == {"spread_cmcl_s0", "spread_cmcl_s1"}
+    assert prefix_reference_runs(runs, budget) == []  # a grid at that budget needs no prefix
