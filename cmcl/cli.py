@@ -51,7 +51,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     loop = InlineLoop(config, run_dir, progress=None if args.quiet else print)
     if args.resume:
-        checkpoint = restore_newest_good(loop, run_dir)
+        try:
+            checkpoint = restore_newest_good(loop, run_dir)
+        except ValueError as err:  # a checkpoint of other settings (shapes, folds): older ones are alike
+            print(f"error: {args.resume} cannot resume under these settings: {err}", file=sys.stderr)
+            return 2
         if checkpoint is None:
             print(f"error: {args.resume} holds no checkpoint to resume from that passes its checks", file=sys.stderr)
             return 2

@@ -144,3 +144,19 @@ def test_cli_smoke_and_resume(tmp_path, capsys):
 def test_cli_rejects_bad_config(capsys):
     assert main(["--config", "configs/spread_cmcl.toml", "--set", "maddpg.gamma=7"]) == 2
     assert "maddpg.gamma" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("changed", ["teachers.share_parameters=true", "maddpg.share_parameters=true",
+                                     "teachers.num_folds=2"])
+def test_resuming_under_other_network_settings_names_them_and_keeps_the_run(tmp_path, capsys, changed):
+    config = tiny_config("cmcl", dir=str(tmp_path / "run"), episodes=4)
+    InlineLoop(config, RunDirectory.create(config.run.dir, config), progress=None).run()
+    stored = {p: p.read_bytes() for p in Path(config.run.dir).rglob("*") if p.is_file()}
+    assert main(["--resume", config.run.dir, "--set", changed, "--set", "run.episodes=8"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot resume under these settings" in err and "Traceback" not in err
+    if "share_parameters" in changed:  # named with both shapes
+        assert changed.split("=")[0] in err and "has shape (" in err and "this config builds (" in err
+    else:
+        assert "n_folds in state (5) differs from this storage (2)" in err
+    assert {p: p.read_bytes() for p in Path(config.run.dir).rglob("*") if p.is_file()} == stored

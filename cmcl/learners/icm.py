@@ -23,6 +23,7 @@ import torch
 import torch.nn.functional as F
 
 from cmcl.learners.nets import StackedMLP, as_tensor, clip_grad_norm_per_member_, make_adam
+from cmcl.learners.state_check import require_same_shapes
 
 __all__ = ["ICM"]
 
@@ -148,7 +149,9 @@ class ICM:
         }
 
     def load_state_dict(self, state: Mapping) -> None:
-        """Restore :meth:`state_dict` output (same architecture)."""
+        """Restore :meth:`state_dict` output (same architecture: checked first, by name)."""
+        require_same_shapes("checkpoint icm", {"phi": self.phi, "inverse": self.inverse,
+                                               "forward": self.forward_model}, state, "icm settings or agents")
         self.phi.load_state_dict(state["phi"])
         self.inverse.load_state_dict(state["inverse"])
         self.forward_model.load_state_dict(state["forward"])

@@ -25,6 +25,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from cmcl.learners.nets import StackedMLP, as_tensor, clip_grad_norm_per_member_, joint_input, make_adam, soft_update_
+from cmcl.learners.state_check import require_same_shapes
 
 __all__ = ["MADDPG"]
 
@@ -286,8 +287,11 @@ class MADDPG:
         }
 
     def load_state_dict(self, state: Mapping) -> None:
-        """Restore everything saved by :meth:`state_dict` (same architecture required)."""
-        for name in ("actor", "critic", "target_actor", "target_critic"):
+        """Restore everything saved by :meth:`state_dict` (same architecture required: checked first, by name)."""
+        parts = ("actor", "critic", "target_actor", "target_critic")
+        require_same_shapes("checkpoint maddpg", {name: getattr(self, name) for name in parts}, state,
+                            "maddpg.share_parameters, maddpg.hidden, agents or observation sizes")
+        for name in parts:
             getattr(self, name).load_state_dict(state[name])
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])

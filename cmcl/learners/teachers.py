@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from cmcl.learners.nets import StackedMLP, as_tensor, clip_grad_norm_per_member_, make_adam
+from cmcl.learners.state_check import require_same_shapes
 
 __all__ = ["TeacherEnsemble"]
 
@@ -106,7 +107,9 @@ class TeacherEnsemble:
         return {"net": self.net.state_dict(), "opt": self.opt.state_dict(), "steps": int(self.steps)}
 
     def load_state_dict(self, state: Mapping) -> None:
-        """Restore :meth:`state_dict` output (same A, K, in_dim, hidden)."""
+        """Restore :meth:`state_dict` output (same A, K, in_dim, hidden, sharing: checked first, by name)."""
+        require_same_shapes("checkpoint teachers", {"net": self.net}, state,
+                            "teachers.share_parameters, teachers.num_folds, teachers.hidden or agents")
         self.net.load_state_dict(state["net"])
         self.opt.load_state_dict(state["opt"])
         self.steps = int(state["steps"])

@@ -1,0 +1,28 @@
+"""Checks that a saved state fits a model before any of it is loaded, so that a checkpoint written under other
+network settings fails with an error that names the part, the tensor, both shapes and the settings behind them
+(not torch's raw size-mismatch message, and not after some parts were already replaced)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from torch import nn
+
+
+def require_same_shapes(owner: str, modules: Mapping[str, nn.Module], state: Mapping, settings: str) -> None:
+    """Raise ValueError unless state[name] has exactly the tensor keys and shapes of modules[name] for every name.
+
+    owner: what is loaded ("checkpoint maddpg"); settings: the config fields that set these shapes, for the
+    message. Leaves every module untouched."""
+    for name, module in modules.items():
+        if name not in state:
+            raise ValueError(f"{owner}: no {name!r} part; it holds {sorted(state)}")
+        own, given = module.state_dict(), state[name]
+        if set(own) != set(given):
+            raise ValueError(f"{owner}.{name}: tensors {sorted(given)} differ from this config's {sorted(own)} "
+                             f"(set by {settings})")
+        for key, tensor in own.items():
+            saved = tuple(given[key].shape)
+            if saved != tuple(tensor.shape):
+                raise ValueError(f"{owner}.{name}.{key} has shape {saved}, this config builds {tuple(tensor.shape)}"
+                                 f": it was saved under other {settings}")
