@@ -17,7 +17,6 @@ import os
 import re
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -30,6 +29,8 @@ import pytest
 import yaml
 from prometheus_client.parser import text_string_to_metric_families
 
+from tests.ports import free_port
+
 ROOT = Path(__file__).resolve().parents[1]
 DEPLOY = ROOT / "deploy"
 PROMETHEUS, CHROMIUM = shutil.which("prometheus"), shutil.which("chromium")
@@ -37,12 +38,6 @@ pytestmark = [pytest.mark.ray, pytest.mark.skipif(
     PROMETHEUS is None, reason="the Debian package prometheus is not installed (make test installs it as root)")]
 SERVICE_BUDGET_S = 240  # the service stops by itself after this; the fixture stops it sooner
 WAIT_S = 150  # for each condition on what Prometheus has scraped (and the screenshot wait below it)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def get(url: str, timeout: float = 10.0) -> str:
