@@ -10,7 +10,8 @@ cell against N = 4 per-agent measured in the same process.
 
 Learning (`--learn EPISODES`): one inline training run per (N, sharing, seed) with early stop off, reporting the
 final moving-average coverage and success, episodes to MA 0.5 / 0.9 and wall seconds. Writes one JSON per run to
-`--out` (default bench/results/scale/); finished runs are skipped on a rerun (resumable).
+`--out` (default bench/results/scale/); a rerun skips finished runs and resumes an interrupted one from its
+latest checkpoint (every 2,000 episodes; its clock goes on from there).
 
 Run: .venv/bin/python bench/scale.py [--algorithm cmcl] [--agents 4 8 16]
      .venv/bin/python bench/scale.py --learn 20000 --agents 8 --seeds 0 1 2
@@ -92,18 +93,21 @@ def learn(algorithm: str, agents: list[int], seeds: list[int], episodes: int, ou
                 if (out / f"{name}.json").exists():
                     continue
                 run_dir = out / "runs" / name
-                settings = [f"run.dir={run_dir}", f"run.seed={seed}", f"run.episodes={episodes}",
-                            "run.stop_coverage=0", *overrides(n, kind)]
-                args = [sys.executable, "-m", "cmcl.loop", "--config", f"{ROOT}/configs/spread_{algorithm}.toml",
-                        "--quiet", "--overwrite", *[a for kv in settings for a in ("--set", kv)]]
-                t0 = time.perf_counter()
+                if run_dir.exists() and RunDirectory.open(run_dir).latest_checkpoint() is not None:
+                    args = [sys.executable, "-m", "cmcl.loop", "--resume", str(run_dir), "--quiet"]
+                else:
+                    settings = [f"run.dir={run_dir}", f"run.seed={seed}", f"run.episodes={episodes}",
+                                "run.stop_coverage=0", "run.checkpoint_every=2000", *overrides(n, kind)]
+                    args = [sys.executable, "-m", "cmcl.loop", "--config",
+                            f"{ROOT}/configs/spread_{algorithm}.toml", "--quiet", "--overwrite",
+                            *[a for kv in settings for a in ("--set", kv)]]
                 subprocess.run(args, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
                 rows = list(RunDirectory.open(run_dir).rows("episode"))
                 coverage = np.array([r["coverage"] for r in rows], np.float64)
                 success = np.array([r["success"] for r in rows], np.float64)
                 summary = {"algorithm": algorithm, "agents": n, "networks": kind, "shared": NETWORKS[kind][0],
                            "shared_teachers": NETWORKS[kind][1], "seed": seed,
-                           "episodes": len(coverage), "wall_s": time.perf_counter() - t0,
+                           "episodes": len(coverage), "wall_s": rows[-1]["elapsed_s"],  # resumes included
                            "final_ma_coverage": float(coverage[-WINDOW:].mean()),
                            "final_ma_success": float(success[-WINDOW:].mean()),
                            "episodes_to_50": first_reaching(coverage, 0.5),
