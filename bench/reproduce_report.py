@@ -253,6 +253,9 @@ def figures(runs: list[dict[str, Any]], out: Path) -> list[Path]:
         ax.set(ylabel="episodes until the 100-episode MA reaches it", ylim=(0, 21_000),
                title=f"Episodes to a cover rate of 0.5 (triangles) and 0.9 (dots)\n{budget(spread)}")
         written.append(save(fig, out / "spread_episodes_to_solve.png"))
+    ablations = [r for r in runs if r.get("grid") == "ablations"]
+    if ablations and by_alg["cmcl"]:
+        written.append(ablation_figure(ablations, by_alg["cmcl"], out, plt))
     tag = [r for r in runs if r["task"] == "tag" and r["prey_algorithm"] == "maddpg"]
     if tag:
         fig, ax = plt.subplots(figsize=(6, 4))  # Fig. 12: predator reward against MADDPG prey
@@ -279,6 +282,37 @@ def figures(runs: list[dict[str, Any]], out: Path) -> list[Path]:
         ax.legend(loc="lower right")
         written.append(save(fig, out / "fig13_cmcl_win_rate.png"))
     return written
+
+
+def ablation_figure(ablations: list[dict[str, Any]], reference: list[dict[str, Any]], out: Path, plt: Any) -> Path:
+    """Coverage curves of the CMCL variants against the unchanged CMCL runs: (a) the full-budget variants (means
+    over seeds; the reference with its 95% band), (b) the shorter ones (the paper's schedule) against the
+    reference's first episodes, both with bands."""
+    full = max(r["budget"] for r in reference)
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for r in ablations:
+        groups.setdefault(r["ablation"], []).append(r)
+    budgets = [full] + sorted({rs[0]["budget"] for rs in groups.values() if rs[0]["budget"] < full})[-1:]
+    fig, axes = plt.subplots(1, len(budgets), figsize=(6 * len(budgets), 4.2), squeeze=False)
+    for ax, budget_of in zip(axes[0], budgets, strict=True):
+        n = budget_of // WINDOW
+        band(ax, [r["curves"]["coverage"][:n] for r in reference], "black", "reference")
+        colours = iter(plt.get_cmap("tab10").colors)
+        for name, rs in groups.items():
+            if rs[0]["budget"] != budget_of:
+                continue
+            curves = [r["curves"]["coverage"] for r in rs]
+            if budget_of == full:
+                m = np.array([c[: min(map(len, curves))] for c in curves]).mean(0)
+                ax.plot((np.arange(m.size) + 1) * WINDOW, m, color=next(colours), linewidth=1,
+                        label=f"{name} ({len(rs)} seeds)")
+            else:
+                band(ax, curves, next(colours), name)
+        ax.set(xlabel="episode", ylabel="final-step landmark cover rate (100-episode windows)", ylim=(0, 1.02),
+               title=f"({'a' if budget_of == full else 'b'}) first {budget_of:,} episodes")
+        ax.legend(loc="upper left", fontsize=7)
+    fig.suptitle("CMCL ablations on sparse navigation N=4, one setting changed at a time; inline")
+    return save(fig, out / "ablations_coverage.png")
 
 
 def save(fig: Any, path: Path) -> Path:

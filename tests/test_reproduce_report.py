@@ -50,3 +50,26 @@ def test_a_shorter_variant_is_paired_with_the_reference_read_to_its_budget():
         "| paper_schedule"]
     assert "+0.105 [" in lines[3]  # paper_schedule against the prefix: 0.30 − 0.20 and 0.32 − 0.21
     assert "-0.100 (no spread, n = 2)" in lines[1]  # k2 against the full runs
+
+
+def test_the_ablation_figure_draws_a_panel_per_budget(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from bench.reproduce_report import ablation_figure
+
+    def run(ablation, seed, budget):
+        curve = list(np.linspace(0, 1, budget // 100))
+        return {**ablation_run(ablation, seed, 0.5, budget), "curves": {"coverage": curve}}
+
+    reference = [run(None, s, 2_000) for s in range(2)]
+    png = ablation_figure([run("k2", 0, 2_000), run("paper_schedule", 0, 400), run("paper_schedule", 1, 400)],
+                          reference, tmp_path, plt)
+    assert png.name == "ablations_coverage.png" and png.stat().st_size > 10_000
+    width, height = plt.imread(png).shape[1::-1]
+    assert width > 1.8 * height  # two panels side by side
+    png = ablation_figure([run("k2", 0, 2_000)], reference, tmp_path, plt)
+    width, height = plt.imread(png).shape[1::-1]
+    assert width < 1.8 * height  # one panel
