@@ -64,7 +64,7 @@ ABLATIONS = {  # name -> (config file, --set overrides, episode budget or None f
     "stride_x2": ("spread_cmcl.toml", ["curriculum.stride=6e-6"], None),  # λ_max at a quarter of training
     "stride_half": ("spread_cmcl.toml", ["curriculum.stride=1.5e-6"], None),  # λ_max at the end
     "is_on": ("spread_cmcl.toml", ["teams.agent.is_correction=true"], None),
-    # One update per world step: 16 times the updates (≈ 116,000 by episode 4,000), about 25 min a run here, so
+    # One update per world step: 16 times the updates (116,176 by episode 4,000), about 35 min a run here, so
     # it runs the first 4,000 episodes only and is compared with the reference runs' first 4,000 episodes
     # (their checkpoint at 4,000; see prefix_reference_runs).
     "paper_schedule": ("paper/spread_cmcl.toml", [], 4_000),

@@ -58,7 +58,7 @@ def test_the_ablation_figure_draws_a_panel_per_budget(tmp_path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from bench.reproduce_report import ablation_figure
+    from bench.reproduce_figures import ablation_figure
 
     def run(ablation, seed, budget):
         curve = list(np.linspace(0, 1, budget // 100))
