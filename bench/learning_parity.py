@@ -34,7 +34,6 @@ def run_service_one(task: str, algorithm: str, seed: int, episodes: int, out: Pa
     sets = [f"run.episodes={episodes}", f"run.seed={seed}", f"run.dir={run_path}", "service.metrics_port=0",
             *overrides]
     config = load_config(f"configs/{task}_{algorithm}.toml", sets)
-    learner = run_path / "checkpoints" / "service" / "learner.pt"
     started = time.perf_counter()
     if not (run_path / "learning_done").exists():
         run_dir = RunDirectory.create(run_path, config, overwrite=True)
@@ -46,7 +45,8 @@ def run_service_one(task: str, algorithm: str, seed: int, episodes: int, out: Pa
             ray.shutdown()
         (run_path / "learning_done").write_text(json.dumps({k: v for k, v in summary.items()
                                                             if k != "metrics_text"}))
-    result = evaluate_policy(config, load_policy(config, learner), episodes=200, seed=seed)
+    policy = load_policy(config, RunDirectory.open(run_path).newest_policy())
+    result = evaluate_policy(config, policy, episodes=200, seed=seed)
     result.update(mode="service", seed=seed, train_seconds=time.perf_counter() - started)
     return result
 

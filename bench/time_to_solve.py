@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT))
 
 from cmcl.config import ALGORITHMS, load_config  # noqa: E402
 from cmcl.evaluate import evaluate_policy, load_policy  # noqa: E402
-from cmcl.io.rundir import RunDirectory  # noqa: E402
+from cmcl.io.rundir import PolicyCheckpoint, RunDirectory  # noqa: E402
 
 UPDATE_EVERY = (1, 4, 16, 64)
 BATCHES = (128, 512)
@@ -125,11 +125,12 @@ def train(run: dict[str, Any], out: Path, max_seconds: float, stop_coverage: flo
     return run_path, time.perf_counter() - started
 
 
-def final_checkpoint(run_path: Path, mode: str) -> Path:
-    """The learner weights a run ended with (inline: latest checkpoint; service: the learner's own)."""
-    if mode == "service":
-        return run_path / "checkpoints" / "service" / "learner.pt"
-    return RunDirectory.open(run_path).latest_checkpoint()
+def final_checkpoint(run_path: Path, mode: str) -> PolicyCheckpoint:
+    """The learner weights a run ended with: the run directory's newest verified policy (either runner)."""
+    policy = RunDirectory.open(run_path).newest_policy()
+    if policy is None:
+        raise FileNotFoundError(f"{run_path} ({mode}): no policy checkpoint that passes its checks")
+    return policy
 
 
 def measure(run: dict[str, Any], out: Path, max_seconds: float, stop_coverage: float) -> dict[str, Any]:

@@ -19,18 +19,20 @@ import numpy as np
 import torch
 
 from cmcl.config import Config
-from cmcl.io.rundir import RunDirectory, load_checkpoint
+from cmcl.io.rundir import PolicyCheckpoint, RunDirectory, load_checkpoint
 from cmcl.learners.maddpg import MADDPG
 from cmcl.system import agent_layout, build_maddpg, make_batched_env, make_parallel_env, to_env_actions
 
 EVAL_SEED_OFFSET = 10_000  # evaluation worlds never reuse the training seed's worlds
 
 
-def load_policy(config: Config, checkpoint: str | Path) -> MADDPG:
-    """MADDPG with the weights of `checkpoint` (torch.load(weights_only=True))."""
+def load_policy(config: Config, checkpoint: PolicyCheckpoint | str | Path) -> MADDPG:
+    """MADDPG with the weights of `checkpoint`: a run's `PolicyCheckpoint` (already verified and decoded), or a
+    file (checked against its `.sha256` manifest when it has one; torch.load(weights_only=True))."""
     env = make_batched_env(config, num_envs=1)
     maddpg = build_maddpg(config, agent_layout(config, env), seed=0)
-    maddpg.load_state_dict(load_checkpoint(checkpoint)["maddpg"])
+    state = checkpoint.state if isinstance(checkpoint, PolicyCheckpoint) else load_checkpoint(checkpoint)
+    maddpg.load_state_dict(state["maddpg"])
     return maddpg
 
 
@@ -101,7 +103,8 @@ def main(argv: list[str] | None = None) -> int:
     """CLI: evaluate the latest (or a given) checkpoint of a run, write a GIF and the learning curve."""
     parser = argparse.ArgumentParser(prog="python -m cmcl.evaluate", description=__doc__.split("\n")[0])
     parser.add_argument("run_dir", help="a run directory written by cmcl.loop or services.launch")
-    parser.add_argument("--checkpoint", help="checkpoint file (default: the run's latest)")
+    parser.add_argument("--checkpoint", help="checkpoint file (default: the run's newest verified policy, "
+                                             "whichever runner wrote it)")
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--random", action="store_true", help="evaluate a uniform random policy instead")
@@ -114,15 +117,22 @@ def main(argv: list[str] | None = None) -> int:
     try:
         run = RunDirectory.open(args.run_dir)
         config = run.config()
-        checkpoint = None if args.random else Path(args.checkpoint) if args.checkpoint else run.latest_checkpoint()
-        if not args.random and (checkpoint is None or not checkpoint.is_file()):
-            raise FileNotFoundError(f"no checkpoint to evaluate in {args.run_dir} (pass --checkpoint or --random)")
+        checkpoint: PolicyCheckpoint | Path | None = None
+        if args.checkpoint:
+            checkpoint = Path(args.checkpoint)
+            if not checkpoint.is_file():
+                raise FileNotFoundError(f"--checkpoint {args.checkpoint}: no such file")
+        elif not args.random:
+            checkpoint = run.newest_policy()
+            if checkpoint is None:
+                raise FileNotFoundError(f"no checkpoint that passes its checks in {args.run_dir} (pass --checkpoint "
+                                        "or --random)")
+        maddpg = None if args.random or checkpoint is None else load_policy(config, checkpoint)
     except (FileNotFoundError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    maddpg = None if checkpoint is None else load_policy(config, checkpoint)
     result = evaluate_policy(config, maddpg, args.episodes, args.seed)
-    result["checkpoint"] = None if checkpoint is None else str(checkpoint)
+    result["checkpoint"] = None if maddpg is None else str(getattr(checkpoint, "path", checkpoint))
     print(json.dumps(result, indent=2))
     if not args.no_gif:
         gif = render_gif(config, maddpg, args.gif or run.path / ("eval_random.gif" if args.random else "eval.gif"),

@@ -79,6 +79,7 @@ class InlineLoop:
         self.elapsed_s = 0.0  # training wall clock so far, seconds (kept across checkpoint + resume)
         self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
         self.last_stats: dict[str, Any] = {}
+        self.stopped = False  # the last `run` ended because its `stop` said so
         self.obs = self.env.reset()
 
     # ------------------------------------------------------------------ one batched env step
@@ -273,9 +274,10 @@ class InlineLoop:
         self.load_state_dict(state)
 
     # ------------------------------------------------------------------ main loop
-    def run(self) -> dict[str, Any]:
-        """Train until run.episodes episodes have finished, the coverage target `run.stop_coverage` is reached
-        or the budget `run.max_seconds` is spent; returns the final progress row."""
+    def run(self, stop: Callable[[], bool] | None = None) -> dict[str, Any]:
+        """Train until run.episodes episodes have finished, the coverage target `run.stop_coverage` is reached,
+        the budget `run.max_seconds` is spent or `stop()` says so (polled after every batched env step: a graceful
+        SIGINT / SIGTERM); checkpoints at the end in every case; returns the final progress row."""
         cfg, c = self.config, self.counters
         start = time.perf_counter() - self.elapsed_s  # a resumed run's clock goes on from its checkpoint
         last_t = time.perf_counter()
@@ -289,7 +291,8 @@ class InlineLoop:
                 episode_row["elapsed_s"] = time.perf_counter() - start
                 if self.run_dir is not None:
                     self.run_dir.log(episode_row)
-            done = (c["episodes"] >= cfg.run.episodes or solved(self.window, cfg.run)
+            self.stopped = stop is not None and stop()
+            done = (c["episodes"] >= cfg.run.episodes or solved(self.window, cfg.run) or self.stopped
                     or (cfg.run.max_seconds > 0 and time.perf_counter() - start >= cfg.run.max_seconds))
             if c["episodes"] >= next_log or done:
                 now = time.perf_counter()

@@ -11,12 +11,18 @@ creates every role (services.placement.create_roles) and runs the supervisor loo
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import signal
 import sys
+from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 from cmcl.config import Config, ConfigError, load_config
 from cmcl.io.rundir import RunDirectory
+from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
+from cmcl.stopping import STOP_SIGNALS, StopSignals
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -39,8 +45,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def resolve(args: argparse.Namespace) -> tuple[Config, RunDirectory]:
-    """Config (file + overrides + CLI metrics flags) and the run directory (new, or the one resumed)."""
+class ResumeMismatch(ValueError):
+    """--resume names a run the other runner wrote."""
+
+
+def resolve(args: argparse.Namespace) -> tuple[Config, RunDirectory, RunLock]:
+    """Config (file + overrides + CLI metrics flags), the run directory (new, or the one resumed) and its lock, taken
+    before anything in the directory changes (a run in use is refused, naming its holder, and left untouched)."""
     extra = list(args.overrides)
     if args.metrics_port is not None:
         extra.append(f"service.metrics_port={args.metrics_port}")
@@ -48,13 +59,31 @@ def resolve(args: argparse.Namespace) -> tuple[Config, RunDirectory]:
         extra.append(f'service.metrics_host="{args.metrics_host}"')
     if args.resume:
         run_dir = RunDirectory.open(args.resume)
-        return run_dir.config(tuple(extra)), run_dir
+        lock = RunLock.acquire(run_dir.path, holder_command())
+        try:
+            if run_dir.runners() == {"inline"}:
+                raise ResumeMismatch(f"{args.resume} was written by the inline runner; resume it with "
+                                     f"python -m cmcl.loop --resume {args.resume}")
+            return run_dir.config(tuple(extra)), run_dir, lock
+        except BaseException:
+            lock.release()
+            raise
     config = load_config(args.config, extra)
-    return config, RunDirectory.create(config.run.dir, config, overwrite=args.overwrite)
+    lock = RunLock.acquire(config.run.dir, holder_command())
+    try:
+        return config, RunDirectory.create(config.run.dir, config, overwrite=args.overwrite), lock
+    except BaseException:
+        lock.release()
+        raise
 
 
 def start_ray(address: str | None, num_cpus: int | None, metrics_export_port: int | None = None) -> None:
-    """Join `address`, or start an embedded Ray sized to this machine (no dashboard)."""
+    """Join `address`, or start an embedded Ray sized to this machine (no dashboard).
+
+    The embedded Ray's processes are started with SIGINT and SIGTERM blocked, a mask they inherit: a Ctrl-C in the
+    terminal reaches the whole foreground process group, and it must stop the run through the launcher (drain,
+    checkpoint), not kill Ray's processes under it. A signal that arrives meanwhile waits, then reaches the
+    launcher's handler once the caller unblocks it (`unblock_stop_signals`)."""
     import ray
 
     os.environ.setdefault("RAY_DEDUP_LOGS", "0")
@@ -67,13 +96,36 @@ def start_ray(address: str | None, num_cpus: int | None, metrics_export_port: in
             raise ConnectionError(f"cannot join the Ray cluster at --address {address}: {err}. Start one with "
                                   f"`ray start --head`, or omit --address for an embedded Ray") from None
         return
+    signal.pthread_sigmask(signal.SIG_BLOCK, set(STOP_SIGNALS))
     ray.init(address="local", num_cpus=num_cpus or os.cpu_count(), include_dashboard=False, log_to_driver=False,
              _metrics_export_port=metrics_export_port)
 
 
-def run_service(config: Config, run_dir: RunDirectory, *, resume: bool = False, progress: Any = print
-                ) -> dict[str, Any]:
-    """Run the service on the Ray already initialised; returns the supervisor's final summary."""
+def unblock_stop_signals() -> None:
+    """Let SIGINT / SIGTERM reach this process again (after `start_ray`; any signal held meanwhile arrives now)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, set(STOP_SIGNALS))
+
+
+@contextlib.contextmanager
+def stderr_to(path: Path) -> Iterator[None]:
+    """Send this process's file descriptor 2 (where Ray's C++ core and Python loggers write) to `path` meanwhile:
+    what Ray prints on its way out goes to the run directory, not to the user's terminal."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with path.open("ab") as sink:
+        os.dup2(sink.fileno(), 2)
+    try:
+        yield
+    finally:
+        sys.stderr.flush()
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def run_service(config: Config, run_dir: RunDirectory, *, resume: bool = False, progress: Any = print,
+                stop: Callable[[], bool] | None = None) -> dict[str, Any]:
+    """Run the service on the Ray already initialised; returns the supervisor's final summary. `stop` is polled
+    between rounds of work (see `Supervisor`)."""
     from services.metrics import ServiceMetrics
     from services.placement import create_roles
     from services.supervisor import Supervisor
@@ -84,7 +136,7 @@ def run_service(config: Config, run_dir: RunDirectory, *, resume: bool = False, 
         if progress is not None:
             progress(f"metrics: http://{config.service.metrics_host}:{port}/metrics   run directory: {run_dir.path}")
         roles = create_roles(config, run_dir)
-        supervisor = Supervisor(config, run_dir, roles, metrics, progress=progress)
+        supervisor = Supervisor(config, run_dir, roles, metrics, progress=progress, stop=stop)
         if resume:
             supervisor.restore_counters()
         summary = supervisor.run()
@@ -95,44 +147,88 @@ def run_service(config: Config, run_dir: RunDirectory, *, resume: bool = False, 
         metrics.close()
 
 
+def resume_notice(run_dir: RunDirectory) -> str:
+    """What a resume starts from: the newest verified policy, or that the learner starts afresh."""
+    policy = run_dir.newest_policy()
+    if policy is None:
+        return f"resuming {run_dir.path}: no policy checkpoint yet, the learner starts afresh (the replay is kept)"
+    version = policy.state.get("version")
+    return (f"resuming {run_dir.path} from {policy.path.relative_to(run_dir.path)}"
+            + (f" (policy version {int(version)})" if version is not None else ""))
+
+
 def main(argv: list[str] | None = None) -> int:
-    """CLI entry point. Exit codes: 0 done, 2 bad config / arguments / cluster / resources."""
+    """CLI entry point. Exit codes: 0 done, 2 bad config / arguments / cluster / resources / run directory in use,
+    130 / 143 stopped by SIGINT / SIGTERM (every role checkpointed first)."""
     args = parse_args(argv)
     try:
-        config, run_dir = resolve(args)
-    except (ConfigError, FileExistsError, FileNotFoundError) as err:
+        config, run_dir, lock = resolve(args)
+    except (ConfigError, FileExistsError, FileNotFoundError, RunDirectoryInUse, ResumeMismatch) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    with lock:
+        return _launch(args, config, run_dir, lock)
+
+
+def _launch(args: argparse.Namespace, config: Config, run_dir: RunDirectory, lock: RunLock) -> int:
+    """Start (or join) Ray, train until done or stopped, shut Ray down quietly, report; the lock is held."""
     import ray
 
     from services.placement import InfeasibleResources
+    from services.reaper import start_reaper
 
+    if args.resume:
+        print(resume_notice(run_dir))
+    if not args.address and not ray.is_initialized():
+        start_reaper(keep_fds=(lock.fd,))  # no process of the embedded Ray outlives this one, SIGKILL included
+    stop = StopSignals(notice=print)
     try:
-        start_ray(args.address, args.num_cpus, args.ray_metrics_port)
-    except ConnectionError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    try:
-        summary = run_service(config, run_dir, resume=bool(args.resume), progress=None if args.quiet else print)
-    except InfeasibleResources as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    except OSError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+        try:
+            start_ray(args.address, args.num_cpus, args.ray_metrics_port)
+        except ConnectionError as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
+        finally:
+            # after ray.init, whose core worker installs a C-level SIGTERM handler (a stack dump and abort) over
+            # any earlier one; then a signal held during Ray's start arrives and only sets `stop.requested`
+            stop.install()
+            unblock_stop_signals()
+        try:
+            summary = run_service(config, run_dir, resume=bool(args.resume),
+                                  progress=None if args.quiet else print, stop=lambda: stop.requested)
+        except (InfeasibleResources, OSError) as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
+        finally:
+            stop.training_over()
+            with stderr_to(run_dir.path / "ray_shutdown.log"):
+                ray.shutdown()
+        return _report(args, config, run_dir, summary, stop)
     finally:
-        ray.shutdown()
+        stop.restore()
+
+
+def _report(args: argparse.Namespace, config: Config, run_dir: RunDirectory, summary: dict[str, Any],
+            stop: StopSignals) -> int:
+    """The end of a run: summary.json, the `done` line, then the resume hint (stopped) or the evaluation."""
+    ended = stop.name or ("solved" if summary.get("solved") else "budget")
+    run_dir.write_summary({**{k: v for k, v in summary.items() if k != "metrics_text"}, "ended": ended,
+                           "runner": "service"})
     print(f"done: {summary['episodes']} episodes, {summary['env_steps']} env steps, {summary['updates']} updates "
           f"in {summary['elapsed_s']:.0f}s" + (f" (coverage target {config.run.stop_coverage} reached)"
                                                if summary.get("solved") else ""))
+    if stop.requested:
+        print(f"stopped by {stop.name}; every role is checkpointed. Resume with: "
+              f"python -m services.launch --resume {run_dir.path}")
+        return stop.exit_code
     if not args.no_eval:
         report_trained(config, run_dir)
     return 0
 
 
 def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -> None:
-    """Held-out evaluation of the learner's final weights (no exploration noise, worlds never trained on), a GIF of
-    one episode and the learning curve, all in the run directory."""
+    """Held-out evaluation of the run's newest verified policy (no exploration noise, worlds never trained on), a
+    GIF of one episode and the learning curve, all in the run directory."""
     from cmcl.evaluate import evaluate_policy, load_policy, render_gif
     from cmcl.io.plots import plot_learning_curves
 
@@ -140,10 +236,11 @@ def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -
         window = min(config.run.smoothing_window, max(1, config.run.episodes // 10))
         png = plot_learning_curves([run_dir.path], run_dir.path / "learning_curve.png", window=window)
         print(f"learning curve: {png}")
-    learner = run_dir.checkpoints / "service" / "learner.pt"
-    if not learner.is_file():
+    checkpoint = run_dir.newest_policy()
+    if checkpoint is None:
+        print(f"no policy checkpoint in {run_dir.path}: nothing to evaluate")
         return
-    policy = load_policy(config, learner)
+    policy = load_policy(config, checkpoint)
     trained, random = evaluate_policy(config, policy, episodes), evaluate_policy(config, None, episodes)
     keys = [k for k in ("coverage", "success", "collisions", "wall_hits", "predator_win") if k in trained]
     print(f"held-out evaluation ({episodes} new worlds, no exploration noise): "

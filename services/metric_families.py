@@ -17,6 +17,8 @@ from prometheus_client.metrics_core import HistogramMetricFamily, Metric
 from prometheus_client.registry import Collector
 from prometheus_client.utils import floatToGoString
 
+from services.report_schema import REJECT_REASONS, REPORT_REJECT_REASONS, ROLES
+
 UNIT_BUCKETS = tuple(round(0.05 * i, 2) for i in range(1, 21))  # [0.05 .. 1.0]
 CI_BUCKETS = tuple(round(0.1 * i, 1) for i in range(1, 16))  # [0.1 .. 1.5]
 AGE_BUCKETS = (0, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000, 10000)
@@ -93,7 +95,11 @@ def define_metrics(r: CollectorRegistry) -> tuple[dict[str, Gauge], dict[str, Co
     counters = {
         "replay_inserts": c("cmcl_replay_inserts_total", "Transitions accepted by the replay server."),
         "replay_samples": c("cmcl_replay_samples_total", "Transitions sampled from the replay buffer."),
-        "replay_rejected": c("cmcl_replay_rejected_total", "Inputs refused by the replay server.", ["reason"]),
+        "replay_rejected": c("cmcl_replay_rejected_total", "Inputs refused by the replay server (bad input).",
+                             ["reason"]),
+        "replay_stale_scores": c("cmcl_replay_stale_scores_total",
+                                 "Score and |TD| updates dropped because their row was overwritten since they were "
+                                 "handed out: expected by design, tens of thousands per run, not a fault."),
         "teacher_steps": c("cmcl_teacher_steps_total", "Teacher critic fit steps.", ["teacher"]),
         "teacher_scores": c("cmcl_teacher_scores_total", "Transitions scored by each teacher.", ["teacher"]),
         "icm_steps": c("cmcl_icm_steps_total", "ICM training steps."),
@@ -107,6 +113,10 @@ def define_metrics(r: CollectorRegistry) -> tuple[dict[str, Gauge], dict[str, Co
         "reports": c("cmcl_metrics_reports_total", "Reports applied to the metrics endpoint."),
         "reports_rejected": c("cmcl_metrics_reports_rejected_total", "Reports refused.", ["reason"]),
     }
+    for label, values in (("replay_rejected", REJECT_REASONS), ("reports_rejected", REPORT_REJECT_REASONS),
+                          ("restarts", ROLES), ("checkpoints_refused", ROLES)):
+        for value in values:  # every series exists from the start: a panel shows 0, not "no data"
+            counters[label].labels(value)
     histograms = {key: NumpyHistogram(*spec) for key, spec in HISTOGRAMS.items()}
     for hist in histograms.values():
         r.register(hist)

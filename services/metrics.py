@@ -132,6 +132,8 @@ class ServiceMetrics:
             plan.count("replay_samples", replay.samples)
             for reason, total in (replay.rejected or {}).items():
                 plan.count("replay_rejected", total, (reason,))
+            if replay.stale_scores is not None:
+                plan.count("replay_stale_scores", replay.stale_scores)
             for key in SAMPLE_KEYS:
                 if getattr(replay, key) is not None:
                     plan.hist.append((key, self._subsample(getattr(replay, key))))

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from cmcl.config import Config
@@ -51,14 +50,6 @@ def required_cpus(config: Config, cluster_cpus: float | None = None) -> float:
     return total
 
 
-def service_paths(run_dir: RunDirectory) -> dict[str, Path]:
-    """Where each role keeps its latest checkpoint inside the run directory (created if missing)."""
-    base = run_dir.checkpoints / "service"
-    base.mkdir(parents=True, exist_ok=True)
-    return {"learner": base / "learner.pt", "icm": base / "icm.pt", "replay": base / "replay",
-            "supervisor": base / "supervisor.json", "teacher": base}
-
-
 @dataclass
 class Roles:
     """Handles of every actor, plus how to make a replacement for a rollout worker."""
@@ -81,7 +72,7 @@ def create_roles(config: Config, run_dir: RunDirectory) -> Roles:
     if need > available + 1e-9:
         raise InfeasibleResources(f"the roles request {need:.2f} CPUs (service.*_cpus) but the cluster has "
                                   f"{available:g}; lower service.rollout_workers or the per-role CPU requests")
-    s, seed, paths, cfg = config.service, config.run.seed, service_paths(run_dir), config.to_dict()
+    s, seed, paths, cfg = config.service, config.run.seed, run_dir.service_paths(), config.to_dict()
 
     def actor(cls: type, cpus: float, resources: dict[str, float] | None = None):
         return ray.remote(num_cpus=cpus, resources=resources or {}, max_restarts=s.max_restarts,

@@ -24,7 +24,7 @@ def replay_report(server: Any, details: dict[str, Any] | None) -> Report:
     for the curriculum agents (None when there are none or the buffer is empty)."""
     replay: dict[str, Any] = {"size": server.replay.size, "capacity": server.replay.capacity,
                               "inserts": server.counters["inserts"], "samples": server.counters["samples"],
-                              "rejected": dict(server.rejected)}
+                              "rejected": dict(server.rejected), "stale_scores": server.stale_scores}
     size = server.replay.size
     if details is not None:
         d = details

@@ -63,7 +63,8 @@ class ReplayServer:
         self.counters = {"inserts": 0, "samples": 0, "updates": 0, "episodes": 0, "icm_steps": 0,
                          "icm_scores": 0, "chunks": 0, "restored_records": 0}
         self.teacher_steps, self.teacher_scores = [0] * k, [0] * k
-        self.rejected: dict[str, int] = {}
+        self.rejected: dict[str, int] = {}  # refused inputs per reason (services.report_schema.REJECT_REASONS)
+        self.stale_scores = 0  # score / |δ| updates dropped as stale (expected, not refused input)
         seeds = np.random.SeedSequence([int(seed), 7]).spawn(self.layout.num_agents + 1)
         self.sampler_rngs = [np.random.default_rng(s) for s in seeds[:-1]]
         self.rng = np.random.default_rng(seeds[-1])
@@ -185,8 +186,9 @@ class ReplayServer:
         return self.status()
 
     def _count_stale(self, n: int) -> None:
-        if n > 0:
-            self.rejected["stale"] = self.rejected.get("stale", 0) + int(n)
+        """Count score / |δ| updates dropped as stale: expected by design (a row overwritten while a teacher, the
+        ICM or the learner held it), so counted apart from refused input."""
+        self.stale_scores += max(0, int(n))
 
     # ------------------------------------------------------------------ replay -> teachers / ICM
     def teacher_work(self, folds: list[int], steps: int) -> tuple[TeacherWork | None, dict[str, Any]]:
@@ -277,7 +279,8 @@ class ReplayServer:
         return {"replay": self.replay.state_dict(), "difficulty": self.difficulty.state_dict(),
                 "curiosity_stamps": self.curiosity_stamps.state_dict(),
                 "ledger": self.ledger.state_dict(), "counters": dict(self.counters), "rejected": dict(self.rejected),
-                "teacher_steps": list(self.teacher_steps), "teacher_scores": list(self.teacher_scores),
+                "stale_scores": self.stale_scores, "teacher_steps": list(self.teacher_steps),
+                "teacher_scores": list(self.teacher_scores),
                 **self.pacing.state_dict(),
                 "schedule_env_steps": self.schedule.env_steps, "inserted_at": self.inserted_at}
 
@@ -313,7 +316,10 @@ class ReplayServer:
         self.curiosity_stamps.load_state_dict(state["curiosity_stamps"])
         self.ledger.load_state_dict(state["ledger"])
         self.counters.update({k: int(v) for k, v in state["counters"].items()})
-        self.rejected = {str(k): int(v) for k, v in state["rejected"].items()}
+        rejected = {str(k): int(v) for k, v in state["rejected"].items()}
+        # snapshots from before stale updates had their own count kept them under rejected["stale"]
+        self.stale_scores = int(state.get("stale_scores", 0)) + rejected.pop("stale", 0)
+        self.rejected = rejected
         self.teacher_steps = [int(v) for v in state["teacher_steps"]]
         self.teacher_scores = [int(v) for v in state["teacher_scores"]]
         self.pacing.load_state_dict(state)

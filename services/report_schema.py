@@ -59,6 +59,14 @@ class _Section:
                 for f in fields(self) if getattr(self, f.name) is not None}
 
 
+# Every label value a labelled counter can take, so that the endpoint exports each series from the start (a panel
+# shows 0, not "no data"): the reasons the replay server refuses an input for, the reasons a report is refused for
+# (ReportError.reason), the roles of the actors.
+REJECT_REASONS = ("bad_chunk", "duplicate", "invalid", "bad_feedback", "bad_scores", "log_truncated")
+REPORT_REJECT_REASONS = ("bad_schema", "bad_type", "bad_value", "unknown_key")
+ROLES = ("rollout", "replay", "learner", "teacher", "icm")
+
+
 @dataclass(frozen=True)
 class ReplayReport(_Section):
     """``replay``, sent by the replay server; the sample arrays hold one value per sampled buffer row."""
@@ -67,7 +75,8 @@ class ReplayReport(_Section):
     capacity: float | None = None  # x >= 0: transitions storable
     inserts: float | None = None  # N: transitions accepted
     samples: float | None = None  # N: transitions sampled
-    rejected: Mapping[str, float] | None = None  # {reason label: N}: inputs refused per reason
+    rejected: Mapping[str, float] | None = None  # {reason label: N}: inputs refused per reason (REJECT_REASONS)
+    stale_scores: float | None = None  # N: score / |δ| updates dropped because their row was overwritten since
     score_coverage: float | None = None  # x in [0, 1]: fraction of the buffer with teacher scores
     difficulty: np.ndarray | None = None  # arr in [0, 1]: normalised teacher difficulty
     priority: np.ndarray | None = None  # arr >= 0: curriculum index CI
@@ -217,12 +226,13 @@ def _labelled(path: str, value: Any, parse: Any) -> dict[str, Any]:
 
 def _parse_replay(section: Any) -> ReplayReport:
     """Validate ``replay``."""
-    keys = {"size", "capacity", "inserts", "samples", "rejected", "score_coverage", "kp_branches",
+    keys = {"size", "capacity", "inserts", "samples", "rejected", "stale_scores", "score_coverage", "kp_branches",
             "fold_score_coverage", "sampling_ess", *SAMPLE_KEYS}
     section = _mapping("replay", section, keys)
     values: dict[str, Any] = _numbers("replay", section, (("size", 0, None), ("capacity", 0, None),
                                                            ("score_coverage", 0, 1), ("inserts", 0, None),
-                                                           ("samples", 0, None), ("sampling_ess", 0, 1)))
+                                                           ("samples", 0, None), ("stale_scores", 0, None),
+                                                           ("sampling_ess", 0, 1)))
     if "rejected" in section:
         values["rejected"] = _labelled("replay.rejected", section["rejected"], lambda p, v: _number(p, v, lo=0))
     for key in ("kp_branches", "fold_score_coverage"):

@@ -33,7 +33,7 @@ from services.health import (
     restartable,
 )
 from services.metrics import ServiceMetrics
-from services.placement import Roles, service_paths
+from services.placement import Roles
 from services.report_schema import Report
 
 CALLS_IN_FLIGHT = 2  # per actor: one computing, one prefetched
@@ -49,9 +49,13 @@ class Supervisor:
     """The pacing loop. `run()` trains until run.episodes episodes are stored (or run.max_seconds)."""
 
     def __init__(self, config: Config, run_dir: RunDirectory, roles: Roles, metrics: ServiceMetrics,
-                 progress: Callable[[str], None] | None = print):
+                 progress: Callable[[str], None] | None = print, stop: Callable[[], bool] | None = None):
+        """`stop`: polled between rounds of work; once it returns True the run ends as at its budget (drain, final
+        cut, every role checkpointed) and the summary says `stopped` (a graceful SIGINT / SIGTERM)."""
         self.config, self.run_dir, self.roles, self.metrics, self.progress = config, run_dir, roles, metrics, progress
-        self.paths = service_paths(run_dir)
+        self.stop = stop
+        self.stopped = False  # the run ended because `stop` said so
+        self.paths = run_dir.service_paths()
         self.pending: dict[Any, tuple[str, int, int]] = {}  # ref -> (kind, actor index, submission number)
         self.submitted = 0  # calls tracked so far (numbers them in submission order)
         self.inflight: Counter[tuple[str, int]] = Counter()  # calls in flight per (role, actor index)
@@ -313,6 +317,9 @@ class Supervisor:
         last_report = last_ckpt = time.perf_counter()
         report_ref = None
         while True:
+            if self.stop is not None and self.stop():
+                self.stopped = True
+                break
             if cfg.run.max_seconds and time.perf_counter() - self.started > cfg.run.max_seconds:
                 break
             if solved(self.window, cfg.run):
@@ -348,4 +355,5 @@ class Supervisor:
         return {**self.status, **self.rates, "failures": dict(self.failures), "hung": dict(self.hung),
                 "reports_rejected": dict(self.reports_rejected),
                 "recovery_s": {k: list(v) for k, v in self.recovery.times.items()}, "solved": self.solved,
-                "elapsed_s": time.perf_counter() - self.started}
+                "stopped": self.stopped, "episodes_logged": self.episodes_logged,
+                "window": window_summary(self.window), "elapsed_s": time.perf_counter() - self.started}

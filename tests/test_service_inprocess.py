@@ -91,7 +91,8 @@ def test_duplicate_bad_and_stale_inputs_are_refused_and_counted():
         replay.insert(worker.rollout(None)[0])
     slots = np.arange(10).reshape(1, 1, -1).repeat(4, 1)  # [n=1, N=4, S=10]
     replay.learner_result(LearnerFeedback(slots, np.zeros_like(slots), np.ones((1, 4, 10), np.float32)))
-    assert replay.rejected == {"duplicate": 1, "bad_chunk": 2, "stale": 40}
+    assert replay.rejected == {"duplicate": 1, "bad_chunk": 2}  # refused input, each reason counted
+    assert replay.stale_scores == 40  # stale score updates: dropped by design, counted apart
 
 
 def test_snapshot_restores_buffer_scores_counters_and_dedupe(tmp_path):

@@ -4,23 +4,44 @@ Where it sits: `cmcl.loop` and `services.launch` write here; `cmcl.evaluate` and
 Layout of `<dir>/`:
   config.toml            the resolved configuration (reloadable with cmcl.config.load_config)
   metrics.jsonl          one JSON object per line (episode rows and update rows, each with a "kind")
-  checkpoints/ckpt_<episodes:08d>.pt   torch.save of plain state dicts, read with weights_only=True
-  checkpoints/replay_<episodes:08d>.msgpack  replay snapshot (cmcl.io.codec), when the writer adds one
+  run.lock               the one writer's lock (cmcl.io.runlock)
+  summary.json           the runner's last summary (how the run ended, its counters)
+  checkpoints/ckpt_<episodes:08d>.pt   inline runner: torch.save of plain state dicts, read with weights_only=True
+  checkpoints/replay_<episodes:08d>.msgpack  inline runner: the replay snapshot beside each checkpoint
+  checkpoints/service/   service: each role's checkpoint generations and manifest (cmcl.io.verified), the replay
+                         store, the supervisor's counters (`service_paths`)
+Whichever runner wrote the run, `newest_policy()` finds its newest verified policy: evaluation, the end-of-run
+report and resume ask it, never a file name.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import shutil
 from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from cmcl.config import Config, dump_toml, load_config
 from cmcl.io.atomic import atomic_write_bytes
+from cmcl.io.verified import CheckpointError, VerifiedFile
 
 CHECKPOINT_GLOB = "ckpt_*.pt"
+SERVICE_ROLES = ("learner", "icm")  # roles whose checkpoint is one VerifiedFile at checkpoints/service/<role>.pt
+
+
+@dataclass(frozen=True)
+class PolicyCheckpoint:
+    """A run's policy checkpoint that passed its checks: the file, the runner that wrote it, its decoded state
+    (torch tensors; `state["maddpg"]` holds the policy) and the file's modification time (seconds since the epoch)."""
+
+    path: Path
+    runner: Literal["inline", "service"]
+    state: dict[str, Any]
+    mtime: float
 
 
 def _json_safe(value: Any) -> Any:
@@ -105,9 +126,59 @@ class RunDirectory:
         return path
 
     def latest_checkpoint(self) -> Path | None:
-        """The checkpoint with the most episodes, or None."""
+        """The inline runner's checkpoint with the most episodes, or None (unchecked; see `newest_policy`)."""
         found = sorted(self.checkpoints.glob(CHECKPOINT_GLOB))
         return found[-1] if found else None
+
+    def service_paths(self) -> dict[str, Path]:
+        """Where each service role keeps its checkpoint (created if missing): learner / icm (VerifiedFile bases),
+        replay (the replay store's folder), supervisor (its counters, JSON), teacher (the folder of the teacher
+        actors' files, one per fold group)."""
+        base = self.checkpoints / "service"
+        base.mkdir(parents=True, exist_ok=True)
+        return {**{role: base / f"{role}.pt" for role in SERVICE_ROLES}, "replay": base / "replay",
+                "supervisor": base / "supervisor.json", "teacher": base}
+
+    def runners(self) -> set[str]:
+        """Which runners have written a policy checkpoint here: a subset of {"inline", "service"}."""
+        found = set()
+        if any(self.checkpoints.glob(CHECKPOINT_GLOB)):
+            found.add("inline")
+        if VerifiedFile(self.checkpoints / "service" / "learner.pt").manifest.exists():
+            found.add("service")
+        return found
+
+    def newest_policy(self) -> PolicyCheckpoint | None:
+        """The newest policy checkpoint that passes its checks, whichever runner wrote it (by file time), or None.
+
+        Inline: the newest `ckpt_*.pt` whose manifest digest matches (a refused one is skipped for the one
+        before it). Service: the learner's newest generation that matches its manifest (else the previous one).
+        """
+        import torch
+
+        found: list[PolicyCheckpoint] = []
+        for path in sorted(self.checkpoints.glob(CHECKPOINT_GLOB), reverse=True):
+            try:
+                found.append(PolicyCheckpoint(path, "inline", load_checkpoint(path), path.stat().st_mtime))
+                break
+            except (CheckpointError, OSError, RuntimeError):
+                continue
+        learner = VerifiedFile(self.checkpoints / "service" / "learner.pt")
+        loaded = learner.load()
+        if loaded.payload is not None and loaded.generation is not None:
+            path = learner.file_of(loaded.generation)
+            try:
+                state = torch.load(io.BytesIO(loaded.payload), map_location="cpu", weights_only=True)
+                found.append(PolicyCheckpoint(path, "service", state, path.stat().st_mtime))
+            except (RuntimeError, OSError):
+                pass
+        return max(found, key=lambda c: c.mtime) if found else None
+
+    def write_summary(self, summary: Mapping[str, Any]) -> Path:
+        """Write the runner's summary (how the run ended, its counters) to summary.json, atomically."""
+        path = self.path / "summary.json"
+        atomic_write_bytes(path, json.dumps(_json_safe(summary), indent=2, sort_keys=True).encode())
+        return path
 
 
 def save_torch_atomic(path: str | Path, state: Mapping[str, Any]) -> None:
@@ -134,11 +205,9 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     """Load a checkpoint written by `save_torch_atomic`: checked against its manifest first (a truncated or
     corrupted file raises `CheckpointError` naming it), then torch.load(weights_only=True): no arbitrary pickle.
     Checkpoints written before manifests existed (no `.sha256` beside them) are decoded without the check."""
-    import io
-
     import torch
 
-    from cmcl.io.verified import CheckpointError, check
+    from cmcl.io.verified import check
 
     path, manifest = Path(path), digest_path(path)
     if manifest.exists():

@@ -42,7 +42,8 @@ class VerifiedFile:
         self.path = Path(path)
         self.manifest = self.path.with_name(self.path.name + ".manifest.json")
 
-    def _file(self, generation: int) -> Path:
+    def file_of(self, generation: int) -> Path:
+        """The file of one generation: `<stem>-<generation:06d><suffix>`."""
         return self.path.with_name(f"{self.path.stem}-{generation:06d}{self.path.suffix}")
 
     def _read_manifest(self) -> dict[str, Any] | None:
@@ -69,7 +70,7 @@ class VerifiedFile:
         except CheckpointError:
             previous = None  # an unreadable manifest names nothing worth keeping
         generation = 1 + (int(previous["generation"]) if previous else 0)
-        target = self._file(generation)
+        target = self.file_of(generation)
         atomic_write_bytes(target, payload)
         entry = {"generation": generation, "file": target.name, "bytes": len(payload),
                  "sha256": hashlib.sha256(payload).hexdigest()}
@@ -93,7 +94,7 @@ class VerifiedFile:
         for entry in (data["current"], data.get("previous")):
             if not entry:
                 continue
-            file = self._file(int(entry["generation"]))
+            file = self.file_of(int(entry["generation"]))
             try:
                 out.payload, out.generation = check(file, int(entry["bytes"]), str(entry["sha256"])), \
                     int(entry["generation"])

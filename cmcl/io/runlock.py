@@ -1,0 +1,85 @@
+"""One writer per run directory: an advisory lock (`flock`) on `<run dir>/run.lock`, naming its holder.
+
+Where it sits: `services.launch` and `python -m cmcl.loop` take it before they create, overwrite or resume a run
+directory, and hold it until they exit; `cmcl.evaluate` only reads and takes none. The kernel drops the lock when
+every process holding it has exited, by any signal (SIGKILL included), so a lock left by a dead process never
+blocks: the file stays, but nothing holds it. A process that inherits the descriptor (the launcher's Ray reaper,
+`services.reaper`) holds it too, so a new writer waits until the old run's last process has gone.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import socket
+import sys
+import time
+from pathlib import Path
+
+LOCK_NAME = "run.lock"
+
+
+class RunDirectoryInUse(RuntimeError):
+    """Another live process holds the run directory; the message names it (pid, host, command, since when)."""
+
+
+class RunLock:
+    """The held lock of one run directory. `acquire` takes it or raises `RunDirectoryInUse`; `release` (or the
+    process's exit) gives it back. `fd` is the open descriptor, for a child that must hold the lock as well."""
+
+    def __init__(self, path: Path, fd: int):
+        self.path, self.fd = path, fd
+
+    @classmethod
+    def acquire(cls, run_dir: str | Path, command: str | None = None) -> RunLock:
+        """Lock `run_dir` (created if missing) for this process, without waiting.
+
+        command: what to name this holder by in a refusal (default: this process's argv)."""
+        directory = Path(run_dir)
+        directory.mkdir(parents=True, exist_ok=True)
+        path = directory / LOCK_NAME
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _describe(path)
+            os.close(fd)
+            raise RunDirectoryInUse(f"run directory {str(directory)!r} is in use by {holder}; wait for that run to "
+                                    f"end or stop it (Ctrl-C), or choose another run.dir") from None
+        holder = {"pid": os.getpid(), "host": socket.gethostname(), "since": time.strftime("%Y-%m-%d %H:%M:%S"),
+                  "command": command or holder_command()}
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, json.dumps(holder).encode(), 0)
+        return cls(path, fd)
+
+    def release(self) -> None:
+        """Give the lock back (idempotent)."""
+        if self.fd >= 0:
+            fcntl.flock(self.fd, fcntl.LOCK_UN)
+            os.close(self.fd)
+            self.fd = -1
+
+    def __enter__(self) -> RunLock:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+def holder_command() -> str:
+    """This process's command line as a user typed it: `python -m services.launch --resume runs/x` (the module
+    name stands for the path Python puts in argv[0] under -m)."""
+    main = sys.modules.get("__main__")
+    spec = getattr(main, "__spec__", None)
+    head = ["python", "-m", spec.name.removesuffix(".__main__")] if spec is not None else ["python", sys.argv[0]]
+    return " ".join([*head, *sys.argv[1:]])
+
+
+def _describe(path: Path) -> str:
+    """'pid 123 on host h (python -m services.launch ..., since 2026-12-03 04:00:00)' from the lock file."""
+    try:
+        holder = json.loads(path.read_text() or "{}")
+        return (f"pid {holder['pid']} on {holder['host']} ({holder['command']}, since {holder['since']})")
+    except (OSError, ValueError, KeyError, TypeError):
+        return f"another process (holder unknown: {path} unreadable)"
