@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 LOCK_NAME = "run.lock"
+DEAD_HOLDER_WAIT_S = 15.0  # how long to wait for the processes of a holder that has died (its reaper) to let go
 
 
 class RunDirectoryInUse(RuntimeError):
@@ -40,13 +41,20 @@ class RunLock:
         directory.mkdir(parents=True, exist_ok=True)
         path = directory / LOCK_NAME
         fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = _describe(path)
-            os.close(fd)
-            raise RunDirectoryInUse(f"run directory {str(directory)!r} is in use by {holder}; wait for that run to "
-                                    f"end or stop it (Ctrl-C), or choose another run.dir") from None
+        deadline = time.monotonic() + DEAD_HOLDER_WAIT_S
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                # the named holder is dead but the lock is held: its reaper is still ending the old run's processes
+                if not _holder_alive(path) and time.monotonic() < deadline:
+                    time.sleep(0.1)
+                    continue
+                holder = _describe(path)
+                os.close(fd)
+                raise RunDirectoryInUse(f"run directory {str(directory)!r} is in use by {holder}; wait for that run "
+                                        f"to end or stop it (Ctrl-C), or choose another run.dir") from None
         holder = {"pid": os.getpid(), "host": socket.gethostname(), "since": time.strftime("%Y-%m-%d %H:%M:%S"),
                   "command": command or holder_command()}
         os.ftruncate(fd, 0)
@@ -74,6 +82,20 @@ def holder_command() -> str:
     spec = getattr(main, "__spec__", None)
     head = ["python", "-m", spec.name.removesuffix(".__main__")] if spec is not None else ["python", sys.argv[0]]
     return " ".join([*head, *sys.argv[1:]])
+
+
+def _holder_alive(path: Path) -> bool:
+    """Whether the process the lock file names still runs on this host (unknown holders count as alive)."""
+    try:
+        holder = json.loads(path.read_text() or "{}")
+        if holder.get("host") != socket.gethostname():
+            return True
+        os.kill(int(holder["pid"]), 0)
+        return True
+    except ProcessLookupError:
+        return False
+    except (OSError, ValueError, KeyError, TypeError):
+        return True
 
 
 def _describe(path: Path) -> str:

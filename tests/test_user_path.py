@@ -1,0 +1,230 @@
+"""The README's commands run as a user runs them: subprocesses, real signals, a real embedded Ray, a tiny budget.
+
+- `make run` ends with the held-out evaluation line and writes the GIF; `python -m cmcl.evaluate RUN_DIR` then
+  finds the service's policy by itself, as it does an inline run's.
+- Ctrl-C (SIGINT to the whole process group, as a terminal sends it) and SIGTERM mid-run: exit 130 / 143, no
+  traceback, every role's checkpoint on disk, a one-line resume hint; the resume goes on from the policy it had.
+- SIGKILL of the launcher: no process of the Ray it started is left; `--resume` goes on from the last checkpoint.
+- A second launcher on a run directory in use is refused, naming the holder, and the first run is unharmed.
+
+"Goes on from the policy" is checked where it is decided: the first episodes of the resumed run are played with
+the checkpoint's weight version (a learner that started afresh publishes version 0).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from cmcl.io.rundir import RunDirectory
+from services.reaper import descendants, process_table
+
+ROOT = Path(__file__).resolve().parents[1]
+PY = sys.executable
+LINE_TIMEOUT_S = 180  # for any one line of output (Ray's start on a loaded 2-core machine takes up to ~30 s)
+
+pytestmark = pytest.mark.timeout(600)
+
+
+class Launched:
+    """A command started in its own process group (as a shell starts a job), its output read line by line, and the
+    processes below it recorded (pid, start time) while it runs."""
+
+    def __init__(self, args: list[str], cwd: Path = ROOT):
+        self.proc = subprocess.Popen(args, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                     start_new_session=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        self.lines: list[str] = []
+        self.seen: dict[int, int] = {}
+        self._queue: queue.Queue[str | None] = queue.Queue()
+        threading.Thread(target=self._pump, daemon=True).start()
+
+    def _pump(self) -> None:
+        for line in self.proc.stdout:
+            self._queue.put(line)
+        self._queue.put(None)
+
+    def _record(self) -> None:
+        self.seen.update(descendants({self.proc.pid}, process_table()))
+
+    def wait_for(self, predicate, what: str) -> str:
+        """Read lines until one satisfies `predicate`; fail naming `what` if the output ends first."""
+        while True:
+            self._record()
+            try:
+                line = self._queue.get(timeout=LINE_TIMEOUT_S)
+            except queue.Empty:
+                raise AssertionError(f"no line for {LINE_TIMEOUT_S} s while waiting for {what}:\n{self.text}") from None
+            if line is None:
+                raise AssertionError(f"output ended while waiting for {what}:\n{self.text}")
+            self.lines.append(line)
+            if predicate(line):
+                return line
+
+    def progress_lines(self, count: int, min_updates: int = 1) -> None:
+        """Wait for `count` progress lines reporting at least `min_updates` learner updates."""
+        seen = 0
+
+        def counts(line: str) -> bool:
+            nonlocal seen
+            if line.startswith("ep ") and int(line.split("| upd ")[1].split()[0]) >= min_updates:
+                seen += 1
+            return seen >= count
+
+        self.wait_for(counts, f"{count} progress lines with >= {min_updates} updates")
+
+    def finish(self, timeout: float = 300) -> int:
+        """Wait for the exit; all output read."""
+        self.proc.wait(timeout=timeout)
+        while (line := self._queue.get(timeout=LINE_TIMEOUT_S)) is not None:
+            self.lines.append(line)
+        return self.proc.returncode
+
+    @property
+    def text(self) -> str:
+        return "".join(self.lines)
+
+
+def alive(recorded: dict[int, int]) -> set[int]:
+    """The recorded processes still running (same pid and start time)."""
+    table = process_table()
+    return {pid for pid, start in recorded.items() if table.get(pid, (0, -1))[1] == start}
+
+
+def wait_until_gone(recorded: dict[int, int], timeout: float = 60) -> set[int]:
+    """Poll until none of `recorded` runs (the reaper works on its own clock); returns what is left at the end."""
+    deadline = time.monotonic() + timeout
+    while (left := alive(recorded)) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    return left
+
+
+def launch(run_dir: Path, *extra: str) -> Launched:
+    return Launched([PY, "-m", "services.launch", "--config", "configs/spread_cmcl.toml", "--set",
+                     f"run.dir={run_dir}", "--metrics-port", "0", "--set", "run.max_seconds=120", *extra])
+
+
+def resume(run_dir: Path) -> Launched:
+    return Launched([PY, "-m", "services.launch", "--resume", str(run_dir), "--metrics-port", "0"])
+
+
+def learner_version(run_dir: Path) -> int:
+    """The policy version of the run's newest verified learner checkpoint."""
+    policy = RunDirectory.open(run_dir).newest_policy()
+    assert policy is not None and policy.runner == "service", f"no service policy in {run_dir}"
+    return int(policy.state["version"])
+
+
+def first_versions_after(run_dir: Path, episode: int, count: int = 20) -> list[int]:
+    """Weight versions of the first `count` episodes logged after `episode`."""
+    rows = [r for r in RunDirectory.open(run_dir).rows("episode") if r["episodes"] > episode]
+    assert rows, f"no episode logged after {episode}"
+    return [int(r["weight_version"]) for r in rows[:count]]
+
+
+def assert_clean_stop(run: Launched, code: int, name: str, run_dir: Path) -> None:
+    assert run.finish() == code, run.text
+    assert "Traceback" not in run.text and "SIGTERM received at time" not in run.text, run.text
+    assert f"stopped by {name}" in run.text and f"python -m services.launch --resume {run_dir}" in run.text
+    service = run_dir / "checkpoints" / "service"
+    for role in ("learner", "icm", "teacher_0-1-2-3-4"):
+        assert (service / f"{role}.pt.manifest.json").is_file(), f"no {role} checkpoint: {sorted(service.iterdir())}"
+    assert json.loads((run_dir / "summary.json").read_text())["ended"] == name
+
+
+def test_make_run_ends_with_the_held_out_evaluation_and_a_gif_and_evaluate_finds_the_policy(tmp_path):
+    run_dir = tmp_path / "make-run"
+    run = Launched(["make", "-s", "run", f"RUN_ARGS=--set run.dir={run_dir} --set run.max_seconds=10 "
+                                         "--metrics-port 0"])
+    assert run.finish() == 0, run.text
+    assert "held-out evaluation (200 new worlds, no exploration noise): coverage" in run.text, run.text
+    assert (run_dir / "trained.gif").stat().st_size > 0 and (run_dir / "learning_curve.png").is_file()
+    assert not alive(run.seen), f"processes left behind: {alive(run.seen)}"
+    evaluated = subprocess.run([PY, "-m", "cmcl.evaluate", str(run_dir), "--episodes", "20", "--no-gif"], cwd=ROOT,
+                               capture_output=True, text=True, timeout=300)
+    assert evaluated.returncode == 0, evaluated.stderr
+    result = json.loads(evaluated.stdout[:evaluated.stdout.rindex("}") + 1])
+    assert Path(result["checkpoint"]).name.startswith("learner-") and result["episodes"] == 20
+
+
+def test_ctrl_c_and_sigterm_stop_gracefully_a_second_launcher_is_refused_and_resume_keeps_the_policy(tmp_path):
+    run_dir = tmp_path / "run"
+    first = launch(run_dir)
+    first.progress_lines(2, min_updates=16)
+    second = subprocess.run([PY, "-m", "services.launch", "--config", "configs/spread_cmcl.toml", "--set",
+                             f"run.dir={run_dir}", "--overwrite", "--metrics-port", "0"], cwd=ROOT,
+                            capture_output=True, text=True, timeout=120)
+    assert second.returncode == 2 and f"is in use by pid {first.proc.pid}" in second.stderr, second.stderr
+    os.killpg(first.proc.pid, signal.SIGINT)  # what a terminal does on Ctrl-C: the whole foreground group
+    assert_clean_stop(first, 130, "SIGINT", run_dir)  # the first run was unharmed by the refused second one
+    assert wait_until_gone(first.seen) == set()
+    version, episodes = learner_version(run_dir), json.loads((run_dir / "summary.json").read_text())["episodes_logged"]
+    assert version > 0
+
+    again = resume(run_dir)
+    again.wait_for(lambda line: f"(policy version {version})" in line, "the resume notice")
+    again.progress_lines(2)
+    os.killpg(again.proc.pid, signal.SIGTERM)
+    assert_clean_stop(again, 143, "SIGTERM", run_dir)
+    assert wait_until_gone(again.seen) == set()
+    assert min(first_versions_after(run_dir, episodes)) >= version  # played with the checkpoint's policy
+    assert learner_version(run_dir) > version
+
+
+def test_sigkill_of_the_launcher_leaves_no_ray_process_and_resume_goes_on_from_the_last_checkpoint(tmp_path):
+    run_dir = tmp_path / "run"
+    first = launch(run_dir, "--set", "service.checkpoint_every_s=2")
+    first.progress_lines(3, min_updates=16)
+    manifest = run_dir / "checkpoints" / "service" / "learner.pt.manifest.json"
+    first.wait_for(lambda line: manifest.is_file() and learner_version(run_dir) > 0, "a learner checkpoint")
+    first.proc.kill()  # the launcher alone, as the OOM killer or `kill -9 PID` would
+    assert first.finish() == -signal.SIGKILL
+    assert len(first.seen) >= 5  # gcs, raylet, agents, workers, the reaper
+    assert wait_until_gone(first.seen) == set(), "processes of the killed launcher's Ray are still running"
+    version = learner_version(run_dir)
+    logged = json.loads((run_dir / "checkpoints" / "service" / "supervisor.json").read_text())["episodes_logged"]
+
+    again = resume(run_dir)
+    again.wait_for(lambda line: f"(policy version {version})" in line, "the resume notice")
+    again.progress_lines(2)
+    os.killpg(again.proc.pid, signal.SIGINT)
+    assert_clean_stop(again, 130, "SIGINT", run_dir)
+    assert wait_until_gone(again.seen) == set()
+    assert min(first_versions_after(run_dir, logged)) >= version
+
+
+def test_inline_runner_stops_on_ctrl_c_refuses_a_second_writer_and_resumes(tmp_path):
+    run_dir = tmp_path / "inline"
+    first = Launched([PY, "-m", "cmcl.loop", "--config", "configs/spread_maddpg.toml", "--set", f"run.dir={run_dir}",
+                      "--set", "run.episodes=100000", "--set", "run.checkpoint_every=0"])
+    first.progress_lines(3, min_updates=1)
+    second = subprocess.run([PY, "-m", "cmcl.loop", "--resume", str(run_dir)], cwd=ROOT, capture_output=True,
+                            text=True, timeout=120)
+    assert second.returncode == 2 and f"is in use by pid {first.proc.pid}" in second.stderr, second.stderr
+    os.killpg(first.proc.pid, signal.SIGINT)
+    assert first.finish() == 130 and "Traceback" not in first.text, first.text
+    assert f"Resume with: python -m cmcl.loop --resume {run_dir}" in first.text
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["ended"] == "SIGINT" and summary["runner"] == "inline"
+    stopped_at = summary["episodes"]
+    assert RunDirectory.open(run_dir).newest_policy().path.name == f"ckpt_{stopped_at:08d}.pt"
+
+    again = subprocess.run([PY, "-m", "cmcl.loop", "--resume", str(run_dir), "--set",
+                            f"run.episodes={stopped_at + 40}", "--quiet"], cwd=ROOT, capture_output=True, text=True,
+                           timeout=300)
+    assert again.returncode == 0 and f"at episode {stopped_at}" in again.stdout, again.stdout + again.stderr
+    ended_at = json.loads((run_dir / "summary.json").read_text())["episodes"]
+    assert ended_at >= stopped_at + 40
+    evaluated = subprocess.run([PY, "-m", "cmcl.evaluate", str(run_dir), "--episodes", "20", "--no-gif"], cwd=ROOT,
+                               capture_output=True, text=True, timeout=300)
+    assert evaluated.returncode == 0, evaluated.stderr
+    assert Path(json.loads(evaluated.stdout[:evaluated.stdout.rindex("}") + 1])["checkpoint"]).name == \
+        f"ckpt_{ended_at:08d}.pt"
