@@ -55,6 +55,7 @@ class Supervisor:
         self.config, self.run_dir, self.roles, self.metrics, self.progress = config, run_dir, roles, metrics, progress
         self.stop = stop
         self.stopped = False  # the run ended because `stop` said so
+        self.checkpoint_seconds: list[float] = []  # wall seconds of each checkpoint (drain + every role's save)
         self.paths = run_dir.service_paths()
         self.pending: dict[Any, tuple[str, int, int]] = {}  # ref -> (kind, actor index, submission number)
         self.submitted = 0  # calls tracked so far (numbers them in submission order)
@@ -290,6 +291,7 @@ class Supervisor:
     def checkpoint(self) -> None:
         """Drain, then have every role save its own state atomically; then the supervisor's counters. A role that
         dies while saving keeps its previous checkpoint (every save is atomic) and is counted as a failure."""
+        started = time.perf_counter()
         self.drain()
         r = self.roles
         saves = {"learner": [r.learner.save.remote()], "replay": [r.replay.snapshot.remote()],
@@ -303,6 +305,7 @@ class Supervisor:
                     check_not_dead_for_good(role, err, self.config.service.max_restarts)
         summary = {"episodes_logged": self.episodes_logged, "status": self.status, "time": time.time()}
         atomic_write_bytes(self.paths["supervisor"], json.dumps(summary).encode())
+        self.checkpoint_seconds.append(time.perf_counter() - started)
 
     def restore_counters(self) -> None:
         """On resume: continue the episode numbering of metrics.jsonl from the last checkpoint."""
@@ -356,4 +359,5 @@ class Supervisor:
                 "reports_rejected": dict(self.reports_rejected),
                 "recovery_s": {k: list(v) for k, v in self.recovery.times.items()}, "solved": self.solved,
                 "stopped": self.stopped, "episodes_logged": self.episodes_logged,
+                "checkpoint_seconds": list(self.checkpoint_seconds),
                 "window": window_summary(self.window), "elapsed_s": time.perf_counter() - self.started}

@@ -137,6 +137,28 @@ def test_counter_delta_rule_across_restarts():
     assert steps(m) == 445
 
 
+def test_every_labelled_counter_exports_each_label_value_from_the_start():
+    parsed = samples(ServiceMetrics().text())  # no report applied yet
+    for role in ("rollout", "replay", "learner", "teacher", "icm"):
+        assert get(parsed, "cmcl_actor_restarts_total", role=role) == 0
+        assert get(parsed, "cmcl_checkpoints_refused_total", role=role) == 0
+    for reason in ("bad_schema", "bad_type", "bad_value", "unknown_key"):
+        assert get(parsed, "cmcl_metrics_reports_rejected_total", reason=reason) == 0
+    for reason in ("bad_chunk", "duplicate", "invalid", "bad_feedback", "bad_scores", "log_truncated"):
+        assert get(parsed, "cmcl_replay_rejected_total", reason=reason) == 0
+    assert get(parsed, "cmcl_replay_stale_scores_total") == 0
+
+
+def test_stale_score_updates_have_their_own_counter_apart_from_rejected_input():
+    m = ServiceMetrics()
+    m.apply({"source": "replay", "role": "replay", "incarnation": "a",
+             "replay": {"stale_scores": 45_000, "rejected": {"bad_chunk": 2}}})
+    parsed = samples(m.text())
+    assert get(parsed, "cmcl_replay_stale_scores_total") == 45_000
+    assert get(parsed, "cmcl_replay_rejected_total", reason="bad_chunk") == 2
+    assert sum(v for (name, _), v in parsed.items() if name == "cmcl_replay_rejected_total") == 2
+
+
 def test_histograms_subsample_large_arrays():
     m = ServiceMetrics(max_samples=64, seed=1)
     m.apply({"replay": {"priority": np.full(10_000, 1.2), "score_age": np.arange(10),

@@ -1,0 +1,88 @@
+"""Without Ray: the run directory's lock (one writer), its newest verified policy (either runner), and the stop
+signals (first: graceful, second: forced)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import torch
+
+from cmcl.io.rundir import RunDirectory, save_torch_atomic
+from cmcl.io.runlock import LOCK_NAME, RunDirectoryInUse, RunLock
+from cmcl.io.verified import VerifiedFile
+from cmcl.stopping import StopSignals
+
+
+def test_a_second_writer_is_refused_naming_the_holder_and_may_take_over_once_released(tmp_path):
+    with RunLock.acquire(tmp_path / "run", "python -m services.launch --config x.toml"):
+        with pytest.raises(RunDirectoryInUse, match=rf"in use by pid {os.getpid()} on .*services.launch --config x"):
+            RunLock.acquire(tmp_path / "run")
+    RunLock.acquire(tmp_path / "run").release()  # released: the next writer gets it
+
+
+def test_a_lock_left_by_a_killed_process_does_not_block(tmp_path):
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from cmcl.io.runlock import RunLock; "
+                               f"RunLock.acquire({str(tmp_path)!r}); print('held', flush=True); time.sleep(600)"],
+                              stdout=subprocess.PIPE, text=True)
+    assert holder.stdout.readline().strip() == "held"
+    with pytest.raises(RunDirectoryInUse, match=f"pid {holder.pid}"):
+        RunLock.acquire(tmp_path)
+    holder.kill()
+    holder.wait()
+    assert json.loads((tmp_path / LOCK_NAME).read_text())["pid"] == holder.pid  # the file stays, nothing holds it
+    RunLock.acquire(tmp_path).release()
+
+
+def policy_state(value: float) -> dict:
+    return {"maddpg": {"w": torch.full((2,), value)}, "version": int(value)}
+
+
+def save_service(run: RunDirectory, value: float) -> None:
+    import io
+
+    buffer = io.BytesIO()
+    torch.save(policy_state(value), buffer)
+    VerifiedFile(run.service_paths()["learner"]).save(buffer.getvalue())
+
+
+def test_newest_policy_is_the_newest_verified_file_of_either_runner(tmp_path):
+    run = RunDirectory(tmp_path)
+    assert run.newest_policy() is None
+    save_torch_atomic(run.checkpoint_path(500), policy_state(1.0))
+    assert run.newest_policy().runner == "inline" and run.newest_policy().path.name == "ckpt_00000500.pt"
+    old = time.time() - 60
+    os.utime(run.checkpoint_path(500), (old, old))  # written a minute before the service's files below
+    save_service(run, 2.0)
+    save_service(run, 3.0)
+    newest = run.newest_policy()
+    assert (newest.runner, newest.path.name, newest.state["version"]) == ("service", "learner-000002.pt", 3)
+    newest.path.write_bytes(b"corrupted")  # the newest generation fails its digest: the previous one is used
+    fallback = run.newest_policy()
+    assert (fallback.runner, fallback.state["version"]) in {("service", 2), ("inline", 1)}
+    assert fallback.path.name in {"learner-000001.pt", "ckpt_00000500.pt"}
+    assert run.runners() == {"inline", "service"}
+
+
+def test_first_signal_asks_for_a_stop_and_a_second_forces(tmp_path):
+    forced: list[int] = []
+    with StopSignals(force=forced.append) as stop:
+        assert not stop.requested and stop.exit_code == 0
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert stop.requested and stop.name == "SIGTERM" and stop.exit_code == 143 and forced == []
+        os.kill(os.getpid(), signal.SIGINT)
+        assert forced == [signal.SIGINT] and stop.name == "SIGTERM"  # the first signal decides the exit code
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the previous handlers are back
+
+
+def test_after_training_the_first_signal_exits_at_once():
+    forced: list[int] = []
+    with StopSignals(force=forced.append) as stop:
+        stop.training_over()
+        os.kill(os.getpid(), signal.SIGINT)
+        assert forced == [signal.SIGINT]
