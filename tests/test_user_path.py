@@ -140,6 +140,18 @@ def assert_clean_stop(run: Launched, code: int, name: str, run_dir: Path) -> Non
     assert json.loads((run_dir / "summary.json").read_text())["ended"] == name
 
 
+def resume_then_stop(run_dir: Path, version: int, logged: int, stop: signal.Signals) -> None:
+    """`--resume`, which must announce the checkpoint's policy `version`; stop it with `stop` after two progress
+    lines; a clean stop, and the resumed run's first episodes (after episode `logged`) played with that policy."""
+    again = resume(run_dir)
+    again.wait_for(lambda line: f"(policy version {version})" in line, "the resume notice")
+    again.progress_lines(2)
+    os.killpg(again.proc.pid, stop)
+    assert_clean_stop(again, 128 + stop, stop.name, run_dir)
+    assert wait_until_gone(again.seen) == set()
+    assert min(first_versions_after(run_dir, logged)) >= version  # a fresh learner would publish version 0
+
+
 def test_make_run_ends_with_the_held_out_evaluation_and_a_gif_and_evaluate_finds_the_policy(tmp_path):
     run_dir = tmp_path / "make-run"
     run = Launched(["make", "-s", "run", f"RUN_ARGS=--set run.dir={run_dir} --set run.max_seconds=10 "
@@ -169,13 +181,7 @@ def test_ctrl_c_and_sigterm_stop_gracefully_a_second_launcher_is_refused_and_res
     version, episodes = learner_version(run_dir), json.loads((run_dir / "summary.json").read_text())["episodes_logged"]
     assert version > 0
 
-    again = resume(run_dir)
-    again.wait_for(lambda line: f"(policy version {version})" in line, "the resume notice")
-    again.progress_lines(2)
-    os.killpg(again.proc.pid, signal.SIGTERM)
-    assert_clean_stop(again, 143, "SIGTERM", run_dir)
-    assert wait_until_gone(again.seen) == set()
-    assert min(first_versions_after(run_dir, episodes)) >= version  # played with the checkpoint's policy
+    resume_then_stop(run_dir, version, episodes, signal.SIGTERM)
     assert learner_version(run_dir) > version
 
 
@@ -192,13 +198,7 @@ def test_sigkill_of_the_launcher_leaves_no_ray_process_and_resume_goes_on_from_t
     version = learner_version(run_dir)
     logged = json.loads((run_dir / "checkpoints" / "service" / "supervisor.json").read_text())["episodes_logged"]
 
-    again = resume(run_dir)
-    again.wait_for(lambda line: f"(policy version {version})" in line, "the resume notice")
-    again.progress_lines(2)
-    os.killpg(again.proc.pid, signal.SIGINT)
-    assert_clean_stop(again, 130, "SIGINT", run_dir)
-    assert wait_until_gone(again.seen) == set()
-    assert min(first_versions_after(run_dir, logged)) >= version
+    resume_then_stop(run_dir, version, logged, signal.SIGINT)
 
 
 def test_inline_runner_stops_on_ctrl_c_refuses_a_second_writer_and_resumes(tmp_path):
