@@ -13,7 +13,6 @@ from typing import Any
 import numpy as np
 
 from cmcl.diagnostics import buffer_branch_shares, ess_fraction
-from cmcl.replay.priority import sampling_probabilities
 from services.report_schema import CurriculumReport, FitReport, ReplayReport, Report
 
 REPORT_SAMPLES = 512
@@ -33,8 +32,8 @@ def replay_report(server: Any, details: dict[str, Any] | None) -> Report:
         replay.update(difficulty=d["c_hat"][pick][scored], priority=d["priority"][pick],
                       kfold_priority=d["kp"][pick][scored], curiosity_priority=d["cp"][pick],
                       kp_branches=buffer_branch_shares(d["c_hat"], d["scored"], server.schedule.lam),
-                      sampling_ess=float(np.mean(ess_fraction(sampling_probabilities(d["priority"],
-                                                                                     server.config.replay.alpha)))))
+                      sampling_ess=float(np.mean(ess_fraction(
+                          server.replay.sampling_distribution()[:, d["agents"]]))))  # per-agent α (A8), controls
     if server.pacing.teachers and size:
         valid = server.replay.valid_slots()
         times = server.difficulty.stamps(valid, server.replay.generations(valid))
