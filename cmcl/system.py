@@ -66,6 +66,7 @@ def make_batched_env(config: Config, num_envs: int | None = None, seed: Any = No
     if env.task == "spread":
         return BatchedSparseSpread(b, num_agents=env.num_agents, episode_length=env.episode_length,
                                    agent_radius=env.agent_radius, shared_reward=env.shared_reward,
+                                   cover_radius=env.cover_radius,
                                    seed=seed, auto_reset=auto_reset)
     return BatchedSparseTag(b, num_predators=env.num_predators, num_prey=env.num_prey,
                             num_obstacles=env.num_obstacles, obstacle_radius=env.obstacle_radius,
@@ -82,6 +83,7 @@ def make_parallel_env(config: Config, render_mode: str | None = None):
 
         return sparse_spread_v0.parallel_env(num_agents=env.num_agents, max_cycles=env.episode_length,
                                              agent_radius=env.agent_radius, shared_reward=env.shared_reward,
+                                             cover_radius=env.cover_radius,
                                              render_mode=render_mode)
     from cmcl.envs import sparse_tag_v0
 
