@@ -92,15 +92,16 @@ def buffer_diagnostics(replay: Any, lam: float, updates: int) -> dict[str, dict]
     """The sampling diagnostics of every agent, and the priority statistics and curriculum diagnostics of the ACL /
     CMCL agents at λ.
 
-    Recomputes the priorities (`ReplayBuffer.recompute_priorities(lam, details=True)`: under the permuted control
-    that draws a new permutation, as the next update's recompute would); `updates` is the learner's update count,
-    so a row's age is updates − the policy version that wrote it. Returns {"sampling": see
+    Read-only: the per-row terms come from `ReplayBuffer.recompute_priorities(lam, details=True, apply=False)` and
+    the probabilities from what the samplers hold (their last recompute, permuted under the permuted control), so
+    logging never changes a run (nor draws from the permuted control's generator); `updates` is the learner's
+    update count, so a row's age is updates − the policy version that wrote it. Returns {"sampling": see
     `replay_sampling_diagnostics`} and, when some agent samples by the curriculum, {"priority": {"agents", "mean",
     "kp_zero_fraction", "c_hat_mean", "cp_mean"} (lists over those agents), "curriculum": see
     `curriculum_diagnostics`}.
     """
-    details = replay.recompute_priorities(lam, details=True) if any(m in CURRICULUM_MODES for m in replay.modes) \
-        else None
+    details = replay.recompute_priorities(lam, details=True, apply=False) \
+        if any(m in CURRICULUM_MODES for m in replay.modes) else None
     out: dict[str, dict] = {"sampling": replay_sampling_diagnostics(replay)}
     if details is None or not replay.size:
         return out

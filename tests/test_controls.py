@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from cmcl.config import ConfigError, load_config, preset
-from cmcl.diagnostics import ess_fraction, replay_sampling_diagnostics, sampling_diagnostics
+from cmcl.diagnostics import buffer_diagnostics, ess_fraction, replay_sampling_diagnostics, sampling_diagnostics
 from cmcl.io import codec
 from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.priority import EPS_P, permute_priorities
@@ -135,3 +135,14 @@ def test_replay_sampling_diagnostics_cover_per_and_uniform_agents():
     assert d["reward_rows_buffer"] == [0.1, 0.1]
     assert d["reward_rows_sampled"][0] > 0.5 and d["reward_rows_sampled"][1] == pytest.approx(0.1)
     assert d["ess_fraction"][0] < 0.6 and d["ess_fraction"][1] == 1.0
+
+
+def test_diagnostics_never_change_the_run_nor_draw_a_permutation():
+    rb = scored_buffer("permuted")
+    rb.recompute_priorities(0.2)
+    probs, rng_state = rb.sampling_distribution(), rb.control_rng.bit_generator.state
+    d = buffer_diagnostics(rb, 0.3, updates=10)
+    assert rb.control_rng.bit_generator.state == rng_state and rb.lam == 0.2
+    np.testing.assert_array_equal(rb.sampling_distribution(), probs)
+    assert d["sampling"]["ess_fraction"] == [round(float(e), 4) for e in ess_fraction(probs)]
+    assert d["curriculum"]["ess_fraction"] == d["sampling"]["ess_fraction"]

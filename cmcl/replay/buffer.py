@@ -217,13 +217,15 @@ class ReplayBuffer:
             self.max_priority[agent] = max(self.max_priority[agent], float(p.max()))
         return accepted
 
-    def recompute_priorities(self, lam: float, details: bool = False) -> dict | None:
+    def recompute_priorities(self, lam: float, details: bool = False, apply: bool = True) -> dict | None:
         """Rebuild every ACL/CMCL agent's priorities from the score columns at curriculum factor `lam`.
 
         p = KP(ĉ, λ) + η·CP(ρ̂) + ε_p over the valid rows (η = 0 for ACL); unscored rows get ε_p. Under the
         "reversed" control ĉ is 1 − ĉ; under "permuted" each agent's p column is shuffled across the valid rows
         (one draw from `control_rng` per recompute) after it is computed.
-        Args: lam in (0, lam_max]; details: also return the per-row terms.
+        Args: lam in (0, lam_max]; details: also return the per-row terms; apply: False computes the terms only
+        (read-only: the samplers, λ and the permuted control's generator are left as they are, and "priority" is
+        the unpermuted one), for diagnostics that must not change the run.
         Returns: None, or {"agents": int64[A'], "c_hat", "kp", "cp", "priority": float64[size, A'],
         "scored": bool[size, A']} for the A' recomputed agents ("priority" is what the samplers hold, permuted
         under the permuted control; c_hat and kp are the rows' own).
@@ -243,6 +245,10 @@ class ReplayBuffer:
             for key, val in zip(out, (c_hat, kp, cp, p, has_c), strict=True):
                 out[key].append(val)
         priority = np.stack(out["priority"], axis=1) if agents else np.zeros((size, 0))
+        if not apply:
+            return {**{k: (np.stack(v, axis=1) if v else np.zeros((size, 0))) for k, v in out.items()},
+                    "scored": np.stack(out["scored"], axis=1).astype(bool) if agents else np.zeros((size, 0), bool),
+                    "agents": np.asarray(agents, dtype=np.int64)}
         if self.difficulty_transform == "permuted" and agents:
             priority = permute_priorities(priority, self.control_rng)
         for i, a in enumerate(agents):
