@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.diagnostics import buffer_branch_shares, ess_fraction
+from cmcl.diagnostics import buffer_branch_shares, ess_fraction, replay_sampling_diagnostics
 from services.report_schema import CurriculumReport, FitReport, ReplayReport, Report
 
 REPORT_SAMPLES = 512
@@ -25,6 +25,11 @@ def replay_report(server: Any, details: dict[str, Any] | None) -> Report:
                               "inserts": server.counters["inserts"], "samples": server.counters["samples"],
                               "rejected": dict(server.rejected)}
     size = server.replay.size
+    sampling = replay_sampling_diagnostics(server.replay)  # {} for an empty buffer
+    for key, name in (("agent_sampling_ess", "ess_fraction"), ("reward_rows_sampled", "reward_rows_sampled"),
+                      ("reward_rows_buffer", "reward_rows_buffer")):
+        if sampling:
+            replay[key] = {str(a): v for a, v in enumerate(sampling[name])}
     if details is not None:
         d = details
         pick = server.rng.integers(0, size, min(size, REPORT_SAMPLES))
