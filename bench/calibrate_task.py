@@ -8,6 +8,7 @@ the same variant (200 worlds), and the wall seconds of training. One JSON per ru
 skips the runs that have one.
 
     python bench/calibrate_task.py --candidates n6 r005 n8 --episodes 20000 --seed 0
+    python bench/calibrate_task.py --table
 """
 
 from __future__ import annotations
@@ -77,15 +78,32 @@ def calibrate(name: str, seed: int, episodes: int, out: Path) -> dict:
     return record
 
 
+def table(out: Path) -> str:
+    """The calibration table (markdown) of every record in `out`."""
+    lines = ["| setting | seed | episodes | MA coverage at 25 / 50 / 75 / 100 % of the budget | random policy's "
+             "coverage | wall s |", "| --- " * 6 + "|"]
+    for path in sorted(out.glob("*.json")):
+        r = json.loads(path.read_text())
+        ma = " / ".join("—" if v is None else f"{v:.3f}" for v in r["ma_coverage_at"].values())
+        setting = ", ".join(r["sets"]) or "defaults (N = 4, cover radius 0.1)"
+        lines.append(f"| {r['candidate']}: {setting} | {r['seed']} | {r['episodes']:,} | {ma} | "
+                     f"{r['random_coverage']:.3f} | {r['wall_s']:.0f} |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--candidates", nargs="+", choices=list(CANDIDATES), default=["r005", "n6", "n8"])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--episodes", type=int, default=20_000)
     parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "calibration"))
+    parser.add_argument("--table", action="store_true", help="print the table of what has finished, train nothing")
     args = parser.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.table:
+        print(table(out))
+        return
     for name in args.candidates:
         if (out / f"{name}_s{args.seed}_e{args.episodes}.json").exists():
             continue
