@@ -45,16 +45,19 @@ CANDIDATES = {  # name -> --set overrides of configs/spread_maddpg.toml (every o
 FRACTIONS = (0.25, 0.5, 0.75, 1.0)
 
 
-def moving_average_at(coverage: np.ndarray, fractions=FRACTIONS) -> list[float | None]:
-    """The trailing WINDOW-episode mean of coverage float[T] at each fraction of T (None before WINDOW episodes)."""
+def moving_average_at(coverage: np.ndarray, budget: int, fractions=FRACTIONS) -> list[float | None]:
+    """The trailing WINDOW-episode mean of coverage float[T] at each fraction of `budget` episodes (None before
+    WINDOW episodes, and past the episodes the run has: a MADDPG run's first T episodes do not depend on its
+    budget, so a shorter run measures the start of a longer one)."""
     out = []
     for f in fractions:
-        end = int(round(f * coverage.size))
-        out.append(None if end < WINDOW else round(float(coverage[end - WINDOW:end].mean()), 4))
+        end = int(round(f * budget))
+        ok = WINDOW <= end <= coverage.size + WINDOW // 2  # a batched run may stop a few episodes short or over
+        out.append(round(float(coverage[end - WINDOW:end].mean()), 4) if ok else None)
     return out
 
 
-def calibrate(name: str, seed: int, episodes: int, out: Path) -> dict:
+def calibrate(name: str, seed: int, episodes: int, out: Path, budget: int) -> dict:
     """Train one candidate (subprocess, inline MADDPG) and measure it; returns the stored record."""
     run_id = f"{name}_s{seed}_e{episodes}"
     run_path = out / "runs" / run_id
@@ -68,8 +71,8 @@ def calibrate(name: str, seed: int, episodes: int, out: Path) -> dict:
     coverage = np.array([r["coverage"] for r in rows], dtype=np.float64)
     config = load_config(ROOT / "configs" / "spread_maddpg.toml", [*CANDIDATES[name], "run.dir=unused"])
     record = {"id": run_id, "candidate": name, "sets": CANDIDATES[name], "seed": seed, "episodes": int(coverage.size),
-              "ma_coverage_at": dict(zip([f"{int(f * 100)}%" for f in FRACTIONS], moving_average_at(coverage),
-                                         strict=True)),
+              "budget": budget, "ma_coverage_at": dict(zip([f"{int(f * 100)}%" for f in FRACTIONS],
+                                                           moving_average_at(coverage, budget), strict=True)),
               "random_coverage": round(float(evaluate_policy(config, None, 200, seed=1)["coverage"]), 4),
               "wall_s": round(float(rows[-1].get("elapsed_s", np.nan)), 1),
               "process_s": round(time.perf_counter() - started, 1),
@@ -95,7 +98,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--candidates", nargs="+", choices=list(CANDIDATES), default=["r005", "n6", "n8"])
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--episodes", type=int, default=20_000)
+    parser.add_argument("--episodes", type=int, default=20_000, help="episodes to train (at most --budget)")
+    parser.add_argument("--budget", type=int, default=20_000, help="the budget the fractions refer to")
     parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "calibration"))
     parser.add_argument("--table", action="store_true", help="print the table of what has finished, train nothing")
     args = parser.parse_args()
@@ -107,7 +111,7 @@ def main() -> None:
     for name in args.candidates:
         if (out / f"{name}_s{args.seed}_e{args.episodes}.json").exists():
             continue
-        r = calibrate(name, args.seed, args.episodes, out)
+        r = calibrate(name, args.seed, args.episodes, out, args.budget)
         print(f"{r['id']}: MA coverage at 25/50/75/100 % {list(r['ma_coverage_at'].values())}, random "
               f"{r['random_coverage']}, {r['wall_s']} s", flush=True)
 
