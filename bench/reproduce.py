@@ -6,7 +6,15 @@ Grids (the shared defaults of cmcl/config/ for every algorithm, 20,000 episodes 
 * ``tag``: predator-prey, predators learning with each algorithm against MADDPG prey (Fig. 12);
 * ``winrate``: CMCL predators against ACL prey and against PER-MADDPG prey (Fig. 13);
 * ``ablations``: CMCL on navigation with one setting changed at a time (ABLATIONS below; the unchanged CMCL runs
-  of ``spread`` are their reference: η = 0.5, K = 5, ``max`` normalisation, the default λ stride, IS off).
+  of ``spread`` are their reference: η = 0.5, K = 5, the default normalisation, the default λ stride, IS off);
+* ``curriculum`` (issue 21, the pre-registered protocol of docs/RESULTS.md): navigation N=4 with the arms of
+  CURRICULUM_ARMS -- maddpg, per, acl, cmcl, and CMCL's two controls, ``cmcl_permuted`` (its priorities shuffled
+  across rows: same ESS, no information) and ``cmcl_anti`` (difficulty reversed) -- all at the same shared defaults
+  (rank difficulty, α_s = 1 for ACL / CMCL and 0.6 for PER), progress rows every 200 episodes so that the summary
+  holds the sampling distribution's ESS and reward-row shares over training.
+
+Runs are ordered seed outermost (seed 0 of every arm, then seed 1, ...), so a grid stopped part-way has balanced
+arms. A run that fails is reported and the grid goes on; a rerun retries it.
 
 Every run trains in its own subprocess (``python -m cmcl.loop``, inline) and checkpoints every 2,000 episodes.
 A rerun skips the runs whose summary exists and resumes an interrupted one from its latest checkpoint (its clock
@@ -16,6 +24,7 @@ from all summaries. The figures and tables come from ``bench/reproduce_report.py
 
     python bench/reproduce.py --grid spread --seeds 0 1 2 3 4 --jobs 2
     python bench/reproduce.py --grid tag winrate --seeds 0 1 2 3 4
+    python bench/reproduce.py --grid curriculum --seeds 0 1 2 3 4 5 6 7 8 9 --jobs 2
     python bench/reproduce_report.py      # tables (mean ± 95% CI), tests, figures, into docs/RESULTS.md's inputs
 """
 
@@ -53,14 +62,28 @@ CSV_COLUMNS = ("id", "grid", "task", "algorithm", "prey_algorithm", "ablation", 
                "env_steps", "updates", "wall_s", "episodes_to_50", "episodes_to_90", "seconds_to_50", "seconds_to_90",
                "auc_coverage", "final_ma_coverage", "final_ma_success", "mean_reward", "mean_reward_predator",
                "mean_reward_prey", "final_ma_predator_win", "held_out_coverage", "held_out_success",
-               "held_out_collisions", "held_out_wall_hits", "win_vs_trained_prey", "win_vs_random_prey")
+               "held_out_collisions", "held_out_wall_hits", "win_vs_trained_prey", "win_vs_random_prey",
+               "arm", "ess_mean", "ess_first_quarter", "reward_rows_sampled_mean", "reward_rows_buffer_mean")
+
+# arm -> (config file, --set overrides) of the ``curriculum`` grid; every other setting is the shared default
+CURRICULUM_ARMS = {
+    "maddpg": ("spread_maddpg.toml", []),
+    "per": ("spread_per.toml", []),
+    "acl": ("spread_acl.toml", []),
+    "cmcl": ("spread_cmcl.toml", []),
+    "cmcl_permuted": ("spread_cmcl.toml", ["teachers.difficulty_transform=permuted"]),
+    "cmcl_anti": ("spread_cmcl.toml", ["teachers.difficulty_transform=reversed"]),
+}
+CURRICULUM_LOG_EVERY = 200  # episodes between progress rows (the ESS curve's resolution) in the curriculum grid
 
 
 ABLATIONS = {  # name -> (config file, --set overrides, episode budget or None for the grid's) of CMCL variants
     "eta0": ("spread_cmcl.toml", ["teams.agent.eta=0.0"], None),
     "eta1": ("spread_cmcl.toml", ["teams.agent.eta=1.0"], None),
     "k2": ("spread_cmcl.toml", ["teachers.num_folds=2"], None),
+    # the default since 2026-12 (A1); kept so its committed 5-seed results (run at the old "max" default) stay named
     "rank": ("spread_cmcl.toml", ["teachers.difficulty_norm=rank"], None),
+    "max": ("spread_cmcl.toml", ["teachers.difficulty_norm=max"], None),  # the pre-2026-12 normalisation
     "stride_x2": ("spread_cmcl.toml", ["curriculum.stride=6e-6"], None),  # λ_max at a quarter of training
     "stride_half": ("spread_cmcl.toml", ["curriculum.stride=1.5e-6"], None),  # λ_max at the end
     "is_on": ("spread_cmcl.toml", ["teams.agent.is_correction=true"], None),
@@ -77,6 +100,13 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str], budget: int 
     runs = []
     for seed in seeds:
         for name in names:
+            if name == "curriculum":
+                for arm, (config, sets) in CURRICULUM_ARMS.items():
+                    runs.append({"id": f"curriculum_{arm}_s{seed}", "grid": name, "task": "spread",
+                                 "algorithm": arm.split("_")[0], "prey_algorithm": None, "seed": seed,
+                                 "budget": budget, "arm": arm, "config": config,
+                                 "sets": [f"run.log_every={CURRICULUM_LOG_EVERY}", *sets]})
+                continue
             if name == "ablations":
                 for ablation, (config, sets, own_budget) in ABLATIONS.items():
                     runs.append({"id": f"ablation_{ablation}_s{seed}", "grid": name, "task": "spread",
@@ -178,7 +208,39 @@ def summarise(run: dict[str, Any], run_path: Path, upto: int | None = None) -> d
                       win_vs_random_prey=evaluate_policy(config, policy, HELD_OUT, run["seed"],
                                                          random_teams=("prey",))["predator_win"])
     result["curves"] = window_curves(series)
+    result.update(sampling_over_training(list(run_dir.rows("progress")), upto))
     return result
+
+
+def sampling_over_training(progress: list[dict[str, Any]], upto: int | None = None) -> dict[str, Any]:
+    """The sampling distribution over training from a run's progress rows (up to episode `upto`): per row, the mean
+    over the agents that do not sample uniformly of the ESS fraction and of the reward-bearing rows' share in the
+    sampled minibatch (expected under P) and in the buffer (cmcl.diagnostics.sampling_diagnostics), λ and, for
+    ACL / CMCL, the sampling mass on KP's excluded branch. Returns {"sampling_curve": {column: [rows]}, "ess_mean",
+    "ess_first_quarter" (rows in the first quarter of the run's episodes), "reward_rows_sampled_mean",
+    "reward_rows_buffer_mean"}; a run whose agents all sample uniformly has ESS 1 and sampled = buffer shares."""
+    rows = [r for r in progress if r.get("sampling") and (upto is None or r["episodes"] <= upto)]
+    curve: dict[str, list] = {k: [] for k in ("episode", "lambda", "ess", "reward_rows_sampled",
+                                              "reward_rows_buffer", "share_excluded")}
+    for r in rows:
+        s = r["sampling"]
+        keep = [i for i, m in enumerate(s.get("modes", [])) if m != "uniform"] or list(range(len(s["modes"])))
+        curve["episode"].append(r["episodes"])
+        curve["lambda"].append(round(r["lambda"], 5))
+        for key, name in (("ess", "ess_fraction"), ("reward_rows_sampled", "reward_rows_sampled"),
+                          ("reward_rows_buffer", "reward_rows_buffer")):
+            curve[key].append(round(float(np.mean([s[name][i] for i in keep])), 4))
+        excluded = r.get("curriculum", {}).get("share_excluded")
+        curve["share_excluded"].append(None if excluded is None else round(float(np.mean(excluded)), 4))
+    last = max(curve["episode"], default=0)
+    quarter = [e for ep, e in zip(curve["episode"], curve["ess"], strict=True) if ep <= last / 4]
+
+    def mean(values: list[float]) -> float | None:
+        return round(float(np.mean(values)), 4) if values else None
+
+    return {"sampling_curve": curve, "ess_mean": mean(curve["ess"]), "ess_first_quarter": mean(quarter),
+            "reward_rows_sampled_mean": mean(curve["reward_rows_sampled"]),
+            "reward_rows_buffer_mean": mean(curve["reward_rows_buffer"])}
 
 
 def write_csv(out: Path) -> Path:
@@ -201,14 +263,17 @@ def run_one(run: dict[str, Any], out: Path) -> str:
     else:
         summary = summarise(run, train(run, out))
     atomic_write_bytes(out / "summaries" / f"{run['id']}.json", json.dumps(summary).encode())
-    keys = ("held_out_coverage", "held_out_success", "episodes_to_90", "win_vs_trained_prey", "wall_s")
+    keys = ("held_out_coverage", "held_out_success", "episodes_to_90", "win_vs_trained_prey", "wall_s", "ess_mean")
     return f"{run['id']} done in {time.perf_counter() - started:.0f} s: " + \
         ", ".join(f"{k}={summary[k]}" for k in keys if k in summary)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--grid", nargs="+", choices=["spread", "tag", "winrate", "ablations"], default=["spread"])
+    parser.add_argument("--grid", nargs="+", choices=["spread", "tag", "winrate", "ablations", "curriculum"],
+                        default=["spread"])
+    parser.add_argument("--arms", nargs="+", choices=list(CURRICULUM_ARMS), default=list(CURRICULUM_ARMS),
+                        help="curriculum grid: only these arms")
     parser.add_argument("--ablations", nargs="+", choices=list(ABLATIONS), default=list(ABLATIONS),
                         help="ablations grid: only these variants")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
@@ -221,13 +286,17 @@ def main() -> None:
     (out / "summaries").mkdir(parents=True, exist_ok=True)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     runs = [r for r in grid(args.grid, args.seeds, args.algorithms, args.episodes)
-            if r.get("ablation", args.ablations[0]) in args.ablations]
+            if r.get("ablation", args.ablations[0]) in args.ablations and r.get("arm", args.arms[0]) in args.arms]
     runs += prefix_reference_runs(runs, args.episodes)
     todo = [r for r in runs if not (out / "summaries" / f"{r['id']}.json").exists()]
     print(f"{len(todo)} runs to do: {' '.join(r['id'] for r in todo)}", flush=True)
     with ThreadPoolExecutor(max_workers=args.jobs) as pool:
-        for future in as_completed([pool.submit(run_one, r, out) for r in todo]):
-            print(future.result(), flush=True)
+        futures = {pool.submit(run_one, r, out): r["id"] for r in todo}  # submitted in grid order, seed outermost
+        for future in as_completed(futures):
+            try:
+                print(future.result(), flush=True)
+            except Exception as err:  # one failed run must not stop the others; a rerun retries it
+                print(f"{futures[future]} FAILED: {type(err).__name__}: {err}", flush=True)
             write_csv(out)
     print(f"results: {write_csv(out)}")
 

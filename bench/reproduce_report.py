@@ -1,5 +1,12 @@
-"""Tables and figures of the reproduction grid (bench/reproduce.py): mean ± 95% CI over seeds, Welch tests of CMCL
+"""Tables and figures of the reproduction grid (bench/reproduce.py): mean and 95% interval over seeds, tests of CMCL
 against each baseline, and the paper's figures in its form, each labelled with the budget it rests on.
+
+Intervals: rates (coverage, success, win rates, area under coverage: all in [0, 1]) get a percentile bootstrap
+interval of the mean over seeds (10,000 resamples, fixed seed), which stays inside [0, 1]; unbounded measures
+(reward, seconds) a Student-t interval. Episodes to a moving-average threshold are censored at the budget (a run
+that never gets there is not dropped): Kaplan-Meier median and the number of runs that got there, compared by a
+log-rank test. The curriculum grid (issue 21) follows the protocol of docs/RESULTS.md: one primary comparison,
+Holm's correction over all the others.
 
     python bench/reproduce_report.py [--out bench/results/reproduce] [--update docs/RESULTS.md]
 
@@ -39,14 +46,84 @@ def mean_ci(values: list[float]) -> tuple[float, float]:
     return float(x.mean()), float(stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
 
 
-def fmt(values: list[float | None], digits: int = 3) -> str:
-    """'mean ± ci' over the values that exist, with 'k/n never' for missing (None) ones."""
+RATES = ("held_out_coverage", "held_out_success", "auc_coverage", "final_ma_coverage", "final_ma_success",
+         "final_ma_predator_win", "win_vs_trained_prey", "win_vs_random_prey")  # measures in [0, 1]
+TIMES = ("episodes_to_50", "episodes_to_90")  # censored at the run's budget when never reached (None)
+BOOTSTRAP = 10_000
+
+
+def bootstrap_ci(values: list[float], seed: int = 0) -> tuple[float, float, float]:
+    """(mean, low, high): percentile bootstrap 95% interval of the mean (BOOTSTRAP resamples, fixed seed). It lies
+    within [min, max] of the values, so a rate's interval stays in [0, 1]; with 5 seeds it is narrower than a t
+    interval (it undercovers), which the pages that use it say."""
+    x = np.asarray(values, dtype=np.float64)
+    if x.size < 2:
+        m = float(x.mean()) if x.size else float("nan")
+        return m, float("nan"), float("nan")
+    means = x[np.random.default_rng(seed).integers(0, x.size, (BOOTSTRAP, x.size))].mean(1)
+    lo, hi = np.percentile(means, [2.5, 97.5])
+    return float(x.mean()), float(lo), float(hi)
+
+
+def km_median(times: list[float | None]) -> tuple[float | None, int]:
+    """Kaplan-Meier median of a time to threshold, and how many runs reached it. times: one per run, None = not
+    reached within the run's budget (right-censored there; every run of a table has the same budget, so every
+    censoring comes after every event). Median None when the survival curve never falls to 0.5."""
+    events = sorted(t for t in times if t is not None)
+    at_risk, surv = len(times), 1.0
+    for t in events:  # product-limit estimate: one event at a time, nobody censored before the budget
+        surv *= 1 - 1 / at_risk
+        at_risk -= 1
+        if surv <= 0.5 + 1e-12:
+            return float(t), len(events)
+    return None, len(events)
+
+
+def fmt_time(values: list[float | None], digits: int = 0) -> str:
+    """'KM median M (k/n reached)' of a censored time to threshold."""
+    med, k = km_median(values)
+    head = "not reached" if med is None else f"KM median {med:.{digits}f}"
+    return f"{head} ({k}/{len(values)} reached)"
+
+
+def logrank_p(a: list[float | None], b: list[float | None], budget: float) -> float:
+    """Two-sided log-rank p-value of two samples of times to threshold, censored at `budget` when None."""
+    def data(x):
+        return stats.CensoredData(uncensored=[t for t in x if t is not None],
+                                  right=[budget] * sum(t is None for t in x))
+    if all(t is None for t in a + b):
+        return 1.0
+    return float(stats.logrank(data(a), data(b)).pvalue)
+
+
+def holm(pvalues: list[float]) -> list[float]:
+    """Holm's step-down adjusted p-values (same order as given)."""
+    p = np.asarray(pvalues, dtype=np.float64)
+    order = np.argsort(p)
+    adjusted = np.empty_like(p)
+    running = 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (p.size - rank) * p[i]))
+        adjusted[i] = running
+    return adjusted.tolist()
+
+
+def fmt(values: list[float | None], digits: int = 3, key: str = "") -> str:
+    """One table cell over the runs: a censored time (key in TIMES) as its KM median and the runs that reached it;
+    a rate (key in RATES) as 'mean [bootstrap 95% interval]'; anything else 'mean ± t half-width', with 'k/n never'
+    for missing (None) values."""
+    if key in TIMES:
+        return fmt_time(values, digits)
     got = [v for v in values if v is not None]
     never = len(values) - len(got)
     if not got:
         return f"never ({never}/{len(values)})"
-    m, h = mean_ci(got)
-    text = f"{m:.{digits}f}" + ("" if np.isnan(h) else f" ± {h:.{digits}f}")
+    if key in RATES:
+        m, lo, hi = bootstrap_ci(got)
+        text = f"{m:.{digits}f}" + ("" if np.isnan(lo) else f" [{lo:.{digits}f}, {hi:.{digits}f}]")
+    else:
+        m, h = mean_ci(got)
+        text = f"{m:.{digits}f}" + ("" if np.isnan(h) else f" ± {h:.{digits}f}")
     return text + (f", {never}/{len(values)} never" if never else "")
 
 
@@ -79,8 +156,8 @@ def spread_table(runs: list[dict[str, Any]]) -> str:
     for algorithm in ORDER:
         rs = [r for r in runs if r["algorithm"] == algorithm]
         if rs:
-            lines.append(f"| {LABEL[algorithm]} | {len(rs)} | " +
-                         " | ".join(fmt([r.get(key) for r in rs], d) for _, key, d in SPREAD_COLUMNS) + " |")
+            cells = [fmt([r.get(key) for r in rs], d, key) for _, key, d in SPREAD_COLUMNS]
+            lines.append(f"| {LABEL[algorithm]} | {len(rs)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -102,17 +179,23 @@ def seeds_table(runs: list[dict[str, Any]]) -> str:
 
 
 def tests_table(runs: list[dict[str, Any]]) -> str:
-    """CMCL minus each baseline, per measure, by Welch's t-test (runs that never reached 0.9 are left out of that
-    measure and counted in the main table)."""
+    """CMCL minus each baseline, per measure, by Welch's t-test; episodes to MA 0.9 (censored) by a log-rank test
+    over every run, the ones that never got there included. p-values as computed (9 tests: see the text for the
+    multiplicity)."""
     keys = [("mean reward", "mean_reward", 1), ("area under coverage", "auc_coverage", 3),
-            ("held-out success", "held_out_success", 3), ("episodes to MA 0.9", "episodes_to_90", 0)]
+            ("held-out success", "held_out_success", 3)]
     cmcl = [r for r in runs if r["algorithm"] == "cmcl"]
-    lines = ["| CMCL minus | " + " | ".join(k[0] for k in keys) + " |", "| --- " * (len(keys) + 1) + "|"]
+    lines = ["| CMCL minus | " + " | ".join(k[0] for k in keys) + " | episodes to MA 0.9 (KM medians, log-rank) |",
+             "| --- " * (len(keys) + 2) + "|"]
     for base in ("maddpg", "per", "acl"):
         rs = [r for r in runs if r["algorithm"] == base]
         if rs and cmcl:
-            cells = [welch([r[k] for r in cmcl if r.get(k) is not None], [r[k] for r in rs if r.get(k) is not None],
-                           d) for _, k, d in keys]
+            cells = [welch([r[k] for r in cmcl], [r[k] for r in rs], d) for _, k, d in keys]
+            budget = cmcl[0]["budget"]
+            a, b = [r["episodes_to_90"] for r in cmcl], [r["episodes_to_90"] for r in rs]
+            ma, mb = km_median(a)[0], km_median(b)[0]
+            cells.append(f"{'—' if ma is None else f'{ma:.0f}'} vs {'—' if mb is None else f'{mb:.0f}'}, "
+                         f"p = {logrank_p(a, b, budget):.3f}")
             lines.append(f"| {LABEL[base]} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -163,7 +246,8 @@ def ablation_table(ablations: list[dict[str, Any]], reference: list[dict[str, An
             for k in ("auc_coverage", "held_out_success")]
         seeds = ",".join(str(s) for s in sorted(r["seed"] for r in rs))
         lines.append(f"| {name} | {rs[0]['budget']:,} | {seeds} | "
-                     + " | ".join(fmt([r.get(k) for r in rs], d) for _, k, d in keys) + f" | {diffs[0]} | {diffs[1]} |")
+                     + " | ".join(fmt([r.get(k) for r in rs], d, k) for _, k, d in keys)
+                     + f" | {diffs[0]} | {diffs[1]} |")
     return "\n".join(lines)
 
 
@@ -174,7 +258,7 @@ def tag_table(runs: list[dict[str, Any]]) -> str:
     for (pred, prey) in sorted({(r["algorithm"], r["prey_algorithm"]) for r in runs}):
         rs = [r for r in runs if (r["algorithm"], r["prey_algorithm"]) == (pred, prey)]
         lines.append(f"| {LABEL[pred]} | {LABEL[prey]} | {len(rs)} | " + " | ".join(
-            fmt([r[k] for r in rs], d) for k, d in (("mean_reward_predator", 1), ("final_ma_predator_win", 3),
+            fmt([r[k] for r in rs], d, k) for k, d in (("mean_reward_predator", 1), ("final_ma_predator_win", 3),
                                                    ("win_vs_trained_prey", 3), ("win_vs_random_prey", 3),
                                                    ("wall_s", 0))) + " |")
     return "\n".join(lines)
@@ -201,7 +285,79 @@ def tag_tests_table(runs: list[dict[str, Any]]) -> str:
         if wins:
             test = (f"mean − 0.85 = {np.mean(wins) - 0.85:+.3f}, p = {stats.ttest_1samp(wins, 0.85).pvalue:.3f}"
                     if len(wins) > 1 else "n/a")
-            lines.append(f"| {LABEL[prey]} prey | {len(wins)} | {fmt(wins, 3)} | {test} |")
+            lines.append(f"| {LABEL[prey]} prey | {len(wins)} | {fmt(wins, 3, 'win_vs_trained_prey')} | {test} |")
+    return "\n".join(lines)
+
+
+ARMS = ("maddpg", "per", "acl", "cmcl", "cmcl_permuted", "cmcl_anti")  # bench/reproduce.py CURRICULUM_ARMS
+ARM_LABEL = {**LABEL, "cmcl_permuted": "CMCL, permuted control", "cmcl_anti": "CMCL, anti-curriculum"}
+PRIMARY = ("cmcl", "maddpg", "auc_coverage")  # the pre-registered primary comparison (docs/RESULTS.md, protocol)
+SECONDARY = [("cmcl", "per", "auc_coverage"), ("cmcl", "acl", "auc_coverage"), ("cmcl", "cmcl_permuted",
+             "auc_coverage"), ("cmcl", "cmcl_anti", "auc_coverage"), ("acl", "maddpg", "auc_coverage"),
+             ("per", "maddpg", "auc_coverage"), ("cmcl", "maddpg", "held_out_success"),
+             ("cmcl", "maddpg", "episodes_to_90")]  # Holm-corrected together
+STALL = (0.65, 0.85)  # final MA coverage of a run stuck at about three landmarks of four (issue 21)
+
+
+def curriculum_table(runs: list[dict[str, Any]]) -> str:
+    """The curriculum grid per arm: learning measures, stalls, and the sampling distribution over training."""
+    keys = [("area under coverage", "auc_coverage", 3), ("held-out coverage", "held_out_coverage", 3),
+            ("held-out success", "held_out_success", 3), ("episodes to MA 0.9", "episodes_to_90", 0)]
+    lines = ["| arm | seeds | " + " | ".join(k[0] for k in keys) + " | stalled at ~3 of 4 | ESS over training | "
+             "ESS, first quarter | reward-bearing rows: sampled / buffer | wall s |", "| --- " * (len(keys) + 7) + "|"]
+    for arm in ARMS:
+        rs = sorted((r for r in runs if r.get("arm") == arm), key=lambda r: r["seed"])
+        if not rs:
+            continue
+        stalled = sum(STALL[0] <= r["final_ma_coverage"] <= STALL[1] for r in rs)
+        sampled, buffer = (np.mean([r[k] for r in rs]) for k in ("reward_rows_sampled_mean", "reward_rows_buffer_mean"))
+        lines.append(f"| {ARM_LABEL[arm]} | {len(rs)} | " + " | ".join(fmt([r.get(k) for r in rs], d, k)
+                                                                   for _, k, d in keys)
+                     + f" | {stalled}/{len(rs)} | {fmt([r['ess_mean'] for r in rs], 2, 'auc_coverage')} | "
+                     f"{fmt([r['ess_first_quarter'] for r in rs], 2, 'auc_coverage')} | {sampled:.3f} / {buffer:.3f} | "
+                     f"{fmt([r['wall_s'] for r in rs], 0)} |")
+    return "\n".join(lines)
+
+
+def difference(a: list[float], b: list[float], seed: int = 0) -> tuple[float, float, float, float]:
+    """(mean(a) − mean(b), bootstrap 95% interval of it (each arm resampled on its own), Welch p)."""
+    x, y = np.asarray(a, float), np.asarray(b, float)
+    rng = np.random.default_rng(seed)
+    boot = (x[rng.integers(0, x.size, (BOOTSTRAP, x.size))].mean(1)
+            - y[rng.integers(0, y.size, (BOOTSTRAP, y.size))].mean(1))
+    lo, hi = np.percentile(boot, [2.5, 97.5])
+    p = float(stats.ttest_ind(x, y, equal_var=False).pvalue) if x.std() + y.std() > 0 else 1.0
+    return float(x.mean() - y.mean()), float(lo), float(hi), p
+
+
+def curriculum_tests(runs: list[dict[str, Any]]) -> str:
+    """The protocol's tests: the primary comparison unadjusted, every other one Holm-corrected; times to MA 0.9 by
+    KM medians and a log-rank test."""
+    by_arm = {arm: [r for r in runs if r.get("arm") == arm] for arm in ARMS}
+    rows, pvalues = [], []
+    for a, b, key in [PRIMARY, *SECONDARY]:
+        ra, rb = by_arm[a], by_arm[b]
+        if len(ra) < 2 or len(rb) < 2:
+            rows.append((a, b, key, "n/a (fewer than 2 runs)", None))
+            pvalues.append(None)
+            continue
+        if key in TIMES:
+            ta, tb = [r[key] for r in ra], [r[key] for r in rb]
+            p = logrank_p(ta, tb, ra[0]["budget"])
+            text = f"KM median {fmt_time(ta)} vs {fmt_time(tb)}"
+        else:
+            d, lo, hi, p = difference([r[key] for r in ra], [r[key] for r in rb])
+            text = f"{d:+.3f} [{lo:+.3f}, {hi:+.3f}]"
+        rows.append((a, b, key, text, p))
+        pvalues.append(p)
+    secondary = [p for p in pvalues[1:] if p is not None]
+    adjusted = iter(holm(secondary)) if secondary else iter(())
+    lines = ["| comparison | measure | seeds | difference [bootstrap 95%] | p | p (Holm) |", "| --- " * 6 + "|"]
+    for i, (a, b, key, text, p) in enumerate(rows):
+        n = f"{len(by_arm[a])} vs {len(by_arm[b])}"
+        adj = "primary" if i == 0 else ("" if p is None else f"{next(adjusted):.3f}")
+        lines.append(f"| {ARM_LABEL[a]} − {ARM_LABEL[b]} | {key} | {n} | {text} | "
+                     f"{'' if p is None else f'{p:.3f}'} | {adj} |")
     return "\n".join(lines)
 
 
@@ -218,9 +374,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "reproduce"))
     parser.add_argument("--update", help="a markdown file whose marked blocks get the new tables")
+    parser.add_argument("--curriculum-out", default=str(ROOT / "bench" / "results" / "curriculum"),
+                        help="the curriculum grid's results (its summaries/ folder)")
     args = parser.parse_args()
     out = Path(args.out)
     runs = load(out)
+    curriculum = load(Path(args.curriculum_out)) if (Path(args.curriculum_out) / "summaries").is_dir() else []
     spread = [r for r in runs if r.get("grid", "spread") == "spread"]
     ablations = [r for r in runs if r.get("grid") == "ablations"]
     tag = [r for r in runs if r["task"] == "tag"]
@@ -230,6 +389,8 @@ def main() -> None:
                                              + [r for r in runs if r.get("grid") == "ablation_reference"])
     if tag:
         blocks["tag"], blocks["tagtests"] = tag_table(tag), tag_tests_table(tag)
+    if curriculum:
+        blocks["curriculum"], blocks["curriculumtests"] = curriculum_table(curriculum), curriculum_tests(curriculum)
     for name, body in blocks.items():
         print(f"{name}:\n{body}\n")
     from reproduce_figures import figures  # a sibling script; it imports this module's constants

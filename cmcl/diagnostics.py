@@ -1,9 +1,16 @@
-"""The curriculum's own diagnostics of a sampling distribution: where the sampling mass sits among the KP branches,
-how concentrated it is, and how old and how hard the rows it favours are.
+"""Diagnostics of the sampling distributions: where the curriculum's sampling mass sits among the KP branches,
+how concentrated every agent's distribution is (ESS), how much of it lands on reward-bearing rows, and how old and
+how hard the rows it favours are.
 
-Where it sits: read-only, over the per-row terms `ReplayBuffer.recompute_priorities(details=True)` returns and the
-buffer's row metadata; the inline loop logs it in its progress rows (`metrics.jsonl`, key "curriculum").
+Where it sits: read-only, over the per-row terms `ReplayBuffer.recompute_priorities(details=True)` returns, the
+samplers' current distributions (`ReplayBuffer.sampling_distribution`) and the buffer's rows; the inline loop logs
+them in its progress rows (`metrics.jsonl`, keys "sampling" for every agent and "curriculum" for ACL / CMCL
+agents); the replay server can report `replay_sampling_diagnostics` (a pure function of the buffer).
 Used to tell a curriculum that reweights the buffer from one that has collapsed onto a few rows or to uniform.
+
+Reward-bearing row (issue 21): a row whose reward for that agent is > 0. In sparse navigation only C2 = +4 (the agent
+covers a landmark, §6.1) is positive; C1 = −1 (collision, wall) is not counted. In predator-prey it is a capture
+for a predator (D1 = +5); a prey never has one.
 """
 
 from __future__ import annotations
@@ -12,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.replay.priority import sampling_probabilities
+from cmcl.replay.priority import CURRICULUM_MODES
 
 
 def ess_fraction(probs: np.ndarray) -> np.ndarray:
@@ -54,18 +61,53 @@ def curriculum_diagnostics(c_hat: np.ndarray, probs: np.ndarray, lam: float, age
     return {k: [round(float(x), 4) for x in v] for k, v in out.items()}
 
 
-def buffer_diagnostics(replay: Any, lam: float, alpha: float, updates: int) -> dict[str, dict]:
-    """The priority statistics and the curriculum diagnostics of a buffer's ACL / CMCL agents at λ.
+def sampling_diagnostics(probs: np.ndarray, rewards: np.ndarray) -> dict[str, list]:
+    """Per agent (columns): ESS and reward-bearing rows of a sampling distribution against the buffer.
 
-    Recomputes the priorities (`ReplayBuffer.recompute_priorities(lam, details=True)`); `updates` is the learner's
-    update count, so a row's age is updates − the policy version that wrote it. Returns {"priority": {"agents",
-    "mean", "kp_zero_fraction", "c_hat_mean", "cp_mean"} (lists over agents), "curriculum": see
+    probs float[M, A] (columns sum to 1), rewards float[M, A] (each row's reward for that agent). Returns lists of
+    length A: ess_fraction (1 / Σ P² over M; 1 = uniform); reward_rows_sampled: P-mass on rows with reward > 0, the
+    expected share of such rows in a sampled minibatch; reward_rows_buffer: their plain share of the buffer. A
+    sampler that favours reward-bearing rows (PER, typically) has sampled > buffer; a curriculum that excludes
+    the hard rows first (A1) may have sampled < buffer.
+    """
+    probs = np.asarray(probs, np.float64)
+    bearing = np.asarray(rewards) > 0  # [M, A]
+    out = {"ess_fraction": ess_fraction(probs), "reward_rows_sampled": (probs * bearing).sum(0),
+           "reward_rows_buffer": bearing.mean(0) if bearing.shape[0] else np.zeros(bearing.shape[1])}
+    return {k: [round(float(x), 4) for x in v] for k, v in out.items()}
+
+
+def replay_sampling_diagnostics(replay: Any) -> dict[str, list]:
+    """`sampling_diagnostics` of every agent of a `ReplayBuffer` as its samplers hold it now (uniform agents: ESS 1,
+    sampled share = buffer share), plus "modes" (each agent's sampler mode). Pure: reads the buffer, changes
+    nothing; {} for an empty buffer. The replay server's metrics report can call it as is."""
+    size = replay.size
+    if not size:
+        return {}
+    out = sampling_diagnostics(replay.sampling_distribution(), replay.storage.rew[:size])
+    return {"modes": list(replay.modes), **out}
+
+
+def buffer_diagnostics(replay: Any, lam: float, updates: int) -> dict[str, dict]:
+    """The sampling diagnostics of every agent, and the priority statistics and curriculum diagnostics of the ACL /
+    CMCL agents at λ.
+
+    Read-only: the per-row terms come from `ReplayBuffer.recompute_priorities(lam, details=True, apply=False)` and
+    the probabilities from what the samplers hold (their last recompute, permuted under the permuted control), so
+    logging never changes a run (nor draws from the permuted control's generator); `updates` is the learner's
+    update count, so a row's age is updates − the policy version that wrote it. Returns {"sampling": see
+    `replay_sampling_diagnostics`} and, when some agent samples by the curriculum, {"priority": {"agents", "mean",
+    "kp_zero_fraction", "c_hat_mean", "cp_mean"} (lists over those agents), "curriculum": see
     `curriculum_diagnostics`}.
     """
-    details = replay.recompute_priorities(lam, details=True)
+    details = replay.recompute_priorities(lam, details=True, apply=False) \
+        if any(m in CURRICULUM_MODES for m in replay.modes) else None
+    out: dict[str, dict] = {"sampling": replay_sampling_diagnostics(replay)}
+    if details is None or not replay.size:
+        return out
     priority = {"agents": details["agents"], "mean": details["priority"].mean(0),
                 "kp_zero_fraction": (details["kp"] == 0).mean(0), "c_hat_mean": details["c_hat"].mean(0),
                 "cp_mean": details["cp"].mean(0)}
-    probs = sampling_probabilities(details["priority"], alpha)
+    probs = replay.sampling_distribution()[:, details["agents"]]  # what the samplers hold: per-agent α, controls
     age = updates - replay.storage.policy_version[:replay.size]
-    return {"priority": priority, "curriculum": curriculum_diagnostics(details["c_hat"], probs, lam, age)}
+    return {**out, "priority": priority, "curriculum": curriculum_diagnostics(details["c_hat"], probs, lam, age)}

@@ -27,7 +27,7 @@ from cmcl.io import codec
 from cmcl.io.rundir import RunDirectory, load_checkpoint
 from cmcl.learners import steps as learn
 from cmcl.messages import LearnerFeedback, Rows
-from cmcl.progress import episode_rows, finished_episodes, progress_line, solved, window_summary
+from cmcl.progress import episode_rows, ess_part, finished_episodes, progress_line, solved, window_summary
 from cmcl.replay import steps as buffer
 from cmcl.replay.difficulty import DifficultyTable
 from cmcl.replay.priority import uses_curriculum
@@ -211,15 +211,14 @@ class InlineLoop:
                                "lambda": self.schedule.lam, "elapsed_s": elapsed, **rate,
                                "replay_size": self.replay.size, "window": window_summary(self.window),
                                **self.last_stats}
-        if self.prioritized and self.replay.size:
-            row.update(buffer_diagnostics(self.replay, self.schedule.lam, self.config.replay.alpha,
-                                          self.maddpg.updates))
+        if self.replay.size:  # "sampling" for every agent; "priority" / "curriculum" for ACL / CMCL agents
+            row.update(buffer_diagnostics(self.replay, self.schedule.lam, self.maddpg.updates))
         return row
 
     def format_progress(self, row: dict[str, Any]) -> str:
         """One terminal line from a progress row."""
         return progress_line(row["episodes"], self.config.run.episodes, row["env_steps"], row["updates"],
-                             row["window"], row["lambda"], row, row["elapsed_s"])
+                             row["window"], row["lambda"], row, row["elapsed_s"], extra=ess_part(row))
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, Any]:

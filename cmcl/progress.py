@@ -77,6 +77,15 @@ def window_summary(window: Sequence[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
+def ess_part(row: dict[str, Any]) -> list[str]:
+    """The compact ESS part of a progress line: ["ESS 0.42"] (mean over the agents that do not sample uniformly,
+    from the row's "sampling" diagnostics), or [] when every agent samples uniformly or there is no such row."""
+    sampling = row.get("sampling") or {}
+    ess = [e for e, m in zip(sampling.get("ess_fraction", []), sampling.get("modes", []), strict=False)
+           if m != "uniform"]
+    return [f"ESS {sum(ess) / len(ess):.2f}"] if ess else []
+
+
 def progress_line(episodes: int, target: int, env_steps: int, updates: int, window: dict[str, Any], lam: float,
                   rates: dict[str, float], elapsed_s: float, extra: Sequence[str] = ()) -> str:
     """One terminal line: counters, window means (see `window_summary`), λ, update and env-step rates, `extra`

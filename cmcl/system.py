@@ -21,6 +21,7 @@ if TYPE_CHECKING:  # torch-backed classes load lazily: the replay server and rol
     from cmcl.learners.maddpg import MADDPG
     from cmcl.learners.teachers import TeacherEnsemble
 
+CONTROL_STREAM = 21  # entropy word of the permuted control's seed stream (issue 21), see `control_seed`
 DISCRETE_ACT_DIM = 5  # MPE's discrete action: no-op, +x, -x, +y, -y
 
 
@@ -29,6 +30,7 @@ class AgentLayout:
     """Who is who: agent indices per team and what each agent's algorithm needs.
 
     modes: replay sampler mode per agent ("maddpg" | "per" | "acl" | "cmcl"), length N.
+    alpha: sampling exponent α_s of eq. 20 per agent, length N (its team's `effective_alpha`, A8).
     teacher_agents / icm_agents: int64[A_t] / int64[A_c] indices of agents that need teacher / curiosity scores.
     """
 
@@ -39,6 +41,7 @@ class AgentLayout:
     teams: dict[str, list[int]]
     modes: tuple[str, ...]
     eta: tuple[float, ...]
+    alpha: tuple[float, ...]
     importance_weights: tuple[bool, ...]
     difficulty_source: tuple[str, ...]
     teacher_agents: np.ndarray
@@ -63,6 +66,7 @@ def make_batched_env(config: Config, num_envs: int | None = None, seed: Any = No
     if env.task == "spread":
         return BatchedSparseSpread(b, num_agents=env.num_agents, episode_length=env.episode_length,
                                    agent_radius=env.agent_radius, shared_reward=env.shared_reward,
+                                   cover_radius=env.cover_radius,
                                    seed=seed, auto_reset=auto_reset)
     return BatchedSparseTag(b, num_predators=env.num_predators, num_prey=env.num_prey,
                             num_obstacles=env.num_obstacles, obstacle_radius=env.obstacle_radius,
@@ -79,6 +83,7 @@ def make_parallel_env(config: Config, render_mode: str | None = None):
 
         return sparse_spread_v0.parallel_env(num_agents=env.num_agents, max_cycles=env.episode_length,
                                              agent_radius=env.agent_radius, shared_reward=env.shared_reward,
+                                             cover_radius=env.cover_radius,
                                              render_mode=render_mode)
     from cmcl.envs import sparse_tag_v0
 
@@ -92,7 +97,7 @@ def make_parallel_env(config: Config, render_mode: str | None = None):
 def agent_layout(config: Config, env) -> AgentLayout:
     """Per-agent modes and score needs from the team configs and the env's team membership."""
     n = env.num_agents
-    modes, eta, isw, source = [""] * n, [0.0] * n, [False] * n, ["difficulty"] * n
+    modes, eta, isw, source, alpha = [""] * n, [0.0] * n, [False] * n, ["difficulty"] * n, [1.0] * n
     teacher, icm = [], []
     for team, members in env.teams.items():
         spec = config.teams[team]
@@ -102,6 +107,7 @@ def agent_layout(config: Config, env) -> AgentLayout:
         for agent in members:
             modes[agent] = spec.algorithm
             eta[agent] = spec.effective_eta
+            alpha[agent] = spec.effective_alpha(config.replay.alpha)
             isw[agent] = spec.importance_weights
             if spec.algorithm == "acl" and spec.acl_variant == "td_self":
                 source[agent] = "td_abs"
@@ -112,6 +118,7 @@ def agent_layout(config: Config, env) -> AgentLayout:
     act_dim = DISCRETE_ACT_DIM if config.maddpg.discrete else env.act_dim
     return AgentLayout(num_agents=n, obs_dim=env.obs_dim, env_act_dim=env.act_dim, act_dim=act_dim,
                        teams={k: list(v) for k, v in env.teams.items()}, modes=tuple(modes), eta=tuple(eta),
+                       alpha=tuple(alpha),
                        importance_weights=tuple(isw), difficulty_source=tuple(source),
                        teacher_agents=np.asarray(sorted(teacher), dtype=np.int64),
                        icm_agents=np.asarray(sorted(icm), dtype=np.int64))
@@ -132,10 +139,18 @@ def build_replay(config: Config, layout: AgentLayout) -> ReplayBuffer:
     r = config.replay
     return ReplayBuffer(capacity=r.capacity, n_agents=layout.num_agents, obs_dim=layout.obs_dim,
                         act_dim=layout.act_dim, n_folds=config.teachers.num_folds, modes=list(layout.modes),
-                        alpha=r.alpha, eps=r.priority_eps, backend=r.backend, eta=list(layout.eta),
+                        alpha=list(layout.alpha), eps=r.priority_eps, backend=r.backend, eta=list(layout.eta),
                         is_beta=0.0, difficulty_norm=config.teachers.difficulty_norm, cp_input=config.icm.cp_input,
                         difficulty_source=list(layout.difficulty_source),
-                        min_size=max(1, config.maddpg.warmup), lam_max=config.curriculum.lam_max)
+                        min_size=max(1, config.maddpg.warmup), lam_max=config.curriculum.lam_max,
+                        difficulty_transform=config.teachers.difficulty_transform,
+                        control_seed=control_seed(config.run.seed))
+
+
+def control_seed(seed: int) -> np.random.SeedSequence:
+    """Seed of the permuted control's permutations: a stream of its own for run seed `seed` (independent of the
+    loop's env / noise / sampler streams, and the same in the inline loop and the replay server)."""
+    return np.random.SeedSequence([int(seed), CONTROL_STREAM])
 
 
 def build_teachers(config: Config, layout: AgentLayout, seed: int) -> TeacherEnsemble | None:

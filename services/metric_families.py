@@ -79,6 +79,12 @@ def define_metrics(r: CollectorRegistry) -> tuple[dict[str, Gauge], dict[str, Co
                        "rising (c <= lambda), ramp (lambda < c < 2 lambda), excluded (c >= 2 lambda).", ["branch"]),
         "sampling_ess": g("cmcl_sampling_ess_fraction",
                           "Effective sample size of the curriculum sampling distribution / buffer size (1 = uniform)."),
+        "agent_sampling_ess": g("cmcl_agent_sampling_ess_fraction", "Effective sample size of each agent's "
+                                "sampling distribution / buffer size (1 = uniform; PER and curriculum below 1).",
+                                ["agent"]),
+        "reward_rows": g("cmcl_reward_rows_fraction", "Share of rows whose reward for the agent is > 0 (a covered "
+                         "landmark, a capture): expected in a sampled minibatch (where=sampled) and in the buffer "
+                         "(where=buffer).", ["agent", "where"]),
         "lambda": g("cmcl_curriculum_lambda", "Curriculum factor lambda owned by the replay server."),
         "teacher_loss": g("cmcl_teacher_loss", "Last fit loss of each teacher critic.", ["teacher"]),
         "icm_loss": g("cmcl_icm_loss", "Last ICM training loss (inverse + forward)."),

@@ -12,8 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.diagnostics import buffer_branch_shares, ess_fraction
-from cmcl.replay.priority import sampling_probabilities
+from cmcl.diagnostics import buffer_branch_shares, ess_fraction, replay_sampling_diagnostics
 from services.report_schema import CurriculumReport, FitReport, ReplayReport, Report
 
 REPORT_SAMPLES = 512
@@ -26,6 +25,11 @@ def replay_report(server: Any, details: dict[str, Any] | None) -> Report:
                               "inserts": server.counters["inserts"], "samples": server.counters["samples"],
                               "rejected": dict(server.rejected), "stale_scores": server.stale_scores}
     size = server.replay.size
+    sampling = replay_sampling_diagnostics(server.replay)  # {} for an empty buffer
+    for key, name in (("agent_sampling_ess", "ess_fraction"), ("reward_rows_sampled", "reward_rows_sampled"),
+                      ("reward_rows_buffer", "reward_rows_buffer")):
+        if sampling:
+            replay[key] = {str(a): v for a, v in enumerate(sampling[name])}
     if details is not None:
         d = details
         pick = server.rng.integers(0, size, min(size, REPORT_SAMPLES))
@@ -33,8 +37,8 @@ def replay_report(server: Any, details: dict[str, Any] | None) -> Report:
         replay.update(difficulty=d["c_hat"][pick][scored], priority=d["priority"][pick],
                       kfold_priority=d["kp"][pick][scored], curiosity_priority=d["cp"][pick],
                       kp_branches=buffer_branch_shares(d["c_hat"], d["scored"], server.schedule.lam),
-                      sampling_ess=float(np.mean(ess_fraction(sampling_probabilities(d["priority"],
-                                                                                     server.config.replay.alpha)))))
+                      sampling_ess=float(np.mean(ess_fraction(
+                          server.replay.sampling_distribution()[:, d["agents"]]))))  # per-agent α (A8), controls
     if server.pacing.teachers and size:
         valid = server.replay.valid_slots()
         times = server.difficulty.stamps(valid, server.replay.generations(valid))

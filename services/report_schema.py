@@ -88,6 +88,10 @@ class ReplayReport(_Section):
     kp_branches: Mapping[str, float] | None = None  # {rising|ramp|excluded: x in [0, 1]}: buffer share per branch
     fold_score_coverage: Mapping[str, float] | None = None  # {fold label: x in [0, 1]}: rows of fold scored
     sampling_ess: float | None = None  # x in [0, 1]: effective sample size of P / buffer size (1 = uniform)
+    # per agent (label: agent index), cmcl.diagnostics.replay_sampling_diagnostics, every sampler mode (uniform: 1):
+    agent_sampling_ess: Mapping[str, float] | None = None  # {agent: x in [0, 1]}: ESS of the agent's P / buffer size
+    reward_rows_sampled: Mapping[str, float] | None = None  # {agent: x in [0, 1]}: P-mass on rows with reward > 0
+    reward_rows_buffer: Mapping[str, float] | None = None  # {agent: x in [0, 1]}: buffer share of rows with reward > 0
 
 
 @dataclass(frozen=True)
@@ -224,10 +228,13 @@ def _labelled(path: str, value: Any, parse: Any) -> dict[str, Any]:
     return out
 
 
+AGENT_SHARES = ("agent_sampling_ess", "reward_rows_sampled", "reward_rows_buffer")  # {agent label: x in [0, 1]}
+
+
 def _parse_replay(section: Any) -> ReplayReport:
     """Validate ``replay``."""
     keys = {"size", "capacity", "inserts", "samples", "rejected", "stale_scores", "score_coverage", "kp_branches",
-            "fold_score_coverage", "sampling_ess", *SAMPLE_KEYS}
+            "fold_score_coverage", "sampling_ess", *AGENT_SHARES, *SAMPLE_KEYS}
     section = _mapping("replay", section, keys)
     values: dict[str, Any] = _numbers("replay", section, (("size", 0, None), ("capacity", 0, None),
                                                            ("score_coverage", 0, 1), ("inserts", 0, None),
@@ -235,7 +242,7 @@ def _parse_replay(section: Any) -> ReplayReport:
                                                            ("sampling_ess", 0, 1)))
     if "rejected" in section:
         values["rejected"] = _labelled("replay.rejected", section["rejected"], lambda p, v: _number(p, v, lo=0))
-    for key in ("kp_branches", "fold_score_coverage"):
+    for key in ("kp_branches", "fold_score_coverage", *AGENT_SHARES):
         if key in section:
             values[key] = _labelled(f"replay.{key}", section[key], lambda p, v: _number(p, v, lo=0, hi=1))
     values.update({key: _array(f"replay.{key}", section[key], lo=0) for key in SAMPLE_KEYS if key in section})

@@ -47,3 +47,21 @@ def test_a_shorter_ablation_gets_one_prefix_reference_per_seed_from_the_unchange
     assert sorted(r["id"] for r in refs) == [f"reference_e{budget}_s0", f"reference_e{budget}_s1"]
     assert {r["source"] for r in refs} == {"spread_cmcl_s0", "spread_cmcl_s1"}
     assert prefix_reference_runs(runs, budget) == []  # a grid at that budget needs no prefix
+
+
+def test_curriculum_grid_interleaves_arms_by_seed_and_only_the_controls_differ():
+    runs = grid(["curriculum"], [0, 1], [])
+    arms = ["maddpg", "per", "acl", "cmcl", "cmcl_permuted", "cmcl_anti"]
+    assert [r["id"] for r in runs] == [f"curriculum_{a}_s{s}" for s in (0, 1) for a in arms]
+    sets = {r["arm"]: r["sets"] for r in runs if r["seed"] == 0}
+    assert sets["cmcl_permuted"][1:] == ["teachers.difficulty_transform=permuted"]
+    assert sets["cmcl_anti"][1:] == ["teachers.difficulty_transform=reversed"]
+    assert all(len(sets[a]) == 1 for a in arms[:4])  # the shared defaults, only the log cadence set
+
+
+def test_a_summary_holds_the_sampling_distribution_over_training(finished_run):
+    s = summarise({"id": "spread_cmcl_s0", "task": "spread", "seed": 0, "budget": 12}, finished_run)
+    curve = s["sampling_curve"]
+    assert len(curve["episode"]) == len(curve["ess"]) >= 1
+    assert all(0 < e <= 1 for e in curve["ess"]) and s["ess_mean"] == pytest.approx(np.mean(curve["ess"]), abs=1e-4)
+    assert 0 <= s["reward_rows_buffer_mean"] <= 1

@@ -1,9 +1,20 @@
 """The statistics of the reproduction report (bench/reproduce_report.py): intervals and paired differences."""
 
 import numpy as np
+import pytest
 from scipy import stats
 
-from bench.reproduce_report import ablation_table, mean_ci, paired
+from bench.reproduce_report import (
+    ablation_table,
+    bootstrap_ci,
+    curriculum_tests,
+    fmt,
+    holm,
+    km_median,
+    logrank_p,
+    mean_ci,
+    paired,
+)
 
 
 def test_mean_ci_is_the_student_t_interval():
@@ -36,7 +47,7 @@ def test_ablation_table_lists_each_variant_with_its_seeds():
     table = ablation_table([ablation_run("eta0", 0, 0.5), ablation_run("eta0", 2, 0.55)], reference).splitlines()
     assert len(table) == 4 and table[3].startswith("| eta0 | 20,000 | 0,2 |")
     assert "-0.185" in table[3] and "n = 2" in table[3]
-    assert "never (3/3)" in table[2]
+    assert "not reached (0/3 reached)" in table[2]  # censored: no run got there
 
 
 def test_a_shorter_variant_is_paired_with_the_reference_read_to_its_budget():
@@ -73,3 +84,36 @@ def test_the_ablation_figure_draws_a_panel_per_budget(tmp_path):
     png = ablation_figure([run("k2", 0, 2_000)], reference, tmp_path, plt)
     width, height = plt.imread(png).shape[1::-1]
     assert width < 1.8 * height  # one panel
+
+
+def test_rate_intervals_stay_in_the_unit_interval_where_t_intervals_leave_it():
+    rates = [0.99, 0.98, 0.08, 0.97, 0.99]  # one failed seed (the eta1 row of the ablations had 0.763 ± 0.481)
+    m, h = mean_ci(rates)
+    assert m + h > 1  # the Student-t interval leaves [0, 1] ...
+    m2, lo, hi = bootstrap_ci(rates)
+    assert m2 == m and 0 <= lo < m < hi <= 1  # ... the bootstrap one does not
+    assert fmt(rates, 3, "held_out_success").startswith(f"{m:.3f} [")
+
+
+def test_kaplan_meier_median_counts_the_runs_that_never_got_there():
+    assert km_median([100, 200, 300, None, None]) == (300.0, 3)  # not the mean 200 of the three survivors
+    assert km_median([100, None, None, None]) == (None, 1)
+    assert fmt([100, 200, 300, None, None], 0, "episodes_to_90") == "KM median 300 (3/5 reached)"
+    assert logrank_p([100, 120, 130, 140, 150], [None] * 5, 1000) < 0.01
+    assert logrank_p([100, None], [100, None], 1000) > 0.9
+
+
+def test_holm_adjusts_step_down_and_keeps_the_order():
+    assert holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])
+    assert holm([0.5]) == [0.5]
+
+
+def test_curriculum_tests_put_the_primary_comparison_first_and_holm_correct_the_rest():
+    rng = np.random.default_rng(0)
+    runs = [{"arm": arm, "seed": s, "budget": 100, "auc_coverage": base + rng.normal(0, 0.01),
+             "held_out_success": 0.9, "episodes_to_90": 50 + s}
+            for arm, base in (("maddpg", 0.70), ("per", 0.7), ("acl", 0.7), ("cmcl", 0.8), ("cmcl_permuted", 0.7),
+                              ("cmcl_anti", 0.7)) for s in range(5)]
+    lines = curriculum_tests(runs).splitlines()[2:]
+    assert lines[0].startswith("| CMCL − MADDPG | auc_coverage | 5 vs 5 | +0.") and lines[0].endswith("| primary |")
+    assert len(lines) == 9 and all(line.split(" | ")[-1].strip(" |") for line in lines[1:])

@@ -61,6 +61,9 @@ def test_one_round_of_the_data_flow_reaches_every_role():
     assert report.learner.updates == 4 and status["updates"] == 4
     assert lam0 == pytest.approx(0.1 + (360 - 96) * replay.schedule.stride), "λ moves with env steps after warm-up"
     assert learner.publish()["version"] == 1
+    sampling = replay.report().replay  # the sampling diagnostics of every agent reach the metrics report
+    assert set(sampling.agent_sampling_ess) == {"0", "1", "2", "3"} and 0 < sampling.agent_sampling_ess["0"] <= 1
+    assert set(sampling.reward_rows_sampled) == set(sampling.reward_rows_buffer) == {"0", "1", "2", "3"}
 
 
 def test_teacher_fit_batches_come_only_from_its_own_fold():

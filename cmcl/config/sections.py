@@ -17,7 +17,11 @@ TaskName = Literal["spread", "tag"]
 ALGORITHMS: tuple[str, ...] = typing.get_args(AlgorithmName)  # the four compared algorithms (ALGORITHM.md §5)
 TASKS: tuple[str, ...] = typing.get_args(TaskName)
 TASK_TEAMS = {"spread": ("agent",), "tag": ("predator", "prey")}  # teams of each task, in agent order
-__all__ = ["ALGORITHMS", "TASKS", "TASK_TEAMS", "ConfigError", "CurriculumConfig", "EnvConfig", "ICMConfig",
+# α_s of eq. 20 when nothing sets it (ALGORITHM.md A8, revised 2026-12): "proportional to the K-fold priority" for
+# ACL and CMCL, Schaul's proportional-variant 0.6 for PER-MADDPG; MADDPG samples uniformly (α unused)
+DEFAULT_ALPHA = {"maddpg": 1.0, "per": 0.6, "acl": 1.0, "cmcl": 1.0}
+__all__ = ["ALGORITHMS", "DEFAULT_ALPHA", "TASKS", "TASK_TEAMS", "ConfigError",
+           "CurriculumConfig", "EnvConfig", "ICMConfig",
            "MADDPGConfig", "ReplayConfig", "RunConfig", "ServiceConfig", "TeacherConfig", "TeamConfig"]
 
 
@@ -51,6 +55,9 @@ class EnvConfig:
     num_obstacles: int = 3  # tag
     episode_length: int = 30  # steps per episode [P]
     agent_radius: float = 0.05  # spread agents [R]; option 0.15 (simple_spread)
+    # spread: a landmark is covered by an agent whose centre is closer than this (§6.1 [P]: 0.1); smaller values
+    # make the sparse reward rarer (the harder-task calibration of docs/RESULTS.md)
+    cover_radius: float = 0.1
     obstacle_radius: float = 0.1  # tag obstacles [R]; option 0.2 (MPE "large")
     predator_radius: float = 0.0375  # tag, calibrated [R]: MPE's 0.075 x 0.5 (capture at r_pred + r_prey)
     prey_radius: float = 0.025  # tag, calibrated [R]: MPE's 0.05 x 0.5
@@ -67,6 +74,7 @@ class EnvConfig:
             _require(getattr(self, name) >= 1, f"env.{name}", getattr(self, name), "must be >= 1")
         _require(self.num_obstacles >= 0, "env.num_obstacles", self.num_obstacles, "must be >= 0")
         _positive("env.agent_radius", self.agent_radius)
+        _positive("env.cover_radius", self.cover_radius)
         _positive("env.obstacle_radius", self.obstacle_radius)
         _positive("env.predator_radius", self.predator_radius)
         _positive("env.prey_radius", self.prey_radius)
@@ -109,7 +117,10 @@ class ReplayConfig:
     """Replay storage and prioritized sampling (ALGORITHM.md §3.1, §3.6)."""
 
     capacity: int = 5000
-    alpha: float = 0.6  # sampling exponent α_s (A8)
+    # sampling exponent α_s of eq. 20 for every team (A8). None (default): each team's own `teams.<t>.alpha`, else
+    # the per-algorithm default DEFAULT_ALPHA (1 for acl / cmcl, 0.6 for per). A number here applies to every team
+    # that does not set its own; precedence: teams.<t>.alpha > replay.alpha > DEFAULT_ALPHA[algorithm]
+    alpha: float | None = None
     priority_eps: float = 1e-6  # ε_p floor
     beta_is_start: float = 0.4  # PER importance-sampling exponent, annealed linearly …
     beta_is_end: float = 1.0  # … to this value over training
@@ -117,7 +128,8 @@ class ReplayConfig:
 
     def __post_init__(self) -> None:
         _require(self.capacity >= 1, "replay.capacity", self.capacity, "must be >= 1")
-        _require(self.alpha >= 0, "replay.alpha", self.alpha, "must be >= 0")
+        _require(self.alpha is None or (self.alpha >= 0 and math.isfinite(self.alpha)), "replay.alpha", self.alpha,
+                 "must be a finite number >= 0 (or unset: the per-algorithm default)")
         _positive("replay.priority_eps", self.priority_eps)
         _probability("replay.beta_is_start", self.beta_is_start)
         _probability("replay.beta_is_end", self.beta_is_end)
@@ -153,7 +165,16 @@ class TeacherConfig:
     # "shared": one fold batch per fold serves every agent's teacher of that fold (one target pass; the service's
     # layout); "per_agent": each (agent, fold) teacher draws its own batch (§3.2 literally, A x the target cost)
     fit_batch: Literal["shared", "per_agent"] = "shared"
-    difficulty_norm: Literal["max", "rank"] = "max"
+    # ĉ of §3.3 (A1, revised 2026-12): "rank" = percentile over the buffer, rank/(|D|−1) (λ reads as a difficulty
+    # percentile, so KP excludes rows while λ < 0.5); "max" = min(1, c / max c), the earlier default, which puts the
+    # heavy-tailed c at ĉ ≈ 0.05 (every row on KP's rising branch: near-uniform sampling, ESS >= 0.9)
+    difficulty_norm: Literal["max", "rank"] = "rank"
+    # sampling controls of the acl / cmcl teams (issue 21), to tell "the curriculum helps" from "sampling is just
+    # different": "none" = the method; "reversed" = anti-curriculum, ĉ -> 1 − ĉ before KP (eq. 12); "permuted" =
+    # each recompute, every curriculum agent's priority column is shuffled across the buffer's rows by a seeded
+    # permutation (cmcl.replay.priority.permute_priorities): the same multiset of probabilities, hence the same
+    # ESS, carrying no information about the rows. Uniform and PER agents are unaffected
+    difficulty_transform: Literal["none", "permuted", "reversed"] = "none"
     difficulty_error: Literal["squared", "abs"] = "squared"
     # teacher fit steps per learner update, inline and in the service (its rate limiter); §3.8 has 1, the
     # default 0.5 halves the teachers' cost (CMCL update cost vs MADDPG: bench/learner_throughput.py)
@@ -199,12 +220,23 @@ class TeamConfig:
 
     algorithm: AlgorithmName = "cmcl"
     eta: float = 0.5  # curiosity weight in CI (A15); forced to 0 for acl
+    # this team's sampling exponent α_s (eq. 20, A8); None: replay.alpha if set, else DEFAULT_ALPHA[algorithm]
+    # (1 for acl / cmcl, 0.6 for per); see `effective_alpha`
+    alpha: float | None = None
     is_correction: bool | None = None  # None: on for per, off for acl/cmcl (A9)
     acl_variant: Literal["teachers", "td_self"] = "teachers"
     priority_sharing: Literal["per_agent", "team_mean"] = "per_agent"
 
     def __post_init__(self) -> None:
         _require(self.eta >= 0 and math.isfinite(self.eta), "team.eta", self.eta, "must be >= 0")
+        _require(self.alpha is None or (self.alpha >= 0 and math.isfinite(self.alpha)), "team.alpha", self.alpha,
+                 "must be a finite number >= 0 (or unset: the per-algorithm default)")
+
+    def effective_alpha(self, run_alpha: float | None = None) -> float:
+        """α_s this team samples with: its own `alpha`, else `run_alpha` (replay.alpha), else DEFAULT_ALPHA."""
+        if self.alpha is not None:
+            return self.alpha
+        return DEFAULT_ALPHA[self.algorithm] if run_alpha is None else run_alpha
 
     @property
     def uses_teachers(self) -> bool:

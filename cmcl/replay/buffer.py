@@ -23,11 +23,13 @@ import numpy as np
 
 from cmcl.replay.priority import (
     CURRICULUM_MODES,
+    DIFFICULTY_TRANSFORMS,
     EPS_P,
     LAM_MAX,
     canonical_algorithm,
     curriculum_priority,
     kfold_priority,
+    permute_priorities,
 )
 from cmcl.replay.sampler import BACKENDS, PrioritySampler, importance_weights
 from cmcl.replay.storage import TransitionStorage
@@ -55,18 +57,25 @@ class ReplayBuffer:
     Args:
         capacity, n_agents, obs_dim, act_dim, n_folds: storage layout (see `cmcl.replay.storage`).
         modes: one mode for all agents or one per agent ("uniform"/"maddpg", "per", "acl", "cmcl").
-        alpha: sampling exponent α_s. eps: priority floor ε_p. backend: "cdf" or "sumtree".
+        alpha: sampling exponent α_s of eq. 20, scalar or per agent (A8: 1 for acl / cmcl, 0.6 for per; the
+            config resolves each team's, cmcl.config.TeamConfig.effective_alpha). eps: priority floor ε_p.
+            backend: "cdf" or "sumtree".
         eta: curiosity weight η (scalar or per agent; used by "cmcl" agents only).
         is_beta: β_IS (scalar or per agent); 0 = IS correction off (weights 1). `sample(beta=...)` overrides.
-        difficulty_norm: "max" or "rank". cp_input: "std" or "raw".
+        difficulty_norm: "rank" (A1, revised) or "max". cp_input: "std" or "raw".
+        difficulty_transform: sampling control of the acl / cmcl agents (issue 21): "none"; "reversed" (ĉ -> 1 − ĉ,
+            the anti-curriculum); "permuted" (each recompute shuffles every curriculum column across the valid rows,
+            `cmcl.replay.priority.permute_priorities`, with a Generator seeded by `control_seed` and carried in
+            `state_dict`, so a resumed run draws the same permutations).
         difficulty_source: "difficulty" (teachers) or "td_abs" (ACL td_self), scalar or per agent.
         min_size: transitions required before `sample` works (e.g. 3840 warm-up). lam_max: cap on λ.
     """
 
     def __init__(self, *, capacity: int = 5000, n_agents: int, obs_dim: int, act_dim: int, n_folds: int = 5,
-                 modes="uniform", alpha: float = 0.6, eps: float = EPS_P, backend: str = "cdf", eta=0.5,
-                 is_beta=0.0, difficulty_norm: str = "max", cp_input: str = "std",
-                 difficulty_source="difficulty", min_size: int = 1, lam_max: float = LAM_MAX) -> None:
+                 modes="uniform", alpha=1.0, eps: float = EPS_P, backend: str = "cdf", eta=0.5,
+                 is_beta=0.0, difficulty_norm: str = "rank", cp_input: str = "std",
+                 difficulty_source="difficulty", min_size: int = 1, lam_max: float = LAM_MAX,
+                 difficulty_transform: str = "none", control_seed: int | np.random.SeedSequence = 0) -> None:
         self.storage = TransitionStorage(capacity=capacity, n_agents=n_agents, obs_dim=obs_dim,
                                          act_dim=act_dim, n_folds=n_folds)
         if backend not in BACKENDS:
@@ -79,7 +88,16 @@ class ReplayBuffer:
             raise ValueError(f"cp_input must be 'std' or 'raw', got {cp_input!r}")
         if int(min_size) != min_size or min_size < 1:
             raise ValueError(f"min_size must be an integer >= 1, got {min_size!r}")
-        self.alpha, self.eps, self.backend = float(alpha), float(eps), backend
+        if difficulty_transform not in DIFFICULTY_TRANSFORMS:
+            raise ValueError(f"difficulty_transform must be one of {DIFFICULTY_TRANSFORMS}, "
+                             f"got {difficulty_transform!r}")
+        alphas = [float(a) for a in _per_agent("alpha", alpha, n_agents)]
+        if any(not (np.isfinite(a) and a >= 0) for a in alphas):
+            raise ValueError(f"alpha must be finite and >= 0, got {alpha!r}")
+        self.alpha: list[float] = alphas  # α_s per agent
+        self.eps, self.backend = float(eps), backend
+        self.difficulty_transform = difficulty_transform
+        self.control_rng = np.random.default_rng(control_seed)  # draws the permuted control's permutations
         self.difficulty_norm, self.cp_input = difficulty_norm, cp_input
         self.min_size, self.lam_max = int(min_size), float(lam_max)
         self.lam: float | None = None  # λ of the last recompute
@@ -119,7 +137,7 @@ class ReplayBuffer:
         """New sampler for `mode` with every valid slot at its initial priority."""
         if mode == "uniform":
             return None
-        sampler = PrioritySampler(self.storage.capacity, self.alpha, self.backend)
+        sampler = PrioritySampler(self.storage.capacity, self.alpha[agent], self.backend)
         init = self.max_priority[agent] if mode == "per" else self.eps
         sampler.set_all(np.full(self.storage.size, init))
         return sampler
@@ -199,13 +217,18 @@ class ReplayBuffer:
             self.max_priority[agent] = max(self.max_priority[agent], float(p.max()))
         return accepted
 
-    def recompute_priorities(self, lam: float, details: bool = False) -> dict | None:
+    def recompute_priorities(self, lam: float, details: bool = False, apply: bool = True) -> dict | None:
         """Rebuild every ACL/CMCL agent's priorities from the score columns at curriculum factor `lam`.
 
-        p = KP(ĉ, λ) + η·CP(ρ̂) + ε_p over the valid rows (η = 0 for ACL); unscored rows get ε_p.
-        Args: lam in (0, lam_max]; details: also return the per-row terms.
+        p = KP(ĉ, λ) + η·CP(ρ̂) + ε_p over the valid rows (η = 0 for ACL); unscored rows get ε_p. Under the
+        "reversed" control ĉ is 1 − ĉ; under "permuted" each agent's p column is shuffled across the valid rows
+        (one draw from `control_rng` per recompute) after it is computed.
+        Args: lam in (0, lam_max]; details: also return the per-row terms; apply: False computes the terms only
+        (read-only: the samplers, λ and the permuted control's generator are left as they are, and "priority" is
+        the unpermuted one), for diagnostics that must not change the run.
         Returns: None, or {"agents": int64[A'], "c_hat", "kp", "cp", "priority": float64[size, A'],
-        "scored": bool[size, A']} for the A' recomputed agents.
+        "scored": bool[size, A']} for the A' recomputed agents ("priority" is what the samplers hold, permuted
+        under the permuted control; c_hat and kp are the rows' own).
         """
         kfold_priority(0.0, lam, self.lam_max)  # validates lam before anything changes
         agents = [a for a, m in enumerate(self.modes) if m in CURRICULUM_MODES]
@@ -218,18 +241,36 @@ class ReplayBuffer:
                 self.storage.scores[col][:size, a], self.storage.scored[col][:size, a],
                 self.storage.scores["curiosity"][:size, a], self.storage.scored["curiosity"][:size, a],
                 lam, eta, eps=self.eps, difficulty_norm=self.difficulty_norm, cp_input=self.cp_input,
-                lam_max=self.lam_max)
-            self.samplers[a].set_all(p)
-            if details:
-                for key, val in zip(out, (c_hat, kp, cp, p, has_c), strict=True):
-                    out[key].append(val)
+                lam_max=self.lam_max, reversed_difficulty=self.difficulty_transform == "reversed")
+            for key, val in zip(out, (c_hat, kp, cp, p, has_c), strict=True):
+                out[key].append(val)
+        priority = np.stack(out["priority"], axis=1) if agents else np.zeros((size, 0))
+        if not apply:
+            return {**{k: (np.stack(v, axis=1) if v else np.zeros((size, 0))) for k, v in out.items()},
+                    "scored": np.stack(out["scored"], axis=1).astype(bool) if agents else np.zeros((size, 0), bool),
+                    "agents": np.asarray(agents, dtype=np.int64)}
+        if self.difficulty_transform == "permuted" and agents:
+            priority = permute_priorities(priority, self.control_rng)
+        for i, a in enumerate(agents):
+            self.samplers[a].set_all(priority[:, i])
         self.lam = float(lam)
         if not details:
             return None
         res = {k: (np.stack(v, axis=1) if v else np.zeros((size, 0))) for k, v in out.items()}
+        res["priority"] = priority
         res["scored"] = res["scored"].astype(bool)
         res["agents"] = np.asarray(agents, dtype=np.int64)
         return res
+
+    def sampling_distribution(self) -> np.ndarray:
+        """P_v(j) of every agent over the valid rows as the samplers hold it now (eq. 20; uniform agents 1/|D|):
+        float64[size, N], columns summing to 1 (all zeros for an empty buffer)."""
+        size = self.storage.size
+        out = np.full((size, self.n_agents), 1.0 / max(size, 1))
+        for a, sampler in enumerate(self.samplers):
+            if sampler is not None and size:
+                out[:, a] = sampler.probabilities(np.arange(size))
+        return out
 
     def probabilities(self, agent: int, slots) -> np.ndarray:
         """P_v(j) for valid slots int[k] -> float64[k]."""
@@ -285,7 +326,8 @@ class ReplayBuffer:
 
         Keys: "storage" (see `TransitionStorage.state_dict`), "lam" (float, −1.0 = never recomputed),
         "max_priority" float64[N], "modes" {str(agent): mode}, "samplers" {str(agent): sampler state}
-        for prioritized agents, plus "alpha", "eps", "backend".
+        for prioritized agents, plus "alpha" [float] * N, "eps", "backend", "difficulty_transform" and
+        "control_rng" (the permuted control's PCG64 state, its 128-bit integers as decimal strings for msgpack).
         """
         return {
             "storage": self.storage.state_dict(),
@@ -293,7 +335,8 @@ class ReplayBuffer:
             "max_priority": self.max_priority.copy(),
             "modes": {str(a): m for a, m in enumerate(self.modes)},
             "samplers": {str(a): s.state_dict() for a, s in enumerate(self.samplers) if s is not None},
-            "alpha": self.alpha, "eps": self.eps, "backend": self.backend,
+            "alpha": list(self.alpha), "eps": self.eps, "backend": self.backend,
+            "difficulty_transform": self.difficulty_transform, "control_rng": _rng_state(self.control_rng),
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -305,9 +348,18 @@ class ReplayBuffer:
         modes = [state["modes"].get(str(a)) for a in range(n)]
         if modes != self.modes:
             raise ValueError(f"modes in state {modes} differ from this buffer's {self.modes}")
-        for key in ("alpha", "eps"):
-            if float(state[key]) != getattr(self, key):
-                raise ValueError(f"{key} in state ({state[key]!r}) differs from this buffer ({getattr(self, key)!r})")
+        alphas = [float(a) for a in _per_agent("alpha in state", state["alpha"], n)]  # older snapshots: one float
+        if alphas != self.alpha:
+            raise ValueError(f"alpha in state ({state['alpha']!r}) differs from this buffer ({self.alpha!r})")
+        if float(state["eps"]) != self.eps:
+            raise ValueError(f"eps in state ({state['eps']!r}) differs from this buffer ({self.eps!r})")
+        transform = state.get("difficulty_transform", "none")
+        if transform != self.difficulty_transform:
+            raise ValueError(f"difficulty_transform in state ({transform!r}) differs from this buffer "
+                             f"({self.difficulty_transform!r})")
+        control_rng = np.random.default_rng()
+        if "control_rng" in state:
+            _set_rng_state(control_rng, state["control_rng"])
         maxp = np.asarray(state["max_priority"], dtype=np.float64)
         if maxp.shape != (n,) or not np.all(np.isfinite(maxp)) or np.any(maxp <= 0):
             raise ValueError(f"max_priority must be finite, > 0, shape ({n},); got {maxp!r}")
@@ -317,7 +369,7 @@ class ReplayBuffer:
         samplers: list[PrioritySampler | None] = [None] * n
         for a in range(n):
             if self.modes[a] != "uniform":
-                samplers[a] = PrioritySampler(self.capacity, self.alpha, self.backend)
+                samplers[a] = PrioritySampler(self.capacity, self.alpha[a], self.backend)
                 samplers[a].load_state_dict(state["samplers"][str(a)])
                 if np.any(samplers[a].p[staged.size:] != 0):
                     raise ValueError(f"sampler {a} has priorities on slots beyond size {staged.size}")
@@ -326,4 +378,22 @@ class ReplayBuffer:
             raise ValueError(f"lam in state must be -1 (never recomputed) or in (0, {self.lam_max}], got {lam!r}")
         self.storage, self.samplers, self.max_priority = staged, samplers, maxp.copy()
         self.lam = None if lam < 0 else lam
+        if "control_rng" in state:
+            self.control_rng = control_rng
+
+
+def _rng_state(rng: np.random.Generator) -> dict:
+    """A PCG64 Generator's state with its 128-bit integers as decimal strings (msgpack holds at most 64 bits)."""
+    st = rng.bit_generator.state
+    return {"bit_generator": st["bit_generator"], "state": str(st["state"]["state"]), "inc": str(st["state"]["inc"]),
+            "has_uint32": int(st["has_uint32"]), "uinteger": int(st["uinteger"])}
+
+
+def _set_rng_state(rng: np.random.Generator, state: dict) -> None:
+    """Inverse of `_rng_state` (ValueError for another bit generator or malformed numbers)."""
+    if state.get("bit_generator") != "PCG64":
+        raise ValueError(f"control_rng must be a PCG64 state, got {state.get('bit_generator')!r}")
+    rng.bit_generator.state = {"bit_generator": "PCG64",
+                               "state": {"state": int(state["state"]), "inc": int(state["inc"])},
+                               "has_uint32": int(state["has_uint32"]), "uinteger": int(state["uinteger"])}
 

@@ -22,6 +22,10 @@ STD_EPS = 1e-8  # added to the std in curiosity normalisation
 SAMPLER_MODES = ("uniform", "per", "acl", "cmcl")  # sampler modes: the algorithm "maddpg" samples uniformly
 _ALIASES = {"maddpg": "uniform"}
 CURRICULUM_MODES = ("acl", "cmcl")  # modes whose priority is recomputed from score columns at λ (eqs. 8, 12, 19)
+# sampling controls of the curriculum agents (issue 21; config teachers.difficulty_transform): "none" = the method,
+# "reversed" = anti-curriculum (ĉ -> 1 − ĉ before KP), "permuted" = priorities shuffled across rows
+# (`permute_priorities`)
+DIFFICULTY_TRANSFORMS = ("none", "permuted", "reversed")
 
 
 def uses_curriculum(modes) -> bool:
@@ -116,7 +120,7 @@ def _as_columns(name: str, x) -> tuple[np.ndarray, bool]:
     return arr, False
 
 
-def normalise_difficulty(c, method: str = "max") -> np.ndarray:
+def normalise_difficulty(c, method: str = "rank") -> np.ndarray:
     """Per-agent difficulty normalisation ĉ (§3.3, A1).
 
     Args:
@@ -202,17 +206,20 @@ def _over_scored(values: np.ndarray, scored: np.ndarray, normalise) -> np.ndarra
 
 def curriculum_priority(difficulty: np.ndarray, has_difficulty: np.ndarray, curiosity: np.ndarray,
                         has_curiosity: np.ndarray, lam: float, eta: float, *, eps: float = EPS_P,
-                        difficulty_norm: str = "max", cp_input: str = "std", lam_max: float = LAM_MAX
-                        ) -> tuple[np.ndarray, ...]:
+                        difficulty_norm: str = "rank", cp_input: str = "std", lam_max: float = LAM_MAX,
+                        reversed_difficulty: bool = False) -> tuple[np.ndarray, ...]:
     """One ACL / CMCL agent's sampling priority over the M valid rows from its raw score columns.
 
-    ĉ = normalised c over the rows that have one (§3.3); ρ̂ = normalised ρ likewise (§3.5, only when η > 0);
-    p = CI(KP(ĉ, λ), CP(ρ̂), η) + ε_p (eqs. 12, 19, 8), and ε_p on rows without a difficulty score (A11).
-    difficulty, curiosity float[M]; has_* bool[M]; eta = 0 gives ACL. Returns float64[M] arrays
-    (c_hat, kp, cp, p) and has_difficulty.
+    ĉ = normalised c over the rows that have one (§3.3, A1: rank by default); ρ̂ = normalised ρ likewise (§3.5, only
+    when η > 0); p = CI(KP(ĉ, λ), CP(ρ̂), η) + ε_p (eqs. 12, 19, 8), and ε_p on rows without a difficulty score (A11).
+    difficulty, curiosity float[M]; has_* bool[M]; eta = 0 gives ACL. reversed_difficulty: the anti-curriculum
+    control, ĉ -> 1 − ĉ on the scored rows before KP (the returned c_hat is the reversed one, the ĉ KP saw).
+    Returns float64[M] arrays (c_hat, kp, cp, p) and has_difficulty.
     """
     m = difficulty.shape[0]
     c_hat = _over_scored(difficulty, has_difficulty, lambda x: normalise_difficulty(x, difficulty_norm))
+    if reversed_difficulty:
+        c_hat = np.where(has_difficulty, 1.0 - c_hat, 0.0)
     kp = kfold_priority(c_hat, lam, lam_max)
     cp = np.zeros(m)
     if eta > 0:
@@ -220,3 +227,12 @@ def curriculum_priority(difficulty: np.ndarray, has_difficulty: np.ndarray, curi
         cp = curiosity_priority(rho_hat)
     p = np.where(has_difficulty, curriculum_index(kp, cp, eta) + eps, eps)
     return c_hat, kp, cp, p, has_difficulty
+
+
+def permute_priorities(p: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The permuted control (issue 21): each column of p float[M, A] shuffled across its M rows by an independent
+    permutation from `rng` -> float64[M, A]. Every column keeps its multiset of values, so P of eq. 20 has the same
+    multiset of probabilities and the same effective sample size, but which row gets which priority carries no
+    information about the row. One vectorised call (`Generator.permuted`), no Python loop over rows.
+    """
+    return rng.permuted(np.asarray(p, dtype=np.float64), axis=0)
