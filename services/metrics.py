@@ -128,6 +128,11 @@ class ServiceMetrics:
                 plan.gauge("kp_branch", share, (branch,))
             for fold, share in (replay.fold_score_coverage or {}).items():
                 plan.gauge("fold_score_coverage", share, (fold,))
+            for agent, ess in (replay.agent_sampling_ess or {}).items():
+                plan.gauge("agent_sampling_ess", ess, (agent,))
+            for where, shares in (("sampled", replay.reward_rows_sampled), ("buffer", replay.reward_rows_buffer)):
+                for agent, share in (shares or {}).items():
+                    plan.gauge("reward_rows", share, (agent, where))
             plan.count("replay_inserts", replay.inserts)
             plan.count("replay_samples", replay.samples)
             for reason, total in (replay.rejected or {}).items():

@@ -247,6 +247,11 @@ class Supervisor:
         ages = replay.score_age if replay is not None else None
         if ages is not None and len(ages):
             extra.append(f"score age {float(np.median(ages)):.0f} upd")
+        if replay is not None and replay.agent_sampling_ess:
+            ess = np.fromiter(replay.agent_sampling_ess.values(), float)
+            ess = ess[ess < 1]  # a uniform sampler's ESS is 1 by construction: as in cmcl.progress.ess_part, the
+            if ess.size:  # mean is over the agents that do not sample uniformly
+                extra.append(f"ESS {ess.mean():.2f}")
         if self.lags:
             extra.append("lag " + ",".join(f"{k}:{v}" for k, v in sorted(self.lags.items())))
         return progress_line(st["episodes"], self.config.run.episodes, st["env_steps"], st["updates"],

@@ -159,6 +159,17 @@ def test_stale_score_updates_have_their_own_counter_apart_from_rejected_input():
     assert sum(v for (name, _), v in parsed.items() if name == "cmcl_replay_rejected_total") == 2
 
 
+def test_the_sampling_distribution_per_agent_reaches_the_endpoint():
+    m = ServiceMetrics()
+    m.apply({"source": "replay", "role": "replay", "replay": {
+        "agent_sampling_ess": {"0": 0.31, "1": 1.0}, "reward_rows_sampled": {"0": 0.02, "1": 0.07},
+        "reward_rows_buffer": {"0": 0.05, "1": 0.07}}})
+    parsed = samples(m.text())
+    assert get(parsed, "cmcl_agent_sampling_ess_fraction", agent="0") == 0.31
+    assert get(parsed, "cmcl_reward_rows_fraction", agent="0", where="sampled") == 0.02
+    assert get(parsed, "cmcl_reward_rows_fraction", agent="0", where="buffer") == 0.05
+
+
 def test_histograms_subsample_large_arrays():
     m = ServiceMetrics(max_samples=64, seed=1)
     m.apply({"replay": {"priority": np.full(10_000, 1.2), "score_age": np.arange(10),
