@@ -78,8 +78,8 @@ def main() -> None:
     run_dir = Path(args.out)
     shutil.rmtree(run_dir, ignore_errors=True)
     start = [sys.executable, "-m", "services.launch", "--config", "configs/spread_cmcl.toml", "--set",
-             f"run.dir={run_dir}", "--metrics-port", "0", "--quiet"]
-    resume = [sys.executable, "-m", "services.launch", "--resume", str(run_dir), "--metrics-port", "0", "--quiet"]
+             f"run.dir={run_dir}", "--metrics-port", "0"]
+    resume = [sys.executable, "-m", "services.launch", "--resume", str(run_dir), "--metrics-port", "0"]
     chain = [("start, then Ctrl-C", start, signal.SIGINT), ("resume, then SIGTERM", resume, signal.SIGTERM),
              ("resume, then SIGKILL of the launcher", resume, signal.SIGKILL),
              ("resume, then Ctrl-C", resume, signal.SIGINT)]
