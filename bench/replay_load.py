@@ -74,19 +74,19 @@ def drive(server: ReplayServer, chunks: list, seconds: float, snapshot_every: fl
         chunk = chunks[seq % len(chunks)]
         status = timed(latencies, "insert", server.insert, dataclasses.replace(chunk, seq=seq))
         seq += 1
-        while status["allowed_updates"] >= cfg.service.updates_per_call:
+        while status.allowed_updates >= cfg.service.updates_per_call:
             batch, status = timed(latencies, "sample", server.sample, cfg.service.updates_per_call)
             td = rng.random(batch.slots.shape).astype(np.float32)
             status = timed(latencies, "feedback", server.learner_result,
                            LearnerFeedback(batch.slots, batch.generations, td))
-        for fold, allowed in enumerate(status["teacher_allowed"]):
+        for fold, allowed in enumerate(status.teacher_allowed):
             if allowed >= cfg.service.fit_steps_per_call:
                 work, _ = timed(latencies, "teacher_work", server.teacher_work, [fold], cfg.service.fit_steps_per_call)
                 if work is not None:
                     errors = rng.random((work.score.slots.size, len(layout.teacher_agents), 1)).astype(np.float32)
                     timed(latencies, "teacher_scores", server.write_teacher_scores,
                           TeacherScores((fold,), work.score.slots, work.score.generations, errors, work.updates))
-        if status["icm_allowed"] >= cfg.service.fit_steps_per_call:
+        if status.icm_allowed >= cfg.service.fit_steps_per_call:
             work, _ = timed(latencies, "icm_work", server.icm_work, cfg.service.fit_steps_per_call)
             if work is not None:
                 rho = rng.random((work.score.slots.size, len(layout.icm_agents))).astype(np.float32)

@@ -198,3 +198,37 @@ def check_feedback(msg: Any, num_agents: int) -> LearnerFeedback:
                            f"{np.shape(msg.slots)} and {np.shape(msg.generations)}")
     _check_rows("LearnerFeedback.td_abs", np.ravel(msg.slots), np.ravel(msg.generations), np.ravel(msg.td_abs), ())
     return msg
+
+
+@dataclass(frozen=True)
+class ReplayStatus:
+    """Replay -> supervisor, with every reply of the replay server: how much work each role may be given now (the
+    rate limiters, cmcl.replay.ratelimit via services.replay_pacing) and the counters the supervisor shows.
+
+    allowed_updates / allowed_inserts: learner updates / transitions the limiters allow now; update_deficit /
+    scoring_deficit: learner updates, teacher and ICM steps still owed to their ratios (< 1: caught up);
+    teacher_allowed: fit steps allowed per teacher fold [K]; icm_allowed: ICM steps allowed; size: transitions
+    stored; env_steps, episodes, updates: totals so far; lam: the curriculum factor λ; incarnation: the server's
+    process life. accepted / error: set by the calls that store something (insert, score writes): rows accepted,
+    and "reason: detail" when the input was refused.
+    """
+
+    allowed_updates: int
+    allowed_inserts: int
+    update_deficit: float
+    scoring_deficit: float
+    teacher_allowed: tuple[int, ...]
+    icm_allowed: int
+    size: int
+    env_steps: int
+    episodes: int
+    updates: int
+    lam: float
+    incarnation: str
+    accepted: int | None = None
+    error: str | None = None
+
+    def counters(self) -> dict[str, Any]:
+        """The counters as a plain mapping (metrics rows, summaries): episodes, env_steps, updates, size, lambda."""
+        return {"episodes": self.episodes, "env_steps": self.env_steps, "updates": self.updates, "size": self.size,
+                "lambda": self.lam}

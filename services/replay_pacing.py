@@ -41,7 +41,7 @@ class ReplayPacing:
         return {"allowed_updates": allowed, "allowed_inserts": self.learner.allowed_inserts(),
                 "update_deficit": self.learner.deficit if self.learner.warmed_up else 0.0,
                 "scoring_deficit": self.scoring_deficit(ready, fold_counts),
-                "teacher_allowed": [lim.allowed_samples() for lim in self.teachers],
+                "teacher_allowed": tuple(lim.allowed_samples() for lim in self.teachers),
                 "icm_allowed": self.icm.allowed_samples() if self.icm is not None else 0}
 
     def scoring_deficit(self, ready: bool, fold_counts: np.ndarray) -> float:

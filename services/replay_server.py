@@ -16,6 +16,7 @@ Every method returns (or ends with) a small status dict the supervisor uses to p
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -25,6 +26,7 @@ from cmcl.io.durable import ReplayStore
 from cmcl.messages import (
     CuriosityWork,
     MessageError,
+    ReplayStatus,
     TeacherWork,
     check_curiosity_scores,
     check_feedback,
@@ -75,20 +77,20 @@ class ReplayServer:
             self.restore()
 
     # ------------------------------------------------------------------ pacing
-    def status(self) -> dict[str, Any]:
+    def status(self) -> ReplayStatus:
         """How much work each role may be given now (`ReplayPacing.status`), and the counters the supervisor shows."""
         ready = self.replay.size >= self.replay.min_size
-        return {**self.pacing.status(ready, self.replay.storage.fold_counts()),
-                "size": self.replay.size, "env_steps": self.counters["inserts"],
-                "episodes": self.counters["episodes"], "updates": self.counters["updates"],
-                "lambda": self.schedule.lam, "incarnation": self.incarnation}
+        return ReplayStatus(**self.pacing.status(ready, self.replay.storage.fold_counts()),
+                            size=self.replay.size, env_steps=self.counters["inserts"],
+                            episodes=self.counters["episodes"], updates=self.counters["updates"],
+                            lam=self.schedule.lam, incarnation=self.incarnation)
 
-    def _reject(self, reason: str, detail: str) -> dict[str, Any]:
+    def _reject(self, reason: str, detail: str) -> ReplayStatus:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
-        return {"accepted": 0, "error": f"{reason}: {detail}", **self.status()}
+        return dataclasses.replace(self.status(), accepted=0, error=f"{reason}: {detail}")
 
     # ------------------------------------------------------------------ rollout -> replay
-    def insert(self, chunk: Any) -> dict[str, Any]:
+    def insert(self, chunk: Any) -> ReplayStatus:
         """Store one rollout Chunk (B whole episodes) exactly once, whatever order chunks arrive in; bad chunks are
         refused and nothing is stored. An accepted chunk is in the durable log before this returns."""
         try:
@@ -108,7 +110,7 @@ class ReplayServer:
             self.logged_rows += chunk.rows
             if self.logged_rows >= self.replay.capacity:  # the log never holds more than one buffer's worth
                 self.snapshot()
-        return {"accepted": chunk.rows, **self.status()}
+        return dataclasses.replace(self.status(), accepted=chunk.rows)
 
     def _event(self, name: str, count: int, folds: list[int] | tuple[int, ...] = ()) -> None:
         """Apply work handed out (learner updates, teacher / ICM fit steps) and log it, so that a restarted server's
@@ -157,10 +159,10 @@ class ReplayServer:
             self.replay.recompute_priorities(self.schedule.lam)
             self.dirty, self.inserts_at_recompute = False, self.counters["inserts"]
 
-    def sample(self, n: int) -> tuple[Any, dict[str, Any]]:
+    def sample(self, n: int) -> tuple[Any, ReplayStatus]:
         """Up to n per-owner minibatches (a LearnerBatch of [n, N, S] arrays), as many as the rate limiters allow
         (None if none)."""
-        n = min(int(n), self.status()["allowed_updates"])
+        n = min(int(n), self.status().allowed_updates)
         if n < 1:
             return None, self.status()
         self._maybe_recompute()
@@ -172,7 +174,7 @@ class ReplayServer:
         self._event("updates", n)
         return batch, self.status()
 
-    def learner_result(self, result: Any) -> dict[str, Any]:
+    def learner_result(self, result: Any) -> ReplayStatus:
         """PER / ACL-td_self feedback: |δ| for the sampled (slot, generation) pairs; stale ones are dropped."""
         if result is None:
             return self.status()
@@ -191,7 +193,7 @@ class ReplayServer:
         self.stale_scores += max(0, int(n))
 
     # ------------------------------------------------------------------ replay -> teachers / ICM
-    def teacher_work(self, folds: list[int], steps: int) -> tuple[TeacherWork | None, dict[str, Any]]:
+    def teacher_work(self, folds: list[int], steps: int) -> tuple[TeacherWork | None, ReplayStatus]:
         """For the teacher actor hosting `folds`: fit rows [steps, 1, F, S] drawn from each fold only, and the
         rows (of other folds) whose score from these teachers is oldest, to score."""
         cfg = self.config
@@ -212,7 +214,7 @@ class ReplayServer:
         return TeacherWork(tuple(folds), buffer.rows_at(self.replay, fit), fit, buffer.score_rows(self.replay, score),
                            self.counters["updates"]), self.status()
 
-    def write_teacher_scores(self, scores: Any) -> dict[str, Any]:
+    def write_teacher_scores(self, scores: Any) -> ReplayStatus:
         """Errors e[M, A_t, F] of the teachers of `folds` -> c of the rows (eq. 11 over the blind teachers)."""
         if scores is None:
             return self.status()
@@ -231,7 +233,7 @@ class ReplayServer:
         self.dirty = True
         return self.status()
 
-    def icm_work(self, steps: int) -> tuple[CuriosityWork | None, dict[str, Any]]:
+    def icm_work(self, steps: int) -> tuple[CuriosityWork | None, ReplayStatus]:
         """Uniform fit rows [steps, S] and the rows with the oldest curiosity score."""
         cfg = self.config
         if self.pacing.icm is None or self.replay.size < self.replay.min_size:
@@ -247,7 +249,7 @@ class ReplayServer:
         return CuriosityWork(buffer.rows_at(self.replay, fit, ("obs", "act", "next_obs")),
                              buffer.score_rows(self.replay, score), self.counters["updates"]), self.status()
 
-    def write_curiosity(self, scores: Any) -> dict[str, Any]:
+    def write_curiosity(self, scores: Any) -> ReplayStatus:
         """ρ[M, A_c] (eq. 18) for (slot, generation) pairs from the ICM actor."""
         if scores is None:
             return self.status()

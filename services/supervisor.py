@@ -10,6 +10,7 @@ are started by services.placement.create_roles.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from collections import Counter, deque
@@ -22,6 +23,7 @@ import ray
 from cmcl.config import Config
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
+from cmcl.messages import ReplayStatus
 from cmcl.progress import episode_rows, progress_line, solved, window_summary
 from services.health import (
     CallWatch,
@@ -60,7 +62,7 @@ class Supervisor:
         self.pending: dict[Any, tuple[str, int, int]] = {}  # ref -> (kind, actor index, submission number)
         self.submitted = 0  # calls tracked so far (numbers them in submission order)
         self.inflight: Counter[tuple[str, int]] = Counter()  # calls in flight per (role, actor index)
-        self.status: dict[str, Any] = ray.get(roles.replay.status.remote())
+        self.status: ReplayStatus = ray.get(roles.replay.status.remote())
         self.status_number = 0  # submission number of the replay call that returned `status`
         self.weights = roles.learner.publish.remote()
         self.version = -1
@@ -75,7 +77,7 @@ class Supervisor:
         self.solved = False  # the coverage target run.stop_coverage was reached
         self.last_replay_report: Report | None = None
         self.started = time.perf_counter()
-        self.rate_mark = (self.started, self.status["env_steps"], self.status["updates"])
+        self.rate_mark = (self.started, self.status.env_steps, self.status.updates)
         self.rates = {"env_steps_per_s": 0.0, "updates_per_s": 0.0}
         self._first_reports()
 
@@ -107,9 +109,9 @@ class Supervisor:
         st, r, svc = self.status, self.roles, self.config.service
         chunk = self.config.env.num_envs * self.config.env.episode_length
         chunks_in_flight = sum(self.inflight[("rollout", w)] for w in range(len(r.rollout)))
-        inserts_room = st["allowed_inserts"] - chunk * chunks_in_flight
+        inserts_room = st.allowed_inserts - chunk * chunks_in_flight
         # never collect more than run.episodes: every chunk is num_envs whole episodes
-        episodes_room = self.config.run.episodes - st["episodes"] - self.config.env.num_envs * chunks_in_flight
+        episodes_room = self.config.run.episodes - st.episodes - self.config.env.num_envs * chunks_in_flight
         for w, worker in enumerate(r.rollout):
             while (rollouts and self.inflight[("rollout", w)] < CALLS_IN_FLIGHT and inserts_room >= chunk
                    and episodes_room > 0):
@@ -119,7 +121,7 @@ class Supervisor:
                 self.inflight[("rollout", w)] += 1
                 inserts_room -= chunk
                 episodes_room -= self.config.env.num_envs
-        updates_room = st["allowed_updates"] - svc.updates_per_call * self.inflight[("learner", 0)]
+        updates_room = st.allowed_updates - svc.updates_per_call * self.inflight[("learner", 0)]
         while self.inflight[("learner", 0)] < CALLS_IN_FLIGHT and updates_room > 0:
             batch, _ = r.replay.sample.options(num_returns=2).remote(svc.updates_per_call)
             feedback, report = r.learner.update.options(num_returns=2).remote(batch)
@@ -127,11 +129,11 @@ class Supervisor:
             self._track(feedback, "feedback")
             self.inflight[("learner", 0)] += 1
             updates_room -= svc.updates_per_call
-        if st["size"] < max(1, self.config.maddpg.warmup):
+        if st.size < max(1, self.config.maddpg.warmup):
             return
         steps = svc.fit_steps_per_call
         for k, (teacher, folds) in enumerate(zip(r.teachers, r.teacher_groups, strict=True)):
-            room = min(st["teacher_allowed"][f] for f in folds) - steps * self.inflight[("teacher", k)]
+            room = min(st.teacher_allowed[f] for f in folds) - steps * self.inflight[("teacher", k)]
             while self.inflight[("teacher", k)] < CALLS_IN_FLIGHT and room > 0:
                 work, _ = r.replay.teacher_work.options(num_returns=2).remote(folds, steps)
                 scores, report = teacher.step.options(num_returns=2).remote(work, self.weights)
@@ -139,7 +141,7 @@ class Supervisor:
                 self._track(scores, "teacher_scores", k)
                 self.inflight[("teacher", k)] += 1
                 room -= steps
-        room = st["icm_allowed"] - steps * self.inflight[("icm", 0)]
+        room = st.icm_allowed - steps * self.inflight[("icm", 0)]
         while r.icm is not None and self.inflight[("icm", 0)] < CALLS_IN_FLIGHT and room > 0:
             work, _ = r.replay.icm_work.options(num_returns=2).remote(steps)
             scores, report = r.icm.step.options(num_returns=2).remote(work)
@@ -180,24 +182,25 @@ class Supervisor:
         than run.episodes).
         """
         self.recovery.replied(actor_key(kind, index))
-        if kind in ("rollout", "learner", "teacher", "icm"):
+        if isinstance(value, ReplayStatus):  # the replay server's reply that ends a chain of `kind`'s work
             if number > self.status_number:
                 self.status, self.status_number = value, number
-            if value.get("error"):
-                self.failures[value["error"].split(":")[0]] = self.failures.get(value["error"].split(":")[0], 0) + 1
+            if value.error:
+                reason = value.error.split(":")[0]
+                self.failures[reason] = self.failures.get(reason, 0) + 1
             self.inflight[(kind, index)] -= 1
-        elif kind == "replay_report":  # before the other reports: its kind ends in "_report" too
+            return
+        self._apply_metrics(kind, value)  # a Report, dispatched on the role that sent it
+        if value.role == "replay":
             self.last_replay_report = value
-            self._apply_metrics(kind, value)
-        elif kind.endswith("_report"):
-            self._apply_metrics(kind, value)
-            if value.weight_version is not None:
-                self.lags[value.source] = max(0, self.version - int(value.weight_version))
-            if kind == "learner_report" and value.learner.weight_version != self.version:
-                self.version = value.learner.weight_version
-                self.weights = self.roles.learner.publish.remote()
-            if kind == "rollout_report":
-                self._log_episodes(value)
+            return
+        if value.weight_version is not None:
+            self.lags[value.source] = max(0, self.version - int(value.weight_version))
+        if value.role == "learner" and value.learner.weight_version != self.version:
+            self.version = value.learner.weight_version
+            self.weights = self.roles.learner.publish.remote()
+        if value.role == "rollout":
+            self._log_episodes(value)
 
     def _apply_metrics(self, kind: str, report: Report) -> None:
         """Apply a report to the metrics; a refused one is counted per kind and logged with its error, never
@@ -242,7 +245,7 @@ class Supervisor:
     def progress_line(self) -> str:
         """One terminal line: env steps, episodes, coverage / win, reward, λ, rates, buffer, score age, lag."""
         st = self.status
-        extra = [f"buf {st['size']}"]
+        extra = [f"buf {st.size}"]
         replay = self.last_replay_report.replay if self.last_replay_report is not None else None
         ages = replay.score_age if replay is not None else None
         if ages is not None and len(ages):
@@ -254,17 +257,17 @@ class Supervisor:
                 extra.append(f"ESS {ess.mean():.2f}")
         if self.lags:
             extra.append("lag " + ",".join(f"{k}:{v}" for k, v in sorted(self.lags.items())))
-        return progress_line(st["episodes"], self.config.run.episodes, st["env_steps"], st["updates"],
-                             window_summary(self.window), st["lambda"], self.rates,
+        return progress_line(st.episodes, self.config.run.episodes, st.env_steps, st.updates,
+                             window_summary(self.window), st.lam, self.rates,
                              time.perf_counter() - self.started, extra)
 
     def _refresh_rates(self) -> None:
         now, st = time.perf_counter(), self.status
         t0, s0, u0 = self.rate_mark
         if now - t0 > 0.5:
-            self.rates = {"env_steps_per_s": (st["env_steps"] - s0) / (now - t0),
-                          "updates_per_s": (st["updates"] - u0) / (now - t0)}
-            self.rate_mark = (now, st["env_steps"], st["updates"])
+            self.rates = {"env_steps_per_s": (st.env_steps - s0) / (now - t0),
+                          "updates_per_s": (st.updates - u0) / (now - t0)}
+            self.rate_mark = (now, st.env_steps, st.updates)
 
     def drain(self) -> None:
         """Wait for every call in flight (a consistent cut for checkpoints and the end)."""
@@ -280,7 +283,7 @@ class Supervisor:
             return False
         if fresh:
             self._settle()
-        return self.status["update_deficit"] < 1 and self.status["scoring_deficit"] < 1
+        return self.status.update_deficit < 1 and self.status.scoring_deficit < 1
 
     def _settle(self) -> None:
         """Drain every call in flight, then take the replay server's status now (newer than any reply)."""
@@ -308,7 +311,8 @@ class Supervisor:
                 except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError) as err:
                     self.failures[role] = self.failures.get(role, 0) + 1
                     check_not_dead_for_good(role, err, self.config.service.max_restarts)
-        summary = {"episodes_logged": self.episodes_logged, "status": self.status, "time": time.time()}
+        summary = {"episodes_logged": self.episodes_logged, "status": dataclasses.asdict(self.status),
+                   "time": time.time()}
         atomic_write_bytes(self.paths["supervisor"], json.dumps(summary).encode())
         self.checkpoint_seconds.append(time.perf_counter() - started)
 
@@ -333,7 +337,7 @@ class Supervisor:
             if solved(self.window, cfg.run):
                 self.solved = True
                 break
-            collecting = self.status["episodes"] < cfg.run.episodes
+            collecting = self.status.episodes < cfg.run.episodes
             if not collecting and self._caught_up() and self._caught_up(fresh=True):
                 break  # episode target reached; the learner, every teacher and the ICM have caught up
             self._issue(rollouts=collecting)
@@ -349,9 +353,8 @@ class Supervisor:
                 self.metrics.update_rates()
                 if self.progress is not None:
                     self.progress(self.progress_line())
-                self.run_dir.log({"kind": "progress", **{k: self.status[k] for k in
-                                                         ("episodes", "env_steps", "updates", "size", "lambda")},
-                                  **self.rates, "elapsed_s": now - self.started})
+                self.run_dir.log({"kind": "progress", **self.status.counters(), **self.rates,
+                                  "elapsed_s": now - self.started})
             if now - last_ckpt >= cfg.service.checkpoint_every_s:
                 self.checkpoint()
                 last_ckpt = time.perf_counter()
@@ -360,7 +363,8 @@ class Supervisor:
         self._refresh_rates()
         if self.progress is not None:
             self.progress(self.progress_line())
-        return {**self.status, **self.rates, "failures": dict(self.failures), "hung": dict(self.hung),
+        return {**dataclasses.asdict(self.status), **self.status.counters(), **self.rates,
+                "failures": dict(self.failures), "hung": dict(self.hung),
                 "reports_rejected": dict(self.reports_rejected),
                 "recovery_s": {k: list(v) for k, v in self.recovery.times.items()}, "solved": self.solved,
                 "stopped": self.stopped, "episodes_logged": self.episodes_logged,

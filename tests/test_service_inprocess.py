@@ -42,8 +42,8 @@ def test_one_round_of_the_data_flow_reaches_every_role():
     for _ in range(3):
         chunk, report = worker.rollout(published)
         status = replay.insert(chunk)
-    assert status["size"] == 360 and status["episodes"] == 12 and report.rollout.episodes == 12
-    lam0 = status["lambda"]
+    assert status.size == 360 and status.episodes == 12 and report.rollout.episodes == 12
+    lam0 = status.lam
     for k, teacher in enumerate(teachers):
         work, _ = replay.teacher_work([k], 2)
         assert (replay.replay.storage.fold[work.score.slots] != k).all(), "teacher k scores other folds only"
@@ -58,7 +58,7 @@ def test_one_round_of_the_data_flow_reaches_every_role():
     assert batch.rows["obs"].shape == (4, 4, 16, 4, 18)
     feedback, report = learner.update(batch)
     replay.learner_result(feedback)
-    assert report.learner.updates == 4 and status["updates"] == 4
+    assert report.learner.updates == 4 and status.updates == 4
     assert lam0 == pytest.approx(0.1 + (360 - 96) * replay.schedule.stride), "λ moves with env steps after warm-up"
     assert learner.publish()["version"] == 1
     sampling = replay.report().replay  # the sampling diagnostics of every agent reach the metrics report
@@ -83,13 +83,13 @@ def test_duplicate_bad_and_stale_inputs_are_refused_and_counted():
     cfg = small_config("per")
     replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
     chunk, _ = worker.rollout(None)
-    assert replay.insert(chunk)["accepted"] == 120
+    assert replay.insert(chunk).accepted == 120
     again = replay.insert(chunk)
-    assert again["accepted"] == 0 and "duplicate" in again["error"]
+    assert again.accepted == 0 and "duplicate" in again.error
     good = worker.rollout(None)[0]
     refused = replay.insert(dataclasses.replace(good, obs=np.full_like(good.obs, np.nan)))
-    assert refused["accepted"] == 0 and "chunk.obs: must be finite" in refused["error"] and refused["size"] == 120
-    assert replay.insert({"obs": 1})["error"].startswith("bad_chunk")
+    assert refused.accepted == 0 and "chunk.obs: must be finite" in refused.error and refused.size == 120
+    assert replay.insert({"obs": 1}).error.startswith("bad_chunk")
     for _ in range(3):  # wrap the 360-slot buffer: the first chunk's slots get new generations
         replay.insert(worker.rollout(None)[0])
     slots = np.arange(10).reshape(1, 1, -1).repeat(4, 1)  # [n=1, N=4, S=10]
@@ -111,11 +111,11 @@ def test_snapshot_restores_buffer_scores_counters_and_dedupe(tmp_path):
     replay.store = ReplayStore(tmp_path / "replay")
     replay.snapshot()
     restored = ReplayServer(cfg, store_dir=str(tmp_path / "replay"))
-    assert restored.status()["env_steps"] == 360 and restored.status()["updates"] == 2
+    assert restored.status().env_steps == 360 and restored.status().updates == 2
     np.testing.assert_array_equal(restored.replay.storage.obs, replay.replay.storage.obs)
     for name, value in replay.difficulty.state_dict().items():
         np.testing.assert_array_equal(restored.difficulty.state_dict()[name], value)
-    assert "duplicate" in restored.insert(chunk)["error"], "dedupe table survives a restart"
+    assert "duplicate" in restored.insert(chunk).error, "dedupe table survives a restart"
 
 
 def test_learner_and_teacher_restart_from_their_checkpoints(tmp_path):
@@ -168,9 +168,9 @@ def test_chunks_are_stored_exactly_once_in_any_order():
     replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
     chunks = [worker.rollout(None)[0] for _ in range(3)]
     for chunk in (chunks[2], chunks[0], chunks[1]):  # the later chunk arrives first: none is lost
-        assert replay.insert(chunk)["accepted"] == 120
+        assert replay.insert(chunk).accepted == 120
     for chunk in chunks:
-        assert "duplicate" in replay.insert(chunk)["error"], "none is stored twice"
+        assert "duplicate" in replay.insert(chunk).error, "none is stored twice"
     assert replay.replay.size == 360 and replay.counters["episodes"] == 12
     assert replay.ledger.watermark[chunks[0].writer_key] == 2 and not replay.ledger.pending[chunks[0].writer_key]
 
@@ -185,8 +185,8 @@ def test_a_chunk_that_would_corrupt_the_accounting_is_refused(field, value, mess
     replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
     chunk = worker.rollout(None)[0]
     refused = replay.insert(dataclasses.replace(chunk, **{field: value(chunk)}))
-    assert message in refused["error"] and refused["episodes"] == 0 and replay.replay.size == 0
-    assert replay.insert(chunk)["accepted"] == 120, "the good chunk with the same seq is still accepted"
+    assert message in refused.error and refused.episodes == 0 and replay.replay.size == 0
+    assert replay.insert(chunk).accepted == 120, "the good chunk with the same seq is still accepted"
 
 
 def test_no_acknowledged_chunk_is_lost_across_a_restart(tmp_path):
@@ -207,9 +207,9 @@ def test_no_acknowledged_chunk_is_lost_across_a_restart(tmp_path):
     assert restored.pacing.state_dict() == replay.pacing.state_dict()
     for key in ("obs", "act", "rew", "episode", "fold"):
         np.testing.assert_array_equal(getattr(restored.replay.storage, key), getattr(replay.replay.storage, key))
-    assert restored.status()["env_steps"] == replay.status()["env_steps"] == 360
-    assert restored.status()["lambda"] == replay.status()["lambda"]
-    assert all("duplicate" in restored.insert(c)["error"] for c in chunks), "a retried chunk is not stored twice"
+    assert restored.status().env_steps == replay.status().env_steps == 360
+    assert restored.status().lam == replay.status().lam
+    assert all("duplicate" in restored.insert(c).error for c in chunks), "a retried chunk is not stored twice"
 
 
 def test_a_torn_log_tail_is_cut_and_a_bad_snapshot_refused(tmp_path):
@@ -223,7 +223,7 @@ def test_a_torn_log_tail_is_cut_and_a_bad_snapshot_refused(tmp_path):
         f.truncate(log.stat().st_size - 100)
     restored = ReplayServer(cfg, store_dir=str(store))
     assert restored.replay.size == 120 and restored.rejected == {"log_truncated": 1}
-    assert restored.insert(worker.rollout(None)[0])["accepted"] == 120, "appends continue after the good frames"
+    assert restored.insert(worker.rollout(None)[0]).accepted == 120, "appends continue after the good frames"
     restored.snapshot()
     snapshot = next(store.glob("snapshot-*.msgpack"))
     data = bytearray(snapshot.read_bytes())
@@ -259,10 +259,10 @@ def test_every_reply_carries_its_actors_incarnation_and_a_bad_one_is_refused():
     assert scores.incarnation == report.incarnation == teachers[0].incarnation
     curiosity, report = icm.step(replay.icm_work(2)[0])
     assert curiosity.incarnation == report.incarnation == icm.incarnation
-    assert replay.status()["incarnation"] == replay.incarnation
+    assert replay.status().incarnation == replay.incarnation
     assert len({worker.incarnation, learner.incarnation, teachers[0].incarnation, icm.incarnation}) == 4
     refused = replay.write_teacher_scores(dataclasses.replace(scores, incarnation=["not", "a", "string"]))
-    assert refused["error"].startswith("bad_scores: TeacherScores.incarnation must be a string")
+    assert refused.error.startswith("bad_scores: TeacherScores.incarnation must be a string")
     refused = replay.learner_result(dataclasses.replace(feedback, incarnation="x" * 65))
-    assert refused["error"].startswith("bad_feedback: LearnerFeedback.incarnation")
+    assert refused.error.startswith("bad_feedback: LearnerFeedback.incarnation")
     assert replay.rejected["bad_scores"] == 1 and replay.rejected["bad_feedback"] == 1
