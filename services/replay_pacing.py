@@ -12,26 +12,19 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.replay.ratelimit import RateLimiter, limiters_from_config, slack_for
+from cmcl.replay.ratelimit import limiters_from_config
 
 
 class ReplayPacing:
-    """One learner limiter (updates per env step), one per teacher fold and one for the ICM (fit steps per update)."""
+    """One learner limiter (updates per env step), one per teacher fold and one for the ICM (fit steps per update),
+    built once by `cmcl.replay.ratelimit.limiters_from_config` with the service's chunk sizes and slack."""
 
     def __init__(self, cfg: Any):
-        limiters = limiters_from_config(cfg, insert_chunk=cfg.env.num_envs * cfg.env.episode_length)
-        self.learner = RateLimiter(limiters["learner"].ratio, cfg.maddpg.warmup,
-                                   max(limiters["learner"].slack, float(cfg.service.slack_updates)))
-        slack_fit = slack_for(cfg.teachers.steps_per_update, sample_chunk=cfg.service.fit_steps_per_call)
-        slack = slack_fit + cfg.service.slack_updates
-        self.teachers = ([RateLimiter(cfg.teachers.steps_per_update, 0, slack) for _ in range(cfg.teachers.num_folds)]
-                         if "teachers" in limiters else [])
-        self.icm = RateLimiter(cfg.icm.steps_per_update, 0, slack) if "icm" in limiters else None
-
-    @property
-    def scorers(self) -> list[RateLimiter]:
-        """The limiters of every teacher fold and of the ICM."""
-        return [*self.teachers, *([self.icm] if self.icm is not None else [])]
+        limiters = limiters_from_config(cfg, insert_chunk=cfg.env.num_envs * cfg.env.episode_length,
+                                        fit_chunk=cfg.service.fit_steps_per_call,
+                                        extra_slack=cfg.service.slack_updates)
+        self.learner, self.teachers, self.icm = limiters.learner, limiters.teachers, limiters.icm
+        self.scorers = limiters.scorers
 
     def status(self, ready: bool, fold_counts: np.ndarray) -> dict[str, Any]:
         """Work each role may be given now; `ready`: the buffer holds its minimum size; fold_counts int64[K]."""

@@ -116,12 +116,21 @@ def test_bad_counts_raise():
 
 def test_limiters_from_config():
     cmcl = limiters_from_config(preset("cmcl"), insert_chunk=16)
-    assert set(cmcl) == {"learner", "teachers", "icm"}
-    learner = cmcl["learner"]
+    assert len(cmcl.teachers) == preset("cmcl").teachers.num_folds and cmcl.icm is not None
+    learner = cmcl.learner
     every = preset("cmcl").maddpg.update_every  # world steps per update
     assert learner.ratio == 1.0 / every and learner.warmup == 3840
     assert learner.slack == max((1 + 1 / every) / 2, 16 / every, 1.0)  # a 16-transition chunk always fits
     learner.record_insert(3840)
     assert learner.can_insert(16)  # a whole chunk fits at the end of warm-up
-    assert set(limiters_from_config(preset("maddpg"))) == {"learner"}
-    assert set(limiters_from_config(preset("acl"))) == {"learner", "teachers"}
+    maddpg, acl = limiters_from_config(preset("maddpg")), limiters_from_config(preset("acl"))
+    assert (maddpg.teachers, maddpg.icm) == ([], None) and acl.teachers and acl.icm is None
+
+
+def test_the_service_slack_widens_every_limiter_as_the_replay_server_needs():
+    plain = limiters_from_config(preset("cmcl"), insert_chunk=480, fit_chunk=8)
+    service = limiters_from_config(preset("cmcl"), insert_chunk=480, fit_chunk=8, extra_slack=256)
+    assert service.learner.slack == max(plain.learner.slack, 256.0)
+    assert [t.slack for t in service.teachers] == [t.slack + 256 for t in plain.teachers]
+    assert service.icm.slack == plain.icm.slack + 256
+    assert plain.teachers[0].slack >= 8  # a call's 8 fit steps can always be granted

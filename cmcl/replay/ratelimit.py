@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from numbers import Real
 from typing import Any
 
@@ -134,23 +135,46 @@ def slack_for(ratio: float, insert_chunk: int = 1, sample_chunk: int = 1) -> flo
     return max((1 + ratio) / 2, ratio * insert_chunk, float(sample_chunk))
 
 
-def limiters_from_config(config: Any, insert_chunk: int = 1) -> dict[str, RateLimiter]:
-    """The service's limiters from a `cmcl.config.Config` (units in the module docstring).
+@dataclass
+class Limiters:
+    """The rate limiters of one run: the learner's (updates per env step), one per teacher fold and the ICM's (fit
+    steps per learner update); teachers is [] and icm None when no team uses them."""
 
-    "learner" always; "teachers" / "icm" only when some team uses them (otherwise they would hold the learner
-    back for nothing). A learner update may run when learner.can_sample(1) and, for each other limiter,
-    can_insert(1); record it with learner.record_sample(1) and the others' record_insert(1). `insert_chunk` is
-    the largest number of transitions recorded at once (e.g. one rollout chunk: num_envs × steps per chunk).
+    learner: RateLimiter
+    teachers: list[RateLimiter]
+    icm: RateLimiter | None
+
+    @property
+    def scorers(self) -> list[RateLimiter]:
+        """The limiters of every teacher fold and of the ICM."""
+        return [*self.teachers, *([self.icm] if self.icm is not None else [])]
+
+
+def limiters_from_config(config: Any, insert_chunk: int = 1, fit_chunk: int = 1,
+                         extra_slack: float = 0.0) -> Limiters:
+    """The limiters of a `cmcl.config.Config` (units in the module docstring): the one place the ratios
+    (`maddpg.update_every`, `teachers.steps_per_update`, `icm.steps_per_update`) become limiters.
+
+    Teachers (one per fold) / the ICM only when some team uses them (otherwise they would hold the learner back for
+    nothing). A learner update may run when learner.can_sample(1) and, for each scorer, can_insert(1); record it
+    with learner.record_sample(1) and the scorers' record_insert(1). `insert_chunk`: the most transitions recorded
+    at once (one rollout chunk: num_envs × steps per chunk); `fit_chunk`: the most fit steps handed out at once;
+    `extra_slack` (learner updates): how far the asynchronous sides may drift apart beyond that
+    (`service.slack_updates`): the learner's slack is at least it, each scorer's grows by it.
     """
     learner_ratio = 1.0 / config.maddpg.update_every
-    limiters = {"learner": RateLimiter(learner_ratio, warmup=config.maddpg.warmup,
-                                       slack=slack_for(learner_ratio, insert_chunk=insert_chunk))}
+    learner = RateLimiter(learner_ratio, warmup=config.maddpg.warmup,
+                          slack=max(slack_for(learner_ratio, insert_chunk=insert_chunk), float(extra_slack)))
     teams = config.teams.values()
-    for name, section, used in (("teachers", config.teachers, any(t.uses_teachers for t in teams)),
-                                ("icm", config.icm, any(t.uses_icm for t in teams))):
-        if used:
-            limiters[name] = RateLimiter(section.steps_per_update, slack=slack_for(section.steps_per_update))
-    return limiters
+    teachers, icm = [], None
+    if any(t.uses_teachers for t in teams):
+        ratio = config.teachers.steps_per_update
+        slack = slack_for(ratio, sample_chunk=fit_chunk) + extra_slack
+        teachers = [RateLimiter(ratio, slack=slack) for _ in range(config.teachers.num_folds)]
+    if any(t.uses_icm for t in teams):
+        icm = RateLimiter(config.icm.steps_per_update, slack=slack_for(config.icm.steps_per_update,
+                                                                         sample_chunk=fit_chunk) + extra_slack)
+    return Limiters(learner, teachers, icm)
 
 
 def steps_due(updates: int, ratio: float, counters: dict[str, int], key: str) -> int:
