@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cmcl.config import Config, ConfigError
+from cmcl.config import Config
 from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.curriculum import CurriculumSchedule, default_growth
 
@@ -101,9 +101,6 @@ def agent_layout(config: Config, env) -> AgentLayout:
     teacher, icm = [], []
     for team, members in env.teams.items():
         spec = config.teams[team]
-        if spec.priority_sharing != "per_agent":
-            raise ConfigError(f"teams.{team}.priority_sharing={spec.priority_sharing!r} is not implemented yet; "
-                              "use 'per_agent'")
         for agent in members:
             modes[agent] = spec.algorithm
             eta[agent] = spec.effective_eta

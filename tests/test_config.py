@@ -63,6 +63,7 @@ def test_overrides_set_nested_values():
         ("run.episodes=1.5", "run.episodes"),
         ("teams.agent.algorithm=dqn", "teams.agent.algorithm"),
         ("teams.agent.eta=-1", "teams.agent.eta"),
+        ('teams.agent.priority_sharing="team_mean"', "teams.agent.priority_sharing"),
         ("curriculum.lam0=0", "curriculum.lam0"),
         ("env.task=tag", "teams"),
         ("nonsense.key=1", "nonsense"),

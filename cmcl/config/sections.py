@@ -226,10 +226,14 @@ class TeamConfig:
     alpha: float | None = None
     is_correction: bool | None = None  # None: on for per, off for acl/cmcl (A9)
     acl_variant: Literal["teachers", "td_self"] = "teachers"
-    priority_sharing: Literal["per_agent", "team_mean"] = "per_agent"
+    # one sampler per agent (A3); A3's option "team_mean" (one sampler per team on the team's mean ĉ and ρ̂) is
+    # refused here, not implemented
+    priority_sharing: Literal["per_agent"] = "per_agent"
 
     def __post_init__(self) -> None:
         _require(self.eta >= 0 and math.isfinite(self.eta), "team.eta", self.eta, "must be >= 0")
+        _require(self.priority_sharing == "per_agent", "team.priority_sharing", self.priority_sharing,
+                 "must be 'per_agent' (A3's 'team_mean' is not implemented)")
         _require(self.alpha is None or (self.alpha >= 0 and math.isfinite(self.alpha)), "team.alpha", self.alpha,
                  "must be a finite number >= 0 (or unset: the per-algorithm default)")
 
