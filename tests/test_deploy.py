@@ -46,7 +46,7 @@ def mounts(service: str) -> dict[str, str]:
     """Bind mounts of a compose service: container path -> host path (relative to the repo root)."""
     out = {}
     for volume in SERVICES[service].get("volumes", []):
-        host, container = volume.split(":")[:2]
+        host, container = re.sub(r"\$\{(\w+):-([^}]*)\}", r"\2", volume).split(":")[:2]  # compose defaults
         if host.startswith("./"):
             out[container] = host
     return out
@@ -168,13 +168,38 @@ def test_kuberay_manifests():
 
 def test_dockerfile():
     text = (DEPLOY / "Dockerfile").read_text()
-    assert re.search(r"^FROM python:3\.11-slim$", text, re.M)
-    assert "pip install torch==2.13.0" in text
+    assert re.search(r"^ARG BASE=python:3\.11-slim\nFROM \$\{BASE\}$", text, re.M)
     assert "WORKDIR /opt/cmcl" in text  # paths used by deploy/kuberay
     for line in re.findall(r"^COPY (.+)$", text, re.M):
         for source in line.split()[:-1]:
             assert (ROOT / source).exists(), source
-    assert set(re.findall(r"https?://([^/\s]+)", text)) <= {"download.pytorch.org"}
+    assert not re.findall(r"https?://", text.split("ARG BASE")[1]), "the build downloads nothing"
+    code = "\n".join(line for line in text.splitlines() if not line.startswith("#"))
+    installs = re.findall(r"pip install ([^&\n]+)", code)
+    assert installs and all(i.startswith("--no-index --find-links /wheels ") for i in installs), installs
+    assert text.count("--mount=type=bind,source=deploy/wheels,target=/wheels") == len(installs)
+    assert "torch.__version__ == '2.13.0+cpu'" in text  # the wheelhouse's torch is the CPU build
+    assert "torch==2.13.0" in (DEPLOY / "wheelhouse.sh").read_text()
+
+
+def test_compose_builds_from_a_chosen_base_and_limits_every_containers_memory():
+    defaults = {"cmcl-head": ("CMCL_BASE_IMAGE", "Dockerfile"),
+                "prometheus": ("CMCL_DEBIAN_IMAGE", "prometheus/Dockerfile")}
+    for name, (variable, dockerfile) in defaults.items():
+        arg = re.search(r"^ARG BASE=(\S+)$", (DEPLOY / dockerfile).read_text(), re.M).group(1)
+        assert SERVICES[name]["build"]["args"]["BASE"] == f"${{{variable}:-{arg}}}", name
+        assert variable in (DEPLOY / "build_base.sh").read_text()
+    for name, service in SERVICES.items():
+        assert re.fullmatch(r"\d+[mg]", str(service.get("mem_limit", ""))), f"{name} has no mem_limit"
+    # podman-compose 1.0.3 turns the exec form ["CMD", ...] into a shell syntax error; CMD-SHELL works in both.
+    assert SERVICES["cmcl-head"]["healthcheck"]["test"][0] == "CMD-SHELL"
+
+
+def test_every_ray_node_sees_the_run_directory_and_the_worker_hosts_the_rollouts():
+    assert mounts("cmcl-worker")["/opt/cmcl/runs"] == mounts("cmcl-head")["/opt/cmcl/runs"]
+    resource = re.search(r"--set service\.rollout_resource=(\w+)", SERVICES["cmcl-head"]["command"][-1]).group(1)
+    (resources,) = [a for a in SERVICES["cmcl-worker"]["command"] if a.startswith("--resources=")]
+    assert json.loads(resources.removeprefix("--resources="))[resource] >= 1
 
 
 @pytest.mark.skipif(PROMTOOL is None, reason="promtool not installed (apt-get install prometheus)")
