@@ -5,6 +5,8 @@ with each other and with services/metrics.py. The two promtool tests run only wh
 (`apt-get install prometheus`); elsewhere they are skipped.
 """
 
+import copy
+import importlib.util
 import json
 import re
 import shlex
@@ -14,6 +16,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from jsonschema import Draft7Validator
 
 from services.metrics import ServiceMetrics
 
@@ -262,3 +265,58 @@ def test_compose_prometheus_is_the_debian_one_and_serves_the_console_dashboard()
     assert mounts("prometheus")["/etc/prometheus/console_libraries"] == "./deploy/prometheus/console_libraries"
     assert {"--web.console.templates=/etc/prometheus/consoles",
             "--web.console.libraries=/etc/prometheus/console_libraries"} <= set(prometheus["command"])
+
+
+def strict(schema: dict) -> dict:
+    """A CRD schema that rejects unknown fields, as the API server does with strict field validation (kubectl's
+    default since 1.27) rather than pruning them silently."""
+    out = dict(schema)
+    if "properties" in out:
+        out["properties"] = {k: strict(v) for k, v in out["properties"].items()}
+        if "additionalProperties" not in out and not out.get("x-kubernetes-preserve-unknown-fields"):
+            out["additionalProperties"] = False
+    for key in ("items", "additionalProperties"):
+        if isinstance(out.get(key), dict):
+            out[key] = strict(out[key])
+    return out
+
+
+def kuberay_errors(kind: str, manifest: dict) -> list[str]:
+    """Where `manifest` breaks the ray.io/v1 schema of `kind` (deploy/kuberay/schema/, from KubeRay's CRDs)."""
+    schema = strict(json.loads((DEPLOY / f"kuberay/schema/ray.io_v1_{kind.lower()}.json").read_text()))
+    return sorted(f"{'/'.join(map(str, e.absolute_path))}: {e.message}" for e in
+                  Draft7Validator(schema).iter_errors(manifest))
+
+
+def test_kuberay_manifests_follow_the_kuberay_crd_schemas():
+    cluster = yaml.safe_load((DEPLOY / "kuberay/raycluster.yaml").read_text())
+    job = yaml.safe_load((DEPLOY / "kuberay/rayjob.yaml").read_text())
+    assert kuberay_errors("RayCluster", cluster) == []
+    assert kuberay_errors("RayJob", job) == []
+    # The check can fail: a misspelt field, a number where the CRD wants a string and the reverse are reported.
+    broken = copy.deepcopy(cluster)
+    broken["spec"]["workerGroupSpecs"][0]["replica"] = 2
+    broken["spec"]["workerGroupSpecs"][0]["maxReplicas"] = "4"
+    broken["spec"]["headGroupSpec"]["rayStartParams"]["num-cpus"] = 2
+    assert len(kuberay_errors("RayCluster", broken)) == 3, kuberay_errors("RayCluster", broken)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("kubernetes_validate") is None,
+                    reason="kubernetes-validate not installed (pip install -e '.[dev]')")
+def test_kuberay_pod_templates_are_valid_core_kubernetes_objects():
+    import kubernetes_validate
+
+    cluster = yaml.safe_load((DEPLOY / "kuberay/raycluster.yaml").read_text())
+    job = yaml.safe_load((DEPLOY / "kuberay/rayjob.yaml").read_text())
+    templates = {"head": cluster["spec"]["headGroupSpec"]["template"],
+                 "submitter": job["spec"]["submitterPodTemplate"],
+                 **{f"worker-{g['groupName']}": g["template"] for g in cluster["spec"]["workerGroupSpecs"]}}
+    version = kubernetes_validate.latest_version()
+    for role, template in templates.items():
+        pod = {"apiVersion": "v1", "kind": "PodTemplate", "metadata": {"name": role}, "template": template}
+        kubernetes_validate.validate(pod, version, strict=True)  # raises ValidationError
+    broken = copy.deepcopy(templates["head"])
+    broken["spec"]["containers"][0]["resources"]["request"] = {"cpu": "1"}
+    with pytest.raises(kubernetes_validate.ValidationError):
+        kubernetes_validate.validate({"apiVersion": "v1", "kind": "PodTemplate", "metadata": {"name": "x"},
+                                      "template": broken}, version, strict=True)
