@@ -46,14 +46,16 @@ DEPLOY_PKGS := podman podman-compose runc mmdebstrap prometheus chromium
 test-deploy: export CONTAINERS_CONF := $(CURDIR)/deploy/podman/containers.conf
 test-deploy: export CMCL_BASE_IMAGE := localhost/cmcl-python:3.11
 test-deploy: export CMCL_DEBIAN_IMAGE := localhost/cmcl-debian:bookworm
+test-deploy: export TIMEFORMAT := %0R s
+test-deploy: SHELL := /bin/bash
 test-deploy: install
 	@missing=$$(for p in $(DEPLOY_PKGS); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
 	if [ -n "$$missing" ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; fi
-	nice -n 10 deploy/build_base.sh
-	PYTHON=$(BIN)/python nice -n 10 deploy/wheelhouse.sh
-	CMCL_RAY_TOKEN=unused-at-build nice -n 10 podman-compose build cmcl-head prometheus >/dev/null
-	podman image ls --format '{{.Repository}}:{{.Tag}} {{.Size}}'
-	CMCL_DEPLOY_STRICT=1 $(BIN)/python -m pytest -m deploy -rs -s tests/test_compose_live.py $(TEST_ARGS)
+	time nice -n 10 deploy/build_base.sh
+	time PYTHON=$(BIN)/python nice -n 10 deploy/wheelhouse.sh
+	time CMCL_RAY_TOKEN=unused-at-build nice -n 10 podman-compose build cmcl-head prometheus >/dev/null
+	podman image ls --format '{{.Repository}}:{{.Tag}} {{.Size}}'; du -sh $$(podman info --format '{{.Store.GraphRoot}}') deploy/wheels
+	time CMCL_DEPLOY_STRICT=1 $(BIN)/python -m pytest -m deploy -rs -s tests/test_compose_live.py $(TEST_ARGS)
 
 lint: install
 	$(BIN)/ruff check .

@@ -67,7 +67,9 @@ class Stack:
             self.runs.chmod(0o777)
         self.env = {**os.environ, "CMCL_RAY_TOKEN": os.urandom(16).hex(), "CMCL_RUNS_DIR": str(self.runs),
                     "CMCL_PROMETHEUS_PORT": str(self.prometheus_port),
-                    "CMCL_RAY_DASHBOARD_PORT": str(self.dashboard_port)}
+                    "CMCL_RAY_DASHBOARD_PORT": str(self.dashboard_port),
+                    # long enough that the run outlasts the checks however fast the machine; ended by `down`
+                    "CMCL_LAUNCH_ARGS": "--set run.episodes=10000000 --set run.max_seconds=1800"}
         self.log = tmp / "compose.log"
         self.timings: dict[str, float] = {}
         self.down_result: dict | None = None
@@ -220,6 +222,27 @@ def test_the_console_dashboard_renders_live_data_in_chromium(stack):
     dom = subprocess.run([CHROMIUM, *CHROMIUM_FLAGS, "--dump-dom", url], capture_output=True, text=True,
                          timeout=120).stdout
     check_console_dom(dom)
+
+
+def test_every_container_has_the_compose_files_memory_limit(stack):
+    limits = {service: int(run(PODMAN, "inspect", "--format", "{{.HostConfig.Memory}}", stack.container(service)))
+              for service in SERVICES}
+    assert limits == {"cmcl-head": 6 << 30, "cmcl-worker": 3 << 30, "prometheus": 1 << 30}, limits
+
+
+def test_the_published_ray_dashboard_wants_the_token(stack):
+    url = f"http://127.0.0.1:{stack.dashboard_port}/api/jobs/"
+
+    def status(token: str | None) -> int:
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        try:
+            return urllib.request.urlopen(urllib.request.Request(url, headers=headers), timeout=10).status
+        except urllib.error.HTTPError as error:
+            return error.code
+
+    assert stack.wait_for("the Ray dashboard answers with the token",
+                          lambda: status(stack.env["CMCL_RAY_TOKEN"]) == 200)
+    assert (status(None), status("0" * 32)) == (401, 403)
 
 
 def test_compose_down_leaves_no_container_volume_or_network(stack):
