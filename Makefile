@@ -54,6 +54,7 @@ test-deploy: install
 	time nice -n 10 deploy/build_base.sh
 	time PYTHON=$(BIN)/python nice -n 10 deploy/wheelhouse.sh
 	time CMCL_RAY_TOKEN=unused-at-build nice -n 10 podman-compose build cmcl-head prometheus >/dev/null
+	podman image prune -f --filter label=io.cmcl.project=cmcl-service >/dev/null  # superseded builds
 	podman image ls --format '{{.Repository}}:{{.Tag}} {{.Size}}'; du -sh $$(podman info --format '{{.Store.GraphRoot}}') deploy/wheels
 	time CMCL_DEPLOY_STRICT=1 $(BIN)/python -m pytest -m deploy -rs -s tests/test_compose_live.py $(TEST_ARGS)
 

@@ -13,13 +13,20 @@ ROOT=$(cd "$(dirname "$0")/.." && pwd)
 OUT=$ROOT/deploy/wheels
 PYTHON=${PYTHON:-$( [ -x "$ROOT/.venv/bin/python" ] && echo "$ROOT/.venv/bin/python" || echo python3 )}
 "$PYTHON" -c 'import sys; assert sys.version_info[:2] == (3, 11), f"need CPython 3.11 (the image), got {sys.version}"'
-mkdir -p "$OUT" && rm -f "$OUT"/*.whl && echo "*" > "$OUT/.gitignore"  # build output, never committed
 # The project's dependencies (pyproject.toml) and its build requirements; the project itself is built from source in
 # the image (its code changes more often than its dependencies).
 mapfile -t REQUIREMENTS < <("$PYTHON" -c 'import sys, tomllib
 project = tomllib.load(open(sys.argv[1], "rb"))
-print(*project["project"]["dependencies"], *project["build-system"]["requires"], sep="\n")' "$ROOT/pyproject.toml")
-"$PYTHON" -m pip wheel --quiet --wheel-dir "$OUT" torch==2.13.0 "${REQUIREMENTS[@]}"
+print("torch==2.13.0", *project["project"]["dependencies"], *project["build-system"]["requires"], sep="\n")' \
+    "$ROOT/pyproject.toml")
+# Kept when built from the same requirements (deploy/wheels/requirements.txt); FORCE=1 rebuilds.
+if [ "${FORCE:-0}" != 1 ] && [ -f "$OUT/requirements.txt" ] && \
+        [ "$(cat "$OUT/requirements.txt")" = "$(printf '%s\n' "${REQUIREMENTS[@]}")" ]; then
+    echo "deploy/wheels/ is up to date with pyproject.toml (FORCE=1 rebuilds it)"
+    exit 0
+fi
+mkdir -p "$OUT" && rm -f "$OUT"/*.whl "$OUT/requirements.txt" && echo "*" > "$OUT/.gitignore"  # never committed
+"$PYTHON" -m pip wheel --quiet --wheel-dir "$OUT" "${REQUIREMENTS[@]}"
 "$PYTHON" - "$OUT" <<'PY'
 import pathlib, sys
 wheels = sorted(pathlib.Path(sys.argv[1]).glob("*.whl"))
@@ -29,3 +36,4 @@ cuda = [w.name for w in wheels if w.name.startswith("nvidia")]
 assert not cuda, f"CUDA wheels in the wheelhouse (torch is not the CPU build?): {cuda}"
 print(f"{len(wheels)} wheels, {sum(w.stat().st_size for w in wheels) / 2**20:.0f} MiB in {sys.argv[1]}: {torch[0]}")
 PY
+printf '%s\n' "${REQUIREMENTS[@]}" > "$OUT/requirements.txt"
