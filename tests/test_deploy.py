@@ -5,6 +5,8 @@ with each other and with services/metrics.py. The two promtool tests run only wh
 (`apt-get install prometheus`); elsewhere they are skipped.
 """
 
+import copy
+import importlib.util
 import json
 import re
 import shlex
@@ -14,6 +16,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from jsonschema import Draft7Validator
 
 from services.metrics import ServiceMetrics
 
@@ -46,7 +49,7 @@ def mounts(service: str) -> dict[str, str]:
     """Bind mounts of a compose service: container path -> host path (relative to the repo root)."""
     out = {}
     for volume in SERVICES[service].get("volumes", []):
-        host, container = volume.split(":")[:2]
+        host, container = re.sub(r"\$\{(\w+):-([^}]*)\}", r"\2", volume).split(":")[:2]  # compose defaults
         if host.startswith("./"):
             out[container] = host
     return out
@@ -168,13 +171,39 @@ def test_kuberay_manifests():
 
 def test_dockerfile():
     text = (DEPLOY / "Dockerfile").read_text()
-    assert re.search(r"^FROM python:3\.11-slim$", text, re.M)
-    assert "pip install torch==2.13.0" in text
+    assert re.search(r"^ARG BASE=python:3\.11-slim\nFROM \$\{BASE\}$", text, re.M)
     assert "WORKDIR /opt/cmcl" in text  # paths used by deploy/kuberay
     for line in re.findall(r"^COPY (.+)$", text, re.M):
-        for source in line.split()[:-1]:
-            assert (ROOT / source).exists(), source
-    assert set(re.findall(r"https?://([^/\s]+)", text)) <= {"download.pytorch.org"}
+        for source in line.split()[:-1]:  # deploy/wheels/ is written by deploy/wheelhouse.sh before a build
+            assert (ROOT / source).exists() or source == "deploy/wheels/requirements.txt", source
+    assert '> "$OUT/requirements.txt"' in (DEPLOY / "wheelhouse.sh").read_text()
+    assert not re.findall(r"https?://", text.split("ARG BASE")[1]), "the build downloads nothing"
+    code = "\n".join(line for line in text.splitlines() if not line.startswith("#"))
+    installs = re.findall(r"pip install ([^&\n]+)", code)
+    assert installs and all(i.startswith("--no-index --find-links /wheels ") for i in installs), installs
+    assert text.count("--mount=type=bind,source=deploy/wheels,target=/wheels") == len(installs)
+    assert "torch.__version__ == '2.13.0+cpu'" in text  # the wheelhouse's torch is the CPU build
+    assert "torch==2.13.0" in (DEPLOY / "wheelhouse.sh").read_text()
+
+
+def test_compose_builds_from_a_chosen_base_and_limits_every_containers_memory():
+    defaults = {"cmcl-head": ("CMCL_BASE_IMAGE", "Dockerfile"),
+                "prometheus": ("CMCL_DEBIAN_IMAGE", "prometheus/Dockerfile")}
+    for name, (variable, dockerfile) in defaults.items():
+        arg = re.search(r"^ARG BASE=(\S+)$", (DEPLOY / dockerfile).read_text(), re.M).group(1)
+        assert SERVICES[name]["build"]["args"]["BASE"] == f"${{{variable}:-{arg}}}", name
+        assert variable in (DEPLOY / "build_base.sh").read_text()
+    for name, service in SERVICES.items():
+        assert re.fullmatch(r"\d+[mg]", str(service.get("mem_limit", ""))), f"{name} has no mem_limit"
+    # podman-compose 1.0.3 turns the exec form ["CMD", ...] into a shell syntax error; CMD-SHELL works in both.
+    assert SERVICES["cmcl-head"]["healthcheck"]["test"][0] == "CMD-SHELL"
+
+
+def test_every_ray_node_sees_the_run_directory_and_the_worker_hosts_the_rollouts():
+    assert mounts("cmcl-worker")["/opt/cmcl/runs"] == mounts("cmcl-head")["/opt/cmcl/runs"]
+    resource = re.search(r"--set service\.rollout_resource=(\w+)", SERVICES["cmcl-head"]["command"][-1]).group(1)
+    (resources,) = [a for a in SERVICES["cmcl-worker"]["command"] if a.startswith("--resources=")]
+    assert json.loads(resources.removeprefix("--resources="))[resource] >= 1
 
 
 @pytest.mark.skipif(PROMTOOL is None, reason="promtool not installed (apt-get install prometheus)")
@@ -237,3 +266,58 @@ def test_compose_prometheus_is_the_debian_one_and_serves_the_console_dashboard()
     assert mounts("prometheus")["/etc/prometheus/console_libraries"] == "./deploy/prometheus/console_libraries"
     assert {"--web.console.templates=/etc/prometheus/consoles",
             "--web.console.libraries=/etc/prometheus/console_libraries"} <= set(prometheus["command"])
+
+
+def strict(schema: dict) -> dict:
+    """A CRD schema that rejects unknown fields, as the API server does with strict field validation (kubectl's
+    default since 1.27) rather than pruning them silently."""
+    out = dict(schema)
+    if "properties" in out:
+        out["properties"] = {k: strict(v) for k, v in out["properties"].items()}
+        if "additionalProperties" not in out and not out.get("x-kubernetes-preserve-unknown-fields"):
+            out["additionalProperties"] = False
+    for key in ("items", "additionalProperties"):
+        if isinstance(out.get(key), dict):
+            out[key] = strict(out[key])
+    return out
+
+
+def kuberay_errors(kind: str, manifest: dict) -> list[str]:
+    """Where `manifest` breaks the ray.io/v1 schema of `kind` (deploy/kuberay/schema/, from KubeRay's CRDs)."""
+    schema = strict(json.loads((DEPLOY / f"kuberay/schema/ray.io_v1_{kind.lower()}.json").read_text()))
+    return sorted(f"{'/'.join(map(str, e.absolute_path))}: {e.message}" for e in
+                  Draft7Validator(schema).iter_errors(manifest))
+
+
+def test_kuberay_manifests_follow_the_kuberay_crd_schemas():
+    cluster = yaml.safe_load((DEPLOY / "kuberay/raycluster.yaml").read_text())
+    job = yaml.safe_load((DEPLOY / "kuberay/rayjob.yaml").read_text())
+    assert kuberay_errors("RayCluster", cluster) == []
+    assert kuberay_errors("RayJob", job) == []
+    # The check can fail: a misspelt field, a number where the CRD wants a string and the reverse are reported.
+    broken = copy.deepcopy(cluster)
+    broken["spec"]["workerGroupSpecs"][0]["replica"] = 2
+    broken["spec"]["workerGroupSpecs"][0]["maxReplicas"] = "4"
+    broken["spec"]["headGroupSpec"]["rayStartParams"]["num-cpus"] = 2
+    assert len(kuberay_errors("RayCluster", broken)) == 3, kuberay_errors("RayCluster", broken)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("kubernetes_validate") is None,
+                    reason="kubernetes-validate not installed (pip install -e '.[dev]')")
+def test_kuberay_pod_templates_are_valid_core_kubernetes_objects():
+    import kubernetes_validate
+
+    cluster = yaml.safe_load((DEPLOY / "kuberay/raycluster.yaml").read_text())
+    job = yaml.safe_load((DEPLOY / "kuberay/rayjob.yaml").read_text())
+    templates = {"head": cluster["spec"]["headGroupSpec"]["template"],
+                 "submitter": job["spec"]["submitterPodTemplate"],
+                 **{f"worker-{g['groupName']}": g["template"] for g in cluster["spec"]["workerGroupSpecs"]}}
+    version = kubernetes_validate.latest_version()
+    for role, template in templates.items():
+        pod = {"apiVersion": "v1", "kind": "PodTemplate", "metadata": {"name": role}, "template": template}
+        kubernetes_validate.validate(pod, version, strict=True)  # raises ValidationError
+    broken = copy.deepcopy(templates["head"])
+    broken["spec"]["containers"][0]["resources"]["request"] = {"cpu": "1"}
+    with pytest.raises(kubernetes_validate.ValidationError):
+        kubernetes_validate.validate({"apiVersion": "v1", "kind": "PodTemplate", "metadata": {"name": "x"},
+                                      "template": broken}, version, strict=True)

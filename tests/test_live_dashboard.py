@@ -29,7 +29,7 @@ import pytest
 import yaml
 from prometheus_client.parser import text_string_to_metric_families
 
-from services.report_schema import ROLES
+from tests.console_dom import CHROMIUM_FLAGS, check_console_dom
 from tests.ports import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -167,13 +167,6 @@ def test_every_dashboard_expression_names_a_metric_the_live_endpoint_exports(liv
         assert names <= exported, f"{dashboard} names metrics the service does not export: {names - exported}"
 
 
-def humanized(text: str) -> float:
-    """A value as Prometheus' `humanize` prints it ("2.139k", "9.562", "52.7M", "200m") as a float."""
-    value = text.strip().split()[0]
-    scale = {"k": 1e3, "M": 1e6, "G": 1e9, "m": 1e-3}.get(value[-1], 1.0)
-    return float(value[:-1] if value[-1] in "kMGm" else value) * scale
-
-
 @pytest.mark.skipif(CHROMIUM is None, reason="the Debian package chromium is not installed (make test installs it)")
 def test_the_console_dashboard_renders_live_data_in_chromium(live, tmp_path):
     settle = float(os.environ.get("CMCL_SCREENSHOT_WAIT_S", 0))
@@ -181,18 +174,8 @@ def test_the_console_dashboard_renders_live_data_in_chromium(live, tmp_path):
         live.wait_for(f"vector(time()) > {time.time() + settle}", f"{settle} s more of training for the screenshot")
     span = int(time.monotonic() - live.started) + 10  # the graphs show the whole run so far
     url = f"http://127.0.0.1:{live.prometheus_port}/consoles/cmcl.html?range={span}"
-    flags = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--window-size=1500,1900",
-             "--virtual-time-budget=20000"]
-    dom = subprocess.run([*flags, "--dump-dom", url], capture_output=True, text=True, timeout=120).stdout
-    panels = re.findall(r'<div id="(g-[a-z-]+)" class="cmcl-graph"(.*?)</div></div>', dom, re.S)
-    assert len(panels) >= 17, f"{len(panels)} graph panels in the DOM"
-    empty = sorted(name for name, body in panels if "<svg" not in body or "<path" not in body)
-    assert empty == ["g-win"], f"panels without a plotted series: {empty} (g-win has no data in navigation)"
-    restarts = re.findall(r"<td>([a-z]+)</td><td>([0-9.]+)</td>", dom)  # the "Restarts by role" rows
-    assert sorted(role for role, _ in restarts) == sorted(ROLES), restarts  # each role, from the start
-    now = dict(re.findall(r'<td id="(now-[a-z-]+)"><a[^>]*>([^<]*)</a>', dom))
-    assert len(now) == 12 and all(v.strip() not in ("", "-") for v in now.values()), now
-    assert humanized(now["now-env-rate"]) > 0 and humanized(now["now-update-rate"]) > 0, now  # a run in progress
+    flags = [CHROMIUM, *CHROMIUM_FLAGS]
+    check_console_dom(subprocess.run([*flags, "--dump-dom", url], capture_output=True, text=True, timeout=120).stdout)
     shot = tmp_path / "dashboard.png"
     subprocess.run([*flags, f"--screenshot={shot}", url], capture_output=True, timeout=120, check=True)
     assert shot.stat().st_size > 20_000 and shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
