@@ -11,7 +11,9 @@ Grids (the shared defaults of cmcl/config/ for every algorithm, 20,000 episodes 
   CURRICULUM_ARMS -- maddpg, per, acl, cmcl, and CMCL's two controls, ``cmcl_permuted`` (its priorities shuffled
   across rows: same ESS, no information) and ``cmcl_anti`` (difficulty reversed) -- all at the same shared defaults
   (rank difficulty, α_s = 1 for ACL / CMCL and 0.6 for PER), progress rows every 200 episodes so that the summary
-  holds the sampling distribution's ESS and reward-row shares over training.
+  holds the sampling distribution's ESS and reward-row shares over training;
+* ``curriculum_hard``: the same arms on the calibrated harder navigation of configs/spread_hard.toml (cover radius
+  0.075; MADDPG's moving-average coverage is about 0.5 at the middle of its budget).
 
 Runs are ordered seed outermost (seed 0 of every arm, then seed 1, ...), so a grid stopped part-way has balanced
 arms. A run that fails is reported and the grid goes on; a rerun retries it.
@@ -74,6 +76,7 @@ CURRICULUM_ARMS = {
     "cmcl_permuted": ("spread_cmcl.toml", ["teachers.difficulty_transform=permuted"]),
     "cmcl_anti": ("spread_cmcl.toml", ["teachers.difficulty_transform=reversed"]),
 }
+HARD_CONFIG = "spread_hard.toml"  # the calibrated harder task (docs/RESULTS.md, "A harder task: calibration")
 CURRICULUM_LOG_EVERY = 200  # episodes between progress rows (the ESS curve's resolution) in the curriculum grid
 
 
@@ -100,10 +103,13 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str], budget: int 
     runs = []
     for seed in seeds:
         for name in names:
-            if name == "curriculum":
+            if name in ("curriculum", "curriculum_hard"):
                 for arm, (config, sets) in CURRICULUM_ARMS.items():
-                    runs.append({"id": f"curriculum_{arm}_s{seed}", "grid": name, "task": "spread",
-                                 "algorithm": arm.split("_")[0], "prey_algorithm": None, "seed": seed,
+                    algorithm = arm.split("_")[0]
+                    if name == "curriculum_hard":  # the same arms on the harder task: its config, each algorithm
+                        config, sets = HARD_CONFIG, [f"teams.agent.algorithm={algorithm}", *sets]
+                    runs.append({"id": f"{name}_{arm}_s{seed}", "grid": name, "task": "spread",
+                                 "algorithm": algorithm, "prey_algorithm": None, "seed": seed,
                                  "budget": budget, "arm": arm, "config": config,
                                  "sets": [f"run.log_every={CURRICULUM_LOG_EVERY}", *sets]})
                 continue
@@ -270,7 +276,8 @@ def run_one(run: dict[str, Any], out: Path) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--grid", nargs="+", choices=["spread", "tag", "winrate", "ablations", "curriculum"],
+    parser.add_argument("--grid", nargs="+",
+                        choices=["spread", "tag", "winrate", "ablations", "curriculum", "curriculum_hard"],
                         default=["spread"])
     parser.add_argument("--arms", nargs="+", choices=list(CURRICULUM_ARMS), default=list(CURRICULUM_ARMS),
                         help="curriculum grid: only these arms")

@@ -57,6 +57,9 @@ def test_curriculum_grid_interleaves_arms_by_seed_and_only_the_controls_differ()
     assert sets["cmcl_permuted"][1:] == ["teachers.difficulty_transform=permuted"]
     assert sets["cmcl_anti"][1:] == ["teachers.difficulty_transform=reversed"]
     assert all(len(sets[a]) == 1 for a in arms[:4])  # the shared defaults, only the log cadence set
+    hard = {r["arm"]: r for r in grid(["curriculum_hard"], [0], [])}
+    assert hard["per"]["config"] == "spread_hard.toml" and "teams.agent.algorithm=per" in hard["per"]["sets"]
+    assert hard["cmcl_anti"]["sets"][1:] == ["teams.agent.algorithm=cmcl", "teachers.difficulty_transform=reversed"]
 
 
 def test_a_summary_holds_the_sampling_distribution_over_training(finished_run):
