@@ -39,7 +39,7 @@ def test_cli_on_a_folder_without_a_run(tmp_path, capsys):
 
 
 def test_cli_evaluates_a_trained_smoke_run(tmp_path, capsys):
-    from cmcl.cli import main as train
+    from cmcl.loop.__main__ import main as train
 
     run = tmp_path / "run"
     assert train(["--config", "configs/smoke.toml", "--set", f"run.dir={run}", "--set", "run.episodes=8",

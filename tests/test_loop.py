@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-from cmcl.cli import main
 from cmcl.config import config_from_dict, preset
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import LOCK_NAME
 from cmcl.loop import InlineLoop
+from cmcl.loop.__main__ import main
 
 TINY = {
     "env": {"num_envs": 4},

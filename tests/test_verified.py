@@ -59,7 +59,7 @@ def test_a_role_checkpoint_refused_is_reported_and_the_previous_one_restored(tmp
 
 
 def test_the_inline_resume_skips_a_corrupt_checkpoint_for_the_one_before(tmp_path):
-    from cmcl.cli import main
+    from cmcl.loop.__main__ import main
 
     run = tmp_path / "run"
     sets = ["--set", f"run.dir={run}", "--set", "run.episodes=64", "--set", "run.checkpoint_every=32",

@@ -6,12 +6,11 @@ It runs the same classes the service runs (built by cmcl.system) through the sam
 rollout of B batched worlds -> replay -> per update (one per `maddpg.update_every` world steps): teacher step,
 ICM step, scoring of the new rows plus `teachers.rescore_rows_per_update` rows of a rolling rescoring, priority
 recompute at the current λ, one MADDPG update of all agents; λ advanced per world step.
-Command line: `python -m cmcl.loop` (cmcl.cli).
+Command line: `python -m cmcl.loop` (cmcl/loop/__main__.py).
 """
 
 from __future__ import annotations
 
-import sys
 import time
 from collections import deque
 from collections.abc import Callable
@@ -314,9 +313,3 @@ class InlineLoop:
         if ce == 0:
             self.save_checkpoint()
         return row
-
-
-if __name__ == "__main__":
-    from cmcl.cli import main
-
-    sys.exit(main())

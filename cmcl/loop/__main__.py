@@ -15,7 +15,7 @@ from cmcl.io import codec
 from cmcl.io.rundir import CHECKPOINT_GLOB, RunDirectory
 from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
 from cmcl.io.verified import CheckpointError
-from cmcl.loop import InlineLoop
+from cmcl.loop.inline import InlineLoop
 from cmcl.progress import solved
 from cmcl.stopping import StopSignals
 
@@ -98,3 +98,7 @@ def _train(args: argparse.Namespace, config: Config, run_dir: RunDirectory) -> i
                                    window=min(config.run.smoothing_window, max(1, config.run.episodes // 10)))
         print(f"run directory: {run_dir.path}  (learning curve: {png})")
     return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
