@@ -32,11 +32,11 @@ def ess_fraction(probs: np.ndarray) -> np.ndarray:
 
 def buffer_branch_shares(c_hat: np.ndarray, scored: np.ndarray, lam: float) -> dict[str, float]:
     """Share of the scored (row, agent) entries of the buffer in each branch of KP (eq. 12): rising ĉ <= λ,
-    ramp λ < ĉ < 2λ, excluded ĉ >= 2λ. c_hat float[M, A], scored bool[M, A]; {} when nothing is scored."""
+    falling λ < ĉ < 2λ, excluded ĉ >= 2λ. c_hat float[M, A], scored bool[M, A]; {} when nothing is scored."""
     c = np.asarray(c_hat)[np.asarray(scored, bool)]
     if not c.size:
         return {}
-    return {"rising": float((c <= lam).mean()), "ramp": float(((c > lam) & (c < 2 * lam)).mean()),
+    return {"rising": float((c <= lam).mean()), "falling": float(((c > lam) & (c < 2 * lam)).mean()),
             "excluded": float((c >= 2 * lam).mean())}
 
 

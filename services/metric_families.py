@@ -76,7 +76,7 @@ def define_metrics(r: CollectorRegistry) -> tuple[dict[str, Gauge], dict[str, Co
         "fold_score_coverage": g("cmcl_fold_score_coverage",
                                  "Fraction of each fold's rows with a teacher difficulty score (0-1).", ["fold"]),
         "kp_branch": g("cmcl_kp_branch_fraction", "Fraction of the scored buffer in each KP branch (eq. 12): "
-                       "rising (c <= lambda), ramp (lambda < c < 2 lambda), excluded (c >= 2 lambda).", ["branch"]),
+                       "rising (c <= lambda), falling (lambda < c < 2 lambda), excluded (c >= 2 lambda).", ["branch"]),
         "sampling_ess": g("cmcl_sampling_ess_fraction",
                           "Effective sample size of the curriculum sampling distribution / buffer size (1 = uniform)."),
         "agent_sampling_ess": g("cmcl_agent_sampling_ess_fraction", "Effective sample size of each agent's "

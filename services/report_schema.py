@@ -85,7 +85,7 @@ class ReplayReport(_Section):
     score_age: np.ndarray | None = None  # arr >= 0: learner updates since each row's teacher score
     curiosity_age: np.ndarray | None = None  # arr >= 0: learner updates since each row's curiosity score
     sample_age: np.ndarray | None = None  # arr >= 0: learner updates since insertion, of rows the learner sampled
-    kp_branches: Mapping[str, float] | None = None  # {rising|ramp|excluded: x in [0, 1]}: buffer share per branch
+    kp_branches: Mapping[str, float] | None = None  # {rising|falling|excluded: x in [0, 1]}: buffer share per branch
     fold_score_coverage: Mapping[str, float] | None = None  # {fold label: x in [0, 1]}: rows of fold scored
     sampling_ess: float | None = None  # x in [0, 1]: effective sample size of P / buffer size (1 = uniform)
     # per agent (label: agent index), cmcl.diagnostics.replay_sampling_diagnostics, every sampler mode (uniform: 1):

@@ -32,7 +32,7 @@ def test_buffer_branch_shares_count_only_scored_entries():
     c_hat = np.array([[0.05, 0.9], [0.15, 0.3], [0.25, 0.0], [0.5, 0.0]])
     scored = np.array([[True, True], [True, True], [True, False], [True, False]])
     shares = buffer_branch_shares(c_hat, scored, lam=0.1)  # scored: 0.05 | 0.15 | 0.25 0.5 0.9 0.3 (>= 0.2)
-    assert shares == {"rising": 1 / 6, "ramp": 1 / 6, "excluded": 4 / 6}
+    assert shares == {"rising": 1 / 6, "falling": 1 / 6, "excluded": 4 / 6}
     assert buffer_branch_shares(c_hat, np.zeros_like(scored), 0.1) == {}
     np.testing.assert_allclose(ess_fraction(np.array([[0.25, 1.0], [0.25, 0], [0.25, 0], [0.25, 0]])), [1.0, 0.25])
 

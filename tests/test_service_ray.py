@@ -88,7 +88,7 @@ def test_each_preset_runs_end_to_end(algorithm, tmp_path, ray_cluster):
     assert (value(parsed, "cmcl_curiosity_scores_total") > 0) == (algorithm == "cmcl")
     assert value(parsed, "cmcl_sample_age_updates_count") > 0, "the ages of sampled rows are reported"
     if algorithm in ("acl", "cmcl"):  # the curriculum's own gauges
-        shares = [value(parsed, "cmcl_kp_branch_fraction", branch=b) for b in ("rising", "ramp", "excluded")]
+        shares = [value(parsed, "cmcl_kp_branch_fraction", branch=b) for b in ("rising", "falling", "excluded")]
         assert abs(sum(shares) - 1) < 1e-6, shares
         folds = [value(parsed, "cmcl_fold_score_coverage", fold=str(f)) for f in range(config.teachers.num_folds)]
         assert all(0 <= f <= 1 for f in folds) and max(folds) > 0, folds
