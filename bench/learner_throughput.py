@@ -26,11 +26,11 @@ from torch import nn
 from cmcl.config import load_config
 from cmcl.learners.icm import ICM
 from cmcl.learners.maddpg import MADDPG
-from cmcl.learners.steps import curiosity_values, fit_teachers, teacher_errors
+from cmcl.learners.network_steps import curiosity_values, fit_teachers, teacher_errors
 from cmcl.learners.teachers import TeacherEnsemble
 from cmcl.loop import InlineLoop
+from cmcl.replay.buffer_steps import fold_draw_indices
 from cmcl.replay.difficulty import cross_validated_difficulty
-from cmcl.replay.steps import fold_draw_indices
 
 ROOT = Path(__file__).resolve().parents[1]
 N, OD, AD, S, K, M = 4, 18, 2, 128, 5, 5000

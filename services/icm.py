@@ -1,7 +1,7 @@
 """ICM actor: trains every curiosity-using agent's ICM on uniform replay batches and scores buffer rows with ρ.
 
 Where it sits: replay -> ICM -> curiosity scores back to replay (ALGORITHM.md §3.4, distributed as in §3.9). The shell
-around `cmcl.learners.steps.fit_icm` / `curiosity_values`, the same functions the inline loop calls. It needs no
+around `cmcl.learners.network_steps.fit_icm` / `curiosity_values`, the same functions the inline loop calls. It needs no
 policy weights: the ICM models (o, a, o') only.
 """
 
@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.learners import steps as learn
+from cmcl.learners import network_steps
 from cmcl.messages import CuriosityScores, CuriosityWork
 from cmcl.system import agent_layout, build_icm, make_batched_env
 from services.common import actor_setup, load_state, new_incarnation, save_state
@@ -40,10 +40,10 @@ class ICMWorker:
         if work is None:
             return None, self.report()
         agents = self.layout.icm_agents
-        out = learn.fit_icm(self.icm, work.fit, agents)
+        out = network_steps.fit_icm(self.icm, work.fit, agents)
         if out:
             self.loss = float(np.mean(out["inverse_loss"]) + np.mean(out["forward_loss"]))
-        rho = learn.curiosity_values(self.icm, work.score.rows, agents)
+        rho = network_steps.curiosity_values(self.icm, work.score.rows, agents)
         return CuriosityScores(work.score.slots, work.score.generations, rho, work.updates, self.loss,
                                self.incarnation), self.report()
 

@@ -1,7 +1,7 @@
 """Learner: updates every agent's actor and critic in one batched MADDPG step per minibatch; publishes weights.
 
 Where it sits: replay -> learner -> (|δ| back to replay, weights to rollout workers / teachers). The shell around
-`cmcl.learners.steps.learner_update`, the same function the inline loop calls. The supervisor keeps two update
+`cmcl.learners.network_steps.learner_update`, the same function the inline loop calls. The supervisor keeps two update
 calls in flight, so the replay server samples the next batches while this one computes (prefetch). Weights are
 published once per version as {"version", "weights"} (cmcl.learners.weights).
 """
@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from cmcl.config import ConfigError
-from cmcl.learners import steps as learn
+from cmcl.learners import network_steps
 from cmcl.learners.weights import published_weights
 from cmcl.messages import LearnerBatch, LearnerFeedback
 from cmcl.system import agent_layout, build_maddpg, make_batched_env
@@ -51,7 +51,7 @@ class Learner:
         td = np.empty(batch.slots.shape, np.float32)
         stats: dict[str, Any] = {}
         for i in range(batch.count):
-            stats = learn.learner_update(self.maddpg, batch.minibatch(i, use_weights))
+            stats = network_steps.learner_update(self.maddpg, batch.minibatch(i, use_weights))
             td[i] = stats["td_abs"]
         self.version += 1
         self.losses = {f"agent_{a}": {"critic": float(stats["critic_loss"][a]), "actor": float(stats["actor_loss"][a])}

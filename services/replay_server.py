@@ -1,7 +1,7 @@
 """Replay server: owns the buffer, folds, score columns, λ, every sampler and the rate limiters.
 
 Where it sits: the hub of the flow, and a shell: dedupe, pacing and status around the replay side of Algorithm 1's
-steps (`cmcl.replay.steps`, the same functions the inline loop calls). Rollout `Chunk`s come in (`insert`,
+steps (`cmcl.replay.buffer_steps`, the same functions the inline loop calls). Rollout `Chunk`s come in (`insert`,
 validated by `cmcl.io.records.check_chunk`, idempotent by writer / incarnation / seq); teachers and the ICM ask for
 work (`teacher_work`, `icm_work`) and send scores back keyed by (slot, generation), stale ones dropped
 (`write_teacher_scores`, `write_curiosity`); the learner receives prioritized `LearnerBatch`es (`sample`) and
@@ -32,7 +32,7 @@ from cmcl.messages import (
     check_feedback,
     check_teacher_scores,
 )
-from cmcl.replay import steps as buffer
+from cmcl.replay import buffer_steps
 from cmcl.replay.dedupe import InsertLedger
 from cmcl.replay.difficulty import DifficultyTable, ScoreStamps
 from cmcl.replay.priority import uses_curriculum
@@ -168,7 +168,8 @@ class ReplayServer:
         self._maybe_recompute()
         beta = beta_is(self.config, self.counters["inserts"])
         betas = [beta if w else 0.0 for w in self.layout.importance_weights]
-        batch = buffer.sample_owner_batches(self.replay, n, self.config.maddpg.batch_size, self.sampler_rngs, betas)
+        batch = buffer_steps.sample_owner_batches(self.replay, n, self.config.maddpg.batch_size, self.sampler_rngs,
+                                                  betas)
         ages = (self.counters["updates"] - self.inserted_at[batch.slots.ravel()]).astype(np.float64)
         self.sample_ages = ages[self.rng.integers(0, ages.size, min(ages.size, REPORT_SAMPLES))]
         self._event("updates", n)
@@ -182,7 +183,7 @@ class ReplayServer:
             feedback = check_feedback(result, self.layout.num_agents)
         except MessageError as err:
             return self._reject("bad_feedback", str(err))
-        stale, scores_changed = buffer.apply_learner_feedback(self.replay, self.layout, feedback)
+        stale, scores_changed = buffer_steps.apply_learner_feedback(self.replay, self.layout, feedback)
         self._count_stale(stale)
         self.dirty = self.dirty or scores_changed
         return self.status()
@@ -203,16 +204,16 @@ class ReplayServer:
         steps = min(int(steps), *(self.pacing.teachers[f].allowed_samples() for f in folds))
         if steps < 1 or (self.replay.storage.fold_counts()[folds] == 0).any():
             return None, self.status()
-        fit = buffer.fold_batch_slots(self.replay, folds, cfg.teachers.batch_size, self.rng, steps=steps)
+        fit = buffer_steps.fold_batch_slots(self.replay, folds, cfg.teachers.batch_size, self.rng, steps=steps)
         valid = self.replay.valid_slots()
         age = self.difficulty.stamps(valid, self.replay.generations(valid))[:, folds].astype(np.float64)  # [M, F]
         age[self.replay.storage.fold[valid][:, None] == np.asarray(folds)[None, :]] = np.inf  # own fold: never
         key = age.min(1)
         useful = np.isfinite(key)
-        score = buffer.oldest_slots(valid[useful], key[useful], cfg.service.score_rows_per_call)
+        score = buffer_steps.oldest_slots(valid[useful], key[useful], cfg.service.score_rows_per_call)
         self._event("teacher_steps", steps, folds)
-        return TeacherWork(tuple(folds), buffer.rows_at(self.replay, fit), fit, buffer.score_rows(self.replay, score),
-                           self.counters["updates"]), self.status()
+        return TeacherWork(tuple(folds), buffer_steps.rows_at(self.replay, fit), fit,
+                           buffer_steps.score_rows(self.replay, score), self.counters["updates"]), self.status()
 
     def write_teacher_scores(self, scores: Any) -> ReplayStatus:
         """Errors e[M, A_t, F] of the teachers of `folds` -> c of the rows (eq. 11 over the blind teachers)."""
@@ -224,7 +225,7 @@ class ReplayServer:
             return self._reject("bad_scores", str(err))
         fresh = self.replay.storage.fresh_mask(msg.slots, msg.generations)
         row_fold = self.replay.storage.fold[msg.slots[fresh]]
-        _, stale = buffer.write_difficulty(self.replay, self.difficulty, self.layout.teacher_agents, msg.slots,
+        _, stale = buffer_steps.write_difficulty(self.replay, self.difficulty, self.layout.teacher_agents, msg.slots,
                                            msg.generations, msg.folds, msg.errors, msg.updates)
         self._count_stale(stale)
         for f in msg.folds:
@@ -241,13 +242,13 @@ class ReplayServer:
         steps = min(int(steps), self.pacing.icm.allowed_samples())
         if steps < 1:
             return None, self.status()
-        fit = buffer.uniform_slots(self.replay, (steps, cfg.icm.batch_size), self.rng)
+        fit = buffer_steps.uniform_slots(self.replay, (steps, cfg.icm.batch_size), self.rng)
         valid = self.replay.valid_slots()
         stamps = self.curiosity_stamps.stamps(valid, self.replay.generations(valid))[:, 0]
-        score = buffer.oldest_slots(valid, stamps, cfg.service.score_rows_per_call)
+        score = buffer_steps.oldest_slots(valid, stamps, cfg.service.score_rows_per_call)
         self._event("icm_steps", steps)
-        return CuriosityWork(buffer.rows_at(self.replay, fit, ("obs", "act", "next_obs")),
-                             buffer.score_rows(self.replay, score), self.counters["updates"]), self.status()
+        return CuriosityWork(buffer_steps.rows_at(self.replay, fit, ("obs", "act", "next_obs")),
+                             buffer_steps.score_rows(self.replay, score), self.counters["updates"]), self.status()
 
     def write_curiosity(self, scores: Any) -> ReplayStatus:
         """ρ[M, A_c] (eq. 18) for (slot, generation) pairs from the ICM actor."""
@@ -258,7 +259,7 @@ class ReplayServer:
         except MessageError as err:
             return self._reject("bad_scores", str(err))
         fresh = self.replay.storage.fresh_mask(msg.slots, msg.generations)
-        accepted, stale = buffer.write_curiosity(self.replay, self.layout.icm_agents, msg.slots, msg.generations,
+        accepted, stale = buffer_steps.write_curiosity(self.replay, self.layout.icm_agents, msg.slots, msg.generations,
                                                  msg.rho)
         self._count_stale(stale)
         self.curiosity_stamps.mark(msg.slots[fresh], msg.generations[fresh], 0, msg.updates)

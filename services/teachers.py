@@ -1,9 +1,9 @@
 """Teacher actor: fits the fold-k critics of every teacher-using agent (for its folds k) and scores other folds.
 
 Where it sits: replay -> teachers -> scores back to replay (ALGORITHM.md §3.2, distributed as in §3.9). The shell
-around `cmcl.learners.steps.fit_teachers` / `teacher_errors`, the same functions the inline loop calls. Teacher k
-never sees rows outside fold k when fitting; its errors count only for rows outside fold k (the replay server's
-`DifficultyTable`). Regression targets come from the learner's published target actor and target critic (never
+around `cmcl.learners.network_steps.fit_teachers` / `teacher_errors`, the same functions the inline loop calls.
+Teacher k never sees rows outside fold k when fitting; its errors count only for rows outside fold k (the replay
+server's `DifficultyTable`). Regression targets come from the learner's published target actor and target critic (never
 from a teacher). One fit batch per step is shared by all of this fold's agents (`teachers.fit_batch="shared"`).
 """
 
@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.learners import steps as learn
+from cmcl.learners import network_steps
 from cmcl.learners.teachers import TeacherEnsemble
 from cmcl.learners.weights import load_published
 from cmcl.messages import TeacherScores, TeacherWork
@@ -59,11 +59,12 @@ class TeacherWorker:
             load_published(self.targets, published["weights"], parts=("target_actor", "target_critic"))
             self.version = int(published["version"])
         agents = self.layout.teacher_agents
-        loss = learn.fit_teachers(self.teachers, work.fit, agents, self.targets)
+        loss = network_steps.fit_teachers(self.teachers, work.fit, agents, self.targets)
         self.loss = self.loss if np.isnan(loss) else loss
         self.steps += int(work.fit["obs"].shape[0])
         squared = self.config.teachers.difficulty_error == "squared"
-        errors = learn.teacher_errors(self.teachers, work.score.rows, agents, self.targets, squared)  # [M, A_t, F]
+        # [M, A_t, F]
+        errors = network_steps.teacher_errors(self.teachers, work.score.rows, agents, self.targets, squared)
         self.scores += int(errors.shape[0])
         return TeacherScores(tuple(self.folds), work.score.slots, work.score.generations, errors, work.updates,
                              self.loss, self.incarnation), self.report()

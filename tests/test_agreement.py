@@ -14,10 +14,10 @@ import pytest
 import torch
 
 from cmcl.config import config_from_dict
-from cmcl.learners.steps import learner_update
+from cmcl.learners.network_steps import learner_update
 from cmcl.loop import InlineLoop
 from cmcl.messages import LearnerFeedback
-from cmcl.replay import steps as buffer
+from cmcl.replay import buffer_steps
 from cmcl.system import beta_is
 from services.icm import ICMWorker
 from services.learner import Learner
@@ -77,7 +77,7 @@ def test_difficulty_and_priorities_agree(algorithm):
         work, _ = server.icm_work(1)
         server.write_curiosity(icm.step(without_fit(work))[0])
     everything = np.arange(360)
-    loop._score(buffer.score_rows(loop.replay, everything))  # inline: all K teachers (and the ICM) at once
+    loop._score(buffer_steps.score_rows(loop.replay, everything))  # inline: all K teachers (and the ICM) at once
     for column in ("difficulty", "curiosity"):
         ours, theirs = loop.replay.storage, server.replay.storage
         np.testing.assert_array_equal(ours.scored[column], theirs.scored[column])
@@ -95,7 +95,7 @@ def test_learner_batch_feedback_and_update_agree():
     batch, _ = server.sample(1)
     beta = beta_is(loop.config, server.counters["inserts"])
     betas = [beta if w else 0.0 for w in loop.layout.importance_weights]
-    inline = buffer.sample_owner_batches(loop.replay, 1, loop.config.maddpg.batch_size, rngs, betas)
+    inline = buffer_steps.sample_owner_batches(loop.replay, 1, loop.config.maddpg.batch_size, rngs, betas)
     np.testing.assert_array_equal(batch.slots, inline.slots)
     np.testing.assert_array_equal(batch.is_weights, inline.is_weights)
     for key in ("obs", "act", "rew", "next_obs", "done"):
@@ -108,7 +108,7 @@ def test_learner_batch_feedback_and_update_agree():
     for name, value in loop.maddpg.state_dict()["critic"].items():
         torch.testing.assert_close(learner.maddpg.state_dict()["critic"][name], value)
     server.learner_result(feedback)
-    buffer.apply_learner_feedback(loop.replay, loop.layout,
+    buffer_steps.apply_learner_feedback(loop.replay, loop.layout,
                                   LearnerFeedback(inline.slots, inline.generations, inline_stats["td_abs"][None]))
     for agent in range(loop.layout.num_agents):
         slots = np.unique(batch.slots[0, agent])

@@ -2,7 +2,7 @@
 
 Where it sits: the reference implementation and the baseline the distributed service is measured against.
 It runs the same classes the service runs (built by cmcl.system) through the same step functions
-(cmcl.replay.steps for the buffer side, cmcl.learners.steps for the networks):
+(cmcl.replay.buffer_steps for the buffer side, cmcl.learners.network_steps for the networks):
 rollout of B batched worlds -> replay -> per update (one per `maddpg.update_every` world steps): teacher step,
 ICM step, scoring of the new rows plus `teachers.rescore_rows_per_update` rows of a rolling rescoring, priority
 recompute at the current λ, one MADDPG update of all agents; λ advanced per world step.
@@ -24,10 +24,10 @@ from cmcl.config import Config
 from cmcl.diagnostics import buffer_diagnostics
 from cmcl.io import codec
 from cmcl.io.rundir import RunDirectory, load_checkpoint
-from cmcl.learners import steps as learn
+from cmcl.learners import network_steps
 from cmcl.messages import LearnerFeedback, Rows
 from cmcl.progress import episode_rows, ess_part, finished_episodes, progress_line, solved, window_summary
-from cmcl.replay import steps as buffer
+from cmcl.replay import buffer_steps
 from cmcl.replay.difficulty import DifficultyTable
 from cmcl.replay.priority import uses_curriculum
 from cmcl.replay.ratelimit import steps_due
@@ -134,10 +134,10 @@ class InlineLoop:
             stats["icm_inverse_loss"] = float(np.mean(icm["inverse_loss"]))
             stats["icm_forward_loss"] = float(np.mean(icm["forward_loss"]))
         # A11 and §3.8's rescoring, amortised: new rows are scored before anything samples them
-        slots, c["rescore_cursor"] = buffer.rolling_rescore_slots(self.replay, self.layout, c["rescore_cursor"],
+        slots, c["rescore_cursor"] = buffer_steps.rolling_rescore_slots(self.replay, self.layout, c["rescore_cursor"],
                                                                   cfg.teachers.rescore_rows_per_update)
         for start in range(0, slots.size, RESCORE_CHUNK):
-            self._score(buffer.score_rows(self.replay, slots[start:start + RESCORE_CHUNK]))
+            self._score(buffer_steps.score_rows(self.replay, slots[start:start + RESCORE_CHUNK]))
         if self.prioritized:
             self.replay.recompute_priorities(self.schedule.lam)
         result = self._learner_step()
@@ -153,17 +153,17 @@ class InlineLoop:
             return None
         t = self.config.teachers
         draws = 1 if t.fit_batch == "shared" else len(self.layout.teacher_agents)
-        slots = buffer.fold_batch_slots(self.replay, range(t.num_folds), t.batch_size, self.rng["teacher"], draws)
-        return learn.fit_teachers(self.teachers, buffer.rows_at(self.replay, slots), self.layout.teacher_agents,
-                                  self.maddpg)
+        slots = buffer_steps.fold_batch_slots(self.replay, range(t.num_folds), t.batch_size, self.rng["teacher"], draws)
+        return network_steps.fit_teachers(self.teachers, buffer_steps.rows_at(self.replay, slots),
+                                          self.layout.teacher_agents, self.maddpg)
 
     def _icm_step(self) -> dict[str, Any] | None:
         """One ICM step on S rows drawn uniformly from the buffer (§3.4); None without an ICM."""
         if self.icm is None:
             return None
-        slots = buffer.uniform_slots(self.replay, (1, self.config.icm.batch_size), self.rng["icm"])
-        rows = buffer.rows_at(self.replay, slots, ("obs", "act", "next_obs"))
-        return learn.fit_icm(self.icm, rows, self.layout.icm_agents)
+        slots = buffer_steps.uniform_slots(self.replay, (1, self.config.icm.batch_size), self.rng["icm"])
+        rows = buffer_steps.rows_at(self.replay, slots, ("obs", "act", "next_obs"))
+        return network_steps.fit_icm(self.icm, rows, self.layout.icm_agents)
 
     def _score(self, work: Rows) -> None:
         """Score rows with every teacher (c, eqs. 10–11), the ICM (ρ, eq. 18) and, for ACL td_self, the online
@@ -171,14 +171,14 @@ class InlineLoop:
         rows, slots, gens, layout = work.rows, work.slots, work.generations, self.layout
         if self.teachers is not None:
             squared = self.config.teachers.difficulty_error == "squared"
-            errors = learn.teacher_errors(self.teachers, rows, layout.teacher_agents, self.maddpg, squared)
-            buffer.write_difficulty(self.replay, self.difficulty, layout.teacher_agents, slots, gens,
+            errors = network_steps.teacher_errors(self.teachers, rows, layout.teacher_agents, self.maddpg, squared)
+            buffer_steps.write_difficulty(self.replay, self.difficulty, layout.teacher_agents, slots, gens,
                                     range(self.config.teachers.num_folds), errors, self.counters["updates"])
         if self.icm is not None:
-            rho = learn.curiosity_values(self.icm, rows, layout.icm_agents)
-            buffer.write_curiosity(self.replay, layout.icm_agents, slots, gens, rho)
+            rho = network_steps.curiosity_values(self.icm, rows, layout.icm_agents)
+            buffer_steps.write_curiosity(self.replay, layout.icm_agents, slots, gens, rho)
         if "td_abs" in layout.difficulty_source:
-            self.replay.update_scores("td_abs", slots, gens, learn.online_td_abs(self.maddpg, rows),
+            self.replay.update_scores("td_abs", slots, gens, network_steps.online_td_abs(self.maddpg, rows),
                                       agents=np.arange(layout.num_agents))
 
     def _learner_step(self) -> dict[str, Any]:
@@ -186,11 +186,11 @@ class InlineLoop:
         cfg, layout = self.config, self.layout
         beta = beta_is(cfg, self.counters["env_steps"])
         betas = [beta if isw else 0.0 for isw in layout.importance_weights]
-        batch = buffer.sample_owner_batches(self.replay, 1, cfg.maddpg.batch_size, self.sampler_rngs, betas)
-        stats = learn.learner_update(self.maddpg, batch.minibatch(0, any(layout.importance_weights)), self.icm,
+        batch = buffer_steps.sample_owner_batches(self.replay, 1, cfg.maddpg.batch_size, self.sampler_rngs, betas)
+        stats = network_steps.learner_update(self.maddpg, batch.minibatch(0, any(layout.importance_weights)), self.icm,
                                      layout.icm_agents, cfg.icm.intrinsic_reward_coef)
         feedback = LearnerFeedback(batch.slots, batch.generations, np.asarray(stats["td_abs"])[None])
-        buffer.apply_learner_feedback(self.replay, layout, feedback)
+        buffer_steps.apply_learner_feedback(self.replay, layout, feedback)
         return stats
 
     # ------------------------------------------------------------------ bookkeeping

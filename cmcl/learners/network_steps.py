@@ -2,7 +2,7 @@
 
 Where it sits: one implementation, two runners. `cmcl.loop` calls these on its own models; the service's learner,
 teacher and ICM actors call the same functions on theirs (`services/learner.py`, `teachers.py`, `icm.py`). The
-replay side (what is drawn, what is written back) is `cmcl.replay.steps`.
+replay side (what is drawn, what is written back) is `cmcl.replay.buffer_steps`.
 
   learner update ..... learner_update      minibatch [N, S, ...] -> MADDPG step (eqs. 4–6), |δ| [N, S]
   teacher fit ........ fit_teachers        rows [steps, B, F, S, ...] -> Adam steps of the fold teachers (eq. 9)

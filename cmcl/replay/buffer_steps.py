@@ -2,7 +2,7 @@
 
 Where it sits: one implementation, two runners. `cmcl.loop` calls these functions in Algorithm 1's order on its own
 buffer; `services.replay_server` calls the same functions when a role asks for work or sends results. The learner
-side of each step (networks) is `cmcl.learners.steps`. Numpy only.
+side of each step (networks) is `cmcl.learners.network_steps`. Numpy only.
 
   learner minibatches ...... sample_owner_batches       -> LearnerBatch [n, N, S]      (per-agent samplers, eq. 20)
   learner feedback ......... apply_learner_feedback      <- LearnerFeedback (PER |δ|, ACL td_self)
