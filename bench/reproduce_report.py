@@ -360,12 +360,12 @@ def curriculum_tests(runs: list[dict[str, Any]]) -> str:
             text = f"{d:+.3f} [{lo:+.3f}, {hi:+.3f}]"
         rows.append((a, b, key, text, p))
         pvalues.append(p)
-    secondary = [p for p in pvalues[1:] if p is not None]
-    adjusted = iter(holm(secondary)) if secondary else iter(())
+    # Holm over the whole pre-registered family: a test without its runs yet counts as p = 1 (conservative)
+    adjusted = [None, *holm([1.0 if p is None else p for p in pvalues[1:]])]
     lines = ["| comparison | measure | seeds | difference [bootstrap 95%] | p | p (Holm) |", "| --- " * 6 + "|"]
     for i, (a, b, key, text, p) in enumerate(rows):
         n = f"{len(by_arm[a])} vs {len(by_arm[b])}"
-        adj = "primary" if i == 0 else ("" if p is None else f"{next(adjusted):.3f}")
+        adj = "primary" if i == 0 else "" if p is None else f"{adjusted[i]:.3f}"
         lines.append(f"| {ARM_LABEL[a]} − {ARM_LABEL[b]} | {key} | {n} | {text} | "
                      f"{'' if p is None else f'{p:.3f}'} | {adj} |")
     return "\n".join(lines)
