@@ -134,17 +134,22 @@ class RunDirectory:
         """Where each service role keeps its checkpoint (created if missing): learner / icm (VerifiedFile bases),
         replay (the replay store's folder), supervisor (its counters, JSON), teacher (the folder of the teacher
         actors' files, one per fold group)."""
-        base = self.checkpoints / "service"
+        base = self.service_dir
         base.mkdir(parents=True, exist_ok=True)
         return {**{role: base / f"{role}.pt" for role in SERVICE_ROLES}, "replay": base / "replay",
                 "supervisor": base / "supervisor.json", "teacher": base}
+
+    @property
+    def service_dir(self) -> Path:
+        """The folder of the service's checkpoints (not created; see `service_paths`)."""
+        return self.checkpoints / "service"
 
     def runners(self) -> set[str]:
         """Which runners have written a policy checkpoint here: a subset of {"inline", "service"}."""
         found = set()
         if any(self.checkpoints.glob(CHECKPOINT_GLOB)):
             found.add("inline")
-        if VerifiedFile(self.checkpoints / "service" / "learner.pt").manifest.exists():
+        if VerifiedFile(self.service_dir / "learner.pt").manifest.exists():
             found.add("service")
         return found
 
@@ -163,7 +168,7 @@ class RunDirectory:
                 break
             except (CheckpointError, OSError, RuntimeError):
                 continue
-        learner = VerifiedFile(self.checkpoints / "service" / "learner.pt")
+        learner = VerifiedFile(self.service_dir / "learner.pt")
         loaded = learner.load()
         if loaded.payload is not None and loaded.generation is not None:
             path = learner.file_of(loaded.generation)
