@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -19,8 +20,10 @@ import numpy as np
 import torch
 
 from cmcl.config import Config
+from cmcl.envs.batched_spread import BatchedSparseSpread
 from cmcl.io.rundir import PolicyCheckpoint, RunDirectory, load_checkpoint
 from cmcl.learners.maddpg import MADDPG
+from cmcl.stalls import MissAnatomy, miss_anatomy
 from cmcl.system import agent_layout, build_maddpg, make_batched_env, make_parallel_env, to_env_actions
 
 EVAL_SEED_OFFSET = 10_000  # evaluation worlds never reuse the training seed's worlds
@@ -42,7 +45,8 @@ def evaluate_policy(config: Config, maddpg: MADDPG | None, episodes: int = 100, 
 
     random_teams: teams whose agents act uniformly at random while the others use `maddpg` (e.g. ("prey",) to
     pit trained predators against random prey). Returns means and standard deviations over episodes: coverage
-    (final step), success, collisions, predator_win, and the team returns {team: mean}.
+    (final step), success, collisions, predator_win, the team returns {team: mean}, and in navigation "misses":
+    where the final step misses landmarks (`cmcl.stalls.MissAnatomy` as a dict).
     """
     torch.set_num_threads(1)
     rng = np.random.default_rng(seed + EVAL_SEED_OFFSET)
@@ -63,6 +67,10 @@ def evaluate_policy(config: Config, maddpg: MADDPG | None, episodes: int = 100, 
         obs, _, _, info = env.step(actions)
     ep = info["episode"]
     out: dict[str, Any] = {"episodes": episodes, "policy": "random" if maddpg is None else "trained"}
+    if isinstance(env, BatchedSparseSpread):  # where the landmarks were missed (cmcl.stalls)
+        state = env.get_state()
+        out["misses"] = asdict(miss_anatomy(state["positions"], state["landmarks"], env.params.cover_radius,
+                                            env.params.agent_radius))
     for key in ("coverage", "success", "collisions", "wall_hits", "captures", "predator_win"):
         if key in ep:
             values = np.asarray(ep[key], dtype=np.float64)
@@ -134,6 +142,8 @@ def main(argv: list[str] | None = None) -> int:
     result = evaluate_policy(config, maddpg, args.episodes, args.seed)
     result["checkpoint"] = None if maddpg is None else str(getattr(checkpoint, "path", checkpoint))
     print(json.dumps(result, indent=2))
+    if "misses" in result:
+        print("\n".join(MissAnatomy(**result["misses"]).lines()), file=sys.stderr)  # stdout stays JSON
     if not args.no_gif:
         gif = render_gif(config, maddpg, args.gif or run.path / ("eval_random.gif" if args.random else "eval.gif"),
                          args.seed)
