@@ -62,7 +62,7 @@ class Supervisor:
         self.pending: dict[Any, tuple[str, int, int]] = {}  # ref -> (kind, actor index, submission number)
         self.submitted = 0  # calls tracked so far (numbers them in submission order)
         self.inflight: Counter[tuple[str, int]] = Counter()  # calls in flight per (role, actor index)
-        self.status: ReplayStatus = ray.get(roles.replay.status.remote())
+        self.status: ReplayStatus = self._ask_replay("status")
         self.status_number = 0  # submission number of the replay call that returned `status`
         self.weights = roles.learner.publish.remote()
         self.version = -1
@@ -285,16 +285,23 @@ class Supervisor:
             self._settle()
         return self.status.update_deficit < 1 and self.status.scoring_deficit < 1
 
+    def _ask_replay(self, method: str) -> Any:
+        """The reply of one of the replay server's read-only methods ("status", "report"), waited for. The call is
+        retried until the server answers: one that reaches a process that has just died, before Ray has noticed
+        (ActorUnavailableError), runs again on the restarted server; a server out of restarts raises
+        ActorDiedError."""
+        return ray.get(getattr(self.roles.replay, method).options(max_task_retries=-1).remote())
+
     def _settle(self) -> None:
         """Drain every call in flight, then take the replay server's status now (newer than any reply)."""
         self.drain()
-        self.status, self.status_number = ray.get(self.roles.replay.status.remote()), self.submitted
+        self.status, self.status_number = self._ask_replay("status"), self.submitted
 
     def final_cut(self) -> None:
         """The end of a run as one consistent cut: settle (drain, fresh status), then one final replay report, so
         the metrics, the summary and the checkpoint all describe the same state."""
         self._settle()
-        self._apply("replay_report", 0, ray.get(self.roles.replay.report.remote()))
+        self._apply("replay_report", 0, self._ask_replay("report"))
 
     def checkpoint(self) -> None:
         """Drain, then have every role save its own state atomically; then the supervisor's counters. A role that

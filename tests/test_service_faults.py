@@ -229,3 +229,20 @@ def test_the_loss_of_the_worker_node_is_survived(tmp_path):
     # restarts, not failed calls: whether a call was in flight when the node went is timing (the 10-run loop saw 0)
     assert result["restarts"] == 1 and result["num_restarts"] == 1
     assert result["recovered_after_s"] > 0
+
+
+def test_the_final_cut_right_after_the_replay_server_is_killed_waits_for_its_restart(tmp_path, ray_cluster):
+    """The supervisor's own calls to the replay server (status, the final report) are read-only: a call that reaches
+    the server's dead process before Ray has noticed the death (ActorUnavailableError) is retried on the restarted
+    server instead of ending the run. Found as a rare failure of the snapshot test above under load."""
+    ray = ray_cluster
+    config = with_service(tiny("maddpg", tmp_path / "cut-after-kill", episodes=24), max_restarts=4)
+    roles, metrics, supervisor = supervised(config)
+    supervisor.run()
+    before = supervisor.status.env_steps
+    for _ in range(3):  # each time, the call is on its way while the process is freshly dead
+        sigkill_actor(roles.replay)
+        supervisor.final_cut()
+        assert supervisor.last_replay_report is not None
+        assert supervisor.status.env_steps == before, "the restarted server restores its snapshot"
+    kill_all(ray, roles)
