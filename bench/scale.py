@@ -33,9 +33,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.learner_throughput import filled_loop  # noqa: E402
-from bench.time_to_solve import WINDOW, first_reaching  # noqa: E402
 from cmcl.io.rundir import RunDirectory  # noqa: E402
 from cmcl.loop import InlineLoop  # noqa: E402
+from experiments.measures import WINDOW, first_reaching  # noqa: E402
 
 NETWORKS = {  # network kind -> (maddpg.share_parameters, teachers.share_parameters)
     "own": (False, False),  # per-agent actors, critics and (agent, fold) teachers: the paper's

@@ -1,18 +1,18 @@
-"""The figures of the reproduction grid (bench/reproduce.py) in the paper's form, each labelled with the budget it
-rests on: Figs. 8, 9, 12 and 13, success and episodes-to-solve plots, and the ablations' coverage curves. Drawn by
-`python bench/reproduce_report.py` into <out>/figures/*.png."""
+"""The figures of the paper's grids in the paper's form, each labelled with the budget it rests on: Figs. 8, 9, 12
+and 13, success and episodes-to-solve plots, and the ablations' coverage curves; PNGs into <results>/figures/
+(`python -m experiments figures`, also drawn by `python -m experiments report`)."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy import stats
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from reproduce_report import COLOUR, LABEL, ORDER, WINDOW, mean_ci  # noqa: E402
+from experiments.labels import COLOUR, LABEL, ORDER
+from experiments.measures import WINDOW
+from experiments.stats import mean_ci
 
 
 def band(ax: Any, curves: list[list[float]], colour: str, label: str) -> None:

@@ -7,8 +7,8 @@ the training final-step coverage at 25/50/75/100 % of the budget, the uniform ra
 the same variant (200 worlds), and the wall seconds of training. One JSON per run in ``<out>/<id>.json``; a rerun
 skips the runs that have one.
 
-    python bench/calibrate_task.py --candidates n6 r005 n8 --episodes 20000 --seed 0
-    python bench/calibrate_task.py --table
+    python -m experiments.calibrate --candidates n6 r005 n8 --episodes 20000 --seed 0
+    python -m experiments.calibrate --table
 """
 
 from __future__ import annotations
@@ -22,17 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "bench"))
-
-from reproduce import die_with_parent  # noqa: E402
-from time_to_solve import WINDOW  # noqa: E402
-
-from cmcl.config import load_config  # noqa: E402
-from cmcl.evaluate import evaluate_policy  # noqa: E402
-from cmcl.io.atomic import atomic_write_bytes  # noqa: E402
-from cmcl.io.rundir import RunDirectory  # noqa: E402
+from cmcl.config import load_config
+from cmcl.evaluate import evaluate_policy
+from cmcl.io.atomic import atomic_write_bytes
+from cmcl.io.rundir import RunDirectory
+from experiments.grids import RESULTS, ROOT
+from experiments.measures import WINDOW
+from experiments.runner import die_with_parent
 
 CANDIDATES = {  # name -> --set overrides of configs/spread_maddpg.toml (every other value: the shared defaults)
     "n4": [],  # the current task, for reference
@@ -66,7 +62,7 @@ def calibrate(name: str, seed: int, episodes: int, out: Path, budget: int) -> di
     started = time.perf_counter()
     subprocess.run([sys.executable, "-m", "cmcl.loop", "--config", str(ROOT / "configs" / "spread_maddpg.toml"),
                     *[a for s in sets for a in ("--set", s)], "--overwrite", "--quiet"], cwd=ROOT, check=True,
-                   stdout=subprocess.DEVNULL, preexec_fn=die_with_parent)
+                   stdout=subprocess.DEVNULL, preexec_fn=die_with_parent())
     rows = list(RunDirectory.open(run_path).rows("episode"))
     coverage = np.array([r["coverage"] for r in rows], dtype=np.float64)
     config = load_config(ROOT / "configs" / "spread_maddpg.toml", [*CANDIDATES[name], "run.dir=unused"])
@@ -100,7 +96,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--episodes", type=int, default=20_000, help="episodes to train (at most --budget)")
     parser.add_argument("--budget", type=int, default=20_000, help="the budget the fractions refer to")
-    parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "calibration"))
+    parser.add_argument("--out", default=str(RESULTS / "calibration"))
     parser.add_argument("--table", action="store_true", help="print the table of what has finished, train nothing")
     args = parser.parse_args()
     out = Path(args.out)

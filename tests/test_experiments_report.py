@@ -1,20 +1,13 @@
-"""The statistics of the reproduction report (bench/reproduce_report.py): intervals and paired differences."""
+"""The statistics and tables of the report (experiments.stats, experiments.tables, experiments.curriculum_tables):
+intervals, censored times, paired differences, Holm; and the blocks of docs/RESULTS.md from the committed results."""
 
 import numpy as np
 import pytest
 from scipy import stats
 
-from bench.reproduce_report import (
-    ablation_table,
-    bootstrap_ci,
-    curriculum_tests,
-    fmt,
-    holm,
-    km_median,
-    logrank_p,
-    mean_ci,
-    paired,
-)
+from experiments.curriculum_tables import curriculum_tests
+from experiments.stats import bootstrap_ci, fmt, holm, km_median, logrank_p, mean_ci, paired
+from experiments.tables import ablation_table
 
 
 def test_mean_ci_is_the_student_t_interval():
@@ -69,7 +62,7 @@ def test_the_ablation_figure_draws_a_panel_per_budget(tmp_path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from bench.reproduce_figures import ablation_figure
+    from experiments.figures import ablation_figure
 
     def run(ablation, seed, budget):
         curve = list(np.linspace(0, 1, budget // 100))
@@ -117,3 +110,51 @@ def test_curriculum_tests_put_the_primary_comparison_first_and_holm_correct_the_
     lines = curriculum_tests(runs).splitlines()[2:]
     assert lines[0].startswith("| CMCL − MADDPG | auc_coverage | 5 vs 5 | +0.") and lines[0].endswith("| primary |")
     assert len(lines) == 9 and all(line.split(" | ")[-1].strip(" |") for line in lines[1:])
+
+
+def test_the_report_of_the_committed_results_is_the_page_as_committed(tmp_path):
+    """`python -m experiments report --update docs/RESULTS.md` on the committed summaries changes nothing: the
+    page's tables are those of its results."""
+    from experiments.grids import ROOT
+    from experiments.report import blocks, update
+
+    page = tmp_path / "RESULTS.md"
+    page.write_text((ROOT / "docs" / "RESULTS.md").read_text())
+    new = blocks()
+    assert {"spread", "seeds", "tests", "ablations", "tag", "tagtests", "curriculum", "curriculumtests",
+            "curriculumhard", "curriculumhardtests", "timetosolve"} <= set(new)
+    update(page, new)
+    assert page.read_text() == (ROOT / "docs" / "RESULTS.md").read_text()
+
+
+def test_the_hard_curriculum_grid_gets_the_same_tables_in_its_own_blocks(tmp_path):
+    import shutil
+
+    from experiments.grids import RESULTS
+    from experiments.report import NO_RUNS, blocks
+
+    empty = blocks(tmp_path)
+    assert empty["curriculumhard"] == empty["curriculumhardtests"] == NO_RUNS
+    assert empty["curriculum"] == NO_RUNS  # no summaries under this results root at all
+    shutil.copytree(RESULTS / "curriculum" / "summaries", tmp_path / "curriculum_hard" / "summaries")
+    both = blocks(tmp_path)
+    committed = blocks()
+    assert both["curriculumhard"] == committed["curriculum"] != NO_RUNS
+    assert both["curriculumhardtests"] == committed["curriculumtests"]
+
+
+def test_the_older_time_to_solve_log_reads_as_summaries_and_counts_as_finished(tmp_path):
+    import json
+
+    from experiments.store import ResultsStore
+
+    line = {"id": "schedule_inline_maddpg_u1_b128_s0", "mode": "inline", "algorithm": "maddpg", "seed": 0,
+            "update_every": 1, "batch_size": 128, "episodes": 1904, "episodes_to_90": None, "wall_s": 305.3,
+            "held_out": {"coverage": 0.18, "success": 0.0, "collisions": 7.1, "wall_hits": 22.1}}
+    (tmp_path / "results.jsonl").write_text(json.dumps(line) + "\n")
+    store = ResultsStore(tmp_path)
+    [run] = store.load()
+    assert run["grid"] == "schedule" and run["task"] == "spread" and run["held_out_coverage"] == 0.18
+    assert "held_out" not in run and store.finished() == {line["id"]}
+    store.write({**run, "held_out_coverage": 0.5})  # a summary of the same id wins over the log's line
+    assert [r["held_out_coverage"] for r in store.load()] == [0.5]

@@ -1,0 +1,90 @@
+"""Command line of the experiments: run grids, write the report, draw the figures.
+
+    python -m experiments run GRID [GRID ...] [--seeds 0 1 2 3 4] [--jobs 2] [--out DIR]
+            [--arms ...] [--ablations ...] [--algorithms ...] [--episodes 20000]
+    python -m experiments report [--update docs/RESULTS.md] [--results bench/results]
+    python -m experiments figures [--results bench/results]
+
+`run` is resumable (experiments.runner): rerun the same command after a stop. Its results go to the grid's folder
+of the registry (experiments.grids.GRIDS, under bench/results/) unless --out names another. Exit code of `run`:
+0 when every run finished, 1 when some failed (each is named in the output).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from cmcl.config import ALGORITHMS
+from experiments.grids import ABLATIONS, CURRICULUM_ARMS, EPISODES, GRIDS, ROOT, grid, prefix_reference_runs
+from experiments.report import blocks, figures, update
+from experiments.runner import run_grid
+from experiments.store import ResultsStore
+
+
+def shown(path: Path) -> str:
+    return str(path.relative_to(ROOT) if path.is_relative_to(ROOT) else path)
+
+
+def run(args: argparse.Namespace) -> int:
+    folders = {GRIDS[g] for g in args.grids}
+    if args.out is None and len(folders) > 1:
+        print(f"error: grids {args.grids} keep their results in different folders; run them one at a time or "
+              f"name one with --out", file=sys.stderr)
+        return 2
+    store = ResultsStore(args.out or folders.pop())
+    store.root.mkdir(parents=True, exist_ok=True)
+    runs = [r for r in grid(args.grids, args.seeds, args.algorithms, args.episodes)
+            if (r.ablation is None or r.ablation in args.ablations) and (r.arm is None or r.arm in args.arms)]
+    runs += prefix_reference_runs(runs, args.episodes)
+    failed = run_grid(runs, store, args.jobs, report=lambda line: print(line, flush=True))
+    print(f"results: {shown(store.write_csv())}" + (f"; {failed} runs failed (a rerun retries them)" if failed else ""))
+    return 1 if failed else 0
+
+
+def report(args: argparse.Namespace) -> int:
+    new = blocks(args.results)
+    for name, body in new.items():
+        print(f"{name}:\n{body}\n")
+    for png in figures(args.results):
+        print(f"figure: {shown(png)}")
+    if args.update:
+        update(Path(args.update), new)
+    return 0
+
+
+def draw(args: argparse.Namespace) -> int:
+    for png in figures(args.results):
+        print(f"figure: {shown(png)}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m experiments", description=__doc__.split("\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+    p = commands.add_parser("run", help="train the runs of one or more grids (resumable)")
+    p.add_argument("grids", nargs="+", choices=list(GRIDS), metavar="GRID", help=f"one of {', '.join(GRIDS)}")
+    p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
+    p.add_argument("--jobs", type=int, default=1, help="runs trained at once (one core each)")
+    p.add_argument("--out", type=Path, default=None, help="results folder (default: the grid's, bench/results/...)")
+    p.add_argument("--arms", nargs="+", choices=list(CURRICULUM_ARMS), default=list(CURRICULUM_ARMS),
+                   help="curriculum grids: only these arms")
+    p.add_argument("--ablations", nargs="+", choices=list(ABLATIONS), default=list(ABLATIONS),
+                   help="ablations grid: only these variants")
+    p.add_argument("--algorithms", nargs="+", choices=ALGORITHMS, default=list(ALGORITHMS))
+    p.add_argument("--episodes", type=int, default=EPISODES, help="budget of every run (the paper: 20,000)")
+    p.set_defaults(handler=run)
+    for name, handler, text in (("report", report, "print the tables, draw the figures, optionally update a page"),
+                                ("figures", draw, "draw the figures only")):
+        p = commands.add_parser(name, help=text)
+        p.add_argument("--results", type=Path, default=None, help="results root (default bench/results)")
+        if name == "report":
+            p.add_argument("--update", help="a markdown file whose marked blocks get the new tables")
+        p.set_defaults(handler=handler)
+    args = parser.parse_args(argv)
+    return args.handler(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

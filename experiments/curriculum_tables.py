@@ -1,0 +1,81 @@
+"""The tables of the curriculum grids (issue 21; the protocol of docs/RESULTS.md): per arm the learning measures,
+the stalls and the sampling distribution over training; then the pre-registered tests, one primary comparison
+unadjusted and every other one Holm-corrected."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from experiments.grids import CURRICULUM_ARMS
+from experiments.labels import ARM_LABEL
+from experiments.stats import TIMES, difference, fmt, fmt_time, holm, logrank_p
+
+PRIMARY = ("cmcl", "maddpg", "auc_coverage")  # the pre-registered primary comparison (docs/RESULTS.md, protocol)
+SECONDARY = [("cmcl", "per", "auc_coverage"), ("cmcl", "acl", "auc_coverage"), ("cmcl", "cmcl_permuted",
+             "auc_coverage"), ("cmcl", "cmcl_anti", "auc_coverage"), ("acl", "maddpg", "auc_coverage"),
+             ("per", "maddpg", "auc_coverage"), ("cmcl", "maddpg", "held_out_success"),
+             ("cmcl", "maddpg", "episodes_to_90")]  # Holm-corrected together
+STALL = (0.65, 0.85)  # final MA coverage of a run stuck at about three landmarks of four (issue 21)
+
+
+def curriculum_table(runs: list[dict[str, Any]]) -> str:
+    """The curriculum grid per arm: learning measures, stalls, and the sampling distribution over training."""
+    keys = [("area under coverage", "auc_coverage", 3), ("held-out coverage", "held_out_coverage", 3),
+            ("held-out success", "held_out_success", 3), ("episodes to MA 0.9", "episodes_to_90", 0)]
+    lines = ["| arm | seeds | " + " | ".join(k[0] for k in keys) + " | stalled at ~3 of 4 | ESS over training | "
+             "ESS, first quarter | reward-bearing rows, first quarter: sampled / buffer | wall s |",
+             "| --- " * (len(keys) + 7) + "|"]
+    for arm in CURRICULUM_ARMS:
+        rs = sorted((r for r in runs if r.get("arm") == arm), key=lambda r: r["seed"])
+        if not rs:
+            continue
+        stalled = sum(STALL[0] <= r["final_ma_coverage"] <= STALL[1] for r in rs)
+        sampled, buffer = (np.mean([first_quarter(r, k) for r in rs]) for k in ("reward_rows_sampled",
+                                                                                 "reward_rows_buffer"))
+        lines.append(f"| {ARM_LABEL[arm]} | {len(rs)} | " + " | ".join(fmt([r.get(k) for r in rs], d, k)
+                                                                   for _, k, d in keys)
+                     + f" | {stalled}/{len(rs)} | {fmt([r['ess_mean'] for r in rs], 2, 'auc_coverage')} | "
+                     f"{fmt([r['ess_first_quarter'] for r in rs], 2, 'auc_coverage')} | {sampled:.3f} / {buffer:.3f} | "
+                     f"{fmt([r['wall_s'] for r in rs], 0)} |")
+    return "\n".join(lines)
+
+
+def first_quarter(run: dict[str, Any], key: str) -> float:
+    """Mean of a run's sampling_curve column over its first quarter of episodes (λ < 0.5 at the default stride,
+    where the curriculum can exclude rows)."""
+    curve = run["sampling_curve"]
+    values = [v for e, v in zip(curve["episode"], curve[key], strict=True) if e <= run["budget"] / 4]
+    return float(np.mean(values)) if values else float("nan")
+
+
+def curriculum_tests(runs: list[dict[str, Any]]) -> str:
+    """The protocol's tests: the primary comparison unadjusted, every other one Holm-corrected; times to MA 0.9 by
+    KM medians and a log-rank test."""
+    by_arm = {arm: [r for r in runs if r.get("arm") == arm] for arm in CURRICULUM_ARMS}
+    rows, pvalues = [], []
+    for a, b, key in [PRIMARY, *SECONDARY]:
+        ra, rb = by_arm[a], by_arm[b]
+        if len(ra) < 2 or len(rb) < 2:
+            rows.append((a, b, key, "n/a (fewer than 2 runs)", None))
+            pvalues.append(None)
+            continue
+        if key in TIMES:
+            ta, tb = [r[key] for r in ra], [r[key] for r in rb]
+            p = logrank_p(ta, tb, ra[0]["budget"])
+            text = f"KM median {fmt_time(ta)} vs {fmt_time(tb)}"
+        else:
+            d, lo, hi, p = difference([r[key] for r in ra], [r[key] for r in rb])
+            text = f"{d:+.3f} [{lo:+.3f}, {hi:+.3f}]"
+        rows.append((a, b, key, text, p))
+        pvalues.append(p)
+    # Holm over the whole pre-registered family: a test without its runs yet counts as p = 1 (conservative)
+    adjusted = [None, *holm([1.0 if p is None else p for p in pvalues[1:]])]
+    lines = ["| comparison | measure | seeds | difference [bootstrap 95%] | p | p (Holm) |", "| --- " * 6 + "|"]
+    for i, (a, b, key, text, p) in enumerate(rows):
+        n = f"{len(by_arm[a])} vs {len(by_arm[b])}"
+        adj = "primary" if i == 0 else "" if p is None else f"{adjusted[i]:.3f}"
+        lines.append(f"| {ARM_LABEL[a]} − {ARM_LABEL[b]} | {key} | {n} | {text} | "
+                     f"{'' if p is None else f'{p:.3f}'} | {adj} |")
+    return "\n".join(lines)

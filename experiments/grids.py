@@ -1,0 +1,181 @@
+"""The grid registry: every learning grid of the project, the runs it is made of, and where its results live.
+
+Grids (the shared defaults of cmcl/config/ for every algorithm unless a run names overrides):
+
+* ``spread``: sparse cooperative navigation N=4 with maddpg, per, acl and cmcl, 20,000 episodes, no early stop
+  (the paper's Figs. 8-9);
+* ``tag``: predator-prey, predators learning with each algorithm against MADDPG prey (Fig. 12);
+* ``winrate``: CMCL predators against ACL prey and against PER-MADDPG prey (Fig. 13);
+* ``ablations``: CMCL on navigation with one setting changed at a time (ABLATIONS; the unchanged CMCL runs of
+  ``spread`` are their reference);
+* ``curriculum`` (issue 21, the pre-registered protocol of docs/RESULTS.md): navigation N=4 with the arms of
+  CURRICULUM_ARMS -- maddpg, per, acl, cmcl, and CMCL's two controls, ``cmcl_permuted`` (its priorities shuffled
+  across rows: same ESS, no information) and ``cmcl_anti`` (difficulty reversed) -- progress rows every 200
+  episodes so that the summary holds the sampling distribution's ESS and reward-row shares over training;
+* ``curriculum_hard``: the same arms on the calibrated harder navigation of configs/spread_hard.toml;
+* ``schedule``: time to solve navigation with MADDPG inline, maddpg.update_every x maddpg.batch_size, each run
+  stopped once its 100-episode moving-average coverage reaches 0.95 or after 900 s of training;
+* ``algorithms``: time to solve with each algorithm, inline and on the embedded service, same stops.
+
+Runs are ordered seed outermost (seed k of every cell before any seed k+1), so a grid stopped part-way has
+balanced arms. A run's id names its summary file, so ids never change once results exist.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+from cmcl.config import ALGORITHMS
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "bench" / "results"
+EPISODES = 20_000  # the paper's budget per run
+
+# arm -> (config file, --set overrides) of the curriculum grids; every other setting is the shared default
+CURRICULUM_ARMS = {
+    "maddpg": ("spread_maddpg.toml", []),
+    "per": ("spread_per.toml", []),
+    "acl": ("spread_acl.toml", []),
+    "cmcl": ("spread_cmcl.toml", []),
+    "cmcl_permuted": ("spread_cmcl.toml", ["teachers.difficulty_transform=permuted"]),
+    "cmcl_anti": ("spread_cmcl.toml", ["teachers.difficulty_transform=reversed"]),
+}
+HARD_CONFIG = "spread_hard.toml"  # the calibrated harder task (docs/RESULTS.md, "A harder task: calibration")
+CURRICULUM_LOG_EVERY = 200  # episodes between progress rows (the ESS curve's resolution) in the curriculum grids
+
+ABLATIONS = {  # name -> (config file, --set overrides, episode budget or None for the grid's) of CMCL variants
+    "eta0": ("spread_cmcl.toml", ["teams.agent.eta=0.0"], None),
+    "eta1": ("spread_cmcl.toml", ["teams.agent.eta=1.0"], None),
+    "k2": ("spread_cmcl.toml", ["teachers.num_folds=2"], None),
+    # the default since 2026-12 (A1); kept so its committed 5-seed results (run at the old "max" default) stay named
+    "rank": ("spread_cmcl.toml", ["teachers.difficulty_norm=rank"], None),
+    "max": ("spread_cmcl.toml", ["teachers.difficulty_norm=max"], None),  # the pre-2026-12 normalisation
+    "stride_x2": ("spread_cmcl.toml", ["curriculum.stride=6e-6"], None),  # λ_max at a quarter of training
+    "stride_half": ("spread_cmcl.toml", ["curriculum.stride=1.5e-6"], None),  # λ_max at the end
+    "is_on": ("spread_cmcl.toml", ["teams.agent.is_correction=true"], None),
+    # One update per world step: 16 times the updates, about 35 min a run here, so it runs the first 4,000
+    # episodes only and is compared with the reference runs' first 4,000 episodes (prefix_reference_runs).
+    "paper_schedule": ("paper/spread_cmcl.toml", [], 4_000),
+}
+
+UPDATE_EVERY, BATCHES = (1, 4, 16, 64), (128, 512)  # the schedule grid's maddpg.update_every x maddpg.batch_size
+SOLVE_STOP_COVERAGE, SOLVE_MAX_SECONDS = 0.95, 900.0  # the time-to-solve grids' stops (moving average; seconds)
+
+
+@dataclass(frozen=True)
+class Run:
+    """One learning run of a grid. id: its name (summary file, run folder); budget: episodes; config: a file
+    under configs/ (default `<task>_<algorithm>.toml`); sets: extra `--set SECTION.KEY=VALUE` overrides; source:
+    the id of a finished run whose first `budget` episodes this one reads instead of training (a prefix
+    reference); mode: the runner; stop_coverage / max_seconds: early stops (None: train the whole budget)."""
+
+    id: str
+    grid: str
+    task: Literal["spread", "tag"]
+    algorithm: str
+    prey_algorithm: str | None
+    seed: int
+    budget: int
+    arm: str | None = None
+    ablation: str | None = None
+    config: str | None = None
+    sets: tuple[str, ...] = ()
+    source: str | None = None
+    mode: Literal["inline", "service"] = "inline"
+    stop_coverage: float | None = None
+    max_seconds: float | None = None
+
+    def record(self) -> dict[str, Any]:
+        """The run's fields as its summary stores them: the seven every summary has, then those set."""
+        out: dict[str, Any] = {"id": self.id, "grid": self.grid, "task": self.task, "algorithm": self.algorithm,
+                               "prey_algorithm": self.prey_algorithm, "seed": self.seed, "budget": self.budget}
+        if self.source is not None:
+            out["ablation"] = self.ablation  # a prefix reference: ablation None, its source named
+        for key in ("arm", "ablation", "config", "source", "stop_coverage", "max_seconds"):
+            if getattr(self, key) is not None:
+                out[key] = getattr(self, key)
+        if self.sets:
+            out["sets"] = list(self.sets)
+        if self.mode != "inline":
+            out["mode"] = self.mode
+        return out
+
+
+def curriculum_runs(name: str, seed: int, budget: int) -> list[Run]:
+    runs = []
+    for arm, (config, sets) in CURRICULUM_ARMS.items():
+        algorithm = arm.split("_")[0]
+        if name == "curriculum_hard":  # the same arms on the harder task: its config, each algorithm
+            config, sets = HARD_CONFIG, [f"teams.agent.algorithm={algorithm}", *sets]
+        runs.append(Run(f"{name}_{arm}_s{seed}", name, "spread", algorithm, None, seed, budget, arm=arm,
+                        config=config, sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *sets)))
+    return runs
+
+
+def ablation_runs(seed: int, budget: int) -> list[Run]:
+    return [Run(f"ablation_{name}_s{seed}", "ablations", "spread", "cmcl", None, seed,
+                min(budget, own_budget or budget), ablation=name, config=config, sets=tuple(sets))
+            for name, (config, sets, own_budget) in ABLATIONS.items()]
+
+
+def paper_runs(name: str, seed: int, budget: int, algorithms: list[str]) -> list[Run]:
+    """The spread, tag and winrate grids: one run per (task, predators' or agents' algorithm, prey)."""
+    if name == "spread":
+        cells = [("spread", a, None) for a in reversed(algorithms)]  # the longest (cmcl) first
+    elif name == "tag":
+        cells = [("tag", a, "maddpg") for a in reversed(algorithms)]
+    else:
+        cells = [("tag", "cmcl", prey) for prey in ("acl", "per")]
+    return [Run(f"{task}_{a}_s{seed}" if prey in (None, "maddpg") else f"{task}_{a}_vs_{prey}_s{seed}",
+                name, task, a, prey, seed, budget) for task, a, prey in cells]
+
+
+def solve_runs(name: str, seed: int, budget: int, algorithms: list[str]) -> list[Run]:
+    """The time-to-solve grids (schedule: MADDPG over update_every x batch; algorithms: inline and service)."""
+    stops = {"stop_coverage": SOLVE_STOP_COVERAGE, "max_seconds": SOLVE_MAX_SECONDS}
+    if name == "schedule":
+        return [Run(f"schedule_inline_maddpg_u{every}_b{batch}_s{seed}", name, "spread", "maddpg", None, seed,
+                    budget, sets=(f"maddpg.update_every={every}", f"maddpg.batch_size={batch}"), **stops)
+                for every in UPDATE_EVERY for batch in BATCHES]
+    return [Run(f"algorithms_{mode}_{a}_s{seed}", name, "spread", a, None, seed, budget, mode=mode, **stops)
+            for mode in ("inline", "service") for a in reversed(algorithms)]
+
+
+GRIDS = {  # name -> results folder (its summaries/ and runs/)
+    "spread": RESULTS / "reproduce", "tag": RESULTS / "reproduce", "winrate": RESULTS / "reproduce",
+    "ablations": RESULTS / "reproduce", "curriculum": RESULTS / "curriculum",
+    "curriculum_hard": RESULTS / "curriculum_hard", "schedule": RESULTS / "time_to_solve",
+    "algorithms": RESULTS / "time_to_solve",
+}
+
+
+def grid(names: list[str], seeds: list[int], algorithms: list[str] = ALGORITHMS,
+         budget: int = EPISODES) -> list[Run]:
+    """The runs of the named grids, seed outermost (every cell has seed k before any has seed k+1), duplicates
+    (same id) once."""
+    unknown = sorted(set(names) - set(GRIDS))
+    if unknown:
+        raise ValueError(f"grid: unknown {unknown}; known {sorted(GRIDS)}")
+    runs = []
+    for seed in seeds:
+        for name in names:
+            if name.startswith("curriculum"):
+                runs += curriculum_runs(name, seed, budget)
+            elif name == "ablations":
+                runs += ablation_runs(seed, budget)
+            elif name in ("schedule", "algorithms"):
+                runs += solve_runs(name, seed, budget, list(algorithms))
+            else:
+                runs += paper_runs(name, seed, budget, list(algorithms))
+    return list({r.id: r for r in runs}.values())
+
+
+def prefix_reference_runs(runs: list[Run], full_budget: int) -> list[Run]:
+    """For every ablation run with a smaller budget than the grid's, the unchanged CMCL run of its seed read up to
+    that budget (same measures, held-out from its checkpoint at that episode): id "reference_e<B>_s<seed>", grid
+    "ablation_reference", source the spread run's id, budget B."""
+    refs = [Run(f"reference_e{r.budget}_s{r.seed}", "ablation_reference", "spread", "cmcl", None, r.seed, r.budget,
+                source=f"spread_cmcl_s{r.seed}") for r in runs if r.grid == "ablations" and r.budget < full_budget]
+    return list({r.id: r for r in refs}.values())

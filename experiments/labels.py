@@ -1,0 +1,6 @@
+"""Names and colours of the algorithms and of the curriculum grid's arms, shared by the tables and the figures."""
+
+ORDER = ("maddpg", "per", "acl", "cmcl")  # the algorithms, in the order of every table and legend
+LABEL = {"maddpg": "MADDPG", "per": "PER-MADDPG", "acl": "ACL", "cmcl": "CMCL"}
+COLOUR = {"maddpg": "tab:blue", "per": "tab:orange", "acl": "tab:green", "cmcl": "tab:red"}
+ARM_LABEL = {**LABEL, "cmcl_permuted": "CMCL, permuted control", "cmcl_anti": "CMCL, anti-curriculum"}

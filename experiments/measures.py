@@ -1,0 +1,119 @@
+"""The measures of one run, read from its run directory: the summary the results store keeps.
+
+Training curves are the per-episode rows of the run (`RunDirectory.rows("episode")`); "MA x" is the first episode
+at which the trailing WINDOW-episode moving average of the final-step coverage reaches x. Held-out: the final
+weights (or those of the checkpoint at episode `upto`) without exploration noise on HELD_OUT worlds the run never
+saw (`cmcl.evaluate.evaluate_policy`, seeded by the run's seed).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cmcl.evaluate import evaluate_policy, load_policy
+from cmcl.io.plots import episode_series
+from cmcl.io.rundir import RunDirectory
+from experiments.grids import Run
+
+WINDOW, TARGETS, HELD_OUT = 100, (0.5, 0.9), 200  # moving-average episodes; coverage thresholds; held-out worlds
+
+
+def first_reaching(coverage: np.ndarray, target: float) -> int | None:
+    """Index of the first episode whose trailing WINDOW-episode mean coverage is >= target (None: never).
+    coverage: float[T], one final-step coverage per episode in order of completion."""
+    if coverage.size < WINDOW:
+        return None
+    moving = np.convolve(coverage, np.ones(WINDOW) / WINDOW, mode="valid")  # moving[i] ends at episode i+W-1
+    hit = np.flatnonzero(moving >= target - 1e-12)
+    return int(hit[0]) + WINDOW - 1 if hit.size else None
+
+
+def window_curves(series: dict[str, np.ndarray]) -> dict[str, list[float]]:
+    """Means over consecutive WINDOW-episode windows of every per-episode column: {name: [T // WINDOW]}."""
+    n = series["episode"].size // WINDOW * WINDOW
+    return {k: np.round(v[:n].reshape(-1, WINDOW).mean(axis=1), 5).tolist()
+            for k, v in series.items() if k != "episode"}
+
+
+def summarise(run: Run, run_path: Path, upto: int | None = None) -> dict[str, Any]:
+    """The measures of one finished run (training curves, time to 0.5/0.9, area, final rates, held-out), or of
+    its first `upto` episodes (held-out from its checkpoint at episode `upto`, which must exist). The run's own
+    fields (Run.record) come first."""
+    run_dir = RunDirectory.open(run_path)
+    config = run_dir.config()
+    rows = list(run_dir.rows("episode"))[:upto]
+    progress = list(run_dir.rows("progress"))
+    series = {k: v[:upto] for k, v in episode_series(run_dir).items()}
+    elapsed = np.array([r.get("elapsed_s", np.nan) for r in rows], dtype=np.float64)
+    if upto is None:
+        checkpoint = run_dir.newest_policy()
+        if checkpoint is None:
+            raise FileNotFoundError(f"{run_path}: no policy checkpoint that passes its checks")
+    else:
+        checkpoint = run_dir.checkpoint_path(upto)
+        if len(rows) < upto or not checkpoint.exists():
+            raise ValueError(f"{run_path}: no {upto} episodes to read (has {len(rows)}, checkpoint "
+                             f"{checkpoint.name} {'exists' if checkpoint.exists() else 'missing'})")
+    policy = load_policy(config, checkpoint)
+    held_out = evaluate_policy(config, policy, episodes=HELD_OUT, seed=run.seed)
+    last = rows[-1] if upto is not None else (progress[-1] if progress else rows[-1])
+    result: dict[str, Any] = {**run.record(), "episodes": int(series["episode"].size),
+                              "env_steps": last.get("env_steps"), "updates": last.get("updates"),
+                              "wall_s": float(elapsed[-1]), "update_every": config.maddpg.update_every,
+                              "batch_size": config.maddpg.batch_size}
+    if run.task == "spread":
+        coverage = series["coverage"]
+        for target in TARGETS:
+            i = first_reaching(coverage, target)
+            tag = f"{int(target * 100)}"
+            result[f"episodes_to_{tag}"] = None if i is None else i + 1
+            result[f"seconds_to_{tag}"] = None if i is None else float(elapsed[i])
+        result.update(auc_coverage=float(coverage.mean()), final_ma_coverage=float(coverage[-WINDOW:].mean()),
+                      final_ma_success=float(series["success"][-WINDOW:].mean()),
+                      mean_reward=float(series["reward_agent"].sum() / run.budget),  # Fig. 9's definition (§6.3)
+                      held_out_coverage=held_out["coverage"], held_out_success=held_out["success"],
+                      held_out_collisions=held_out["collisions"], held_out_wall_hits=held_out["wall_hits"])
+    else:
+        result.update(mean_reward_predator=float(series["reward_predator"].sum() / run.budget),
+                      mean_reward_prey=float(series["reward_prey"].sum() / run.budget),
+                      final_ma_predator_win=float(series["predator_win"][-WINDOW:].mean()),
+                      win_vs_trained_prey=held_out["predator_win"],
+                      win_vs_random_prey=evaluate_policy(config, policy, HELD_OUT, run.seed,
+                                                         random_teams=("prey",))["predator_win"])
+    result["curves"] = window_curves(series)
+    result.update(sampling_over_training(progress, upto))
+    return result
+
+
+def sampling_over_training(progress: list[dict[str, Any]], upto: int | None = None) -> dict[str, Any]:
+    """The sampling distribution over training from a run's progress rows (up to episode `upto`): per row, the mean
+    over the agents that do not sample uniformly of the ESS fraction and of the reward-bearing rows' share in the
+    sampled minibatch (expected under P) and in the buffer (cmcl.diagnostics.sampling_diagnostics), λ and, for
+    ACL / CMCL, the sampling mass on KP's excluded branch. Returns {"sampling_curve": {column: [rows]}, "ess_mean",
+    "ess_first_quarter" (rows in the first quarter of the run's episodes), "reward_rows_sampled_mean",
+    "reward_rows_buffer_mean"}; a run whose agents all sample uniformly has ESS 1 and sampled = buffer shares."""
+    rows = [r for r in progress if r.get("sampling") and (upto is None or r["episodes"] <= upto)]
+    curve: dict[str, list] = {k: [] for k in ("episode", "lambda", "ess", "reward_rows_sampled",
+                                              "reward_rows_buffer", "share_excluded")}
+    for r in rows:
+        s = r["sampling"]
+        keep = [i for i, m in enumerate(s.get("modes", [])) if m != "uniform"] or list(range(len(s["modes"])))
+        curve["episode"].append(r["episodes"])
+        curve["lambda"].append(round(r["lambda"], 5))
+        for key, name in (("ess", "ess_fraction"), ("reward_rows_sampled", "reward_rows_sampled"),
+                          ("reward_rows_buffer", "reward_rows_buffer")):
+            curve[key].append(round(float(np.mean([s[name][i] for i in keep])), 4))
+        excluded = r.get("curriculum", {}).get("share_excluded")
+        curve["share_excluded"].append(None if excluded is None else round(float(np.mean(excluded)), 4))
+    last = max(curve["episode"], default=0)
+    quarter = [e for ep, e in zip(curve["episode"], curve["ess"], strict=True) if ep <= last / 4]
+
+    def mean(values: list[float]) -> float | None:
+        return round(float(np.mean(values)), 4) if values else None
+
+    return {"sampling_curve": curve, "ess_mean": mean(curve["ess"]), "ess_first_quarter": mean(quarter),
+            "reward_rows_sampled_mean": mean(curve["reward_rows_sampled"]),
+            "reward_rows_buffer_mean": mean(curve["reward_rows_buffer"])}

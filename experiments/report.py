@@ -1,0 +1,79 @@
+"""The report of every grid's results: the markdown blocks of docs/RESULTS.md and the figures.
+
+Each block is named by its markers in the page, `<!-- name:begin -->` ... `<!-- name:end -->`; `update` replaces
+the text between them (a block whose markers the page lacks is only printed):
+
+* spread, seeds, tests: the spread grid (bench/results/reproduce); ablations: the ablations grid against the
+  unchanged CMCL runs; tag, tagtests: the tag and winrate grids;
+* curriculum, curriculumtests: the curriculum grid (bench/results/curriculum); curriculumhard,
+  curriculumhardtests: the curriculum_hard grid (bench/results/curriculum_hard); "no runs yet" while a
+  curriculum grid has no summary;
+* timetosolve: the schedule and algorithms grids (bench/results/time_to_solve), printed only.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from experiments.curriculum_tables import curriculum_table, curriculum_tests
+from experiments.grids import GRIDS
+from experiments.store import ResultsStore
+from experiments.tables import (
+    ablation_table,
+    seeds_table,
+    solve_table,
+    spread_table,
+    tag_table,
+    tag_tests_table,
+    tests_table,
+)
+
+NO_RUNS = "no runs yet"
+CURRICULUM_BLOCKS = {"curriculum": ("curriculum", "curriculumtests"),  # grid -> its two blocks' marker names
+                     "curriculum_hard": ("curriculumhard", "curriculumhardtests")}
+
+
+def folders(results: Path | None = None) -> dict[str, Path]:
+    """grid -> its results folder, under `results` (default: the registry's, bench/results)."""
+    return {name: path if results is None else results / path.name for name, path in GRIDS.items()}
+
+
+def blocks(results: Path | None = None) -> dict[str, str]:
+    """Every block of the report that has something to show: {marker name: markdown}."""
+    where = folders(results)
+    runs = ResultsStore(where["spread"]).load()
+    spread = [r for r in runs if r.get("grid", "spread") == "spread"]
+    ablations = [r for r in runs if r.get("grid") == "ablations"]
+    tag = [r for r in runs if r["task"] == "tag"]
+    out = {"spread": spread_table(spread), "seeds": seeds_table(spread), "tests": tests_table(spread)}
+    if ablations:
+        out["ablations"] = ablation_table(ablations, [r for r in spread if r["algorithm"] == "cmcl"]
+                                          + [r for r in runs if r.get("grid") == "ablation_reference"])
+    if tag:
+        out["tag"], out["tagtests"] = tag_table(tag), tag_tests_table(tag)
+    for grid_name, (table, tests) in CURRICULUM_BLOCKS.items():
+        curriculum = ResultsStore(where[grid_name]).load()
+        out[table], out[tests] = (curriculum_table(curriculum), curriculum_tests(curriculum)) if curriculum \
+            else (NO_RUNS, NO_RUNS)
+    solve = ResultsStore(where["schedule"]).load()
+    if solve:
+        out["timetosolve"] = solve_table(solve)
+    return out
+
+
+def figures(results: Path | None = None) -> list[Path]:
+    """Draw the figures of the paper's grids into <reproduce folder>/figures/; returns the PNGs written."""
+    from experiments.figures import figures as draw
+
+    folder = folders(results)["spread"]
+    return draw(ResultsStore(folder).load(), folder / "figures")
+
+
+def update(path: Path, new: dict[str, str]) -> None:
+    """Replace each `<!-- name:begin -->...<!-- name:end -->` block of `path` by its new text."""
+    text = path.read_text()
+    for name, body in new.items():
+        text = re.sub(rf"(<!-- {name}:begin -->\n).*?(<!-- {name}:end -->)",
+                      lambda m, body=body: m[1] + body + "\n" + m[2], text, flags=re.S)
+    path.write_text(text)

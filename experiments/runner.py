@@ -1,0 +1,112 @@
+"""The one runner of learning runs: each run trains in its own subprocess, which dies with the runner.
+
+Resume rule: a run whose summary exists is skipped; a run whose folder holds a checkpoint is resumed from its
+newest one (`python -m cmcl.loop --resume`, or `python -m services.launch --resume` for a service run; its clock
+goes on from the checkpoint, so seconds stay comparable); any other run starts afresh (`--overwrite`: a folder
+without a checkpoint holds nothing worth keeping). Inline runs checkpoint every CHECKPOINT_EVERY episodes.
+
+Children die with the runner: each is started with PR_SET_PDEATHSIG = SIGKILL (Linux prctl, set in the child
+before exec), so a runner killed by any signal, SIGKILL included, leaves no orphan training that a rerun's resume
+would race on the same run directory. A service run's own Ray processes are reaped by the launcher's reaper
+(services/reaper.py) when the launcher dies. A failed run is reported and the grid goes on; a rerun retries it.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from pathlib import Path
+
+from cmcl.io.rundir import RunDirectory
+from experiments.grids import ROOT, Run
+from experiments.measures import summarise
+from experiments.store import ResultsStore
+
+CHECKPOINT_EVERY = 2_000  # episodes between an inline run's checkpoints (what an interrupted run resumes from)
+LOG_EVERY = 500  # episodes between progress rows (a run's own sets may change it: the curriculum grids use 200)
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def die_with_parent(parent: int | None = None) -> Callable[[], None]:
+    """A preexec_fn for subprocess: in the child, before exec, ask Linux to SIGKILL it when its parent thread goes
+    (prctl PR_SET_PDEATHSIG); if the parent `parent` (default: the caller) is already gone by then, exit at once."""
+    parent = os.getpid() if parent is None else parent
+
+    def arm() -> None:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+        if os.getppid() != parent:  # the parent died between fork and prctl: no signal would ever come
+            os._exit(1)
+
+    return arm
+
+
+def command(run: Run, run_path: Path) -> list[str]:
+    """The command line that trains `run` in `run_path`: a resume when the folder holds a checkpoint, else a fresh
+    start from the run's config file with its overrides."""
+    launcher = "cmcl.loop" if run.mode == "inline" else "services.launch"
+    service_flags = [] if run.mode == "inline" else ["--metrics-port", "0"]
+    if run_path.exists():
+        runners = RunDirectory.open(run_path).runners()
+        if runners:  # a checkpoint exists (a runner refuses a folder the other runner wrote; say so loudly)
+            return [sys.executable, "-m", launcher, "--resume", str(run_path), "--quiet", *service_flags]
+    sets = [f"run.seed={run.seed}", f"run.dir={run_path}", f"run.episodes={run.budget}", f"run.log_every={LOG_EVERY}",
+            f"run.checkpoint_every={CHECKPOINT_EVERY}"]
+    if run.prey_algorithm is not None:
+        sets.append(f"teams.prey.algorithm={run.prey_algorithm}")
+    if run.stop_coverage is not None:
+        sets.append(f"run.stop_coverage={run.stop_coverage}")
+    if run.max_seconds is not None:
+        sets.append(f"run.max_seconds={run.max_seconds}")
+    sets += run.sets
+    config_file = ROOT / "configs" / (run.config or f"{run.task}_{run.algorithm}.toml")
+    return [sys.executable, "-m", launcher, "--config", str(config_file), *[a for s in sets for a in ("--set", s)],
+            "--overwrite", "--quiet", *service_flags]
+
+
+def train(run: Run, store: ResultsStore) -> Path:
+    """Train (or resume) one run in a subprocess that dies with this process; returns its run directory.
+    Raises subprocess.CalledProcessError when the run fails."""
+    run_path = store.runs_dir(run.id)
+    subprocess.run(command(run, run_path), cwd=ROOT, check=True, stdout=subprocess.DEVNULL,
+                   preexec_fn=die_with_parent())
+    return run_path
+
+
+def run_one(run: Run, store: ResultsStore) -> str:
+    """Train, summarise and store one run (a prefix reference only reads its source run); returns a one-line
+    report."""
+    started = time.perf_counter()
+    if run.source is not None:
+        summary = summarise(run, store.runs_dir(run.source), upto=run.budget)
+    else:
+        summary = summarise(run, train(run, store))
+    store.write(summary)
+    keys = ("held_out_coverage", "held_out_success", "episodes_to_90", "win_vs_trained_prey", "wall_s", "ess_mean")
+    return f"{run.id} done in {time.perf_counter() - started:.0f} s: " + \
+        ", ".join(f"{k}={summary[k]}" for k in keys if k in summary)
+
+
+def run_grid(runs: list[Run], store: ResultsStore, jobs: int = 1, report: Callable[[str], None] = print) -> int:
+    """Run every run of `runs` without a summary in `store`, `jobs` at a time, submitted in the given order; the
+    CSV is rebuilt after each. Returns the number of runs that failed (each is reported, the others go on)."""
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    finished = store.finished()
+    todo = [r for r in runs if r.id not in finished]
+    report(f"{len(todo)} runs to do: {' '.join(r.id for r in todo)}")
+    failed = 0
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        futures = {pool.submit(run_one, r, store): r.id for r in todo}
+        for future in as_completed(futures):
+            try:
+                report(future.result())
+            except Exception as err:  # one failed run must not stop the others; a rerun retries it
+                failed += 1
+                report(f"{futures[future]} FAILED: {type(err).__name__}: {err}")
+            store.write_csv()
+    return failed

@@ -1,0 +1,94 @@
+"""The grid registry (experiments.grids) and one run's measures (experiments.measures): the runs of each grid, and
+the reading of a run's first episodes, the same-budget reference that a shorter ablation (the paper's schedule) is
+compared with."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from cmcl.io.rundir import RunDirectory
+from cmcl.loop import InlineLoop
+from experiments.grids import ABLATIONS, GRIDS, Run, grid, prefix_reference_runs
+from experiments.measures import summarise
+from tests.test_loop import tiny_config
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    """A tiny CMCL navigation run of 12 episodes with checkpoints at 4, 8 and 12."""
+    path = tmp_path_factory.mktemp("reproduce") / "spread_cmcl_s0"
+    config = tiny_config("cmcl", dir=str(path))
+    InlineLoop(config, RunDirectory.create(path, config), progress=None).run()
+    return path
+
+
+def test_the_first_episodes_of_a_run_are_measured_from_those_episodes_and_their_checkpoint(finished_run):
+    run = Run("spread_cmcl_s0", "spread", "spread", "cmcl", None, 0, 12)
+    whole = summarise(run, finished_run)
+    first = summarise(replace(run, budget=8), finished_run, upto=8)
+    rows = list(RunDirectory.open(finished_run).rows("episode"))
+    assert whole["episodes"] == 12 and first["episodes"] == 8
+    assert first["env_steps"] == rows[7]["env_steps"] < whole["env_steps"]
+    assert first["updates"] == rows[7]["updates"] < whole["updates"]
+    assert first["wall_s"] == rows[7]["elapsed_s"]
+    coverage = np.array([r["coverage"] for r in rows])
+    assert np.isclose(first["auc_coverage"], coverage[:8].mean())
+    assert np.isclose(whole["auc_coverage"], coverage.mean())
+
+
+def test_reading_past_a_checkpointed_prefix_names_the_run_and_the_missing_checkpoint(finished_run):
+    with pytest.raises(ValueError, match=r"ckpt_00000006\.pt missing"):
+        summarise(Run("x", "spread", "spread", "cmcl", None, 0, 6), finished_run, upto=6)
+
+
+def test_a_shorter_ablation_gets_one_prefix_reference_per_seed_from_the_unchanged_cmcl_run():
+    runs = [r for r in grid(["ablations"], [0, 1], ["cmcl"], budget=20_000)]
+    short = [r for r in runs if r.budget < 20_000]
+    assert {r.ablation for r in short} == {a for a, (_, _, b) in ABLATIONS.items() if b is not None}
+    refs = prefix_reference_runs(runs + runs, 20_000)  # duplicates collapse
+    budget = ABLATIONS["paper_schedule"][2]
+    assert sorted(r.id for r in refs) == [f"reference_e{budget}_s0", f"reference_e{budget}_s1"]
+    assert {r.source for r in refs} == {"spread_cmcl_s0", "spread_cmcl_s1"}
+    assert prefix_reference_runs(runs, budget) == []  # a grid at that budget needs no prefix
+
+
+def test_curriculum_grid_interleaves_arms_by_seed_and_only_the_controls_differ():
+    runs = grid(["curriculum"], [0, 1], [])
+    arms = ["maddpg", "per", "acl", "cmcl", "cmcl_permuted", "cmcl_anti"]
+    assert [r.id for r in runs] == [f"curriculum_{a}_s{s}" for s in (0, 1) for a in arms]
+    sets = {r.arm: r.sets for r in runs if r.seed == 0}
+    assert sets["cmcl_permuted"][1:] == ("teachers.difficulty_transform=permuted",)
+    assert sets["cmcl_anti"][1:] == ("teachers.difficulty_transform=reversed",)
+    assert all(len(sets[a]) == 1 for a in arms[:4])  # the shared defaults, only the log cadence set
+    hard = {r.arm: r for r in grid(["curriculum_hard"], [0], [])}
+    assert hard["per"].config == "spread_hard.toml" and "teams.agent.algorithm=per" in hard["per"].sets
+    assert hard["cmcl_anti"].sets[1:] == ("teams.agent.algorithm=cmcl", "teachers.difficulty_transform=reversed")
+
+
+def test_a_summary_holds_the_sampling_distribution_over_training(finished_run):
+    s = summarise(Run("spread_cmcl_s0", "spread", "spread", "cmcl", None, 0, 12), finished_run)
+    curve = s["sampling_curve"]
+    assert len(curve["episode"]) == len(curve["ess"]) >= 1
+    assert all(0 < e <= 1 for e in curve["ess"]) and s["ess_mean"] == pytest.approx(np.mean(curve["ess"]), abs=1e-4)
+    assert 0 <= s["reward_rows_buffer_mean"] <= 1
+
+
+def test_a_summary_starts_with_the_fields_the_committed_summaries_have(finished_run):
+    """New summaries keep the keys the report reads in the committed ones (bench/results/*/summaries)."""
+    run = grid(["curriculum"], [0], [])[3]
+    s = summarise(run, finished_run)
+    assert list(s)[:7] == ["id", "grid", "task", "algorithm", "prey_algorithm", "seed", "budget"]
+    assert s["arm"] == "cmcl" and s["config"] == "spread_cmcl.toml" and s["sets"] == list(run.sets)
+    ref = prefix_reference_runs(grid(["ablations"], [0], ["cmcl"]), 20_000)[0]
+    assert ref.record()["ablation"] is None and ref.record()["source"] == "spread_cmcl_s0"
+
+
+def test_every_grid_has_a_results_folder_and_the_time_to_solve_grids_stop_early():
+    assert set(GRIDS) == {"spread", "tag", "winrate", "ablations", "curriculum", "curriculum_hard", "schedule",
+                          "algorithms"}
+    schedule = grid(["schedule"], [0])
+    assert len(schedule) == 8 and all(r.stop_coverage == 0.95 and r.max_seconds == 900 for r in schedule)
+    assert {r.mode for r in grid(["algorithms"], [0])} == {"inline", "service"}
+    with pytest.raises(ValueError, match="unknown \\['nope'\\]"):
+        grid(["nope"], [0])

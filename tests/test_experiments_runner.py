@@ -1,0 +1,85 @@
+"""The one runner (experiments.runner) with real processes: a SIGKILL of the runner kills the training child it
+started, a rerun skips the runs that have a summary, and resumes the interrupted one from its newest checkpoint."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import asdict
+
+from cmcl.io.rundir import RunDirectory
+from experiments.grids import ROOT, Run
+from experiments.runner import command, run_grid
+from experiments.store import ResultsStore
+from services.reaper import descendants, process_table
+
+TINY = ("env.num_envs=4", "maddpg.batch_size=16", "maddpg.warmup=96", "maddpg.hidden=32", "replay.capacity=600",
+        "run.checkpoint_every=20", "run.log_every=20")  # tests/test_loop.py's tiny settings, as overrides
+RUNNER = """
+import json, sys
+from experiments.grids import Run
+from experiments.runner import run_grid
+from experiments.store import ResultsStore
+fields = json.loads(sys.argv[1])
+run_grid([Run(**{**fields, "sets": tuple(fields["sets"])})], ResultsStore(sys.argv[2]))
+"""
+
+
+def alive(pid: int, start: int) -> bool:
+    """Whether process `pid` with start time `start` still runs (a zombie, or a reused pid, does not)."""
+    try:
+        stat = open(f"/proc/{pid}/stat").read()
+    except OSError:
+        return False
+    fields = stat[stat.rindex(")") + 2:].split()
+    return fields[0] not in "ZX" and int(fields[19]) == start
+
+
+def wait_for(condition, seconds: float, what: str):
+    """Poll `condition` until it returns something true, at most `seconds`; fails naming `what`."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        found = condition()
+        if found:
+            return found
+        time.sleep(0.05)
+    raise AssertionError(f"timed out after {seconds} s waiting for {what}")
+
+
+def test_a_killed_runner_kills_its_child_and_a_rerun_resumes_it_and_skips_finished_runs(tmp_path):
+    store = ResultsStore(tmp_path)
+    interrupted = Run("spread_maddpg_s3", "spread", "spread", "maddpg", None, 3, 200, sets=TINY)
+    runner = subprocess.Popen([sys.executable, "-c", RUNNER, json.dumps(asdict(interrupted)), str(tmp_path)],
+                              cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    checkpoints = store.runs_dir(interrupted.id) / "checkpoints"
+    try:
+        first = wait_for(lambda: sorted(checkpoints.glob("ckpt_*.pt")), 120, "the run's first checkpoint")[0]
+        children = descendants({runner.pid}, process_table())
+        assert children, "the runner has a training child"
+        runner.send_signal(signal.SIGKILL)
+        runner.wait()
+        wait_for(lambda: not any(alive(pid, start) for pid, start in children.items()), 3,
+                 f"the runner's children {sorted(children)} to die with it")
+    finally:
+        runner.kill()
+    before = RunDirectory.open(store.runs_dir(interrupted.id)).latest_checkpoint()
+    assert before is not None and int(before.stem.split("_")[1]) < 200, "killed before the end of its budget"
+    first_inode = first.stat().st_ino
+
+    finished = Run("spread_maddpg_s4", "spread", "spread", "maddpg", None, 4, 200, sets=TINY)
+    store.write({**finished.record(), "held_out_coverage": 0.25})
+    assert command(interrupted, store.runs_dir(interrupted.id))[3] == "--resume"
+    lines: list[str] = []
+    assert run_grid([finished, interrupted], store, report=lines.append) == 0, lines
+    assert lines[0] == f"1 runs to do: {interrupted.id}"
+    assert not store.runs_dir(finished.id).exists()  # skipped: never trained
+    summaries = {r["id"]: r for r in store.load()}
+    assert summaries[finished.id]["held_out_coverage"] == 0.25
+    resumed = summaries[interrupted.id]
+    assert resumed["episodes"] == 200 and resumed["seed"] == 3
+    assert first.stat().st_ino == first_inode  # resumed in place, not started over (--overwrite would remove it)
+    episodes = [r["episodes"] for r in RunDirectory.open(store.runs_dir(interrupted.id)).rows("episode")]
+    assert episodes == list(range(1, 201))  # every episode once: the rows after the checkpoint were replayed
+    assert (tmp_path / "results.csv").read_text().count("\n") == 3  # header and two runs
