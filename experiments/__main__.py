@@ -1,7 +1,7 @@
 """Command line of the experiments: run grids, write the report, draw the figures.
 
     python -m experiments run GRID [GRID ...] [--seeds 0 1 2 3 4] [--jobs 2] [--out DIR]
-            [--arms ...] [--ablations ...] [--algorithms ...] [--episodes 20000]
+            [--arms ...] [--ablations ...] [--algorithms ...] [--modes inline service] [--episodes 20000]
     python -m experiments report [--update docs/RESULTS.md] [--results bench/results]
     python -m experiments figures [--results bench/results]
 
@@ -36,7 +36,8 @@ def run(args: argparse.Namespace) -> int:
     store = ResultsStore(args.out or folders.pop())
     store.root.mkdir(parents=True, exist_ok=True)
     runs = [r for r in grid(args.grids, args.seeds, args.algorithms, args.episodes)
-            if (r.ablation is None or r.ablation in args.ablations) and (r.arm is None or r.arm in args.arms)]
+            if (r.ablation is None or r.ablation in args.ablations) and (r.arm is None or r.arm in args.arms)
+            and r.mode in args.modes]
     runs += prefix_reference_runs(runs, args.episodes)
     failed = run_grid(runs, store, args.jobs, report=lambda line: print(line, flush=True))
     print(f"results: {shown(store.write_csv())}" + (f"; {failed} runs failed (a rerun retries them)" if failed else ""))
@@ -73,6 +74,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--ablations", nargs="+", choices=list(ABLATIONS), default=list(ABLATIONS),
                    help="ablations grid: only these variants")
     p.add_argument("--algorithms", nargs="+", choices=ALGORITHMS, default=list(ALGORITHMS))
+    p.add_argument("--modes", nargs="+", choices=["inline", "service"], default=["inline", "service"],
+                   help="algorithms grid: only these runners")
     p.add_argument("--episodes", type=int, default=EPISODES, help="budget of every run (the paper: 20,000)")
     p.set_defaults(handler=run)
     for name, handler, text in (("report", report, "print the tables, draw the figures, optionally update a page"),

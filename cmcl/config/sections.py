@@ -95,7 +95,7 @@ class MADDPGConfig:
     discrete: bool = False  # Gumbel-softmax variant (A17)
     warmup: int = 3840  # transitions before the first update: batch × episode length (A18)
     # world steps (one step of one world = one transition) per learner update; 16 solves navigation fastest in
-    # wall clock (docs/LEARNING.md, bench/time_to_solve.py --grid schedule); the paper presets (configs/paper/)
+    # wall clock (docs/LEARNING.md, python -m experiments run schedule); the paper presets (configs/paper/)
     # use 1 (A18)
     update_every: int = 16
     # one actor and one critic network for all agents, each with its own first-layer bias (an agent-id embedding,
