@@ -64,7 +64,7 @@ def curriculum_tests(runs: list[dict[str, Any]]) -> str:
         if key in TIMES:
             ta, tb = [r[key] for r in ra], [r[key] for r in rb]
             p = logrank_p(ta, tb, ra[0]["budget"])
-            text = f"KM median {fmt_time(ta)} vs {fmt_time(tb)}"
+            text = f"{fmt_time(ta)} vs {fmt_time(tb)}"
         else:
             d, lo, hi, p = difference([r[key] for r in ra], [r[key] for r in rb])
             text = f"{d:+.3f} [{lo:+.3f}, {hi:+.3f}]"
