@@ -4,6 +4,7 @@
             [--arms ...] [--ablations ...] [--algorithms ...] [--modes inline service] [--episodes 20000]
     python -m experiments report [--update docs/RESULTS.md] [--results bench/results]
     python -m experiments figures [--results bench/results]
+    python -m experiments stalls FOLDER [FOLDER ...]      (e.g. bench/results/curriculum: its runs/ directories)
 
 `run` is resumable (experiments.runner): rerun the same command after a stop. Its results go to the grid's folder
 of the registry (experiments.grids.GRIDS, under bench/results/) unless --out names another. Exit code of `run`:
@@ -20,6 +21,7 @@ from cmcl.config import ALGORITHMS
 from experiments.grids import ABLATIONS, CURRICULUM_ARMS, EPISODES, GRIDS, ROOT, grid, prefix_reference_runs
 from experiments.report import blocks, figures, update
 from experiments.runner import run_grid
+from experiments.stalls import analyse_folder
 from experiments.store import ResultsStore
 
 
@@ -55,6 +57,13 @@ def report(args: argparse.Namespace) -> int:
     return 0
 
 
+def stalls(args: argparse.Namespace) -> int:
+    for folder in args.folders:
+        for path in analyse_folder(folder):
+            print(f"stall record: {shown(path)}")
+    return 0
+
+
 def draw(args: argparse.Namespace) -> int:
     for png in figures(args.results):
         print(f"figure: {shown(png)}")
@@ -85,6 +94,9 @@ def main(argv: list[str] | None = None) -> int:
         if name == "report":
             p.add_argument("--update", help="a markdown file whose marked blocks get the new tables")
         p.set_defaults(handler=handler)
+    p = commands.add_parser("stalls", help="write the stall records of a curriculum grid's finished runs")
+    p.add_argument("folders", nargs="+", type=Path, metavar="FOLDER", help="a grid folder with runs/ and summaries/")
+    p.set_defaults(handler=stalls)
     args = parser.parse_args(argv)
     return args.handler(args)
 

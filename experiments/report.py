@@ -5,9 +5,9 @@ the text between them (a block whose markers the page lacks is only printed):
 
 * spread, seeds, tests: the spread grid (bench/results/reproduce); ablations: the ablations grid against the
   unchanged CMCL runs; tag, tagtests: the tag and winrate grids;
-* curriculum, curriculumtests: the curriculum grid (bench/results/curriculum); curriculumhard,
-  curriculumhardtests: the curriculum_hard grid (bench/results/curriculum_hard); "no runs yet" while a
-  curriculum grid has no summary;
+* curriculum, curriculumtests, curriculumstalls: the curriculum grid (bench/results/curriculum); curriculumhard,
+  curriculumhardtests, curriculumhardstalls: the curriculum_hard grid (bench/results/curriculum_hard); "no runs
+  yet" while a curriculum grid has no summary; the stalls blocks from `python -m experiments stalls FOLDER`;
 * timetosolve: the schedule and algorithms grids (bench/results/time_to_solve), printed only.
 """
 
@@ -18,6 +18,8 @@ from pathlib import Path
 
 from experiments.curriculum_tables import curriculum_table, curriculum_tests
 from experiments.grids import GRIDS
+from experiments.labels import ARM_LABEL
+from experiments.stalls import load_stalls, stall_table
 from experiments.store import ResultsStore
 from experiments.tables import (
     ablation_table,
@@ -30,8 +32,8 @@ from experiments.tables import (
 )
 
 NO_RUNS = "no runs yet"
-CURRICULUM_BLOCKS = {"curriculum": ("curriculum", "curriculumtests"),  # grid -> its two blocks' marker names
-                     "curriculum_hard": ("curriculumhard", "curriculumhardtests")}
+CURRICULUM_BLOCKS = {"curriculum": ("curriculum", "curriculumtests", "curriculumstalls"),  # grid -> its blocks
+                     "curriculum_hard": ("curriculumhard", "curriculumhardtests", "curriculumhardstalls")}
 
 
 def folders(results: Path | None = None) -> dict[str, Path]:
@@ -52,10 +54,11 @@ def blocks(results: Path | None = None) -> dict[str, str]:
                                           + [r for r in runs if r.get("grid") == "ablation_reference"])
     if tag:
         out["tag"], out["tagtests"] = tag_table(tag), tag_tests_table(tag)
-    for grid_name, (table, tests) in CURRICULUM_BLOCKS.items():
+    for grid_name, (table, tests, stalls) in CURRICULUM_BLOCKS.items():
         curriculum = ResultsStore(where[grid_name]).load()
         out[table], out[tests] = (curriculum_table(curriculum), curriculum_tests(curriculum)) if curriculum \
             else (NO_RUNS, NO_RUNS)
+        out[stalls] = stall_table(load_stalls(where[grid_name]), ARM_LABEL)
     solve = ResultsStore(where["schedule"]).load()
     if solve:
         out["timetosolve"] = solve_table(solve)

@@ -1,0 +1,157 @@
+"""The stall analysis of a curriculum grid (issue 21): how long each run sat at about three landmarks of four, what
+its agents did there, and what the curriculum was doing, from the run directories the grid trained in.
+
+    python -m experiments stalls GRID_FOLDER        (e.g. bench/results/curriculum; reads GRID_FOLDER/runs/*)
+
+Writes one small JSON per finished run to GRID_FOLDER/stalls/<run id>.json (committed with the summaries; the run
+directories are not), and the report turns them into the per-arm table of docs/RESULTS.md (`stall_table`).
+
+Per run:
+* `plateau_episodes`: episodes whose 100-episode moving average of coverage lies in [0.65, 0.85]
+  (`cmcl.stalls.plateau_episodes`), and `plateau_middle`, the episode in the middle of that time;
+* `early`: means over the progress rows while λ < 0.5 (the only time KP excludes any row, ALGORITHM.md A1) of the
+  sampling ESS and the share of reward-bearing rows sampled and in the buffer (averaged over agents);
+* `at_plateau` (runs with a plateau of at least MIN_PLATEAU episodes): the held-out anatomy of the misses
+  (`cmcl.stalls.miss_anatomy`, 200 worlds) of the checkpoint nearest `plateau_middle`, the agent most often on no
+  landmark, and the curriculum's state at the progress row nearest that episode (λ, ESS, that agent's and the
+  other agents' reward-bearing rows, sampled / buffer).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cmcl.evaluate import evaluate_policy, load_policy
+from cmcl.io.atomic import atomic_write_bytes
+from cmcl.io.rundir import RunDirectory
+from cmcl.stalls import MissAnatomy, moving_average, plateau_episodes
+from experiments.store import ResultsStore
+
+MIN_PLATEAU = 1000  # episodes on the plateau before its anatomy is taken
+EARLY_LAMBDA = 0.5  # KP excludes rows only while λ < 0.5 (2λ < 1 under rank difficulty)
+ANATOMY_WORLDS = 200
+PLATEAU = (0.65, 0.85)
+
+
+def _mean_over_agents(rows: list[dict[str, Any]], key: str) -> float:
+    return float(np.mean([np.mean(r["sampling"][key]) for r in rows])) if rows else float("nan")
+
+
+def analyse_run(run_path: Path, arm: str) -> dict[str, Any] | None:
+    """The stall record of one run directory of arm `arm` (module docstring); None when the run has not finished
+    its budget."""
+    run = RunDirectory.open(run_path)
+    config = run.config()
+    episodes = list(run.rows("episode"))
+    if len(episodes) < config.run.episodes:
+        return None
+    coverage = np.array([r["coverage"] for r in episodes], dtype=np.float64)
+    ma = moving_average(coverage)
+    on_plateau = np.flatnonzero((ma >= PLATEAU[0]) & (ma <= PLATEAU[1]))
+    progress = [r for r in run.rows("progress") if "sampling" in r]
+    early = [r for r in progress if r["lambda"] < EARLY_LAMBDA]
+    record: dict[str, Any] = {
+        "id": run_path.name, "arm": arm,
+        "seed": int(config.run.seed), "plateau_episodes": plateau_episodes(coverage, *PLATEAU),
+        "plateau_middle": int(np.median(on_plateau)) + 1 if on_plateau.size else None,
+        "early": {"rows": len(early), "ess": _mean_over_agents(early, "ess_fraction"),
+                  "reward_rows_sampled": _mean_over_agents(early, "reward_rows_sampled"),
+                  "reward_rows_buffer": _mean_over_agents(early, "reward_rows_buffer")},
+        "at_plateau": None,
+    }
+    if record["plateau_episodes"] >= MIN_PLATEAU:
+        record["at_plateau"] = _at_plateau(run, config, record["plateau_middle"], progress)
+    return record
+
+
+def _at_plateau(run: RunDirectory, config: Any, middle: int, progress: list[dict[str, Any]]) -> dict[str, Any]:
+    """The anatomy of the checkpoint nearest episode `middle`, and the curriculum's state then."""
+    checkpoints = sorted((run.path / "checkpoints").glob("ckpt_*.pt"))
+    if not checkpoints:
+        return {"error": "no checkpoints"}
+    nearest = min(checkpoints, key=lambda p: abs(int(p.stem.split("_")[1]) - middle))
+    held_out = evaluate_policy(config, load_policy(config, nearest), ANATOMY_WORLDS, seed=int(config.run.seed))
+    anatomy = MissAnatomy(**held_out["misses"])
+    idle = int(np.argmax(anatomy.agent_idle_share))
+    state: dict[str, Any] = {}
+    if progress:
+        row = min(progress, key=lambda r: abs(r["episodes"] - middle))
+        sampled, buffer = row["sampling"]["reward_rows_sampled"], row["sampling"]["reward_rows_buffer"]
+        others = [a for a in range(len(sampled)) if a != idle]
+        state = {"episode": row["episodes"], "lambda": row["lambda"],
+                 "ess": float(np.mean(row["sampling"]["ess_fraction"])),
+                 "idle_agent_reward_rows": [sampled[idle], buffer[idle]],
+                 "other_agents_reward_rows": [float(np.mean([sampled[a] for a in others])),
+                                              float(np.mean([buffer[a] for a in others]))]}
+    return {"checkpoint_episode": int(nearest.stem.split("_")[1]), "coverage": held_out["coverage"],
+            "anatomy": held_out["misses"], "idle_agent": idle,
+            "idle_agent_share": anatomy.agent_idle_share[idle],
+            "idle_agent_wall_share": anatomy.agent_wall_share[idle], "curriculum": state}
+
+
+def analyse_folder(folder: str | Path, report=print) -> list[Path]:
+    """Write GRID_FOLDER/stalls/<run id>.json for every run of GRID_FOLDER/runs that has a summary (a finished run;
+    its arm is the summary's) and no stall record yet."""
+    folder = Path(folder)
+    out_dir = folder / "stalls"
+    arms = {r["id"]: r.get("arm") for r in ResultsStore(folder).load()}
+    written = []
+    for run_path in sorted(p for p in (folder / "runs").glob("*") if p.is_dir()):
+        target = out_dir / f"{run_path.name}.json"
+        if target.exists() or arms.get(run_path.name) is None:
+            continue
+        record = analyse_run(run_path, arms[run_path.name])
+        if record is None:
+            continue
+        out_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(target, json.dumps(record, indent=1).encode())
+        written.append(target)
+        report(f"{run_path.name}: plateau {record['plateau_episodes']} episodes")
+    return written
+
+
+def load_stalls(folder: str | Path) -> list[dict[str, Any]]:
+    """Every stall record of a grid folder, sorted by run id."""
+    return [json.loads(p.read_text()) for p in sorted((Path(folder) / "stalls").glob("*.json"))]
+
+
+def stall_table(records: list[dict[str, Any]], arm_labels: dict[str, str]) -> str:
+    """Markdown, one row per arm: runs, plateau episodes (mean, min–max), runs with a plateau of ≥ MIN_PLATEAU, the
+    early sampling (λ < 0.5), and at the plateaus: the idle agent's share of worlds on no landmark and at a wall,
+    the miss classes, and the idle agent's reward-bearing rows against the other agents'."""
+    if not records:
+        return "no runs analysed yet"
+    lines = ["| arm | runs | episodes on the plateau: mean (min–max) | runs with ≥ 1,000 | λ < 0.5: ESS, reward rows "
+             "sampled / buffer | at the plateau: idle agent on no landmark / at a wall | misses: crowded / short / "
+             "far | reward rows of the idle agent vs the others (sampled / buffer) |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for arm, label in arm_labels.items():
+        rs = [r for r in records if r["arm"] == arm]
+        if not rs:
+            continue
+        plateau = [r["plateau_episodes"] for r in rs]
+        early = [r["early"] for r in rs if r["early"]["rows"]]
+        stalled = [r["at_plateau"] for r in rs if r["at_plateau"] and "anatomy" in r["at_plateau"]]
+        mean = lambda xs: float(np.mean(xs)) if xs else float("nan")  # noqa: E731
+        cells = [label, str(len(rs)), f"{mean(plateau):,.0f} ({min(plateau):,}–{max(plateau):,})",
+                 f"{len(stalled)}/{len(rs)}",
+                 f"{mean([e['ess'] for e in early]):.2f}, {mean([e['reward_rows_sampled'] for e in early]):.3f} / "
+                 f"{mean([e['reward_rows_buffer'] for e in early]):.3f}" if early else "—"]
+        if stalled:
+            classes = [mean([s["anatomy"]["missed_by_class"][c] for s in stalled]) for c in ("crowded", "short", "far")]
+            with_state = [s["curriculum"] for s in stalled if s["curriculum"]]
+            cells += [f"{mean([s['idle_agent_share'] for s in stalled]):.2f} / "
+                      f"{mean([s['idle_agent_wall_share'] for s in stalled]):.2f}",
+                      " / ".join(f"{c:.2f}" for c in classes),
+                      (f"{mean([c['idle_agent_reward_rows'][0] for c in with_state]):.3f} / "
+                       f"{mean([c['idle_agent_reward_rows'][1] for c in with_state]):.3f} vs "
+                       f"{mean([c['other_agents_reward_rows'][0] for c in with_state]):.3f} / "
+                       f"{mean([c['other_agents_reward_rows'][1] for c in with_state]):.3f}") if with_state else "—"]
+        else:
+            cells += ["—", "—", "—"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)

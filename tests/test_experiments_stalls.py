@@ -1,0 +1,47 @@
+"""experiments.stalls: the stall record of a real (tiny) inline run, and the per-arm table built from records."""
+
+import json
+
+from cmcl.io.rundir import RunDirectory
+from cmcl.loop import InlineLoop
+from experiments.labels import ARM_LABEL
+from experiments.stalls import MIN_PLATEAU, analyse_folder, analyse_run, load_stalls, stall_table
+from experiments.store import ResultsStore
+from tests.test_loop import tiny_config
+
+
+def test_a_finished_run_gets_a_record_and_an_unfinished_one_none(tmp_path):
+    folder = tmp_path / "grid"
+    config = tiny_config("cmcl", dir=str(folder / "runs" / "curriculum_cmcl_s0"), episodes=24)
+    InlineLoop(config, RunDirectory.create(config.run.dir, config), progress=None).run()
+    ResultsStore(folder).write({"id": "curriculum_cmcl_s0", "arm": "cmcl"})
+    record = analyse_run(folder / "runs" / "curriculum_cmcl_s0", "cmcl")
+    coverage = [r["coverage"] for r in RunDirectory.open(config.run.dir).rows("episode")]
+    assert record["arm"] == "cmcl" and record["seed"] == config.run.seed and len(coverage) == 24
+    assert 0 <= record["plateau_episodes"] <= 24 < MIN_PLATEAU and record["at_plateau"] is None
+    assert record["early"]["rows"] > 0 and 0 < record["early"]["ess"] <= 1  # λ starts at 0.1 < 0.5
+    written = analyse_folder(folder, report=lambda line: None)
+    assert [p.name for p in written] == ["curriculum_cmcl_s0.json"]
+    assert analyse_folder(folder, report=lambda line: None) == []  # a record is written once
+    assert load_stalls(folder)[0] == json.loads(json.dumps(record))
+    unfinished = tiny_config("cmcl", dir=str(tmp_path / "unfinished"), episodes=24)
+    InlineLoop(unfinished, RunDirectory.create(unfinished.run.dir, unfinished), progress=None).run()
+    cfg = RunDirectory.open(unfinished.run.dir)
+    (cfg.path / "metrics.jsonl").write_text("".join(line for i, line in enumerate(
+        (cfg.path / "metrics.jsonl").read_text().splitlines(keepends=True)) if i < 5))
+    assert analyse_run(cfg.path, "cmcl") is None
+
+
+def test_the_table_has_one_row_per_arm_with_the_plateau_anatomy():
+    anatomy = {"missed_by_class": {"crowded": 0.2, "short": 0.5, "far": 0.3}}
+    state = {"idle_agent_reward_rows": [0.2, 0.3], "other_agents_reward_rows": [0.7, 0.8]}
+    records = [{"arm": "maddpg", "plateau_episodes": p, "early": {"rows": 3, "ess": 1.0, "reward_rows_sampled": 0.2,
+                                                                  "reward_rows_buffer": 0.2},
+                "at_plateau": {"anatomy": anatomy, "idle_agent_share": 0.6, "idle_agent_wall_share": 0.1,
+                               "curriculum": state} if p >= MIN_PLATEAU else None}
+               for p in (500, 3000)]
+    table = stall_table(records, ARM_LABEL).splitlines()
+    assert len(table) == 3 and table[2].startswith("| MADDPG | 2 | 1,750 (500–3,000) | 1/2 | 1.00, 0.200 / 0.200")
+    assert "0.60 / 0.10" in table[2] and "0.20 / 0.50 / 0.30" in table[2]
+    assert "0.200 / 0.300 vs 0.700 / 0.800" in table[2]
+    assert stall_table([], ARM_LABEL) == "no runs analysed yet"
