@@ -22,7 +22,7 @@ install: $(STAMP)
 # The main job: CMCL on the distributed service (embedded Ray) trains sparse navigation until the 100-episode moving
 # average of coverage reaches 0.9, or 5 minutes; then a held-out evaluation, a GIF and the learning curve.
 run: install
-	$(BIN)/python -m services.launch --config configs/spread_cmcl.toml --set run.dir=runs/make-run \
+	$(BIN)/python -m cmcl train --runner service --config configs/spread_cmcl.toml --set run.dir=runs/make-run \
 		--set run.stop_coverage=0.9 --set run.max_seconds=300 --overwrite $(RUN_ARGS)
 
 demo: install

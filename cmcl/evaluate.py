@@ -1,10 +1,11 @@
 """Evaluate a trained run: coverage, success, reward and win rate over n episodes; a GIF; the learning curve.
 
-Where it sits: read-only consumer of a run directory written by cmcl.loop or services.launch. Policies act
+Where it sits: read-only consumer of a run directory written by either runner. Policies act
 without exploration noise in the batched twin (statistics) and in the PettingZoo env (the GIF).
 
-Run:  python -m cmcl.evaluate runs/spread_cmcl [--episodes 100] [--checkpoint PATH] [--gif out.gif]
-      python -m cmcl.evaluate runs/spread_cmcl --random      (the random-policy reference on the same worlds)
+Run:  python -m cmcl evaluate runs/spread_cmcl [--episodes 100] [--checkpoint PATH] [--gif out.gif]
+      python -m cmcl evaluate runs/spread_cmcl --random      (the random-policy reference on the same worlds)
+`python -m cmcl.evaluate RUN_DIR ...` is the same command under its older name.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from cmcl.config import Config
 from cmcl.envs.batched_spread import BatchedSparseSpread
 from cmcl.io.rundir import PolicyCheckpoint, RunDirectory, load_checkpoint
 from cmcl.learners.maddpg import MADDPG
+from cmcl.run_flags import add_evaluate_flags
 from cmcl.stalls import MissAnatomy, miss_anatomy
 from cmcl.system import agent_layout, build_maddpg, make_batched_env, make_parallel_env, to_env_actions
 
@@ -108,17 +110,19 @@ def render_gif(config: Config, maddpg: MADDPG | None, path: str | Path, seed: in
 
 
 def main(argv: list[str] | None = None) -> int:
-    """CLI: evaluate the latest (or a given) checkpoint of a run, write a GIF and the learning curve."""
+    """`python -m cmcl.evaluate RUN_DIR`: the alias of `python -m cmcl evaluate RUN_DIR` (same flags)."""
+    return evaluate_run(build_parser().parse_args(argv))
+
+
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m cmcl.evaluate", description=__doc__.split("\n")[0])
-    parser.add_argument("run_dir", help="a run directory written by cmcl.loop or services.launch")
-    parser.add_argument("--checkpoint", help="checkpoint file (default: the run's newest verified policy, "
-                                             "whichever runner wrote it)")
-    parser.add_argument("--episodes", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--random", action="store_true", help="evaluate a uniform random policy instead")
-    parser.add_argument("--gif", help="GIF path (default: <run_dir>/eval.gif)")
-    parser.add_argument("--no-gif", action="store_true")
-    args = parser.parse_args(argv)
+    add_evaluate_flags(parser)
+    return parser
+
+
+def evaluate_run(args: argparse.Namespace) -> int:
+    """Evaluate the newest verified (or a given) checkpoint of a run, write a GIF and the learning curve; `args` as
+    `cmcl.run_flags.add_evaluate_flags` defines them. Exit codes: 0 done, 2 bad arguments or no run / policy."""
     if args.episodes < 1:
         print(f"error: --episodes must be >= 1, got {args.episodes}", file=sys.stderr)
         return 2

@@ -1,4 +1,8 @@
-"""Launch the distributed CMCL service: embedded Ray by default, or join a cluster with --address auto.
+"""The service's command line: embedded Ray by default, or join a cluster with --address auto.
+
+`python -m cmcl train` (the default runner) and `python -m cmcl resume DIR` (a run the service wrote) call
+`run_launch`; `python -m services.launch` is their alias and the cluster command of the deploy files, with the
+same flags (cmcl/run_flags.py) and `--resume DIR`:
 
     python -m services.launch [--config F] [--set section.key=value ...] [--address auto]
                               [--metrics-port P] [--metrics-host H] [--resume DIR] [--num-cpus N]
@@ -22,56 +26,42 @@ from typing import Any
 from cmcl.config import Config, ConfigError, load_config
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
+from cmcl.run_flags import RunRequest, alias_parser, request_from, resume_command
 from cmcl.stopping import STOP_SIGNALS, StopSignals
 
 
+def build_parser() -> argparse.ArgumentParser:
+    """The alias's flags: those of every training command (cmcl/run_flags.py) and `--resume DIR`."""
+    return alias_parser("python -m services.launch", __doc__.split("\n")[0])
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m services.launch", description=__doc__.split("\n")[0])
-    parser.add_argument("--config", help="TOML experiment file (default: built-in CMCL defaults)")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                        help="override one config value (repeatable)")
-    parser.add_argument("--address", default=None,
-                        help="Ray cluster to join ('auto' after `ray start --head`); default: embedded Ray")
-    parser.add_argument("--num-cpus", type=int, default=None, help="CPUs of the embedded Ray (default: all)")
-    parser.add_argument("--metrics-port", type=int, default=None, help="Prometheus port (default service.metrics_port)")
-    parser.add_argument("--metrics-host", default=None, help="bind address (default 127.0.0.1, loopback only)")
-    parser.add_argument("--ray-metrics-port", type=int, default=None,
-                        help="embedded Ray only: port of Ray's own Prometheus metrics (default: Ray picks one)")
-    parser.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its service checkpoint")
-    parser.add_argument("--overwrite", action="store_true", help="start over in a run.dir that holds a run")
-    parser.add_argument("--quiet", action="store_true", help="no progress lines")
-    parser.add_argument("--no-eval", action="store_true",
-                        help="skip the held-out evaluation, the GIF and the learning curve at the end")
-    return parser.parse_args(argv)
+    return build_parser().parse_args(argv)
 
 
 class ResumeMismatch(ValueError):
     """--resume names a run the other runner wrote."""
 
 
-def resolve(args: argparse.Namespace) -> tuple[Config, RunDirectory, RunLock]:
-    """Config (file + overrides + CLI metrics flags), the run directory (new, or the one resumed) and its lock, taken
+def resolve(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
+    """Config (file + overrides + the metrics flags), the run directory (new, or the one resumed) and its lock, taken
     before anything in the directory changes (a run in use is refused, naming its holder, and left untouched)."""
-    extra = list(args.overrides)
-    if args.metrics_port is not None:
-        extra.append(f"service.metrics_port={args.metrics_port}")
-    if args.metrics_host is not None:
-        extra.append(f'service.metrics_host="{args.metrics_host}"')
-    if args.resume:
-        run_dir = RunDirectory.open(args.resume)
+    overrides = request.config_overrides()
+    if request.resume_dir:
+        run_dir = RunDirectory.open(request.resume_dir)
         lock = RunLock.acquire(run_dir.path, holder_command())
         try:
             if run_dir.runners() == {"inline"}:
-                raise ResumeMismatch(f"{args.resume} was written by the inline runner; resume it with "
-                                     f"python -m cmcl.loop --resume {args.resume}")
-            return run_dir.config(tuple(extra)), run_dir, lock
+                raise ResumeMismatch(f"{request.resume_dir} was written by the inline runner; resume it with "
+                                     f"{resume_command(request.resume_dir)}")
+            return run_dir.config(overrides), run_dir, lock
         except BaseException:
             lock.release()
             raise
-    config = load_config(args.config, extra)
+    config = load_config(request.config_file, overrides)
     lock = RunLock.acquire(config.run.dir, holder_command())
     try:
-        return config, RunDirectory.create(config.run.dir, config, overwrite=args.overwrite), lock
+        return config, RunDirectory.create(config.run.dir, config, overwrite=request.overwrite), lock
     except BaseException:
         lock.release()
         raise
@@ -158,33 +148,37 @@ def resume_notice(run_dir: RunDirectory) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """CLI entry point. Exit codes: 0 done, 2 bad config / arguments / cluster / resources / run directory in use,
-    130 / 143 stopped by SIGINT / SIGTERM (every role checkpointed first)."""
-    args = parse_args(argv)
+    """`python -m services.launch`: the alias of `python -m cmcl train|resume --runner service`."""
+    return run_launch(request_from(parse_args(argv), "service"))
+
+
+def run_launch(request: RunRequest) -> int:
+    """Train, or resume, one service run. Exit codes: 0 done, 2 bad config / arguments / cluster / resources / run
+    directory in use, 130 / 143 stopped by SIGINT / SIGTERM (every role checkpointed first)."""
     try:
-        config, run_dir, lock = resolve(args)
+        config, run_dir, lock = resolve(request)
     except (ConfigError, FileExistsError, FileNotFoundError, RunDirectoryInUse, ResumeMismatch) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     with lock:
-        return _launch(args, config, run_dir, lock)
+        return _launch(request, config, run_dir, lock)
 
 
-def _launch(args: argparse.Namespace, config: Config, run_dir: RunDirectory, lock: RunLock) -> int:
+def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: RunLock) -> int:
     """Start (or join) Ray, train until done or stopped, shut Ray down quietly, report; the lock is held."""
     import ray
 
     from services.placement import InfeasibleResources
     from services.reaper import start_reaper
 
-    if args.resume:
+    if request.resume_dir:
         print(resume_notice(run_dir))
-    if not args.address and not ray.is_initialized():
+    if not request.address and not ray.is_initialized():
         start_reaper(keep_fds=(lock.fd,))  # no process of the embedded Ray outlives this one, SIGKILL included
     stop = StopSignals(notice=print)
     try:
         try:
-            start_ray(args.address, args.num_cpus, args.ray_metrics_port)
+            start_ray(request.address, request.num_cpus, request.ray_metrics_port)
         except ConnectionError as err:
             print(f"error: {err}", file=sys.stderr)
             return 2
@@ -194,8 +188,8 @@ def _launch(args: argparse.Namespace, config: Config, run_dir: RunDirectory, loc
             stop.install()
             unblock_stop_signals()
         try:
-            summary = run_service(config, run_dir, resume=bool(args.resume),
-                                  progress=None if args.quiet else print, stop=lambda: stop.requested)
+            summary = run_service(config, run_dir, resume=bool(request.resume_dir),
+                                  progress=None if request.quiet else print, stop=lambda: stop.requested)
         except (InfeasibleResources, OSError) as err:
             print(f"error: {err}", file=sys.stderr)
             return 2
@@ -203,12 +197,12 @@ def _launch(args: argparse.Namespace, config: Config, run_dir: RunDirectory, loc
             stop.training_over()
             with stderr_to(run_dir.path / "ray_shutdown.log"):
                 ray.shutdown()
-        return _report(args, config, run_dir, summary, stop)
+        return _report(request, config, run_dir, summary, stop)
     finally:
         stop.restore()
 
 
-def _report(args: argparse.Namespace, config: Config, run_dir: RunDirectory, summary: dict[str, Any],
+def _report(request: RunRequest, config: Config, run_dir: RunDirectory, summary: dict[str, Any],
             stop: StopSignals) -> int:
     """The end of a run: summary.json, the `done` line, then the resume hint (stopped) or the evaluation."""
     ended = stop.name or ("solved" if summary.get("solved") else "budget")
@@ -219,9 +213,9 @@ def _report(args: argparse.Namespace, config: Config, run_dir: RunDirectory, sum
                                                if summary.get("solved") else ""))
     if stop.requested:
         print(f"stopped by {stop.name}; every role is checkpointed. Resume with: "
-              f"python -m services.launch --resume {run_dir.path}")
+              f"{resume_command(run_dir.path)}")
         return stop.exit_code
-    if not args.no_eval:
+    if not request.no_eval:
         report_trained(config, run_dir)
     return 0
 

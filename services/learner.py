@@ -28,7 +28,8 @@ class Learner:
         self.config = cfg = actor_setup(config)
         if cfg.icm.intrinsic_reward_coef > 0:  # ablation A6 needs the ICM inside the learner: inline loop only
             raise ConfigError(f"icm.intrinsic_reward_coef={cfg.icm.intrinsic_reward_coef!r} is supported by the "
-                              "inline loop only (python -m cmcl.loop); the service's learner holds no ICM")
+                              "inline runner only (python -m cmcl train --runner inline); the service's learner "
+                              "holds no ICM")
         self.incarnation, self.checkpoint_path = new_incarnation(), checkpoint_path
         self.layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
         self.maddpg = build_maddpg(cfg, self.layout, seed)

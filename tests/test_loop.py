@@ -1,38 +1,31 @@
 """The inline Algorithm 1 loop: a short run of every algorithm preset, checkpoints, exact resume, CLI."""
 
+import functools
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from cmcl.config import config_from_dict, preset
+from cmcl.config import config_from_dict
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import LOCK_NAME
 from cmcl.loop import InlineLoop
 from cmcl.loop.__main__ import main
 
-TINY = {
-    "env": {"num_envs": 4},
-    "maddpg": {"batch_size": 16, "warmup": 96, "hidden": 32, "update_every": 1},
-    "replay": {"capacity": 600},
-    "teachers": {"batch_size": 16, "hidden": 32, "rescore_rows_per_update": 64},
-    "icm": {"batch_size": 16},
-    "run": {"episodes": 12, "log_every": 4, "checkpoint_every": 4, "smoothing_window": 8},
-}
+# The inline loop's tests on top of the shared tiny config (tests/conftest.py): one update per env step after the
+# warm-up, a checkpoint and a log row every 4 episodes.
+INLINE_SECTIONS = {"maddpg": {"update_every": 1}, "teachers": {"rescore_rows_per_update": 64},
+                   "run": {"log_every": 4, "checkpoint_every": 4}}
 
 
-def tiny_config(algorithm: str, task: str = "spread", opponent: str = "maddpg", **run):
-    data = preset(algorithm, task, opponent).to_dict()
-    for section, values in TINY.items():
-        data[section].update(values)
-    data["env"]["task"] = task
-    data["run"].update(run)
-    return config_from_dict(data)
+@pytest.fixture
+def tiny_config(tiny_config):
+    return functools.partial(tiny_config, sections=INLINE_SECTIONS)
 
 
 @pytest.mark.parametrize("algorithm", ["maddpg", "per", "acl", "cmcl"])
-def test_each_algorithm_runs_and_learns_from_its_own_priorities(algorithm, tmp_path):
+def test_each_algorithm_runs_and_learns_from_its_own_priorities(algorithm, tmp_path, tiny_config):
     config = tiny_config(algorithm, dir=str(tmp_path / algorithm))
     loop = InlineLoop(config, RunDirectory.create(config.run.dir, config), progress=None)
     row = loop.run()
@@ -59,7 +52,7 @@ def test_each_algorithm_runs_and_learns_from_its_own_priorities(algorithm, tmp_p
     assert len(list(Path(config.run.dir, "checkpoints").glob("ckpt_*.pt"))) == 3
 
 
-def test_eight_agents_with_shared_networks_run_and_resume_their_weights(tmp_path):
+def test_eight_agents_with_shared_networks_run_and_resume_their_weights(tmp_path, tiny_config):
     """Scale (issue 11): N = 8 navigation with one shared actor and critic and one teacher per fold; the
     learner's and the teachers' weights change, every row is scored, and a checkpoint restores them."""
     data = tiny_config("cmcl", dir=str(tmp_path / "n8")).to_dict()
@@ -86,7 +79,7 @@ def test_eight_agents_with_shared_networks_run_and_resume_their_weights(tmp_path
         assert torch.equal(resumed.maddpg.actor.state_dict()[k], v), k
 
 
-def test_predator_prey_pits_cmcl_predators_against_per_prey(tmp_path):
+def test_predator_prey_pits_cmcl_predators_against_per_prey(tmp_path, tiny_config):
     config = tiny_config("cmcl", task="tag", opponent="per", dir=str(tmp_path / "tag"), episodes=8)
     loop = InlineLoop(config, None, progress=None)
     loop.run()
@@ -104,7 +97,7 @@ def _final_weights(loop: InlineLoop) -> dict[str, torch.Tensor]:
     return {k: v.clone() for k, v in loop.maddpg.actor.state_dict().items()}
 
 
-def test_resume_continues_exactly_where_the_run_stopped(tmp_path):
+def test_resume_continues_exactly_where_the_run_stopped(tmp_path, tiny_config):
     # an explicit λ stride: the default one depends on run.episodes, which differs between the two runs
     straight = tiny_config("cmcl", dir=str(tmp_path / "straight"), episodes=12, checkpoint_every=4)
     straight = config_from_dict({**straight.to_dict(), "curriculum": {"stride": 1e-3}})
@@ -126,15 +119,13 @@ def test_resume_continues_exactly_where_the_run_stopped(tmp_path):
     np.testing.assert_array_equal(resumed.replay.storage.obs, full.replay.storage.obs)
 
 
-def test_cli_smoke_and_resume(tmp_path, capsys):
+def test_cli_smoke_and_resume(tmp_path, capsys, tiny_config_file):
     run = tmp_path / "cli"
-    args = ["--set", f"run.dir={run}", "--set", "run.episodes=8", "--set", "run.log_every=4",
-            "--set", "maddpg.warmup=96", "--set", "maddpg.batch_size=16", "--set", "replay.capacity=600",
-            "--set", "env.num_envs=4", "--set", "teachers.batch_size=16", "--set", "icm.batch_size=16"]
-    assert main(["--config", "configs/spread_cmcl.toml", *args]) == 0
+    args = ["--config", str(tiny_config_file("cmcl", dir=str(run), episodes=8))]
+    assert main(args) == 0
     out = capsys.readouterr().out
     assert "ep 8/8" in out and "λ" in out and (run / "learning_curve.png").stat().st_size > 0
-    assert main(["--config", "configs/spread_cmcl.toml", *args]) == 2  # refuses to overwrite a run
+    assert main(args) == 2  # refuses to overwrite a run
     assert "already holds a run" in capsys.readouterr().err
     assert main(["--resume", str(run), "--set", "run.episodes=12"]) == 0
     assert "resumed from" in capsys.readouterr().out
@@ -149,7 +140,8 @@ def test_cli_rejects_bad_config(capsys):
 
 @pytest.mark.parametrize("changed", ["teachers.share_parameters=true", "maddpg.share_parameters=true",
                                      "teachers.num_folds=2"])
-def test_resuming_under_other_network_settings_names_them_and_keeps_the_run(tmp_path, capsys, changed):
+def test_resuming_under_other_network_settings_names_them_and_keeps_the_run(tmp_path, capsys, changed,
+                                                                             tiny_config):
     config = tiny_config("cmcl", dir=str(tmp_path / "run"), episodes=4)
     InlineLoop(config, RunDirectory.create(config.run.dir, config), progress=None).run()
     stored = {p: p.read_bytes() for p in Path(config.run.dir).rglob("*") if p.is_file()}
@@ -165,7 +157,7 @@ def test_resuming_under_other_network_settings_names_them_and_keeps_the_run(tmp_
     assert after == stored
 
 
-def test_cmcl_at_eta_zero_trains_exactly_as_acl(tmp_path):
+def test_cmcl_at_eta_zero_trains_exactly_as_acl(tmp_path, tiny_config):
     """CI = KP + η·CP (eq. 14) at η = 0 is ACL's KP priority: CMCL then builds no ICM (nothing reads curiosity)
     and must train exactly as ACL, to the bit (the ablation grid found the same over 20,000 episodes on 5 seeds).
     Any CMCL-only setting or random stream that leaked into the rest of the loop would break this."""

@@ -2,6 +2,8 @@
 
 - `make run` ends with the held-out evaluation line and writes the GIF; `python -m cmcl.evaluate RUN_DIR` then
   finds the service's policy by itself, as it does an inline run's.
+- The service runs through the one entry point (`python -m cmcl train --runner service`, `python -m cmcl resume`),
+  and through its own command (`python -m services.launch`), which is an alias with the same flags.
 - Ctrl-C (SIGINT to the whole process group, as a terminal sends it) and SIGTERM mid-run: exit 130 / 143, no
   traceback, every role's checkpoint on disk, a one-line resume hint; the resume goes on from the policy it had.
 - SIGKILL of the launcher: no process of the Ray it started is left; `--resume` goes on from the last checkpoint.
@@ -108,12 +110,18 @@ def wait_until_gone(recorded: dict[int, int], timeout: float = 60) -> set[int]:
 
 
 def launch(run_dir: Path, *extra: str) -> Launched:
-    return Launched([PY, "-m", "services.launch", "--config", "configs/spread_cmcl.toml", "--set",
-                     f"run.dir={run_dir}", "--metrics-port", "0", "--set", "run.max_seconds=120", *extra])
+    """A service run through the one entry point."""
+    return Launched([PY, "-m", "cmcl", "train", "--runner", "service", "--config", "configs/spread_cmcl.toml",
+                     "--set", f"run.dir={run_dir}", "--metrics-port", "0", "--set", "run.max_seconds=120", *extra])
 
 
-def resume(run_dir: Path) -> Launched:
-    return Launched([PY, "-m", "services.launch", "--resume", str(run_dir), "--metrics-port", "0"])
+# The two ways to resume a service run: the one entry point, which finds the runner from the run directory, and
+# the service's own command (the cluster command of the deploy files).
+RESUME_COMMANDS = {"cmcl": [PY, "-m", "cmcl", "resume"], "services.launch": [PY, "-m", "services.launch", "--resume"]}
+
+
+def resume(run_dir: Path, command: str) -> Launched:
+    return Launched([*RESUME_COMMANDS[command], str(run_dir), "--metrics-port", "0"])
 
 
 def learner_version(run_dir: Path) -> int:
@@ -133,17 +141,18 @@ def first_versions_after(run_dir: Path, episode: int, count: int = 20) -> list[i
 def assert_clean_stop(run: Launched, code: int, name: str, run_dir: Path) -> None:
     assert run.finish() == code, run.text
     assert "Traceback" not in run.text and "SIGTERM received at time" not in run.text, run.text
-    assert f"stopped by {name}" in run.text and f"python -m services.launch --resume {run_dir}" in run.text
+    assert f"stopped by {name}" in run.text and f"Resume with: python -m cmcl resume {run_dir}" in run.text
     service = run_dir / "checkpoints" / "service"
     for role in ("learner", "icm", "teacher_0-1-2-3-4"):
         assert (service / f"{role}.pt.manifest.json").is_file(), f"no {role} checkpoint: {sorted(service.iterdir())}"
     assert json.loads((run_dir / "summary.json").read_text())["ended"] == name
 
 
-def resume_then_stop(run_dir: Path, version: int, logged: int, stop: signal.Signals) -> None:
-    """`--resume`, which must announce the checkpoint's policy `version`; stop it with `stop` after two progress
-    lines; a clean stop, and the resumed run's first episodes (after episode `logged`) played with that policy."""
-    again = resume(run_dir)
+def resume_then_stop(run_dir: Path, version: int, logged: int, stop: signal.Signals, command: str) -> None:
+    """Resume with `command` (a key of RESUME_COMMANDS), which must announce the checkpoint's policy `version`; stop
+    it with `stop` after two progress lines; a clean stop, and the resumed run's first episodes (after episode
+    `logged`) played with that policy."""
+    again = resume(run_dir, command)
     again.wait_for(lambda line: f"(policy version {version})" in line, "the resume notice")
     again.progress_lines(2)
     os.killpg(again.proc.pid, stop)
@@ -181,7 +190,7 @@ def test_ctrl_c_and_sigterm_stop_gracefully_a_second_launcher_is_refused_and_res
     version, episodes = learner_version(run_dir), json.loads((run_dir / "summary.json").read_text())["episodes_logged"]
     assert version > 0
 
-    resume_then_stop(run_dir, version, episodes, signal.SIGTERM)
+    resume_then_stop(run_dir, version, episodes, signal.SIGTERM, "services.launch")
     assert learner_version(run_dir) > version
 
 
@@ -198,7 +207,7 @@ def test_sigkill_of_the_launcher_leaves_no_ray_process_and_resume_goes_on_from_t
     version = learner_version(run_dir)
     logged = json.loads((run_dir / "checkpoints" / "service" / "supervisor.json").read_text())["episodes_logged"]
 
-    resume_then_stop(run_dir, version, logged, signal.SIGINT)
+    resume_then_stop(run_dir, version, logged, signal.SIGINT, "cmcl")
 
 
 def test_inline_runner_stops_on_ctrl_c_refuses_a_second_writer_and_resumes(tmp_path):
@@ -211,7 +220,7 @@ def test_inline_runner_stops_on_ctrl_c_refuses_a_second_writer_and_resumes(tmp_p
     assert second.returncode == 2 and f"is in use by pid {first.proc.pid}" in second.stderr, second.stderr
     os.killpg(first.proc.pid, signal.SIGINT)
     assert first.finish() == 130 and "Traceback" not in first.text, first.text
-    assert f"Resume with: python -m cmcl.loop --resume {run_dir}" in first.text
+    assert f"Resume with: python -m cmcl resume {run_dir}" in first.text
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["ended"] == "SIGINT" and summary["runner"] == "inline"
     stopped_at = summary["episodes"]

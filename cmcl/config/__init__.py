@@ -1,6 +1,6 @@
 """Typed, validated run configuration: one frozen dataclass per component, loaded from TOML.
 
-Where it sits: every entry point (`cmcl.loop`, `cmcl.evaluate`, `services.launch`) builds a `Config` with
+Where it sits: every command (`python -m cmcl train | resume | evaluate` and its aliases) builds a `Config` with
 `load_config(path, overrides)` and hands each component its section. Defaults are the paper's Table 1 values
 and the resolutions of ../shared/ALGORITHM.md §5 (each [R] choice is an option here with that default).
 

@@ -1,7 +1,7 @@
 """Learning-curve PNGs from a run's metrics.jsonl (episode rows and progress rows of cmcl.io.rundir).
 
-Where it sits: read-only consumer of run directories; used by cmcl.evaluate, cmcl.loop and services.launch
-at the end of a run.
+Where it sits: read-only consumer of run directories; used by `python -m cmcl evaluate` and by both runners at the end
+of a run.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """A run directory: resolved config, metrics as JSON lines, atomic checkpoints.
 
-Where it sits: `cmcl.loop` and `services.launch` write here; `cmcl.evaluate` and the plots read here.
+Where it sits: both runners (`python -m cmcl train | resume`) write here; `cmcl.evaluate` and the plots read here.
 Layout of `<dir>/`:
   config.toml            the resolved configuration (reloadable with cmcl.config.load_config)
   metrics.jsonl          one JSON object per line (episode rows and update rows, each with a "kind")
@@ -179,11 +179,22 @@ class RunDirectory:
                 pass
         return max(found, key=lambda c: c.mtime) if found else None
 
+    @property
+    def summary_path(self) -> Path:
+        return self.path / "summary.json"
+
     def write_summary(self, summary: Mapping[str, Any]) -> Path:
         """Write the runner's summary (how the run ended, its counters) to summary.json, atomically."""
-        path = self.path / "summary.json"
-        atomic_write_bytes(path, json.dumps(_json_safe(summary), indent=2, sort_keys=True).encode())
-        return path
+        atomic_write_bytes(self.summary_path, json.dumps(_json_safe(summary), indent=2, sort_keys=True).encode())
+        return self.summary_path
+
+    def summary(self) -> dict[str, Any]:
+        """The runner's last summary (`write_summary`), or {} when there is none or it does not parse."""
+        try:
+            loaded = json.loads(self.summary_path.read_text())
+        except (OSError, ValueError):
+            return {}
+        return loaded if isinstance(loaded, dict) else {}
 
 
 def save_torch_atomic(path: str | Path, state: Mapping[str, Any]) -> None:

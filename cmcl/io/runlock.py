@@ -1,10 +1,10 @@
 """One writer per run directory: an advisory lock (`flock`) on `<run dir>/run.lock`, naming its holder.
 
-Where it sits: `services.launch` and `python -m cmcl.loop` take it before they create, overwrite or resume a run
-directory, and hold it until they exit; `cmcl.evaluate` only reads and takes none. The kernel drops the lock when
-every process holding it has exited, by any signal (SIGKILL included), so a lock left by a dead process never
-blocks: the file stays, but nothing holds it. A process that inherits the descriptor (the launcher's Ray reaper,
-`services.reaper`) holds it too, so a new writer waits until the old run's last process has gone.
+Where it sits: both runners (`python -m cmcl train | resume`) take it before they create, overwrite or resume a run
+directory, and hold it until they exit; `python -m cmcl evaluate` only reads and takes none. The kernel drops the
+lock when every process holding it has exited, by any signal (SIGKILL included), so a lock left by a dead process
+never blocks: the file stays, but nothing holds it. A process that inherits the descriptor (the launcher's Ray
+reaper, `services.reaper`) holds it too, so a new writer waits until the old run's last process has gone.
 """
 
 from __future__ import annotations
@@ -76,7 +76,7 @@ class RunLock:
 
 
 def holder_command() -> str:
-    """This process's command line as a user typed it: `python -m services.launch --resume runs/x` (the module
+    """This process's command line as a user typed it: `python -m cmcl resume runs/x` (the module
     name stands for the path Python puts in argv[0] under -m)."""
     main = sys.modules.get("__main__")
     spec = getattr(main, "__spec__", None)

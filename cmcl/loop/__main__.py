@@ -1,6 +1,8 @@
-"""Command line of the inline loop: `python -m cmcl.loop` trains (or resumes) one run and plots its learning curve.
+"""The inline runner's command line: trains (or resumes) one run in this process and plots its learning curve.
 
-Run:  python -m cmcl.loop --config configs/spread_cmcl.toml [--set run.episodes=40 --set run.dir=runs/smoke]
+`python -m cmcl train --runner inline` and `python -m cmcl resume DIR` (a run this runner wrote) call `run_inline`;
+`python -m cmcl.loop` is their alias, with the same flags (cmcl/run_flags.py) and `--resume DIR`:
+      python -m cmcl.loop --config configs/spread_cmcl.toml [--set run.episodes=40 --set run.dir=runs/smoke]
       python -m cmcl.loop --resume runs/smoke [--set run.episodes=80]
 """
 
@@ -17,6 +19,7 @@ from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
 from cmcl.io.verified import CheckpointError
 from cmcl.loop.inline import InlineLoop
 from cmcl.progress import solved
+from cmcl.run_flags import RunRequest, RunRequestError, alias_parser, request_from, resume_command
 from cmcl.stopping import StopSignals
 
 
@@ -32,28 +35,40 @@ def restore_newest_good(loop: InlineLoop, run_dir: RunDirectory) -> Path | None:
     return None
 
 
+def build_parser() -> argparse.ArgumentParser:
+    """The alias's flags: those of every training command (cmcl/run_flags.py) and `--resume DIR`."""
+    return alias_parser("python -m cmcl.loop", "Train (or resume) one run with the inline runner: one process, "
+                                               "no Ray.")
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    return build_parser().parse_args(argv)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """CLI entry point: train, or resume, one inline run; write the learning curve at the end. Exit codes: 0 done,
+    """`python -m cmcl.loop`: the alias of `python -m cmcl train|resume --runner inline`."""
+    try:
+        request = request_from(parse_args(argv), "inline")
+    except RunRequestError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    return run_inline(request)
+
+
+def run_inline(request: RunRequest) -> int:
+    """Train, or resume, one inline run; write the learning curve at the end (unless `no_eval`). Exit codes: 0 done,
     2 bad config / arguments / run directory in use / nothing to resume, 130 / 143 stopped by SIGINT / SIGTERM
     (after a checkpoint)."""
-    parser = argparse.ArgumentParser(prog="python -m cmcl.loop", description=__doc__.split("\n")[0])
-    parser.add_argument("--config", help="TOML experiment file (default: built-in CMCL defaults)")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                        help="override one config value (repeatable)")
-    parser.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its latest checkpoint")
-    parser.add_argument("--overwrite", action="store_true", help="start over in a run.dir that holds a run")
-    parser.add_argument("--quiet", action="store_true", help="no progress lines")
-    args = parser.parse_args(argv)
     try:
-        if args.resume:
-            run_dir = RunDirectory.open(args.resume)
-            config = run_dir.config(tuple(args.overrides))
+        if request.resume_dir:
+            run_dir = RunDirectory.open(request.resume_dir)
+            config = run_dir.config(request.config_overrides())
             lock = RunLock.acquire(run_dir.path, holder_command())
         else:
-            config = load_config(args.config, args.overrides)
+            config = load_config(request.config_file, request.config_overrides())
             lock = RunLock.acquire(config.run.dir, holder_command())
             try:
-                run_dir = RunDirectory.create(config.run.dir, config, overwrite=args.overwrite)
+                run_dir = RunDirectory.create(config.run.dir, config, overwrite=request.overwrite)
             except BaseException:
                 lock.release()
                 raise
@@ -61,24 +76,25 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     with lock:
-        return _train(args, config, run_dir)
+        return _train(request, config, run_dir)
 
 
-def _train(args: argparse.Namespace, config: Config, run_dir: RunDirectory) -> int:
+def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
     """Build the loop, restore it when resuming, train until done or stopped; the run directory is locked."""
-    loop = InlineLoop(config, run_dir, progress=None if args.quiet else print)
-    if args.resume:
+    loop = InlineLoop(config, run_dir, progress=None if request.quiet else print)
+    if request.resume_dir:
+        resume_dir = request.resume_dir
         if run_dir.runners() == {"service"}:
-            print(f"error: {args.resume} was written by the service; resume it with "
-                  f"python -m services.launch --resume {args.resume}", file=sys.stderr)
+            print(f"error: {resume_dir} was written by the service; resume it with {resume_command(resume_dir)}",
+                  file=sys.stderr)
             return 2
         try:
             checkpoint = restore_newest_good(loop, run_dir)
         except ValueError as err:  # a checkpoint of other settings (shapes, folds): older ones are alike
-            print(f"error: {args.resume} cannot resume under these settings: {err}", file=sys.stderr)
+            print(f"error: {resume_dir} cannot resume under these settings: {err}", file=sys.stderr)
             return 2
         if checkpoint is None:
-            print(f"error: {args.resume} holds no checkpoint to resume from that passes its checks", file=sys.stderr)
+            print(f"error: {resume_dir} holds no checkpoint to resume from that passes its checks", file=sys.stderr)
             return 2
         run_dir.truncate_rows_after(loop.counters["episodes"])
         print(f"resumed from {checkpoint} at episode {loop.counters['episodes']}")
@@ -90,8 +106,11 @@ def _train(args: argparse.Namespace, config: Config, run_dir: RunDirectory) -> i
                                "window": row.get("window", {})})
         if stop.requested:
             print(f"stopped by {stop.name} at episode {loop.counters['episodes']}; checkpointed. Resume with: "
-                  f"python -m cmcl.loop --resume {run_dir.path}")
+                  f"{resume_command(run_dir.path)}")
             return stop.exit_code
+        if request.no_eval:
+            print(f"run directory: {run_dir.path}")
+            return 0
         from cmcl.io.plots import plot_learning_curves
 
         png = plot_learning_curves([run_dir.path], run_dir.path / "learning_curve.png",

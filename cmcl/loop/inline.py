@@ -6,7 +6,7 @@ It runs the same classes the service runs (built by cmcl.system) through the sam
 rollout of B batched worlds -> replay -> per update (one per `maddpg.update_every` world steps): teacher step,
 ICM step, scoring of the new rows plus `teachers.rescore_rows_per_update` rows of a rolling rescoring, priority
 recompute at the current λ, one MADDPG update of all agents; λ advanced per world step.
-Command line: `python -m cmcl.loop` (cmcl/loop/__main__.py).
+Command line: `python -m cmcl train --runner inline` (cmcl/loop/__main__.py; alias `python -m cmcl.loop`).
 """
 
 from __future__ import annotations

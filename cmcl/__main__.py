@@ -1,0 +1,96 @@
+"""One entry point for both runners: `python -m cmcl train | resume | evaluate`.
+
+    python -m cmcl train [--runner service|inline] [--config F] [--set section.key=value ...] [--overwrite]
+    python -m cmcl resume RUN_DIR [--set run.episodes=N ...]        (the runner that wrote RUN_DIR, by default)
+    python -m cmcl evaluate RUN_DIR [--episodes 100] [--checkpoint PATH] [--random] [--no-gif]
+
+The default runner of `train` is the service on an embedded Ray: the system this project is about, what `make run`
+starts, and the one that ends with the held-out evaluation and the GIF. `--runner inline` trains in this process
+without Ray (Algorithm 1, the reference the service is measured against). Both write one run-directory layout
+(cmcl/io/rundir.py), so `resume` and `evaluate` find the run's newest verified policy themselves.
+`python -m cmcl.loop`, `python -m services.launch` and `python -m cmcl.evaluate` remain, as aliases with the same
+flags (cmcl/run_flags.py). Exit codes: 0 done, 2 bad arguments / config / run directory, 130 / 143 stopped by
+SIGINT / SIGTERM after a checkpoint.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from cmcl.io.rundir import RunDirectory
+from cmcl.run_flags import RUNNERS, RunRequest, RunRequestError, add_evaluate_flags, add_run_flags, request_from
+
+DEFAULT_RUNNER = "service"
+# Each runner's entry function, imported only when that runner runs: `cmcl/` never imports Ray, and `--help`
+# imports no torch.
+RUNNER_ENTRIES = {"inline": ("cmcl.loop.__main__", "run_inline"), "service": ("services.launch", "run_launch")}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The parser of `python -m cmcl`: one sub-command per verb; the run flags are those of cmcl/run_flags.py."""
+    parser = argparse.ArgumentParser(prog="python -m cmcl", description=__doc__.split("\n")[0])
+    verbs = parser.add_subparsers(dest="verb", metavar="{train,resume,evaluate}", required=True)
+    train = verbs.add_parser("train", help="train a new run", description="Train a new run in run.dir.")
+    train.add_argument("--runner", choices=RUNNERS, default=DEFAULT_RUNNER,
+                       help="service (Ray; default) or inline (one process, no Ray)")
+    add_run_flags(train)
+    resume = verbs.add_parser("resume", help="continue a run from its newest checkpoint",
+                              description="Continue the run in RUN_DIR from its newest verified checkpoint.")
+    resume.add_argument("run_dir", metavar="RUN_DIR", help="a run directory written by either runner")
+    resume.add_argument("--runner", choices=RUNNERS, default=None, help="default: the runner that wrote RUN_DIR")
+    add_run_flags(resume, new_run=False)
+    evaluate = verbs.add_parser("evaluate", help="held-out evaluation of a run's policy, a GIF, the curve",
+                                description="Evaluate the newest verified policy of RUN_DIR on held-out worlds.")
+    add_evaluate_flags(evaluate)
+    return parser
+
+
+def runner_of(run_dir: RunDirectory) -> str:
+    """The runner that wrote `run_dir`: the one whose policy checkpoint it holds (the newer one if both do), else
+    the one its summary.json names, else the service if its checkpoint folder exists. Raises RunRequestError
+    when none of these tells."""
+    runners = run_dir.runners()
+    if len(runners) == 1:
+        return next(iter(runners))
+    if runners:
+        newest = run_dir.newest_policy()
+        if newest is not None:
+            return newest.runner
+    summary = run_dir.summary()
+    if summary.get("runner") in RUNNERS:
+        return summary["runner"]
+    if run_dir.service_dir.is_dir():
+        return "service"
+    raise RunRequestError(f"cannot tell which runner wrote {str(run_dir.path)!r} (no checkpoint, no summary.json); "
+                          f"pass --runner {' or --runner '.join(RUNNERS)}")
+
+
+def run(request: RunRequest) -> int:
+    """Hand `request` to its runner's entry function; returns the exit code."""
+    module, function = RUNNER_ENTRIES[request.runner]
+    return getattr(importlib.import_module(module), function)(request)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """CLI entry point (see the module docstring for the verbs and the exit codes)."""
+    args = build_parser().parse_args(argv)
+    if args.verb == "evaluate":
+        from cmcl.evaluate import evaluate_run
+
+        return evaluate_run(args)
+    try:
+        if args.verb == "resume":
+            runner = args.runner or runner_of(RunDirectory.open(args.run_dir))
+            request = request_from(args, runner, resume_dir=args.run_dir)
+        else:
+            request = request_from(args, args.runner)
+    except (FileNotFoundError, RunRequestError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    return run(request)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

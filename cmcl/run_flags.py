@@ -1,0 +1,124 @@
+"""The command-line flags of a training run, defined once for every entry point, and the typed request they become.
+
+Where it sits: `python -m cmcl train | resume` (cmcl/__main__.py) and its two aliases, `python -m cmcl.loop` (the
+inline runner) and `python -m services.launch` (the service), all build their parsers here, so the three accept the
+same flags and cannot drift (tests/test_cli.py checks it). Each parser's namespace becomes a `RunRequest`, which is
+what a runner receives; `add_evaluate_flags` does the same for `python -m cmcl evaluate` and `python -m cmcl.evaluate`.
+This module imports neither a runner nor Ray: `--help` stays fast and `cmcl/` stays free of Ray.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+from typing import Literal, get_args
+
+Runner = Literal["inline", "service"]
+RUNNERS: tuple[str, ...] = get_args(Runner)
+SERVICE_ONLY_FLAGS = {"address": "--address", "num_cpus": "--num-cpus", "ray_metrics_port": "--ray-metrics-port"}
+
+
+class RunRequestError(ValueError):
+    """A combination of flags no runner can honour (the message names the flag and its value)."""
+
+
+@dataclass(frozen=True)
+class RunRequest:
+    """What one training command asks for, whichever entry point parsed it.
+
+    runner: which runner trains; config_file: TOML experiment file (None: built-in CMCL defaults; ignored on resume);
+    overrides: "section.key=value" strings, in order; resume_dir: the run to continue (None: a new run in run.dir);
+    overwrite: start over in a run.dir that holds a run; quiet: no progress lines; no_eval: no evaluation, GIF or
+    learning curve at the end. Service only: address (Ray cluster to join, None: embedded Ray), num_cpus (CPUs of
+    the embedded Ray, None: all), ray_metrics_port (port of the embedded Ray's own metrics). metrics_port /
+    metrics_host become `service.metrics_port` / `service.metrics_host` overrides (`config_overrides`).
+    """
+
+    runner: Runner
+    config_file: str | None = None
+    overrides: tuple[str, ...] = ()
+    resume_dir: str | None = None
+    overwrite: bool = False
+    quiet: bool = False
+    no_eval: bool = False
+    address: str | None = None
+    num_cpus: int | None = None
+    metrics_port: int | None = None
+    metrics_host: str | None = None
+    ray_metrics_port: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.runner not in RUNNERS:
+            raise RunRequestError(f"--runner must be one of {', '.join(RUNNERS)}, got {self.runner!r}")
+        if self.runner == "inline":
+            for field, flag in SERVICE_ONLY_FLAGS.items():
+                if getattr(self, field) is not None:
+                    raise RunRequestError(f"{flag} {getattr(self, field)} is a flag of the service runner; the inline "
+                                          "runner trains in this process (use --runner service)")
+
+    def config_overrides(self) -> tuple[str, ...]:
+        """The `--set` overrides followed by those the metrics flags stand for."""
+        extra = list(self.overrides)
+        if self.metrics_port is not None:
+            extra.append(f"service.metrics_port={self.metrics_port}")
+        if self.metrics_host is not None:
+            extra.append(f'service.metrics_host="{self.metrics_host}"')
+        return tuple(extra)
+
+
+def resume_command(run_dir: object) -> str:
+    """The command that resumes the run in `run_dir`, whichever runner wrote it (printed when a run stops early)."""
+    return f"python -m cmcl resume {run_dir}"
+
+
+def add_run_flags(parser: argparse.ArgumentParser, *, new_run: bool = True) -> None:
+    """Add the flags of a training run to `parser`. new_run=False leaves out --config and --overwrite (a resume
+    reads the run's own config.toml and never starts over)."""
+    if new_run:
+        parser.add_argument("--config", help="TOML experiment file (default: built-in CMCL defaults)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="override one config value (repeatable)")
+    if new_run:
+        parser.add_argument("--overwrite", action="store_true", help="start over in a run.dir that holds a run")
+    parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    parser.add_argument("--no-eval", action="store_true",
+                        help="skip the held-out evaluation, the GIF and the learning curve at the end")
+    parser.add_argument("--metrics-port", type=int, default=None,
+                        help="Prometheus port of the service (default service.metrics_port; 0 picks a free one)")
+    parser.add_argument("--metrics-host", default=None, help="bind address of the metrics (default 127.0.0.1)")
+    service = parser.add_argument_group("service runner only")
+    service.add_argument("--address", default=None,
+                         help="Ray cluster to join ('auto' after `ray start --head`); default: embedded Ray")
+    service.add_argument("--num-cpus", type=int, default=None, help="CPUs of the embedded Ray (default: all)")
+    service.add_argument("--ray-metrics-port", type=int, default=None,
+                         help="embedded Ray only: port of Ray's own Prometheus metrics (default: Ray picks one)")
+
+
+def alias_parser(prog: str, description: str) -> argparse.ArgumentParser:
+    """The parser of a runner's own command (`python -m cmcl.loop`, `python -m services.launch`): the run flags and
+    `--resume DIR`, the runner fixed by the command."""
+    parser = argparse.ArgumentParser(prog=prog, description=description)
+    add_run_flags(parser)
+    parser.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its newest checkpoint")
+    return parser
+
+
+def request_from(args: argparse.Namespace, runner: str, resume_dir: str | None = None) -> RunRequest:
+    """The `RunRequest` of a parsed namespace (from `add_run_flags`, plus `--resume` on the aliases)."""
+    return RunRequest(runner=runner, config_file=getattr(args, "config", None), overrides=tuple(args.overrides),
+                      resume_dir=resume_dir or getattr(args, "resume", None),
+                      overwrite=getattr(args, "overwrite", False), quiet=args.quiet, no_eval=args.no_eval,
+                      address=args.address, num_cpus=args.num_cpus, metrics_port=args.metrics_port,
+                      metrics_host=args.metrics_host, ray_metrics_port=args.ray_metrics_port)
+
+
+def add_evaluate_flags(parser: argparse.ArgumentParser) -> None:
+    """Add the flags of `evaluate RUN_DIR` to `parser`."""
+    parser.add_argument("run_dir", metavar="RUN_DIR", help="a run directory written by either runner")
+    parser.add_argument("--checkpoint", help="checkpoint file (default: the run's newest verified policy, "
+                                             "whichever runner wrote it)")
+    parser.add_argument("--episodes", type=int, default=100, help="held-out episodes (default 100)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the held-out worlds (offset from training's)")
+    parser.add_argument("--random", action="store_true", help="evaluate a uniform random policy instead")
+    parser.add_argument("--gif", help="GIF path (default: <run_dir>/eval.gif)")
+    parser.add_argument("--no-gif", action="store_true", help="no GIF")

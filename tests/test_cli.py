@@ -1,0 +1,183 @@
+"""One entry point, `python -m cmcl train | resume | evaluate`, its aliases and its refusals.
+
+- The three training commands (`python -m cmcl train|resume`, `python -m cmcl.loop`, `python -m services.launch`)
+  have the same flags and turn the same arguments into the same `RunRequest`; the two evaluate commands likewise.
+- Each verb runs as a user runs it, a subprocess, on the inline runner with the tiny config; `resume` finds the
+  runner from the run directory itself.
+- Bad input (an unknown verb or runner, a folder that is not a run, a service flag for the inline runner, the other
+  runner's run) exits with 2 and a message naming the value, and leaves what is stored untouched.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from cmcl.__main__ import build_parser, main, runner_of
+from cmcl.evaluate import build_parser as evaluate_alias_parser
+from cmcl.io.rundir import RunDirectory
+from cmcl.io.runlock import LOCK_NAME
+from cmcl.loop import InlineLoop
+from cmcl.loop.__main__ import build_parser as loop_alias_parser
+from cmcl.run_flags import RunRequest, request_from
+from services.launch import build_parser as launch_alias_parser
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def verbs() -> dict[str, argparse.ArgumentParser]:
+    """The sub-command parsers of `python -m cmcl`, by verb."""
+    return next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
+
+
+def options(parser: argparse.ArgumentParser) -> set[str]:
+    return {s for action in parser._actions for s in action.option_strings if s not in ("-h", "--help")}
+
+
+def one_value_each(parser: argparse.ArgumentParser, skip: set[str]) -> list[str]:
+    """An argument list giving every optional flag of `parser` (but `skip`) a value of its type."""
+    argv: list[str] = []
+    for action in parser._actions:
+        flag = max(action.option_strings, key=len, default=None)
+        if flag is None or flag in skip or flag == "--help":
+            continue
+        if action.nargs == 0:
+            argv.append(flag)
+        elif flag == "--set":
+            argv += [flag, "run.episodes=3", flag, "run.seed=5"]
+        else:
+            argv += [flag, "7" if action.type is int else f"value-of{flag}"]
+    return argv
+
+
+def run_cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "cmcl", *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def trained_run(tiny_config, path: Path, episodes: int = 4) -> RunDirectory:
+    """A finished tiny inline run in `path`, trained in this process, checkpointed at its last episode."""
+    config = tiny_config("maddpg", dir=str(path), episodes=episodes, checkpoint_every=episodes, log_every=episodes)
+    run_dir = RunDirectory.create(path, config)
+    InlineLoop(config, run_dir, progress=None).run()
+    return run_dir
+
+
+def stored_files(path: Path) -> dict[Path, bytes]:
+    """Every file under `path` and its bytes, but run.lock (which names the last process that asked for the lock)."""
+    return {p: p.read_bytes() for p in path.rglob("*") if p.is_file() and p.name != LOCK_NAME}
+
+
+def test_the_training_commands_have_one_set_of_flags_and_make_the_same_request():
+    train, resume = verbs()["train"], verbs()["resume"]
+    aliases = {"cmcl.loop": loop_alias_parser(), "services.launch": launch_alias_parser()}
+    for name, alias in aliases.items():
+        assert options(alias) == options(train) - {"--runner"} | {"--resume"}, name
+    assert options(resume) == options(train) - {"--config", "--overwrite"}
+
+    argv = one_value_each(train, skip={"--runner"})
+    expected = request_from(train.parse_args(["--runner", "service", *argv]), "service")
+    assert expected.overrides == ("run.episodes=3", "run.seed=5") and expected.address == "value-of--address"
+    for name, alias in aliases.items():
+        assert request_from(alias.parse_args(argv), "service") == expected, name
+
+    argv = one_value_each(resume, skip={"--runner"})
+    expected = request_from(resume.parse_args(["runs/x", *argv]), "service", resume_dir="runs/x")
+    assert expected.resume_dir == "runs/x" and expected.num_cpus == 7
+    for name, alias in aliases.items():
+        assert request_from(alias.parse_args(["--resume", "runs/x", *argv]), "service") == expected, name
+
+
+def test_the_evaluate_commands_have_one_set_of_flags():
+    evaluate, alias = verbs()["evaluate"], evaluate_alias_parser()
+    assert options(evaluate) == options(alias)
+    argv = ["runs/x", *one_value_each(alias, skip=set())]
+    assert vars(evaluate.parse_args(argv)) == vars(alias.parse_args(argv))
+
+
+def test_train_runs_the_inline_runner_to_its_budget(tmp_path, tiny_config_file):
+    run_dir = tmp_path / "run"
+    config = tiny_config_file("cmcl", dir=str(run_dir), episodes=8, log_every=4, checkpoint_every=4)
+    trained = run_cli("train", "--runner", "inline", "--config", str(config))
+    assert trained.returncode == 0, trained.stdout + trained.stderr
+    assert "ep 8/8" in trained.stdout and f"run directory: {run_dir}" in trained.stdout
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["runner"] == "inline" and summary["ended"] == "budget" and summary["episodes"] == 8
+    assert (run_dir / "learning_curve.png").stat().st_size > 0
+    assert RunDirectory.open(run_dir).newest_policy().path.name == "ckpt_00000008.pt"
+    holder = json.loads((run_dir / LOCK_NAME).read_text())
+    assert holder["command"].startswith("python -m cmcl train --runner inline"), holder
+
+
+def test_resume_finds_the_runner_that_wrote_the_run_and_goes_on(tmp_path, tiny_config):
+    run_dir = trained_run(tiny_config, tmp_path / "run")
+    assert runner_of(run_dir) == "inline"
+    resumed = run_cli("resume", str(run_dir.path), "--set", "run.episodes=8", "--quiet", "--no-eval")
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    assert f"resumed from {run_dir.checkpoints / 'ckpt_00000004.pt'} at episode 4" in resumed.stdout
+    assert [r["episodes"] for r in run_dir.rows("episode")] == list(range(1, 9))
+    assert run_dir.summary()["runner"] == "inline" and run_dir.summary()["episodes"] == 8
+    assert not (run_dir.path / "learning_curve.png").exists(), "--no-eval: no learning curve"
+
+
+def test_evaluate_finds_the_newest_policy(tmp_path, tiny_config):
+    run_dir = trained_run(tiny_config, tmp_path / "run")
+    evaluated = run_cli("evaluate", str(run_dir.path), "--episodes", "8", "--no-gif")
+    assert evaluated.returncode == 0, evaluated.stderr
+    result = json.loads(evaluated.stdout[:evaluated.stdout.rindex("}") + 1])
+    assert result["policy"] == "trained" and result["episodes"] == 8
+    assert Path(result["checkpoint"]).name == "ckpt_00000004.pt"
+
+
+@pytest.mark.parametrize(("argv", "named"), [
+    (["fit"], "invalid choice: 'fit'"),
+    (["train", "--runner", "ray"], "argument --runner: invalid choice: 'ray'"),
+    (["resume", "RUN", "--runner", "cluster"], "argument --runner: invalid choice: 'cluster'"),
+    ([], "the following arguments are required"),
+])
+def test_an_unknown_verb_or_runner_is_refused_naming_it(argv, named, tmp_path, tiny_config, capsys):
+    run_dir = trained_run(tiny_config, tmp_path / "run")
+    before = stored_files(run_dir.path)
+    with pytest.raises(SystemExit) as exit_:
+        main([str(run_dir.path) if a == "RUN" else a for a in argv])
+    assert exit_.value.code == 2 and named in capsys.readouterr().err
+    assert stored_files(run_dir.path) == before
+
+
+def test_resume_of_a_folder_that_is_not_a_run_names_it_and_leaves_it_alone(tmp_path, capsys):
+    folder = tmp_path / "notes"
+    folder.mkdir()
+    (folder / "results.txt").write_text("keep me")
+    assert main(["resume", str(folder)]) == 2
+    assert f"{str(folder)!r} is not a run directory (no config.toml)" in capsys.readouterr().err
+    assert sorted(p.name for p in folder.iterdir()) == ["results.txt"]
+    assert (folder / "results.txt").read_text() == "keep me"
+
+
+def test_the_other_runners_run_and_a_service_flag_for_the_inline_runner_are_refused(tmp_path, tiny_config, capsys):
+    run_dir = trained_run(tiny_config, tmp_path / "run")
+    before = stored_files(run_dir.path)
+    assert main(["resume", str(run_dir.path), "--runner", "service"]) == 2
+    assert f"{run_dir.path} was written by the inline runner; resume it with python -m cmcl resume {run_dir.path}" \
+        in capsys.readouterr().err
+    assert main(["train", "--runner", "inline", "--address", "auto", "--set", f"run.dir={tmp_path / 'new'}"]) == 2
+    assert "--address auto is a flag of the service runner" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
+    assert stored_files(run_dir.path) == before
+
+
+def test_the_runner_of_a_run_without_a_checkpoint_comes_from_its_summary_or_must_be_given(tmp_path, tiny_config):
+    run_dir = RunDirectory.create(tmp_path / "run", tiny_config("maddpg", dir=str(tmp_path / "run")))
+    with pytest.raises(ValueError, match="cannot tell which runner wrote .*pass --runner inline or --runner service"):
+        runner_of(run_dir)
+    run_dir.write_summary({"runner": "inline", "ended": "SIGINT"})
+    assert runner_of(run_dir) == "inline"
+    with pytest.raises(ValueError, match="--num-cpus 2 is a flag of the service runner"):
+        RunRequest(runner="inline", num_cpus=2)
+    with pytest.raises(ValueError, match="--runner must be one of inline, service, got 'ray'"):
+        RunRequest(runner="ray")
