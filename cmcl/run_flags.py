@@ -1,10 +1,11 @@
-"""The command-line flags of a training run, defined once for every entry point, and the typed request they become.
+"""The command-line flags of a training run, defined once for every entry point, the typed request they become, and
+the opening of the run directory that request names (the same for both runners).
 
 Where it sits: `python -m cmcl train | resume` (cmcl/__main__.py) and its two aliases, `python -m cmcl.loop` (the
 inline runner) and `python -m services.launch` (the service), all build their parsers here, so the three accept the
 same flags and cannot drift (tests/test_cli.py checks it). Each parser's namespace becomes a `RunRequest`, which is
 what a runner receives; `add_evaluate_flags` does the same for `python -m cmcl evaluate` and `python -m cmcl.evaluate`.
-This module imports neither a runner nor Ray: `--help` stays fast and `cmcl/` stays free of Ray.
+This module imports neither a runner, torch nor Ray: `--help` stays fast and `cmcl/` stays free of Ray.
 """
 
 from __future__ import annotations
@@ -13,6 +14,10 @@ import argparse
 from dataclasses import dataclass
 from typing import Literal, get_args
 
+from cmcl.config import Config, load_config
+from cmcl.io.rundir import RunDirectory
+from cmcl.io.runlock import RunLock, holder_command
+
 Runner = Literal["inline", "service"]
 RUNNERS: tuple[str, ...] = get_args(Runner)
 SERVICE_ONLY_FLAGS = {"address": "--address", "num_cpus": "--num-cpus", "ray_metrics_port": "--ray-metrics-port"}
@@ -20,6 +25,10 @@ SERVICE_ONLY_FLAGS = {"address": "--address", "num_cpus": "--num-cpus", "ray_met
 
 class RunRequestError(ValueError):
     """A combination of flags no runner can honour (the message names the flag and its value)."""
+
+
+class ResumeMismatch(RunRequestError):
+    """The run to resume was written by the other runner (the message says how to resume it)."""
 
 
 @dataclass(frozen=True)
@@ -69,6 +78,33 @@ class RunRequest:
 def resume_command(run_dir: object) -> str:
     """The command that resumes the run in `run_dir`, whichever runner wrote it (printed when a run stops early)."""
     return f"python -m cmcl resume {run_dir}"
+
+
+def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
+    """The config (file, or the run's own config.toml on resume, with `config_overrides`), the run directory (new, or
+    the one resumed) and its lock, taken before anything in the directory changes: a run in use is refused, naming
+    its holder, and left untouched; so is the other runner's run. Raises ConfigError, FileExistsError (a run.dir
+    holding a run, without `overwrite`), FileNotFoundError (no run to resume), RunDirectoryInUse, ResumeMismatch."""
+    overrides = request.config_overrides()
+    if request.resume_dir:
+        run_dir = RunDirectory.open(request.resume_dir)
+        lock = RunLock.acquire(run_dir.path, holder_command())
+        try:
+            written_by = run_dir.runners()
+            if written_by and request.runner not in written_by:
+                raise ResumeMismatch(f"{request.resume_dir} was written by the {' and '.join(sorted(written_by))} "
+                                     f"runner; resume it with {resume_command(request.resume_dir)}")
+            return run_dir.config(overrides), run_dir, lock
+        except BaseException:
+            lock.release()
+            raise
+    config = load_config(request.config_file, overrides)
+    lock = RunLock.acquire(config.run.dir, holder_command())
+    try:
+        return config, RunDirectory.create(config.run.dir, config, overwrite=request.overwrite), lock
+    except BaseException:
+        lock.release()
+        raise
 
 
 def add_run_flags(parser: argparse.ArgumentParser, *, new_run: bool = True) -> None:

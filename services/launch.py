@@ -23,10 +23,10 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from cmcl.config import Config, ConfigError, load_config
+from cmcl.config import Config, ConfigError
 from cmcl.io.rundir import RunDirectory
-from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
-from cmcl.run_flags import RunRequest, alias_parser, request_from, resume_command
+from cmcl.io.runlock import RunDirectoryInUse, RunLock
+from cmcl.run_flags import RunRequest, RunRequestError, alias_parser, open_run, request_from, resume_command
 from cmcl.stopping import STOP_SIGNALS, StopSignals
 
 
@@ -37,34 +37,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return build_parser().parse_args(argv)
-
-
-class ResumeMismatch(ValueError):
-    """--resume names a run the other runner wrote."""
-
-
-def resolve(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
-    """Config (file + overrides + the metrics flags), the run directory (new, or the one resumed) and its lock, taken
-    before anything in the directory changes (a run in use is refused, naming its holder, and left untouched)."""
-    overrides = request.config_overrides()
-    if request.resume_dir:
-        run_dir = RunDirectory.open(request.resume_dir)
-        lock = RunLock.acquire(run_dir.path, holder_command())
-        try:
-            if run_dir.runners() == {"inline"}:
-                raise ResumeMismatch(f"{request.resume_dir} was written by the inline runner; resume it with "
-                                     f"{resume_command(request.resume_dir)}")
-            return run_dir.config(overrides), run_dir, lock
-        except BaseException:
-            lock.release()
-            raise
-    config = load_config(request.config_file, overrides)
-    lock = RunLock.acquire(config.run.dir, holder_command())
-    try:
-        return config, RunDirectory.create(config.run.dir, config, overwrite=request.overwrite), lock
-    except BaseException:
-        lock.release()
-        raise
 
 
 def start_ray(address: str | None, num_cpus: int | None, metrics_export_port: int | None = None) -> None:
@@ -156,8 +128,8 @@ def run_launch(request: RunRequest) -> int:
     """Train, or resume, one service run. Exit codes: 0 done, 2 bad config / arguments / cluster / resources / run
     directory in use, 130 / 143 stopped by SIGINT / SIGTERM (every role checkpointed first)."""
     try:
-        config, run_dir, lock = resolve(request)
-    except (ConfigError, FileExistsError, FileNotFoundError, RunDirectoryInUse, ResumeMismatch) as err:
+        config, run_dir, lock = open_run(request)
+    except (ConfigError, FileExistsError, FileNotFoundError, RunDirectoryInUse, RunRequestError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     with lock:

@@ -12,14 +12,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from cmcl.config import Config, ConfigError, load_config
+from cmcl.config import Config, ConfigError
 from cmcl.io import codec
 from cmcl.io.rundir import CHECKPOINT_GLOB, RunDirectory
-from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
+from cmcl.io.runlock import RunDirectoryInUse
 from cmcl.io.verified import CheckpointError
 from cmcl.loop.inline import InlineLoop
 from cmcl.progress import solved
-from cmcl.run_flags import RunRequest, RunRequestError, alias_parser, request_from, resume_command
+from cmcl.run_flags import RunRequest, RunRequestError, alias_parser, open_run, request_from, resume_command
 from cmcl.stopping import StopSignals
 
 
@@ -60,19 +60,8 @@ def run_inline(request: RunRequest) -> int:
     2 bad config / arguments / run directory in use / nothing to resume, 130 / 143 stopped by SIGINT / SIGTERM
     (after a checkpoint)."""
     try:
-        if request.resume_dir:
-            run_dir = RunDirectory.open(request.resume_dir)
-            config = run_dir.config(request.config_overrides())
-            lock = RunLock.acquire(run_dir.path, holder_command())
-        else:
-            config = load_config(request.config_file, request.config_overrides())
-            lock = RunLock.acquire(config.run.dir, holder_command())
-            try:
-                run_dir = RunDirectory.create(config.run.dir, config, overwrite=request.overwrite)
-            except BaseException:
-                lock.release()
-                raise
-    except (ConfigError, FileExistsError, FileNotFoundError, RunDirectoryInUse) as err:
+        config, run_dir, lock = open_run(request)
+    except (ConfigError, FileExistsError, FileNotFoundError, RunDirectoryInUse, RunRequestError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     with lock:
@@ -84,10 +73,6 @@ def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
     loop = InlineLoop(config, run_dir, progress=None if request.quiet else print)
     if request.resume_dir:
         resume_dir = request.resume_dir
-        if run_dir.runners() == {"service"}:
-            print(f"error: {resume_dir} was written by the service; resume it with {resume_command(resume_dir)}",
-                  file=sys.stderr)
-            return 2
         try:
             checkpoint = restore_newest_good(loop, run_dir)
         except ValueError as err:  # a checkpoint of other settings (shapes, folds): older ones are alike
