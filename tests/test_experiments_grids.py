@@ -11,14 +11,15 @@ from cmcl.io.rundir import RunDirectory
 from cmcl.loop import InlineLoop
 from experiments.grids import ABLATIONS, GRIDS, Run, grid, prefix_reference_runs
 from experiments.measures import summarise
-from tests.test_loop import tiny_config
+from tests.test_loop import INLINE_SECTIONS
+from tests.tiny import make_tiny_config
 
 
 @pytest.fixture(scope="module")
 def finished_run(tmp_path_factory):
     """A tiny CMCL navigation run of 12 episodes with checkpoints at 4, 8 and 12."""
     path = tmp_path_factory.mktemp("reproduce") / "spread_cmcl_s0"
-    config = tiny_config("cmcl", dir=str(path))
+    config = make_tiny_config("cmcl", sections=INLINE_SECTIONS, dir=str(path))
     InlineLoop(config, RunDirectory.create(path, config), progress=None).run()
     return path
 

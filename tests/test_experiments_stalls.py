@@ -7,12 +7,14 @@ from cmcl.loop import InlineLoop
 from experiments.labels import ARM_LABEL
 from experiments.stalls import MIN_PLATEAU, analyse_folder, analyse_run, load_stalls, stall_table
 from experiments.store import ResultsStore
-from tests.test_loop import tiny_config
+from tests.test_loop import INLINE_SECTIONS
+from tests.tiny import make_tiny_config
 
 
 def test_a_finished_run_gets_a_record_and_an_unfinished_one_none(tmp_path):
     folder = tmp_path / "grid"
-    config = tiny_config("cmcl", dir=str(folder / "runs" / "curriculum_cmcl_s0"), episodes=24)
+    config = make_tiny_config("cmcl", sections=INLINE_SECTIONS, dir=str(folder / "runs" / "curriculum_cmcl_s0"),
+                              episodes=24)
     InlineLoop(config, RunDirectory.create(config.run.dir, config), progress=None).run()
     ResultsStore(folder).write({"id": "curriculum_cmcl_s0", "arm": "cmcl"})
     record = analyse_run(folder / "runs" / "curriculum_cmcl_s0", "cmcl")
@@ -24,7 +26,7 @@ def test_a_finished_run_gets_a_record_and_an_unfinished_one_none(tmp_path):
     assert [p.name for p in written] == ["curriculum_cmcl_s0.json"]
     assert analyse_folder(folder, report=lambda line: None) == []  # a record is written once
     assert load_stalls(folder)[0] == json.loads(json.dumps(record))
-    unfinished = tiny_config("cmcl", dir=str(tmp_path / "unfinished"), episodes=24)
+    unfinished = make_tiny_config("cmcl", sections=INLINE_SECTIONS, dir=str(tmp_path / "unfinished"), episodes=24)
     InlineLoop(unfinished, RunDirectory.create(unfinished.run.dir, unfinished), progress=None).run()
     cfg = RunDirectory.open(unfinished.run.dir)
     (cfg.path / "metrics.jsonl").write_text("".join(line for i, line in enumerate(
