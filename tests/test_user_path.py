@@ -163,8 +163,9 @@ def resume_then_stop(run_dir: Path, version: int, logged: int, stop: signal.Sign
 
 def test_make_run_ends_with_the_held_out_evaluation_and_a_gif_and_evaluate_finds_the_policy(tmp_path):
     run_dir = tmp_path / "make-run"
-    run = Launched(["make", "-s", "run", f"RUN_ARGS=--set run.dir={run_dir} --set run.max_seconds=10 "
-                                         "--metrics-port 0"])
+    # a budget in episodes, not seconds: under load a 10 s budget once ended before the first episode
+    run = Launched(["make", "-s", "run", f"RUN_ARGS=--set run.dir={run_dir} --set run.episodes=96 "
+                                         "--set run.max_seconds=600 --metrics-port 0"])
     assert run.finish() == 0, run.text
     assert "held-out evaluation (200 new worlds, no exploration noise): coverage" in run.text, run.text
     assert (run_dir / "trained.gif").stat().st_size > 0 and (run_dir / "learning_curve.png").is_file()
