@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cmcl.config import Config
+from cmcl.config import Config, ConfigError
 from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.curriculum import CurriculumSchedule, default_growth
 
@@ -46,6 +46,9 @@ class AgentLayout:
     difficulty_source: tuple[str, ...]
     teacher_agents: np.ndarray
     icm_agents: np.ndarray
+    # float32[N, act_dim]: 1 where the agent has that action entry, 0 on padding (agents whose action sizes differ,
+    # env.factory); None when every agent uses every entry (the built-in tasks)
+    act_mask: np.ndarray | None = None
 
     @property
     def team_of(self) -> list[str]:
@@ -59,10 +62,17 @@ class AgentLayout:
 
 def make_batched_env(config: Config, num_envs: int | None = None, seed: Any = None, auto_reset: bool = True):
     """The batched numpy twin of config.env.task stepping `num_envs` (default config.env.num_envs) worlds."""
-    from cmcl.envs.batched import BatchedSparseSpread, BatchedSparseTag
-
     env = config.env
     b = env.num_envs if num_envs is None else num_envs
+    if env.factory:
+        from cmcl.envs.factory import load_factory
+        from cmcl.envs.parallel_vector import VectorParallelEnv
+
+        return VectorParallelEnv(load_factory(env.factory, env.factory_kwargs), b, env.episode_length, seed=seed,
+                                 auto_reset=auto_reset, team_of=env.team_of, success_key=env.success_key,
+                                 coverage_key=env.coverage_key, factory=f"env.factory {env.factory!r}")
+    from cmcl.envs.batched import BatchedSparseSpread, BatchedSparseTag
+
     if env.task == "spread":
         return BatchedSparseSpread(b, num_agents=env.num_agents, episode_length=env.episode_length,
                                    agent_radius=env.agent_radius, shared_reward=env.shared_reward,
@@ -78,6 +88,10 @@ def make_batched_env(config: Config, num_envs: int | None = None, seed: Any = No
 def make_parallel_env(config: Config, render_mode: str | None = None):
     """The PettingZoo ParallelEnv of config.env.task (reference dynamics, rendering)."""
     env = config.env
+    if env.factory:
+        from cmcl.envs.factory import load_factory
+
+        return load_factory(env.factory, {**env.factory_kwargs, "render_mode": render_mode})()
     if env.task == "spread":
         from cmcl.envs import sparse_spread_v0
 
@@ -95,8 +109,16 @@ def make_parallel_env(config: Config, render_mode: str | None = None):
 
 
 def agent_layout(config: Config, env) -> AgentLayout:
-    """Per-agent modes and score needs from the team configs and the env's team membership."""
+    """Per-agent modes and score needs from the team configs and the env's team membership.
+
+    Raises ConfigError when the config's teams are not exactly the env's (a factory env's teams are known here
+    first), naming the teams and their agents."""
     n = env.num_agents
+    if set(env.teams) != set(config.teams):
+        ids = getattr(env, "agent_ids", [str(i) for i in range(n)])
+        members = {team: [ids[i] for i in idx] for team, idx in env.teams.items()}
+        raise ConfigError(f"teams: the config names {sorted(config.teams)}, the environment's agents form the teams "
+                          f"{members} (by agent-id prefix or env.team_of); give every one a [teams.<name>] table")
     modes, eta, isw, source, alpha = [""] * n, [0.0] * n, [False] * n, ["difficulty"] * n, [1.0] * n
     teacher, icm = [], []
     for team, members in env.teams.items():
@@ -113,12 +135,14 @@ def agent_layout(config: Config, env) -> AgentLayout:
             if spec.uses_icm:
                 icm.append(agent)
     act_dim = DISCRETE_ACT_DIM if config.maddpg.discrete else env.act_dim
+    mask = getattr(env, "act_mask", None)
     return AgentLayout(num_agents=n, obs_dim=env.obs_dim, env_act_dim=env.act_dim, act_dim=act_dim,
                        teams={k: list(v) for k, v in env.teams.items()}, modes=tuple(modes), eta=tuple(eta),
                        alpha=tuple(alpha),
                        importance_weights=tuple(isw), difficulty_source=tuple(source),
                        teacher_agents=np.asarray(sorted(teacher), dtype=np.int64),
-                       icm_agents=np.asarray(sorted(icm), dtype=np.int64))
+                       icm_agents=np.asarray(sorted(icm), dtype=np.int64),
+                       act_mask=None if mask is None or mask.all() else mask.copy())
 
 
 def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
@@ -128,7 +152,7 @@ def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
     m = config.maddpg
     return MADDPG(layout.num_agents, layout.obs_dim, layout.act_dim, hidden=m.hidden, actor_lr=m.actor_lr,
                   critic_lr=m.critic_lr, gamma=m.gamma, tau=m.tau, grad_clip=m.grad_clip, discrete=m.discrete,
-                  seed=seed, share_parameters=m.share_parameters)
+                  seed=seed, share_parameters=m.share_parameters, act_mask=layout.act_mask)
 
 
 def build_replay(config: Config, layout: AgentLayout) -> ReplayBuffer:
