@@ -12,7 +12,7 @@ class Reach(ParallelEnv):
     metadata = {"name": "reach_v0"}
 
     def __init__(self, max_cycles=25, render_mode=None):
-        self.possible_agents, self.max_cycles, self.render_mode = ["walker_0", "walker_1"], max_cycles, render_mode
+        self.possible_agents, self.max_cycles, self.render_mode = ["agent_0", "agent_1"], max_cycles, render_mode
 
     def observation_space(self, agent):
         return Box(-1.0, 1.0, (2,), np.float32)  # (own position, own goal)
