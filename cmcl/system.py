@@ -60,15 +60,18 @@ class AgentLayout:
         return names
 
 
-def make_batched_env(config: Config, num_envs: int | None = None, seed: Any = None, auto_reset: bool = True):
-    """The batched numpy twin of config.env.task stepping `num_envs` (default config.env.num_envs) worlds."""
+def make_batched_env(config: Config, num_envs: int | None = None, seed: Any = None, auto_reset: bool = True,
+                     render_mode: str | None = None):
+    """The batched numpy twin of config.env.task stepping `num_envs` (default config.env.num_envs) worlds, or for
+    `env.factory` that many copies of the user's environment behind the same interface (render_mode: theirs only)."""
     env = config.env
     b = env.num_envs if num_envs is None else num_envs
     if env.factory:
         from cmcl.envs.factory import load_factory
         from cmcl.envs.parallel_vector import VectorParallelEnv
 
-        return VectorParallelEnv(load_factory(env.factory, env.factory_kwargs), b, env.episode_length, seed=seed,
+        kwargs = env.factory_kwargs if render_mode is None else {**env.factory_kwargs, "render_mode": render_mode}
+        return VectorParallelEnv(load_factory(env.factory, kwargs), b, env.episode_length, seed=seed,
                                  auto_reset=auto_reset, team_of=env.team_of, success_key=env.success_key,
                                  coverage_key=env.coverage_key, factory=f"env.factory {env.factory!r}")
     from cmcl.envs.batched import BatchedSparseSpread, BatchedSparseTag

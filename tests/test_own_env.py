@@ -14,8 +14,8 @@ from cmcl.loop.inline import InlineLoop
 from cmcl.system import agent_layout, make_batched_env
 
 REACH = "cmcl.envs.examples.reach:parallel_env"
-MPE = {"spread": "mpe2.simple_spread_v3:parallel_env", "speaker_listener": "mpe2.simple_speaker_listener_v4:parallel_env",
-       "tag": "mpe2.simple_tag_v3:parallel_env"}
+MPE = {"spread": "mpe2.simple_spread_v3:parallel_env", "tag": "mpe2.simple_tag_v3:parallel_env",
+       "speaker_listener": "mpe2.simple_speaker_listener_v4:parallel_env"}
 CONTINUOUS = "env.factory_kwargs={continuous_actions=true, max_cycles=25}"
 TINY = ["env.num_envs=4", "maddpg.batch_size=16", "maddpg.warmup=96", "maddpg.hidden=32", "replay.capacity=600",
         "teachers.batch_size=16", "teachers.hidden=32", "teachers.num_folds=3", "icm.batch_size=16",
@@ -172,3 +172,18 @@ def test_the_example_reports_success_and_its_terminations_reach_the_critic_targe
     resumed.restore(loop.run_dir.latest_checkpoint())
     assert resumed.counters == loop.counters
     assert resumed.episodes.ids.min() > loop.episodes.ids.max(), "a resumed factory run starts new episodes"
+
+
+def test_evaluation_and_the_gif_work_for_a_factory_environment(tmp_path):
+    from cmcl.evaluate import evaluate_policy, render_gif
+
+    cfg = config(REACH, "env.success_key=reached")
+    maddpg = InlineLoop(cfg, None, progress=None).maddpg
+    greedy = type("Greedy", (), {"act": staticmethod(lambda obs, *a, **k: np.clip(
+        (obs[..., 1:2] - obs[..., 0:1]) / 0.2, -1, 1).astype(np.float32))})()
+    result = evaluate_policy(cfg, greedy, episodes=20)
+    assert result["success"] == 1.0 and result["episodes"] == 20, result
+    random = evaluate_policy(cfg, None, episodes=20)
+    assert random["success"] < 1.0 and random["reward"]["agent"] < result["reward"]["agent"]
+    gif = render_gif(cfg, maddpg, tmp_path / "reach.gif")
+    assert gif.stat().st_size > 0

@@ -39,6 +39,13 @@ class Reach(ParallelEnv):
             self.agents = []
         return obs, rew, term, trunc, infos
 
+    def render(self):  # rgb_array: one band per agent, its goal green, the agent white
+        img = np.zeros((8 * len(self.possible_agents), 64, 3), np.uint8)
+        for i, (pos, goal) in enumerate(self.state.values()):
+            img[8 * i : 8 * i + 8, int((goal + 1) * 31.5)] = (0, 255, 0)
+            img[8 * i : 8 * i + 8, int((pos + 1) * 31.5)] = 255
+        return img
+
 
 def parallel_env(**kwargs):
     return Reach(**kwargs)
