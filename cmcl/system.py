@@ -76,16 +76,20 @@ def make_batched_env(config: Config, num_envs: int | None = None, seed: Any = No
                                  coverage_key=env.coverage_key, factory=f"env.factory {env.factory!r}")
     from cmcl.envs.batched import BatchedSparseSpread, BatchedSparseTag
 
+    twin = BatchedSparseSpread if env.task == "spread" else BatchedSparseTag
+    return twin(b, episode_length=env.episode_length, seed=seed, auto_reset=auto_reset, **task_sizes(config))
+
+
+def task_sizes(config: Config) -> dict[str, Any]:
+    """The built-in task's world parameters from EnvConfig, as keyword arguments of both its batched twin and its
+    PettingZoo env (the one place that maps config fields onto the task constructors; the episode length aside)."""
+    env = config.env
     if env.task == "spread":
-        return BatchedSparseSpread(b, num_agents=env.num_agents, episode_length=env.episode_length,
-                                   agent_radius=env.agent_radius, shared_reward=env.shared_reward,
-                                   cover_radius=env.cover_radius,
-                                   seed=seed, auto_reset=auto_reset)
-    return BatchedSparseTag(b, num_predators=env.num_predators, num_prey=env.num_prey,
-                            num_obstacles=env.num_obstacles, obstacle_radius=env.obstacle_radius,
-                            predator_radius=env.predator_radius, prey_radius=env.prey_radius,
-                            shared_reward=env.tag_shared_reward,
-                            episode_length=env.episode_length, seed=seed, auto_reset=auto_reset)
+        return {"num_agents": env.num_agents, "agent_radius": env.agent_radius, "shared_reward": env.shared_reward,
+                "cover_radius": env.cover_radius}
+    return {"num_predators": env.num_predators, "num_prey": env.num_prey, "num_obstacles": env.num_obstacles,
+            "obstacle_radius": env.obstacle_radius, "predator_radius": env.predator_radius,
+            "prey_radius": env.prey_radius, "shared_reward": env.tag_shared_reward}
 
 
 def make_parallel_env(config: Config, render_mode: str | None = None):
@@ -96,19 +100,10 @@ def make_parallel_env(config: Config, render_mode: str | None = None):
 
         return load_factory(env.factory, {**env.factory_kwargs, "render_mode": render_mode})()
     if env.task == "spread":
-        from cmcl.envs import sparse_spread_v0
-
-        return sparse_spread_v0.parallel_env(num_agents=env.num_agents, max_cycles=env.episode_length,
-                                             agent_radius=env.agent_radius, shared_reward=env.shared_reward,
-                                             cover_radius=env.cover_radius,
-                                             render_mode=render_mode)
-    from cmcl.envs import sparse_tag_v0
-
-    return sparse_tag_v0.parallel_env(num_predators=env.num_predators, num_prey=env.num_prey,
-                                      num_obstacles=env.num_obstacles, obstacle_radius=env.obstacle_radius,
-                                      predator_radius=env.predator_radius, prey_radius=env.prey_radius,
-                                      shared_reward=env.tag_shared_reward,
-                                      max_cycles=env.episode_length, render_mode=render_mode)
+        from cmcl.envs import sparse_spread_v0 as module
+    else:
+        from cmcl.envs import sparse_tag_v0 as module
+    return module.parallel_env(max_cycles=env.episode_length, render_mode=render_mode, **task_sizes(config))
 
 
 def agent_layout(config: Config, env) -> AgentLayout:
