@@ -22,6 +22,14 @@ TINY = ["env.num_envs=4", "maddpg.batch_size=16", "maddpg.warmup=96", "maddpg.hi
         "run.log_every=8", "run.checkpoint_every=0"]
 
 
+class GreedyWalker:
+    """The example's obvious policy: every agent steps at full speed toward its goal (obs = position, goal)."""
+
+    @staticmethod
+    def act(obs, *args, **kwargs):
+        return np.clip((obs[..., 1:2] - obs[..., 0:1]) / 0.2, -1, 1).astype(np.float32)
+
+
 def config(factory, *overrides):
     return load_config(None, [f"env.factory={factory}", *TINY, *overrides])
 
@@ -163,7 +171,7 @@ def test_the_example_reports_success_and_its_terminations_reach_the_critic_targe
 
     cfg = config(REACH, "env.success_key=reached", "run.episodes=24", f"run.dir={tmp_path / 'reach'}")
     loop = InlineLoop(cfg, RunDirectory.create(cfg.run.dir, cfg), progress=None)
-    loop.maddpg.act = lambda obs, *a, **k: np.clip((obs[..., 1:2] - obs[..., 0:1]) / 0.2, -1, 1)  # a greedy walker
+    loop.maddpg.act = GreedyWalker.act
     row = loop.run()
     assert row["window"]["success"] == 1.0
     stored = loop.replay.storage
@@ -179,11 +187,36 @@ def test_evaluation_and_the_gif_work_for_a_factory_environment(tmp_path):
 
     cfg = config(REACH, "env.success_key=reached")
     maddpg = InlineLoop(cfg, None, progress=None).maddpg
-    greedy = type("Greedy", (), {"act": staticmethod(lambda obs, *a, **k: np.clip(
-        (obs[..., 1:2] - obs[..., 0:1]) / 0.2, -1, 1).astype(np.float32))})()
-    result = evaluate_policy(cfg, greedy, episodes=20)
+    result = evaluate_policy(cfg, GreedyWalker(), episodes=20)
     assert result["success"] == 1.0 and result["episodes"] == 20, result
     random = evaluate_policy(cfg, None, episodes=20)
     assert random["success"] < 1.0 and random["reward"]["agent"] < result["reward"]["agent"]
     gif = render_gif(cfg, maddpg, tmp_path / "reach.gif")
     assert gif.stat().st_size > 0
+
+
+def test_the_rollout_worker_sends_whole_episodes_of_any_length_and_the_replay_keeps_their_folds():
+    from services.replay_server import ReplayServer
+    from services.rollout import RolloutWorker
+
+    cfg = config(REACH, "env.success_key=reached", "env.episode_length=12").to_dict()
+    worker, server = RolloutWorker(cfg, 0, 0), ReplayServer(cfg)
+    worker.policy = GreedyWalker()  # reaches the goals: episodes of different lengths, ended by termination
+    lengths, sent = [], 0
+    for seq in range(4):
+        chunk, report = worker.rollout(None)
+        assert chunk.seq == seq and chunk.worlds == 4 and set(chunk.env_index.tolist()) == set(range(4))
+        for e in range(4):
+            rows = np.flatnonzero(chunk.env_index == e)
+            lengths.append(len(rows))
+            assert chunk.done[rows[:-1]].sum() == 0, "only an episode's last row can be terminal"
+        assert server.insert(chunk).accepted == chunk.rows
+        sent += chunk.rows
+        assert report.rollout.env_steps >= sent and (report.rollout.finished.success == 1.0).all()
+    assert len(set(lengths)) > 1 and max(lengths) <= 12, lengths
+    assert server.replay.storage.done[:sent].sum() == 16, "each episode ended by termination, in its last row"
+    storage = server.replay.storage
+    episode, fold = storage.episode[:sent], storage.fold[:sent]
+    for e in np.unique(episode):
+        assert len(set(fold[episode == e].tolist())) == 1, "one fold per episode"
+    assert np.unique(episode).size == 16
