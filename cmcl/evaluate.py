@@ -58,16 +58,21 @@ def evaluate_policy(config: Config, maddpg: MADDPG | None, episodes: int = 100, 
         raise ValueError(f"random_teams names {unknown[0]!r}, not a team of this task: {sorted(env.teams)}")
     random_agents = [a for team in random_teams for a in env.teams[team]]
     obs = env.reset()
-    info: dict[str, Any] = {}
-    for _ in range(env.episode_length):
+    ended, parts = np.zeros(episodes, bool), []  # parts: info["episode"] of the steps in which worlds ended
+    for _ in range(env.episode_length):  # the twins end every world at the last step; an env.factory world any time
         uniform = rng.uniform(-1.0, 1.0, size=(episodes, env.num_agents, env.act_dim)).astype(np.float32)
         if maddpg is None:
             actions = uniform
         else:
             actions = to_env_actions(maddpg.act(obs, noise_std, rng=rng), config.maddpg.discrete)
             actions[:, random_agents] = uniform[:, random_agents]
-        obs, _, _, info = env.step(actions)
-    ep = info["episode"]
+        obs, _, done, info = env.step(actions)
+        if done.any():
+            parts.append(info["episode"])
+            ended |= done
+        if ended.all():
+            break
+    ep = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     out: dict[str, Any] = {"episodes": episodes, "policy": "random" if maddpg is None else "trained"}
     if isinstance(env, BatchedSparseSpread):  # where the landmarks were missed (cmcl.stalls)
         state = env.get_state()
@@ -85,6 +90,36 @@ def render_gif(config: Config, maddpg: MADDPG | None, path: str | Path, seed: in
     """One episode of the PettingZoo env with the policy (no noise; random if maddpg is None) as a GIF."""
     from PIL import Image
 
+    if config.env.factory:
+        frames = _factory_frames(config, maddpg, seed)
+    else:
+        frames = _twin_frames(config, maddpg, seed)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    images = [Image.fromarray(np.asarray(f, dtype=np.uint8)) for f in frames]
+    images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+    return path
+
+
+def _factory_frames(config: Config, maddpg: MADDPG | None, seed: int) -> list[Any]:
+    """Frames of one episode of an env.factory environment (its own `render`), stepped through the adapter."""
+    rng = np.random.default_rng(seed + EVAL_SEED_OFFSET)
+    env = make_batched_env(config, num_envs=1, seed=rng, auto_reset=False, render_mode="rgb_array")
+    obs, frames, done = env.reset(), [env.render()], np.zeros(1, bool)
+    if frames[0] is None:
+        raise ValueError(f"env.factory {config.env.factory!r}: render() returned no frame with "
+                         "render_mode='rgb_array', so there is no GIF")
+    while not done[0]:
+        actions = rng.uniform(-1.0, 1.0, size=(1, env.num_agents, env.act_dim)).astype(np.float32) \
+            if maddpg is None else maddpg.act(obs, 0.0, rng=rng)
+        obs, _, done, _ = env.step(actions)
+        frames.append(env.render())
+    env.close()
+    return frames
+
+
+def _twin_frames(config: Config, maddpg: MADDPG | None, seed: int) -> list[Any]:
+    """Frames of one episode of the built-in task's PettingZoo env."""
     env = make_parallel_env(config, render_mode="rgb_array")
     rng = np.random.default_rng(seed + EVAL_SEED_OFFSET)
     observations, _ = env.reset(seed=seed + EVAL_SEED_OFFSET)
@@ -102,11 +137,7 @@ def render_gif(config: Config, maddpg: MADDPG | None, path: str | Path, seed: in
         observations, *_ = env.step(acts)
         frames.append(env.render())
     env.close()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    images = [Image.fromarray(np.asarray(f, dtype=np.uint8)) for f in frames]
-    images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
-    return path
+    return frames
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cmcl.config import Config
+from cmcl.config import Config, ConfigError
 from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.curriculum import CurriculumSchedule, default_growth
 
@@ -46,6 +46,9 @@ class AgentLayout:
     difficulty_source: tuple[str, ...]
     teacher_agents: np.ndarray
     icm_agents: np.ndarray
+    # float32[N, act_dim]: 1 where the agent has that action entry, 0 on padding (agents whose action sizes differ,
+    # env.factory); None when every agent uses every entry (the built-in tasks)
+    act_mask: np.ndarray | None = None
 
     @property
     def team_of(self) -> list[str]:
@@ -57,46 +60,63 @@ class AgentLayout:
         return names
 
 
-def make_batched_env(config: Config, num_envs: int | None = None, seed: Any = None, auto_reset: bool = True):
-    """The batched numpy twin of config.env.task stepping `num_envs` (default config.env.num_envs) worlds."""
-    from cmcl.envs.batched import BatchedSparseSpread, BatchedSparseTag
-
+def make_batched_env(config: Config, num_envs: int | None = None, seed: Any = None, auto_reset: bool = True,
+                     render_mode: str | None = None):
+    """The batched numpy twin of config.env.task stepping `num_envs` (default config.env.num_envs) worlds, or for
+    `env.factory` that many copies of the user's environment behind the same interface (render_mode: theirs only)."""
     env = config.env
     b = env.num_envs if num_envs is None else num_envs
+    if env.factory:
+        from cmcl.envs.factory import load_factory
+        from cmcl.envs.parallel_vector import VectorParallelEnv
+
+        kwargs = env.factory_kwargs if render_mode is None else {**env.factory_kwargs, "render_mode": render_mode}
+        return VectorParallelEnv(load_factory(env.factory, kwargs), b, env.episode_length, seed=seed,
+                                 auto_reset=auto_reset, team_of=env.team_of, success_key=env.success_key,
+                                 coverage_key=env.coverage_key, factory=f"env.factory {env.factory!r}")
+    from cmcl.envs.batched import BatchedSparseSpread, BatchedSparseTag
+
+    twin = BatchedSparseSpread if env.task == "spread" else BatchedSparseTag
+    return twin(b, episode_length=env.episode_length, seed=seed, auto_reset=auto_reset, **task_sizes(config))
+
+
+def task_sizes(config: Config) -> dict[str, Any]:
+    """The built-in task's world parameters from EnvConfig, as keyword arguments of both its batched twin and its
+    PettingZoo env (the one place that maps config fields onto the task constructors; the episode length aside)."""
+    env = config.env
     if env.task == "spread":
-        return BatchedSparseSpread(b, num_agents=env.num_agents, episode_length=env.episode_length,
-                                   agent_radius=env.agent_radius, shared_reward=env.shared_reward,
-                                   cover_radius=env.cover_radius,
-                                   seed=seed, auto_reset=auto_reset)
-    return BatchedSparseTag(b, num_predators=env.num_predators, num_prey=env.num_prey,
-                            num_obstacles=env.num_obstacles, obstacle_radius=env.obstacle_radius,
-                            predator_radius=env.predator_radius, prey_radius=env.prey_radius,
-                            shared_reward=env.tag_shared_reward,
-                            episode_length=env.episode_length, seed=seed, auto_reset=auto_reset)
+        return {"num_agents": env.num_agents, "agent_radius": env.agent_radius, "shared_reward": env.shared_reward,
+                "cover_radius": env.cover_radius}
+    return {"num_predators": env.num_predators, "num_prey": env.num_prey, "num_obstacles": env.num_obstacles,
+            "obstacle_radius": env.obstacle_radius, "predator_radius": env.predator_radius,
+            "prey_radius": env.prey_radius, "shared_reward": env.tag_shared_reward}
 
 
 def make_parallel_env(config: Config, render_mode: str | None = None):
     """The PettingZoo ParallelEnv of config.env.task (reference dynamics, rendering)."""
     env = config.env
+    if env.factory:
+        from cmcl.envs.factory import load_factory
+
+        return load_factory(env.factory, {**env.factory_kwargs, "render_mode": render_mode})()
     if env.task == "spread":
-        from cmcl.envs import sparse_spread_v0
-
-        return sparse_spread_v0.parallel_env(num_agents=env.num_agents, max_cycles=env.episode_length,
-                                             agent_radius=env.agent_radius, shared_reward=env.shared_reward,
-                                             cover_radius=env.cover_radius,
-                                             render_mode=render_mode)
-    from cmcl.envs import sparse_tag_v0
-
-    return sparse_tag_v0.parallel_env(num_predators=env.num_predators, num_prey=env.num_prey,
-                                      num_obstacles=env.num_obstacles, obstacle_radius=env.obstacle_radius,
-                                      predator_radius=env.predator_radius, prey_radius=env.prey_radius,
-                                      shared_reward=env.tag_shared_reward,
-                                      max_cycles=env.episode_length, render_mode=render_mode)
+        from cmcl.envs import sparse_spread_v0 as module
+    else:
+        from cmcl.envs import sparse_tag_v0 as module
+    return module.parallel_env(max_cycles=env.episode_length, render_mode=render_mode, **task_sizes(config))
 
 
 def agent_layout(config: Config, env) -> AgentLayout:
-    """Per-agent modes and score needs from the team configs and the env's team membership."""
+    """Per-agent modes and score needs from the team configs and the env's team membership.
+
+    Raises ConfigError when the config's teams are not exactly the env's (a factory env's teams are known here
+    first), naming the teams and their agents."""
     n = env.num_agents
+    if set(env.teams) != set(config.teams):
+        ids = getattr(env, "agent_ids", [str(i) for i in range(n)])
+        members = {team: [ids[i] for i in idx] for team, idx in env.teams.items()}
+        raise ConfigError(f"teams: the config names {sorted(config.teams)}, the environment's agents form the teams "
+                          f"{members} (by agent-id prefix or env.team_of); give every one a [teams.<name>] table")
     modes, eta, isw, source, alpha = [""] * n, [0.0] * n, [False] * n, ["difficulty"] * n, [1.0] * n
     teacher, icm = [], []
     for team, members in env.teams.items():
@@ -113,12 +133,14 @@ def agent_layout(config: Config, env) -> AgentLayout:
             if spec.uses_icm:
                 icm.append(agent)
     act_dim = DISCRETE_ACT_DIM if config.maddpg.discrete else env.act_dim
+    mask = getattr(env, "act_mask", None)
     return AgentLayout(num_agents=n, obs_dim=env.obs_dim, env_act_dim=env.act_dim, act_dim=act_dim,
                        teams={k: list(v) for k, v in env.teams.items()}, modes=tuple(modes), eta=tuple(eta),
                        alpha=tuple(alpha),
                        importance_weights=tuple(isw), difficulty_source=tuple(source),
                        teacher_agents=np.asarray(sorted(teacher), dtype=np.int64),
-                       icm_agents=np.asarray(sorted(icm), dtype=np.int64))
+                       icm_agents=np.asarray(sorted(icm), dtype=np.int64),
+                       act_mask=None if mask is None or mask.all() else mask.copy())
 
 
 def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
@@ -128,7 +150,7 @@ def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
     m = config.maddpg
     return MADDPG(layout.num_agents, layout.obs_dim, layout.act_dim, hidden=m.hidden, actor_lr=m.actor_lr,
                   critic_lr=m.critic_lr, gamma=m.gamma, tau=m.tau, grad_clip=m.grad_clip, discrete=m.discrete,
-                  seed=seed, share_parameters=m.share_parameters)
+                  seed=seed, share_parameters=m.share_parameters, act_mask=layout.act_mask)
 
 
 def build_replay(config: Config, layout: AgentLayout) -> ReplayBuffer:

@@ -2,8 +2,9 @@
 
 Where it sits: first in the flow (rollout -> replay -> learner). The supervisor calls `rollout(weights,
 version)`; the chunk goes, as an object ref owned by the supervisor, straight to the replay server. One call
-is one whole episode in each of the B lock-stepped worlds (episode_length steps), so a chunk holds
-B complete episodes and the replay server can give each a global episode id (and hence a fold).
+steps the B worlds until B episodes have finished (each world ends and restarts its episodes on its own) and
+sends B complete episodes (`cmcl.episodes.EpisodeChunker`), so the replay server can give each a global episode id
+(and hence a fold). For the built-in twins that is one lock-step episode of every world, as before.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from cmcl.episodes import EpisodeChunker
 from cmcl.learners.policy import NumpyPolicy
 from cmcl.messages import Chunk
 from cmcl.progress import REPORTED_STATS, finished_episodes
@@ -40,11 +42,13 @@ class RolloutWorker:
         self.version, self.seq = -1, 0
         self.env_steps, self.episodes = 0, 0
         self.obs = self.env.reset()
+        self.chunker = EpisodeChunker(self.env.num_envs)
 
     def rollout(self, published: dict | None) -> tuple[Chunk, Report]:
-        """Run one episode in every world with the published policy {"version", "weights"} (+ exploration noise).
+        """Step the B worlds with the published policy {"version", "weights"} (+ exploration noise) until B
+        episodes have finished since the last chunk.
 
-        Returns (chunk, report): a Chunk of T*B rows (env_index: world 0..B-1 of this worker) and a metrics report
+        Returns (chunk, report): a Chunk of B whole episodes (env_index: episode 0..B-1 of the chunk) and a report
         (cumulative env steps and episodes, finished-episode statistics).
         """
         if published is not None and published["version"] != self.version:
@@ -53,31 +57,27 @@ class RolloutWorker:
 
                 load_published(self.policy, published["weights"], parts=("actor",))
             else:
-                self.policy = NumpyPolicy(published["weights"]["actor"])
+                self.policy = NumpyPolicy(published["weights"]["actor"], act_mask=self.layout.act_mask)
             self.version = int(published["version"])
         if self.policy is None:  # no weights published yet: a fresh actor, initialised like the learner's
-            self.policy = NumpyPolicy(_initial_actor(self.config, self.layout, self.net_seed))
-        cfg, b, t_len = self.config, self.env.num_envs, self.env.episode_length
-        obs, act, rew, nxt = [], [], [], []
-        info: dict[str, Any] = {}
-        for _ in range(t_len):
+            self.policy = NumpyPolicy(_initial_actor(self.config, self.layout, self.net_seed),
+                                      act_mask=self.layout.act_mask)
+        cfg, b = self.config, self.env.num_envs
+        finished: list[dict[str, np.ndarray]] = []  # info["episode"] of the steps in which episodes ended
+        while self.chunker.ready < b:
             a = self.policy.act(self.obs, cfg.maddpg.exploration_std, rng=self.rng)
-            next_obs, r, _, info = self.env.step(to_env_actions(a, cfg.maddpg.discrete))
-            obs.append(self.obs)
-            act.append(a)
-            rew.append(r)
-            nxt.append(info["final_obs"])
+            next_obs, r, ended, info = self.env.step(to_env_actions(a, cfg.maddpg.discrete))
+            self.chunker.add(self.obs, a, r, info["final_obs"], info["terminated"], ended)
+            self.env_steps += b
+            if ended.any():
+                finished.append(info["episode"])
             self.obs = next_obs
-        if not info["episode_mask"].all():
-            raise RuntimeError("worlds are expected to end their episodes together (lock-step reset)")
-        self.env_steps += t_len * b
-        self.episodes += b
-        chunk = Chunk(obs=np.concatenate(obs), act=np.concatenate(act), rew=np.concatenate(rew),
-                      next_obs=np.concatenate(nxt), done=np.zeros(t_len * b, np.float32),
-                      env_index=np.tile(np.arange(b, dtype=np.int64), t_len), writer=self.worker_id,
-                      incarnation=self.incarnation, seq=self.seq, policy_version=max(self.version, 0))
+        self.episodes += sum(len(e["return"]) for e in finished)
+        chunk = self.chunker.pop(b, self.worker_id, self.incarnation, self.seq, max(self.version, 0))
         self.seq += 1
-        return chunk, self._report(info["episode"])
+        episode = {k: np.concatenate([e[k] for e in finished]) for k in finished[0]} if finished \
+            else {"return": np.zeros((0, self.env.num_agents))}
+        return chunk, self._report(episode)
 
     def _report(self, episode: dict[str, np.ndarray]) -> Report:
         """Metrics report of this call: cumulative env steps and episodes, the episodes that just finished."""

@@ -42,11 +42,15 @@ class Config:
     teams: dict[str, TeamConfig] = field(default_factory=lambda: {"agent": TeamConfig()})
 
     def __post_init__(self) -> None:
-        expected = TASK_TEAMS[self.env.task]
-        _require(set(self.teams) == set(expected), "teams", sorted(self.teams),
-                 f"must name exactly the teams of task {self.env.task!r}: {list(expected)}")
-        ordered = {name: self.teams[name] for name in expected}
-        object.__setattr__(self, "teams", ordered)
+        if self.env.factory:  # the env's own teams are only known once it is built: cmcl.system.agent_layout checks
+            _require(bool(self.teams), "teams", self.teams, "must name at least one team")
+            _require(not self.maddpg.discrete, "maddpg.discrete", True,
+                     "must be false with env.factory (its environments take Box actions)")
+        else:
+            expected = TASK_TEAMS[self.env.task]
+            _require(set(self.teams) == set(expected), "teams", sorted(self.teams),
+                     f"must name exactly the teams of task {self.env.task!r}: {list(expected)}")
+            object.__setattr__(self, "teams", {name: self.teams[name] for name in expected})
         _require(self.maddpg.warmup <= self.replay.capacity, "maddpg.warmup", self.maddpg.warmup,
                  f"must not exceed replay.capacity ({self.replay.capacity})")
         _require(self.maddpg.batch_size <= max(self.maddpg.warmup, 1) or self.maddpg.warmup == 0,

@@ -8,8 +8,9 @@ The whole run (`Config`) is in cmcl.config.experiment; TOML loading in cmcl.conf
 from __future__ import annotations
 
 import math
+import re
 import typing
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 AlgorithmName = Literal["maddpg", "per", "acl", "cmcl"]
@@ -20,6 +21,7 @@ TASK_TEAMS = {"spread": ("agent",), "tag": ("predator", "prey")}  # teams of eac
 # α_s of eq. 20 when nothing sets it (ALGORITHM.md A8, revised 2026-12): "proportional to the K-fold priority" for
 # ACL and CMCL, Schaul's proportional-variant 0.6 for PER-MADDPG; MADDPG samples uniformly (α unused)
 DEFAULT_ALPHA = {"maddpg": 1.0, "per": 0.6, "acl": 1.0, "cmcl": 1.0}
+FACTORY_PATTERN = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_][\w.]*$")  # "package.module:callable"
 __all__ = ["ALGORITHMS", "DEFAULT_ALPHA", "TASKS", "TASK_TEAMS", "ConfigError",
            "CurriculumConfig", "EnvConfig", "ICMConfig",
            "MADDPGConfig", "ReplayConfig", "RunConfig", "ServiceConfig", "TeacherConfig", "TeamConfig"]
@@ -68,8 +70,18 @@ class EnvConfig:
     # earned what from each agent's critic and blocks learning); True = every agent receives the team sum
     shared_reward: bool = False
     num_envs: int = 16  # worlds stepped at once by the batched twin (inline loop / rollout worker)
+    # your own environment (docs/OWN_ENVIRONMENT.md): "package.module:callable" returning a PettingZoo ParallelEnv,
+    # called with `factory_kwargs`; "" = the built-in `task`. Its episodes end when the env ends them or at
+    # `episode_length` steps, whichever comes first; the `task` sizes above are then unused
+    factory: str = ""
+    factory_kwargs: dict[str, Any] = field(default_factory=dict)
+    team_of: dict[str, str] = field(default_factory=dict)  # agent id -> team; default: the id's prefix (adversary_0)
+    success_key: str = ""  # the env's per-agent `info` key read as episode success at its last step ("": none)
+    coverage_key: str = ""  # likewise for coverage in [0, 1] (what run.stop_coverage watches)
 
     def __post_init__(self) -> None:
+        _require(self.factory == "" or bool(FACTORY_PATTERN.match(self.factory)), "env.factory", self.factory,
+                 "must look like 'package.module:callable' (or be empty for the built-in task)")
         for name in ("num_agents", "num_predators", "num_prey", "episode_length", "num_envs"):
             _require(getattr(self, name) >= 1, f"env.{name}", getattr(self, name), "must be >= 1")
         _require(self.num_obstacles >= 0, "env.num_obstacles", self.num_obstacles, "must be >= 0")

@@ -47,6 +47,13 @@ def _coerce(key: str, value: Any, hint: Any) -> Any:
     if hint is str:
         _require(isinstance(value, str), key, value, "must be a string")
         return value
+    if origin is dict:  # a table of scalars, e.g. env.factory_kwargs = {continuous_actions = true}
+        _require(isinstance(value, Mapping), key, value, "must be a table")
+        value_hint = typing.get_args(hint)[1]
+        return {str(k): _coerce(f"{key}.{k}", v, value_hint) for k, v in value.items()}
+    if hint is Any:
+        _require(isinstance(value, bool | int | float | str), key, value, "must be a number, a string or a boolean")
+        return value
     raise ConfigError(f"{key}: unsupported field type {hint!r}")
 
 
@@ -75,8 +82,9 @@ def config_from_dict(data: Mapping[str, Any]) -> Config:
         raise ConfigError(f"unknown section {unknown[0]!r} (known: {sorted([*_SECTIONS, 'teams'])})")
     sections = {name: _build(f.default_factory, data.get(name, {}), name) for name, f in _SECTIONS.items()}
     teams_data = data.get("teams")
-    if teams_data is None:
-        teams_data = {name: {} for name in TASK_TEAMS[sections["env"].task]}
+    if teams_data is None:  # a factory env without team tables: one team "agent" (agent_0, agent_1, ...)
+        teams_data = {name: {} for name in (("agent",) if sections["env"].factory else
+                                            TASK_TEAMS[sections["env"].task])}
     if not isinstance(teams_data, Mapping):
         raise ConfigError(f"teams must be a table of team tables, got {teams_data!r}")
     teams = {name: _build(TeamConfig, spec, f"teams.{name}") for name, spec in teams_data.items()}
@@ -156,5 +164,7 @@ def _toml_value(value: Any) -> str:
         return "true" if value else "false"
     if isinstance(value, str):
         return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, Mapping):  # an inline table; keys quoted (agent ids may hold any character)
+        return "{" + ", ".join(f"{_toml_value(str(k))} = {_toml_value(v)}" for k, v in value.items()) + "}"
     return repr(value)
 

@@ -254,7 +254,8 @@ class BatchedWorld:
         actions: float[B, N, 2]; values outside [-1, 1] are clipped; NaN/inf or a wrong shape raise ValueError.
         Returns (obs dtype[B, N, obs_dim], rewards dtype[B, N], dones bool[B], info). `dones` marks the
         time limit (episode_length steps), never a terminal state: learners bootstrap there. info holds
-        per-step arrays [B, N] ("wall_hit", ...), "episode_mask" bool[B] and "episode", a dict of arrays
+        per-step arrays [B, N] ("wall_hit", ...), "episode_mask" bool[B], "terminated" bool[B] (always False here)
+        and "episode", a dict of arrays
         over the M worlds whose episode ended now (in index order). With auto_reset, those worlds restart
         (the returned obs is their first observation) and info["final_obs"] dtype[B, N, obs_dim] is the
         observation after this step's action for all B: use it as next_obs. Returned arrays are fresh
@@ -272,6 +273,7 @@ class BatchedWorld:
         rewards = self._rew.T.copy()  # copies: ascontiguousarray would return a view when B = 1
         info: dict[str, Any] = {k: v.T.copy() for k, v in step_info.items()}
         info["episode_mask"] = dones
+        info["terminated"] = np.zeros_like(dones)  # time limits only: every world bootstraps (ALGORITHM.md §2)
         idx = np.flatnonzero(dones)
         info["episode"] = self._episode(idx) if len(idx) else self._no_episodes()
         obs = self._finish_obs()

@@ -45,6 +45,9 @@ class MADDPG:
         seed: initial weights and the internal noise generator.
         share_parameters: one actor and one critic network for all agents, each agent keeping its own first-layer
             bias (an agent-id embedding; cmcl.learners.nets). Off by default (the paper's per-agent networks).
+        act_mask: float32[N, act_dim], 1 on the action entries each agent has and 0 on zero padding (agents whose
+            action sizes differ); every actor output is multiplied by it, so the critics only ever see zeros there.
+            None: every entry is used.
     """
 
     def __init__(
@@ -63,6 +66,7 @@ class MADDPG:
         logit_l2: float = 1e-3,
         seed: int = 0,
         share_parameters: bool = False,
+        act_mask: np.ndarray | None = None,
     ):
         self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
         self.gamma, self.tau, self.grad_clip = float(gamma), float(tau), float(grad_clip)
@@ -83,6 +87,7 @@ class MADDPG:
         self.updates = 0
         self._agents = torch.arange(n)
         self._own_mask = torch.eye(n, dtype=torch.bool).view(n, 1, n, 1)  # [owner, 1, agent, 1]
+        self.act_mask = None if act_mask is None else torch.as_tensor(act_mask, dtype=torch.float32).view(n, 1, -1)
 
     # ------------------------------------------------------------------ policies
     def _policy(self, net: StackedMLP, obs: torch.Tensor, sample: bool) -> tuple[torch.Tensor, torch.Tensor]:
@@ -92,6 +97,8 @@ class MADDPG:
         else their softmax.
         """
         out = net(obs)
+        if self.act_mask is not None:
+            out = out * self.act_mask
         if not self.discrete:
             return out, out
         if sample:
@@ -133,7 +140,10 @@ class MADDPG:
                 else torch.randn(out.shape, generator=self.noise_gen) * noise_std
             )
             out = out + noise
-        return out.clamp_(-1.0, 1.0).numpy()
+        out = out.clamp_(-1.0, 1.0)
+        if self.act_mask is not None:
+            out = out * self.act_mask.transpose(0, 1)
+        return out.numpy()
 
     # ------------------------------------------------------------------ targets
     def _td_targets_t(

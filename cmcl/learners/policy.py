@@ -16,7 +16,9 @@ import numpy as np
 class NumpyPolicy:
     """All agents' actors as stacked numpy weights: layers.k.weight float32[N, in, out], layers.k.bias [N, out]."""
 
-    def __init__(self, weights: Mapping[str, np.ndarray]):
+    def __init__(self, weights: Mapping[str, np.ndarray], act_mask: np.ndarray | None = None):
+        """act_mask: float32[N, act_dim] multiplied into every action (0 on padded entries), as MADDPG's."""
+        self.act_mask = None if act_mask is None else np.asarray(act_mask, np.float32)
         count = len([k for k in weights if k.endswith(".weight")])
         if count < 1 or any(f"layers.{i}.weight" not in weights or f"layers.{i}.bias" not in weights
                             for i in range(count)):
@@ -42,4 +44,5 @@ class NumpyPolicy:
         if noise_std > 0:
             rng = rng if rng is not None else np.random.default_rng()
             out = out + rng.normal(0.0, noise_std, size=out.shape).astype(np.float32)
-        return np.clip(out, -1.0, 1.0).astype(np.float32, copy=False)
+        out = np.clip(out, -1.0, 1.0).astype(np.float32, copy=False)
+        return out if self.act_mask is None else out * self.act_mask

@@ -22,6 +22,7 @@ import torch
 
 from cmcl.config import Config
 from cmcl.diagnostics import buffer_diagnostics
+from cmcl.episodes import WorldEpisodes
 from cmcl.io import codec
 from cmcl.io.rundir import RunDirectory, load_checkpoint
 from cmcl.learners import network_steps
@@ -80,6 +81,7 @@ class InlineLoop:
         self.last_stats: dict[str, Any] = {}
         self.stopped = False  # the last `run` ended because its `stop` said so
         self.obs = self.env.reset()
+        self.episodes = WorldEpisodes(self.env.num_envs)  # the episode id of each world's row (folds by episode)
 
     # ------------------------------------------------------------------ one batched env step
     def env_step(self) -> list[dict[str, Any]]:
@@ -90,9 +92,9 @@ class InlineLoop:
         cfg, b = self.config, self.env.num_envs
         actions = self.maddpg.act(self.obs, cfg.maddpg.exploration_std, rng=self.rng["noise"])  # [B, N, act]
         next_obs, rew, _, info = self.env.step(to_env_actions(actions, cfg.maddpg.discrete))
-        episode_ids = self.counters["rounds"] * b + np.arange(b)
-        self.replay.add(self.obs, actions, rew, info["final_obs"], np.zeros(b, np.float32), episode_ids,
-                        policy_version=self.maddpg.updates)
+        self.replay.add(self.obs, actions, rew, info["final_obs"], info["terminated"].astype(np.float32),
+                        self.episodes.ids, policy_version=self.maddpg.updates)
+        self.episodes.advance(info["episode_mask"])
         self.obs = next_obs
         self._run_due_updates(b)
         rows = self._episode_rows(info) if info["episode_mask"].any() else []
@@ -231,6 +233,7 @@ class InlineLoop:
             "elapsed_s": self.elapsed_s,
             "env": {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in self.env.get_state().items()},
             "obs": torch.from_numpy(self.obs.copy()),
+            "episode_ids": torch.from_numpy(self.episodes.ids.copy()),
             "rng": {name: g.bit_generator.state for name, g in self.rng.items()},
             "sampler_rng": [g.bit_generator.state for g in self.sampler_rngs],
         }
@@ -251,8 +254,14 @@ class InlineLoop:
             g.bit_generator.state = state["rng"][name]
         for g, s in zip(self.sampler_rngs, state["sampler_rng"], strict=True):
             g.bit_generator.state = s
-        self.env.set_state({k: v.numpy() for k, v in state["env"].items()})
+        fresh_obs = self.env.set_state({k: v.numpy() for k, v in state["env"].items()})
+        b = self.env.num_envs  # checkpoints before per-world ids: the lock-step ids of round `rounds`
+        ids = state["episode_ids"].numpy() if "episode_ids" in state else self.counters["rounds"] * b + np.arange(b)
+        self.episodes = WorldEpisodes(b, ids)
         self.obs = state["obs"].numpy().copy()
+        if not state["env"]:  # an env.factory world cannot be saved: set_state started new episodes
+            self.obs = fresh_obs
+            self.episodes.advance(np.ones(b, bool))
 
     def save_checkpoint(self) -> Path | None:
         """Write checkpoint + replay snapshot into the run directory (both atomic)."""

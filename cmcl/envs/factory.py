@@ -1,0 +1,109 @@
+"""Your own environment: load `env.factory`, check its spaces, and describe its agents as the learner sees them.
+
+Where it sits: `cmcl.system.make_batched_env` builds `cmcl.envs.parallel_vector.VectorParallelEnv` from the
+`AgentSpec`s made here when `env.factory` is set. Supported: a PettingZoo `ParallelEnv` whose observation spaces
+are `Box` (any shape, flattened) and whose action spaces are `Box` with finite bounds (any shape, flattened). Agents
+may differ in both sizes: the learner pads every observation and action with zeros to the largest (`obs_dim`,
+`act_dim`) and masks the padded action entries (`act_mask`). Anything else raises `EnvFactoryError` naming the
+agent and the space.
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+TEAM_SUFFIX = re.compile(r"_\d+$")  # adversary_0 -> team "adversary"
+
+
+class EnvFactoryError(ValueError):
+    """`env.factory` cannot be loaded, or the environment it builds is not supported."""
+
+
+@dataclass(frozen=True)
+class AgentSpec:
+    """One agent as the learner sees it: its id, team, flat observation width and flat action bounds.
+
+    act_low / act_high: float32[act_size], the env's Box bounds; the policy's tanh output a in [-1, 1] maps to
+    low + (a + 1) / 2 (high - low). act_shape: the env's action shape (the flat action is reshaped to it).
+    """
+
+    agent_id: str
+    team: str
+    obs_size: int
+    act_low: np.ndarray
+    act_high: np.ndarray
+    act_shape: tuple[int, ...]
+
+    @property
+    def act_size(self) -> int:
+        return int(self.act_low.size)
+
+
+def load_factory(path: str, kwargs: Mapping[str, Any] | None = None) -> Callable[[], Any]:
+    """'package.module:callable' -> a function of no arguments that builds one environment (`callable(**kwargs)`)."""
+    module_name, _, attr = path.partition(":")
+    try:
+        target: Any = importlib.import_module(module_name)
+    except ImportError as err:
+        raise EnvFactoryError(f"env.factory {path!r}: cannot import module {module_name!r} ({err})") from None
+    for part in attr.split("."):
+        if not hasattr(target, part):
+            raise EnvFactoryError(f"env.factory {path!r}: module {module_name!r} has no attribute {attr!r}")
+        target = getattr(target, part)
+    if not callable(target):
+        raise EnvFactoryError(f"env.factory {path!r}: {attr!r} is not callable")
+    args = dict(kwargs or {})
+    return lambda: target(**args)
+
+
+def describe(env: Any, team_of: Mapping[str, str] | None = None, *, factory: str = "env.factory") -> list[AgentSpec]:
+    """The AgentSpec of every agent of `env` (in `possible_agents` order), or EnvFactoryError naming what is wrong."""
+    from gymnasium import spaces
+
+    for name in ("possible_agents", "observation_space", "action_space", "reset", "step"):
+        if not hasattr(env, name):
+            raise EnvFactoryError(f"{factory} returned {type(env).__name__}, not a PettingZoo ParallelEnv "
+                                  f"(it has no {name!r})")
+    agents = list(env.possible_agents)
+    if not agents:
+        raise EnvFactoryError(f"{factory}: the environment has no agents (possible_agents is empty)")
+    team_of = dict(team_of or {})
+    unknown = sorted(set(team_of) - set(agents))
+    if unknown:
+        raise EnvFactoryError(f"env.team_of names {unknown[0]!r}, not an agent of the environment: {agents}")
+    specs = []
+    for agent in agents:
+        obs_space, act_space = env.observation_space(agent), env.action_space(agent)
+        if not isinstance(obs_space, spaces.Box):
+            raise EnvFactoryError(f"{factory}: agent {agent!r} has observation space {obs_space}; only Box "
+                                  "observation spaces are supported")
+        if not isinstance(act_space, spaces.Box):
+            hint = " (for MPE environments pass continuous_actions = true in env.factory_kwargs)" \
+                if isinstance(act_space, spaces.Discrete) else ""
+            raise EnvFactoryError(f"{factory}: agent {agent!r} has action space {act_space}; only Box action "
+                                  f"spaces are supported{hint}")
+        low = np.asarray(act_space.low, np.float32).ravel()
+        high = np.asarray(act_space.high, np.float32).ravel()
+        if not (np.isfinite(low).all() and np.isfinite(high).all() and (high > low).all()):
+            raise EnvFactoryError(f"{factory}: agent {agent!r} has action space {act_space}; its bounds must be "
+                                  "finite with high > low")
+        if int(np.prod(obs_space.shape)) < 1 or low.size < 1:
+            raise EnvFactoryError(f"{factory}: agent {agent!r} has an empty space ({obs_space}, {act_space})")
+        team = team_of.get(agent, TEAM_SUFFIX.sub("", agent))
+        specs.append(AgentSpec(agent_id=agent, team=team, obs_size=int(np.prod(obs_space.shape)), act_low=low,
+                               act_high=high, act_shape=tuple(act_space.shape)))
+    return specs
+
+
+def teams_of(specs: list[AgentSpec]) -> dict[str, list[int]]:
+    """Team name -> agent indices, teams in order of their first agent."""
+    teams: dict[str, list[int]] = {}
+    for i, spec in enumerate(specs):
+        teams.setdefault(spec.team, []).append(i)
+    return teams

@@ -1,0 +1,150 @@
+"""M copies of any PettingZoo ParallelEnv behind the interface of the batched twins (cmcl/envs/batched.py).
+
+Where it sits: `cmcl.system.make_batched_env` returns one when `env.factory` is set, so the inline loop and the
+rollout worker step your environment exactly as they step the built-in twins (which stay the fast path). It steps
+the M copies one after another in Python; a slow environment is what many rollout workers are for.
+
+Shapes (B = num_envs worlds, N agents, od = max observation width, ad = max action width): obs float32[B, N, od]
+and actions float32[B, N, ad] zero-padded per agent (`obs_dims`, `act_dims`, `act_mask`); actions in [-1, 1] are
+mapped onto each agent's Box bounds. Episodes end as the env ends them (every agent terminated or truncated, or no
+agent left) or at `episode_length` steps, each world on its own. An agent that leaves before its world ends
+observes zeros and earns 0 until the world ends. info: "final_obs" [B, N, od] (next_obs of this step),
+"episode_mask" bool[B] (worlds whose episode ended now), "terminated" bool[B] (ended by termination only: no
+bootstrapping there), "episode" over the M ended worlds: return float64[M, N], length int64[M], and success /
+coverage float64[M] (the mean over agents of the info key named by `success_key` / `coverage_key` at the last step).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+
+from cmcl.envs.factory import AgentSpec, describe, teams_of
+
+SEED_RANGE = 2**31 - 1  # env.reset(seed=...) draws from [0, SEED_RANGE)
+
+
+class VectorParallelEnv:
+    """B worlds, each one copy of the environment `make()` builds; the batched twins' public API."""
+
+    def __init__(self, make: Callable[[], Any], num_envs: int, episode_length: int,
+                 seed: int | np.random.Generator | None = None, auto_reset: bool = False,
+                 team_of: Mapping[str, str] | None = None, success_key: str = "", coverage_key: str = "",
+                 factory: str = "env.factory"):
+        self.envs = [make() for _ in range(int(num_envs))]
+        self.specs: list[AgentSpec] = describe(self.envs[0], team_of, factory=factory)
+        self.agent_ids = [s.agent_id for s in self.specs]
+        self._index = {agent: i for i, agent in enumerate(self.agent_ids)}
+        self.num_envs, self.num_agents = len(self.envs), len(self.specs)
+        self.episode_length, self.auto_reset = int(episode_length), bool(auto_reset)
+        self.obs_dims = tuple(s.obs_size for s in self.specs)
+        self.act_dims = tuple(s.act_size for s in self.specs)
+        self.obs_dim, self.act_dim = max(self.obs_dims), max(self.act_dims)
+        self.act_mask = np.zeros((self.num_agents, self.act_dim), np.float32)  # 1 where the agent has that action
+        for i, size in enumerate(self.act_dims):
+            self.act_mask[i, :size] = 1.0
+        self.teams = teams_of(self.specs)
+        self.dtype = np.dtype(np.float32)
+        self.stat_keys = {"success": success_key, "coverage": coverage_key}
+        self._rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        b, n = self.num_envs, self.num_agents
+        self._obs = np.zeros((b, n, self.obs_dim), np.float32)
+        self._t = np.zeros(b, np.int64)
+        self._returns = np.zeros((b, n))
+        self._over = np.zeros(b, bool)  # episode ended and not restarted (auto_reset=False)
+        self.reset()
+
+    # ----- observations and actions ---------------------------------------------------------------
+    def _write_obs(self, out: np.ndarray, world: int, observations: Mapping[str, Any]) -> None:
+        """Zero out[world], then copy each present agent's flattened observation into its row."""
+        out[world] = 0.0
+        for i, agent in enumerate(self.agent_ids):
+            if agent in observations:
+                out[world, i, : self.obs_dims[i]] = np.asarray(observations[agent], np.float32).ravel()
+
+    def _env_action(self, i: int, action: np.ndarray) -> np.ndarray:
+        """Policy action float32[ad] in [-1, 1] of agent i -> its Box action (bounds, shape)."""
+        spec = self.specs[i]
+        a = np.clip(action[: spec.act_size], -1.0, 1.0)
+        return (spec.act_low + (a + 1.0) * 0.5 * (spec.act_high - spec.act_low)).reshape(spec.act_shape)
+
+    def _reset_world(self, world: int) -> None:
+        observations, _ = self.envs[world].reset(seed=int(self._rng.integers(SEED_RANGE)))
+        self._write_obs(self._obs, world, observations)
+        self._t[world], self._returns[world], self._over[world] = 0, 0.0, False
+
+    # ----- public API ------------------------------------------------------------------------------
+    def reset(self, seed: int | np.random.Generator | None = None) -> np.ndarray:
+        """Start new episodes in all B worlds; returns obs float32[B, N, od]. A seed re-seeds the generator."""
+        if seed is not None:
+            self._rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        for world in range(self.num_envs):
+            self._reset_world(world)
+        return self._obs.copy()
+
+    def observe(self) -> np.ndarray:
+        return self._obs.copy()
+
+    def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """Advance every running world one step with actions float[B, N, ad]; see the module docstring."""
+        a = np.asarray(actions, np.float32)
+        want = (self.num_envs, self.num_agents, self.act_dim)
+        if a.shape != want:
+            raise ValueError(f"actions must have shape (num_envs, num_agents, act_dim) = {want}, got {a.shape}")
+        if not np.isfinite(a).all():
+            raise ValueError("actions must be finite")
+        rewards = np.zeros((self.num_envs, self.num_agents), np.float32)
+        ended, terminated = np.zeros(self.num_envs, bool), np.zeros(self.num_envs, bool)
+        final = np.zeros_like(self._obs)
+        stats: dict[str, list[float]] = {key: [] for key, info_key in self.stat_keys.items() if info_key}
+        for world, env in enumerate(self.envs):
+            if self._over[world]:
+                continue
+            live = list(env.agents)
+            observations, rew, term, trunc, infos = env.step(
+                {agent: self._env_action(self._index[agent], a[world, self._index[agent]]) for agent in live})
+            self._write_obs(final, world, observations)
+            for agent, r in rew.items():
+                rewards[world, self._index[agent]] = r
+            self._t[world] += 1
+            finished = all(term.get(x, False) or trunc.get(x, False) for x in live)
+            if finished or not env.agents or self._t[world] >= self.episode_length:
+                ended[world] = True
+                terminated[world] = all(term.get(x, False) and not trunc.get(x, False) for x in live)
+                for key, values in stats.items():
+                    found = [float(info[self.stat_keys[key]]) for info in infos.values()
+                             if self.stat_keys[key] in info]
+                    values.append(float(np.mean(found)) if found else 0.0)
+        self._returns += rewards
+        idx = np.flatnonzero(ended)
+        episode: dict[str, np.ndarray] = {"return": self._returns[idx].copy(), "length": self._t[idx].copy()}
+        episode.update({key: np.asarray(values, np.float64) for key, values in stats.items()})
+        running = ~self._over
+        self._obs[running] = final[running]
+        info = {"final_obs": final, "episode_mask": ended, "terminated": terminated, "episode": episode}
+        for world in idx:
+            if self.auto_reset:
+                self._reset_world(int(world))
+            else:
+                self._over[world] = True
+        return self._obs.copy(), rewards, ended, info
+
+    # ----- state -----------------------------------------------------------------------------------
+    def get_state(self) -> dict[str, np.ndarray]:
+        """An arbitrary environment cannot be saved: {} (a resumed run starts new episodes, see `set_state`)."""
+        return {}
+
+    def set_state(self, state: Mapping[str, Any]) -> np.ndarray:
+        """Start new episodes in every world (there is no world state to load); returns their obs [B, N, od]."""
+        if state:
+            raise ValueError(f"a factory environment has no state to load, got keys {sorted(state)}")
+        return self.reset()
+
+    def render(self, world: int = 0) -> Any:
+        return self.envs[world].render()
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
