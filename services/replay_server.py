@@ -151,7 +151,7 @@ class ReplayServer:
     # ------------------------------------------------------------------ replay -> learner
     def _maybe_recompute(self) -> None:
         """Bulk priority recompute when λ or scores changed, at most every `recompute_every` inserts."""
-        if not uses_curriculum(self.layout.modes):
+        if not uses_curriculum(self.layout.algorithms):
             return
         every = self.config.service.recompute_every or self.config.env.num_envs * self.config.env.episode_length
         due = self.counters["inserts"] - self.inserts_at_recompute >= every
@@ -272,7 +272,7 @@ class ReplayServer:
     def report(self) -> Report:
         """Metrics report: buffer, λ, difficulty / priority distributions, score age and coverage."""
         details = None
-        if self.replay.size and uses_curriculum(self.layout.modes):  # the report reads priorities at the current λ
+        if self.replay.size and uses_curriculum(self.layout.algorithms):  # the report reads priorities at the current λ
             details = self.replay.recompute_priorities(self.schedule.lam, details=True)
             self.dirty, self.inserts_at_recompute = False, self.counters["inserts"]
         return replay_report(self, details)

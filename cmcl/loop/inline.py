@@ -72,7 +72,7 @@ class InlineLoop:
         self.difficulty = DifficultyTable(config.replay.capacity, len(self.layout.teacher_agents),
                                           config.teachers.num_folds)
         self.schedule = build_schedule(config)
-        self.prioritized = uses_curriculum(self.layout.modes)
+        self.prioritized = uses_curriculum(self.layout.algorithms)
         self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "rounds": 0, "rescore_cursor": 0,
                          "teacher_steps": 0, "icm_steps": 0}
         self.elapsed_s = 0.0  # training wall clock so far, seconds (kept across checkpoint + resume)

@@ -56,11 +56,11 @@ def apply_learner_feedback(replay: ReplayBuffer, layout: Any, feedback: LearnerF
     i.e. ACL/CMCL priorities need a recompute).
     """
     stale, scores_changed = 0, False
-    for agent, mode in enumerate(layout.modes):
+    for agent, algorithm in enumerate(layout.algorithms):
         s = feedback.slots[:, agent].reshape(-1)
         g = feedback.generations[:, agent].reshape(-1)
         v = np.asarray(feedback.td_abs)[:, agent].reshape(-1)
-        if mode == "per":
+        if algorithm == "per":
             accepted = replay.update_priorities(agent, s, v, g)
         elif layout.difficulty_source[agent] == "td_abs":
             accepted = replay.update_scores("td_abs", s, g, v[:, None], agents=[agent])
