@@ -113,9 +113,9 @@ class Reference:
 
 
 # ----------------------------------------------------------------------------- ours
-def build_ours(capacity: int, backend: str, scores: dict, modes: str) -> ReplayBuffer:
+def build_ours(capacity: int, backend: str, scores: dict, algorithm: str) -> ReplayBuffer:
     """A full buffer (tiny obs/act so 1M rows stay small) with the given score columns."""
-    rb = ReplayBuffer(capacity=capacity, n_agents=N, obs_dim=1, act_dim=1, modes=modes, backend=backend,
+    rb = ReplayBuffer(capacity=capacity, n_agents=N, obs_dim=1, act_dim=1, algorithms=algorithm, backend=backend,
                       alpha=ALPHA, eps=EPS, eta=ETA, is_beta=BETA)
     step = 100_000
     for start in range(0, capacity, step):

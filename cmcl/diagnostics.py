@@ -19,8 +19,6 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.replay.priority import CURRICULUM_MODES
-
 
 def ess_fraction(probs: np.ndarray) -> np.ndarray:
     """Effective sample size 1 / Σ P² of each column of probs float[M, A] (columns sum to 1), as a fraction of M:
@@ -79,13 +77,14 @@ def sampling_diagnostics(probs: np.ndarray, rewards: np.ndarray) -> dict[str, li
 
 def replay_sampling_diagnostics(replay: Any) -> dict[str, list]:
     """`sampling_diagnostics` of every agent of a `ReplayBuffer` as its samplers hold it now (uniform agents: ESS 1,
-    sampled share = buffer share), plus "modes" (each agent's sampler mode). Pure: reads the buffer, changes
+    sampled share = buffer share), plus "modes" (the name of each agent's sampling distribution: "uniform", "per",
+    "acl" or "cmcl"). Pure: reads the buffer, changes
     nothing; {} for an empty buffer. The replay server's metrics report can call it as is."""
     size = replay.size
     if not size:
         return {}
     out = sampling_diagnostics(replay.sampling_distribution(), replay.storage.rew[:size])
-    return {"modes": list(replay.modes), **out}
+    return {"modes": [s.name for s in replay.sampling], **out}
 
 
 def buffer_diagnostics(replay: Any, lam: float, updates: int) -> dict[str, dict]:
@@ -100,8 +99,7 @@ def buffer_diagnostics(replay: Any, lam: float, updates: int) -> dict[str, dict]
     "kp_zero_fraction", "c_hat_mean", "cp_mean"} (lists over those agents), "curriculum": see
     `curriculum_diagnostics`}.
     """
-    details = replay.recompute_priorities(lam, details=True, apply=False) \
-        if any(m in CURRICULUM_MODES for m in replay.modes) else None
+    details = replay.recompute_priorities(lam, details=True, apply=False) if replay.curriculum else None
     out: dict[str, dict] = {"sampling": replay_sampling_diagnostics(replay)}
     if details is None or not replay.size:
         return out

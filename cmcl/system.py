@@ -29,7 +29,7 @@ DISCRETE_ACT_DIM = 5  # MPE's discrete action: no-op, +x, -x, +y, -y
 class AgentLayout:
     """Who is who: agent indices per team and what each agent's algorithm needs.
 
-    modes: replay sampler mode per agent ("maddpg" | "per" | "acl" | "cmcl"), length N.
+    algorithms: each agent's algorithm ("maddpg" | "per" | "acl" | "cmcl", its team's), length N.
     alpha: sampling exponent α_s of eq. 20 per agent, length N (its team's `effective_alpha`, A8).
     teacher_agents / icm_agents: int64[A_t] / int64[A_c] indices of agents that need teacher / curiosity scores.
     """
@@ -39,7 +39,7 @@ class AgentLayout:
     env_act_dim: int
     act_dim: int
     teams: dict[str, list[int]]
-    modes: tuple[str, ...]
+    algorithms: tuple[str, ...]
     eta: tuple[float, ...]
     alpha: tuple[float, ...]
     importance_weights: tuple[bool, ...]
@@ -107,7 +107,7 @@ def make_parallel_env(config: Config, render_mode: str | None = None):
 
 
 def agent_layout(config: Config, env) -> AgentLayout:
-    """Per-agent modes and score needs from the team configs and the env's team membership.
+    """Per-agent algorithms and score needs from the team configs and the env's team membership.
 
     Raises ConfigError when the config's teams are not exactly the env's (a factory env's teams are known here
     first), naming the teams and their agents."""
@@ -117,12 +117,12 @@ def agent_layout(config: Config, env) -> AgentLayout:
         members = {team: [ids[i] for i in idx] for team, idx in env.teams.items()}
         raise ConfigError(f"teams: the config names {sorted(config.teams)}, the environment's agents form the teams "
                           f"{members} (by agent-id prefix or env.team_of); give every one a [teams.<name>] table")
-    modes, eta, isw, source, alpha = [""] * n, [0.0] * n, [False] * n, ["difficulty"] * n, [1.0] * n
+    algorithms, eta, isw, source, alpha = [""] * n, [0.0] * n, [False] * n, ["difficulty"] * n, [1.0] * n
     teacher, icm = [], []
     for team, members in env.teams.items():
         spec = config.teams[team]
         for agent in members:
-            modes[agent] = spec.algorithm
+            algorithms[agent] = spec.algorithm
             eta[agent] = spec.effective_eta
             alpha[agent] = spec.effective_alpha(config.replay.alpha)
             isw[agent] = spec.importance_weights
@@ -135,7 +135,8 @@ def agent_layout(config: Config, env) -> AgentLayout:
     act_dim = DISCRETE_ACT_DIM if config.maddpg.discrete else env.act_dim
     mask = getattr(env, "act_mask", None)
     return AgentLayout(num_agents=n, obs_dim=env.obs_dim, env_act_dim=env.act_dim, act_dim=act_dim,
-                       teams={k: list(v) for k, v in env.teams.items()}, modes=tuple(modes), eta=tuple(eta),
+                       teams={k: list(v) for k, v in env.teams.items()}, algorithms=tuple(algorithms),
+                       eta=tuple(eta),
                        alpha=tuple(alpha),
                        importance_weights=tuple(isw), difficulty_source=tuple(source),
                        teacher_agents=np.asarray(sorted(teacher), dtype=np.int64),
@@ -154,12 +155,13 @@ def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
 
 
 def build_replay(config: Config, layout: AgentLayout) -> ReplayBuffer:
-    """Replay storage with one sampler per agent in its team's mode (IS β is passed at sample time)."""
+    """Replay storage with one sampling distribution per agent, its team's algorithm's (IS β is passed at sample
+    time)."""
     r = config.replay
     return ReplayBuffer(capacity=r.capacity, n_agents=layout.num_agents, obs_dim=layout.obs_dim,
-                        act_dim=layout.act_dim, n_folds=config.teachers.num_folds, modes=list(layout.modes),
+                        act_dim=layout.act_dim, n_folds=config.teachers.num_folds, algorithms=list(layout.algorithms),
                         alpha=list(layout.alpha), eps=r.priority_eps, backend=r.backend, eta=list(layout.eta),
-                        is_beta=0.0, difficulty_norm=config.teachers.difficulty_norm, cp_input=config.icm.cp_input,
+                        difficulty_norm=config.teachers.difficulty_norm, cp_input=config.icm.cp_input,
                         difficulty_source=list(layout.difficulty_source),
                         min_size=max(1, config.maddpg.warmup), lam_max=config.curriculum.lam_max,
                         difficulty_transform=config.teachers.difficulty_transform,

@@ -1,17 +1,18 @@
 """Replay server: owns the buffer, folds, score columns, λ, every sampler and the rate limiters.
 
 Where it sits: the hub of the flow, and a shell: dedupe, pacing and status around the replay side of Algorithm 1's
-steps (`cmcl.replay.buffer_steps`, the same functions the inline loop calls). Rollout `Chunk`s come in (`insert`,
-validated by `cmcl.io.records.check_chunk`, idempotent by writer / incarnation / seq); teachers and the ICM ask for
-work (`teacher_work`, `icm_work`) and send scores back keyed by (slot, generation), stale ones dropped
-(`write_teacher_scores`, `write_curiosity`); the learner receives prioritized `LearnerBatch`es (`sample`) and
-returns |δ| (`learner_result`). Priorities are recomputed in bulk when λ or scores changed, at most every
-`service.recompute_every` inserts. λ advances with the env steps accepted here.
+steps (`cmcl.replay.buffer_steps`) and its scoring state (`cmcl.replay.scoring.ScoringState`: stamps, teacher
+errors, insertion times and the rule that picks the rows to rescore), the same the inline loop uses. Rollout
+`Chunk`s come in (`insert`, validated by `cmcl.io.records.check_chunk`, idempotent by writer / incarnation / seq);
+teachers and the ICM ask for work (`teacher_work`, `icm_work`) and send scores back keyed by (slot, generation),
+stale ones dropped (`write_teacher_scores`, `write_curiosity`); the learner receives prioritized `LearnerBatch`es
+(`sample`) and returns |δ| (`learner_result`). Priorities are recomputed in bulk when λ or scores changed, at most
+every `service.recompute_every` inserts. λ advances with the env steps accepted here.
 
 Distributed deviation from §3.8 (ALGORITHM.md §3.9), measured by `cmcl_teacher_score_age_updates`: teacher k
 scores rows of the other folds asynchronously; c_j is (K−1)·mean over the blind teachers that have scored j so
 far (`cmcl.replay.difficulty.DifficultyTable`); new rows sit at ε_p until a teacher has scored them.
-Every method returns (or ends with) a small status dict the supervisor uses to pace its calls.
+Every method returns (or ends with) a `ReplayStatus` the supervisor uses to pace its calls.
 """
 
 from __future__ import annotations
@@ -34,12 +35,12 @@ from cmcl.messages import (
 )
 from cmcl.replay import buffer_steps
 from cmcl.replay.dedupe import InsertLedger
-from cmcl.replay.difficulty import DifficultyTable, ScoreStamps
 from cmcl.replay.priority import uses_curriculum
+from cmcl.replay.scoring import ScoringState
 from cmcl.system import agent_layout, beta_is, build_replay, build_schedule, make_batched_env
 from services.common import actor_setup, new_incarnation
 from services.replay_pacing import ReplayPacing
-from services.replay_report import REPORT_SAMPLES, replay_report
+from services.replay_report import REPORT_SAMPLES, ReplayTallies, replay_report
 from services.report_schema import Report
 
 
@@ -56,10 +57,7 @@ class ReplayServer:
         self.schedule = build_schedule(cfg)
         self.pacing = ReplayPacing(cfg)
         k, cap = cfg.teachers.num_folds, cfg.replay.capacity
-        self.difficulty = DifficultyTable(cap, len(self.layout.teacher_agents), k)
-        self.curiosity_stamps = ScoreStamps(cap, 1)
-        self.inserted_at = np.zeros(cap, np.int64)  # learner updates handed out when each slot was written
-        self.sample_ages = np.zeros(0)  # updates since insertion of (a subsample of) the rows last sampled
+        self.scoring = ScoringState.for_layout(self.layout, cap, k)  # score stamps, teacher errors, insertion times
         self.ledger = InsertLedger()  # which (writer:incarnation, seq) chunks are stored
         self.logged_rows = 0  # transitions in the durable log since the last snapshot
         self.counters = {"inserts": 0, "samples": 0, "updates": 0, "episodes": 0, "icm_steps": 0,
@@ -138,7 +136,7 @@ class ReplayServer:
         """Add a valid, new chunk to the buffer and advance the counters, the limiters and λ (also log replay)."""
         slots = self.replay.add(chunk.obs, chunk.act, chunk.rew, chunk.next_obs, chunk.done,
                                 self.counters["episodes"] + chunk.env_index, int(chunk.policy_version))
-        self.inserted_at[slots[slots >= 0]] = self.counters["updates"]
+        self.scoring.inserted(slots, self.counters["updates"])
         self.ledger.accept(chunk.writer_key, chunk.seq)
         n = chunk.rows
         self.counters["inserts"] += n
@@ -151,7 +149,7 @@ class ReplayServer:
     # ------------------------------------------------------------------ replay -> learner
     def _maybe_recompute(self) -> None:
         """Bulk priority recompute when λ or scores changed, at most every `recompute_every` inserts."""
-        if not uses_curriculum(self.layout.modes):
+        if not uses_curriculum(self.layout.algorithms):
             return
         every = self.config.service.recompute_every or self.config.env.num_envs * self.config.env.episode_length
         due = self.counters["inserts"] - self.inserts_at_recompute >= every
@@ -170,8 +168,7 @@ class ReplayServer:
         betas = [beta if w else 0.0 for w in self.layout.importance_weights]
         batch = buffer_steps.sample_owner_batches(self.replay, n, self.config.maddpg.batch_size, self.sampler_rngs,
                                                   betas)
-        ages = (self.counters["updates"] - self.inserted_at[batch.slots.ravel()]).astype(np.float64)
-        self.sample_ages = ages[self.rng.integers(0, ages.size, min(ages.size, REPORT_SAMPLES))]
+        self.scoring.sampled(batch.slots, self.counters["updates"], self.rng, REPORT_SAMPLES)
         self._event("updates", n)
         return batch, self.status()
 
@@ -205,12 +202,7 @@ class ReplayServer:
         if steps < 1 or (self.replay.storage.fold_counts()[folds] == 0).any():
             return None, self.status()
         fit = buffer_steps.fold_batch_slots(self.replay, folds, cfg.teachers.batch_size, self.rng, steps=steps)
-        valid = self.replay.valid_slots()
-        age = self.difficulty.stamps(valid, self.replay.generations(valid))[:, folds].astype(np.float64)  # [M, F]
-        age[self.replay.storage.fold[valid][:, None] == np.asarray(folds)[None, :]] = np.inf  # own fold: never
-        key = age.min(1)
-        useful = np.isfinite(key)
-        score = buffer_steps.oldest_slots(valid[useful], key[useful], cfg.service.score_rows_per_call)
+        score = self.scoring.rows_to_score(self.replay, cfg.service.score_rows_per_call, folds=folds)
         self._event("teacher_steps", steps, folds)
         return TeacherWork(tuple(folds), buffer_steps.rows_at(self.replay, fit), fit,
                            buffer_steps.score_rows(self.replay, score), self.counters["updates"]), self.status()
@@ -225,8 +217,8 @@ class ReplayServer:
             return self._reject("bad_scores", str(err))
         fresh = self.replay.storage.fresh_mask(msg.slots, msg.generations)
         row_fold = self.replay.storage.fold[msg.slots[fresh]]
-        _, stale = buffer_steps.write_difficulty(self.replay, self.difficulty, self.layout.teacher_agents, msg.slots,
-                                           msg.generations, msg.folds, msg.errors, msg.updates)
+        _, stale = self.scoring.write_difficulty(self.replay, msg.slots, msg.generations, msg.folds, msg.errors,
+                                                 msg.updates)
         self._count_stale(stale)
         for f in msg.folds:
             self.teacher_scores[f] += int((row_fold != f).sum())
@@ -243,9 +235,7 @@ class ReplayServer:
         if steps < 1:
             return None, self.status()
         fit = buffer_steps.uniform_slots(self.replay, (steps, cfg.icm.batch_size), self.rng)
-        valid = self.replay.valid_slots()
-        stamps = self.curiosity_stamps.stamps(valid, self.replay.generations(valid))[:, 0]
-        score = buffer_steps.oldest_slots(valid, stamps, cfg.service.score_rows_per_call)
+        score = self.scoring.rows_to_score(self.replay, cfg.service.score_rows_per_call, curiosity=True)
         self._event("icm_steps", steps)
         return CuriosityWork(buffer_steps.rows_at(self.replay, fit, ("obs", "act", "next_obs")),
                              buffer_steps.score_rows(self.replay, score), self.counters["updates"]), self.status()
@@ -258,11 +248,8 @@ class ReplayServer:
             msg = check_curiosity_scores(scores, len(self.layout.icm_agents))
         except MessageError as err:
             return self._reject("bad_scores", str(err))
-        fresh = self.replay.storage.fresh_mask(msg.slots, msg.generations)
-        accepted, stale = buffer_steps.write_curiosity(self.replay, self.layout.icm_agents, msg.slots, msg.generations,
-                                                 msg.rho)
+        accepted, stale = self.scoring.write_curiosity(self.replay, msg.slots, msg.generations, msg.rho, msg.updates)
         self._count_stale(stale)
-        self.curiosity_stamps.mark(msg.slots[fresh], msg.generations[fresh], 0, msg.updates)
         self.counters["icm_scores"] += accepted
         self.losses["icm"] = float(msg.loss)
         self.dirty = True
@@ -272,20 +259,25 @@ class ReplayServer:
     def report(self) -> Report:
         """Metrics report: buffer, λ, difficulty / priority distributions, score age and coverage."""
         details = None
-        if self.replay.size and uses_curriculum(self.layout.modes):  # the report reads priorities at the current λ
+        if self.replay.size and uses_curriculum(self.layout.algorithms):  # the report reads priorities at the current λ
             details = self.replay.recompute_priorities(self.schedule.lam, details=True)
             self.dirty, self.inserts_at_recompute = False, self.counters["inserts"]
-        return replay_report(self, details)
+        c = self.counters
+        tallies = ReplayTallies(inserts=c["inserts"], samples=c["samples"], rejected=self.rejected,
+                                stale_scores=self.stale_scores, teacher_steps=tuple(self.teacher_steps),
+                                teacher_scores=tuple(self.teacher_scores), icm_steps=c["icm_steps"],
+                                icm_scores=c["icm_scores"], losses=self.losses)
+        return replay_report(self.replay, self.scoring, tallies, lam=self.schedule.lam, updates=c["updates"],
+                             details=details, rng=self.rng, incarnation=self.incarnation, resumed=self.resumed)
 
     def state_dict(self) -> dict[str, Any]:
         """Codec-ready state: the buffer, score tables, insert ledger, counters, limiters and λ's step count."""
-        return {"replay": self.replay.state_dict(), "difficulty": self.difficulty.state_dict(),
-                "curiosity_stamps": self.curiosity_stamps.state_dict(),
+        return {"replay": self.replay.state_dict(), **self.scoring.state_dict(),
                 "ledger": self.ledger.state_dict(), "counters": dict(self.counters), "rejected": dict(self.rejected),
                 "stale_scores": self.stale_scores, "teacher_steps": list(self.teacher_steps),
                 "teacher_scores": list(self.teacher_scores),
                 **self.pacing.state_dict(),
-                "schedule_env_steps": self.schedule.env_steps, "inserted_at": self.inserted_at}
+                "schedule_env_steps": self.schedule.env_steps}
 
     def snapshot(self) -> int:
         """Write the state as a new snapshot generation of the store (msgpack, no pickle; the log restarts empty);
@@ -315,8 +307,7 @@ class ReplayServer:
     def _load_state(self, state: dict[str, Any]) -> None:
         """Apply a `state_dict()` (each part validated by its owner before use)."""
         self.replay.load_state_dict(state["replay"])
-        self.difficulty.load_state_dict(state["difficulty"])
-        self.curiosity_stamps.load_state_dict(state["curiosity_stamps"])
+        self.scoring.load_state_dict(state)
         self.ledger.load_state_dict(state["ledger"])
         self.counters.update({k: int(v) for k, v in state["counters"].items()})
         rejected = {str(k): int(v) for k, v in state["rejected"].items()}
@@ -327,7 +318,4 @@ class ReplayServer:
         self.teacher_scores = [int(v) for v in state["teacher_scores"]]
         self.pacing.load_state_dict(state)
         self.schedule.env_steps = int(state["schedule_env_steps"])
-        inserted_at = np.asarray(state.get("inserted_at", np.zeros(0)), np.int64)  # older snapshots: none
-        if inserted_at.shape == self.inserted_at.shape:
-            self.inserted_at = inserted_at.copy()
         self.dirty = True

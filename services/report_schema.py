@@ -88,7 +88,7 @@ class ReplayReport(_Section):
     kp_branches: Mapping[str, float] | None = None  # {rising|falling|excluded: x in [0, 1]}: buffer share per branch
     fold_score_coverage: Mapping[str, float] | None = None  # {fold label: x in [0, 1]}: rows of fold scored
     sampling_ess: float | None = None  # x in [0, 1]: effective sample size of P / buffer size (1 = uniform)
-    # per agent (label: agent index), cmcl.diagnostics.replay_sampling_diagnostics, every sampler mode (uniform: 1):
+    # per agent (label: agent index), cmcl.diagnostics.replay_sampling_diagnostics, every agent's sampling (uniform: 1):
     agent_sampling_ess: Mapping[str, float] | None = None  # {agent: x in [0, 1]}: ESS of the agent's P / buffer size
     reward_rows_sampled: Mapping[str, float] | None = None  # {agent: x in [0, 1]}: P-mass on rows with reward > 0
     reward_rows_buffer: Mapping[str, float] | None = None  # {agent: x in [0, 1]}: buffer share of rows with reward > 0

@@ -17,7 +17,7 @@ N, OD, AD, CAP = 2, 3, 2, 400
 def scored_buffer(transform: str = "none", seed: int = 5) -> ReplayBuffer:
     """A full buffer of N = 2 ACL agents whose difficulty column is distinct random values (same for every
     transform; the control's generator is seeded with `seed`)."""
-    rb = ReplayBuffer(capacity=CAP, n_agents=N, obs_dim=OD, act_dim=AD, modes="acl",
+    rb = ReplayBuffer(capacity=CAP, n_agents=N, obs_dim=OD, act_dim=AD, algorithms="acl",
                       difficulty_transform=transform, control_seed=seed)
     rng = np.random.default_rng(0)
     for e in range(CAP // 20):
@@ -94,7 +94,7 @@ def test_defaults_rank_difficulty_and_alpha_per_algorithm():
     tag = preset("cmcl", "tag", opponent="per")  # each team its own α
     layout = agent_layout(tag, make_batched_env(tag, num_envs=1))
     replay = build_replay(tag, layout)
-    assert replay.alpha == [1.0, 1.0, 0.6, 0.6] and layout.modes == ("cmcl", "cmcl", "per", "per")
+    assert replay.alpha == [1.0, 1.0, 0.6, 0.6] and layout.algorithms == ("cmcl", "cmcl", "per", "per")
 
 
 def test_explicit_alpha_wins_and_bad_values_are_refused():
@@ -124,7 +124,7 @@ def test_sampling_diagnostics_count_reward_bearing_rows():
 
 
 def test_replay_sampling_diagnostics_cover_per_and_uniform_agents():
-    rb = ReplayBuffer(capacity=50, n_agents=2, obs_dim=1, act_dim=1, modes=["per", "uniform"], alpha=[0.6, 1.0])
+    rb = ReplayBuffer(capacity=50, n_agents=2, obs_dim=1, act_dim=1, algorithms=["per", "maddpg"], alpha=[0.6, 1.0])
     assert replay_sampling_diagnostics(rb) == {}
     rew = np.zeros((10, 2))
     rew[0] = 4.0

@@ -45,7 +45,7 @@ def test_each_algorithm_runs_and_learns_from_its_own_priorities(algorithm, tmp_p
         assert not scored["difficulty"].any()
     assert scored["curiosity"][valid].all() == (algorithm == "cmcl")
     if algorithm == "per":
-        assert scored["td_abs"][valid].any() and loop.replay.max_priority[0] > 1e-3
+        assert scored["td_abs"][valid].any() and loop.replay.sampling[0].max_priority > 1e-3
     rows = list(RunDirectory.open(config.run.dir).rows("episode"))
     assert [r["episodes"] for r in rows] == list(range(1, 13))
     assert all(0.0 <= r["coverage"] <= 1.0 for r in rows)
@@ -85,7 +85,7 @@ def test_predator_prey_pits_cmcl_predators_against_per_prey(tmp_path, tiny_confi
     loop.run()
     predators, prey = loop.layout.teams["predator"], loop.layout.teams["prey"]
     assert loop.layout.teacher_agents.tolist() == predators
-    assert [loop.layout.modes[a] for a in prey] == ["per", "per"]
+    assert [loop.layout.algorithms[a] for a in prey] == ["per", "per"]
     valid = loop.replay.valid_slots()
     assert loop.replay.storage.scored["difficulty"][valid][:, predators].all()
     assert not loop.replay.storage.scored["difficulty"][:, prey].any()

@@ -59,7 +59,7 @@ def test_teams_come_from_the_agent_id_prefix_and_must_match_the_config():
     mapped = config(MPE["tag"], CONTINUOUS, 'env.team_of={"agent_0" = "prey"}', "teams.adversary.algorithm=cmcl",
                     "teams.prey.algorithm=maddpg")
     layout = agent_layout(mapped, make_batched_env(mapped, num_envs=1))
-    assert layout.teams == {"adversary": [0, 1, 2], "prey": [3]} and layout.modes == ("cmcl",) * 3 + ("maddpg",)
+    assert layout.teams == {"adversary": [0, 1, 2], "prey": [3]} and layout.algorithms == ("cmcl",) * 3 + ("maddpg",)
 
 
 def test_agents_that_differ_are_padded_and_their_missing_actions_masked():

@@ -152,8 +152,8 @@ def test_uniform_mode_chi_square_and_not_ready():  # property 16
     assert stats.chisquare(np.bincount(slots, minlength=50)).pvalue > 1e-3
 
 
-def _scored_buffer(backend="cdf", modes=("acl", "cmcl", "uniform"), **kw):
-    rb = filled(capacity=300, episodes=10, modes=list(modes), backend=backend, **kw)
+def _scored_buffer(backend="cdf", algorithms=("acl", "cmcl", "maddpg"), **kw):
+    rb = filled(capacity=300, episodes=10, algorithms=list(algorithms), backend=backend, **kw)
     rng = np.random.default_rng(11)
     s = rb.valid_slots()
     rb.update_scores("difficulty", s, rb.generations(s), rng.exponential(1.0, (s.size, N)))
@@ -163,7 +163,7 @@ def _scored_buffer(backend="cdf", modes=("acl", "cmcl", "uniform"), **kw):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_eta_zero_cmcl_equals_acl_and_ci_range(backend):  # property 8
-    rb = _scored_buffer(backend, modes=("acl", "cmcl", "cmcl"), eta=[0.5, 0.0, 0.7])
+    rb = _scored_buffer(backend, algorithms=("acl", "cmcl", "cmcl"), eta=[0.5, 0.0, 0.7])
     rb.update_scores("difficulty", rb.valid_slots(), rb.generations(rb.valid_slots()),
                      np.repeat(rb.storage.scores["difficulty"][:300, :1], N, axis=1))
     d = rb.recompute_priorities(0.3, details=True)
@@ -183,7 +183,7 @@ def test_unscored_rows_get_floor():
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_priority_recompute_follows_lambda(backend):  # property 22
-    rb = _scored_buffer(backend, modes=("acl", "acl", "uniform"))
+    rb = _scored_buffer(backend, algorithms=("acl", "acl", "maddpg"))
     c = rb.storage.scores["difficulty"][:300, 0]
     j = int(np.argsort(c)[-30])  # a hard sample: ĉ_j well above 2λ_0
     c_hat_j = np.sum(c < c[j]) / (c.size - 1)  # the default rank normalisation (A1, revised)
@@ -191,7 +191,7 @@ def test_priority_recompute_follows_lambda(backend):  # property 22
     assert rb.alpha[0] == 1.0  # the default α_s of ACL / CMCL (A8, revised)
     sch = CurriculumSchedule(lam0=0.1, stride=0.01, warmup_steps=0)
     rb.recompute_priorities(sch.lam)
-    floor_prob = EPS_P / np.sum(rb.samplers[0].p[:300])
+    floor_prob = EPS_P / np.sum(rb.sampling[0].priorities[:300])
     assert rb.probabilities(0, [j])[0] == pytest.approx(floor_prob)
     probs = []
     while sch.lam < 1.0:
@@ -207,26 +207,26 @@ def test_priority_recompute_follows_lambda(backend):  # property 22
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_per_max_priority_rule(backend):  # property 19
-    rb = filled(capacity=100, episodes=1, modes="per", backend=backend, alpha=1.0)
-    assert np.all(rb.samplers[0].p[:30] == 1.0) and rb.max_priority[0] == 1.0
+    rb = filled(capacity=100, episodes=1, algorithms="per", backend=backend, alpha=1.0)
+    assert np.all(rb.sampling[0].priorities[:30] == 1.0) and rb.sampling[0].max_priority == 1.0
     acc = rb.update_priorities(0, [0, 1, 2], [3.0, -0.5, 0.0])
     assert acc == 3
-    assert rb.samplers[0].p[:3].tolist() == pytest.approx([3.0 + EPS_P, 0.5 + EPS_P, EPS_P])
-    assert rb.max_priority[0] == pytest.approx(3.0 + EPS_P) and rb.max_priority[1] == 1.0
+    assert rb.sampling[0].priorities[:3].tolist() == pytest.approx([3.0 + EPS_P, 0.5 + EPS_P, EPS_P])
+    assert rb.sampling[0].max_priority == pytest.approx(3.0 + EPS_P) and rb.sampling[1].max_priority == 1.0
     new = rb.add(*chunk(5, 1, np.random.default_rng(0)))
-    assert rb.samplers[0].p[new].tolist() == pytest.approx([3.0 + EPS_P] * 5)
-    assert rb.samplers[1].p[new].tolist() == [1.0] * 5
+    assert rb.sampling[0].priorities[new].tolist() == pytest.approx([3.0 + EPS_P] * 5)
+    assert rb.sampling[1].priorities[new].tolist() == [1.0] * 5
     assert rb.storage.scores["td_abs"][[0, 1], 0].tolist() == [3.0, 0.5]
     old_gen = rb.generations([0])
     rb.add(*chunk(70, 2, np.random.default_rng(1)))  # wraps over slot 0
     assert rb.update_priorities(0, [0], [100.0], generations=old_gen) == 0
-    assert rb.max_priority[0] == pytest.approx(3.0 + EPS_P)
+    assert rb.sampling[0].max_priority == pytest.approx(3.0 + EPS_P)
     with pytest.raises(ValueError, match="'per' agent"):
         filled(capacity=50, episodes=1).update_priorities(0, [0], [1.0])
 
 
 def test_is_weights_in_buffer():  # property 18
-    rb = filled(capacity=200, episodes=5, modes=["per", "per", "uniform"], is_beta=0.4)
+    rb = filled(capacity=200, episodes=5, algorithms=["per", "per", "maddpg"], is_beta=0.4)
     rng = np.random.default_rng(0)
     rb.update_priorities(0, rb.valid_slots(), rng.exponential(1.0, 150))
     _, w = rb.sample(0, 128, rng)
@@ -238,7 +238,7 @@ def test_is_weights_in_buffer():  # property 18
 
 
 def test_per_agent_samplers_independent():  # property 20
-    rb = _scored_buffer(modes=("cmcl", "cmcl", "uniform"))
+    rb = _scored_buffer(algorithms=("cmcl", "cmcl", "maddpg"))
     rb.recompute_priorities(0.1)
     s, w = rb.sample_all(128, [np.random.default_rng(i) for i in range(N)])
     assert s.shape == (N, 128) and w.shape == (N, 128)
@@ -252,29 +252,29 @@ def test_per_agent_samplers_independent():  # property 20
     assert np.array_equal(a, rb.sample(0, 50, np.random.default_rng(4))[0])
 
 
-def test_set_agent_modes():
-    rb = _scored_buffer(modes=("uniform", "uniform", "uniform"))
-    rb.set_agent_modes(["per", "acl", "maddpg"], is_beta=[0.4, 0.0, 0.0])
-    assert rb.modes == ["per", "acl", "uniform"] and rb.samplers[2] is None
-    assert np.all(rb.samplers[0].p[:300] == 1.0) and np.all(rb.samplers[1].p[:300] == EPS_P)
-    with pytest.raises(ValueError, match="algo"):
-        rb.set_agent_modes(["per", "sorted", "acl"])
+def test_sampling_chosen_once_per_algorithm():
+    rb = filled(capacity=300, episodes=10, algorithms=["per", "acl", "maddpg"])
+    assert [s.name for s in rb.sampling] == ["per", "acl", "uniform"] and [a for a, _ in rb.curriculum] == [1]
+    assert np.all(rb.sampling[0].priorities[:300] == 1.0) and np.all(rb.sampling[1].priorities[:300] == EPS_P)
+    with pytest.raises(ValueError, match="algorithm"):
+        filled(capacity=300, episodes=1, algorithms=["per", "sorted", "acl"])
+    with pytest.raises(ValueError, match="algorithm"):
+        filled(capacity=300, episodes=1, algorithms="uniform")  # the sampling's name, not an algorithm
     with pytest.raises(ValueError, match="one entry per agent"):
-        rb.set_agent_modes(["per", "acl"])
-    assert rb.modes == ["per", "acl", "uniform"]
+        filled(capacity=300, episodes=1, algorithms=["per", "acl"])
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_state_dict_round_trip_through_codec(backend):
-    rb = _scored_buffer(backend, modes=("per", "cmcl", "uniform"), is_beta=[0.5, 0.0, 0.0])
+    rb = _scored_buffer(backend, algorithms=("per", "cmcl", "maddpg"), is_beta=[0.5, 0.0, 0.0])
     rb.update_priorities(0, [1, 2, 3], [4.0, 2.0, 0.1])
     rb.add(*chunk(45, 10, np.random.default_rng(3)))
     rb.recompute_priorities(0.4)
     snap = codec.decode_snapshot(codec.encode_snapshot(rb.state_dict()))
-    other = ReplayBuffer(capacity=300, n_agents=N, obs_dim=OD, act_dim=AD, modes=["per", "cmcl", "uniform"],
+    other = ReplayBuffer(capacity=300, n_agents=N, obs_dim=OD, act_dim=AD, algorithms=["per", "cmcl", "maddpg"],
                          backend=backend, is_beta=[0.5, 0.0, 0.0])
     other.load_state_dict(snap)
-    assert other.lam == 0.4 and np.array_equal(other.max_priority, rb.max_priority)
+    assert other.lam == 0.4 and other.sampling[0].max_priority == rb.sampling[0].max_priority
     s = rb.valid_slots()
     for a in range(N):
         assert np.array_equal(other.probabilities(a, s), rb.probabilities(a, s))
@@ -288,25 +288,25 @@ def test_state_dict_round_trip_through_codec(backend):
 
 
 def test_load_state_dict_rejects_and_leaves_buffer_untouched():
-    rb = _scored_buffer(modes=("acl", "acl", "uniform"))
+    rb = _scored_buffer(algorithms=("acl", "acl", "maddpg"))
     rb.recompute_priorities(0.3)
     good = rb.state_dict()
     probs = rb.probabilities(0, rb.valid_slots())
-    with pytest.raises(ValueError, match="modes"):
-        ReplayBuffer(capacity=300, n_agents=N, obs_dim=OD, act_dim=AD, modes="per").load_state_dict(good)
+    with pytest.raises(ValueError, match="algorithms"):
+        ReplayBuffer(capacity=300, n_agents=N, obs_dim=OD, act_dim=AD, algorithms="per").load_state_dict(good)
     bad = rb.state_dict()
     bad["storage"]["fold"] = (bad["storage"]["fold"] + 1) % 5
     with pytest.raises(ValueError, match="fold"):
         rb.load_state_dict(bad)
     bad = rb.state_dict()
-    bad["samplers"]["0"]["priorities"][5] = np.nan
+    bad["sampling"]["0"]["priorities"][5] = np.nan
     with pytest.raises(ValueError, match="finite"):
         rb.load_state_dict(bad)
     bad = rb.state_dict()
     bad["storage"]["obs"] = bad["storage"]["obs"][:, :, :2]
     with pytest.raises(ValueError, match="obs has shape"):
         rb.load_state_dict(bad)
-    small = _scored_buffer(modes=("acl", "acl", "uniform"))
+    small = _scored_buffer(algorithms=("acl", "acl", "maddpg"))
     small.recompute_priorities(0.3)
     bad = small.state_dict()
     for key in ("obs", "act", "rew", "next_obs", "done", "id", "episode", "fold", "generation", "policy_version"):
@@ -339,3 +339,23 @@ def test_sample_argument_errors():
         rb.get([30])
     with pytest.raises(ValueError, match="backend"):
         ReplayBuffer(n_agents=1, obs_dim=1, act_dim=1, backend="tree")
+
+
+def test_loads_a_format_1_snapshot():
+    """A buffer snapshotted before the sampling distributions were objects (format 1: "modes" with "uniform",
+    "samplers", one "max_priority" array; written by that version) loads and samples as it did."""
+    from pathlib import Path
+
+    old = codec.read_snapshot(Path(__file__).parent / "fixtures" / "replay_format1.msgpack")
+    assert "format" not in old["replay"] and old["replay"]["modes"]["2"] == "uniform"
+    rb = ReplayBuffer(capacity=60, n_agents=N, obs_dim=2, act_dim=1, algorithms=["per", "cmcl", "maddpg"],
+                      alpha=[0.6, 1.0, 1.0])
+    rb.load_state_dict(old["replay"])
+    s = rb.valid_slots()
+    assert rb.lam == 0.35 and rb.sampling[0].max_priority == old["max_priority"][0]
+    for a in range(N):
+        assert np.array_equal(rb.probabilities(a, s), old["probabilities"][a])
+        assert np.array_equal(rb.sample(a, 16, np.random.default_rng(a), beta=0.4)[0], old["draws"][a])
+    assert rb.state_dict()["format"] == 2
+    with pytest.raises(ValueError, match="format 3"):
+        rb.load_state_dict({**rb.state_dict(), "format": 3})

@@ -113,8 +113,8 @@ def test_snapshot_restores_buffer_scores_counters_and_dedupe(tmp_path):
     restored = ReplayServer(cfg, store_dir=str(tmp_path / "replay"))
     assert restored.status().env_steps == 360 and restored.status().updates == 2
     np.testing.assert_array_equal(restored.replay.storage.obs, replay.replay.storage.obs)
-    for name, value in replay.difficulty.state_dict().items():
-        np.testing.assert_array_equal(restored.difficulty.state_dict()[name], value)
+    for name, value in replay.scoring.difficulty.state_dict().items():
+        np.testing.assert_array_equal(restored.scoring.difficulty.state_dict()[name], value)
     assert "duplicate" in restored.insert(chunk).error, "dedupe table survives a restart"
 
 
@@ -157,7 +157,7 @@ def test_one_actor_can_host_every_fold_without_leaking_a_rows_own_fold(shared):
     assert scores.errors.shape == (360, 4, 3)  # [M, A_t, F]
     replay.write_teacher_scores(scores)
     rows = np.arange(360)
-    stamps = replay.difficulty.stamps(rows, replay.replay.generations(rows))
+    stamps = replay.scoring.difficulty.stamps(rows, replay.replay.generations(rows))
     assert (stamps[rows, folds[rows]] == -1).all(), "no row is scored by its own fold's teacher"
     assert (stamps >= 0).sum(1).min() == 2, "every row scored by the K-1 blind teachers"
     assert replay.replay.storage.scored["difficulty"][:360].all()

@@ -172,7 +172,7 @@ class TeacherConfig:
     batch_size: int = 128
     lr: float = 1e-3
     hidden: int = 64
-    # rows rescored per learner update (never-scored rows first, then a rolling cursor over the buffer): the
+    # rows rescored per learner update (every never-scored row, then the oldest scores, cmcl.replay.scoring): the
     # whole 5000-row buffer every ~39 updates; the paper preset's 167 = all of it every 30 updates (§3.8)
     rescore_rows_per_update: int = 128
     # "shared": one fold batch per fold serves every agent's teacher of that fold (one target pass; the service's

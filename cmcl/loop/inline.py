@@ -4,8 +4,9 @@ Where it sits: the reference implementation and the baseline the distributed ser
 It runs the same classes the service runs (built by cmcl.system) through the same step functions
 (cmcl.replay.buffer_steps for the buffer side, cmcl.learners.network_steps for the networks):
 rollout of B batched worlds -> replay -> per update (one per `maddpg.update_every` world steps): teacher step,
-ICM step, scoring of the new rows plus `teachers.rescore_rows_per_update` rows of a rolling rescoring, priority
-recompute at the current λ, one MADDPG update of all agents; λ advanced per world step.
+ICM step, scoring of the new rows plus the oldest scores up to `teachers.rescore_rows_per_update` rows (the rule of
+`cmcl.replay.scoring.ScoringState`, the service's too), priority recompute at the current λ, one MADDPG update of
+all agents; λ advanced per world step.
 Command line: `python -m cmcl train --runner inline` (cmcl/loop/__main__.py; alias `python -m cmcl.loop`).
 """
 
@@ -29,9 +30,9 @@ from cmcl.learners import network_steps
 from cmcl.messages import LearnerFeedback, Rows
 from cmcl.progress import episode_rows, ess_part, finished_episodes, progress_line, solved, window_summary
 from cmcl.replay import buffer_steps
-from cmcl.replay.difficulty import DifficultyTable
 from cmcl.replay.priority import uses_curriculum
 from cmcl.replay.ratelimit import steps_due
+from cmcl.replay.scoring import ScoringState
 from cmcl.system import (
     agent_layout,
     beta_is,
@@ -45,7 +46,9 @@ from cmcl.system import (
 )
 
 RESCORE_CHUNK = 2048  # rows per scoring pass (bounds memory of the A×K teacher forward)
-RNG_NAMES = ("env", "noise", "teacher", "icm", "sampler")
+RNG_NAMES = ("env", "noise", "teacher", "icm")  # the loop's generators, checkpointed by name
+SAMPLER_SEED = 4  # seed stream of the learner's per-agent sampling generators (`sampler_rngs`), spawned from it
+TORCH_SEEDS = slice(5, 8)  # seed streams of MADDPG, the teachers and the ICM
 
 
 def replay_snapshot_path(checkpoint: Path) -> Path:
@@ -60,21 +63,20 @@ class InlineLoop:
                  progress: Callable[[str], None] | None = print):
         torch.set_num_threads(1)
         self.config, self.run_dir, self.progress = config, run_dir, progress
-        seeds = np.random.SeedSequence(config.run.seed).spawn(len(RNG_NAMES) + 3)
+        seeds = np.random.SeedSequence(config.run.seed).spawn(TORCH_SEEDS.stop)
         self.rng = {name: np.random.default_rng(s) for name, s in zip(RNG_NAMES, seeds, strict=False)}
-        torch_seeds = [int(s.generate_state(1)[0]) for s in seeds[len(RNG_NAMES):]]
+        torch_seeds = [int(s.generate_state(1)[0]) for s in seeds[TORCH_SEEDS]]
         self.env = make_batched_env(config, seed=self.rng["env"], auto_reset=True)
         self.layout = agent_layout(config, self.env)
-        self.sampler_rngs = [np.random.default_rng(s) for s in seeds[4].spawn(self.layout.num_agents)]
+        self.sampler_rngs = [np.random.default_rng(s) for s in seeds[SAMPLER_SEED].spawn(self.layout.num_agents)]
         self.maddpg = build_maddpg(config, self.layout, torch_seeds[0])
         self.replay = build_replay(config, self.layout)
         self.teachers = build_teachers(config, self.layout, torch_seeds[1])
         self.icm = build_icm(config, self.layout, torch_seeds[2])
-        self.difficulty = DifficultyTable(config.replay.capacity, len(self.layout.teacher_agents),
-                                          config.teachers.num_folds)
+        self.scoring = ScoringState.for_layout(self.layout, config.replay.capacity, config.teachers.num_folds)
         self.schedule = build_schedule(config)
-        self.prioritized = uses_curriculum(self.layout.modes)
-        self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "rounds": 0, "rescore_cursor": 0,
+        self.prioritized = uses_curriculum(self.layout.algorithms)
+        self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "rounds": 0,
                          "teacher_steps": 0, "icm_steps": 0}
         self.elapsed_s = 0.0  # training wall clock so far, seconds (kept across checkpoint + resume)
         self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
@@ -92,8 +94,9 @@ class InlineLoop:
         cfg, b = self.config, self.env.num_envs
         actions = self.maddpg.act(self.obs, cfg.maddpg.exploration_std, rng=self.rng["noise"])  # [B, N, act]
         next_obs, rew, _, info = self.env.step(to_env_actions(actions, cfg.maddpg.discrete))
-        self.replay.add(self.obs, actions, rew, info["final_obs"], info["terminated"].astype(np.float32),
-                        self.episodes.ids, policy_version=self.maddpg.updates)
+        slots = self.replay.add(self.obs, actions, rew, info["final_obs"], info["terminated"].astype(np.float32),
+                                self.episodes.ids, policy_version=self.maddpg.updates)
+        self.scoring.inserted(slots, self.counters["updates"])
         self.episodes.advance(info["episode_mask"])
         self.obs = next_obs
         self._run_due_updates(b)
@@ -136,8 +139,7 @@ class InlineLoop:
             stats["icm_inverse_loss"] = float(np.mean(icm["inverse_loss"]))
             stats["icm_forward_loss"] = float(np.mean(icm["forward_loss"]))
         # A11 and §3.8's rescoring, amortised: new rows are scored before anything samples them
-        slots, c["rescore_cursor"] = buffer_steps.rolling_rescore_slots(self.replay, self.layout, c["rescore_cursor"],
-                                                                  cfg.teachers.rescore_rows_per_update)
+        slots = self.scoring.rescore_rows(self.replay, cfg.teachers.rescore_rows_per_update)
         for start in range(0, slots.size, RESCORE_CHUNK):
             self._score(buffer_steps.score_rows(self.replay, slots[start:start + RESCORE_CHUNK]))
         if self.prioritized:
@@ -171,17 +173,18 @@ class InlineLoop:
         """Score rows with every teacher (c, eqs. 10–11), the ICM (ρ, eq. 18) and, for ACL td_self, the online
         critics' |δ|; the scores go into the buffer's columns."""
         rows, slots, gens, layout = work.rows, work.slots, work.generations, self.layout
+        stamp = self.counters["updates"]
         if self.teachers is not None:
             squared = self.config.teachers.difficulty_error == "squared"
             errors = network_steps.teacher_errors(self.teachers, rows, layout.teacher_agents, self.maddpg, squared)
-            buffer_steps.write_difficulty(self.replay, self.difficulty, layout.teacher_agents, slots, gens,
-                                    range(self.config.teachers.num_folds), errors, self.counters["updates"])
+            self.scoring.write_difficulty(self.replay, slots, gens, range(self.config.teachers.num_folds), errors,
+                                          stamp)
         if self.icm is not None:
             rho = network_steps.curiosity_values(self.icm, rows, layout.icm_agents)
-            buffer_steps.write_curiosity(self.replay, layout.icm_agents, slots, gens, rho)
-        if "td_abs" in layout.difficulty_source:
-            self.replay.update_scores("td_abs", slots, gens, network_steps.online_td_abs(self.maddpg, rows),
-                                      agents=np.arange(layout.num_agents))
+            self.scoring.write_curiosity(self.replay, slots, gens, rho, stamp)
+        if self.scoring.online_td:
+            self.scoring.write_online_td(self.replay, slots, gens, network_steps.online_td_abs(self.maddpg, rows),
+                                         stamp)
 
     def _learner_step(self) -> dict[str, Any]:
         """Every agent draws its own minibatch, one batched MADDPG update, PER / td_self |δ| written back."""
@@ -248,7 +251,8 @@ class InlineLoop:
             if model is not None:
                 model.load_state_dict(state[name])
         self.schedule.env_steps = int(state["schedule"]["env_steps"])
-        self.counters.update({k: int(v) for k, v in state["counters"].items()})
+        # checkpoints before the oldest-score-first rescoring also hold a "rescore_cursor": not used any more
+        self.counters.update({k: int(v) for k, v in state["counters"].items() if k in self.counters})
         self.elapsed_s = float(state.get("elapsed_s", 0.0))  # checkpoints before the clock was kept: 0
         for name, g in self.rng.items():
             g.bit_generator.state = state["rng"][name]
@@ -269,7 +273,7 @@ class InlineLoop:
             return None
         path = self.run_dir.save_checkpoint(self.counters["episodes"], self.state_dict())
         codec.write_snapshot_atomic(replay_snapshot_path(path), {"replay": self.replay.state_dict(),
-                                                                 "difficulty": self.difficulty.state_dict()})
+                                                                 **self.scoring.state_dict()})
         return path
 
     def restore(self, checkpoint: Path) -> None:
@@ -277,7 +281,7 @@ class InlineLoop:
         state = load_checkpoint(checkpoint)
         snapshot = codec.read_snapshot(replay_snapshot_path(checkpoint), limits=codec.SNAPSHOT_LIMITS)
         self.replay.load_state_dict(snapshot["replay"])
-        self.difficulty.load_state_dict(snapshot["difficulty"])
+        self.scoring.load_state_dict(snapshot)
         self.load_state_dict(state)
 
     # ------------------------------------------------------------------ main loop

@@ -1,40 +1,28 @@
-"""Replay buffer: joint-transition storage plus one sampler per agent (ALGORITHM.md §3.1, §3.6, §5, A9, A11).
+"""Replay buffer: joint-transition storage plus one sampling distribution per agent (ALGORITHM.md §3.1, §3.6, §5,
+A9, A11).
 
 Where it sits in the flow: the inline loop (or the replay server actor) owns one `ReplayBuffer`. Rollouts
 `add` chunks; teachers / ICM / learner return scores through `update_scores` (and PER's |δ| through
 `update_priorities`); after λ or scores change, `recompute_priorities(lam)` rebuilds every ACL/CMCL agent's
 priority column in bulk; the learner calls `sample(agent, S, rng)` per agent.
 
-Agent modes (per agent, §5): "uniform" (alias "maddpg"), "per", "acl", "cmcl".
-  * uniform: slots drawn uniformly from [0, size); IS weights are ones.
-  * per: p = |δ| + ε_p kept incrementally; new slots get the tracked maximum priority (starts at 1.0) and
-    `update_priorities` raises that maximum.
-  * acl / cmcl: p = KP(ĉ, λ) [+ η·CP(ρ̂)] + ε_p recomputed from the score columns. ĉ and ρ̂ are normalised
-    over the rows scored so far; a row without a difficulty score (just written, not yet scored) gets the
-    floor ε_p, a row without a curiosity score contributes CP = 0. Newly added slots sit at ε_p until the
-    next recompute (A11: score at insertion, then recompute).
+Each agent samples from the distribution of its algorithm (`cmcl.replay.sampling`, chosen once at construction):
+maddpg uniform, per PER (|δ| + ε_p, new slots at the running maximum), acl / cmcl the curriculum index recomputed
+from the score columns (unscored rows at the floor ε_p, A11).
 """
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 
 import numpy as np
 
-from cmcl.replay.priority import (
-    CURRICULUM_MODES,
-    DIFFICULTY_TRANSFORMS,
-    EPS_P,
-    LAM_MAX,
-    canonical_algorithm,
-    curriculum_priority,
-    kfold_priority,
-    permute_priorities,
-)
-from cmcl.replay.sampler import BACKENDS, PrioritySampler, importance_weights
+from cmcl.replay.priority import DIFFICULTY_TRANSFORMS, EPS_P, LAM_MAX, kfold_priority, permute_priorities
+from cmcl.replay.sampler import BACKENDS
+from cmcl.replay.sampling import CurriculumSampling, PrioritizedSampling, Sampling, sampling_for
+from cmcl.replay.snapshot import STATE_FORMAT, rng_state, set_rng_state, upgrade_state
 from cmcl.replay.storage import TransitionStorage
-
-DIFFICULTY_SOURCES = ("difficulty", "td_abs")  # "td_abs" = ACL's td_self variant (§5)
 
 
 class ReplayNotReady(RuntimeError):
@@ -52,16 +40,18 @@ def _per_agent(name: str, value, n: int) -> list:
 
 
 class ReplayBuffer:
-    """Storage + per-agent samplers.
+    """Storage + one sampling distribution per agent.
 
     Args:
         capacity, n_agents, obs_dim, act_dim, n_folds: storage layout (see `cmcl.replay.storage`).
-        modes: one mode for all agents or one per agent ("uniform"/"maddpg", "per", "acl", "cmcl").
+        algorithms: one algorithm for all agents or one per agent ("maddpg", "per", "acl", "cmcl"; the teams'
+            `algorithm` in the config).
         alpha: sampling exponent α_s of eq. 20, scalar or per agent (A8: 1 for acl / cmcl, 0.6 for per; the
             config resolves each team's, cmcl.config.TeamConfig.effective_alpha). eps: priority floor ε_p.
             backend: "cdf" or "sumtree".
         eta: curiosity weight η (scalar or per agent; used by "cmcl" agents only).
-        is_beta: β_IS (scalar or per agent); 0 = IS correction off (weights 1). `sample(beta=...)` overrides.
+        is_beta: β_IS (scalar or per agent) that `sample` uses when its caller passes none; 0 = IS correction off.
+            The runners pass their annealed β with every call.
         difficulty_norm: "rank" (A1, revised) or "max". cp_input: "std" or "raw".
         difficulty_transform: sampling control of the acl / cmcl agents (issue 21): "none"; "reversed" (ĉ -> 1 − ĉ,
             the anti-curriculum); "permuted" (each recompute shuffles every curriculum column across the valid rows,
@@ -72,7 +62,7 @@ class ReplayBuffer:
     """
 
     def __init__(self, *, capacity: int = 5000, n_agents: int, obs_dim: int, act_dim: int, n_folds: int = 5,
-                 modes="uniform", alpha=1.0, eps: float = EPS_P, backend: str = "cdf", eta=0.5,
+                 algorithms="maddpg", alpha=1.0, eps: float = EPS_P, backend: str = "cdf", eta=0.5,
                  is_beta=0.0, difficulty_norm: str = "rank", cp_input: str = "std",
                  difficulty_source="difficulty", min_size: int = 1, lam_max: float = LAM_MAX,
                  difficulty_transform: str = "none", control_seed: int | np.random.SeedSequence = 0) -> None:
@@ -91,56 +81,27 @@ class ReplayBuffer:
         if difficulty_transform not in DIFFICULTY_TRANSFORMS:
             raise ValueError(f"difficulty_transform must be one of {DIFFICULTY_TRANSFORMS}, "
                              f"got {difficulty_transform!r}")
-        alphas = [float(a) for a in _per_agent("alpha", alpha, n_agents)]
-        if any(not (np.isfinite(a) and a >= 0) for a in alphas):
-            raise ValueError(f"alpha must be finite and >= 0, got {alpha!r}")
-        self.alpha: list[float] = alphas  # α_s per agent
+        n = self.storage.n_agents
+        self.alpha: list[float] = [float(a) for a in _per_agent("alpha", alpha, n)]  # α_s per agent
+        etas = [float(e) for e in _per_agent("eta", eta, n)]
+        self.is_beta: list[float] = [float(b) for b in _per_agent("is_beta", is_beta, n)]
+        for name, vals in (("alpha", self.alpha), ("eta", etas), ("is_beta", self.is_beta)):
+            if any(not (np.isfinite(v) and v >= 0) for v in vals):
+                raise ValueError(f"{name} must be finite and >= 0, got {vals}")
+        self.algorithms: list[str] = list(_per_agent("algorithms", algorithms, n))
+        sources = _per_agent("difficulty_source", difficulty_source, n)
         self.eps, self.backend = float(eps), backend
         self.difficulty_transform = difficulty_transform
         self.control_rng = np.random.default_rng(control_seed)  # draws the permuted control's permutations
-        self.difficulty_norm, self.cp_input = difficulty_norm, cp_input
         self.min_size, self.lam_max = int(min_size), float(lam_max)
         self.lam: float | None = None  # λ of the last recompute
-        n = self.storage.n_agents
-        self.modes: list[str] = ["uniform"] * n
-        self.eta = [0.0] * n
-        self.is_beta = [0.0] * n
-        self.difficulty_source = ["difficulty"] * n
-        self.max_priority = np.ones(n)  # PER rule: starts at 1.0
-        self.samplers: list[PrioritySampler | None] = [None] * n
-        self.set_agent_modes(modes, eta=eta, is_beta=is_beta, difficulty_source=difficulty_source)
-
-    # ------------------------------------------------------------------ configuration
-    def set_agent_modes(self, modes, eta=None, is_beta=None, difficulty_source=None) -> None:
-        """Set each agent's mode (and optionally η, β_IS, difficulty source), all validated first.
-
-        An agent whose mode changes gets a fresh sampler: PER → every valid slot at the current maximum
-        priority; ACL/CMCL → every valid slot at ε_p until the next `recompute_priorities`.
-        """
-        n = self.storage.n_agents
-        new_modes = [canonical_algorithm(m) for m in _per_agent("modes", modes, n)]
-        new_eta = [float(e) for e in _per_agent("eta", self.eta if eta is None else eta, n)]
-        new_beta = [float(b) for b in _per_agent("is_beta", self.is_beta if is_beta is None else is_beta, n)]
-        src = self.difficulty_source if difficulty_source is None else difficulty_source
-        new_src = _per_agent("difficulty_source", src, n)
-        for name, vals in (("eta", new_eta), ("is_beta", new_beta)):
-            if any(not (np.isfinite(v) and v >= 0) for v in vals):
-                raise ValueError(f"{name} must be finite and >= 0, got {vals}")
-        if any(s not in DIFFICULTY_SOURCES for s in new_src):
-            raise ValueError(f"difficulty_source must be in {DIFFICULTY_SOURCES}, got {new_src}")
-        for a, mode in enumerate(new_modes):
-            if mode != self.modes[a] or (mode != "uniform" and self.samplers[a] is None):
-                self.samplers[a] = self._fresh_sampler(mode, a)
-        self.modes, self.eta, self.is_beta, self.difficulty_source = new_modes, new_eta, new_beta, new_src
-
-    def _fresh_sampler(self, mode: str, agent: int) -> PrioritySampler | None:
-        """New sampler for `mode` with every valid slot at its initial priority."""
-        if mode == "uniform":
-            return None
-        sampler = PrioritySampler(self.storage.capacity, self.alpha[agent], self.backend)
-        init = self.max_priority[agent] if mode == "per" else self.eps
-        sampler.set_all(np.full(self.storage.size, init))
-        return sampler
+        reversed_difficulty = difficulty_transform == "reversed"
+        self.sampling: list[Sampling] = [
+            sampling_for(algo, a, capacity=self.capacity, alpha=self.alpha[a], backend=backend, eps=self.eps,
+                         eta=etas[a], difficulty_source=sources[a], difficulty_norm=difficulty_norm,
+                         cp_input=cp_input, lam_max=self.lam_max, reversed_difficulty=reversed_difficulty)
+            for a, algo in enumerate(self.algorithms)]
+        self.curriculum = [(a, s) for a, s in enumerate(self.sampling) if isinstance(s, CurriculumSampling)]
 
     # ------------------------------------------------------------------ storage passthrough
     @property
@@ -164,10 +125,8 @@ class ReplayBuffer:
         slots = self.storage.add(obs, act, rew, next_obs, done, episode, policy_version)
         written = slots[slots >= 0]
         if written.size:
-            for a, sampler in enumerate(self.samplers):
-                if sampler is not None:
-                    init = self.max_priority[a] if self.modes[a] == "per" else self.eps
-                    sampler.update(written, np.full(written.size, init))
+            for sampling in self.sampling:
+                sampling.added(written)
         return slots
 
     def update_scores(self, column: str, slots, generations, values, agents=None) -> int:
@@ -202,8 +161,9 @@ class ReplayBuffer:
         check). Also stores |δ| in the td_abs score column. Returns the accepted count.
         """
         self._check_agent(agent)
-        if self.modes[agent] != "per":
-            raise ValueError(f"update_priorities needs a 'per' agent; agent {agent} is {self.modes[agent]!r}")
+        sampling = self.sampling[agent]
+        if not isinstance(sampling, PrioritizedSampling):
+            raise ValueError(f"update_priorities needs a 'per' agent; agent {agent} is {self.algorithms[agent]!r}")
         s = self.storage.check_slots(slots)
         gens = self.storage.generation[s] if generations is None else generations
         td = np.abs(np.asarray(td_abs, dtype=np.float64)).reshape(-1)
@@ -211,10 +171,7 @@ class ReplayBuffer:
             raise ValueError(f"td_abs must be finite with shape {s.shape}, got {np.shape(td_abs)}")
         accepted = self.storage.update_scores("td_abs", s, gens, td.astype(np.float32), agents=[agent])
         ok = self.storage.fresh_mask(s, gens)
-        if ok.any():
-            p = td[ok] + self.eps
-            self.samplers[agent].update(s[ok], p)
-            self.max_priority[agent] = max(self.max_priority[agent], float(p.max()))
+        sampling.update_priorities(s[ok], td[ok])
         return accepted
 
     def recompute_priorities(self, lam: float, details: bool = False, apply: bool = True) -> dict | None:
@@ -231,55 +188,36 @@ class ReplayBuffer:
         under the permuted control; c_hat and kp are the rows' own).
         """
         kfold_priority(0.0, lam, self.lam_max)  # validates lam before anything changes
-        agents = [a for a, m in enumerate(self.modes) if m in CURRICULUM_MODES]
+        agents = [a for a, _ in self.curriculum]
         size = self.storage.size
-        out = {k: [] for k in ("c_hat", "kp", "cp", "priority", "scored")}
-        for a in agents:  # one fully vectorised pass over the buffer per agent
-            col = self.difficulty_source[a]
-            eta = self.eta[a] if self.modes[a] == "cmcl" else 0.0  # ACL: η = 0
-            c_hat, kp, cp, p, has_c = curriculum_priority(
-                self.storage.scores[col][:size, a], self.storage.scored[col][:size, a],
-                self.storage.scores["curiosity"][:size, a], self.storage.scored["curiosity"][:size, a],
-                lam, eta, eps=self.eps, difficulty_norm=self.difficulty_norm, cp_input=self.cp_input,
-                lam_max=self.lam_max, reversed_difficulty=self.difficulty_transform == "reversed")
-            for key, val in zip(out, (c_hat, kp, cp, p, has_c), strict=True):
-                out[key].append(val)
-        priority = np.stack(out["priority"], axis=1) if agents else np.zeros((size, 0))
+        terms = [sampling.terms(self.storage, lam) for _, sampling in self.curriculum]  # vectorised per agent
+        out = {key: np.stack([t[i] for t in terms], axis=1) if terms else np.zeros((size, 0), bool if i == 4 else float)
+               for i, key in enumerate(("c_hat", "kp", "cp", "priority", "scored"))}
+        out["agents"] = np.asarray(agents, dtype=np.int64)
         if not apply:
-            return {**{k: (np.stack(v, axis=1) if v else np.zeros((size, 0))) for k, v in out.items()},
-                    "scored": np.stack(out["scored"], axis=1).astype(bool) if agents else np.zeros((size, 0), bool),
-                    "agents": np.asarray(agents, dtype=np.int64)}
+            return out
+        priority = out["priority"]
         if self.difficulty_transform == "permuted" and agents:
             priority = permute_priorities(priority, self.control_rng)
-        for i, a in enumerate(agents):
-            self.samplers[a].set_all(priority[:, i])
+        for i, (_, sampling) in enumerate(self.curriculum):
+            sampling.set_priorities(priority[:, i])
         self.lam = float(lam)
-        if not details:
-            return None
-        res = {k: (np.stack(v, axis=1) if v else np.zeros((size, 0))) for k, v in out.items()}
-        res["priority"] = priority
-        res["scored"] = res["scored"].astype(bool)
-        res["agents"] = np.asarray(agents, dtype=np.int64)
-        return res
+        return {**out, "priority": priority} if details else None
 
     def sampling_distribution(self) -> np.ndarray:
         """P_v(j) of every agent over the valid rows as the samplers hold it now (eq. 20; uniform agents 1/|D|):
         float64[size, N], columns summing to 1 (all zeros for an empty buffer)."""
         size = self.storage.size
         out = np.full((size, self.n_agents), 1.0 / max(size, 1))
-        for a, sampler in enumerate(self.samplers):
-            if sampler is not None and size:
-                out[:, a] = sampler.probabilities(np.arange(size))
+        for a, sampling in enumerate(self.sampling):
+            if size:
+                out[:, a] = sampling.probabilities(np.arange(size), size)
         return out
 
     def probabilities(self, agent: int, slots) -> np.ndarray:
         """P_v(j) for valid slots int[k] -> float64[k]."""
         self._check_agent(agent)
-        s = self.storage.check_slots(slots)
-        sampler = self.samplers[agent]
-        if sampler is None:
-            return np.full(s.shape, 1.0 / max(self.storage.size, 1))
-        return sampler.probabilities(s)
+        return self.sampling[agent].probabilities(self.storage.check_slots(slots), self.storage.size)
 
     # ------------------------------------------------------------------ sampling
     def _check_agent(self, agent: int) -> None:
@@ -300,14 +238,8 @@ class ReplayBuffer:
         size = self.storage.size
         if size < self.min_size:
             raise ReplayNotReady(f"replay holds {size} transitions; sampling needs at least {self.min_size}")
-        sampler = self.samplers[agent]
-        if sampler is None:
-            return rng.integers(0, size, int(batch_size), dtype=np.int64), np.ones(int(batch_size), np.float32)
         b = self.is_beta[agent] if beta is None else float(beta)
-        if not (np.isfinite(b) and b >= 0):
-            raise ValueError(f"beta must be finite and >= 0, got {beta!r}")
-        slots = sampler.sample(int(batch_size), rng)
-        return slots, importance_weights(sampler.probabilities(slots), size, b)
+        return self.sampling[agent].sample(int(batch_size), size, rng, b)
 
     def sample_all(self, batch_size: int, rngs, beta=None) -> tuple[np.ndarray, np.ndarray]:
         """Every agent draws its own minibatch: rngs is one Generator or one per agent.
@@ -322,32 +254,31 @@ class ReplayBuffer:
 
     # ------------------------------------------------------------------ state
     def state_dict(self) -> dict:
-        """Nested dict of numpy arrays, plain scalars and strings (codec-ready).
+        """Nested dict of numpy arrays, plain scalars and strings (codec-ready), format `STATE_FORMAT`.
 
-        Keys: "storage" (see `TransitionStorage.state_dict`), "lam" (float, −1.0 = never recomputed),
-        "max_priority" float64[N], "modes" {str(agent): mode}, "samplers" {str(agent): sampler state}
-        for prioritized agents, plus "alpha" [float] * N, "eps", "backend", "difficulty_transform" and
-        "control_rng" (the permuted control's PCG64 state, its 128-bit integers as decimal strings for msgpack).
+        Keys: "format", "storage" (see `TransitionStorage.state_dict`), "lam" (float, −1.0 = never recomputed),
+        "algorithms" {str(agent): algorithm}, "sampling" {str(agent): that agent's sampling distribution's state},
+        "alpha" [float] * N, "eps", "backend", "difficulty_transform" and "control_rng" (the permuted control's
+        PCG64 state, its 128-bit integers as decimal strings for msgpack).
         """
         return {
-            "storage": self.storage.state_dict(),
+            "format": STATE_FORMAT, "storage": self.storage.state_dict(),
             "lam": -1.0 if self.lam is None else self.lam,
-            "max_priority": self.max_priority.copy(),
-            "modes": {str(a): m for a, m in enumerate(self.modes)},
-            "samplers": {str(a): s.state_dict() for a, s in enumerate(self.samplers) if s is not None},
+            "algorithms": {str(a): algo for a, algo in enumerate(self.algorithms)},
+            "sampling": {str(a): s.state_dict() for a, s in enumerate(self.sampling)},
             "alpha": list(self.alpha), "eps": self.eps, "backend": self.backend,
-            "difficulty_transform": self.difficulty_transform, "control_rng": _rng_state(self.control_rng),
+            "difficulty_transform": self.difficulty_transform, "control_rng": rng_state(self.control_rng),
         }
 
     def load_state_dict(self, state: dict) -> None:
-        """Restore from `state_dict()` output; everything is validated before anything changes.
-
-        Modes, alpha and eps must equal this buffer's (they come from the run config).
-        """
+        """Restore from `state_dict()` output (or a snapshot of an older format, `cmcl.replay.snapshot`);
+        everything is validated before anything changes. Algorithms, alpha and eps must equal this buffer's
+        (they come from the run config)."""
         n = self.storage.n_agents
-        modes = [state["modes"].get(str(a)) for a in range(n)]
-        if modes != self.modes:
-            raise ValueError(f"modes in state {modes} differ from this buffer's {self.modes}")
+        state = upgrade_state(state, n)
+        algorithms = [state["algorithms"].get(str(a)) for a in range(n)]
+        if algorithms != self.algorithms:
+            raise ValueError(f"algorithms in state {algorithms} differ from this buffer's {self.algorithms}")
         alphas = [float(a) for a in _per_agent("alpha in state", state["alpha"], n)]  # older snapshots: one float
         if alphas != self.alpha:
             raise ValueError(f"alpha in state ({state['alpha']!r}) differs from this buffer ({self.alpha!r})")
@@ -359,41 +290,21 @@ class ReplayBuffer:
                              f"({self.difficulty_transform!r})")
         control_rng = np.random.default_rng()
         if "control_rng" in state:
-            _set_rng_state(control_rng, state["control_rng"])
-        maxp = np.asarray(state["max_priority"], dtype=np.float64)
-        if maxp.shape != (n,) or not np.all(np.isfinite(maxp)) or np.any(maxp <= 0):
-            raise ValueError(f"max_priority must be finite, > 0, shape ({n},); got {maxp!r}")
+            set_rng_state(control_rng, state["control_rng"])
         staged = TransitionStorage(capacity=self.capacity, n_agents=n, obs_dim=self.storage.obs_dim,
                                    act_dim=self.storage.act_dim, n_folds=self.storage.n_folds)
         staged.load_state_dict(state["storage"])
-        samplers: list[PrioritySampler | None] = [None] * n
-        for a in range(n):
-            if self.modes[a] != "uniform":
-                samplers[a] = PrioritySampler(self.capacity, self.alpha[a], self.backend)
-                samplers[a].load_state_dict(state["samplers"][str(a)])
-                if np.any(samplers[a].p[staged.size:] != 0):
-                    raise ValueError(f"sampler {a} has priorities on slots beyond size {staged.size}")
         lam = float(state["lam"])
         if lam != -1.0 and not 0.0 < lam <= self.lam_max:
             raise ValueError(f"lam in state must be -1 (never recomputed) or in (0, {self.lam_max}], got {lam!r}")
-        self.storage, self.samplers, self.max_priority = staged, samplers, maxp.copy()
+        sampling = copy.deepcopy(self.sampling)  # loaded into copies: nothing changes on ValueError
+        for a, s in enumerate(sampling):
+            try:
+                s.load_state_dict(state["sampling"].get(str(a), {}), staged.size)
+            except (KeyError, ValueError) as err:
+                raise ValueError(f"sampling state of agent {a}: {err}") from err
+        self.storage, self.sampling = staged, sampling
+        self.curriculum = [(a, s) for a, s in enumerate(self.sampling) if isinstance(s, CurriculumSampling)]
         self.lam = None if lam < 0 else lam
         if "control_rng" in state:
             self.control_rng = control_rng
-
-
-def _rng_state(rng: np.random.Generator) -> dict:
-    """A PCG64 Generator's state with its 128-bit integers as decimal strings (msgpack holds at most 64 bits)."""
-    st = rng.bit_generator.state
-    return {"bit_generator": st["bit_generator"], "state": str(st["state"]["state"]), "inc": str(st["state"]["inc"]),
-            "has_uint32": int(st["has_uint32"]), "uinteger": int(st["uinteger"])}
-
-
-def _set_rng_state(rng: np.random.Generator, state: dict) -> None:
-    """Inverse of `_rng_state` (ValueError for another bit generator or malformed numbers)."""
-    if state.get("bit_generator") != "PCG64":
-        raise ValueError(f"control_rng must be a PCG64 state, got {state.get('bit_generator')!r}")
-    rng.bit_generator.state = {"bit_generator": "PCG64",
-                               "state": {"state": int(state["state"]), "inc": int(state["inc"])},
-                               "has_uint32": int(state["has_uint32"]), "uinteger": int(state["uinteger"])}
-

@@ -7,10 +7,8 @@ side of each step (networks) is `cmcl.learners.network_steps`. Numpy only.
   learner minibatches ...... sample_owner_batches       -> LearnerBatch [n, N, S]      (per-agent samplers, eq. 20)
   learner feedback ......... apply_learner_feedback      <- LearnerFeedback (PER |δ|, ACL td_self)
   teacher fit rows ......... fold_batch_slots            -> slots [steps, B, F, S] from each fold only (eq. 9)
-  teacher scores ........... write_difficulty            <- errors [M, A_t, F] -> c (eq. 11) -> "difficulty"
   ICM fit rows ............. uniform_slots               -> slots, drawn uniformly (§3.4)
-  curiosity scores ......... write_curiosity             <- ρ [M, A_c] (eq. 18) -> "curiosity"
-  rows to (re)score ........ rolling_rescore_slots / oldest_slots
+  rows to (re)score, scores written back: the scoring state, `cmcl.replay.scoring.ScoringState`
 """
 
 from __future__ import annotations
@@ -22,7 +20,6 @@ import numpy as np
 
 from cmcl.messages import ROW_KEYS, LearnerBatch, LearnerFeedback, Rows
 from cmcl.replay.buffer import ReplayBuffer
-from cmcl.replay.difficulty import DifficultyTable
 
 
 def rows_at(replay: ReplayBuffer, slots: np.ndarray, keys: Sequence[str] = ROW_KEYS) -> dict[str, np.ndarray]:
@@ -56,11 +53,11 @@ def apply_learner_feedback(replay: ReplayBuffer, layout: Any, feedback: LearnerF
     i.e. ACL/CMCL priorities need a recompute).
     """
     stale, scores_changed = 0, False
-    for agent, mode in enumerate(layout.modes):
+    for agent, algorithm in enumerate(layout.algorithms):
         s = feedback.slots[:, agent].reshape(-1)
         g = feedback.generations[:, agent].reshape(-1)
         v = np.asarray(feedback.td_abs)[:, agent].reshape(-1)
-        if mode == "per":
+        if algorithm == "per":
             accepted = replay.update_priorities(agent, s, v, g)
         elif layout.difficulty_source[agent] == "td_abs":
             accepted = replay.update_scores("td_abs", s, g, v[:, None], agents=[agent])
@@ -99,66 +96,3 @@ def fold_batch_slots(replay: ReplayBuffer, folds: Sequence[int], batch_size: int
 def uniform_slots(replay: ReplayBuffer, shape: tuple[int, ...], rng: np.random.Generator) -> np.ndarray:
     """int64[shape] slots drawn uniformly from the valid rows (the ICM's fit batches, §3.4)."""
     return replay.valid_slots()[rng.integers(0, replay.size, shape)]
-
-
-def write_difficulty(replay: ReplayBuffer, table: DifficultyTable, agents: np.ndarray, slots: np.ndarray,
-                     generations: np.ndarray, folds: Sequence[int], errors: np.ndarray, stamp: int) -> tuple[int, int]:
-    """Record the errors float32[M, A_t, F] of the teachers of `folds` (eq. 10) and store c (eq. 11) of the rows.
-
-    Stale (slot, generation) pairs are dropped. Returns (rows whose c was stored, stale rows dropped).
-    """
-    slots, generations = np.asarray(slots, dtype=np.int64), np.asarray(generations, dtype=np.int64)
-    fresh = replay.storage.fresh_mask(slots, generations)
-    s, g = slots[fresh], generations[fresh]
-    row_fold = replay.storage.fold[s]
-    table.record(s, g, row_fold, list(folds), np.asarray(errors)[fresh], stamp)
-    c, ok = table.difficulty(s, g, row_fold)
-    return replay.update_scores("difficulty", s[ok], g[ok], c[ok], agents=agents), int((~fresh).sum())
-
-
-def write_curiosity(replay: ReplayBuffer, agents: np.ndarray, slots: np.ndarray, generations: np.ndarray,
-                    rho: np.ndarray) -> tuple[int, int]:
-    """Store ρ float32[M, A_c] (eq. 18) of fresh rows in the "curiosity" column. Returns (accepted, stale)."""
-    accepted = replay.update_scores("curiosity", slots, generations, rho, agents=agents)
-    return accepted, int(np.size(slots)) - accepted
-
-
-def needs_scores(layout: Any) -> bool:
-    """Whether any agent's priority needs score columns (teacher difficulty, curiosity or online |δ|)."""
-    return bool(layout.teacher_agents.size or layout.icm_agents.size or "td_abs" in layout.difficulty_source)
-
-
-def unscored_slots(replay: ReplayBuffer, layout: Any) -> np.ndarray:
-    """int64[·] valid slots that lack a score some agent needs (new rows since the last scoring pass)."""
-    size, scored = replay.size, replay.storage.scored
-    missing = np.zeros(size, bool)
-    td_agents = [a for a, src in enumerate(layout.difficulty_source) if src == "td_abs"]
-    for column, agents in (("difficulty", layout.teacher_agents), ("curiosity", layout.icm_agents),
-                           ("td_abs", td_agents)):
-        if len(agents):
-            missing |= ~scored[column][:size][:, agents].all(1)
-    return replay.valid_slots()[missing]
-
-
-def rolling_rescore_slots(replay: ReplayBuffer, layout: Any, cursor: int, rows: int) -> tuple[np.ndarray, int]:
-    """The rows to score at one learner update: every never-scored row (A11: new rows are scored before they can
-    be sampled), then up to `rows` more from a cursor that walks the buffer in slot order and wraps, so the whole
-    buffer is rescored every capacity / rows updates (§3.8's periodic rescoring, spread over updates).
-
-    Returns (slots int64[·] sorted, the new cursor).
-    """
-    if not needs_scores(layout) or replay.size == 0:
-        return np.zeros(0, np.int64), cursor
-    new = unscored_slots(replay, layout)
-    take = min(max(0, rows - new.size), replay.size)
-    walk = (cursor + np.arange(take)) % replay.size
-    return np.union1d(new, walk).astype(np.int64), int((cursor + take) % replay.size)
-
-
-def oldest_slots(candidates: np.ndarray, stamps: np.ndarray, count: int) -> np.ndarray:
-    """Up to `count` of candidates int64[M] whose stamps float[M] are oldest (never scored, −1 or −inf, first),
-    sorted by slot."""
-    if candidates.size <= count:
-        return candidates
-    pick = np.argpartition(stamps, count - 1)[:count]
-    return np.sort(candidates[pick])

@@ -19,26 +19,17 @@ import numpy as np
 EPS_P = 1e-6  # ε_p: priority floor keeping every transition reachable
 LAM_MAX = 1.0  # largest admissible curriculum factor (KP is undefined above 1)
 STD_EPS = 1e-8  # added to the std in curiosity normalisation
-SAMPLER_MODES = ("uniform", "per", "acl", "cmcl")  # sampler modes: the algorithm "maddpg" samples uniformly
-_ALIASES = {"maddpg": "uniform"}
-CURRICULUM_MODES = ("acl", "cmcl")  # modes whose priority is recomputed from score columns at λ (eqs. 8, 12, 19)
+CURRICULUM_ALGORITHMS = ("acl", "cmcl")  # algorithms whose priority is recomputed from score columns at λ (eqs. 8,
+# 12, 19); the others sample uniformly (maddpg) or by |δ| (per), see cmcl.replay.sampling
 # sampling controls of the curriculum agents (issue 21; config teachers.difficulty_transform): "none" = the method,
 # "reversed" = anti-curriculum (ĉ -> 1 − ĉ before KP), "permuted" = priorities shuffled across rows
 # (`permute_priorities`)
 DIFFICULTY_TRANSFORMS = ("none", "permuted", "reversed")
 
 
-def uses_curriculum(modes) -> bool:
-    """Whether any agent's mode samples by the curriculum index (its priorities need recomputing at λ)."""
-    return any(canonical_algorithm(m) in CURRICULUM_MODES for m in modes)
-
-
-def canonical_algorithm(algo: str) -> str:
-    """Map an algorithm name (``maddpg`` is an alias of ``uniform``) to one of `SAMPLER_MODES`."""
-    name = _ALIASES.get(algo, algo)
-    if name not in SAMPLER_MODES:
-        raise ValueError(f"algo must be one of {SAMPLER_MODES + tuple(_ALIASES)}, got {algo!r}")
-    return name
+def uses_curriculum(algorithms) -> bool:
+    """Whether any agent's algorithm samples by the curriculum index (its priorities need recomputing at λ)."""
+    return any(a in CURRICULUM_ALGORITHMS for a in algorithms)
 
 
 def _finite_array(name: str, x) -> np.ndarray:
