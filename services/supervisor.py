@@ -17,14 +17,13 @@ from collections import Counter, deque
 from collections.abc import Callable
 from typing import Any
 
-import numpy as np
 import ray
 
 from cmcl.config import Config
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
 from cmcl.messages import ReplayStatus
-from cmcl.progress import episode_rows, progress_line, solved, window_summary
+from cmcl.progress import episode_rows, solved, window_summary
 from services.health import (
     CallWatch,
     RecoveryClock,
@@ -36,6 +35,7 @@ from services.health import (
 )
 from services.metrics import ServiceMetrics
 from services.placement import Roles
+from services.progress_view import ProgressView
 from services.report_schema import Report
 
 CALLS_IN_FLIGHT = 2  # per actor: one computing, one prefetched
@@ -77,8 +77,7 @@ class Supervisor:
         self.solved = False  # the coverage target run.stop_coverage was reached
         self.last_replay_report: Report | None = None
         self.started = time.perf_counter()
-        self.rate_mark = (self.started, self.status.env_steps, self.status.updates)
-        self.rates = {"env_steps_per_s": 0.0, "updates_per_s": 0.0}
+        self.view = ProgressView(config.run.episodes, self.started, self.status)
         self._first_reports()
 
     def _first_reports(self) -> None:
@@ -243,31 +242,8 @@ class Supervisor:
 
     # ------------------------------------------------------------------ progress, checkpoints
     def progress_line(self) -> str:
-        """One terminal line: env steps, episodes, coverage / win, reward, λ, rates, buffer, score age, lag."""
-        st = self.status
-        extra = [f"buf {st.size}"]
-        replay = self.last_replay_report.replay if self.last_replay_report is not None else None
-        ages = replay.score_age if replay is not None else None
-        if ages is not None and len(ages):
-            extra.append(f"score age {float(np.median(ages)):.0f} upd")
-        if replay is not None and replay.agent_sampling_ess:
-            ess = np.fromiter(replay.agent_sampling_ess.values(), float)
-            ess = ess[ess < 1]  # a uniform sampler's ESS is 1 by construction: as in cmcl.progress.ess_part, the
-            if ess.size:  # mean is over the agents that do not sample uniformly
-                extra.append(f"ESS {ess.mean():.2f}")
-        if self.lags:
-            extra.append("lag " + ",".join(f"{k}:{v}" for k, v in sorted(self.lags.items())))
-        return progress_line(st.episodes, self.config.run.episodes, st.env_steps, st.updates,
-                             window_summary(self.window), st.lam, self.rates,
-                             time.perf_counter() - self.started, extra)
-
-    def _refresh_rates(self) -> None:
-        now, st = time.perf_counter(), self.status
-        t0, s0, u0 = self.rate_mark
-        if now - t0 > 0.5:
-            self.rates = {"env_steps_per_s": (st.env_steps - s0) / (now - t0),
-                          "updates_per_s": (st.updates - u0) / (now - t0)}
-            self.rate_mark = (now, st.env_steps, st.updates)
+        """One terminal line (services.progress_view)."""
+        return self.view.line(self.status, self.last_replay_report, self.lags, self.window)
 
     def drain(self) -> None:
         """Wait for every call in flight (a consistent cut for checkpoints and the end)."""
@@ -356,21 +332,21 @@ class Supervisor:
                 self._track(report_ref, "replay_report")
             if report_ref is not None and report_ref not in self.pending:
                 report_ref, last_report = None, now
-                self._refresh_rates()
+                self.view.refresh(self.status)
                 self.metrics.update_rates()
                 if self.progress is not None:
                     self.progress(self.progress_line())
-                self.run_dir.log({"kind": "progress", **self.status.counters(), **self.rates,
+                self.run_dir.log({"kind": "progress", **self.status.counters(), **self.view.rates,
                                   "elapsed_s": now - self.started})
             if now - last_ckpt >= cfg.service.checkpoint_every_s:
                 self.checkpoint()
                 last_ckpt = time.perf_counter()
         self.final_cut()
         self.checkpoint()
-        self._refresh_rates()
+        self.view.refresh(self.status)
         if self.progress is not None:
             self.progress(self.progress_line())
-        return {**dataclasses.asdict(self.status), **self.status.counters(), **self.rates,
+        return {**dataclasses.asdict(self.status), **self.status.counters(), **self.view.rates,
                 "failures": dict(self.failures), "hung": dict(self.hung),
                 "reports_rejected": dict(self.reports_rejected),
                 "recovery_s": {k: list(v) for k, v in self.recovery.times.items()}, "solved": self.solved,

@@ -1,0 +1,57 @@
+"""The service's progress line and rates: what the supervisor prints every report and returns in its summary.
+
+Where it sits: `services.supervisor.Supervisor` owns one `ProgressView`, feeds it the replay server's newest status
+and report, and prints `line()`. Read-only over what it is given; the line's common part is `cmcl.progress`.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from cmcl.messages import ReplayStatus
+from cmcl.progress import progress_line, window_summary
+from services.report_schema import Report
+
+
+def replay_parts(status: ReplayStatus, report: Report | None, lags: dict[str, int]) -> list[str]:
+    """The service's own fields of the line: buffer size, median teacher-score age (updates), the mean sampling ESS
+    of the agents that do not sample uniformly, and each source's weight lag (versions)."""
+    parts = [f"buf {status.size}"]
+    replay = report.replay if report is not None else None
+    ages = replay.score_age if replay is not None else None
+    if ages is not None and len(ages):
+        parts.append(f"score age {float(np.median(ages)):.0f} upd")
+    if replay is not None and replay.agent_sampling_ess:
+        ess = np.fromiter(replay.agent_sampling_ess.values(), float)
+        ess = ess[ess < 1]  # a uniform sampler's ESS is 1 by construction: as in cmcl.progress.ess_part, the
+        if ess.size:  # mean is over the agents that do not sample uniformly
+            parts.append(f"ESS {ess.mean():.2f}")
+    if lags:
+        parts.append("lag " + ",".join(f"{k}:{v}" for k, v in sorted(lags.items())))
+    return parts
+
+
+class ProgressView:
+    """Env steps and updates per second between refreshes (at least 0.5 s apart), and the progress line."""
+
+    def __init__(self, episodes_target: int, started: float, status: ReplayStatus) -> None:
+        self.episodes_target, self.started = episodes_target, started
+        self.rates = {"env_steps_per_s": 0.0, "updates_per_s": 0.0}
+        self.mark = (started, status.env_steps, status.updates)  # (time, env steps, updates) of the last refresh
+
+    def refresh(self, status: ReplayStatus) -> None:
+        now = time.perf_counter()
+        t0, s0, u0 = self.mark
+        if now - t0 > 0.5:
+            self.rates = {"env_steps_per_s": (status.env_steps - s0) / (now - t0),
+                          "updates_per_s": (status.updates - u0) / (now - t0)}
+            self.mark = (now, status.env_steps, status.updates)
+
+    def line(self, status: ReplayStatus, report: Report | None, lags: dict[str, int], window: Any) -> str:
+        """One terminal line: env steps, episodes, coverage / win, reward, λ, rates, buffer, score age, lag."""
+        return progress_line(status.episodes, self.episodes_target, status.env_steps, status.updates,
+                             window_summary(window), status.lam, self.rates, time.perf_counter() - self.started,
+                             replay_parts(status, report, lags))
