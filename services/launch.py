@@ -197,6 +197,7 @@ def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -
     GIF of one episode and the learning curve, all in the run directory."""
     from cmcl.evaluate import evaluate_policy, load_policy, render_gif
     from cmcl.io.plots import plot_learning_curves
+    from cmcl.stalls import MissAnatomy
 
     if any(True for _ in run_dir.rows("episode")):
         window = min(config.run.smoothing_window, max(1, config.run.episodes // 10))
@@ -209,9 +210,15 @@ def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -
     policy = load_policy(config, checkpoint)
     trained, random = evaluate_policy(config, policy, episodes), evaluate_policy(config, None, episodes)
     keys = [k for k in ("coverage", "success", "collisions", "wall_hits", "predator_win") if k in trained]
-    print(f"held-out evaluation ({episodes} new worlds, no exploration noise): "
-          + ", ".join(f"{k} {trained[k]:.3f}" for k in keys)
-          + "  | random policy: " + ", ".join(f"{k} {random[k]:.3f}" for k in keys))
+
+    def measures(result: dict[str, Any]) -> str:  # the named measures, then each team's return (any environment)
+        return ", ".join([*(f"{k} {result[k]:.3f}" for k in keys),
+                          *(f"return[{team}] {value:.1f}" for team, value in result["reward"].items())])
+
+    print(f"held-out evaluation ({episodes} new worlds, no exploration noise): {measures(trained)}"
+          f"  | random policy: {measures(random)}")
+    if "misses" in trained:
+        print("\n".join(MissAnatomy(**trained["misses"]).lines()))
     print(f"gif: {render_gif(config, policy, run_dir.path / 'trained.gif')}")
 
 

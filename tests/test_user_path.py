@@ -168,6 +168,7 @@ def test_make_run_ends_with_the_held_out_evaluation_and_a_gif_and_evaluate_finds
                                          "--set run.max_seconds=600 --metrics-port 0"])
     assert run.finish() == 0, run.text
     assert "held-out evaluation (200 new worlds, no exploration noise): coverage" in run.text, run.text
+    assert "return[agent]" in run.text and "worlds with an uncovered landmark at the final step" in run.text, run.text
     assert (run_dir / "trained.gif").stat().st_size > 0 and (run_dir / "learning_curve.png").is_file()
     assert not alive(run.seen), f"processes left behind: {alive(run.seen)}"
     evaluated = subprocess.run([PY, "-m", "cmcl.evaluate", str(run_dir), "--episodes", "20", "--no-gif"], cwd=ROOT,
