@@ -11,12 +11,14 @@ This module imports neither a runner, torch nor Ray: `--help` stays fast and `cm
 from __future__ import annotations
 
 import argparse
+import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal, get_args
 
-from cmcl.config import Config, load_config
+from cmcl.config import Config, ConfigError, load_config
 from cmcl.io.rundir import RunDirectory
-from cmcl.io.runlock import RunLock, holder_command
+from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
 
 Runner = Literal["inline", "service"]
 RUNNERS: tuple[str, ...] = get_args(Runner)
@@ -105,6 +107,18 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
     except BaseException:
         lock.release()
         raise
+
+
+def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, RunLock], int]) -> int:
+    """Open the run (`open_run`) and call `train(config, run_dir, lock)` while holding its lock; returns its exit
+    code, or 2 after printing the error when the run cannot be opened (nothing in the directory changed then)."""
+    try:
+        config, run_dir, lock = open_run(request)
+    except (ConfigError, FileExistsError, FileNotFoundError, RunDirectoryInUse, RunRequestError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    with lock:
+        return train(config, run_dir, lock)
 
 
 def add_run_flags(parser: argparse.ArgumentParser, *, new_run: bool = True) -> None:

@@ -23,10 +23,10 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from cmcl.config import Config, ConfigError
+from cmcl.config import Config
 from cmcl.io.rundir import RunDirectory
-from cmcl.io.runlock import RunDirectoryInUse, RunLock
-from cmcl.run_flags import RunRequest, RunRequestError, alias_parser, open_run, request_from, resume_command
+from cmcl.io.runlock import RunLock
+from cmcl.run_flags import RunRequest, alias_parser, request_from, resume_command, train_in_run
 from cmcl.stopping import STOP_SIGNALS, StopSignals
 
 
@@ -127,13 +127,7 @@ def main(argv: list[str] | None = None) -> int:
 def run_launch(request: RunRequest) -> int:
     """Train, or resume, one service run. Exit codes: 0 done, 2 bad config / arguments / cluster / resources / run
     directory in use, 130 / 143 stopped by SIGINT / SIGTERM (every role checkpointed first)."""
-    try:
-        config, run_dir, lock = open_run(request)
-    except (ConfigError, FileExistsError, FileNotFoundError, RunDirectoryInUse, RunRequestError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    with lock:
-        return _launch(request, config, run_dir, lock)
+    return train_in_run(request, lambda config, run_dir, lock: _launch(request, config, run_dir, lock))
 
 
 def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: RunLock) -> int:

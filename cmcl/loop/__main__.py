@@ -12,14 +12,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from cmcl.config import Config, ConfigError
+from cmcl.config import Config
 from cmcl.io import codec
 from cmcl.io.rundir import CHECKPOINT_GLOB, RunDirectory
-from cmcl.io.runlock import RunDirectoryInUse
 from cmcl.io.verified import CheckpointError
 from cmcl.loop.inline import InlineLoop
 from cmcl.progress import solved
-from cmcl.run_flags import RunRequest, RunRequestError, alias_parser, open_run, request_from, resume_command
+from cmcl.run_flags import RunRequest, RunRequestError, alias_parser, request_from, resume_command, train_in_run
 from cmcl.stopping import StopSignals
 
 
@@ -59,13 +58,7 @@ def run_inline(request: RunRequest) -> int:
     """Train, or resume, one inline run; write the learning curve at the end (unless `no_eval`). Exit codes: 0 done,
     2 bad config / arguments / run directory in use / nothing to resume, 130 / 143 stopped by SIGINT / SIGTERM
     (after a checkpoint)."""
-    try:
-        config, run_dir, lock = open_run(request)
-    except (ConfigError, FileExistsError, FileNotFoundError, RunDirectoryInUse, RunRequestError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    with lock:
-        return _train(request, config, run_dir)
+    return train_in_run(request, lambda config, run_dir, _lock: _train(request, config, run_dir))
 
 
 def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
