@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cmcl.envs.common import ARENA_HALF
+from cmcl.io.plots import moving_average
 
 MISS_CLASSES = ("crowded", "short", "far")
 NEAR_RADII = 2.0  # "short": within this many cover radii of an uncovered landmark
@@ -101,21 +102,15 @@ def miss_anatomy(positions: np.ndarray, landmarks: np.ndarray, cover_radius: flo
     )
 
 
-def moving_average(values: np.ndarray, window: int = 100) -> np.ndarray:
-    """float64[E]: the mean of the last `window` values at each episode (fewer at the start)."""
-    x = np.asarray(values, dtype=np.float64)
-    if window < 1:
-        raise ValueError(f"window must be >= 1, got {window}")
-    c = np.concatenate([[0.0], np.cumsum(x)])
-    idx = np.arange(1, x.size + 1)
-    lo = np.maximum(idx - window, 0)
-    return (c[idx] - c[lo]) / (idx - lo)
-
-
-def plateau_episodes(coverage: np.ndarray, low: float = 0.65, high: float = 0.85, window: int = 100) -> int:
-    """Episodes whose `window`-episode moving average of coverage lies in [low, high]: at N = 4 the band around
-    three landmarks of four. coverage: float[E], the final-step coverage of each training episode in order."""
+def on_plateau(coverage: np.ndarray, low: float = 0.65, high: float = 0.85, window: int = 100) -> np.ndarray:
+    """bool[E]: the episodes whose `window`-episode moving average of coverage lies in [low, high] (at N = 4 the band
+    around three landmarks of four). coverage: float[E], the final-step coverage of each training episode in order."""
     if not 0 <= low < high <= 1:
         raise ValueError(f"need 0 <= low < high <= 1, got low={low}, high={high}")
     ma = moving_average(coverage, window)
-    return int(((ma >= low) & (ma <= high)).sum())
+    return (ma >= low) & (ma <= high)
+
+
+def plateau_episodes(coverage: np.ndarray, low: float = 0.65, high: float = 0.85, window: int = 100) -> int:
+    """How many episodes are `on_plateau`."""
+    return int(on_plateau(coverage, low, high, window).sum())

@@ -8,7 +8,7 @@ directories are not), and the report turns them into the per-arm table of docs/R
 
 Per run:
 * `plateau_episodes`: episodes whose 100-episode moving average of coverage lies in [0.65, 0.85]
-  (`cmcl.stalls.plateau_episodes`), and `plateau_middle`, the episode in the middle of that time;
+  (`cmcl.stalls.on_plateau`), and `plateau_middle`, the episode in the middle of that time;
 * `early`: means over the progress rows while λ < 0.5 (the only time KP excludes any row, ALGORITHM.md A1) of the
   sampling ESS and the share of reward-bearing rows sampled and in the buffer (averaged over agents);
 * `at_plateau` (runs with a plateau of at least MIN_PLATEAU episodes): the held-out anatomy of the misses
@@ -28,7 +28,7 @@ import numpy as np
 from cmcl.evaluate import evaluate_policy, load_policy
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
-from cmcl.stalls import MissAnatomy, moving_average, plateau_episodes
+from cmcl.stalls import MissAnatomy, on_plateau
 from experiments.store import ResultsStore
 
 MIN_PLATEAU = 1000  # episodes on the plateau before its anatomy is taken
@@ -50,14 +50,13 @@ def analyse_run(run_path: Path, arm: str) -> dict[str, Any] | None:
     if len(episodes) < config.run.episodes:
         return None
     coverage = np.array([r["coverage"] for r in episodes], dtype=np.float64)
-    ma = moving_average(coverage)
-    on_plateau = np.flatnonzero((ma >= PLATEAU[0]) & (ma <= PLATEAU[1]))
+    plateau = np.flatnonzero(on_plateau(coverage, *PLATEAU))
     progress = [r for r in run.rows("progress") if "sampling" in r]
     early = [r for r in progress if r["lambda"] < EARLY_LAMBDA]
     record: dict[str, Any] = {
         "id": run_path.name, "arm": arm,
-        "seed": int(config.run.seed), "plateau_episodes": plateau_episodes(coverage, *PLATEAU),
-        "plateau_middle": int(np.median(on_plateau)) + 1 if on_plateau.size else None,
+        "seed": int(config.run.seed), "plateau_episodes": int(plateau.size),
+        "plateau_middle": int(np.median(plateau)) + 1 if plateau.size else None,
         "early": {"rows": len(early), "ess": _mean_over_agents(early, "ess_fraction"),
                   "reward_rows_sampled": _mean_over_agents(early, "reward_rows_sampled"),
                   "reward_rows_buffer": _mean_over_agents(early, "reward_rows_buffer")},
