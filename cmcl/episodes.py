@@ -65,7 +65,8 @@ class EpisodeChunker:
         keep = ~np.isin(joined["episode"], send) if joined else np.zeros(0, bool)
         rows = {k: v[~keep] for k, v in joined.items()}
         self.steps = [{k: v[keep] for k, v in joined.items()}] if keep.any() else []
-        self.finished = [e for e in self.finished if e not in set(send.tolist())]
+        sent = set(send.tolist())
+        self.finished = [e for e in self.finished if e not in sent]
         return Chunk(obs=rows["obs"], act=rows["act"], rew=rows["rew"], next_obs=rows["next_obs"],
                      done=rows["done"], env_index=np.searchsorted(send, rows["episode"]).astype(np.int64),
                      writer=writer, incarnation=incarnation, seq=seq, policy_version=policy_version)
