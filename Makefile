@@ -7,9 +7,13 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 TORCH  := torch==2.13.0
 RUN_ARGS ?=
+RUN_DIR ?= runs/make-run
 TEST_ARGS ?=
 
-.PHONY: install system-deps run demo test test-deploy lint bench peer clean
+# Appended to a training command: its exit status after a graceful stop (130 Ctrl-C, 143 SIGTERM) is not an error.
+STOPPED_IS_OK := || { status=$$?; [ $$status -eq 130 ] || [ $$status -eq 143 ] || exit $$status; }
+
+.PHONY: install system-deps run resume demo test test-deploy lint bench peer clean
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -21,9 +25,15 @@ install: $(STAMP)
 
 # The main job: CMCL on the distributed service (embedded Ray) trains sparse navigation until the 100-episode moving
 # average of coverage reaches 0.9, or 5 minutes; then a held-out evaluation, a GIF and the learning curve.
+# Ctrl-C (or SIGTERM) stops it with every role checkpointed and the resume command printed; the run's exit 130 / 143
+# is not reported as an error of make's (on Ctrl-C make, which got the SIGINT too, only says "Interrupt").
+# `make resume` goes on from there, for 5 more minutes.
 run: install
-	$(BIN)/python -m cmcl train --runner service --config configs/spread_cmcl.toml --set run.dir=runs/make-run \
-		--set run.stop_coverage=0.9 --set run.max_seconds=300 --overwrite $(RUN_ARGS)
+	$(BIN)/python -m cmcl train --runner service --config configs/spread_cmcl.toml --set run.dir=$(RUN_DIR) \
+		--set run.stop_coverage=0.9 --set run.max_seconds=300 --overwrite $(RUN_ARGS) $(STOPPED_IS_OK)
+
+resume: install
+	$(BIN)/python -m cmcl resume $(RUN_DIR) $(RUN_ARGS) $(STOPPED_IS_OK)
 
 demo: install
 	$(BIN)/python -m cmcl.demo

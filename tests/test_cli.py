@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -24,7 +25,7 @@ from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import LOCK_NAME
 from cmcl.loop import InlineLoop
 from cmcl.loop.__main__ import build_parser as loop_alias_parser
-from cmcl.run_flags import RunRequest, request_from
+from cmcl.run_flags import RunRequest, python_command, request_from
 from services.launch import build_parser as launch_alias_parser
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -163,8 +164,8 @@ def test_the_other_runners_run_and_a_service_flag_for_the_inline_runner_are_refu
     run_dir = trained_run(tiny_config, tmp_path / "run")
     before = stored_files(run_dir.path)
     assert main(["resume", str(run_dir.path), "--runner", "service"]) == 2
-    assert f"{run_dir.path} was written by the inline runner; resume it with python -m cmcl resume {run_dir.path}" \
-        in capsys.readouterr().err
+    assert f"{run_dir.path} was written by the inline runner; resume it with {python_command()} -m cmcl resume " \
+           f"{run_dir.path}" in capsys.readouterr().err
     assert main(["train", "--runner", "inline", "--address", "auto", "--set", f"run.dir={tmp_path / 'new'}"]) == 2
     assert "--address auto is a flag of the service runner" in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
@@ -181,3 +182,19 @@ def test_the_runner_of_a_run_without_a_checkpoint_comes_from_its_summary_or_must
         RunRequest(runner="inline", num_cpus=2)
     with pytest.raises(ValueError, match="--runner must be one of inline, service, got 'ray'"):
         RunRequest(runner="ray")
+
+
+def test_the_printed_python_is_the_one_a_user_can_type_where_it_is_printed(tmp_path, monkeypatch):
+    """`python` when that is this interpreter on PATH; else its path (an un-activated venv after `make run`)."""
+    here = Path(sys.executable)
+    monkeypatch.setenv("PATH", str(tmp_path))  # no python on PATH at all
+    monkeypatch.chdir(here.parent)
+    assert python_command() == f"./{here.name}"  # relative to the working directory (a bare name means PATH)
+    monkeypatch.chdir(tmp_path)
+    typed = python_command()
+    assert Path(typed).is_absolute() or (tmp_path / typed).resolve() == here.resolve()
+    done = subprocess.run([*shlex.split(typed), "-c", "import sys; print(sys.prefix)"], capture_output=True, text=True)
+    assert done.stdout.strip() == sys.prefix, "the printed interpreter is another environment"
+    if here.name == "python":
+        monkeypatch.setenv("PATH", str(here.parent))
+        assert python_command() == "python"

@@ -4,8 +4,9 @@
   finds the service's policy by itself, as it does an inline run's.
 - The service runs through the one entry point (`python -m cmcl train --runner service`, `python -m cmcl resume`),
   and through its own command (`python -m services.launch`), which is an alias with the same flags.
-- Ctrl-C (SIGINT to the whole process group, as a terminal sends it) and SIGTERM mid-run: exit 130 / 143, no
-  traceback, every role's checkpoint on disk, a one-line resume hint; the resume goes on from the policy it had.
+- Ctrl-C (SIGINT to the whole process group, as a terminal sends it) and SIGTERM mid-run: exit 130 / 143 (`make run`:
+  make's own "Interrupt", not "Error 130"), no traceback, every role's checkpoint on disk, a one-line resume hint, which
+  run as printed goes on from the policy it had.
 - SIGKILL of the launcher: no process of the Ray it started is left; `--resume` goes on from the last checkpoint.
 - A second launcher on a run directory in use is refused, naming the holder, and the first run is unharmed.
 
@@ -18,6 +19,7 @@ from __future__ import annotations
 import json
 import os
 import queue
+import shlex
 import signal
 import subprocess
 import sys
@@ -120,8 +122,10 @@ def launch(run_dir: Path, *extra: str) -> Launched:
 RESUME_COMMANDS = {"cmcl": [PY, "-m", "cmcl", "resume"], "services.launch": [PY, "-m", "services.launch", "--resume"]}
 
 
-def resume(run_dir: Path, command: str) -> Launched:
-    return Launched([*RESUME_COMMANDS[command], str(run_dir), "--metrics-port", "0"])
+def resume(run_dir: Path, command: str | list[str]) -> Launched:
+    """`command`: a key of RESUME_COMMANDS, or the argv of a printed resume hint (which names the run itself)."""
+    argv = [*RESUME_COMMANDS[command], str(run_dir)] if isinstance(command, str) else command
+    return Launched([*argv, "--metrics-port", "0"])
 
 
 def learner_version(run_dir: Path) -> int:
@@ -138,20 +142,28 @@ def first_versions_after(run_dir: Path, episode: int, count: int = 20) -> list[i
     return [int(r["weight_version"]) for r in rows[:count]]
 
 
+def resume_hint(text: str) -> list[str]:
+    """The resume command a stopped run printed ("... Resume with: COMMAND"), as the argv a shell would run."""
+    hints = [line.split("Resume with: ", 1)[1] for line in text.splitlines() if "Resume with: " in line]
+    assert len(hints) == 1, f"expected one resume hint:\n{text}"
+    return shlex.split(hints[0])
+
+
 def assert_clean_stop(run: Launched, code: int, name: str, run_dir: Path) -> None:
     assert run.finish() == code, run.text
     assert "Traceback" not in run.text and "SIGTERM received at time" not in run.text, run.text
-    assert f"stopped by {name}" in run.text and f"Resume with: python -m cmcl resume {run_dir}" in run.text
+    assert f"stopped by {name}" in run.text and resume_hint(run.text)[-3:] == ["cmcl", "resume", str(run_dir)]
     service = run_dir / "checkpoints" / "service"
     for role in ("learner", "icm", "teacher_0-1-2-3-4"):
         assert (service / f"{role}.pt.manifest.json").is_file(), f"no {role} checkpoint: {sorted(service.iterdir())}"
     assert json.loads((run_dir / "summary.json").read_text())["ended"] == name
 
 
-def resume_then_stop(run_dir: Path, version: int, logged: int, stop: signal.Signals, command: str) -> None:
-    """Resume with `command` (a key of RESUME_COMMANDS), which must announce the checkpoint's policy `version`; stop
-    it with `stop` after two progress lines; a clean stop, and the resumed run's first episodes (after episode
-    `logged`) played with that policy."""
+def resume_then_stop(run_dir: Path, version: int, logged: int, stop: signal.Signals,
+                     command: str | list[str]) -> None:
+    """Resume with `command` (a key of RESUME_COMMANDS, or a printed hint's argv), which must announce the
+    checkpoint's policy `version`; stop it with `stop` after two progress lines; a clean stop, and the resumed run's
+    first episodes (after episode `logged`) played with that policy."""
     again = resume(run_dir, command)
     again.wait_for(lambda line: f"(policy version {version})" in line, "the resume notice")
     again.progress_lines(2)
@@ -178,21 +190,27 @@ def test_make_run_ends_with_the_held_out_evaluation_and_a_gif_and_evaluate_finds
     assert Path(result["checkpoint"]).name.startswith("learner-") and result["episodes"] == 20
 
 
-def test_ctrl_c_and_sigterm_stop_gracefully_a_second_launcher_is_refused_and_resume_keeps_the_policy(tmp_path):
+def test_make_run_stopped_by_ctrl_c_a_second_launcher_refused_and_the_printed_command_resumes_the_policy(tmp_path):
     run_dir = tmp_path / "run"
-    first = launch(run_dir)
+    first = Launched(["make", "-s", "run", f"RUN_ARGS=--set run.dir={run_dir} --set run.max_seconds=120 "
+                                           "--metrics-port 0"])
     first.progress_lines(2, min_updates=16)
     second = subprocess.run([PY, "-m", "services.launch", "--config", "configs/spread_cmcl.toml", "--set",
                              f"run.dir={run_dir}", "--overwrite", "--metrics-port", "0"], cwd=ROOT,
                             capture_output=True, text=True, timeout=120)
-    assert second.returncode == 2 and f"is in use by pid {first.proc.pid}" in second.stderr, second.stderr
+    assert second.returncode == 2 and "is in use by pid " in second.stderr, second.stderr
+    holder = int(second.stderr.split("is in use by pid ")[1].split()[0].rstrip(".,;:)"))
+    assert holder in first.seen, f"the run is held by pid {holder}, not by the make run: {second.stderr}"
     os.killpg(first.proc.pid, signal.SIGINT)  # what a terminal does on Ctrl-C: the whole foreground group
-    assert_clean_stop(first, 130, "SIGINT", run_dir)  # the first run was unharmed by the refused second one
+    # make itself dies of the SIGINT after the run's graceful stop, saying "Interrupt"; the run's exit 130 is not
+    # reported as an error of make's ("Error 130"). The refused second launcher did not harm the first run.
+    assert_clean_stop(first, -signal.SIGINT, "SIGINT", run_dir)
+    assert "Error" not in first.text and first.text.rstrip().endswith("Interrupt"), first.text
     assert wait_until_gone(first.seen) == set()
     version, episodes = learner_version(run_dir), json.loads((run_dir / "summary.json").read_text())["episodes_logged"]
     assert version > 0
 
-    resume_then_stop(run_dir, version, episodes, signal.SIGTERM, "services.launch")
+    resume_then_stop(run_dir, version, episodes, signal.SIGTERM, resume_hint(first.text))  # typed as printed
     assert learner_version(run_dir) > version
 
 
@@ -209,7 +227,7 @@ def test_sigkill_of_the_launcher_leaves_no_ray_process_and_resume_goes_on_from_t
     version = learner_version(run_dir)
     logged = json.loads((run_dir / "checkpoints" / "service" / "supervisor.json").read_text())["episodes_logged"]
 
-    resume_then_stop(run_dir, version, logged, signal.SIGINT, "cmcl")
+    resume_then_stop(run_dir, version, logged, signal.SIGINT, "services.launch")
 
 
 def test_inline_runner_stops_on_ctrl_c_refuses_a_second_writer_and_resumes(tmp_path):
@@ -222,7 +240,7 @@ def test_inline_runner_stops_on_ctrl_c_refuses_a_second_writer_and_resumes(tmp_p
     assert second.returncode == 2 and f"is in use by pid {first.proc.pid}" in second.stderr, second.stderr
     os.killpg(first.proc.pid, signal.SIGINT)
     assert first.finish() == 130 and "Traceback" not in first.text, first.text
-    assert f"Resume with: python -m cmcl resume {run_dir}" in first.text
+    assert resume_hint(first.text)[-3:] == ["cmcl", "resume", str(run_dir)]
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["ended"] == "SIGINT" and summary["runner"] == "inline"
     stopped_at = summary["episodes"]
