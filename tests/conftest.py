@@ -15,8 +15,9 @@ from tests.tiny import make_tiny_config
 
 @pytest.fixture
 def tiny_config() -> Callable[..., Config]:
-    """The factory `make_tiny_config(algorithm, task, opponent, sections=..., **run) -> Config`. A module that needs
-    more settings of its own overrides this fixture with a `functools.partial` of it (see tests/test_loop.py)."""
+    """The factory `make_tiny_config(algorithm, task, opponent, service=..., sections=..., **run) -> Config`. A
+    module that needs more settings of its own overrides this fixture with a `functools.partial` of it (see
+    tests/test_loop.py)."""
     return make_tiny_config
 
 

@@ -20,13 +20,13 @@ from pathlib import Path
 import ray
 from ray.cluster_utils import Cluster
 
-from cmcl.config import config_from_dict
 from cmcl.io.rundir import RunDirectory
 from services.faults import actor_entry
 from services.metrics import ServiceMetrics
 from services.placement import create_roles
 from services.supervisor import Supervisor
-from tests.test_service_ray import TINY, samples, tiny, value
+from tests.test_service_ray import samples, value
+from tests.tiny import make_tiny_config
 
 FAST_HEALTH = {"health_check_initial_delay_ms": 0, "health_check_period_ms": 500, "health_check_timeout_ms": 500,
                "health_check_failure_threshold": 2}
@@ -40,10 +40,9 @@ def main(run_path: str) -> dict:
     worker_node = cluster.add_node(num_cpus=1, resources={"rollout_node": 1})
     ray.init(address=cluster.address, log_to_driver=False)
     try:
-        data = tiny("maddpg", Path(run_path), episodes=EPISODES).to_dict()
-        data["service"] = {**data["service"], **TINY["service"], "rollout_resource": "rollout_node",
-                           "max_restarts": 2}
-        config = config_from_dict(data)
+        # the rollout worker runs only where the custom resource is: on the worker node
+        config = make_tiny_config("maddpg", service=True, sections={"service": {"rollout_resource": "rollout_node"}},
+                                  dir=str(Path(run_path)), episodes=EPISODES)
         run_dir = RunDirectory.create(config.run.dir, config)
         metrics = ServiceMetrics()
         roles = create_roles(config, run_dir)

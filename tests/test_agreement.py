@@ -24,13 +24,12 @@ from services.learner import Learner
 from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
 from services.teachers import TeacherWorker
-from tests.test_service_inprocess import small_config
+from tests.test_service_inprocess import in_process_config
 
 
 def twins(algorithm):
     """A replay server and an inline loop whose buffers hold the same three rollout chunks."""
-    data = small_config(algorithm)
-    cfg = config_from_dict({**data, "service": {**data["service"], "score_rows_per_call": 360}}).to_dict()
+    cfg = in_process_config(algorithm, service={"score_rows_per_call": 360})  # every row scored in one call
     server, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
     loop = InlineLoop(config_from_dict(cfg), progress=None)
     for _ in range(3):

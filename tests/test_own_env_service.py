@@ -6,13 +6,9 @@ import pytest
 from cmcl.config import load_config
 from cmcl.io.rundir import RunDirectory
 from services.launch import run_service
+from tests.tiny import tiny_overrides
 
 pytestmark = pytest.mark.ray
-
-TINY = ["env.num_envs=4", "maddpg.batch_size=16", "maddpg.warmup=96", "maddpg.hidden=32", "replay.capacity=600",
-        "teachers.batch_size=16", "teachers.hidden=32", "teachers.num_folds=3", "icm.batch_size=16",
-        "service.updates_per_call=8", "service.fit_steps_per_call=4", "service.score_rows_per_call=256",
-        "service.metrics_port=0", "service.checkpoint_every_s=3600.0", "run.smoothing_window=8"]
 
 
 @pytest.mark.parametrize("factory,extra", [
@@ -21,7 +17,8 @@ TINY = ["env.num_envs=4", "maddpg.batch_size=16", "maddpg.warmup=96", "maddpg.hi
                                                       "teams.speaker.algorithm=cmcl",
                                                       "teams.listener.algorithm=maddpg"])])
 def test_a_factory_environment_trains_through_the_service(factory, extra, tmp_path, ray_cluster):
-    config = load_config(None, [f"env.factory={factory}", *TINY, *extra, "run.episodes=24", f"run.dir={tmp_path}"])
+    config = load_config(None, [f"env.factory={factory}", *tiny_overrides(service=True), *extra, "run.episodes=24",
+                                f"run.dir={tmp_path}"])
     summary = run_service(config, RunDirectory.create(config.run.dir, config), progress=None)
     brief = {k: v for k, v in summary.items() if k != "metrics_text"}
     assert summary["episodes"] >= 24 and summary["updates"] > 0, brief

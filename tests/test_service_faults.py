@@ -14,7 +14,6 @@ from pathlib import Path
 
 import pytest
 
-from cmcl.config import config_from_dict
 from cmcl.io import codec
 from cmcl.io.rundir import RunDirectory
 from services.faults import actor_entry, sigkill_actor
@@ -22,7 +21,8 @@ from services.health import ServiceFailed
 from services.metrics import ServiceMetrics
 from services.placement import create_roles
 from services.supervisor import Supervisor
-from tests.test_service_ray import samples, tiny, value
+from tests.test_service_ray import samples, value
+from tests.tiny import make_tiny_config
 
 pytestmark = pytest.mark.ray
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,9 +35,10 @@ def supervised(config, progress=None):
     return roles, metrics, Supervisor(config, run_dir, roles, metrics, progress=progress)
 
 
-def with_service(config, **service):
-    data = config.to_dict()
-    return config_from_dict({**data, "service": {**data["service"], **service}})
+def tiny_service(algorithm, path, service=(), **run):
+    """The tiny service config of `algorithm` writing to `path`, with `service` ({key: value}) on its service
+    section and `run` on its run section."""
+    return make_tiny_config(algorithm, service=True, sections={"service": dict(service)}, dir=str(path), **run)
 
 
 def kill_all(ray, roles):
@@ -47,7 +48,7 @@ def kill_all(ray, roles):
 
 def test_a_replay_server_killed_mid_insert_loses_no_acknowledged_transition(tmp_path, ray_cluster):
     ray = ray_cluster
-    config = tiny("acl", tmp_path / "replay-kill", episodes=60)
+    config = tiny_service("acl", tmp_path / "replay-kill", episodes=60)
     roles, metrics, supervisor = supervised(config)
 
     def arm(server):  # SIGKILL the replay server's process inside its first insert, before it stores the chunk
@@ -78,7 +79,7 @@ def test_a_replay_server_killed_mid_insert_loses_no_acknowledged_transition(tmp_
 
 def test_a_hung_rollout_worker_is_killed_and_restarted(tmp_path, ray_cluster):
     ray = ray_cluster
-    config = with_service(tiny("maddpg", tmp_path / "hung", episodes=24), call_timeout_s=3.0)
+    config = tiny_service("maddpg", tmp_path / "hung", {"call_timeout_s": 3.0}, episodes=24)  # a hang found in 3 s
     roles, metrics, supervisor = supervised(config)
     apply, armed = supervisor._apply, []
 
@@ -103,7 +104,7 @@ def test_a_hung_rollout_worker_is_killed_and_restarted(tmp_path, ray_cluster):
 
 def test_a_role_out_of_restarts_ends_the_run_with_a_clear_error(tmp_path, ray_cluster):
     ray = ray_cluster
-    config = tiny("maddpg", tmp_path / "dead", episodes=400)
+    config = tiny_service("maddpg", tmp_path / "dead", episodes=400)
     roles, metrics, supervisor = supervised(config)
     apply, killed = supervisor._apply, []
 
@@ -134,7 +135,7 @@ def arm_after_first(supervisor, kind, arm_call):
 @pytest.mark.parametrize("role", ["learner", "teacher", "icm"])
 def test_a_learner_teacher_or_icm_killed_mid_step_is_restarted_and_training_goes_on(role, tmp_path, ray_cluster):
     ray = ray_cluster
-    config = tiny("cmcl", tmp_path / f"kill-{role}", episodes=48)
+    config = tiny_service("cmcl", tmp_path / f"kill-{role}", episodes=48)
     roles, metrics, supervisor = supervised(config)
 
     def arm(actor):  # the next step of this actor kills its process (SIGKILL: no cleanup) from inside the step
@@ -163,7 +164,8 @@ def test_a_learner_teacher_or_icm_killed_mid_step_is_restarted_and_training_goes
 
 def test_a_replay_server_killed_mid_snapshot_keeps_the_previous_one(tmp_path, ray_cluster):
     ray = ray_cluster
-    config = with_service(tiny("acl", tmp_path / "snapshot-kill", episodes=60), checkpoint_every_s=1.0)
+    config = tiny_service("acl", tmp_path / "snapshot-kill", {"checkpoint_every_s": 1.0},  # snapshots during the run
+                          episodes=60)
     roles, metrics, supervisor = supervised(config)
 
     def arm(server):  # the next snapshot writes half of its file, then the process dies before the manifest
@@ -193,7 +195,7 @@ def test_a_rollout_worker_killed_three_times_with_sigkill_loses_nothing_acknowle
     its newest incarnation has reported: every restart gets the current weights with its next call, the run ends
     at its exact episode target, nothing is stored twice, and each outage's recovery time is recorded."""
     ray = ray_cluster
-    config = with_service(tiny("maddpg", tmp_path / "rollout-kills", episodes=120), max_restarts=4)
+    config = tiny_service("maddpg", tmp_path / "rollout-kills", {"max_restarts": 4}, episodes=120)  # 3 kills survived
     roles, metrics, supervisor = supervised(config)
     apply, kills = supervisor._apply, []
 
@@ -236,7 +238,7 @@ def test_the_final_cut_right_after_the_replay_server_is_killed_waits_for_its_res
     the server's dead process before Ray has noticed the death (ActorUnavailableError) is retried on the restarted
     server instead of ending the run. Found as a rare failure of the snapshot test above under load."""
     ray = ray_cluster
-    config = with_service(tiny("maddpg", tmp_path / "cut-after-kill", episodes=24), max_restarts=4)
+    config = tiny_service("maddpg", tmp_path / "cut-after-kill", {"max_restarts": 4}, episodes=24)  # 3 kills survived
     roles, metrics, supervisor = supervised(config)
     supervisor.run()
     before = supervisor.status.env_steps

@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from cmcl.config import config_from_dict, preset
+from cmcl.config import config_from_dict
 from cmcl.io.durable import ReplayStore, StoreError
 from cmcl.messages import LearnerFeedback
 from services.icm import ICMWorker
@@ -14,18 +14,21 @@ from services.placement import teacher_groups
 from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
 from services.teachers import TeacherWorker
+from tests.tiny import make_tiny_config
 
-SMALL = {"env": {"num_envs": 4}, "maddpg": {"batch_size": 16, "warmup": 96, "hidden": 32},
-         "replay": {"capacity": 360}, "teachers": {"batch_size": 16, "hidden": 32, "num_folds": 3},
-         "icm": {"batch_size": 16}, "service": {"updates_per_call": 4, "fit_steps_per_call": 2,
-                                                "score_rows_per_call": 200}}
+# The roles are driven by hand here, chunk by chunk, on the tiny service config with: a 360-row buffer (3 chunks of
+# 4 worlds × 30 steps), calls of 4 updates / 2 teacher fit steps / 200 scored rows, and the presets' 20 000 episodes
+# (the default λ stride reaches λ_max at half of run.episodes: with 12 episodes λ would reach it within 3 chunks).
+IN_PROCESS_SECTIONS = {"replay": {"capacity": 360},
+                       "service": {"updates_per_call": 4, "fit_steps_per_call": 2, "score_rows_per_call": 200}}
 
 
-def small_config(algorithm="cmcl", task="spread"):
-    data = preset(algorithm, task).to_dict()
-    for section, values in SMALL.items():
-        data[section].update(values)
-    return config_from_dict(data).to_dict()
+def in_process_config(algorithm="cmcl", **sections):
+    """The roles' config dict (`Config.to_dict()`): the tiny service config with `IN_PROCESS_SECTIONS`, then
+    `sections` ({key: value} per section name) on top."""
+    merged = {name: {**IN_PROCESS_SECTIONS.get(name, {}), **sections.get(name, {})}
+              for name in {*IN_PROCESS_SECTIONS, *sections}}
+    return make_tiny_config(algorithm, service=True, sections=merged, episodes=20_000).to_dict()
 
 
 def roles(cfg):
@@ -35,8 +38,7 @@ def roles(cfg):
 
 
 def test_one_round_of_the_data_flow_reaches_every_role():
-    data = small_config("cmcl")
-    cfg = config_from_dict({**data, "service": {**data["service"], "score_rows_per_call": 360}}).to_dict()
+    cfg = in_process_config("cmcl", service={"score_rows_per_call": 360})  # every row scored in one call
     replay, learner, worker, teachers, icm = roles(cfg)
     published = learner.publish()
     for _ in range(3):
@@ -67,7 +69,7 @@ def test_one_round_of_the_data_flow_reaches_every_role():
 
 
 def test_teacher_fit_batches_come_only_from_its_own_fold():
-    cfg = small_config("acl")
+    cfg = in_process_config("acl")
     replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
     for _ in range(3):
         replay.insert(worker.rollout(None)[0])
@@ -80,7 +82,7 @@ def test_teacher_fit_batches_come_only_from_its_own_fold():
 
 
 def test_duplicate_bad_and_stale_inputs_are_refused_and_counted():
-    cfg = small_config("per")
+    cfg = in_process_config("per")
     replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
     chunk, _ = worker.rollout(None)
     assert replay.insert(chunk).accepted == 120
@@ -99,7 +101,7 @@ def test_duplicate_bad_and_stale_inputs_are_refused_and_counted():
 
 
 def test_snapshot_restores_buffer_scores_counters_and_dedupe(tmp_path):
-    cfg = small_config("cmcl")
+    cfg = in_process_config("cmcl")
     replay, learner, worker, teachers, icm = roles(cfg)
     chunk = None
     for _ in range(3):
@@ -119,7 +121,7 @@ def test_snapshot_restores_buffer_scores_counters_and_dedupe(tmp_path):
 
 
 def test_learner_and_teacher_restart_from_their_checkpoints(tmp_path):
-    cfg = small_config("cmcl")
+    cfg = in_process_config("cmcl")
     replay, learner, worker, teachers, _ = roles(cfg)
     for _ in range(3):
         replay.insert(worker.rollout(None)[0])
@@ -134,16 +136,14 @@ def test_learner_and_teacher_restart_from_their_checkpoints(tmp_path):
 
 def test_icm_actor_refuses_a_config_without_curiosity():
     with pytest.raises(ValueError, match="curiosity"):
-        ICMWorker(small_config("acl"), 0)
+        ICMWorker(in_process_config("acl"), 0)
 
 
 @pytest.mark.parametrize("shared", [False, True], ids=["own_teachers", "shared_teachers"])
 def test_one_actor_can_host_every_fold_without_leaking_a_rows_own_fold(shared):
-    data = small_config("acl")
-    cfg = config_from_dict({**data, "service": {**data["service"], "teacher_actors": 1, "score_rows_per_call": 360},
-                            "teachers": {**data["teachers"], "share_parameters": shared}})
-    assert teacher_groups(cfg) == [[0, 1, 2]]
-    cfg = cfg.to_dict()
+    cfg = in_process_config("acl", service={"teacher_actors": 1, "score_rows_per_call": 360},
+                            teachers={"share_parameters": shared})
+    assert teacher_groups(config_from_dict(cfg)) == [[0, 1, 2]]
     replay, worker, learner = ReplayServer(cfg), RolloutWorker(cfg, 0, 0), Learner(cfg, 0)
     teacher = TeacherWorker(cfg, [0, 1, 2], 0)
     assert teacher.teachers.net.layers[1].weight.shape[0] == (3 if shared else 12)  # per fold, or per (agent, fold)
@@ -164,7 +164,7 @@ def test_one_actor_can_host_every_fold_without_leaking_a_rows_own_fold(shared):
 
 
 def test_chunks_are_stored_exactly_once_in_any_order():
-    cfg = small_config("maddpg")
+    cfg = in_process_config("maddpg")
     replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
     chunks = [worker.rollout(None)[0] for _ in range(3)]
     for chunk in (chunks[2], chunks[0], chunks[1]):  # the later chunk arrives first: none is lost
@@ -181,7 +181,7 @@ def test_chunks_are_stored_exactly_once_in_any_order():
     ("done", lambda c: np.full_like(c.done, 0.5), "chunk.done: must be 0 or 1"),
 ])
 def test_a_chunk_that_would_corrupt_the_accounting_is_refused(field, value, message):
-    cfg = small_config("maddpg")
+    cfg = in_process_config("maddpg")
     replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
     chunk = worker.rollout(None)[0]
     refused = replay.insert(dataclasses.replace(chunk, **{field: value(chunk)}))
@@ -190,7 +190,7 @@ def test_a_chunk_that_would_corrupt_the_accounting_is_refused(field, value, mess
 
 
 def test_no_acknowledged_chunk_is_lost_across_a_restart(tmp_path):
-    cfg = small_config("acl")
+    cfg = in_process_config("acl")
     store = str(tmp_path / "replay")
     replay, worker = ReplayServer(cfg, store_dir=store), RolloutWorker(cfg, 0, 0)
     chunks = [worker.rollout(None)[0] for _ in range(3)]
@@ -213,7 +213,7 @@ def test_no_acknowledged_chunk_is_lost_across_a_restart(tmp_path):
 
 
 def test_a_torn_log_tail_is_cut_and_a_bad_snapshot_refused(tmp_path):
-    cfg = small_config("maddpg")
+    cfg = in_process_config("maddpg")
     store = tmp_path / "replay"
     replay, worker = ReplayServer(cfg, store_dir=str(store)), RolloutWorker(cfg, 0, 0)
     for _ in range(2):
@@ -234,7 +234,7 @@ def test_a_torn_log_tail_is_cut_and_a_bad_snapshot_refused(tmp_path):
 
 
 def test_the_log_never_holds_more_than_one_buffer_of_transitions(tmp_path):
-    cfg = small_config("maddpg")  # capacity 360 = 3 chunks of 120
+    cfg = in_process_config("maddpg")  # capacity 360 = 3 chunks of 120
     store = tmp_path / "replay"
     replay, worker = ReplayServer(cfg, store_dir=str(store)), RolloutWorker(cfg, 0, 0)
     for _ in range(2):
@@ -247,7 +247,7 @@ def test_the_log_never_holds_more_than_one_buffer_of_transitions(tmp_path):
 
 
 def test_every_reply_carries_its_actors_incarnation_and_a_bad_one_is_refused():
-    cfg = small_config("cmcl")
+    cfg = in_process_config("cmcl")
     replay, learner, worker, teachers, icm = roles(cfg)
     for _ in range(3):
         chunk, report = worker.rollout(None)

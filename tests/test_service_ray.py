@@ -8,21 +8,14 @@ import urllib.request
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
-from cmcl.config import config_from_dict, preset
 from cmcl.io.rundir import RunDirectory
 from services.launch import run_service
 from services.metrics import ServiceMetrics
 from services.placement import InfeasibleResources, create_roles
 from services.supervisor import Supervisor
+from tests.tiny import make_tiny_config
 
 pytestmark = pytest.mark.ray
-
-TINY = {"env": {"num_envs": 4}, "maddpg": {"batch_size": 16, "warmup": 96, "hidden": 32},
-        "replay": {"capacity": 600}, "teachers": {"batch_size": 16, "hidden": 32, "num_folds": 3},
-        "icm": {"batch_size": 16},
-        "service": {"updates_per_call": 8, "fit_steps_per_call": 4, "score_rows_per_call": 256, "metrics_port": 0,
-                    "max_restarts": 2, "checkpoint_every_s": 3600.0},
-        "run": {"episodes": 12, "smoothing_window": 8}}
 
 REQUIRED = ["cmcl_replay_size", "cmcl_replay_inserts_total", "cmcl_replay_samples_total", "cmcl_replay_rejected_total",
             "cmcl_curriculum_lambda", "cmcl_difficulty", "cmcl_priority", "cmcl_teacher_scores_total",
@@ -30,14 +23,6 @@ REQUIRED = ["cmcl_replay_size", "cmcl_replay_inserts_total", "cmcl_replay_sample
             "cmcl_learner_updates_total", "cmcl_learner_loss", "cmcl_env_steps_total", "cmcl_episodes_total",
             "cmcl_coverage_rate", "cmcl_episode_reward", "cmcl_actor_restarts_total", "cmcl_kp_branch_fraction",
             "cmcl_fold_score_coverage", "cmcl_sampling_ess_fraction", "cmcl_sample_age_updates"]
-
-
-def tiny(algorithm, path, task="spread", **run):
-    data = preset(algorithm, task).to_dict()
-    for section, values in TINY.items():
-        data[section].update(values)
-    data["run"].update(dir=str(path), **run)
-    return config_from_dict(data)
 
 
 def samples(text):
@@ -55,10 +40,9 @@ def value(parsed, name, **labels):
 
 @pytest.mark.parametrize("algorithm", ["maddpg", "per", "acl", "cmcl"])
 def test_each_preset_runs_end_to_end(algorithm, tmp_path, ray_cluster):
-    config = tiny(algorithm, tmp_path / algorithm)
-    if algorithm == "acl":  # cmcl runs the automatic choice (one stacked actor on 2 CPUs); acl runs K actors
-        config = config_from_dict({**config.to_dict(), "service": {**config.to_dict()["service"],
-                                                                   "teacher_actors": 3}})
+    # cmcl runs the automatic choice (one stacked actor on 2 CPUs); acl runs K = 3 actors
+    actors = {"service": {"teacher_actors": 3}} if algorithm == "acl" else {}
+    config = make_tiny_config(algorithm, service=True, sections=actors, dir=str(tmp_path / algorithm))
     scraped = {}
 
     def progress(line):
@@ -102,7 +86,7 @@ def test_each_preset_runs_end_to_end(algorithm, tmp_path, ray_cluster):
 
 
 def test_resume_continues_counters(tmp_path, ray_cluster):
-    config = tiny("acl", tmp_path / "resume", episodes=8)
+    config = make_tiny_config("acl", service=True, dir=str(tmp_path / "resume"), episodes=8)
     run_dir = RunDirectory.create(config.run.dir, config)
     first = run_service(config, run_dir, progress=None)
     resumed_config = run_dir.config(("run.episodes=16",))
@@ -123,7 +107,7 @@ def test_a_killed_rollout_worker_is_replaced_and_training_goes_on(tmp_path, ray_
     of its next rollout kills the worker from inside that call and waits for the kill, so that call fails.
     """
     ray = ray_cluster
-    config = tiny("maddpg", tmp_path / "kill", episodes=24)
+    config = make_tiny_config("maddpg", service=True, dir=str(tmp_path / "kill"), episodes=24)
     run_dir = RunDirectory.create(config.run.dir, config)
     metrics = ServiceMetrics()
     roles = create_roles(config, run_dir)
@@ -154,7 +138,7 @@ def test_a_killed_rollout_worker_is_replaced_and_training_goes_on(tmp_path, ray_
 
 
 def test_infeasible_resources_are_refused_clearly(tmp_path, ray_cluster):
-    config = tiny("maddpg", tmp_path / "big")
-    config = config_from_dict({**config.to_dict(), "service": {**config.to_dict()["service"], "rollout_workers": 9}})
+    config = make_tiny_config("maddpg", service=True, sections={"service": {"rollout_workers": 9}},  # > 2 CPUs
+                              dir=str(tmp_path / "big"))
     with pytest.raises(InfeasibleResources, match="rollout_workers"):
         create_roles(config, RunDirectory.create(config.run.dir, config))

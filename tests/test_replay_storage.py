@@ -1,13 +1,12 @@
-"""Replay storage and ReplayBuffer (ALGORITHM.md §3.1, §3.6, §7 properties 8, 10, 11, 16, 18–20, 22)."""
+"""Replay storage: rows in (layout, ids, generations, folds, input checks), score columns (stale updates dropped,
+reset on overwrite) and snapshots out and back (ALGORITHM.md §3.1, §7 properties 10, 11). Sampling from the
+stored rows: tests/test_replay_sampling.py."""
 
 import numpy as np
 import pytest
-from scipy import stats
 
 from cmcl.io import codec
-from cmcl.replay.buffer import ReplayBuffer, ReplayNotReady
-from cmcl.replay.curriculum import CurriculumSchedule
-from cmcl.replay.priority import EPS_P
+from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.sampler import BACKENDS
 
 pytestmark = pytest.mark.filterwarnings("error")
@@ -22,10 +21,21 @@ def chunk(t, episode, rng, n=N):
 
 
 def filled(capacity=300, episodes=12, ep_len=30, seed=0, **kw):
+    """A ReplayBuffer of N agents (`kw`: its other arguments) holding `episodes` random episodes of `ep_len` steps."""
     rb = ReplayBuffer(capacity=capacity, n_agents=N, obs_dim=OD, act_dim=AD, **kw)
     rng = np.random.default_rng(seed)
     for e in range(episodes):
         rb.add(*chunk(ep_len, e, rng))
+    return rb
+
+
+def scored_buffer(backend="cdf", algorithms=("acl", "cmcl", "maddpg"), **kw):
+    """`filled` (10 episodes, 300 rows) with one sampling per agent and random difficulty and curiosity scores."""
+    rb = filled(capacity=300, episodes=10, algorithms=list(algorithms), backend=backend, **kw)
+    rng = np.random.default_rng(11)
+    s = rb.valid_slots()
+    rb.update_scores("difficulty", s, rb.generations(s), rng.exponential(1.0, (s.size, N)))
+    rb.update_scores("curiosity", s, rb.generations(s), rng.exponential(0.05, (s.size, N)))
     return rb
 
 
@@ -140,133 +150,9 @@ def test_overwrite_resets_scores():
     assert np.all(rb.storage.scored["difficulty"][10:])
 
 
-def test_uniform_mode_chi_square_and_not_ready():  # property 16
-    rb = ReplayBuffer(capacity=100, n_agents=N, obs_dim=OD, act_dim=AD, min_size=40)
-    rng = np.random.default_rng(0)
-    rb.add(*chunk(39, 0, rng))
-    with pytest.raises(ReplayNotReady, match="needs at least 40"):
-        rb.sample(0, 8, rng)
-    rb.add(*chunk(11, 1, rng))
-    slots, w = rb.sample(1, 100_000, np.random.default_rng(1))
-    assert np.all(w == 1) and slots.max() < 50
-    assert stats.chisquare(np.bincount(slots, minlength=50)).pvalue > 1e-3
-
-
-def _scored_buffer(backend="cdf", algorithms=("acl", "cmcl", "maddpg"), **kw):
-    rb = filled(capacity=300, episodes=10, algorithms=list(algorithms), backend=backend, **kw)
-    rng = np.random.default_rng(11)
-    s = rb.valid_slots()
-    rb.update_scores("difficulty", s, rb.generations(s), rng.exponential(1.0, (s.size, N)))
-    rb.update_scores("curiosity", s, rb.generations(s), rng.exponential(0.05, (s.size, N)))
-    return rb
-
-
-@pytest.mark.parametrize("backend", BACKENDS)
-def test_eta_zero_cmcl_equals_acl_and_ci_range(backend):  # property 8
-    rb = _scored_buffer(backend, algorithms=("acl", "cmcl", "cmcl"), eta=[0.5, 0.0, 0.7])
-    rb.update_scores("difficulty", rb.valid_slots(), rb.generations(rb.valid_slots()),
-                     np.repeat(rb.storage.scores["difficulty"][:300, :1], N, axis=1))
-    d = rb.recompute_priorities(0.3, details=True)
-    s = rb.valid_slots()
-    assert np.array_equal(rb.probabilities(0, s), rb.probabilities(1, s))
-    ci = d["priority"] - EPS_P
-    assert ci.min() >= -1e-12 and ci[:, 2].max() <= 1.7 and ci[:, 2].max() > 1.0
-
-
-def test_unscored_rows_get_floor():
-    rb = _scored_buffer()
-    new = rb.add(*chunk(30, 10, np.random.default_rng(2)))  # overwrites slots 0..29, unscored
-    d = rb.recompute_priorities(0.2, details=True)
-    assert np.all(d["priority"][new] == EPS_P) and not d["scored"][new].any()
-    assert np.all(d["scored"][30:])
-
-
-@pytest.mark.parametrize("backend", BACKENDS)
-def test_priority_recompute_follows_lambda(backend):  # property 22
-    rb = _scored_buffer(backend, algorithms=("acl", "acl", "maddpg"))
-    c = rb.storage.scores["difficulty"][:300, 0]
-    j = int(np.argsort(c)[-30])  # a hard sample: ĉ_j well above 2λ_0
-    c_hat_j = np.sum(c < c[j]) / (c.size - 1)  # the default rank normalisation (A1, revised)
-    assert c_hat_j > 0.3
-    assert rb.alpha[0] == 1.0  # the default α_s of ACL / CMCL (A8, revised)
-    sch = CurriculumSchedule(lam0=0.1, stride=0.01, warmup_steps=0)
-    rb.recompute_priorities(sch.lam)
-    floor_prob = EPS_P / np.sum(rb.sampling[0].priorities[:300])
-    assert rb.probabilities(0, [j])[0] == pytest.approx(floor_prob)
-    probs = []
-    while sch.lam < 1.0:
-        sch.advance(1)
-        rb.recompute_priorities(sch.lam)  # recomputed after every λ change
-        probs.append((sch.lam, rb.probabilities(0, [j])[0]))
-    below = [p for lam, p in probs if lam < c_hat_j / 2 - 1e-9]
-    above = [p for lam, p in probs if lam > c_hat_j / 2 + 0.02]
-    assert max(below) < 1e-3 / 300 and min(above) > 100 * max(below)
-    with pytest.raises(ValueError, match="lam"):
-        rb.recompute_priorities(1.5)
-
-
-@pytest.mark.parametrize("backend", BACKENDS)
-def test_per_max_priority_rule(backend):  # property 19
-    rb = filled(capacity=100, episodes=1, algorithms="per", backend=backend, alpha=1.0)
-    assert np.all(rb.sampling[0].priorities[:30] == 1.0) and rb.sampling[0].max_priority == 1.0
-    acc = rb.update_priorities(0, [0, 1, 2], [3.0, -0.5, 0.0])
-    assert acc == 3
-    assert rb.sampling[0].priorities[:3].tolist() == pytest.approx([3.0 + EPS_P, 0.5 + EPS_P, EPS_P])
-    assert rb.sampling[0].max_priority == pytest.approx(3.0 + EPS_P) and rb.sampling[1].max_priority == 1.0
-    new = rb.add(*chunk(5, 1, np.random.default_rng(0)))
-    assert rb.sampling[0].priorities[new].tolist() == pytest.approx([3.0 + EPS_P] * 5)
-    assert rb.sampling[1].priorities[new].tolist() == [1.0] * 5
-    assert rb.storage.scores["td_abs"][[0, 1], 0].tolist() == [3.0, 0.5]
-    old_gen = rb.generations([0])
-    rb.add(*chunk(70, 2, np.random.default_rng(1)))  # wraps over slot 0
-    assert rb.update_priorities(0, [0], [100.0], generations=old_gen) == 0
-    assert rb.sampling[0].max_priority == pytest.approx(3.0 + EPS_P)
-    with pytest.raises(ValueError, match="'per' agent"):
-        filled(capacity=50, episodes=1).update_priorities(0, [0], [1.0])
-
-
-def test_is_weights_in_buffer():  # property 18
-    rb = filled(capacity=200, episodes=5, algorithms=["per", "per", "maddpg"], is_beta=0.4)
-    rng = np.random.default_rng(0)
-    rb.update_priorities(0, rb.valid_slots(), rng.exponential(1.0, 150))
-    _, w = rb.sample(0, 128, rng)
-    assert w.max() == 1.0 and np.all(w <= 1) and w.min() < 1
-    _, w1 = rb.sample(1, 128, rng)  # all priorities equal -> weights all 1
-    assert np.all(w1 == 1)
-    _, w0 = rb.sample(0, 128, rng, beta=0.0)
-    assert np.all(w0 == 1)
-
-
-def test_per_agent_samplers_independent():  # property 20
-    rb = _scored_buffer(algorithms=("cmcl", "cmcl", "maddpg"))
-    rb.recompute_priorities(0.1)
-    s, w = rb.sample_all(128, [np.random.default_rng(i) for i in range(N)])
-    assert s.shape == (N, 128) and w.shape == (N, 128)
-    assert not np.array_equal(np.sort(s[0]), np.sort(s[1]))
-    prey = rb.sample(2, 60_000, np.random.default_rng(9))[0]  # predators use CMCL, prey uniform
-    assert stats.chisquare(np.bincount(prey, minlength=300)).pvalue > 1e-3
-    pred = rb.sample(0, 60_000, np.random.default_rng(9))[0]
-    assert stats.chisquare(np.bincount(pred, minlength=300)).pvalue < 1e-6
-    a = rb.sample(0, 50, np.random.default_rng(4))[0]
-    rb.sample(1, 50, np.random.default_rng(5))
-    assert np.array_equal(a, rb.sample(0, 50, np.random.default_rng(4))[0])
-
-
-def test_sampling_chosen_once_per_algorithm():
-    rb = filled(capacity=300, episodes=10, algorithms=["per", "acl", "maddpg"])
-    assert [s.name for s in rb.sampling] == ["per", "acl", "uniform"] and [a for a, _ in rb.curriculum] == [1]
-    assert np.all(rb.sampling[0].priorities[:300] == 1.0) and np.all(rb.sampling[1].priorities[:300] == EPS_P)
-    with pytest.raises(ValueError, match="algorithm"):
-        filled(capacity=300, episodes=1, algorithms=["per", "sorted", "acl"])
-    with pytest.raises(ValueError, match="algorithm"):
-        filled(capacity=300, episodes=1, algorithms="uniform")  # the sampling's name, not an algorithm
-    with pytest.raises(ValueError, match="one entry per agent"):
-        filled(capacity=300, episodes=1, algorithms=["per", "acl"])
-
-
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_state_dict_round_trip_through_codec(backend):
-    rb = _scored_buffer(backend, algorithms=("per", "cmcl", "maddpg"), is_beta=[0.5, 0.0, 0.0])
+    rb = scored_buffer(backend, algorithms=("per", "cmcl", "maddpg"), is_beta=[0.5, 0.0, 0.0])
     rb.update_priorities(0, [1, 2, 3], [4.0, 2.0, 0.1])
     rb.add(*chunk(45, 10, np.random.default_rng(3)))
     rb.recompute_priorities(0.4)
@@ -288,7 +174,7 @@ def test_state_dict_round_trip_through_codec(backend):
 
 
 def test_load_state_dict_rejects_and_leaves_buffer_untouched():
-    rb = _scored_buffer(algorithms=("acl", "acl", "maddpg"))
+    rb = scored_buffer(algorithms=("acl", "acl", "maddpg"))
     rb.recompute_priorities(0.3)
     good = rb.state_dict()
     probs = rb.probabilities(0, rb.valid_slots())
@@ -306,7 +192,7 @@ def test_load_state_dict_rejects_and_leaves_buffer_untouched():
     bad["storage"]["obs"] = bad["storage"]["obs"][:, :, :2]
     with pytest.raises(ValueError, match="obs has shape"):
         rb.load_state_dict(bad)
-    small = _scored_buffer(algorithms=("acl", "acl", "maddpg"))
+    small = scored_buffer(algorithms=("acl", "acl", "maddpg"))
     small.recompute_priorities(0.3)
     bad = small.state_dict()
     for key in ("obs", "act", "rew", "next_obs", "done", "id", "episode", "fold", "generation", "policy_version"):
@@ -326,19 +212,6 @@ def test_load_state_dict_rejects_and_leaves_buffer_untouched():
         rb.load_state_dict(bad)
     assert np.array_equal(rb.probabilities(0, rb.valid_slots()), probs)
     assert rb.state_dict()["storage"]["next_id"] == good["storage"]["next_id"]
-
-
-def test_sample_argument_errors():
-    rb = filled(capacity=50, episodes=1)
-    rng = np.random.default_rng(0)
-    with pytest.raises(ValueError, match="agent"):
-        rb.sample(N, 4, rng)
-    with pytest.raises(ValueError, match="batch_size"):
-        rb.sample(0, 0, rng)
-    with pytest.raises(ValueError, match="slots"):
-        rb.get([30])
-    with pytest.raises(ValueError, match="backend"):
-        ReplayBuffer(n_agents=1, obs_dim=1, act_dim=1, backend="tree")
 
 
 def test_loads_a_format_1_snapshot():

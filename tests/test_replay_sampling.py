@@ -1,0 +1,143 @@
+"""Replay sampling: each agent's sampling distribution (uniform, PER, the curriculum's), its priorities, IS weights
+and argument checks (ALGORITHM.md §3.6, §7 properties 8, 16, 18–20, 22). The stored rows:
+tests/test_replay_storage.py."""
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from cmcl.replay.buffer import ReplayBuffer, ReplayNotReady
+from cmcl.replay.curriculum import CurriculumSchedule
+from cmcl.replay.priority import EPS_P
+from cmcl.replay.sampler import BACKENDS
+from tests.test_replay_storage import AD, OD, N, chunk, filled, scored_buffer
+
+pytestmark = pytest.mark.filterwarnings("error")
+
+
+def test_uniform_mode_chi_square_and_not_ready():  # property 16
+    rb = ReplayBuffer(capacity=100, n_agents=N, obs_dim=OD, act_dim=AD, min_size=40)
+    rng = np.random.default_rng(0)
+    rb.add(*chunk(39, 0, rng))
+    with pytest.raises(ReplayNotReady, match="needs at least 40"):
+        rb.sample(0, 8, rng)
+    rb.add(*chunk(11, 1, rng))
+    slots, w = rb.sample(1, 100_000, np.random.default_rng(1))
+    assert np.all(w == 1) and slots.max() < 50
+    assert stats.chisquare(np.bincount(slots, minlength=50)).pvalue > 1e-3
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_eta_zero_cmcl_equals_acl_and_ci_range(backend):  # property 8
+    rb = scored_buffer(backend, algorithms=("acl", "cmcl", "cmcl"), eta=[0.5, 0.0, 0.7])
+    rb.update_scores("difficulty", rb.valid_slots(), rb.generations(rb.valid_slots()),
+                     np.repeat(rb.storage.scores["difficulty"][:300, :1], N, axis=1))
+    d = rb.recompute_priorities(0.3, details=True)
+    s = rb.valid_slots()
+    assert np.array_equal(rb.probabilities(0, s), rb.probabilities(1, s))
+    ci = d["priority"] - EPS_P
+    assert ci.min() >= -1e-12 and ci[:, 2].max() <= 1.7 and ci[:, 2].max() > 1.0
+
+
+def test_unscored_rows_get_floor():
+    rb = scored_buffer()
+    new = rb.add(*chunk(30, 10, np.random.default_rng(2)))  # overwrites slots 0..29, unscored
+    d = rb.recompute_priorities(0.2, details=True)
+    assert np.all(d["priority"][new] == EPS_P) and not d["scored"][new].any()
+    assert np.all(d["scored"][30:])
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_priority_recompute_follows_lambda(backend):  # property 22
+    rb = scored_buffer(backend, algorithms=("acl", "acl", "maddpg"))
+    c = rb.storage.scores["difficulty"][:300, 0]
+    j = int(np.argsort(c)[-30])  # a hard sample: ĉ_j well above 2λ_0
+    c_hat_j = np.sum(c < c[j]) / (c.size - 1)  # the default rank normalisation (A1, revised)
+    assert c_hat_j > 0.3
+    assert rb.alpha[0] == 1.0  # the default α_s of ACL / CMCL (A8, revised)
+    sch = CurriculumSchedule(lam0=0.1, stride=0.01, warmup_steps=0)
+    rb.recompute_priorities(sch.lam)
+    floor_prob = EPS_P / np.sum(rb.sampling[0].priorities[:300])
+    assert rb.probabilities(0, [j])[0] == pytest.approx(floor_prob)
+    probs = []
+    while sch.lam < 1.0:
+        sch.advance(1)
+        rb.recompute_priorities(sch.lam)  # recomputed after every λ change
+        probs.append((sch.lam, rb.probabilities(0, [j])[0]))
+    below = [p for lam, p in probs if lam < c_hat_j / 2 - 1e-9]
+    above = [p for lam, p in probs if lam > c_hat_j / 2 + 0.02]
+    assert max(below) < 1e-3 / 300 and min(above) > 100 * max(below)
+    with pytest.raises(ValueError, match="lam"):
+        rb.recompute_priorities(1.5)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_per_max_priority_rule(backend):  # property 19
+    rb = filled(capacity=100, episodes=1, algorithms="per", backend=backend, alpha=1.0)
+    assert np.all(rb.sampling[0].priorities[:30] == 1.0) and rb.sampling[0].max_priority == 1.0
+    acc = rb.update_priorities(0, [0, 1, 2], [3.0, -0.5, 0.0])
+    assert acc == 3
+    assert rb.sampling[0].priorities[:3].tolist() == pytest.approx([3.0 + EPS_P, 0.5 + EPS_P, EPS_P])
+    assert rb.sampling[0].max_priority == pytest.approx(3.0 + EPS_P) and rb.sampling[1].max_priority == 1.0
+    new = rb.add(*chunk(5, 1, np.random.default_rng(0)))
+    assert rb.sampling[0].priorities[new].tolist() == pytest.approx([3.0 + EPS_P] * 5)
+    assert rb.sampling[1].priorities[new].tolist() == [1.0] * 5
+    assert rb.storage.scores["td_abs"][[0, 1], 0].tolist() == [3.0, 0.5]
+    old_gen = rb.generations([0])
+    rb.add(*chunk(70, 2, np.random.default_rng(1)))  # wraps over slot 0
+    assert rb.update_priorities(0, [0], [100.0], generations=old_gen) == 0
+    assert rb.sampling[0].max_priority == pytest.approx(3.0 + EPS_P)
+    with pytest.raises(ValueError, match="'per' agent"):
+        filled(capacity=50, episodes=1).update_priorities(0, [0], [1.0])
+
+
+def test_is_weights_in_buffer():  # property 18
+    rb = filled(capacity=200, episodes=5, algorithms=["per", "per", "maddpg"], is_beta=0.4)
+    rng = np.random.default_rng(0)
+    rb.update_priorities(0, rb.valid_slots(), rng.exponential(1.0, 150))
+    _, w = rb.sample(0, 128, rng)
+    assert w.max() == 1.0 and np.all(w <= 1) and w.min() < 1
+    _, w1 = rb.sample(1, 128, rng)  # all priorities equal -> weights all 1
+    assert np.all(w1 == 1)
+    _, w0 = rb.sample(0, 128, rng, beta=0.0)
+    assert np.all(w0 == 1)
+
+
+def test_per_agent_samplers_independent():  # property 20
+    rb = scored_buffer(algorithms=("cmcl", "cmcl", "maddpg"))
+    rb.recompute_priorities(0.1)
+    s, w = rb.sample_all(128, [np.random.default_rng(i) for i in range(N)])
+    assert s.shape == (N, 128) and w.shape == (N, 128)
+    assert not np.array_equal(np.sort(s[0]), np.sort(s[1]))
+    prey = rb.sample(2, 60_000, np.random.default_rng(9))[0]  # predators use CMCL, prey uniform
+    assert stats.chisquare(np.bincount(prey, minlength=300)).pvalue > 1e-3
+    pred = rb.sample(0, 60_000, np.random.default_rng(9))[0]
+    assert stats.chisquare(np.bincount(pred, minlength=300)).pvalue < 1e-6
+    a = rb.sample(0, 50, np.random.default_rng(4))[0]
+    rb.sample(1, 50, np.random.default_rng(5))
+    assert np.array_equal(a, rb.sample(0, 50, np.random.default_rng(4))[0])
+
+
+def test_sampling_chosen_once_per_algorithm():
+    rb = filled(capacity=300, episodes=10, algorithms=["per", "acl", "maddpg"])
+    assert [s.name for s in rb.sampling] == ["per", "acl", "uniform"] and [a for a, _ in rb.curriculum] == [1]
+    assert np.all(rb.sampling[0].priorities[:300] == 1.0) and np.all(rb.sampling[1].priorities[:300] == EPS_P)
+    with pytest.raises(ValueError, match="algorithm"):
+        filled(capacity=300, episodes=1, algorithms=["per", "sorted", "acl"])
+    with pytest.raises(ValueError, match="algorithm"):
+        filled(capacity=300, episodes=1, algorithms="uniform")  # the sampling's name, not an algorithm
+    with pytest.raises(ValueError, match="one entry per agent"):
+        filled(capacity=300, episodes=1, algorithms=["per", "acl"])
+
+
+def test_sample_argument_errors():
+    rb = filled(capacity=50, episodes=1)
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match="agent"):
+        rb.sample(N, 4, rng)
+    with pytest.raises(ValueError, match="batch_size"):
+        rb.sample(0, 0, rng)
+    with pytest.raises(ValueError, match="slots"):
+        rb.get([30])
+    with pytest.raises(ValueError, match="backend"):
+        ReplayBuffer(n_agents=1, obs_dim=1, act_dim=1, backend="tree")
