@@ -128,8 +128,6 @@ class Supervisor:
             self._track(feedback, "feedback")
             self.inflight[("learner", 0)] += 1
             updates_room -= svc.updates_per_call
-        if st.size < max(1, self.config.maddpg.warmup):
-            return
         steps = svc.fit_steps_per_call
         for k, (teacher, folds) in enumerate(zip(r.teachers, r.teacher_groups, strict=True)):
             room = min(st.teacher_allowed[f] for f in folds) - steps * self.inflight[("teacher", k)]
