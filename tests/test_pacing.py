@@ -115,8 +115,11 @@ def test_state_round_trip_and_snapshots_from_before_the_one_warm_up_rule():
     fresh.load_state_dict(older)
     assert fresh.state_dict() == state
     other = pacing_from_config(_with(config, warmup=1000, batch_size=64), asynchronous=True)
-    with pytest.raises(ValueError, match="rate limiter state has warmup=3840, this limiter has warmup=1000"):
+    with pytest.raises(ValueError, match="learner_limit: rate limiter state has warmup=3840, this limiter has "
+                                         "warmup=1000"):
         other.load_state_dict(older)
+    with pytest.raises(ValueError, match="teacher_limits: the state has 6 folds' limiters, this config 5"):
+        fresh.load_state_dict({**state, "teacher_limits": [*state["teacher_limits"], state["teacher_limits"][0]]})
 
 
 def test_restore_counts_equals_recording_them():

@@ -145,16 +145,24 @@ class Pacing:
                 "icm_limit": self.icm.state_dict() if self.icm is not None else {}}
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
-        """Restore `state_dict()` output. A learner state saved before the one warm-up rule (no "start": its
-        target began at maddpg.warmup, with warm-up maddpg.warmup) keeps its counters under this rule."""
+        """Restore `state_dict()` output (ValueError naming the key and the setting that differs). A learner state
+        saved before the one warm-up rule (no "start": its target began at maddpg.warmup, with warm-up
+        maddpg.warmup) keeps its counters under this rule."""
         learner = state["learner_limit"]
         if "start" not in learner and max(1, learner.get("warmup", -1)) == self.learner.warmup:
             learner = {**learner, "warmup": self.learner.warmup, "start": self.learner.start}
-        self.learner.load_state_dict(learner)
-        for lim, saved in zip(self.teachers, state["teacher_limits"], strict=True):
-            lim.load_state_dict(saved)
-        if self.icm is not None:
-            self.icm.load_state_dict(state["icm_limit"])
+        teachers = state["teacher_limits"]
+        if len(teachers) != len(self.teachers):
+            raise ValueError(f"teacher_limits: the state has {len(teachers)} folds' limiters, this config "
+                             f"{len(self.teachers)}")
+        parts = [("learner_limit", self.learner, learner)]
+        parts += [(f"teacher_limits[{f}]", self.teachers[f], saved) for f, saved in enumerate(teachers)]
+        parts += [("icm_limit", self.icm, state["icm_limit"])] if self.icm is not None else []
+        for key, lim, saved in parts:
+            try:
+                lim.load_state_dict(saved)
+            except ValueError as err:
+                raise ValueError(f"{key}: {err}") from None
 
     def restore_counts(self, env_steps: int, updates: int, teacher_steps: int, icm_steps: int) -> None:
         """Set the counters from totals (inline checkpoints saved before the pacing was: their "counters")."""
