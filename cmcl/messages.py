@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from cmcl.replay.pacing import PacingStatus
+
 ROW_KEYS = ("obs", "act", "rew", "next_obs", "done")  # one joint transition: obs [N, od], act [N, ad], rew [N], ...
 
 
@@ -201,24 +203,16 @@ def check_feedback(msg: Any, num_agents: int) -> LearnerFeedback:
 
 
 @dataclass(frozen=True)
-class ReplayStatus:
+class ReplayStatus(PacingStatus):
     """Replay -> supervisor, with every reply of the replay server: how much work each role may be given now (the
-    rate limiters, cmcl.replay.ratelimit via services.replay_pacing) and the counters the supervisor shows.
+    fields of `cmcl.replay.pacing.PacingStatus`: allowed_updates, allowed_inserts, update_deficit, scoring_deficit,
+    teacher_allowed [K], icm_allowed) and the counters the supervisor shows.
 
-    allowed_updates / allowed_inserts: learner updates / transitions the limiters allow now; update_deficit /
-    scoring_deficit: learner updates, teacher and ICM steps still owed to their ratios (< 1: caught up);
-    teacher_allowed: fit steps allowed per teacher fold [K]; icm_allowed: ICM steps allowed; size: transitions
-    stored; env_steps, episodes, updates: totals so far; lam: the curriculum factor λ; incarnation: the server's
-    process life. accepted / error: set by the calls that store something (insert, score writes): rows accepted,
-    and "reason: detail" when the input was refused.
+    size: transitions stored; env_steps, episodes, updates: totals so far; lam: the curriculum factor λ;
+    incarnation: the server's process life. accepted / error: set by the calls that store something (insert, score
+    writes): rows accepted, and "reason: detail" when the input was refused.
     """
 
-    allowed_updates: int
-    allowed_inserts: int
-    update_deficit: float
-    scoring_deficit: float
-    teacher_allowed: tuple[int, ...]
-    icm_allowed: int
     size: int
     env_steps: int
     episodes: int

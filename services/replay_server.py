@@ -35,11 +35,11 @@ from cmcl.messages import (
 )
 from cmcl.replay import buffer_steps
 from cmcl.replay.dedupe import InsertLedger
+from cmcl.replay.pacing import pacing_from_config
 from cmcl.replay.priority import uses_curriculum
 from cmcl.replay.scoring import ScoringState
 from cmcl.system import agent_layout, beta_is, build_replay, build_schedule, make_batched_env
 from services.common import actor_setup, new_incarnation
-from services.replay_pacing import ReplayPacing
 from services.replay_report import REPORT_SAMPLES, ReplayTallies, replay_report
 from services.report_schema import Report
 
@@ -55,7 +55,7 @@ class ReplayServer:
         self.layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
         self.replay = build_replay(cfg, self.layout)
         self.schedule = build_schedule(cfg)
-        self.pacing = ReplayPacing(cfg)
+        self.pacing = pacing_from_config(cfg, asynchronous=True)  # the rate limits, with the service's slack
         k, cap = cfg.teachers.num_folds, cfg.replay.capacity
         self.scoring = ScoringState.for_layout(self.layout, cap, k)  # score stamps, teacher errors, insertion times
         self.ledger = InsertLedger()  # which (writer:incarnation, seq) chunks are stored
@@ -76,9 +76,9 @@ class ReplayServer:
 
     # ------------------------------------------------------------------ pacing
     def status(self) -> ReplayStatus:
-        """How much work each role may be given now (`ReplayPacing.status`), and the counters the supervisor shows."""
-        ready = self.replay.size >= self.replay.min_size
-        return ReplayStatus(**self.pacing.status(ready, self.replay.storage.fold_counts()),
+        """How much work each role may be given now (`cmcl.replay.pacing.Pacing.status`), and the counters the
+        supervisor shows."""
+        return ReplayStatus(**dataclasses.asdict(self.pacing.status(self.replay.storage.fold_counts())),
                             size=self.replay.size, env_steps=self.counters["inserts"],
                             episodes=self.counters["episodes"], updates=self.counters["updates"],
                             lam=self.schedule.lam, incarnation=self.incarnation)
@@ -125,11 +125,11 @@ class ReplayServer:
             self.counters["updates"] += n
             self.counters["samples"] += n * self.layout.num_agents * self.config.maddpg.batch_size
         elif event["name"] == "teacher_steps":
+            self.pacing.record_teacher_steps(event["folds"], n)
             for f in event["folds"]:
-                self.pacing.teachers[f].record_sample(n)
                 self.teacher_steps[f] += n
         else:
-            self.pacing.icm.record_sample(n)
+            self.pacing.record_icm_steps(n)
             self.counters["icm_steps"] += n
 
     def _store(self, chunk: Any) -> None:
@@ -195,10 +195,8 @@ class ReplayServer:
         """For the teacher actor hosting `folds`: fit rows [steps, 1, F, S] drawn from each fold only, and the
         rows (of other folds) whose score from these teachers is oldest, to score."""
         cfg = self.config
-        if not self.pacing.teachers or self.replay.size < self.replay.min_size:
-            return None, self.status()
         folds = [int(f) for f in folds]
-        steps = min(int(steps), *(self.pacing.teachers[f].allowed_samples() for f in folds))
+        steps = min(int(steps), self.pacing.teacher_steps_allowed(folds))
         if steps < 1 or (self.replay.storage.fold_counts()[folds] == 0).any():
             return None, self.status()
         fit = buffer_steps.fold_batch_slots(self.replay, folds, cfg.teachers.batch_size, self.rng, steps=steps)
@@ -229,9 +227,7 @@ class ReplayServer:
     def icm_work(self, steps: int) -> tuple[CuriosityWork | None, ReplayStatus]:
         """Uniform fit rows [steps, S] and the rows with the oldest curiosity score."""
         cfg = self.config
-        if self.pacing.icm is None or self.replay.size < self.replay.min_size:
-            return None, self.status()
-        steps = min(int(steps), self.pacing.icm.allowed_samples())
+        steps = min(int(steps), self.pacing.icm_steps_allowed())
         if steps < 1:
             return None, self.status()
         fit = buffer_steps.uniform_slots(self.replay, (steps, cfg.icm.batch_size), self.rng)

@@ -2,10 +2,11 @@
 
 Where it sits: the only process that talks to every actor. It never pulls transition data: chunks, batches,
 work and scores travel between actors as object refs owned by this process (so they survive the death of the
-actor that produced them); it `ray.get`s only small status dicts and metrics reports. Data flows one way:
+actor that produced them); it `ray.get`s only small typed statuses and metrics reports. Data flows one way:
 rollout -> replay -> learner, teachers / ICM read the replay and write scores back, weights go out once per
-version. Pacing comes from the replay server's rate limiters, reported in every reply. The actors themselves
-are started by services.placement.create_roles.
+version. Pacing comes from the replay server's `cmcl.replay.pacing.Pacing`, reported in every reply
+(`ReplayStatus`) and turned into calls by `services.call_budget`. The actors themselves are started by
+services.placement.create_roles.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
 from cmcl.messages import ReplayStatus
 from cmcl.progress import episode_rows, solved, window_summary
+from services.call_budget import calls_to_issue
 from services.health import (
     CallWatch,
     RecoveryClock,
@@ -38,7 +40,6 @@ from services.placement import Roles
 from services.progress_view import ProgressView
 from services.report_schema import Report
 
-CALLS_IN_FLIGHT = 2  # per actor: one computing, one prefetched
 # Outputs of one actor that go to the replay server. They are forwarded only once ready: an actor runs one
 # caller's calls in submission order, so a replay call still waiting for its argument would hold up every
 # call queued behind it (samples, work for teachers) and serialise the whole pipeline.
@@ -100,54 +101,35 @@ class Supervisor:
         self.watch.submitted(ref)
 
     def _issue(self, rollouts: bool = True) -> None:
-        """Hand out every piece of work the limiters allow, at most CALLS_IN_FLIGHT calls per actor.
-
-        Two calls in flight per actor pipeline each chain (replay -> actor -> replay): while one computes,
-        the replay server prepares the next (the learner's prefetch; the same for teachers and the ICM).
-        """
-        st, r, svc = self.status, self.roles, self.config.service
-        chunk = self.config.env.num_envs * self.config.env.episode_length
-        chunks_in_flight = sum(self.inflight[("rollout", w)] for w in range(len(r.rollout)))
-        inserts_room = st.allowed_inserts - chunk * chunks_in_flight
-        # never collect more than run.episodes: every chunk is num_envs whole episodes
-        episodes_room = self.config.run.episodes - st.episodes - self.config.env.num_envs * chunks_in_flight
+        """Hand out every piece of work the replay server's allowances leave room for (`services.call_budget`)."""
+        r, svc = self.roles, self.config.service
+        calls = calls_to_issue(self.status, self.inflight, self.config, len(r.rollout),
+                               r.teacher_groups, r.icm is not None, rollouts)
         for w, worker in enumerate(r.rollout):
-            while (rollouts and self.inflight[("rollout", w)] < CALLS_IN_FLIGHT and inserts_room >= chunk
-                   and episodes_room > 0):
+            for _ in range(calls[("rollout", w)]):
                 chunk_ref, report = worker.rollout.options(num_returns=2).remote(self.weights)
                 self._track(report, "rollout_report", w)
                 self._track(chunk_ref, "chunk", w)
                 self.inflight[("rollout", w)] += 1
-                inserts_room -= chunk
-                episodes_room -= self.config.env.num_envs
-        updates_room = st.allowed_updates - svc.updates_per_call * self.inflight[("learner", 0)]
-        while self.inflight[("learner", 0)] < CALLS_IN_FLIGHT and updates_room > 0:
+        for _ in range(calls[("learner", 0)]):
             batch, _ = r.replay.sample.options(num_returns=2).remote(svc.updates_per_call)
             feedback, report = r.learner.update.options(num_returns=2).remote(batch)
             self._track(report, "learner_report")
             self._track(feedback, "feedback")
             self.inflight[("learner", 0)] += 1
-            updates_room -= svc.updates_per_call
-        if st.size < max(1, self.config.maddpg.warmup):
-            return
-        steps = svc.fit_steps_per_call
         for k, (teacher, folds) in enumerate(zip(r.teachers, r.teacher_groups, strict=True)):
-            room = min(st.teacher_allowed[f] for f in folds) - steps * self.inflight[("teacher", k)]
-            while self.inflight[("teacher", k)] < CALLS_IN_FLIGHT and room > 0:
-                work, _ = r.replay.teacher_work.options(num_returns=2).remote(folds, steps)
+            for _ in range(calls[("teacher", k)]):
+                work, _ = r.replay.teacher_work.options(num_returns=2).remote(folds, svc.fit_steps_per_call)
                 scores, report = teacher.step.options(num_returns=2).remote(work, self.weights)
                 self._track(report, "teacher_report", k)
                 self._track(scores, "teacher_scores", k)
                 self.inflight[("teacher", k)] += 1
-                room -= steps
-        room = st.icm_allowed - steps * self.inflight[("icm", 0)]
-        while r.icm is not None and self.inflight[("icm", 0)] < CALLS_IN_FLIGHT and room > 0:
-            work, _ = r.replay.icm_work.options(num_returns=2).remote(steps)
+        for _ in range(calls[("icm", 0)]):
+            work, _ = r.replay.icm_work.options(num_returns=2).remote(svc.fit_steps_per_call)
             scores, report = r.icm.step.options(num_returns=2).remote(work)
             self._track(report, "icm_report")
             self._track(scores, "icm_scores")
             self.inflight[("icm", 0)] += 1
-            room -= steps
 
     # ------------------------------------------------------------------ replies
     def _collect(self, timeout: float) -> None:

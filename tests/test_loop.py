@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from cmcl.config import config_from_dict
-from cmcl.io.rundir import RunDirectory
+from cmcl.io.rundir import RunDirectory, load_checkpoint
 from cmcl.io.runlock import LOCK_NAME
 from cmcl.loop import InlineLoop
 from cmcl.loop.__main__ import main
@@ -97,7 +97,8 @@ def _final_weights(loop: InlineLoop) -> dict[str, torch.Tensor]:
     return {k: v.clone() for k, v in loop.maddpg.actor.state_dict().items()}
 
 
-def test_resume_continues_exactly_where_the_run_stopped(tmp_path, tiny_config):
+@pytest.mark.parametrize("older", [False, True], ids=["checkpoint", "checkpoint_before_the_pacing_was_saved"])
+def test_resume_continues_exactly_where_the_run_stopped(older, tmp_path, tiny_config):
     # an explicit λ stride: the default one depends on run.episodes, which differs between the two runs
     straight = tiny_config("cmcl", dir=str(tmp_path / "straight"), episodes=12, checkpoint_every=4)
     straight = config_from_dict({**straight.to_dict(), "curriculum": {"stride": 1e-3}})
@@ -109,6 +110,12 @@ def test_resume_continues_exactly_where_the_run_stopped(tmp_path, tiny_config):
     part = InlineLoop(first, RunDirectory.create(first.run.dir, first), progress=None)
     part.run()
     run_dir = RunDirectory.open(first.run.dir)
+    if older:  # its teacher / ICM step counts were in "counters", and it had no "pacing"
+        state = load_checkpoint(run_dir.latest_checkpoint())
+        pacing = state.pop("pacing")
+        state["counters"].update(teacher_steps=pacing["teacher_limits"][0]["samples"],
+                                 icm_steps=pacing["icm_limit"]["samples"])
+        run_dir.save_checkpoint(state["counters"]["episodes"], state)
     resumed = InlineLoop(run_dir.config(("run.episodes=12",)), run_dir, progress=None)
     resumed.restore(run_dir.latest_checkpoint())
     assert resumed.counters["episodes"] == 8 and resumed.counters["updates"] == part.counters["updates"]

@@ -3,8 +3,7 @@
 import numpy as np
 import pytest
 
-from cmcl.config import preset
-from cmcl.replay.ratelimit import RateLimiter, limiters_from_config, slack_for
+from cmcl.replay.ratelimit import RateLimiter, slack_for
 
 TOL = 1e-6
 
@@ -14,9 +13,11 @@ def test_ratio_held_within_slack_under_random_interleavings(seed):
     rng = np.random.default_rng(seed)
     ratio = float(rng.choice([0.25, 0.5, 1.0, 2.0, 3.5, 0.1]))
     warmup = int(rng.integers(0, 50))
+    start = int(rng.integers(max(0, warmup - 10), warmup + 1))  # the target may count from before the warm-up
     max_chunk = int(rng.integers(1, 6))
-    slack = slack_for(ratio, insert_chunk=max_chunk, sample_chunk=max_chunk) + float(rng.uniform(0, 3))
-    lim = RateLimiter(ratio, warmup=warmup, slack=slack)
+    slack = max(slack_for(ratio, insert_chunk=max_chunk, sample_chunk=max_chunk),
+                ratio * (warmup - start)) + float(rng.uniform(0, 3))
+    lim = RateLimiter(ratio, warmup=warmup, slack=slack, start=start)
     p_insert = rng.uniform(0.1, 0.9)  # one side may be much faster than the other
     granted = {"insert": 0, "sample": 0}
     for _ in range(3000):
@@ -35,7 +36,7 @@ def test_ratio_held_within_slack_under_random_interleavings(seed):
         if lim.inserts < warmup:
             assert lim.samples == 0
         else:
-            target = ratio * (lim.inserts - warmup)
+            target = ratio * (lim.inserts - start)
             assert target - slack - TOL <= lim.samples <= target + slack + TOL, repr(lim)
     assert granted["insert"] > 0 and granted["sample"] > 0
     assert lim.inserts > warmup  # both sides kept moving past the warm-up
@@ -54,6 +55,24 @@ def test_warmup_blocks_sampling_then_allows_the_ratio():
     assert lim.allowed_samples() == 4
     lim.record_sample(4)
     assert not lim.can_sample() and lim.allowed_inserts() == 4 and lim.deficit == -2
+
+
+def test_due_is_the_exact_owed_count():
+    lim = RateLimiter(0.5, slack=1)  # e.g. teacher steps per learner update
+    owed = []
+    for _ in range(7):
+        lim.record_insert(1)
+        owed.append(lim.due())
+        lim.record_sample(owed[-1])
+    assert owed == [0, 1, 0, 1, 0, 1, 0] and lim.samples == 3  # floor(0.5 · 7)
+    late = RateLimiter(1 / 16, warmup=800, slack=1, start=784)  # warm at 800, target counted from 784
+    late.record_insert(799)
+    assert late.due() == 0 and late.deficit == 15 / 16
+    late.record_insert(1)
+    assert late.due() == 1  # step 800 is a multiple of 16: due as soon as warm
+    odd = RateLimiter(1 / 49, slack=1)
+    odd.record_insert(49)
+    assert odd.due() == 1  # (1 / 49) · 49 == 0.9999999999999999 still owes the step
 
 
 def test_fractional_ratio_counts_exactly():
@@ -89,6 +108,11 @@ def test_state_round_trip():
         other.load_state_dict({k: v for k, v in state.items() if k != "samples"})
     with pytest.raises(ValueError, match="inserts must be an integer >= 0, got -1"):
         other.load_state_dict({**state, "inserts": -1})
+    older = {k: v for k, v in state.items() if k != "start"}  # saved before `start`: it was the warm-up
+    other.load_state_dict(older)
+    assert other.state_dict() == state
+    with pytest.raises(ValueError, match="start=5, this limiter has start=4"):
+        RateLimiter(2.0, warmup=5, slack=3, start=4).load_state_dict(older)
 
 
 @pytest.mark.parametrize("kwargs, words", [
@@ -97,7 +121,10 @@ def test_state_round_trip():
     ({"ratio": float("nan")}, "got ratio=nan"),
     ({"ratio": True}, "got ratio=True"),
     ({"ratio": 1.0, "slack": -1}, "slack must be a finite number >= 0, got slack=-1"),
-    ({"ratio": 1.0, "slack": 0.5}, "slack must be >= (1 + ratio) / 2 = 1 so that"),
+    ({"ratio": 1.0, "slack": 0.5}, "slack must be >= max((1 + ratio) / 2, ratio * (warmup - start)) = 1 so that"),
+    ({"ratio": 0.5, "warmup": 10, "start": 2, "slack": 3}, "= 4 so that an insert or a sample is always allowed"),
+    ({"ratio": 1.0, "warmup": 3, "start": 4}, "start must be <= warmup (3), got start=4"),
+    ({"ratio": 1.0, "warmup": 3, "start": -1}, "start must be an integer >= 0, got -1"),
     ({"ratio": 1.0, "warmup": -3}, "warmup must be an integer >= 0, got -3"),
     ({"ratio": 1.0, "warmup": 2.5}, "warmup must be an integer >= 0, got 2.5"),
 ])
@@ -112,25 +139,3 @@ def test_bad_counts_raise():
     for call in (lim.record_insert, lim.record_sample, lim.can_insert, lim.can_sample):
         with pytest.raises(ValueError, match="n must be an integer >= 0, got -1"):
             call(-1)
-
-
-def test_limiters_from_config():
-    cmcl = limiters_from_config(preset("cmcl"), insert_chunk=16)
-    assert len(cmcl.teachers) == preset("cmcl").teachers.num_folds and cmcl.icm is not None
-    learner = cmcl.learner
-    every = preset("cmcl").maddpg.update_every  # world steps per update
-    assert learner.ratio == 1.0 / every and learner.warmup == 3840
-    assert learner.slack == max((1 + 1 / every) / 2, 16 / every, 1.0)  # a 16-transition chunk always fits
-    learner.record_insert(3840)
-    assert learner.can_insert(16)  # a whole chunk fits at the end of warm-up
-    maddpg, acl = limiters_from_config(preset("maddpg")), limiters_from_config(preset("acl"))
-    assert (maddpg.teachers, maddpg.icm) == ([], None) and acl.teachers and acl.icm is None
-
-
-def test_the_service_slack_widens_every_limiter_as_the_replay_server_needs():
-    plain = limiters_from_config(preset("cmcl"), insert_chunk=480, fit_chunk=8)
-    service = limiters_from_config(preset("cmcl"), insert_chunk=480, fit_chunk=8, extra_slack=256)
-    assert service.learner.slack == max(plain.learner.slack, 256.0)
-    assert [t.slack for t in service.teachers] == [t.slack + 256 for t in plain.teachers]
-    assert service.icm.slack == plain.icm.slack + 256
-    assert plain.teachers[0].slack >= 8  # a call's 8 fit steps can always be granted

@@ -1,13 +1,15 @@
 """The service classes run in-process without Ray, in the order the supervisor chains them."""
 
 import dataclasses
+from collections import Counter
 
 import numpy as np
 import pytest
 
 from cmcl.config import config_from_dict
 from cmcl.io.durable import ReplayStore, StoreError
-from cmcl.messages import LearnerFeedback
+from cmcl.messages import LearnerFeedback, ReplayStatus
+from services.call_budget import calls_to_issue
 from services.icm import ICMWorker
 from services.learner import Learner
 from services.placement import teacher_groups
@@ -266,3 +268,25 @@ def test_every_reply_carries_its_actors_incarnation_and_a_bad_one_is_refused():
     refused = replay.learner_result(dataclasses.replace(feedback, incarnation="x" * 65))
     assert refused.error.startswith("bad_feedback: LearnerFeedback.incarnation")
     assert replay.rejected["bad_scores"] == 1 and replay.rejected["bad_feedback"] == 1
+
+
+def test_the_supervisor_issues_the_calls_the_allowances_leave_room_for():
+    cfg = config_from_dict(small_config("cmcl"))  # 4 worlds × 30 steps per chunk, 4 updates / 2 fit steps per call
+    chunk = 4 * 30
+    status = ReplayStatus(allowed_updates=0, allowed_inserts=3 * chunk, update_deficit=0.0, scoring_deficit=0.0,
+                          teacher_allowed=(0, 0, 0), icm_allowed=0, size=0, env_steps=0, episodes=0, updates=0,
+                          lam=0.1, incarnation="i")
+    groups = [[0], [1, 2]]
+    calls = calls_to_issue(status, Counter(), cfg, 2, groups, icm=True)
+    assert (calls[("rollout", 0)], calls[("rollout", 1)]) == (2, 1), "3 chunks' worth of inserts, 2 per worker"
+    assert sum(calls[k] for k in calls if k[0] != "rollout") == 0, "no learner / scoring work before warm-up"
+    assert not sum(calls_to_issue(status, Counter(), cfg, 2, groups, icm=True, rollouts=False).values())
+    near_end = dataclasses.replace(status, episodes=cfg.run.episodes - 4)  # one chunk of 4 episodes left
+    assert calls_to_issue(near_end, Counter(), cfg, 2, groups, icm=True)[("rollout", 0)] == 1
+    warm = dataclasses.replace(status, allowed_updates=5, teacher_allowed=(4, 2, 1), icm_allowed=3)
+    busy = Counter({("learner", 0): 1, ("teacher", 0): 1, ("icm", 0): 1, ("rollout", 0): 2})
+    calls = calls_to_issue(warm, busy, cfg, 2, groups, icm=True)
+    assert calls[("learner", 0)] == 1  # 5 allowed, 4 held by the call in flight: 1 more call for the last one
+    assert calls[("teacher", 0)] == 1 and calls[("teacher", 1)] == 1  # room 4 - 2 = 2; min(2, 1) = 1
+    assert calls[("icm", 0)] == 1 and (calls[("rollout", 0)], calls[("rollout", 1)]) == (0, 1)
+    assert calls_to_issue(warm, busy, cfg, 2, groups, icm=False)[("icm", 0)] == 0

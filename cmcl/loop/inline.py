@@ -3,8 +3,9 @@
 Where it sits: the reference implementation and the baseline the distributed service is measured against.
 It runs the same classes the service runs (built by cmcl.system) through the same step functions
 (cmcl.replay.buffer_steps for the buffer side, cmcl.learners.network_steps for the networks):
-rollout of B batched worlds -> replay -> per update (one per `maddpg.update_every` world steps): teacher step,
-ICM step, scoring of the new rows plus the oldest scores up to `teachers.rescore_rows_per_update` rows (the rule of
+rollout of B batched worlds -> replay -> per update (when due by `cmcl.replay.pacing.Pacing`, the service's pacing
+in its synchronous form: one per `maddpg.update_every` world steps once warm): the teacher and ICM steps due,
+scoring of the new rows plus the oldest scores up to `teachers.rescore_rows_per_update` rows (the rule of
 `cmcl.replay.scoring.ScoringState`, the service's too), priority recompute at the current λ, one MADDPG update of
 all agents; λ advanced per world step.
 Command line: `python -m cmcl train --runner inline` (cmcl/loop/__main__.py; alias `python -m cmcl.loop`).
@@ -30,8 +31,8 @@ from cmcl.learners import network_steps
 from cmcl.messages import LearnerFeedback, Rows
 from cmcl.progress import episode_rows, ess_part, finished_episodes, progress_line, solved, window_summary
 from cmcl.replay import buffer_steps
+from cmcl.replay.pacing import pacing_from_config
 from cmcl.replay.priority import uses_curriculum
-from cmcl.replay.ratelimit import steps_due
 from cmcl.replay.scoring import ScoringState
 from cmcl.system import (
     agent_layout,
@@ -76,8 +77,8 @@ class InlineLoop:
         self.scoring = ScoringState.for_layout(self.layout, config.replay.capacity, config.teachers.num_folds)
         self.schedule = build_schedule(config)
         self.prioritized = uses_curriculum(self.layout.algorithms)
-        self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "rounds": 0,
-                         "teacher_steps": 0, "icm_steps": 0}
+        self.pacing = pacing_from_config(config)  # what is due: updates per env step, fit steps per update
+        self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "rounds": 0}
         self.elapsed_s = 0.0  # training wall clock so far, seconds (kept across checkpoint + resume)
         self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
         self.last_stats: dict[str, Any] = {}
@@ -106,34 +107,34 @@ class InlineLoop:
         return rows
 
     def _run_due_updates(self, new_steps: int) -> None:
-        """Advance env steps by `new_steps`; one update per `update_every` steps once warm; λ moves per step."""
-        cfg = self.config
-        before = self.counters["env_steps"]
+        """Advance env steps by `new_steps`; run the updates due (`Pacing.due_updates`: one per `update_every` steps
+        once warm); λ moves per step."""
         self.counters["env_steps"] += new_steps
-        if self.replay.size < max(1, cfg.maddpg.warmup):
-            self.schedule.advance(new_steps)
-            return
-        due = self.counters["env_steps"] // cfg.maddpg.update_every - before // cfg.maddpg.update_every
+        self.pacing.record_insert(new_steps)
         advanced = 0
-        for _ in range(due):
+        for _ in range(self.pacing.due_updates()):
             self.update()
-            step = min(cfg.maddpg.update_every, new_steps - advanced)
+            step = min(self.config.maddpg.update_every, new_steps - advanced)
             self.schedule.advance(step)  # Algorithm 1: λ += Δλ after the update of this env step
             advanced += step
         self.schedule.advance(new_steps - advanced)
 
     def update(self) -> dict[str, Any]:
         """One synchronous CMCL update (§3.8): the teacher and ICM steps due at their ratios per update
-        (`teachers.steps_per_update`, `icm.steps_per_update`, the same ratios the service's limiters hold),
+        (`teachers.steps_per_update`, `icm.steps_per_update`, by `cmcl.replay.pacing.Pacing`, as in the service),
         scoring, priorities at λ, MADDPG."""
-        cfg, c = self.config, self.counters
+        cfg, c, pacing = self.config, self.counters, self.pacing
         stats: dict[str, Any] = {}
-        for _ in range(steps_due(c["updates"], cfg.teachers.steps_per_update, c, "teacher_steps")):
+        pacing.record_updates(1)  # this update: the teachers and the ICM owe their steps for it
+        teacher_steps, icm_steps = pacing.due_teacher_steps(), pacing.due_icm_steps()
+        pacing.record_teacher_steps(range(len(pacing.teachers)), teacher_steps)
+        for _ in range(teacher_steps):
             teacher_loss = self._teacher_step()
             if teacher_loss is not None:
                 stats["teacher_loss"] = teacher_loss
         icm = None
-        for _ in range(steps_due(c["updates"], cfg.icm.steps_per_update, c, "icm_steps")):
+        pacing.record_icm_steps(icm_steps)
+        for _ in range(icm_steps):
             icm = self._icm_step()
         if icm is not None:
             stats["icm_inverse_loss"] = float(np.mean(icm["inverse_loss"]))
@@ -233,6 +234,7 @@ class InlineLoop:
             "icm": None if self.icm is None else self.icm.state_dict(),
             "schedule": {"env_steps": self.schedule.env_steps},
             "counters": dict(self.counters),
+            "pacing": self.pacing.state_dict(),
             "elapsed_s": self.elapsed_s,
             "env": {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in self.env.get_state().items()},
             "obs": torch.from_numpy(self.obs.copy()),
@@ -253,6 +255,12 @@ class InlineLoop:
         self.schedule.env_steps = int(state["schedule"]["env_steps"])
         # checkpoints before the oldest-score-first rescoring also hold a "rescore_cursor": not used any more
         self.counters.update({k: int(v) for k, v in state["counters"].items() if k in self.counters})
+        if "pacing" in state:
+            self.pacing.load_state_dict(state["pacing"])
+        else:  # checkpoints before the pacing was saved counted its steps in "counters"
+            old = state["counters"]
+            self.pacing.restore_counts(old["env_steps"], old["updates"], old.get("teacher_steps", 0),
+                                       old.get("icm_steps", 0))
         self.elapsed_s = float(state.get("elapsed_s", 0.0))  # checkpoints before the clock was kept: 0
         for name, g in self.rng.items():
             g.bit_generator.state = state["rng"][name]
