@@ -271,7 +271,7 @@ def test_every_reply_carries_its_actors_incarnation_and_a_bad_one_is_refused():
 
 
 def test_the_supervisor_issues_the_calls_the_allowances_leave_room_for():
-    cfg = config_from_dict(small_config("cmcl"))  # 4 worlds × 30 steps per chunk, 4 updates / 2 fit steps per call
+    cfg = config_from_dict(in_process_config("cmcl"))  # 4 worlds × 30 steps per chunk, 4 updates / 2 fit steps per call
     chunk = 4 * 30
     status = ReplayStatus(allowed_updates=0, allowed_inserts=3 * chunk, update_deficit=0.0, scoring_deficit=0.0,
                           teacher_allowed=(0, 0, 0), icm_allowed=0, size=0, env_steps=0, episodes=0, updates=0,
