@@ -116,7 +116,7 @@ class Reference:
 def build_ours(capacity: int, backend: str, scores: dict, algorithm: str) -> ReplayBuffer:
     """A full buffer (tiny obs/act so 1M rows stay small) with the given score columns."""
     rb = ReplayBuffer(capacity=capacity, n_agents=N, obs_dim=1, act_dim=1, algorithms=algorithm, backend=backend,
-                      alpha=ALPHA, eps=EPS, eta=ETA, is_beta=BETA)
+                      alpha=ALPHA, eps=EPS, eta=ETA)
     step = 100_000
     for start in range(0, capacity, step):
         t = min(step, capacity - start)
@@ -168,15 +168,16 @@ def bench_capacity(capacity: int) -> dict:
 
     def per_step(per: ReplayBuffer) -> None:
         per_update(per)
-        per.sample_all(S, rngs)
+        per.sample_all(S, rngs, BETA)
 
     def cmcl_step(cm: ReplayBuffer) -> None:
         cm.recompute_priorities(next_lam())
-        cm.sample_all(S, rngs)
+        cm.sample_all(S, rngs, BETA)
 
     for _ in range(ROUNDS):
         for b, (cm, per) in ours.items():
-            for op, fn in (("sample", lambda cm=cm: cm.sample_all(S, rngs)), ("update", lambda p=per: per_update(p)),
+            for op, fn in (("sample", lambda cm=cm: cm.sample_all(S, rngs, BETA)),
+                           ("update", lambda p=per: per_update(p)),
                            ("recompute", lambda cm=cm: cm.recompute_priorities(next_lam())),
                            ("per_step", lambda p=per: per_step(p)), ("cmcl_step", lambda cm=cm: cmcl_step(cm))):
                 res.setdefault((b, op), []).append(timed(fn))

@@ -20,9 +20,9 @@ def test_uniform_mode_chi_square_and_not_ready():  # property 16
     rng = np.random.default_rng(0)
     rb.add(*chunk(39, 0, rng))
     with pytest.raises(ReplayNotReady, match="needs at least 40"):
-        rb.sample(0, 8, rng)
+        rb.sample(0, 8, rng, beta=0.0)
     rb.add(*chunk(11, 1, rng))
-    slots, w = rb.sample(1, 100_000, np.random.default_rng(1))
+    slots, w = rb.sample(1, 100_000, np.random.default_rng(1), beta=0.4)
     assert np.all(w == 1) and slots.max() < 50
     assert stats.chisquare(np.bincount(slots, minlength=50)).pvalue > 1e-3
 
@@ -92,12 +92,12 @@ def test_per_max_priority_rule(backend):  # property 19
 
 
 def test_is_weights_in_buffer():  # property 18
-    rb = filled(capacity=200, episodes=5, algorithms=["per", "per", "maddpg"], is_beta=0.4)
+    rb = filled(capacity=200, episodes=5, algorithms=["per", "per", "maddpg"])
     rng = np.random.default_rng(0)
     rb.update_priorities(0, rb.valid_slots(), rng.exponential(1.0, 150))
-    _, w = rb.sample(0, 128, rng)
+    _, w = rb.sample(0, 128, rng, beta=0.4)
     assert w.max() == 1.0 and np.all(w <= 1) and w.min() < 1
-    _, w1 = rb.sample(1, 128, rng)  # all priorities equal -> weights all 1
+    _, w1 = rb.sample(1, 128, rng, beta=0.4)  # all priorities equal -> weights all 1
     assert np.all(w1 == 1)
     _, w0 = rb.sample(0, 128, rng, beta=0.0)
     assert np.all(w0 == 1)
@@ -106,16 +106,16 @@ def test_is_weights_in_buffer():  # property 18
 def test_per_agent_samplers_independent():  # property 20
     rb = scored_buffer(algorithms=("cmcl", "cmcl", "maddpg"))
     rb.recompute_priorities(0.1)
-    s, w = rb.sample_all(128, [np.random.default_rng(i) for i in range(N)])
+    s, w = rb.sample_all(128, [np.random.default_rng(i) for i in range(N)], beta=0.0)
     assert s.shape == (N, 128) and w.shape == (N, 128)
     assert not np.array_equal(np.sort(s[0]), np.sort(s[1]))
-    prey = rb.sample(2, 60_000, np.random.default_rng(9))[0]  # predators use CMCL, prey uniform
+    prey = rb.sample(2, 60_000, np.random.default_rng(9), beta=0.0)[0]  # predators use CMCL, prey uniform
     assert stats.chisquare(np.bincount(prey, minlength=300)).pvalue > 1e-3
-    pred = rb.sample(0, 60_000, np.random.default_rng(9))[0]
+    pred = rb.sample(0, 60_000, np.random.default_rng(9), beta=0.0)[0]
     assert stats.chisquare(np.bincount(pred, minlength=300)).pvalue < 1e-6
-    a = rb.sample(0, 50, np.random.default_rng(4))[0]
-    rb.sample(1, 50, np.random.default_rng(5))
-    assert np.array_equal(a, rb.sample(0, 50, np.random.default_rng(4))[0])
+    a = rb.sample(0, 50, np.random.default_rng(4), beta=0.0)[0]
+    rb.sample(1, 50, np.random.default_rng(5), beta=0.0)
+    assert np.array_equal(a, rb.sample(0, 50, np.random.default_rng(4), beta=0.0)[0])
 
 
 def test_sampling_chosen_once_per_algorithm():
@@ -134,9 +134,9 @@ def test_sample_argument_errors():
     rb = filled(capacity=50, episodes=1)
     rng = np.random.default_rng(0)
     with pytest.raises(ValueError, match="agent"):
-        rb.sample(N, 4, rng)
+        rb.sample(N, 4, rng, beta=0.0)
     with pytest.raises(ValueError, match="batch_size"):
-        rb.sample(0, 0, rng)
+        rb.sample(0, 0, rng, beta=0.0)
     with pytest.raises(ValueError, match="slots"):
         rb.get([30])
     with pytest.raises(ValueError, match="backend"):

@@ -152,19 +152,20 @@ def test_overwrite_resets_scores():
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_state_dict_round_trip_through_codec(backend):
-    rb = scored_buffer(backend, algorithms=("per", "cmcl", "maddpg"), is_beta=[0.5, 0.0, 0.0])
+    rb = scored_buffer(backend, algorithms=("per", "cmcl", "maddpg"))
     rb.update_priorities(0, [1, 2, 3], [4.0, 2.0, 0.1])
     rb.add(*chunk(45, 10, np.random.default_rng(3)))
     rb.recompute_priorities(0.4)
     snap = codec.decode_snapshot(codec.encode_snapshot(rb.state_dict()))
     other = ReplayBuffer(capacity=300, n_agents=N, obs_dim=OD, act_dim=AD, algorithms=["per", "cmcl", "maddpg"],
-                         backend=backend, is_beta=[0.5, 0.0, 0.0])
+                         backend=backend)
     other.load_state_dict(snap)
     assert other.lam == 0.4 and other.sampling[0].max_priority == rb.sampling[0].max_priority
     s = rb.valid_slots()
     for a in range(N):
         assert np.array_equal(other.probabilities(a, s), rb.probabilities(a, s))
-        x, y = rb.sample(a, 64, np.random.default_rng(a)), other.sample(a, 64, np.random.default_rng(a))
+        beta = [0.5, 0.0, 0.0][a]
+        x, y = rb.sample(a, 64, np.random.default_rng(a), beta), other.sample(a, 64, np.random.default_rng(a), beta)
         assert np.array_equal(x[0], y[0]) and np.array_equal(x[1], y[1])
     for k, v in rb.get(s).items():
         assert np.array_equal(other.get(s)[k], v)

@@ -50,8 +50,6 @@ class ReplayBuffer:
             config resolves each team's, cmcl.config.TeamConfig.effective_alpha). eps: priority floor ε_p.
             backend: "cdf" or "sumtree".
         eta: curiosity weight η (scalar or per agent; used by "cmcl" agents only).
-        is_beta: β_IS (scalar or per agent) that `sample` uses when its caller passes none; 0 = IS correction off.
-            The runners pass their annealed β with every call.
         difficulty_norm: "rank" (A1, revised) or "max". cp_input: "std" or "raw".
         difficulty_transform: sampling control of the acl / cmcl agents (issue 21): "none"; "reversed" (ĉ -> 1 − ĉ,
             the anti-curriculum); "permuted" (each recompute shuffles every curriculum column across the valid rows,
@@ -63,7 +61,7 @@ class ReplayBuffer:
 
     def __init__(self, *, capacity: int = 5000, n_agents: int, obs_dim: int, act_dim: int, n_folds: int = 5,
                  algorithms="maddpg", alpha=1.0, eps: float = EPS_P, backend: str = "cdf", eta=0.5,
-                 is_beta=0.0, difficulty_norm: str = "rank", cp_input: str = "std",
+                 difficulty_norm: str = "rank", cp_input: str = "std",
                  difficulty_source="difficulty", min_size: int = 1, lam_max: float = LAM_MAX,
                  difficulty_transform: str = "none", control_seed: int | np.random.SeedSequence = 0) -> None:
         self.storage = TransitionStorage(capacity=capacity, n_agents=n_agents, obs_dim=obs_dim,
@@ -84,8 +82,7 @@ class ReplayBuffer:
         n = self.storage.n_agents
         self.alpha: list[float] = [float(a) for a in _per_agent("alpha", alpha, n)]  # α_s per agent
         etas = [float(e) for e in _per_agent("eta", eta, n)]
-        self.is_beta: list[float] = [float(b) for b in _per_agent("is_beta", is_beta, n)]
-        for name, vals in (("alpha", self.alpha), ("eta", etas), ("is_beta", self.is_beta)):
+        for name, vals in (("alpha", self.alpha), ("eta", etas)):
             if any(not (np.isfinite(v) and v >= 0) for v in vals):
                 raise ValueError(f"{name} must be finite and >= 0, got {vals}")
         self.algorithms: list[str] = list(_per_agent("algorithms", algorithms, n))
@@ -225,11 +222,11 @@ class ReplayBuffer:
             raise ValueError(f"agent must be an index in [0, {self.storage.n_agents}), got {agent!r}")
 
     def sample(self, agent: int, batch_size: int, rng: np.random.Generator,
-               beta: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+               beta: float) -> tuple[np.ndarray, np.ndarray]:
         """Draw `batch_size` i.i.d. slots for one agent from its own distribution.
 
         Returns (slots int64[S], is_weights float32[S]); weights are (|D|·P)^{−β}/max over the minibatch,
-        all ones for uniform agents or β = 0 (β defaults to the agent's is_beta).
+        all ones for uniform agents or β = 0 (β_IS: the runners pass their annealed value, ALGORITHM.md §3.7).
         Raises ReplayNotReady below `min_size` transitions.
         """
         self._check_agent(agent)
@@ -238,13 +235,14 @@ class ReplayBuffer:
         size = self.storage.size
         if size < self.min_size:
             raise ReplayNotReady(f"replay holds {size} transitions; sampling needs at least {self.min_size}")
-        b = self.is_beta[agent] if beta is None else float(beta)
-        return self.sampling[agent].sample(int(batch_size), size, rng, b)
+        if not (np.isfinite(beta) and beta >= 0):
+            raise ValueError(f"beta must be finite and >= 0, got {beta!r}")
+        return self.sampling[agent].sample(int(batch_size), size, rng, float(beta))
 
-    def sample_all(self, batch_size: int, rngs, beta=None) -> tuple[np.ndarray, np.ndarray]:
+    def sample_all(self, batch_size: int, rngs, beta) -> tuple[np.ndarray, np.ndarray]:
         """Every agent draws its own minibatch: rngs is one Generator or one per agent.
 
-        Returns (slots int64[N, S], is_weights float32[N, S]). beta: None, scalar or per agent.
+        Returns (slots int64[N, S], is_weights float32[N, S]). beta: β_IS, scalar or per agent.
         """
         n = self.storage.n_agents
         gens = _per_agent("rngs", rngs, n) if isinstance(rngs, Sequence) else [rngs] * n
