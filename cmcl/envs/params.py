@@ -22,6 +22,13 @@ from cmcl.envs.common import ARENA_HALF, check_float, check_int
 EPISODE_LENGTH = 30  # steps per episode of both tasks [P] (EnvConfig.episode_length, the twins, max_cycles)
 
 
+def _check_rewards(params: SpreadParams | TagParams, names: tuple[str, ...]) -> None:
+    """Check the reward fields `names` (any finite number, of either sign) and store `shared_reward` as a bool."""
+    for name in names:
+        check_float(name, getattr(params, name), -math.inf)
+    object.__setattr__(params, "shared_reward", bool(params.shared_reward))
+
+
 @dataclass(frozen=True)
 class SpreadParams:
     """Sparse cooperative navigation (ALGORITHM.md §6.1): N agents, N landmarks, reward C1 + C2 per agent and step.
@@ -49,9 +56,7 @@ class SpreadParams:
         check_float("cover_radius", self.cover_radius)
         check_float("sensitivity", self.sensitivity)
         check_float("landmark_spawn", self.landmark_spawn, 0.0, ARENA_HALF, low_open=False)
-        for name in ("collision_reward", "cover_reward"):
-            check_float(name, getattr(self, name), -math.inf)
-        object.__setattr__(self, "shared_reward", bool(self.shared_reward))
+        _check_rewards(self, ("collision_reward", "cover_reward"))
 
     @property
     def num_landmarks(self) -> int:
@@ -97,9 +102,7 @@ class TagParams:
         for name in ("obstacle_radius", "predator_accel", "predator_max_speed", "prey_accel", "prey_max_speed"):
             check_float(name, getattr(self, name))
         check_float("obstacle_spawn", self.obstacle_spawn, 0.0, ARENA_HALF, low_open=False)
-        for name in ("capture_reward", "wall_reward"):
-            check_float(name, getattr(self, name), -math.inf)
-        object.__setattr__(self, "shared_reward", bool(self.shared_reward))
+        _check_rewards(self, ("capture_reward", "wall_reward"))
 
     @property
     def num_agents(self) -> int:

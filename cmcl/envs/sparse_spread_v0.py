@@ -2,6 +2,8 @@
 
 Where it sits: the reference version of the navigation task (evaluation, rendering, parity tests);
 training rollouts use its batched twin `cmcl.envs.batched.BatchedSparseSpread`.
+The world's parameters and their defaults are `cmcl.envs.params.SpreadParams`: `parallel_env(max_cycles=30,
+render_mode=None, **fields)` takes any of its fields as a keyword; the numbers below are the defaults.
 
 N agents (radius 0.05) and N landmarks (not collidable) in the walled square [-0.5, 0.5]^2.
 Per-agent, per-step reward C1 + C2:

@@ -2,6 +2,8 @@
 
 Where it sits: the reference version of the pursuit task (evaluation, rendering, parity tests);
 training rollouts use its batched twin `cmcl.envs.batched.BatchedSparseTag`.
+The world's parameters and their defaults are `cmcl.envs.params.TagParams`: `parallel_env(max_cycles=30,
+render_mode=None, **fields)` takes any of its fields as a keyword; the numbers below are the defaults.
 
 m predators ("predator_0".., default m = 2, radius 0.0375, accel 3, max speed 1) and n prey ("prey_0"..,
 default n = 2, radius 0.025, accel 4, max speed 2) among O immovable, collidable obstacles (default 3,
