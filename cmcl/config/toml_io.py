@@ -94,14 +94,14 @@ def _build_env(data: Mapping[str, Any], prefix: str = "env") -> EnvConfig:
             home = WORLD_KEYS[key]
             hint = typing.get_type_hints(type(getattr(defaults, home.task)))[home.name]
             worlds[home.task][home.name] = _coerce(f"{prefix}.{key}", value, hint)
+    key_of = {home: key for key, home in WORLD_KEYS.items()}
     built = {}
     for task, values in worlds.items():
         try:
             built[task] = dataclasses.replace(getattr(defaults, task), **values)
         except ValueError as err:  # the params' messages start with the field's name
             name, _, why = str(err).partition(" ")
-            key = next((k for k, home in WORLD_KEYS.items() if home == WorldKey(task, name)), name)
-            raise ConfigError(f"{prefix}.{key} {why}") from None
+            raise ConfigError(f"{prefix}.{key_of.get(WorldKey(task, name), name)} {why}") from None
     rest = {k: v for k, v in data.items() if k not in WORLD_KEYS}
     return _build(EnvConfig, rest, prefix, built=built, flat_keys=WORLD_KEYS)
 
