@@ -26,7 +26,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +34,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from cmcl.envs.batched import BatchedSparseTag  # noqa: E402
-from cmcl.envs.common import TagParams  # noqa: E402
+from cmcl.envs.params import TagParams  # noqa: E402
 
 BAND = (0.3, 0.6)
 TARGET = 0.45
@@ -104,8 +104,7 @@ def chase_actions(obs: np.ndarray, p: TagParams) -> np.ndarray:
 
 def win_rate(p: TagParams, rounds: int, batch: int, seed: int, chase: bool = False) -> tuple[int, int]:
     """(predator wins, rounds played): ceil(rounds / batch) batches of `batch` 30-step episodes."""
-    fields = asdict(p)
-    env = BatchedSparseTag(batch, seed=seed, **fields)
+    env = BatchedSparseTag(batch, p, seed=seed)
     rng = np.random.default_rng(seed + 1)
     wins = played = 0
     for _ in range(math.ceil(rounds / batch)):
@@ -157,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     print("|---|---|---|---|---|---|---|---|---|")
     eligible = []
     for label, overrides in CANDIDATES:
-        p = replace(REFERENCE, **overrides).validated()
+        p = replace(REFERENCE, **overrides)  # validated by TagParams itself
         w, n = win_rate(p, args.rounds, args.batch, args.seed)
         cw, cn = win_rate(p, args.chase_rounds, args.batch, args.seed, chase=True)
         lo, hi = wilson(w, n)

@@ -77,19 +77,7 @@ def make_batched_env(config: Config, num_envs: int | None = None, seed: Any = No
     from cmcl.envs.batched import BatchedSparseSpread, BatchedSparseTag
 
     twin = BatchedSparseSpread if env.task == "spread" else BatchedSparseTag
-    return twin(b, episode_length=env.episode_length, seed=seed, auto_reset=auto_reset, **task_sizes(config))
-
-
-def task_sizes(config: Config) -> dict[str, Any]:
-    """The built-in task's world parameters from EnvConfig, as keyword arguments of both its batched twin and its
-    PettingZoo env (the one place that maps config fields onto the task constructors; the episode length aside)."""
-    env = config.env
-    if env.task == "spread":
-        return {"num_agents": env.num_agents, "agent_radius": env.agent_radius, "shared_reward": env.shared_reward,
-                "cover_radius": env.cover_radius}
-    return {"num_predators": env.num_predators, "num_prey": env.num_prey, "num_obstacles": env.num_obstacles,
-            "obstacle_radius": env.obstacle_radius, "predator_radius": env.predator_radius,
-            "prey_radius": env.prey_radius, "shared_reward": env.tag_shared_reward}
+    return twin(b, env.world, episode_length=env.episode_length, seed=seed, auto_reset=auto_reset)
 
 
 def make_parallel_env(config: Config, render_mode: str | None = None):
@@ -100,10 +88,10 @@ def make_parallel_env(config: Config, render_mode: str | None = None):
 
         return load_factory(env.factory, {**env.factory_kwargs, "render_mode": render_mode})()
     if env.task == "spread":
-        from cmcl.envs import sparse_spread_v0 as module
+        from cmcl.envs.sparse_spread_v0 import SparseSpreadEnv as task_env
     else:
-        from cmcl.envs import sparse_tag_v0 as module
-    return module.parallel_env(max_cycles=env.episode_length, render_mode=render_mode, **task_sizes(config))
+        from cmcl.envs.sparse_tag_v0 import SparseTagEnv as task_env
+    return task_env(env.world, max_cycles=env.episode_length, render_mode=render_mode)
 
 
 def agent_layout(config: Config, env) -> AgentLayout:

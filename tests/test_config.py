@@ -67,6 +67,11 @@ def test_overrides_set_nested_values():
         ("curriculum.lam0=0", "curriculum.lam0"),
         ("env.task=tag", "teams"),
         ("nonsense.key=1", "nonsense"),
+        ("env.agent_radius=0.7", "env.agent_radius"),  # a world field's own range check, under its TOML key
+        ("env.num_predators=0", "env.num_predators"),
+        ("env.tag_shared_reward=1", "env.tag_shared_reward"),
+        ("env.capture_reward=\"x\"", "env.capture_reward"),
+        ("env.spread.agent_radius=0.1", "env.spread"),  # the world is written flat in [env]
         ("noequals", "section.key=value"),
     ],
 )
@@ -82,6 +87,21 @@ def test_missing_and_malformed_files(tmp_path):
     broken.write_text("[run\nepisodes = ")
     with pytest.raises(ConfigError, match="not valid TOML"):
         load_config(broken)
+
+
+def test_flat_env_keys_set_the_worlds_one_home():
+    """`[env] agent_radius = ...` and the other world keys land in EnvConfig.spread / .tag (cmcl.envs.params), the
+    object the twins and the PettingZoo envs take; the run's navigation reward is individual (§6.1, revised)."""
+    from cmcl.envs.params import SpreadParams, TagParams
+
+    config = load_config(CONFIGS / "tag_cmcl.toml", ["env.cover_radius=0.075", "env.prey_radius=0.03",
+                                                     "env.tag_shared_reward=true", "env.shared_reward=true"])
+    assert config.env.spread == SpreadParams(cover_radius=0.075, shared_reward=True)
+    assert config.env.tag == TagParams(prey_radius=0.03, shared_reward=True) and config.env.world is config.env.tag
+    assert preset("cmcl").env.spread == SpreadParams(shared_reward=False) and SpreadParams().shared_reward
+    env = config.to_dict()["env"]
+    assert (env["cover_radius"], env["prey_radius"], env["tag_shared_reward"]) == (0.075, 0.03, True)
+    assert config_from_dict(config.to_dict()) == config
 
 
 def test_dump_round_trip():

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cmcl.envs.batched import BatchedSparseSpread, BatchedSparseTag
+from cmcl.envs.params import SpreadParams, TagParams
 
 
 def _actions(rng: np.random.Generator, env, steps: int, scale: float = 1.0) -> np.ndarray:
@@ -30,16 +31,16 @@ def test_default_layouts() -> None:
 
 
 @pytest.mark.parametrize(
-    ("cls", "kwargs", "dims"),
+    ("cls", "params", "dims"),
     [
-        (BatchedSparseSpread, {"num_agents": 1}, (6,)),
-        (BatchedSparseSpread, {"num_agents": 6}, (26,) * 6),
-        (BatchedSparseTag, {"num_predators": 3, "num_prey": 1, "num_obstacles": 2}, (16,) * 3 + (14,)),
-        (BatchedSparseTag, {"num_predators": 1, "num_prey": 3, "num_obstacles": 0}, (16,) + (14,) * 3),
+        (BatchedSparseSpread, SpreadParams(num_agents=1), (6,)),
+        (BatchedSparseSpread, SpreadParams(num_agents=6), (26,) * 6),
+        (BatchedSparseTag, TagParams(num_predators=3, num_prey=1, num_obstacles=2), (16,) * 3 + (14,)),
+        (BatchedSparseTag, TagParams(num_predators=1, num_prey=3, num_obstacles=0), (16,) + (14,) * 3),
     ],
 )
-def test_other_sizes_run(cls, kwargs: dict, dims: tuple) -> None:
-    env = cls(5, seed=1, dtype=np.float64, **kwargs)
+def test_other_sizes_run(cls, params: SpreadParams | TagParams, dims: tuple) -> None:
+    env = cls(5, params, seed=1, dtype=np.float64)
     assert env.obs_dims == dims
     rng = np.random.default_rng(0)
     for a in _actions(rng, env, 30):
@@ -183,22 +184,38 @@ def test_bad_actions_raise(cls, bad, message: str) -> None:
     ("cls", "kwargs", "pattern"),
     [
         (BatchedSparseSpread, {"num_envs": 0}, "num_envs must be >= 1, got 0"),
-        (BatchedSparseSpread, {"num_envs": 2, "num_agents": 0}, "num_agents must be >= 1, got 0"),
         (BatchedSparseSpread, {"num_envs": 2, "episode_length": 0}, "episode_length must be >= 1, got 0"),
-        (BatchedSparseSpread, {"num_envs": 2, "agent_radius": -0.1}, "agent_radius .* got -0.1"),
-        (BatchedSparseSpread, {"num_envs": 2, "cover_radius": float("nan")}, "cover_radius .* got nan"),
         (BatchedSparseSpread, {"num_envs": 2.5}, "num_envs .* got 2.5"),
         (BatchedSparseSpread, {"num_envs": 2, "dtype": np.int32}, "dtype"),
-        (BatchedSparseTag, {"num_envs": 2, "num_predators": 0}, "num_predators must be >= 1, got 0"),
-        (BatchedSparseTag, {"num_envs": 2, "num_prey": -1}, "num_prey must be >= 1, got -1"),
-        (BatchedSparseTag, {"num_envs": 2, "num_obstacles": -2}, "num_obstacles must be >= 0, got -2"),
-        (BatchedSparseTag, {"num_envs": 2, "obstacle_radius": -0.2}, "obstacle_radius .* got -0.2"),
-        (BatchedSparseTag, {"num_envs": 2, "prey_max_speed": 0.0}, "prey_max_speed .* got 0.0"),
+        (BatchedSparseTag, {"num_envs": 0}, "num_envs must be >= 1, got 0"),
     ],
 )
 def test_bad_constructor_values_raise(cls, kwargs: dict, pattern: str) -> None:
     with pytest.raises(ValueError, match=pattern):
         cls(**kwargs)
+
+
+@pytest.mark.parametrize(
+    ("params", "fields", "pattern"),
+    [
+        (SpreadParams, {"num_agents": 0}, "^num_agents must be >= 1, got 0"),
+        (SpreadParams, {"agent_radius": -0.1}, "^agent_radius .* got -0.1"),
+        (SpreadParams, {"agent_radius": 0.5}, "^agent_radius .* got 0.5"),  # no room inside the walls
+        (SpreadParams, {"cover_radius": float("nan")}, "^cover_radius .* got nan"),
+        (SpreadParams, {"cover_reward": float("inf")}, "^cover_reward .* got inf"),
+        (TagParams, {"num_predators": 0}, "^num_predators must be >= 1, got 0"),
+        (TagParams, {"num_prey": -1}, "^num_prey must be >= 1, got -1"),
+        (TagParams, {"num_obstacles": -2}, "^num_obstacles must be >= 0, got -2"),
+        (TagParams, {"obstacle_radius": -0.2}, "^obstacle_radius .* got -0.2"),
+        (TagParams, {"prey_max_speed": 0.0}, "^prey_max_speed .* got 0.0"),
+        (TagParams, {"obstacle_spawn": 0.5}, "^obstacle_spawn .* got 0.5"),
+    ],
+)
+def test_bad_world_values_raise_naming_the_field(params: type, fields: dict, pattern: str) -> None:
+    """The world's one home refuses a bad value; the message starts with the field's name (the config maps it to
+    its TOML key)."""
+    with pytest.raises(ValueError, match=pattern):
+        params(**fields)
 
 
 def test_bad_state_raises() -> None:

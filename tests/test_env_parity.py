@@ -19,6 +19,7 @@ import pytest
 
 from cmcl.envs import sparse_spread_v0, sparse_tag_v0
 from cmcl.envs.batched import BatchedSparseSpread, BatchedSparseTag
+from cmcl.envs.params import TagParams
 from cmcl.envs.state import get_world_state, set_world_state
 
 TOL = 1e-5
@@ -29,7 +30,7 @@ TASKS = {
     "tag": (sparse_tag_v0.parallel_env, BatchedSparseTag, ("wall_hit", "captures")),
     "tag4v2_shared": (
         partial(sparse_tag_v0.parallel_env, **TAG4V2_SHARED),
-        partial(BatchedSparseTag, **TAG4V2_SHARED),
+        partial(BatchedSparseTag, params=TagParams(**TAG4V2_SHARED)),
         ("wall_hit", "captures"),
     ),
 }

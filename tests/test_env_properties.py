@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
 from cmcl.envs import sparse_spread_v0, sparse_tag_v0
 from cmcl.envs.batched import BatchedSparseSpread, BatchedSparseTag
-from cmcl.envs.common import TagParams
+from cmcl.envs.params import EPISODE_LENGTH, SpreadParams, TagParams
 from cmcl.envs.state import set_world_state
 
 VERSIONS = ["pettingzoo", "twin"]
@@ -39,9 +37,9 @@ def run(version: str, task: str, state: dict, actions: np.ndarray, **kwargs) -> 
                 }
             )
         return out
-    if "max_cycles" in kwargs:
-        kwargs["episode_length"] = kwargs.pop("max_cycles")
-    env = (BatchedSparseSpread if task == "spread" else BatchedSparseTag)(1, **kwargs)
+    length = kwargs.pop("max_cycles", EPISODE_LENGTH)  # the PettingZoo env's keywords: max_cycles and the world's
+    twin, params = (BatchedSparseSpread, SpreadParams) if task == "spread" else (BatchedSparseTag, TagParams)
+    env = twin(1, params(**kwargs), episode_length=length)
     env.set_state(state)
     for a in actions:
         _, rew, done, info = env.step(a[None].astype(np.float32))
@@ -200,21 +198,19 @@ def test_31_prey_top_speed_is_twice_the_predators(version: str) -> None:
 
 def test_31_tag_defaults_agree_everywhere() -> None:
     """TagParams, both env classes and EnvConfig (through make_batched_env / make_parallel_env) share the defaults."""
-    from cmcl.config import EnvConfig, preset
+    from cmcl.config import EnvConfig, config_from_dict, preset
     from cmcl.system import make_batched_env, make_parallel_env
 
     calibrated = TagParams(num_predators=2, num_prey=2, num_obstacles=3, predator_radius=0.0375, prey_radius=0.025,
                            obstacle_radius=0.1, shared_reward=False)
     assert TagParams() == calibrated
     assert BatchedSparseTag(1).params == calibrated and sparse_tag_v0.parallel_env().params == calibrated
-    env = EnvConfig()
-    for name in ("num_predators", "num_prey", "num_obstacles", "predator_radius", "prey_radius", "obstacle_radius"):
-        assert getattr(env, name) == getattr(calibrated, name), name
-    assert env.tag_shared_reward is calibrated.shared_reward
+    assert EnvConfig().tag == calibrated
     config = preset("maddpg", "tag")
     assert make_batched_env(config, num_envs=1).params == calibrated
     assert make_parallel_env(config).params == calibrated
-    shared = dataclasses.replace(config, env=dataclasses.replace(config.env, tag_shared_reward=True))
+    data = config.to_dict()
+    shared = config_from_dict({**data, "env": {**data["env"], "tag_shared_reward": True}})  # the TOML key
     assert make_batched_env(shared, num_envs=1).params.shared_reward
     assert make_parallel_env(shared).params.shared_reward
 

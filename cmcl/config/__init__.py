@@ -4,8 +4,9 @@ Where it sits: every command (`python -m cmcl train | resume | evaluate` and its
 `load_config(path, overrides)` and hands each component its section. Defaults are the paper's Table 1 values
 and the resolutions of ../shared/ALGORITHM.md §5 (each [R] choice is an option here with that default).
 
-Layout: `sections` (the section dataclasses and their range checks), `experiment` (`Config`, its derived
-quantities, `preset`), `toml_io` (mapping / TOML loading, `--set` overrides, type coercion, `dump_toml`).
+Layout: `sections` (the section dataclasses and their range checks), `env` (the [env] section: the world
+parameters are cmcl.envs.params' SpreadParams / TagParams, under their flat TOML keys), `experiment` (`Config`, its
+derived quantities, `preset`), `toml_io` (mapping / TOML loading, `--set` overrides, type coercion, `dump_toml`).
 Import every name from `cmcl.config`; the submodules are an implementation detail.
 
 Errors: any unknown key, wrong type or out-of-range value raises `ConfigError` naming the full key
@@ -13,9 +14,10 @@ Errors: any unknown key, wrong type or out-of-range value raises `ConfigError` n
 """
 
 from cmcl.config import sections
+from cmcl.config.env import EnvConfig
 from cmcl.config.experiment import Config, preset
 from cmcl.config.sections import *  # noqa: F403 (the section dataclasses, ConfigError, ALGORITHMS, TASKS, TASK_TEAMS)
 from cmcl.config.toml_io import apply_overrides, config_from_dict, dump_toml, load_config, parse_override
 
-__all__ = [*sections.__all__, "Config", "apply_overrides", "config_from_dict", "dump_toml", "load_config",
+__all__ = [*sections.__all__, "Config", "EnvConfig", "apply_overrides", "config_from_dict", "dump_toml", "load_config",
            "parse_override", "preset"]

@@ -1,6 +1,7 @@
 """The whole run: `Config` (one section per component plus one TeamConfig per team), derived quantities, presets.
 
-Loading a Config from TOML or a nested mapping is cmcl.config.toml_io; the sections are cmcl.config.sections.
+Loading a Config from TOML or a nested mapping is cmcl.config.toml_io; the sections are cmcl.config.sections and
+cmcl.config.env.
 """
 
 from __future__ import annotations
@@ -9,12 +10,12 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
+from cmcl.config.env import EnvConfig
 from cmcl.config.sections import (
     ALGORITHMS,
     TASK_TEAMS,
     TASKS,
     CurriculumConfig,
-    EnvConfig,
     ICMConfig,
     MADDPGConfig,
     ReplayConfig,
@@ -68,8 +69,9 @@ class Config:
         return default_stride(self.total_env_steps, self.curriculum.lam0, self.curriculum.lam_max)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain nested dict (TOML/JSON friendly; None values dropped)."""
-        return _drop_none(dataclasses.asdict(self))
+        """Plain nested dict (TOML/JSON friendly; None values dropped) with the keys a TOML file uses (the [env]
+        world parameters flat, EnvConfig.to_dict); `config_from_dict` reads it back to an equal Config."""
+        return _drop_none({**dataclasses.asdict(self), "env": self.env.to_dict()})
 
 
 def _drop_none(value: Any) -> Any:

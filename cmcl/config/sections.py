@@ -2,15 +2,15 @@
 
 Every field has the paper's Table 1 value or the resolution of ../shared/ALGORITHM.md §5 as its default. Each
 `__post_init__` checks ranges and raises `ConfigError` naming the full key (e.g. ``maddpg.gamma``) and the value.
-The whole run (`Config`) is in cmcl.config.experiment; TOML loading in cmcl.config.toml_io.
+The whole run (`Config`) is in cmcl.config.experiment, the [env] section (`EnvConfig`) in cmcl.config.env; TOML
+loading in cmcl.config.toml_io.
 """
 
 from __future__ import annotations
 
 import math
-import re
 import typing
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Literal
 
 AlgorithmName = Literal["maddpg", "per", "acl", "cmcl"]
@@ -21,9 +21,8 @@ TASK_TEAMS = {"spread": ("agent",), "tag": ("predator", "prey")}  # teams of eac
 # α_s of eq. 20 when nothing sets it (ALGORITHM.md A8, revised 2026-12): "proportional to the K-fold priority" for
 # ACL and CMCL, Schaul's proportional-variant 0.6 for PER-MADDPG; MADDPG samples uniformly (α unused)
 DEFAULT_ALPHA = {"maddpg": 1.0, "per": 0.6, "acl": 1.0, "cmcl": 1.0}
-FACTORY_PATTERN = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_][\w.]*$")  # "package.module:callable"
 __all__ = ["ALGORITHMS", "DEFAULT_ALPHA", "TASKS", "TASK_TEAMS", "ConfigError",
-           "CurriculumConfig", "EnvConfig", "ICMConfig",
+           "CurriculumConfig", "ICMConfig",
            "MADDPGConfig", "ReplayConfig", "RunConfig", "ServiceConfig", "TeacherConfig", "TeamConfig"]
 
 
@@ -44,52 +43,6 @@ def _positive(key: str, value: float) -> None:
 def _probability(key: str, value: float, *, open_low: bool = False) -> None:
     ok = (0 < value <= 1) if open_low else (0 <= value <= 1)
     _require(ok, key, value, "must lie in (0, 1]" if open_low else "must lie in [0, 1]")
-
-
-@dataclass(frozen=True)
-class EnvConfig:
-    """Sparse MPE world (ALGORITHM.md §6)."""
-
-    task: TaskName = "spread"
-    num_agents: int = 4  # spread: agents = landmarks
-    num_predators: int = 2  # tag; calibrated (ALGORITHM.md §6.2 "calibration", bench/tag_calibration.py)
-    num_prey: int = 2  # tag
-    num_obstacles: int = 3  # tag
-    episode_length: int = 30  # steps per episode [P]
-    agent_radius: float = 0.05  # spread agents [R]; option 0.15 (simple_spread)
-    # spread: a landmark is covered by an agent whose centre is closer than this (§6.1 [P]: 0.1); smaller values
-    # make the sparse reward rarer (the harder-task calibration of docs/RESULTS.md)
-    cover_radius: float = 0.1
-    obstacle_radius: float = 0.1  # tag obstacles [R]; option 0.2 (MPE "large")
-    predator_radius: float = 0.0375  # tag, calibrated [R]: MPE's 0.075 x 0.5 (capture at r_pred + r_prey)
-    prey_radius: float = 0.025  # tag, calibrated [R]: MPE's 0.05 x 0.5
-    # tag D1 (§6.2, revised): False = each (predator, prey) pair in contact pays +5 to that predator only;
-    # True = every predator receives +5 per pair in contact (MPE simple_tag's shared team reward)
-    tag_shared_reward: bool = False
-    # spread: False = each agent receives its own C1 + C2 (ALGORITHM.md §6.1, revised: the team sum hides who
-    # earned what from each agent's critic and blocks learning); True = every agent receives the team sum
-    shared_reward: bool = False
-    num_envs: int = 16  # worlds stepped at once by the batched twin (inline loop / rollout worker)
-    # your own environment (docs/OWN_ENVIRONMENT.md): "package.module:callable" returning a PettingZoo ParallelEnv,
-    # called with `factory_kwargs`; "" = the built-in `task`. Its episodes end when the env ends them or at
-    # `episode_length` steps, whichever comes first; the `task` sizes above are then unused
-    factory: str = ""
-    factory_kwargs: dict[str, Any] = field(default_factory=dict)
-    team_of: dict[str, str] = field(default_factory=dict)  # agent id -> team; default: the id's prefix (adversary_0)
-    success_key: str = ""  # the env's per-agent `info` key read as episode success at its last step ("": none)
-    coverage_key: str = ""  # likewise for coverage in [0, 1] (what run.stop_coverage watches)
-
-    def __post_init__(self) -> None:
-        _require(self.factory == "" or bool(FACTORY_PATTERN.match(self.factory)), "env.factory", self.factory,
-                 "must look like 'package.module:callable' (or be empty for the built-in task)")
-        for name in ("num_agents", "num_predators", "num_prey", "episode_length", "num_envs"):
-            _require(getattr(self, name) >= 1, f"env.{name}", getattr(self, name), "must be >= 1")
-        _require(self.num_obstacles >= 0, "env.num_obstacles", self.num_obstacles, "must be >= 0")
-        _positive("env.agent_radius", self.agent_radius)
-        _positive("env.cover_radius", self.cover_radius)
-        _positive("env.obstacle_radius", self.obstacle_radius)
-        _positive("env.predator_radius", self.predator_radius)
-        _positive("env.prey_radius", self.prey_radius)
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,8 @@
 render one back as TOML.
 
 Errors: any unknown key or value of the wrong type raises `ConfigError` naming the full key and the value
-(range checks are the sections' own, cmcl.config.sections).
+(range checks are the sections' own, cmcl.config.sections and cmcl.config.env, and the world parameters' own,
+cmcl.envs.params).
 """
 
 from __future__ import annotations
@@ -15,8 +16,9 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any, Literal
 
+from cmcl.config.env import WORLD_KEYS, EnvConfig, WorldKey
 from cmcl.config.experiment import Config
-from cmcl.config.sections import TASK_TEAMS, ConfigError, TeamConfig, _require
+from cmcl.config.sections import TASK_TEAMS, TASKS, ConfigError, TeamConfig, _require
 
 _SECTIONS = {f.name: f for f in dataclasses.fields(Config) if f.name != "teams"}
 
@@ -57,22 +59,51 @@ def _coerce(key: str, value: Any, hint: Any) -> Any:
     raise ConfigError(f"{key}: unsupported field type {hint!r}")
 
 
-def _build(cls: type, data: Mapping[str, Any], prefix: str) -> Any:
-    """Build dataclass `cls` from `data`, rejecting unknown keys and values of the wrong type."""
+def _build(cls: type, data: Mapping[str, Any], prefix: str, built: Mapping[str, Any] | None = None,
+           flat_keys: Iterable[str] = ()) -> Any:
+    """Build dataclass `cls` from `data`, rejecting unknown keys and values of the wrong type.
+
+    built: fields already built by the caller (not keys of `data`); flat_keys: keys the caller has taken out of
+    `data` (listed as known in the unknown-key error)."""
     if not isinstance(data, Mapping):
         raise ConfigError(f"{prefix} must be a table, got {data!r}")
+    built = built or {}
     hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
+    names = {f.name for f in dataclasses.fields(cls)} - set(built)
     unknown = sorted(set(data) - names)
     if unknown:
-        raise ConfigError(f"unknown key {prefix}.{unknown[0]} (known: {sorted(names)})")
+        raise ConfigError(f"unknown key {prefix}.{unknown[0]} (known: {sorted(names | set(flat_keys))})")
     kwargs = {k: _coerce(f"{prefix}.{k}", v, hints[k]) for k, v in data.items()}
     try:
-        return cls(**kwargs)
+        return cls(**kwargs, **built)
     except ConfigError as err:
         # __post_init__ messages use the section name; re-prefix team checks with the team's path.
         msg = str(err)
         raise ConfigError(msg.replace("team.", f"{prefix}.", 1) if msg.startswith("team.") else msg) from None
+
+
+def _build_env(data: Mapping[str, Any], prefix: str = "env") -> EnvConfig:
+    """EnvConfig from the flat [env] table: each world key (WORLD_KEYS) sets a field of its task's params, starting
+    from EnvConfig's defaults, and their own range checks run; errors name the key the user wrote."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{prefix} must be a table, got {data!r}")
+    defaults = EnvConfig()
+    worlds: dict[str, dict[str, Any]] = {task: {} for task in TASKS}
+    for key, value in data.items():
+        if key in WORLD_KEYS:
+            home = WORLD_KEYS[key]
+            hint = typing.get_type_hints(type(getattr(defaults, home.task)))[home.name]
+            worlds[home.task][home.name] = _coerce(f"{prefix}.{key}", value, hint)
+    key_of = {home: key for key, home in WORLD_KEYS.items()}
+    built = {}
+    for task, values in worlds.items():
+        try:
+            built[task] = dataclasses.replace(getattr(defaults, task), **values)
+        except ValueError as err:  # the params' messages start with the field's name
+            name, _, why = str(err).partition(" ")
+            raise ConfigError(f"{prefix}.{key_of.get(WorldKey(task, name), name)} {why}") from None
+    rest = {k: v for k, v in data.items() if k not in WORLD_KEYS}
+    return _build(EnvConfig, rest, prefix, built=built, flat_keys=WORLD_KEYS)
 
 
 def config_from_dict(data: Mapping[str, Any]) -> Config:
@@ -80,7 +111,8 @@ def config_from_dict(data: Mapping[str, Any]) -> Config:
     unknown = sorted(set(data) - set(_SECTIONS) - {"teams"})
     if unknown:
         raise ConfigError(f"unknown section {unknown[0]!r} (known: {sorted([*_SECTIONS, 'teams'])})")
-    sections = {name: _build(f.default_factory, data.get(name, {}), name) for name, f in _SECTIONS.items()}
+    sections = {name: _build_env(data.get(name, {})) if name == "env" else
+                _build(f.default_factory, data.get(name, {}), name) for name, f in _SECTIONS.items()}
     teams_data = data.get("teams")
     if teams_data is None:  # a factory env without team tables: one team "agent" (agent_0, agent_1, ...)
         teams_data = {name: {} for name in (("agent",) if sections["env"].factory else

@@ -14,7 +14,8 @@ import numpy as np
 
 from cmcl.envs import metrics
 from cmcl.envs.batched_core import BatchedWorld, strided_view
-from cmcl.envs.common import SpreadParams, sample_spread
+from cmcl.envs.common import sample_spread
+from cmcl.envs.params import EPISODE_LENGTH, SpreadParams
 
 
 class BatchedSparseSpread(BatchedWorld):
@@ -31,29 +32,14 @@ class BatchedSparseSpread(BatchedWorld):
     def __init__(
         self,
         num_envs: int,
-        num_agents: int = 4,
-        episode_length: int = 30,
-        agent_radius: float = 0.05,
-        cover_radius: float = 0.1,
-        sensitivity: float = 5.0,
-        shared_reward: bool = True,
-        landmark_spawn: float = 0.4,
-        collision_reward: float = -1.0,
-        cover_reward: float = 4.0,
+        params: SpreadParams | None = None,
+        episode_length: int = EPISODE_LENGTH,
         seed: int | np.random.Generator | None = None,
         auto_reset: bool = False,
         dtype: Any = np.float32,
     ) -> None:
-        self.params = p = SpreadParams(
-            num_agents=num_agents,
-            agent_radius=agent_radius,
-            cover_radius=cover_radius,
-            sensitivity=sensitivity,
-            shared_reward=bool(shared_reward),
-            landmark_spawn=landmark_spawn,
-            collision_reward=collision_reward,
-            cover_reward=cover_reward,
-        ).validated()
+        """`params`: the world (default `SpreadParams()`); `episode_length` steps per episode."""
+        self.params = p = SpreadParams() if params is None else params
         n, num_l = p.num_agents, p.num_landmarks
         self.obs_dims = (p.obs_dim,) * n
         self.teams = {"agent": list(range(n))}

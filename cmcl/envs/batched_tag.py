@@ -14,7 +14,8 @@ import numpy as np
 
 from cmcl.envs import metrics
 from cmcl.envs.batched_core import BatchedWorld, softplus_contact, strided_view
-from cmcl.envs.common import TagParams, sample_tag
+from cmcl.envs.common import sample_tag
+from cmcl.envs.params import EPISODE_LENGTH, TagParams
 
 
 class BatchedSparseTag(BatchedWorld):
@@ -37,41 +38,14 @@ class BatchedSparseTag(BatchedWorld):
     def __init__(
         self,
         num_envs: int,
-        num_predators: int = 2,
-        num_prey: int = 2,
-        num_obstacles: int = 3,
-        episode_length: int = 30,
-        predator_radius: float = 0.0375,
-        prey_radius: float = 0.025,
-        obstacle_radius: float = 0.1,
-        predator_accel: float = 3.0,
-        predator_max_speed: float = 1.0,
-        prey_accel: float = 4.0,
-        prey_max_speed: float = 2.0,
-        obstacle_spawn: float = 0.3,
-        capture_reward: float = 5.0,
-        wall_reward: float = -1.0,
-        shared_reward: bool = False,
+        params: TagParams | None = None,
+        episode_length: int = EPISODE_LENGTH,
         seed: int | np.random.Generator | None = None,
         auto_reset: bool = False,
         dtype: Any = np.float32,
     ) -> None:
-        self.params = p = TagParams(
-            num_predators=num_predators,
-            num_prey=num_prey,
-            num_obstacles=num_obstacles,
-            predator_radius=predator_radius,
-            prey_radius=prey_radius,
-            obstacle_radius=obstacle_radius,
-            predator_accel=predator_accel,
-            predator_max_speed=predator_max_speed,
-            prey_accel=prey_accel,
-            prey_max_speed=prey_max_speed,
-            obstacle_spawn=obstacle_spawn,
-            capture_reward=capture_reward,
-            wall_reward=wall_reward,
-            shared_reward=bool(shared_reward),
-        ).validated()
+        """`params`: the world (default `TagParams()`, the calibrated one); `episode_length` steps per episode."""
+        self.params = p = TagParams() if params is None else params
         m, q, o, n = p.num_predators, p.num_prey, p.num_obstacles, p.num_agents
         self.obs_dims = p.obs_dims
         self.teams = {"predator": list(range(m)), "prey": list(range(m, n))}

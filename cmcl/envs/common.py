@@ -1,5 +1,7 @@
 """Shared constants, argument checks and initial-state sampling for the sparse MPE tasks (ALGORITHM.md §6).
 
+The tasks' world parameters are `cmcl.envs.params` (SpreadParams, TagParams).
+
 Where it sits: imported by both implementations of each task, the PettingZoo reference
 (`sparse_spread_v0`, `sparse_tag_v0`, built on mpe2's World) and the batched numpy twins
 (`cmcl.envs.batched`). Sampling lives here so that a PettingZoo env and a twin with B = 1 that are
@@ -13,10 +15,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:  # the params module imports this one
+    from cmcl.envs.params import SpreadParams, TagParams
 
 # MPE physics, kept unchanged [V mpe2 _mpe_utils/core.py].
 DT = 0.1
@@ -66,108 +70,6 @@ def make_rng(seed: int | np.random.Generator | None) -> np.random.Generator:
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer | np.random.SeedSequence)):
         raise ValueError(f"seed must be an int, a SeedSequence, a Generator or None, got {seed!r}")
     return np.random.default_rng(seed)
-
-
-@dataclass(frozen=True)
-class SpreadParams:
-    """Sparse cooperative navigation (ALGORITHM.md §6.1). Radii in arena units."""
-
-    num_agents: int = 4
-    agent_radius: float = 0.05
-    landmark_radius: float = 0.05  # drawing only: landmarks are not collidable
-    cover_radius: float = 0.1  # a landmark is covered by an agent whose centre is closer than this
-    sensitivity: float = 5.0  # force = action * sensitivity
-    landmark_spawn: float = 0.4  # landmarks uniform in [-0.4, 0.4]^2
-    collision_reward: float = -1.0  # C1, at most once per agent per step (agent contact or wall hit)
-    cover_reward: float = 4.0  # C2, at most once per agent per step
-    shared_reward: bool = True  # every agent receives the team sum
-
-    def validated(self) -> SpreadParams:
-        """Raise ValueError naming the first invalid field; return self."""
-        check_int("num_agents", self.num_agents, 1)
-        check_float("agent_radius", self.agent_radius, 0.0, ARENA_HALF)
-        check_float("landmark_radius", self.landmark_radius, 0.0, ARENA_HALF)
-        check_float("cover_radius", self.cover_radius)
-        check_float("sensitivity", self.sensitivity)
-        check_float("landmark_spawn", self.landmark_spawn, 0.0, ARENA_HALF, low_open=False)
-        check_float("collision_reward", self.collision_reward, -math.inf)
-        check_float("cover_reward", self.cover_reward, -math.inf)
-        return self
-
-    @property
-    def num_landmarks(self) -> int:
-        return self.num_agents
-
-    @property
-    def obs_dim(self) -> int:
-        """[vel(2), pos(2), landmark rel pos (2L), other agents' rel pos (2(N-1))]."""
-        return 4 + 2 * self.num_landmarks + 2 * (self.num_agents - 1)
-
-
-@dataclass(frozen=True)
-class TagParams:
-    """Sparse predator-prey (ALGORITHM.md §6.2). Predators are agents 0..m-1, prey m..m+n-1.
-
-    Defaults are the calibrated world of §6.2 ("calibration" row; bench/tag_calibration.py): 2 predators
-    and 2 prey at half MPE's absolute sizes, so that random policies on both sides give the predators
-    ~0.45 of rounds (§6.2's first recommendation, 4 predators of radius 0.075 and prey of radius 0.05,
-    gave 0.90). Radii and spawn ranges in arena units, speeds in arena units per unit time.
-    """
-
-    num_predators: int = 2  # calibrated [R]; §6.2's first recommendation was 4
-    num_prey: int = 2
-    num_obstacles: int = 3
-    predator_radius: float = 0.0375  # calibrated [R]: MPE's 0.075 x 0.5
-    prey_radius: float = 0.025  # calibrated [R]: MPE's 0.05 x 0.5; capture when distance < 0.0625
-    obstacle_radius: float = 0.1
-    predator_accel: float = 3.0  # force = action * accel
-    predator_max_speed: float = 1.0
-    prey_accel: float = 4.0
-    prey_max_speed: float = 2.0  # twice the predators'
-    obstacle_spawn: float = 0.3  # obstacle centres uniform in [-0.3, 0.3]^2
-    capture_reward: float = 5.0  # D1, per (predator, prey) pair in contact: +5 to that predator, -5 to that prey
-    wall_reward: float = -1.0  # D2: to any agent clamped at a wall this step
-    shared_reward: bool = False  # D1 option: every predator receives +5 per pair in contact anywhere (MPE)
-
-    def validated(self) -> TagParams:
-        """Raise ValueError naming the first invalid field; return self."""
-        check_int("num_predators", self.num_predators, 1)
-        check_int("num_prey", self.num_prey, 1)
-        check_int("num_obstacles", self.num_obstacles, 0)
-        for name in ("predator_radius", "prey_radius"):
-            check_float(name, getattr(self, name), 0.0, ARENA_HALF)
-        check_float("obstacle_radius", self.obstacle_radius)
-        for name in ("predator_accel", "predator_max_speed", "prey_accel", "prey_max_speed"):
-            check_float(name, getattr(self, name))
-        check_float("obstacle_spawn", self.obstacle_spawn, 0.0, ARENA_HALF, low_open=False)
-        check_float("capture_reward", self.capture_reward, -math.inf)
-        check_float("wall_reward", self.wall_reward, -math.inf)
-        return self
-
-    @property
-    def num_agents(self) -> int:
-        return self.num_predators + self.num_prey
-
-    @property
-    def obs_dims(self) -> tuple[int, ...]:
-        """[vel, pos, obstacle rel pos (2O), other agents' rel pos (2(N-1)), other prey's velocities]."""
-        base = 4 + 2 * self.num_obstacles + 2 * (self.num_agents - 1)
-        return (base + 2 * self.num_prey,) * self.num_predators + (base + 2 * (self.num_prey - 1),) * self.num_prey
-
-    @property
-    def radii(self) -> np.ndarray:
-        """float64[N] agent radii."""
-        return np.array([self.predator_radius] * self.num_predators + [self.prey_radius] * self.num_prey)
-
-    @property
-    def accels(self) -> np.ndarray:
-        """float64[N] action-to-force factors."""
-        return np.array([self.predator_accel] * self.num_predators + [self.prey_accel] * self.num_prey)
-
-    @property
-    def max_speeds(self) -> np.ndarray:
-        """float64[N] speed limits."""
-        return np.array([self.predator_max_speed] * self.num_predators + [self.prey_max_speed] * self.num_prey)
 
 
 def sample_agents(

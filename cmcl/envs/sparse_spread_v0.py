@@ -2,6 +2,8 @@
 
 Where it sits: the reference version of the navigation task (evaluation, rendering, parity tests);
 training rollouts use its batched twin `cmcl.envs.batched.BatchedSparseSpread`.
+The world's parameters and their defaults are `cmcl.envs.params.SpreadParams`: `parallel_env(max_cycles=30,
+render_mode=None, **fields)` takes any of its fields as a keyword; the numbers below are the defaults.
 
 N agents (radius 0.05) and N landmarks (not collidable) in the walled square [-0.5, 0.5]^2.
 Per-agent, per-step reward C1 + C2:
@@ -24,7 +26,8 @@ import numpy as np
 from mpe2._mpe_utils.core import Agent, Landmark
 
 from cmcl.envs import metrics
-from cmcl.envs.common import SpreadParams, sample_spread
+from cmcl.envs.common import sample_spread
+from cmcl.envs.params import EPISODE_LENGTH, SpreadParams
 from cmcl.envs.pz_base import SparseParallelEnv
 
 NAME = "sparse_spread_v0"
@@ -35,8 +38,8 @@ class SparseSpreadEnv(SparseParallelEnv):
 
     metadata = {**SparseParallelEnv.metadata, "name": NAME}
 
-    def __init__(self, params: SpreadParams, max_cycles: int = 30, render_mode: str | None = None) -> None:
-        self.params = params.validated()
+    def __init__(self, params: SpreadParams, max_cycles: int = EPISODE_LENGTH, render_mode: str | None = None) -> None:
+        self.params = params
         self.obs_dims = (params.obs_dim,) * params.num_agents
         super().__init__(max_cycles, render_mode)
 
@@ -134,27 +137,10 @@ class SparseSpreadEnv(SparseParallelEnv):
         }
 
 
-def parallel_env(
-    num_agents: int = 4,
-    max_cycles: int = 30,
-    render_mode: str | None = None,
-    agent_radius: float = 0.05,
-    cover_radius: float = 0.1,
-    sensitivity: float = 5.0,
-    shared_reward: bool = True,
-    landmark_spawn: float = 0.4,
-    collision_reward: float = -1.0,
-    cover_reward: float = 4.0,
-) -> SparseSpreadEnv:
-    """The sparse navigation task as a PettingZoo ParallelEnv; agents "agent_0".."agent_{N-1}"."""
-    params = SpreadParams(
-        num_agents=num_agents,
-        agent_radius=agent_radius,
-        cover_radius=cover_radius,
-        sensitivity=sensitivity,
-        shared_reward=bool(shared_reward),
-        landmark_spawn=landmark_spawn,
-        collision_reward=collision_reward,
-        cover_reward=cover_reward,
-    )
-    return SparseSpreadEnv(params, max_cycles=max_cycles, render_mode=render_mode)
+def parallel_env(max_cycles: int = EPISODE_LENGTH, render_mode: str | None = None, **fields: Any) -> SparseSpreadEnv:
+    """The sparse navigation task as a PettingZoo ParallelEnv; agents "agent_0".."agent_{N-1}".
+
+    fields: any of `SpreadParams`'s (num_agents, agent_radius, cover_radius, shared_reward, ...), as keywords;
+    an unknown one raises TypeError, an out-of-range one ValueError naming it.
+    """
+    return SparseSpreadEnv(SpreadParams(**fields), max_cycles=max_cycles, render_mode=render_mode)

@@ -2,6 +2,8 @@
 
 Where it sits: the reference version of the pursuit task (evaluation, rendering, parity tests);
 training rollouts use its batched twin `cmcl.envs.batched.BatchedSparseTag`.
+The world's parameters and their defaults are `cmcl.envs.params.TagParams`: `parallel_env(max_cycles=30,
+render_mode=None, **fields)` takes any of its fields as a keyword; the numbers below are the defaults.
 
 m predators ("predator_0".., default m = 2, radius 0.0375, accel 3, max speed 1) and n prey ("prey_0"..,
 default n = 2, radius 0.025, accel 4, max speed 2) among O immovable, collidable obstacles (default 3,
@@ -29,7 +31,8 @@ import numpy as np
 from mpe2._mpe_utils.core import Agent, Landmark
 
 from cmcl.envs import metrics
-from cmcl.envs.common import TagParams, sample_tag
+from cmcl.envs.common import sample_tag
+from cmcl.envs.params import EPISODE_LENGTH, TagParams
 from cmcl.envs.pz_base import SparseParallelEnv
 
 NAME = "sparse_tag_v0"
@@ -40,8 +43,8 @@ class SparseTagEnv(SparseParallelEnv):
 
     metadata = {**SparseParallelEnv.metadata, "name": NAME}
 
-    def __init__(self, params: TagParams, max_cycles: int = 30, render_mode: str | None = None) -> None:
-        self.params = params.validated()
+    def __init__(self, params: TagParams, max_cycles: int = EPISODE_LENGTH, render_mode: str | None = None) -> None:
+        self.params = params
         self.obs_dims = params.obs_dims
         super().__init__(max_cycles, render_mode)
 
@@ -120,39 +123,10 @@ class SparseTagEnv(SparseParallelEnv):
         }
 
 
-def parallel_env(
-    num_predators: int = 2,
-    num_prey: int = 2,
-    num_obstacles: int = 3,
-    max_cycles: int = 30,
-    render_mode: str | None = None,
-    predator_radius: float = 0.0375,
-    prey_radius: float = 0.025,
-    obstacle_radius: float = 0.1,
-    predator_accel: float = 3.0,
-    predator_max_speed: float = 1.0,
-    prey_accel: float = 4.0,
-    prey_max_speed: float = 2.0,
-    obstacle_spawn: float = 0.3,
-    capture_reward: float = 5.0,
-    wall_reward: float = -1.0,
-    shared_reward: bool = False,
-) -> SparseTagEnv:
-    """The sparse predator-prey task as a PettingZoo ParallelEnv (predators first, then prey)."""
-    params = TagParams(
-        num_predators=num_predators,
-        num_prey=num_prey,
-        num_obstacles=num_obstacles,
-        predator_radius=predator_radius,
-        prey_radius=prey_radius,
-        obstacle_radius=obstacle_radius,
-        predator_accel=predator_accel,
-        predator_max_speed=predator_max_speed,
-        prey_accel=prey_accel,
-        prey_max_speed=prey_max_speed,
-        obstacle_spawn=obstacle_spawn,
-        capture_reward=capture_reward,
-        wall_reward=wall_reward,
-        shared_reward=bool(shared_reward),
-    )
-    return SparseTagEnv(params, max_cycles=max_cycles, render_mode=render_mode)
+def parallel_env(max_cycles: int = EPISODE_LENGTH, render_mode: str | None = None, **fields: Any) -> SparseTagEnv:
+    """The sparse predator-prey task as a PettingZoo ParallelEnv (predators first, then prey).
+
+    fields: any of `TagParams`'s (num_predators, num_prey, num_obstacles, predator_radius, shared_reward, ...), as
+    keywords; an unknown one raises TypeError, an out-of-range one ValueError naming it.
+    """
+    return SparseTagEnv(TagParams(**fields), max_cycles=max_cycles, render_mode=render_mode)

@@ -1,0 +1,90 @@
+"""The [env] section of a run configuration: which world the agents live in (ALGORITHM.md §6).
+
+Where it sits: `EnvConfig` holds the task's world parameters as the env package's own dataclasses
+(`spread: SpreadParams`, `tag: TagParams`, cmcl.envs.params: their one home, with units and range checks), and
+cmcl.system hands `EnvConfig.world` to the task's batched twin and PettingZoo env as it is.
+
+TOML keys: the world's fields are written flat in [env], as before (`[env] agent_radius = 0.05`,
+`num_predators = 2`, `--set env.cover_radius=0.075`): each key is the field's name, except that a `TagParams`
+field whose name `SpreadParams` also has takes the prefix `tag_` (`env.tag_shared_reward`). `WORLD_KEYS` is that
+mapping, derived from the two dataclasses; cmcl.config.toml_io reads it, `EnvConfig.to_dict` writes it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from dataclasses import dataclass, field
+from typing import Any
+
+from cmcl.config.sections import TASKS, TaskName, _require
+from cmcl.envs.params import EPISODE_LENGTH, SpreadParams, TagParams
+
+FACTORY_PATTERN = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_][\w.]*$")  # "package.module:callable"
+
+
+@dataclass(frozen=True)
+class WorldKey:
+    """Where a flat [env] key lives: field `name` of EnvConfig's `task` attribute ("spread" -> SpreadParams)."""
+
+    task: TaskName
+    name: str
+
+
+def _world_keys() -> dict[str, WorldKey]:
+    """Flat [env] key -> its field: every SpreadParams field by its name, every TagParams field by its name or,
+    when SpreadParams has the same name, by "tag_" + name."""
+    keys = {f.name: WorldKey("spread", f.name) for f in dataclasses.fields(SpreadParams)}
+    for f in dataclasses.fields(TagParams):
+        keys["tag_" + f.name if f.name in keys else f.name] = WorldKey("tag", f.name)
+    return keys
+
+
+WORLD_KEYS: dict[str, WorldKey] = _world_keys()
+
+
+def _individual_reward_spread() -> SpreadParams:
+    """The navigation world of a run: SpreadParams' defaults with each agent receiving its own C1 + C2
+    (ALGORITHM.md §6.1, revised: the team sum hides who earned what from each agent's critic and blocks
+    learning); `env.shared_reward = true` gives every agent the team sum (the PettingZoo env's default)."""
+    return SpreadParams(shared_reward=False)
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Sparse MPE world (ALGORITHM.md §6): the task, its world parameters, the episode length and the batch."""
+
+    task: TaskName = "spread"
+    episode_length: int = EPISODE_LENGTH  # steps per episode [P]
+    num_envs: int = 16  # worlds stepped at once by the batched twin (inline loop / rollout worker)
+    # the world of each task (only `task`'s is used); TOML: its fields flat in [env], see WORLD_KEYS. Tag's
+    # defaults are §6.2's calibrated world; env.tag_shared_reward = true pays every predator +5 per pair in contact
+    spread: SpreadParams = field(default_factory=_individual_reward_spread)
+    tag: TagParams = field(default_factory=TagParams)
+    # your own environment (docs/OWN_ENVIRONMENT.md): "package.module:callable" returning a PettingZoo ParallelEnv,
+    # called with `factory_kwargs`; "" = the built-in `task`. Its episodes end when the env ends them or at
+    # `episode_length` steps, whichever comes first; `spread` and `tag` are then unused
+    factory: str = ""
+    factory_kwargs: dict[str, Any] = field(default_factory=dict)
+    team_of: dict[str, str] = field(default_factory=dict)  # agent id -> team; default: the id's prefix (adversary_0)
+    success_key: str = ""  # the env's per-agent `info` key read as episode success at its last step ("": none)
+    coverage_key: str = ""  # likewise for coverage in [0, 1] (what run.stop_coverage watches)
+
+    def __post_init__(self) -> None:
+        _require(self.factory == "" or bool(FACTORY_PATTERN.match(self.factory)), "env.factory", self.factory,
+                 "must look like 'package.module:callable' (or be empty for the built-in task)")
+        for name in ("episode_length", "num_envs"):
+            _require(getattr(self, name) >= 1, f"env.{name}", getattr(self, name), "must be >= 1")
+        _require(isinstance(self.spread, SpreadParams), "env.spread", self.spread, "must be a SpreadParams")
+        _require(isinstance(self.tag, TagParams), "env.tag", self.tag, "must be a TagParams")
+
+    @property
+    def world(self) -> SpreadParams | TagParams:
+        """The world parameters of `task`, as its batched twin and PettingZoo env take them."""
+        return self.spread if self.task == "spread" else self.tag
+
+    def to_dict(self) -> dict[str, Any]:
+        """The section as its flat TOML keys (the world's fields by their WORLD_KEYS names); dicts are copies."""
+        world = {key: getattr(getattr(self, home.task), home.name) for key, home in WORLD_KEYS.items()}
+        rest = {k: v for k, v in dataclasses.asdict(self).items() if k not in TASKS}
+        return {"task": rest.pop("task"), **world, **rest}
