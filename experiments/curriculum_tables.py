@@ -10,7 +10,7 @@ import numpy as np
 
 from experiments.grids import CURRICULUM_ARMS
 from experiments.labels import ARM_LABEL
-from experiments.stats import TIMES, difference, fmt, fmt_time, holm, logrank_p
+from experiments.stats import TIMES, difference, fmt, fmt_time, holm, logrank_p, spread
 
 PRIMARY = ("cmcl", "maddpg", "auc_coverage")  # the pre-registered primary comparison (docs/RESULTS.md, protocol)
 SECONDARY = [("cmcl", "per", "auc_coverage"), ("cmcl", "acl", "auc_coverage"), ("cmcl", "cmcl_permuted",
@@ -25,7 +25,7 @@ def curriculum_table(runs: list[dict[str, Any]]) -> str:
     keys = [("area under coverage", "auc_coverage", 3), ("held-out coverage", "held_out_coverage", 3),
             ("held-out success", "held_out_success", 3), ("episodes to MA 0.9", "episodes_to_90", 0)]
     lines = ["| arm | seeds | " + " | ".join(k[0] for k in keys) + " | stalled at ~3 of 4 | ESS over training | "
-             "ESS, first quarter | reward-bearing rows, first quarter: sampled / buffer | wall s |",
+             "ESS, first quarter | reward-bearing rows, first quarter: sampled / buffer | wall s, mean (min..max) |",
              "| --- " * (len(keys) + 7) + "|"]
     for arm in CURRICULUM_ARMS:
         rs = sorted((r for r in runs if r.get("arm") == arm), key=lambda r: r["seed"])
@@ -38,7 +38,7 @@ def curriculum_table(runs: list[dict[str, Any]]) -> str:
                                                                    for _, k, d in keys)
                      + f" | {stalled}/{len(rs)} | {fmt([r['ess_mean'] for r in rs], 2, 'auc_coverage')} | "
                      f"{fmt([r['ess_first_quarter'] for r in rs], 2, 'auc_coverage')} | {sampled:.3f} / {buffer:.3f} | "
-                     f"{fmt([r['wall_s'] for r in rs], 0)} |")
+                     f"{spread([r['wall_s'] for r in rs])} |")  # seconds are skewed by load: no t interval
     return "\n".join(lines)
 
 
