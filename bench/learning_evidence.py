@@ -30,8 +30,8 @@ def run_one(task: str, algorithm: str, seed: int, episodes: int, out: Path, over
             f"run.checkpoint_every={episodes}", *overrides]
     config = load_config(f"configs/{task}_{algorithm}.toml", sets)
     started = time.perf_counter()
-    finished = sorted((run_path / "checkpoints").glob("ckpt_*.pt"))
-    if not finished or int(finished[-1].stem.split("_")[1]) < episodes:  # reuse a finished run
+    finished = RunDirectory(run_path).inline_checkpoints()
+    if not finished or max(finished) < episodes:  # reuse a finished run
         run_dir = RunDirectory.create(run_path, config, overwrite=True)
         InlineLoop(config, run_dir, progress=lambda line: print(f"  [{algorithm} s{seed}] {line}", flush=True)).run()
     result = evaluate_policy(config, load_policy(config, RunDirectory.open(run_path).latest_checkpoint()),

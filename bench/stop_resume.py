@@ -88,14 +88,14 @@ def main() -> None:
     print("| --- | --- | --- | --- | --- | --- |")
     previous_tail = None
     for name, command, stop in chain:
-        counters = run_dir / "checkpoints" / "service" / "supervisor.json"
+        counters = RunDirectory(run_dir).supervisor_counters
         # a resume drops the rows logged after the last checkpoint, then appends its own from there
         before_rows = json.loads(counters.read_text())["episodes_logged"] if counters.exists() else 0
         code, seen, output = run_until(command, args.train, stop)
         left = left_alive(seen)
         rows = coverage_rows(run_dir)
         resumed_head = rows[before_rows:before_rows + WINDOW] if previous_tail is not None else []
-        service = run_dir / "checkpoints" / "service"
+        service = RunDirectory(run_dir).service_dir
         files = sorted(p.name for p in service.glob("*.manifest.json"))
         tail = rows[-WINDOW:]
         print(f"| {name} | {code} | {', '.join(f.split('.')[0] for f in files)} | "

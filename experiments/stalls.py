@@ -69,10 +69,10 @@ def analyse_run(run_path: Path, arm: str) -> dict[str, Any] | None:
 
 def _at_plateau(run: RunDirectory, config: Any, middle: int, progress: list[dict[str, Any]]) -> dict[str, Any]:
     """The anatomy of the checkpoint nearest episode `middle`, and the curriculum's state then."""
-    checkpoints = sorted((run.path / "checkpoints").glob("ckpt_*.pt"))
+    checkpoints = run.inline_checkpoints()
     if not checkpoints:
         return {"error": "no checkpoints"}
-    nearest = min(checkpoints, key=lambda p: abs(int(p.stem.split("_")[1]) - middle))
+    nearest = checkpoints[min(checkpoints, key=lambda episodes: abs(episodes - middle))]
     held_out = evaluate_policy(config, load_policy(config, nearest), ANATOMY_WORLDS, seed=int(config.run.seed))
     anatomy = MissAnatomy(**held_out["misses"])
     idle = int(np.argmax(anatomy.agent_idle_share))

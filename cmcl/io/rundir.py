@@ -125,9 +125,14 @@ class RunDirectory:
         save_torch_atomic(path, state)
         return path
 
+    def inline_checkpoints(self) -> dict[int, Path]:
+        """The inline runner's checkpoints by the episodes they were saved at, oldest first (unchecked)."""
+        found = sorted(self.checkpoints.glob(CHECKPOINT_GLOB))
+        return {int(path.stem.split("_")[1]): path for path in found}
+
     def latest_checkpoint(self) -> Path | None:
         """The inline runner's checkpoint with the most episodes, or None (unchecked; see `newest_policy`)."""
-        found = sorted(self.checkpoints.glob(CHECKPOINT_GLOB))
+        found = list(self.inline_checkpoints().values())
         return found[-1] if found else None
 
     def service_paths(self) -> dict[str, Path]:
@@ -137,7 +142,12 @@ class RunDirectory:
         base = self.service_dir
         base.mkdir(parents=True, exist_ok=True)
         return {**{role: base / f"{role}.pt" for role in SERVICE_ROLES}, "replay": base / "replay",
-                "supervisor": base / "supervisor.json", "teacher": base}
+                "supervisor": self.supervisor_counters, "teacher": base}
+
+    @property
+    def supervisor_counters(self) -> Path:
+        """The service supervisor's counters (JSON: episodes logged, env steps, updates), in `service_dir`."""
+        return self.service_dir / "supervisor.json"
 
     @property
     def service_dir(self) -> Path:
