@@ -181,3 +181,26 @@ def test_cmcl_at_eta_zero_trains_exactly_as_acl(tmp_path, tiny_config):
     rows = [[(r["coverage"], r["reward"]) for r in RunDirectory.open(c.run.dir).rows("episode")] for c in (cmcl, acl)]
     assert rows[0] == rows[1]
     np.testing.assert_array_equal(loops[0].replay.storage.obs, loops[1].replay.storage.obs)
+
+
+def test_a_run_killed_while_checkpointing_never_leaves_a_checkpoint_without_its_replay(tmp_path, tiny_config,
+                                                                                       monkeypatch):
+    """The replay snapshot is written first and the checkpoint last: a kill between the two writes (here: the
+    replay write failing, as a SIGKILL would end it) leaves the previous whole checkpoint the newest one."""
+    config = tiny_config("cmcl", dir=str(tmp_path / "run"), episodes=8, checkpoint_every=4)
+    loop = InlineLoop(config, RunDirectory.create(config.run.dir, config), progress=None)
+    loop.run()
+    run_dir = RunDirectory.open(config.run.dir)
+    assert list(run_dir.inline_checkpoints()) == [4, 8]
+
+    def killed_while_writing(*args, **kwargs):
+        raise KeyboardInterrupt("killed while writing the replay snapshot")
+
+    monkeypatch.setattr("cmcl.loop.inline.codec.write_snapshot_atomic", killed_while_writing)
+    loop.counters["episodes"] = 12
+    with pytest.raises(KeyboardInterrupt):
+        loop.save_checkpoint()
+    assert list(run_dir.inline_checkpoints()) == [4, 8]  # no checkpoint 12 without its replay
+    resumed = InlineLoop(run_dir.config(()), run_dir, progress=None)
+    resumed.restore(run_dir.latest_checkpoint())
+    assert resumed.counters["episodes"] == 8

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from cmcl.config import Config
 from cmcl.io import codec
-from cmcl.io.rundir import CHECKPOINT_GLOB, RunDirectory
+from cmcl.io.rundir import RunDirectory
 from cmcl.io.verified import CheckpointError
 from cmcl.loop.inline import InlineLoop
 from cmcl.progress import solved
@@ -25,7 +25,7 @@ from cmcl.stopping import StopSignals
 def restore_newest_good(loop: InlineLoop, run_dir: RunDirectory) -> Path | None:
     """Restore the newest checkpoint that passes its checks (manifest digest, snapshot limits); each refused one
     is named on stderr and the one before it is tried. Returns the checkpoint restored, None if none passed."""
-    for checkpoint in sorted(run_dir.checkpoints.glob(CHECKPOINT_GLOB), reverse=True):
+    for checkpoint in reversed(run_dir.inline_checkpoints().values()):
         try:
             loop.restore(checkpoint)
             return checkpoint

@@ -276,13 +276,15 @@ class InlineLoop:
             self.episodes.advance(np.ones(b, bool))
 
     def save_checkpoint(self) -> Path | None:
-        """Write checkpoint + replay snapshot into the run directory (both atomic)."""
+        """Write the replay snapshot, then the checkpoint, into the run directory (each atomic). The checkpoint is
+        written last, so that a run killed between the two writes never leaves a checkpoint without its replay:
+        resume takes the newest checkpoint, which is then always whole."""
         if self.run_dir is None:
             return None
-        path = self.run_dir.save_checkpoint(self.counters["episodes"], self.state_dict())
+        path = self.run_dir.checkpoint_path(self.counters["episodes"])
         codec.write_snapshot_atomic(replay_snapshot_path(path), {"replay": self.replay.state_dict(),
                                                                  **self.scoring.state_dict()})
-        return path
+        return self.run_dir.save_checkpoint(self.counters["episodes"], self.state_dict())
 
     def restore(self, checkpoint: Path) -> None:
         """Load a checkpoint and its replay snapshot (validated before anything changes)."""
