@@ -58,3 +58,12 @@ def test_mpe2_spread_with_discrete_actions_trains_in_the_inline_loop():
     stored = loop.replay.storage.act[: loop.replay.size]
     np.testing.assert_allclose(stored.sum(-1), 1.0, atol=1e-5)  # the critic sees the Gumbel-softmax samples
     assert np.isfinite(row["window"]["reward"]["agent"])
+
+
+def test_the_rollout_worker_acts_with_gumbel_softmax_samples_for_a_discrete_env():
+    from services.rollout import RolloutWorker
+
+    worker = RolloutWorker(config(MPE["spread"], DISCRETE, "env.num_envs=2").to_dict(), 0, 0)
+    chunk, _ = worker.rollout(None)
+    assert worker.layout.discrete and isinstance(worker.policy, MADDPG) and worker.policy.discrete
+    assert chunk.rows == 2 * 25 and np.allclose(chunk.act.sum(-1), 1.0, atol=1e-5)
