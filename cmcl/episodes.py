@@ -35,8 +35,8 @@ class EpisodeChunker:
     """Steps of B worlds in, chunks of whole episodes out (rows in step order, as they were played).
 
     `add` takes one step: obs / next_obs float32[B, N, od], act float32[B, N, ad], rew float32[B, N], done
-    float32[B] (1 where the world's episode ended by termination) and ended bool[B]. `pop` returns the rows of
-    at most `max_episodes` finished episodes (oldest ids first) and keeps every other row for a later chunk.
+    float32[B, N] (1 where the agent terminated, per agent; or [B], per world) and ended bool[B]. `pop` returns the
+    rows of at most `max_episodes` finished episodes (oldest ids first) and keeps every other row for a later chunk.
     """
 
     num_envs: int

@@ -29,9 +29,10 @@ class MessageError(ValueError):
 class Chunk:
     """Rollout -> replay: B whole episodes of one worker.
 
-    obs / next_obs float32[T, N, od], act float32[T, N, ad], rew float32[T, N], done float32[T], env_index int64[T]
-    (world 0..B−1 of the worker); writer (worker id), incarnation (its process life), seq (0, 1, ... per
-    incarnation) make the chunk idempotent; policy_version is the weight version that acted.
+    obs / next_obs float32[T, N, od], act float32[T, N, ad], rew float32[T, N], done float32[T, N] (per agent; or
+    [T]: one per row), env_index int64[T] (world 0..B−1 of the worker); writer (worker id), incarnation (its
+    process life), seq (0, 1, ... per incarnation) make the chunk idempotent; policy_version is the weight version
+    that acted.
     """
 
     obs: np.ndarray
@@ -73,7 +74,8 @@ class Rows:
 @dataclass(frozen=True)
 class LearnerBatch:
     """Replay -> learner: n per-owner minibatches. rows: obs [n, N, S, N, od], act, rew [n, N, S, N], next_obs,
-    done [n, N, S]; is_weights float32[n, N, S]; slots / generations int64[n, N, S] (owner v's minibatch is [:, v])."""
+    done [n, N, S, N]; is_weights float32[n, N, S]; slots / generations int64[n, N, S] (owner v's minibatch is
+    [:, v])."""
 
     rows: dict[str, np.ndarray]
     is_weights: np.ndarray

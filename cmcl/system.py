@@ -49,6 +49,9 @@ class AgentLayout:
     # float32[N, act_dim]: 1 where the agent has that action entry, 0 on padding (agents whose action sizes differ,
     # env.factory); None when every agent uses every entry (the built-in tasks)
     act_mask: np.ndarray | None = None
+    # Gumbel-softmax actors (A17): maddpg.discrete for the built-in tasks (MPE's 5-way action), or an env.factory
+    # environment whose agents' action spaces are Discrete
+    discrete: bool = False
 
     @property
     def team_of(self) -> list[str]:
@@ -121,6 +124,7 @@ def agent_layout(config: Config, env) -> AgentLayout:
             if spec.uses_icm:
                 icm.append(agent)
     act_dim = DISCRETE_ACT_DIM if config.maddpg.discrete else env.act_dim
+    discrete = config.maddpg.discrete or bool(getattr(env, "discrete", False))
     mask = getattr(env, "act_mask", None)
     return AgentLayout(num_agents=n, obs_dim=env.obs_dim, env_act_dim=env.act_dim, act_dim=act_dim,
                        teams={k: list(v) for k, v in env.teams.items()}, algorithms=tuple(algorithms),
@@ -129,7 +133,7 @@ def agent_layout(config: Config, env) -> AgentLayout:
                        importance_weights=tuple(isw), difficulty_source=tuple(source),
                        teacher_agents=np.asarray(sorted(teacher), dtype=np.int64),
                        icm_agents=np.asarray(sorted(icm), dtype=np.int64),
-                       act_mask=None if mask is None or mask.all() else mask.copy())
+                       act_mask=None if mask is None or mask.all() else mask.copy(), discrete=discrete)
 
 
 def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
@@ -138,7 +142,7 @@ def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
 
     m = config.maddpg
     return MADDPG(layout.num_agents, layout.obs_dim, layout.act_dim, hidden=m.hidden, actor_lr=m.actor_lr,
-                  critic_lr=m.critic_lr, gamma=m.gamma, tau=m.tau, grad_clip=m.grad_clip, discrete=m.discrete,
+                  critic_lr=m.critic_lr, gamma=m.gamma, tau=m.tau, grad_clip=m.grad_clip, discrete=layout.discrete,
                   seed=seed, share_parameters=m.share_parameters, act_mask=layout.act_mask)
 
 
@@ -182,7 +186,7 @@ def build_icm(config: Config, layout: AgentLayout, seed: int) -> ICM | None:
 
     c = config.icm
     return ICM(int(layout.icm_agents.size), layout.obs_dim, layout.act_dim, feature_dim=c.feature_dim,
-               hidden=c.hidden, beta_forward=c.beta_forward, lr=c.lr, discrete=config.maddpg.discrete, seed=seed)
+               hidden=c.hidden, beta_forward=c.beta_forward, lr=c.lr, discrete=layout.discrete, seed=seed)
 
 
 def build_schedule(config: Config) -> CurriculumSchedule:
@@ -197,8 +201,10 @@ def build_schedule(config: Config) -> CurriculumSchedule:
 def to_env_actions(actions: np.ndarray, discrete: bool) -> np.ndarray:
     """Policy output float32[B, N, act_dim] -> env force float32[B, N, 2] in [-1, 1].
 
-    Continuous actions pass through; the discrete MPE action (no-op, +x, -x, +y, -y) maps to
-    (p[+x] - p[-x], p[+y] - p[-y]) as mpe2 does for its continuous action vector.
+    `discrete`: config.maddpg.discrete (the built-in tasks' variant). Continuous actions, and the Gumbel-softmax
+    samples of an env.factory environment with Discrete actions (its adapter takes their argmax), pass through;
+    the discrete MPE action (no-op, +x, -x, +y, -y) maps to (p[+x] - p[-x], p[+y] - p[-y]) as mpe2 does for its
+    continuous action vector.
     """
     if not discrete:
         return actions

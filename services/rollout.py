@@ -27,17 +27,17 @@ class RolloutWorker:
 
     def __init__(self, config: Any, worker_id: int, seed: int):
         parsed = actor_setup(config, uses_torch=False)
-        self.config = actor_setup(parsed, uses_torch=parsed.maddpg.discrete)
         self.worker_id, self.incarnation = int(worker_id), new_incarnation()
         # a restarted worker must not replay its predecessor's worlds: mix the incarnation into the seed
         entropy = [int(seed), int(worker_id), int(self.incarnation, 16)]
         env_seed, noise_seed, net_seed = np.random.SeedSequence(entropy).spawn(3)
-        self.env = make_batched_env(self.config, seed=np.random.default_rng(env_seed), auto_reset=True)
-        self.layout = agent_layout(self.config, self.env)
-        # continuous actors run in numpy (no torch in this process); the discrete variant keeps torch's MADDPG
+        self.env = make_batched_env(parsed, seed=np.random.default_rng(env_seed), auto_reset=True)
+        self.layout = agent_layout(parsed, self.env)
+        # continuous actors run in numpy (no torch in this process); the discrete variant (maddpg.discrete, or a
+        # factory env with Discrete actions: known once the env is built) keeps torch's MADDPG
+        self.config = actor_setup(parsed, uses_torch=self.layout.discrete)
         self.net_seed = int(net_seed.generate_state(1)[0])
-        self.policy: Any = build_maddpg(self.config, self.layout, self.net_seed) if self.config.maddpg.discrete \
-            else None
+        self.policy: Any = build_maddpg(self.config, self.layout, self.net_seed) if self.layout.discrete else None
         self.rng = np.random.default_rng(noise_seed)
         self.version, self.seq = -1, 0
         self.env_steps, self.episodes = 0, 0
@@ -52,7 +52,7 @@ class RolloutWorker:
         (cumulative env steps and episodes, finished-episode statistics).
         """
         if published is not None and published["version"] != self.version:
-            if self.config.maddpg.discrete:
+            if self.layout.discrete:
                 from cmcl.learners.weights import load_published
 
                 load_published(self.policy, published["weights"], parts=("actor",))

@@ -45,6 +45,13 @@ def test_chunk_round_trip():
     assert (out.rows, out.worlds, out.writer_key) == (T, 3, "2:5f0c")
 
 
+def test_a_chunk_carries_done_per_agent_or_one_per_row():
+    per_agent = (np.arange(T * N).reshape(T, N) % 2).astype(np.float32)
+    for done in (per_agent, per_agent[:, 0]):  # [T, N], or [T] as every chunk had before per-agent termination
+        out = records.decode_chunk(records.encode_chunk(make_chunk(done=done)), n_agents=N)
+        assert np.array_equal(out.done, done)
+
+
 def test_chunk_dtypes_are_exact_on_both_sides():
     with pytest.raises(CodecError, match=r"chunk.obs: expected float32 with 3 dims, got float64"):
         records.encode_chunk(make_chunk(obs=np.zeros((T, N, OD))))
@@ -60,6 +67,8 @@ def test_chunk_dtypes_are_exact_on_both_sides():
 @pytest.mark.parametrize("over, match", [
     ({"rew": np.zeros((T, N + 1), np.float32)}, r"chunk.rew: shape"),
     ({"done": np.zeros(T + 1, np.float32)}, r"chunk.done: shape"),
+    ({"done": np.zeros((T, N + 1), np.float32)}, r"chunk.done: shape"),
+    ({"done": np.zeros((T, N, 1), np.float32)}, r"chunk.done: expected float32 with 2 dims"),
     ({"env_index": -np.ones(T, np.int64)}, "chunk.env_index: must be >= 0, got -1"),
     ({"policy_version": -1}, "chunk.policy_version: expected an integer >= 0, got -1"),
     ({"writer": "rollout-0"}, "chunk.writer"),

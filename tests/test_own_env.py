@@ -14,6 +14,7 @@ from cmcl.loop.inline import InlineLoop
 from cmcl.system import agent_layout, make_batched_env
 
 REACH = "cmcl.envs.examples.reach:parallel_env"
+EARLY_EXIT = "tests.early_exit:parallel_env"  # agent_0 terminates after 2 steps, agent_1 truncates after 5
 MPE = {"spread": "mpe2.simple_spread_v3:parallel_env", "tag": "mpe2.simple_tag_v3:parallel_env",
        "speaker_listener": "mpe2.simple_speaker_listener_v4:parallel_env"}
 CONTINUOUS = "env.factory_kwargs={continuous_actions=true, max_cycles=25}"
@@ -46,8 +47,11 @@ def test_a_malformed_or_missing_factory_is_refused_naming_it():
 
 
 def test_an_unsupported_space_is_named_with_its_agent():
-    with pytest.raises(EnvFactoryError, match="agent 'agent_0' has action space Discrete\\(5\\).*continuous_actions"):
-        make_batched_env(config(MPE["spread"]), num_envs=1)
+    with pytest.raises(EnvFactoryError, match="agent 'agent_0' has action space MultiDiscrete.*only Box and Discrete"):
+        make_batched_env(config(EARLY_EXIT, "env.factory_kwargs={space='multidiscrete'}"), num_envs=1)
+    with pytest.raises(EnvFactoryError, match="agent 'agent_1' has action space Discrete\\(3, start=-1\\) but agent "
+                                              "'agent_0' has Box.*Box and Discrete .* not supported"):
+        make_batched_env(config(EARLY_EXIT, "env.factory_kwargs={space='mixed'}"), num_envs=1)
 
 
 def test_teams_come_from_the_agent_id_prefix_and_must_match_the_config():
@@ -99,7 +103,7 @@ def test_actions_map_onto_each_box_and_episodes_end_on_their_own_with_terminatio
         obs, _, ended, info = env.step(toward)
         for m, world in enumerate(np.flatnonzero(ended)):
             if int(world) not in ended_at:  # its first episode
-                ended_at[int(world)], terminated[int(world)] = t, bool(info["terminated"][world])
+                ended_at[int(world)], terminated[int(world)] = t, bool(info["terminated"][world].all())
                 assert info["episode"]["length"][m] == t
     assert set(ended_at) == {0, 1} and all(terminated.values()), "a greedy walker reaches its goal before the limit"
     assert max(ended_at.values()) < 25 and len(set(ended_at.values())) == 2, "each world ends on its own"
@@ -175,7 +179,7 @@ def test_the_example_reports_success_and_its_terminations_reach_the_critic_targe
     row = loop.run()
     assert row["window"]["success"] == 1.0
     stored = loop.replay.storage
-    assert stored.done[: loop.replay.size].sum() == row["episodes"] * 1.0, "one terminal row per episode"
+    assert (stored.done[: loop.replay.size].sum(0) == row["episodes"]).all(), "one terminal row per episode"
     resumed = InlineLoop(cfg, None, progress=None)
     resumed.restore(loop.run_dir.latest_checkpoint())
     assert resumed.counters == loop.counters
@@ -214,7 +218,7 @@ def test_the_rollout_worker_sends_whole_episodes_of_any_length_and_the_replay_ke
         sent += chunk.rows
         assert report.rollout.env_steps >= sent and (report.rollout.finished.success == 1.0).all()
     assert len(set(lengths)) > 1 and max(lengths) <= 12, lengths
-    assert server.replay.storage.done[:sent].sum() == 16, "each episode ended by termination, in its last row"
+    assert (server.replay.storage.done[:sent].sum(0) == 16).all(), "each episode ended by termination, last row"
     storage = server.replay.storage
     episode, fold = storage.episode[:sent], storage.fold[:sent]
     for e in np.unique(episode):

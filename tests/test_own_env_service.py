@@ -1,5 +1,6 @@
-"""The from-scratch example environment (cmcl/envs/examples/reach.py) and mpe2's speaker-listener (agents of
-different sizes) trained through the service on the session's embedded Ray."""
+"""The from-scratch example environment (cmcl/envs/examples/reach.py), mpe2's speaker-listener (agents of
+different sizes) and mpe2's simple_spread with Discrete actions (Gumbel-softmax actors in the rollout workers too)
+trained through the service on the session's embedded Ray."""
 
 import pytest
 
@@ -15,7 +16,8 @@ pytestmark = pytest.mark.ray
     ("cmcl.envs.examples.reach:parallel_env", ["env.success_key=reached"]),
     ("mpe2.simple_speaker_listener_v4:parallel_env", ["env.factory_kwargs={continuous_actions=true, max_cycles=25}",
                                                       "teams.speaker.algorithm=cmcl",
-                                                      "teams.listener.algorithm=maddpg"])])
+                                                      "teams.listener.algorithm=maddpg"]),
+    ("mpe2.simple_spread_v3:parallel_env", ["env.factory_kwargs={continuous_actions=false, max_cycles=25}"])])
 def test_a_factory_environment_trains_through_the_service(factory, extra, tmp_path, ray_cluster):
     config = load_config(None, [f"env.factory={factory}", *tiny_overrides(service=True), *extra, "run.episodes=24",
                                 f"run.dir={tmp_path}"])

@@ -231,5 +231,7 @@ def test_loads_a_format_1_snapshot():
         assert np.array_equal(rb.probabilities(a, s), old["probabilities"][a])
         assert np.array_equal(rb.sample(a, 16, np.random.default_rng(a), beta=0.4)[0], old["draws"][a])
     assert rb.state_dict()["format"] == 2
+    done = np.asarray(old["replay"]["storage"]["done"])  # one per row then: every agent's, per agent now
+    assert done.shape == (60,) and np.array_equal(rb.storage.done[:60], np.repeat(done[:, None], N, 1))
     with pytest.raises(ValueError, match="format 3"):
         rb.load_state_dict({**rb.state_dict(), "format": 3})

@@ -46,7 +46,8 @@ class Config:
         if self.env.factory:  # the env's own teams are only known once it is built: cmcl.system.agent_layout checks
             _require(bool(self.teams), "teams", self.teams, "must name at least one team")
             _require(not self.maddpg.discrete, "maddpg.discrete", True,
-                     "must be false with env.factory (its environments take Box actions)")
+                     "must be false with env.factory (it selects the built-in tasks' 5-way action; a factory "
+                     "environment with Discrete action spaces gets Gumbel-softmax actors without it)")
         else:
             expected = TASK_TEAMS[self.env.task]
             _require(set(self.teams) == set(expected), "teams", sorted(self.teams),

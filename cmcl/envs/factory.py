@@ -2,10 +2,11 @@
 
 Where it sits: `cmcl.system.make_batched_env` builds `cmcl.envs.parallel_vector.VectorParallelEnv` from the
 `AgentSpec`s made here when `env.factory` is set. Supported: a PettingZoo `ParallelEnv` whose observation spaces
-are `Box` (any shape, flattened) and whose action spaces are `Box` with finite bounds (any shape, flattened). Agents
+are `Box` (any shape, flattened) and whose action spaces are either all `Box` with finite bounds (any shape,
+flattened) or all `Discrete` (n actions: the actor outputs n logits, Gumbel-softmax, ALGORITHM.md A17). Agents
 may differ in both sizes: the learner pads every observation and action with zeros to the largest (`obs_dim`,
-`act_dim`) and masks the padded action entries (`act_mask`). Anything else raises `EnvFactoryError` naming the
-agent and the space.
+`act_dim`) and masks the padded action entries (`act_mask`). Anything else (MultiDiscrete, Box and Discrete agents
+in one environment, ...) raises `EnvFactoryError` naming the agent and the space.
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ class AgentSpec:
 
     act_low / act_high: float32[act_size], the env's Box bounds; the policy's tanh output a in [-1, 1] maps to
     low + (a + 1) / 2 (high - low). act_shape: the env's action shape (the flat action is reshaped to it).
+    discrete_start: None for a Box; for Discrete(n, start) its `start`, the policy's output being n probabilities
+    (act_low / act_high then zeros / ones of size n, act_shape ()) and the env's action start + their argmax.
     """
 
     agent_id: str
@@ -39,6 +42,11 @@ class AgentSpec:
     act_low: np.ndarray
     act_high: np.ndarray
     act_shape: tuple[int, ...]
+    discrete_start: int | None = None
+
+    @property
+    def discrete(self) -> bool:
+        return self.discrete_start is not None
 
     @property
     def act_size(self) -> int:
@@ -83,22 +91,36 @@ def describe(env: Any, team_of: Mapping[str, str] | None = None, *, factory: str
         if not isinstance(obs_space, spaces.Box):
             raise EnvFactoryError(f"{factory}: agent {agent!r} has observation space {obs_space}; only Box "
                                   "observation spaces are supported")
-        if not isinstance(act_space, spaces.Box):
-            hint = " (for MPE environments pass continuous_actions = true in env.factory_kwargs)" \
-                if isinstance(act_space, spaces.Discrete) else ""
-            raise EnvFactoryError(f"{factory}: agent {agent!r} has action space {act_space}; only Box action "
-                                  f"spaces are supported{hint}")
-        low = np.asarray(act_space.low, np.float32).ravel()
-        high = np.asarray(act_space.high, np.float32).ravel()
-        if not (np.isfinite(low).all() and np.isfinite(high).all() and (high > low).all()):
-            raise EnvFactoryError(f"{factory}: agent {agent!r} has action space {act_space}; its bounds must be "
-                                  "finite with high > low")
+        low, high, start = _action_bounds(act_space, agent, factory)
         if int(np.prod(obs_space.shape)) < 1 or low.size < 1:
             raise EnvFactoryError(f"{factory}: agent {agent!r} has an empty space ({obs_space}, {act_space})")
         team = team_of.get(agent, TEAM_SUFFIX.sub("", agent))
         specs.append(AgentSpec(agent_id=agent, team=team, obs_size=int(np.prod(obs_space.shape)), act_low=low,
-                               act_high=high, act_shape=tuple(act_space.shape)))
+                               act_high=high, act_shape=tuple(act_space.shape), discrete_start=start))
+        if specs[-1].discrete != specs[0].discrete:
+            raise EnvFactoryError(f"{factory}: agent {agent!r} has action space {act_space} but agent "
+                                  f"{specs[0].agent_id!r} has {env.action_space(specs[0].agent_id)}; Box and "
+                                  "Discrete action spaces in one environment are not supported")
     return specs
+
+
+def _action_bounds(act_space: Any, agent: str, factory: str) -> tuple[np.ndarray, np.ndarray, int | None]:
+    """(low, high, discrete_start) of a Box (its flat bounds, None) or a Discrete(n, start) (zeros(n), ones(n),
+    start); EnvFactoryError naming the agent and the space for any other space."""
+    from gymnasium import spaces
+
+    if isinstance(act_space, spaces.Discrete):
+        n = int(act_space.n)
+        return np.zeros(n, np.float32), np.ones(n, np.float32), int(act_space.start)
+    if not isinstance(act_space, spaces.Box):
+        raise EnvFactoryError(f"{factory}: agent {agent!r} has action space {act_space}; only Box and Discrete "
+                              "action spaces are supported")
+    low = np.asarray(act_space.low, np.float32).ravel()
+    high = np.asarray(act_space.high, np.float32).ravel()
+    if not (np.isfinite(low).all() and np.isfinite(high).all() and (high > low).all()):
+        raise EnvFactoryError(f"{factory}: agent {agent!r} has action space {act_space}; its bounds must be "
+                              "finite with high > low")
+    return low, high, None
 
 
 def teams_of(specs: list[AgentSpec]) -> dict[str, list[int]]:

@@ -6,12 +6,16 @@ the M copies one after another in Python; a slow environment is what many rollou
 
 Shapes (B = num_envs worlds, N agents, od = max observation width, ad = max action width): obs float32[B, N, od]
 and actions float32[B, N, ad] zero-padded per agent (`obs_dims`, `act_dims`, `act_mask`); actions in [-1, 1] are
-mapped onto each agent's Box bounds. Episodes end as the env ends them (every agent terminated or truncated, or no
-agent left) or at `episode_length` steps, each world on its own. An agent that leaves before its world ends
-observes zeros and earns 0 until the world ends. info: "final_obs" [B, N, od] (next_obs of this step),
-"episode_mask" bool[B] (worlds whose episode ended now), "terminated" bool[B] (ended by termination only: no
-bootstrapping there), "episode" over the M ended worlds: return float64[M, N], length int64[M], and success /
-coverage float64[M] (the mean over agents of the info key named by `success_key` / `coverage_key` at the last step).
+mapped onto each agent's Box bounds, or, when every agent's action space is Discrete(n) (`discrete`), an agent's
+first n entries (its Gumbel-softmax sample, ALGORITHM.md A17) are its action start + argmax. Episodes end as the
+env ends them (every agent terminated or truncated, or no agent left) or at `episode_length` steps, each world on
+its own. An agent that leaves before its world ends observes zeros and earns 0 until the world ends.
+info: "final_obs" [B, N, od] (next_obs of this step), "episode_mask" bool[B] (worlds whose episode ended now),
+"terminated" bool[B, N] per agent: the agent terminated in this step (its env flag, without truncation), or had
+left its world before this step (an absorbing state: it earns nothing more); no bootstrapping for that agent's
+critic there (`done` of eq. 5 per agent). "episode" over the M ended worlds: return float64[M, N], length
+int64[M], and success / coverage float64[M] (the mean over agents of the info key named by `success_key` /
+`coverage_key` at the last step).
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ class VectorParallelEnv:
         for i, size in enumerate(self.act_dims):
             self.act_mask[i, :size] = 1.0
         self.teams = teams_of(self.specs)
+        self.discrete = self.specs[0].discrete  # all agents alike (cmcl.envs.factory.describe checks)
         self.dtype = np.dtype(np.float32)
         self.stat_keys = {"success": success_key, "coverage": coverage_key}
         self._rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
@@ -64,9 +69,12 @@ class VectorParallelEnv:
             if agent in observations:
                 out[world, i, : self.obs_dims[i]] = np.asarray(observations[agent], np.float32).ravel()
 
-    def _env_action(self, i: int, action: np.ndarray) -> np.ndarray:
-        """Policy action float32[ad] in [-1, 1] of agent i -> its Box action (bounds, shape)."""
+    def _env_action(self, i: int, action: np.ndarray) -> np.ndarray | int:
+        """Policy action float32[ad] of agent i -> its Box action (bounds, shape) from [-1, 1], or its Discrete
+        action (int: start + argmax of its first n entries)."""
         spec = self.specs[i]
+        if spec.discrete_start is not None:
+            return spec.discrete_start + int(np.argmax(action[: spec.act_size]))
         a = np.clip(action[: spec.act_size], -1.0, 1.0)
         return (spec.act_low + (a + 1.0) * 0.5 * (spec.act_high - spec.act_low)).reshape(spec.act_shape)
 
@@ -96,7 +104,7 @@ class VectorParallelEnv:
         if not np.isfinite(a).all():
             raise ValueError("actions must be finite")
         rewards = np.zeros((self.num_envs, self.num_agents), np.float32)
-        ended, terminated = np.zeros(self.num_envs, bool), np.zeros(self.num_envs, bool)
+        ended, terminated = np.zeros(self.num_envs, bool), np.zeros((self.num_envs, self.num_agents), bool)
         final = np.zeros_like(self._obs)
         stats: dict[str, list[float]] = {key: [] for key, info_key in self.stat_keys.items() if info_key}
         for world, env in enumerate(self.envs):
@@ -109,10 +117,11 @@ class VectorParallelEnv:
             for agent, r in rew.items():
                 rewards[world, self._index[agent]] = r
             self._t[world] += 1
+            terminated[world] = [agent not in live or (term.get(agent, False) and not trunc.get(agent, False))
+                                 for agent in self.agent_ids]
             finished = all(term.get(x, False) or trunc.get(x, False) for x in live)
             if finished or not env.agents or self._t[world] >= self.episode_length:
                 ended[world] = True
-                terminated[world] = all(term.get(x, False) and not trunc.get(x, False) for x in live)
                 for key, values in stats.items():
                     found = [float(info[self.stat_keys[key]]) for info in infos.values()
                              if self.stat_keys[key] in info]

@@ -16,7 +16,7 @@ from cmcl.io.codec import DEFAULT_LIMITS, CodecError, Limits, decode, encode, un
 from cmcl.messages import Chunk
 
 CHUNK_ARRAYS = {"obs": ("float32", 3), "act": ("float32", 3), "rew": ("float32", 2), "next_obs": ("float32", 3),
-                "done": ("float32", 1), "env_index": ("int64", 1)}  # Chunk field -> (dtype, dims)
+                "done": ("float32", 2), "env_index": ("int64", 1)}  # Chunk field -> (dtype, dims)
 CHUNK_MAX_ROWS = 1 << 20  # rows of one chunk (a worker's B worlds × episode length)
 ACTION_BOUND = 1.0  # every action (continuous force or discrete probabilities) lies in [−1, 1]
 EVENTS = ("updates", "teacher_steps", "icm_steps")  # replay-log events that move counters and rate limits
@@ -33,21 +33,24 @@ def check_chunk(chunk, *, n_agents: int | None = None, obs_dim: int | None = Non
                 num_worlds: int | None = None, max_rows: int = CHUNK_MAX_ROWS) -> Chunk:
     """A rollout `Chunk` as the replay server accepts it, or CodecError naming the field and the value.
 
-    Checks: exact dtypes (CHUNK_ARRAYS), shapes obs / next_obs [T, N, od], act [T, N, ad], rew [T, N], done and
-    env_index [T], T <= max_rows, finite floats, actions in [−1, 1] (ACTION_BOUND), done in {0, 1}, env_index
-    in [0, num_worlds) (the worlds of one worker) when given, else >= 0, writer / seq / policy_version integers
-    >= 0, incarnation a non-empty string, and N / od / ad equal to the expected sizes when given.
+    Checks: exact dtypes (CHUNK_ARRAYS), shapes obs / next_obs [T, N, od], act [T, N, ad], rew [T, N], done
+    [T, N] (per agent; or [T], one per row, as chunks had before per-agent termination) and env_index [T],
+    T <= max_rows, finite floats, actions in [−1, 1] (ACTION_BOUND), done in {0, 1}, env_index in [0, num_worlds)
+    (the worlds of one worker) when given, else >= 0, writer / seq / policy_version integers >= 0, incarnation a
+    non-empty string, and N / od / ad equal to the expected sizes when given.
     """
     if not isinstance(chunk, Chunk):
         raise CodecError(f"chunk: expected a Chunk, got {type(chunk).__name__}")
     for key, (dtype, ndim) in CHUNK_ARRAYS.items():
         arr = getattr(chunk, key)
-        if not isinstance(arr, np.ndarray) or arr.dtype.name != dtype or arr.ndim != ndim:
+        dims = (1, 2) if key == "done" else (ndim,)
+        if not isinstance(arr, np.ndarray) or arr.dtype.name != dtype or arr.ndim not in dims:
             got = f"{arr.dtype} with shape {arr.shape}" if isinstance(arr, np.ndarray) else type(arr).__name__
             raise CodecError(f"chunk.{key}: expected {dtype} with {ndim} dims, got {got}")
     t, n, od = chunk.obs.shape
     ad = chunk.act.shape[2]
-    expected = {"next_obs": (t, n, od), "act": (t, n, ad), "rew": (t, n), "done": (t,), "env_index": (t,)}
+    expected = {"next_obs": (t, n, od), "act": (t, n, ad), "rew": (t, n), "done": (t, n)[: chunk.done.ndim],
+                "env_index": (t,)}
     for key, shape in expected.items():
         if getattr(chunk, key).shape != shape:
             raise CodecError(f"chunk.{key}: shape {getattr(chunk, key).shape} does not match {shape}")

@@ -11,7 +11,8 @@ same obs_dim (shorter observations zero-padded by the env) and act_dim.
 
 Public boundary: inputs may be numpy arrays or torch tensors (converted once, float32); outputs are numpy.
 Data conventions: joint rows ``obs[M, N, obs_dim], act[M, N, act_dim], rew[M, N], next_obs[M, N, obs_dim],
-done[M]``; per-owner stacks add a leading owner axis: ``obs[N, S, N, obs_dim]``, ``rew[N, S, N]``, ``done[N, S]``.
+done[M, N]`` (per agent; ``[M]`` per row); per-owner stacks add a leading owner axis: ``obs[N, S, N, obs_dim]``,
+``rew[N, S, N]``, ``done[N, S, N]`` (or the owner's own ``[N, S]``).
 """
 
 from __future__ import annotations
@@ -94,17 +95,23 @@ class MADDPG:
         """obs [N, B, obs_dim] -> (actions [N, B, act_dim], raw outputs [N, B, act_dim]).
 
         Continuous: the tanh output is the action. Discrete: Gumbel-softmax sample of the logits (``sample``),
-        else their softmax.
+        else their softmax; padded entries (act_mask 0) get probability 0 (and raw output 0).
         """
         out = net(obs)
         if self.act_mask is not None:
             out = out * self.act_mask
         if not self.discrete:
             return out, out
+        raw, out = out, self._padded_logits(out, self.act_mask)
         if sample:
             u = torch.rand(out.shape, generator=self.noise_gen).clamp_(1e-10, 1.0 - 1e-7)
-            return F.softmax((out - torch.log(-torch.log(u))) / self.temperature, dim=-1), out
-        return F.softmax(out, dim=-1), out
+            return F.softmax((out - torch.log(-torch.log(u))) / self.temperature, dim=-1), raw
+        return F.softmax(out, dim=-1), raw
+
+    @staticmethod
+    def _padded_logits(logits: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+        """Logits with −inf on the padded entries (mask 0, broadcast against logits): a softmax gives them 0."""
+        return logits if mask is None else logits.masked_fill(mask == 0, float("-inf"))
 
     def _joint_actions(self, net: StackedMLP, obs: torch.Tensor, sample: bool) -> torch.Tensor:
         """Every agent's action from its own obs: obs [..., N, obs_dim] -> act [..., N, act_dim]."""
@@ -125,6 +132,7 @@ class MADDPG:
         x = o.transpose(0, 1)  # [N, B, obs_dim]
         out = self.actor(x).transpose(0, 1)  # [B, N, act_dim]
         if self.discrete:
+            out = self._padded_logits(out, None if self.act_mask is None else self.act_mask.transpose(0, 1))
             if noise_std > 0:
                 g = (
                     torch.from_numpy(rng.gumbel(size=out.shape).astype(np.float32))
@@ -160,9 +168,12 @@ class MADDPG:
             if next_obs.dim() == 3:  # joint rows: x [M, in] shared by the selected critics -> q [A, M]
                 r = rew.T[ag]
                 d = torch.zeros(rew.shape[0]) if done is None else done
-                return r + self.gamma * (1.0 - d).unsqueeze(0) * q
-            r = rew[torch.arange(len(ag)), :, ag] if rew.dim() == 3 else rew  # owner's own reward [A, S]
+                d = d.T[ag] if d.dim() == 2 else d.unsqueeze(0)  # each agent's own done [A, M] (or the row's)
+                return r + self.gamma * (1.0 - d) * q
+            owners = torch.arange(len(ag))
+            r = rew[owners, :, ag] if rew.dim() == 3 else rew  # owner's own reward [A, S]
             d = torch.zeros_like(r) if done is None else done
+            d = d[owners, :, ag] if d.dim() == 3 else d  # owner's own done [A, S]
             return r + self.gamma * (1.0 - d) * q
 
     def td_targets(
@@ -174,10 +185,12 @@ class MADDPG:
     ) -> np.ndarray:
         """Critic/teacher regression targets from the learner's target networks on the NEXT observations.
 
-        Joint rows: rew [M, N], next_obs [M, N, obs_dim], done [M] -> y float32[A, M] (row a = agent agents[a]).
-        Per-owner:  rew [A, S, N] (or the owner's own [A, S]), next_obs [A, S, N, obs_dim], done [A, S]
-                    -> y float32[A, S], owner a being agent agents[a].
-        ``agents`` defaults to all N agents. ``done`` defaults to 0 (always the case in these tasks, §2).
+        Joint rows: rew [M, N], next_obs [M, N, obs_dim], done [M, N] (per agent) or [M] (per row)
+                    -> y float32[A, M] (row a = agent agents[a]).
+        Per-owner:  rew [A, S, N] (or the owner's own [A, S]), next_obs [A, S, N, obs_dim], done [A, S, N] (or the
+                    owner's own [A, S]) -> y float32[A, S], owner a being agent agents[a].
+        ``agents`` defaults to all N agents. ``done`` defaults to 0 (always the case in the built-in tasks, §2);
+        agent a's target uses its own done (an agent that terminates before the others cuts only its bootstrap).
         Discrete actors use a Gumbel-softmax sample of the target logits (as openai/maddpg).
         """
         ag = None if agents is None else torch.as_tensor(np.asarray(agents), dtype=torch.int64)
@@ -186,7 +199,8 @@ class MADDPG:
 
     # ------------------------------------------------------------------ update
     def _unpack(self, batch: Mapping[str, ArrayLike]) -> tuple[torch.Tensor, ...]:
-        """Per-owner minibatch dict -> tensors (obs, act, rew, next_obs, done [N,S], weights [N,S] or None)."""
+        """Per-owner minibatch dict -> tensors (obs, act, rew, next_obs, done [N,S] or [N,S,N], weights [N,S] or
+        None)."""
         obs, act = as_tensor(batch["obs"]), as_tensor(batch["act"])
         n, s = obs.shape[0], obs.shape[1]
         if obs.dim() != 4 or n != self.num_agents or obs.shape[2] != self.num_agents:
@@ -233,7 +247,8 @@ class MADDPG:
         """One MADDPG step for all agents on per-owner minibatches (§2): critic (eq. 5), actor (eq. 4), targets (eq. 6).
 
         batch: obs [N, S, N, obs_dim], act [N, S, N, act_dim], rew [N, S, N] (or own [N, S]),
-               next_obs [N, S, N, obs_dim], optional done [N, S], optional is_weights [N, S] (critic only).
+               next_obs [N, S, N, obs_dim], optional done [N, S] or per agent [N, S, N] (owner v reads its own
+               column), optional is_weights [N, S] (critic only).
         Returns numpy: critic_loss [N] (pre-step, weighted), actor_loss [N], td_abs |y - Q| [N, S] (pre-step,
         for PER), critic_grad_norm [N], actor_grad_norm [N] (pre-clip).
         """

@@ -33,7 +33,7 @@ def learner_update(maddpg: MADDPG, minibatch: dict[str, np.ndarray], icm: ICM | 
                    icm_agents: np.ndarray | None = None, intrinsic_reward_coef: float = 0.0) -> dict[str, Any]:
     """One batched MADDPG update of every agent on its own minibatch (eqs. 4–6).
 
-    minibatch: obs [N, S, N, od], act, rew [N, S, N], next_obs, done [N, S], optional is_weights [N, S].
+    minibatch: obs [N, S, N, od], act, rew [N, S, N], next_obs, done [N, S, N], optional is_weights [N, S].
     Ablation A6: with an ICM and intrinsic_reward_coef > 0, r_v += coef·ρ_v on each curiosity agent's own rows.
     Returns the MADDPG stats (critic_loss [N], actor_loss [N], td_abs [N, S], ...).
     """
@@ -78,7 +78,7 @@ def fit_teachers(teachers: TeacherEnsemble, fit: dict[str, np.ndarray], agents: 
 def teacher_errors(teachers: TeacherEnsemble, rows: dict[str, np.ndarray], agents: np.ndarray, targets: MADDPG,
                    squared: bool = True) -> np.ndarray:
     """e_{j,a,i} = (y_{a,j} − T_{a,i}(x_j))² (eq. 10; |·| if not squared) of every hosted teacher on joint rows
-    obs [M, N, od], act, rew [M, N], next_obs, done [M] -> float32[M, A_t, K'] (K' teachers per agent hosted)."""
+    obs [M, N, od], act, rew [M, N], next_obs, done [M, N] -> float32[M, A_t, K'] (K' teachers per agent hosted)."""
     y = targets.td_targets(rows["rew"], rows["next_obs"], rows.get("done"), agents=agents)  # [A_t, M]
     x = joint_input(torch.as_tensor(rows["obs"]), torch.as_tensor(rows["act"]))  # [M, in]
     return teachers.errors(x, y, squared=squared).transpose(1, 0, 2).copy()

@@ -23,7 +23,7 @@ from cmcl.replay.buffer import ReplayBuffer
 
 
 def rows_at(replay: ReplayBuffer, slots: np.ndarray, keys: Sequence[str] = ROW_KEYS) -> dict[str, np.ndarray]:
-    """Joint rows of slots int64[*shape]: rows[k] [*shape, N, ·] (done [*shape])."""
+    """Joint rows of slots int64[*shape]: rows[k] [*shape, N, ·] (done [*shape, N])."""
     flat = replay.get(np.asarray(slots).reshape(-1))
     return {k: flat[k].reshape(*np.shape(slots), *flat[k].shape[1:]) for k in keys}
 

@@ -6,7 +6,7 @@ samplers. Rollouts append chunks with `add`; teachers, the ICM and the learner w
 
 Layout (cap = capacity, N agents):
     obs, next_obs  float32[cap, N, obs_dim]      act  float32[cap, N, act_dim]
-    rew            float32[cap, N]               done float32[cap]
+    rew            float32[cap, N]               done float32[cap, N] (per agent: no bootstrap for that agent)
     id             int64[cap]  global insertion counter (slot = id mod cap)
     episode        int64[cap]  episode index given by the writer
     fold           int64[cap]  episode mod K, fixed at write (all of an episode's transitions share a fold)
@@ -76,7 +76,7 @@ class TransitionStorage:
         self.act = np.zeros((cap, n, self.act_dim), np.float32)
         self.rew = np.zeros((cap, n), np.float32)
         self.next_obs = np.zeros((cap, n, self.obs_dim), np.float32)
-        self.done = np.zeros(cap, np.float32)
+        self.done = np.zeros((cap, n), np.float32)
         self.id, self.episode, self.fold, self.generation, self.policy_version = (
             np.zeros(cap, np.int64) for _ in _META)
         self.scores = {c: np.zeros((cap, n), np.float32) for c in SCORE_COLUMNS}
@@ -97,7 +97,7 @@ class TransitionStorage:
         if o.ndim != 3:
             raise ValueError(f"obs has shape {o.shape}, expected (T, {self.n_agents}, {self.obs_dim})")
         t, n = o.shape[0], self.n_agents
-        done_arr = _real_array("done", done, (t,))
+        done_arr = self._per_agent_done(done, t)
         if done_arr.size and (done_arr.min() < 0 or done_arr.max() > 1):
             raise ValueError(f"done must lie in [0, 1], got range [{done_arr.min()}, {done_arr.max()}]")
         return {
@@ -114,7 +114,8 @@ class TransitionStorage:
         """Append T transitions (vectorised); returns int64[T] slots, −1 for the ones a longer-than-capacity
         chunk overwrote itself (only its last `capacity` transitions are kept).
 
-        Args: obs, next_obs [T, N, obs_dim]; act [T, N, act_dim]; rew [T, N]; done [T] in [0, 1];
+        Args: obs, next_obs [T, N, obs_dim]; act [T, N, act_dim]; rew [T, N]; done [T, N] (or [T]: one per
+            row, every agent's) in [0, 1];
             episode int[T] >= 0; policy_version int scalar or int[T] >= 0.
         Raises ValueError naming the bad field; nothing is stored then.
         """
@@ -197,7 +198,7 @@ class TransitionStorage:
         return int(rows.size)
 
     def get(self, slots) -> dict:
-        """Rows of valid slots int[S] -> dict: obs/next_obs [S,N,od], act [S,N,ad], rew [S,N], done [S],
+        """Rows of valid slots int[S] -> dict: obs/next_obs [S,N,od], act [S,N,ad], rew [S,N], done [S,N],
         id/episode/fold/generation/policy_version int64[S] (copies)."""
         s = self.check_slots(slots)
         names = ("obs", "act", "rew", "next_obs", "done") + _META
@@ -244,7 +245,7 @@ class TransitionStorage:
                "act": _real_array("act", state["act"], (n, na, ad)),
                "rew": _real_array("rew", state["rew"], (n, na)),
                "next_obs": _real_array("next_obs", state["next_obs"], (n, na, od)),
-               "done": _real_array("done", state["done"], (n,))}
+               "done": self._per_agent_done(state["done"], n)}  # [n] in snapshots older than per-agent done
         for name in _META:
             new[name] = _int_array(name, state[name], (n,))
         if n and not np.array_equal(new["id"] % self.capacity, np.arange(n)):
@@ -265,6 +266,14 @@ class TransitionStorage:
             self.scores[c][:n], self.scored[c][:n] = scores[c], scored[c]
         self.size, self.next_id = int(n), int(next_id)
         self.stale_dropped_total = int(state.get("stale_dropped_total", 0))
+
+    def _per_agent_done(self, done, t: int) -> np.ndarray:
+        """done [t, N], or [t] (one flag per joint row, as before per-agent termination) broadcast to every agent:
+        float32[t, N]."""
+        arr = np.asarray(done)
+        if arr.ndim == 1:
+            arr = _real_array("done", arr, (t,))[:, None].repeat(self.n_agents, axis=1)
+        return _real_array("done", arr, (t, self.n_agents))
 
     def _reset_rows(self, n: int) -> None:
         """Zero rows [n, capacity) of every column (used on load)."""
