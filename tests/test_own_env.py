@@ -1,6 +1,7 @@
 """Your own environment (env.factory): loading and its errors, the vectorising adapter (padding, masks, bounds,
 episodes of any length, termination), whole-episode chunks with fold-keeping ids, and CI-sized training of mpe2's
-simple_spread, simple_speaker_listener and simple_tag and the from-scratch example in the inline loop."""
+simple_spread, simple_speaker_listener and simple_tag, MaMuJoCo's 2-agent HalfCheetah (a physics environment) and
+the from-scratch example in the inline loop."""
 
 import numpy as np
 import pytest
@@ -17,6 +18,8 @@ REACH = "cmcl.envs.examples.reach:parallel_env"
 MPE = {"spread": "mpe2.simple_spread_v3:parallel_env", "tag": "mpe2.simple_tag_v3:parallel_env",
        "speaker_listener": "mpe2.simple_speaker_listener_v4:parallel_env"}
 CONTINUOUS = "env.factory_kwargs={continuous_actions=true, max_cycles=25}"
+HALFCHEETAH = ["env.factory=gymnasium_robotics:mamujoco_v1.parallel_env",  # two agents of 3 joints each, Box(-1, 1)
+               'env.factory_kwargs={scenario="HalfCheetah", agent_conf="2x3", max_episode_steps=25}']
 TINY = ["env.num_envs=4", "maddpg.batch_size=16", "maddpg.warmup=96", "maddpg.hidden=32", "replay.capacity=600",
         "teachers.batch_size=16", "teachers.hidden=32", "teachers.num_folds=3", "icm.batch_size=16",
         "run.log_every=8", "run.checkpoint_every=0"]
@@ -164,6 +167,15 @@ def test_mpe2_environments_train_in_the_inline_loop(name, teams, tmp_path):
     assert row["episodes"] >= 16 and row["env_steps"] == 16 * 25 and row["updates"] > 0
     assert set(row["window"]["reward"]) == set(loop.layout.teams)
     assert np.isfinite(list(row["window"]["reward"].values())).all()
+
+
+def test_a_physics_environment_outside_mpe_trains_in_the_inline_loop():
+    cfg = load_config(None, [*HALFCHEETAH, *TINY, "env.episode_length=25", "run.episodes=8"])
+    loop = InlineLoop(cfg, None, progress=None)
+    assert (loop.env.obs_dims, loop.env.act_dims, loop.layout.teams) == ((12, 12), (3, 3), {"agent": [0, 1]})
+    row = loop.run()
+    assert row["episodes"] >= 8 and row["env_steps"] == 8 * 25 and row["updates"] > 0
+    assert np.isfinite(row["window"]["reward"]["agent"])
 
 
 def test_the_example_reports_success_and_its_terminations_reach_the_critic_target(tmp_path):

@@ -1,5 +1,6 @@
-"""The from-scratch example environment (cmcl/envs/examples/reach.py) and mpe2's speaker-listener (agents of
-different sizes) trained through the service on the session's embedded Ray."""
+"""The from-scratch example environment (cmcl/envs/examples/reach.py), mpe2's speaker-listener (agents of
+different sizes) and MaMuJoCo's 2-agent HalfCheetah (a physics environment) trained through the service on the
+session's embedded Ray."""
 
 import pytest
 
@@ -19,7 +20,9 @@ TINY = ["env.num_envs=4", "maddpg.batch_size=16", "maddpg.warmup=96", "maddpg.hi
     ("cmcl.envs.examples.reach:parallel_env", ["env.success_key=reached"]),
     ("mpe2.simple_speaker_listener_v4:parallel_env", ["env.factory_kwargs={continuous_actions=true, max_cycles=25}",
                                                       "teams.speaker.algorithm=cmcl",
-                                                      "teams.listener.algorithm=maddpg"])])
+                                                      "teams.listener.algorithm=maddpg"]),
+    ("gymnasium_robotics:mamujoco_v1.parallel_env", ['env.factory_kwargs={scenario="HalfCheetah", agent_conf="2x3", '
+                                                     'max_episode_steps=25}', "env.episode_length=25"])])
 def test_a_factory_environment_trains_through_the_service(factory, extra, tmp_path, ray_cluster):
     config = load_config(None, [f"env.factory={factory}", *TINY, *extra, "run.episodes=24", f"run.dir={tmp_path}"])
     summary = run_service(config, RunDirectory.create(config.run.dir, config), progress=None)
