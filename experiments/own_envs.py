@@ -7,8 +7,10 @@ runs are built by experiments.grids.own_env_runs, measured by `own_env_measures`
 
 A team's return is the sum over the team's agents of their episode returns (cmcl.evaluate.evaluate_policy), the
 mean over HELD_OUT held-out episodes. With more than one team each team also plays against uniformly random
-other teams ("vs random others"): both teams of simple_tag learn against each other, so the joint return alone
-does not say that either learned; a team that learned beats the all-random return with random opponents.
+other teams ("vs random others"); the table shows it for competing teams only (`OwnEnv.competing`): both teams of
+simple_tag learn against each other, so the joint return alone does not say that either learned, and a team that
+learned beats the all-random return with random opponents. Cooperating teams (speaker and listener share one
+reward) are judged by the joint return: a trained speaker with a random listener earns what random does.
 """
 
 from __future__ import annotations
@@ -31,12 +33,14 @@ MPE_LEARNER = ("replay.capacity=50000", "maddpg.update_every=4")  # calibrated o
 @dataclass(frozen=True)
 class OwnEnv:
     """One environment of the grid: its factory, its `--set` overrides (factory kwargs, time limit, teams and any
-    learner settings) and its episode budget."""
+    learner settings), its episode budget, and whether its teams compete (then each is also shown against random
+    opponents)."""
 
     factory: str
     sets: tuple[str, ...]
     budget: int
     label: str
+    competing: bool = False
 
 
 OWN_ENVS = {
@@ -49,7 +53,8 @@ OWN_ENVS = {
                                "mpe2 simple_speaker_listener_v4"),
     "tag": OwnEnv("mpe2.simple_tag_v3:parallel_env",
                   (MPE_KWARGS, "env.episode_length=25", "teams.adversary.algorithm=maddpg",
-                   "teams.agent.algorithm=maddpg", *MPE_LEARNER), 3_000, "mpe2 simple_tag_v3"),
+                   "teams.agent.algorithm=maddpg", *MPE_LEARNER), 3_000, "mpe2 simple_tag_v3",
+                  competing=True),
     "halfcheetah": OwnEnv("gymnasium_robotics:mamujoco_v1.parallel_env",
                           ('env.factory_kwargs={scenario="HalfCheetah", agent_conf="2x3", max_episode_steps=100}',
                            "env.episode_length=100", "teams.agent.algorithm=maddpg", "replay.capacity=60000",
@@ -87,7 +92,7 @@ def _mean_sd(values: list[float], digits: int) -> str:
 
 def own_env_table(runs: list[dict[str, Any]]) -> str:
     """One row per (environment, runner, team): held-out return mean ± sd over the seeds, the random policy's,
-    the team against random others (several teams only), the seeds, episodes and wall seconds (means)."""
+    the team against random others (competing teams only), the seeds, episodes and wall seconds (means)."""
     lines = ["| environment | runner | team | held-out return (mean ± sd over seeds) | random policy | "
              "vs random others | seeds | episodes | wall s |", "| --- " * 9 + "|"]
     for name, env in OWN_ENVS.items():
@@ -97,7 +102,7 @@ def own_env_table(runs: list[dict[str, Any]]) -> str:
             if not rs:
                 continue
             for team in rs[0]["held_out_return"]:
-                versus = [r["vs_random_others_return"][team] for r in rs if "vs_random_others_return" in r]
+                versus = [r["vs_random_others_return"][team] for r in rs if env.competing]
                 lines.append(
                     f"| {env.label} | {mode} | {team} | {_mean_sd([r['held_out_return'][team] for r in rs], 1)} | "
                     f"{_mean_sd([r['random_return'][team] for r in rs], 1)} | "
