@@ -18,7 +18,7 @@ STOPPED_IS_OK := || { status=$$?; [ $$status -eq 130 ] || [ $$status -eq 143 ] |
 $(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet $(TORCH)
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m pip install --quiet -e '.[dev,envs]'
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -15,7 +15,9 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
 * ``curriculum_hard``: the same arms on the calibrated harder navigation of configs/spread_hard.toml;
 * ``schedule``: time to solve navigation with MADDPG inline, maddpg.update_every x maddpg.batch_size, each run
   stopped once its 100-episode moving-average coverage reaches 0.95 or after 900 s of training;
-* ``algorithms``: time to solve with each algorithm, inline and on the embedded service, same stops.
+* ``algorithms``: time to solve with each algorithm, inline and on the embedded service, same stops;
+* ``own_envs`` (issue 23, item 6): environments no one here wrote (experiments.own_envs.OWN_ENVS) through
+  ``env.factory``, inline and on the embedded service, each with its own budget and settings.
 
 Runs are ordered seed outermost (seed k of every cell before any seed k+1), so a grid stopped part-way has
 balanced arms. A run's id names its summary file, so ids never change once results exist.
@@ -28,6 +30,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from cmcl.config import ALGORITHMS
+from experiments.own_envs import OWN_ENV_LOG_EVERY, OWN_ENVS
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
@@ -69,11 +72,12 @@ class Run:
     """One learning run of a grid. id: its name (summary file, run folder); budget: episodes; config: a file
     under configs/ (default `<task>_<algorithm>.toml`); sets: extra `--set SECTION.KEY=VALUE` overrides; source:
     the id of a finished run whose first `budget` episodes this one reads instead of training (a prefix
-    reference); mode: the runner; stop_coverage / max_seconds: early stops (None: train the whole budget)."""
+    reference); mode: the runner; stop_coverage / max_seconds: early stops (None: train the whole budget); env: a
+    name of experiments.own_envs.OWN_ENVS (task "own_env": no config file, the defaults and `sets`)."""
 
     id: str
     grid: str
-    task: Literal["spread", "tag"]
+    task: Literal["spread", "tag", "own_env"]
     algorithm: str
     prey_algorithm: str | None
     seed: int
@@ -86,6 +90,7 @@ class Run:
     mode: Literal["inline", "service"] = "inline"
     stop_coverage: float | None = None
     max_seconds: float | None = None
+    env: str | None = None
 
     def record(self) -> dict[str, Any]:
         """The run's fields as its summary stores them: the seven every summary has, then those set."""
@@ -93,7 +98,7 @@ class Run:
                                "prey_algorithm": self.prey_algorithm, "seed": self.seed, "budget": self.budget}
         if self.source is not None:
             out["ablation"] = self.ablation  # a prefix reference: ablation None, its source named
-        for key in ("arm", "ablation", "config", "source", "stop_coverage", "max_seconds"):
+        for key in ("arm", "ablation", "config", "source", "stop_coverage", "max_seconds", "env"):
             if getattr(self, key) is not None:
                 out[key] = getattr(self, key)
         if self.sets:
@@ -143,11 +148,18 @@ def solve_runs(name: str, seed: int, budget: int, algorithms: list[str]) -> list
             for mode in ("inline", "service") for a in reversed(algorithms)]
 
 
+def own_env_runs(seed: int) -> list[Run]:
+    """The own_envs grid: every environment of OWN_ENVS on each runner, at its own budget and settings."""
+    return [Run(f"own_{name}_{mode}_s{seed}", "own_envs", "own_env", "maddpg", None, seed, env.budget, mode=mode,
+                env=name, sets=(f"env.factory={env.factory}", *env.sets, f"run.log_every={OWN_ENV_LOG_EVERY}"))
+            for name, env in OWN_ENVS.items() for mode in ("inline", "service")]
+
+
 GRIDS = {  # name -> results folder (its summaries/ and runs/)
     "spread": RESULTS / "reproduce", "tag": RESULTS / "reproduce", "winrate": RESULTS / "reproduce",
     "ablations": RESULTS / "reproduce", "curriculum": RESULTS / "curriculum",
     "curriculum_hard": RESULTS / "curriculum_hard", "schedule": RESULTS / "time_to_solve",
-    "algorithms": RESULTS / "time_to_solve",
+    "algorithms": RESULTS / "time_to_solve", "own_envs": RESULTS / "own_envs",
 }
 
 
@@ -165,6 +177,8 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str] = ALGORITHMS,
                 runs += curriculum_runs(name, seed, budget)
             elif name == "ablations":
                 runs += ablation_runs(seed, budget)
+            elif name == "own_envs":
+                runs += own_env_runs(seed)
             elif name in ("schedule", "algorithms"):
                 runs += solve_runs(name, seed, budget, list(algorithms))
             else:

@@ -17,6 +17,7 @@ from cmcl.evaluate import evaluate_policy, load_policy
 from cmcl.io.plots import episode_series
 from cmcl.io.rundir import RunDirectory
 from experiments.grids import Run
+from experiments.own_envs import own_env_measures
 
 WINDOW, TARGETS, HELD_OUT = 100, (0.5, 0.9), 200  # moving-average episodes; coverage thresholds; held-out worlds
 
@@ -64,7 +65,9 @@ def summarise(run: Run, run_path: Path, upto: int | None = None) -> dict[str, An
                               "env_steps": last.get("env_steps"), "updates": last.get("updates"),
                               "wall_s": float(elapsed[-1]), "update_every": config.maddpg.update_every,
                               "batch_size": config.maddpg.batch_size}
-    if run.task == "spread":
+    if run.task == "own_env":
+        result.update(own_env_measures(config, policy, series, held_out, HELD_OUT, run.seed))
+    elif run.task == "spread":
         coverage = series["coverage"]
         for target in TARGETS:
             i = first_reaching(coverage, target)

@@ -8,7 +8,8 @@ the text between them (a block whose markers the page lacks is only printed):
 * curriculum, curriculumtests, curriculumstalls: the curriculum grid (bench/results/curriculum); curriculumhard,
   curriculumhardtests, curriculumhardstalls: the curriculum_hard grid (bench/results/curriculum_hard); "no runs
   yet" while a curriculum grid has no summary; the stalls blocks from `python -m experiments stalls FOLDER`;
-* timetosolve: the schedule and algorithms grids (bench/results/time_to_solve), printed only.
+* timetosolve: the schedule and algorithms grids (bench/results/time_to_solve), printed only;
+* ownenvs: the own_envs grid (bench/results/own_envs), each environment against the random policy.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from pathlib import Path
 from experiments.curriculum_tables import curriculum_table, curriculum_tests
 from experiments.grids import GRIDS
 from experiments.labels import ARM_LABEL
+from experiments.own_envs import own_env_table
 from experiments.stalls import load_stalls, stall_table
 from experiments.store import ResultsStore
 from experiments.tables import (
@@ -62,6 +64,8 @@ def blocks(results: Path | None = None) -> dict[str, str]:
     solve = ResultsStore(where["schedule"]).load()
     if solve:
         out["timetosolve"] = solve_table(solve)
+    own = ResultsStore(where["own_envs"]).load()
+    out["ownenvs"] = own_env_table(own) if own else NO_RUNS
     return out
 
 

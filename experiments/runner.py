@@ -65,7 +65,8 @@ def command(run: Run, run_path: Path) -> list[str]:
         sets.append(f"run.max_seconds={run.max_seconds}")
     sets += run.sets
     config_file = ROOT / "configs" / (run.config or f"{run.task}_{run.algorithm}.toml")
-    return [sys.executable, "-m", launcher, "--config", str(config_file), *[a for s in sets for a in ("--set", s)],
+    config = [] if run.task == "own_env" else ["--config", str(config_file)]  # own envs: defaults and their sets
+    return [sys.executable, "-m", launcher, *config, *[a for s in sets for a in ("--set", s)],
             "--overwrite", "--quiet", *service_flags]
 
 

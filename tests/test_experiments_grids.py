@@ -87,9 +87,39 @@ def test_a_summary_starts_with_the_fields_the_committed_summaries_have(finished_
 
 def test_every_grid_has_a_results_folder_and_the_time_to_solve_grids_stop_early():
     assert set(GRIDS) == {"spread", "tag", "winrate", "ablations", "curriculum", "curriculum_hard", "schedule",
-                          "algorithms"}
+                          "algorithms", "own_envs"}
     schedule = grid(["schedule"], [0])
     assert len(schedule) == 8 and all(r.stop_coverage == 0.95 and r.max_seconds == 900 for r in schedule)
     assert {r.mode for r in grid(["algorithms"], [0])} == {"inline", "service"}
     with pytest.raises(ValueError, match="unknown \\['nope'\\]"):
         grid(["nope"], [0])
+
+
+def test_an_own_env_run_trains_from_its_settings_and_is_measured_per_team_against_random(tmp_path):
+    """The own_envs grid's simple_tag run: no config file, the env's settings; held-out return per team, the random
+    policy's on the same worlds and each team against random opponents; its rows in the table."""
+    from cmcl.config import load_config
+    from experiments.own_envs import OWN_ENVS, own_env_table
+    from experiments.runner import command
+    from tests.test_own_env import TINY
+
+    runs = grid(["own_envs"], [0, 1])
+    assert len(runs) == 2 * 2 * len(OWN_ENVS) and {r.seed for r in runs[:8]} == {0}
+    run = next(r for r in runs if r.env == "tag" and r.mode == "service")
+    path = tmp_path / run.id
+    argv = command(run, path)
+    assert "--config" not in argv and "services.launch" in argv[2]
+    assert f"env.factory={OWN_ENVS['tag'].factory}" in argv and "teams.adversary.algorithm=maddpg" in argv
+    config = load_config(None, [*run.sets, *TINY, "run.episodes=8", f"run.dir={path}"])
+    InlineLoop(config, RunDirectory.create(path, config), progress=None).run()
+    summary = summarise(replace(run, budget=8), path)
+    assert summary["env"] == "tag" and summary["mode"] == "service" and summary["episodes"] == 8
+    teams = {"adversary", "agent"}
+    assert set(summary["held_out_return"]) == set(summary["random_return"]) == teams
+    assert set(summary["vs_random_others_return"]) == teams
+    assert summary["random_return"] != summary["held_out_return"]
+    lines = own_env_table([summary, {**summary, "seed": 1, "wall_s": summary["wall_s"] + 2}]).splitlines()
+    adversary = summary["held_out_return"]["adversary"]
+    assert len(lines) == 4
+    assert lines[2].startswith(f"| mpe2 simple_tag_v3 | service | adversary | {adversary:.1f} ± 0.0 |")
+    assert lines[3].split(" | ")[2] == "agent" and " | 0,1 | 8 | " in lines[3]

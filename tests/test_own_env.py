@@ -1,6 +1,7 @@
 """Your own environment (env.factory): loading and its errors, the vectorising adapter (padding, masks, bounds,
 episodes of any length, termination), whole-episode chunks with fold-keeping ids, and CI-sized training of mpe2's
-simple_spread, simple_speaker_listener and simple_tag and the from-scratch example in the inline loop."""
+simple_spread, simple_speaker_listener and simple_tag, MaMuJoCo's 2-agent HalfCheetah (a physics environment) and
+the from-scratch example in the inline loop."""
 
 import numpy as np
 import pytest
@@ -18,6 +19,8 @@ EARLY_EXIT = "tests.early_exit:parallel_env"  # agent_0 terminates after 2 steps
 MPE = {"spread": "mpe2.simple_spread_v3:parallel_env", "tag": "mpe2.simple_tag_v3:parallel_env",
        "speaker_listener": "mpe2.simple_speaker_listener_v4:parallel_env"}
 CONTINUOUS = "env.factory_kwargs={continuous_actions=true, max_cycles=25}"
+HALFCHEETAH = ["env.factory=gymnasium_robotics:mamujoco_v1.parallel_env",  # two agents of 3 joints each, Box(-1, 1)
+               'env.factory_kwargs={scenario="HalfCheetah", agent_conf="2x3", max_episode_steps=25}']
 TINY = ["env.num_envs=4", "maddpg.batch_size=16", "maddpg.warmup=96", "maddpg.hidden=32", "replay.capacity=600",
         "teachers.batch_size=16", "teachers.hidden=32", "teachers.num_folds=3", "icm.batch_size=16",
         "run.log_every=8", "run.checkpoint_every=0"]
@@ -170,6 +173,15 @@ def test_mpe2_environments_train_in_the_inline_loop(name, teams, tmp_path):
     assert np.isfinite(list(row["window"]["reward"].values())).all()
 
 
+def test_a_physics_environment_outside_mpe_trains_in_the_inline_loop():
+    cfg = load_config(None, [*HALFCHEETAH, *TINY, "env.episode_length=25", "run.episodes=8"])
+    loop = InlineLoop(cfg, None, progress=None)
+    assert (loop.env.obs_dims, loop.env.act_dims, loop.layout.teams) == ((12, 12), (3, 3), {"agent": [0, 1]})
+    row = loop.run()
+    assert row["episodes"] >= 8 and row["env_steps"] == 8 * 25 and row["updates"] > 0
+    assert np.isfinite(row["window"]["reward"]["agent"])
+
+
 def test_the_example_reports_success_and_its_terminations_reach_the_critic_target(tmp_path):
     from cmcl.io.rundir import RunDirectory
 
@@ -224,3 +236,26 @@ def test_the_rollout_worker_sends_whole_episodes_of_any_length_and_the_replay_ke
     for e in np.unique(episode):
         assert len(set(fold[episode == e].tolist())) == 1, "one fold per episode"
     assert np.unique(episode).size == 16
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["spread", "speaker_listener", pytest.param("tag", marks=pytest.mark.xfail(
+    strict=True, reason="seed 0 (own_envs grid): adversaries 10.1 vs random prey against 7.8 all-random, the good "
+    "agent -14.4 vs random adversaries against -10.1; not yet calibrated")), "halfcheetah"])
+def test_each_environment_of_the_own_envs_grid_learns_above_the_random_policy(name):
+    """The full run of the own_envs grid (experiments/own_envs.py), seed 0, inline: every team's held-out return
+    (against random other teams when the teams compete) beats the random policy's by more than 5 on the same
+    200 held-out episodes. A few minutes each on one free core."""
+    from cmcl.evaluate import evaluate_policy
+    from experiments.own_envs import OWN_ENVS
+
+    env = OWN_ENVS[name]
+    cfg = load_config(None, [f"env.factory={env.factory}", *env.sets, f"run.episodes={env.budget}",
+                             "run.checkpoint_every=0", "run.seed=0"])
+    loop = InlineLoop(cfg, None, progress=None)
+    loop.run()
+    random = evaluate_policy(cfg, None, episodes=200, seed=0)["reward"]
+    for team in random:  # competing teams against random opponents, cooperating ones together
+        others = tuple(t for t in random if t != team) if env.competing else ()
+        trained = evaluate_policy(cfg, loop.maddpg, episodes=200, seed=0, random_teams=others)["reward"][team]
+        assert trained > random[team] + 5.0, (team, trained, random[team])

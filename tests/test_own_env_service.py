@@ -1,6 +1,7 @@
 """The from-scratch example environment (cmcl/envs/examples/reach.py), mpe2's speaker-listener (agents of
-different sizes) and mpe2's simple_spread with Discrete actions (Gumbel-softmax actors in the rollout workers too)
-trained through the service on the session's embedded Ray."""
+different sizes), mpe2's simple_spread with Discrete actions (Gumbel-softmax actors in the rollout workers too)
+and MaMuJoCo's 2-agent HalfCheetah (a physics environment) trained through the service on the session's embedded
+Ray."""
 
 import pytest
 
@@ -17,7 +18,9 @@ pytestmark = pytest.mark.ray
     ("mpe2.simple_speaker_listener_v4:parallel_env", ["env.factory_kwargs={continuous_actions=true, max_cycles=25}",
                                                       "teams.speaker.algorithm=cmcl",
                                                       "teams.listener.algorithm=maddpg"]),
-    ("mpe2.simple_spread_v3:parallel_env", ["env.factory_kwargs={continuous_actions=false, max_cycles=25}"])])
+    ("mpe2.simple_spread_v3:parallel_env", ["env.factory_kwargs={continuous_actions=false, max_cycles=25}"]),
+    ("gymnasium_robotics:mamujoco_v1.parallel_env", ['env.factory_kwargs={scenario="HalfCheetah", agent_conf="2x3", '
+                                                     'max_episode_steps=25}', "env.episode_length=25"])])
 def test_a_factory_environment_trains_through_the_service(factory, extra, tmp_path, ray_cluster):
     config = load_config(None, [f"env.factory={factory}", *tiny_overrides(service=True), *extra, "run.episodes=24",
                                 f"run.dir={tmp_path}"])

@@ -1,0 +1,111 @@
+"""The own-environment grid (issue 23, item 6): environments no one here wrote, trained through `env.factory` on
+both runners, each against the random policy on the same held-out episodes.
+
+OWN_ENVS names each environment with the settings it trains with (the same for both runners and every seed); its
+runs are built by experiments.grids.own_env_runs, measured by `own_env_measures` and shown by `own_env_table`
+(the `ownenvs` block of docs/RESULTS.md).
+
+A team's return is the sum over the team's agents of their episode returns (cmcl.evaluate.evaluate_policy), the
+mean over HELD_OUT held-out episodes. With more than one team each team also plays against uniformly random
+other teams ("vs random others"); the table shows it for competing teams only (`OwnEnv.competing`): both teams of
+simple_tag learn against each other, so the joint return alone does not say that either learned, and a team that
+learned beats the all-random return with random opponents. Cooperating teams (speaker and listener share one
+reward) are judged by the joint return: a trained speaker with a random listener earns what random does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from cmcl.evaluate import evaluate_policy
+
+if TYPE_CHECKING:
+    from cmcl.config import Config
+    from cmcl.learners.maddpg import MADDPG
+
+MPE_KWARGS = "env.factory_kwargs={continuous_actions=true, max_cycles=25}"
+MPE_LEARNER = ("replay.capacity=50000", "maddpg.update_every=4")  # calibrated on simple_spread, seed 0 (inline)
+
+
+@dataclass(frozen=True)
+class OwnEnv:
+    """One environment of the grid: its factory, its `--set` overrides (factory kwargs, time limit, teams and any
+    learner settings), its episode budget, and whether its teams compete (then each is also shown against random
+    opponents)."""
+
+    factory: str
+    sets: tuple[str, ...]
+    budget: int
+    label: str
+    competing: bool = False
+
+
+OWN_ENVS = {
+    "spread": OwnEnv("mpe2.simple_spread_v3:parallel_env",
+                     (MPE_KWARGS, "env.episode_length=25", "teams.agent.algorithm=maddpg", *MPE_LEARNER), 3_000,
+                     "mpe2 simple_spread_v3"),
+    "speaker_listener": OwnEnv("mpe2.simple_speaker_listener_v4:parallel_env",
+                               (MPE_KWARGS, "env.episode_length=25", "teams.speaker.algorithm=maddpg",
+                                "teams.listener.algorithm=maddpg", *MPE_LEARNER), 3_000,
+                               "mpe2 simple_speaker_listener_v4"),
+    "tag": OwnEnv("mpe2.simple_tag_v3:parallel_env",
+                  (MPE_KWARGS, "env.episode_length=25", "teams.adversary.algorithm=maddpg",
+                   "teams.agent.algorithm=maddpg", *MPE_LEARNER), 3_000, "mpe2 simple_tag_v3",
+                  competing=True),
+    "halfcheetah": OwnEnv("gymnasium_robotics:mamujoco_v1.parallel_env",
+                          ('env.factory_kwargs={scenario="HalfCheetah", agent_conf="2x3", max_episode_steps=100}',
+                           "env.episode_length=100", "teams.agent.algorithm=maddpg", "replay.capacity=60000",
+                           "maddpg.update_every=4"), 600,
+                          "MaMuJoCo HalfCheetah 2x3"),
+}
+OWN_ENV_LOG_EVERY = 100  # episodes between progress rows
+
+
+def own_env_measures(config: Config, policy: MADDPG, series: dict[str, np.ndarray], held_out: dict[str, Any],
+                     episodes: int, seed: int) -> dict[str, Any]:
+    """The own-env measures of one run: held-out return per team (`held_out` from evaluate_policy), the random
+    policy's on the same `episodes` held-out worlds (same `seed`), each team against random others when there are
+    several, held-out success / coverage when the env provides them, and the last 100 training episodes' mean
+    return per team. series: the run's per-episode columns (cmcl.io.plots.episode_series)."""
+    random = evaluate_policy(config, None, episodes=episodes, seed=seed)
+    teams = list(held_out["reward"])
+    out: dict[str, Any] = {"held_out_return": held_out["reward"], "random_return": random["reward"],
+                           "final_ma_return": {t: float(series[f"reward_{t}"][-100:].mean()) for t in teams}}
+    if len(teams) > 1:
+        out["vs_random_others_return"] = {
+            t: evaluate_policy(config, policy, episodes, seed, random_teams=tuple(o for o in teams if o != t))
+            ["reward"][t] for t in teams}
+    for key in ("success", "coverage"):
+        if key in held_out:
+            out[f"held_out_{key}"], out[f"random_{key}"] = held_out[key], random[key]
+    return out
+
+
+def _mean_sd(values: list[float], digits: int) -> str:
+    x = np.asarray(values, dtype=np.float64)
+    sd = f" ± {x.std(ddof=1):.{digits}f}" if x.size > 1 else ""
+    return f"{x.mean():.{digits}f}{sd}"
+
+
+def own_env_table(runs: list[dict[str, Any]]) -> str:
+    """One row per (environment, runner, team): held-out return mean ± sd over the seeds, the random policy's,
+    the team against random others (competing teams only), the seeds, episodes and wall seconds (means)."""
+    lines = ["| environment | runner | team | held-out return (mean ± sd over seeds) | random policy | "
+             "vs random others | seeds | episodes | wall s |", "| --- " * 9 + "|"]
+    for name, env in OWN_ENVS.items():
+        for mode in ("inline", "service"):
+            rs = sorted((r for r in runs if r.get("env") == name and r.get("mode", "inline") == mode),
+                        key=lambda r: r["seed"])
+            if not rs:
+                continue
+            for team in rs[0]["held_out_return"]:
+                versus = [r["vs_random_others_return"][team] for r in rs if env.competing]
+                lines.append(
+                    f"| {env.label} | {mode} | {team} | {_mean_sd([r['held_out_return'][team] for r in rs], 1)} | "
+                    f"{_mean_sd([r['random_return'][team] for r in rs], 1)} | "
+                    f"{_mean_sd(versus, 1) if versus else '–'} | {','.join(str(r['seed']) for r in rs)} | "
+                    f"{np.mean([r['episodes'] for r in rs]):,.0f} | {np.mean([r['wall_s'] for r in rs]):.0f} |")
+    return "\n".join(lines)
