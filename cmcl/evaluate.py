@@ -101,6 +101,16 @@ def render_gif(config: Config, maddpg: MADDPG | None, path: str | Path, seed: in
     return path
 
 
+def gif_line(config: Config, maddpg: MADDPG | None, path: str | Path, seed: int = 0) -> str:
+    """The line that ends an evaluation: "gif: PATH", or, when the environment cannot draw itself here (a headless
+    machine without the OpenGL MuJoCo needs, a render that returns nothing, ...), why there is no GIF. The GIF
+    is an extra: a render that fails never fails the evaluation or the run before it."""
+    try:
+        return f"gif: {render_gif(config, maddpg, path, seed)}"
+    except Exception as err:  # noqa: BLE001 - any failure of the env's own render, reported, never fatal
+        return f"gif: none, the environment could not render here ({type(err).__name__}: {err})"
+
+
 def _factory_frames(config: Config, maddpg: MADDPG | None, seed: int) -> list[Any]:
     """Frames of one episode of an env.factory environment (its own `render`), stepped through the adapter."""
     rng = np.random.default_rng(seed + EVAL_SEED_OFFSET)
@@ -180,9 +190,8 @@ def evaluate_run(args: argparse.Namespace) -> int:
     if "misses" in result:
         print("\n".join(MissAnatomy(**result["misses"]).lines()), file=sys.stderr)  # stdout stays JSON
     if not args.no_gif:
-        gif = render_gif(config, maddpg, args.gif or run.path / ("eval_random.gif" if args.random else "eval.gif"),
-                         args.seed)
-        print(f"gif: {gif}")
+        print(gif_line(config, maddpg, args.gif or run.path / ("eval_random.gif" if args.random else "eval.gif"),
+                       args.seed))
     from cmcl.io.plots import plot_learning_curves
 
     if any(True for _ in run.rows("episode")):

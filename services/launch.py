@@ -189,7 +189,7 @@ def _report(request: RunRequest, config: Config, run_dir: RunDirectory, summary:
 def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -> None:
     """Held-out evaluation of the run's newest verified policy (no exploration noise, worlds never trained on), a
     GIF of one episode and the learning curve, all in the run directory."""
-    from cmcl.evaluate import evaluate_policy, load_policy, render_gif
+    from cmcl.evaluate import evaluate_policy, gif_line, load_policy
     from cmcl.io.plots import plot_learning_curves
     from cmcl.stalls import MissAnatomy
 
@@ -213,7 +213,7 @@ def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -
           f"  | random policy: {measures(random)}")
     if "misses" in trained:
         print("\n".join(MissAnatomy(**trained["misses"]).lines()))
-    print(f"gif: {render_gif(config, policy, run_dir.path / 'trained.gif')}")
+    print(gif_line(config, policy, run_dir.path / "trained.gif"))
 
 
 if __name__ == "__main__":

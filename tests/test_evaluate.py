@@ -5,8 +5,9 @@ import json
 import pytest
 from PIL import Image
 
-from cmcl.config import preset
-from cmcl.evaluate import evaluate_policy, main, render_gif
+from cmcl.config import load_config, preset
+from cmcl.envs.examples.reach import Reach
+from cmcl.evaluate import evaluate_policy, gif_line, main, render_gif
 from cmcl.system import agent_layout, build_maddpg, make_batched_env
 
 
@@ -62,3 +63,24 @@ def test_a_team_can_act_at_random_against_the_policy():
     assert random_prey != both  # the prey's actions changed, the worlds did not
     with pytest.raises(ValueError, match="'wolves', not a team"):
         evaluate_policy(config, maddpg, episodes=2, random_teams=("wolves",))
+
+
+class Unrenderable(Reach):
+    """The example environment, drawn by a renderer that is missing here (as MuJoCo's OpenGL on a headless host)."""
+
+    def render(self):
+        raise RuntimeError("an OpenGL platform library has not been loaded into this process")
+
+
+def unrenderable(max_cycles=25, render_mode=None):
+    return Unrenderable(max_cycles, render_mode)
+
+
+def test_an_environment_that_cannot_render_gets_no_gif_and_a_reason_not_a_failure(tmp_path):
+    config = load_config(None, ["env.factory=tests.test_evaluate:unrenderable", "env.episode_length=25"])
+    line = gif_line(config, None, tmp_path / "eval.gif")
+    assert line.startswith("gif: none") and "OpenGL platform library" in line, line
+    assert not (tmp_path / "eval.gif").exists()
+    assert gif_line(load_config(None, ["env.factory=cmcl.envs.examples.reach:parallel_env",
+                                       "env.episode_length=25"]), None, tmp_path / "ok.gif") == \
+        f"gif: {tmp_path / 'ok.gif'}"
