@@ -39,13 +39,20 @@ LINE_TIMEOUT_S = 180  # for any one line of output (Ray's start on a loaded 2-co
 pytestmark = pytest.mark.timeout(600)
 
 
+def default_sigint() -> None:
+    """In the child before it runs: SIGINT's default action, as a terminal's job has it. A suite started in the
+    background of a non-interactive shell inherits SIGINT ignored, and make keeps an ignored SIGINT ignored."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class Launched:
     """A command started in its own process group (as a shell starts a job), its output read line by line, and the
     processes below it recorded (pid, start time) while it runs."""
 
     def __init__(self, args: list[str], cwd: Path = ROOT):
         self.proc = subprocess.Popen(args, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                     start_new_session=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                                     start_new_session=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                                     preexec_fn=default_sigint)
         self.lines: list[str] = []
         self.seen: dict[int, int] = {}
         self._queue: queue.Queue[str | None] = queue.Queue()
