@@ -172,7 +172,7 @@ class RunDirectory:
         import torch
 
         found: list[PolicyCheckpoint] = []
-        for path in sorted(self.checkpoints.glob(CHECKPOINT_GLOB), reverse=True):
+        for path in reversed(self.inline_checkpoints().values()):
             try:
                 found.append(PolicyCheckpoint(path, "inline", load_checkpoint(path), path.stat().st_mtime))
                 break
