@@ -16,6 +16,8 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
 * ``schedule``: time to solve navigation with MADDPG inline, maddpg.update_every x maddpg.batch_size, each run
   stopped once its 100-episode moving-average coverage reaches 0.95 or after 900 s of training;
 * ``algorithms``: time to solve with each algorithm, inline and on the embedded service, same stops;
+* ``scale`` (issue 22): navigation with more agents, each cell of SCALE_CELLS (agent count x networks) with
+  MADDPG, the full budget, progress rows every 200 episodes; the per-agent cells are the baseline;
 * ``own_envs`` (issue 23, item 6): environments no one here wrote (experiments.own_envs.OWN_ENVS) through
   ``env.factory``, inline and on the embedded service, each with its own budget and settings.
 
@@ -61,6 +63,11 @@ ABLATIONS = {  # name -> (config file, --set overrides, episode budget or None f
     # One update per world step: 16 times the updates, about 35 min a run here, so it runs the first 4,000
     # episodes only and is compared with the reference runs' first 4,000 episodes (prefix_reference_runs).
     "paper_schedule": ("paper/spread_cmcl.toml", [], 4_000),
+}
+
+# cell -> (config file, --set overrides) of the scale grid (issue 22): N agents and N landmarks, MADDPG
+SCALE_CELLS = {
+    "n8_per_agent": ("spread_maddpg.toml", ["env.num_agents=8"]),  # the paper's per-agent networks: the baseline
 }
 
 UPDATE_EVERY, BATCHES = (1, 4, 16, 64), (128, 512)  # the schedule grid's maddpg.update_every x maddpg.batch_size
@@ -148,6 +155,13 @@ def solve_runs(name: str, seed: int, budget: int, algorithms: list[str]) -> list
             for mode in ("inline", "service") for a in reversed(algorithms)]
 
 
+def scale_runs(seed: int, budget: int) -> list[Run]:
+    """The scale grid: every cell of SCALE_CELLS with MADDPG at the grid's budget, id "scale_<cell>_s<seed>"."""
+    return [Run(f"scale_{cell}_s{seed}", "scale", "spread", "maddpg", None, seed, budget, arm=cell, config=config,
+                sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *sets))
+            for cell, (config, sets) in SCALE_CELLS.items()]
+
+
 def own_env_runs(seed: int) -> list[Run]:
     """The own_envs grid: every environment of OWN_ENVS on each runner, at its own budget and settings."""
     return [Run(f"own_{name}_{mode}_s{seed}", "own_envs", "own_env", "maddpg", None, seed, env.budget, mode=mode,
@@ -159,7 +173,7 @@ GRIDS = {  # name -> results folder (its summaries/ and runs/)
     "spread": RESULTS / "reproduce", "tag": RESULTS / "reproduce", "winrate": RESULTS / "reproduce",
     "ablations": RESULTS / "reproduce", "curriculum": RESULTS / "curriculum",
     "curriculum_hard": RESULTS / "curriculum_hard", "schedule": RESULTS / "time_to_solve",
-    "algorithms": RESULTS / "time_to_solve", "own_envs": RESULTS / "own_envs",
+    "algorithms": RESULTS / "time_to_solve", "own_envs": RESULTS / "own_envs", "scale": RESULTS / "scale",
 }
 
 
@@ -179,6 +193,8 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str] = ALGORITHMS,
                 runs += ablation_runs(seed, budget)
             elif name == "own_envs":
                 runs += own_env_runs(seed)
+            elif name == "scale":
+                runs += scale_runs(seed, budget)
             elif name in ("schedule", "algorithms"):
                 runs += solve_runs(name, seed, budget, list(algorithms))
             else:

@@ -87,10 +87,13 @@ def test_a_summary_starts_with_the_fields_the_committed_summaries_have(finished_
 
 def test_every_grid_has_a_results_folder_and_the_time_to_solve_grids_stop_early():
     assert set(GRIDS) == {"spread", "tag", "winrate", "ablations", "curriculum", "curriculum_hard", "schedule",
-                          "algorithms", "own_envs"}
+                          "algorithms", "own_envs", "scale"}
     schedule = grid(["schedule"], [0])
     assert len(schedule) == 8 and all(r.stop_coverage == 0.95 and r.max_seconds == 900 for r in schedule)
     assert {r.mode for r in grid(["algorithms"], [0])} == {"inline", "service"}
+    scale = grid(["scale"], [0])
+    assert [r.id for r in scale] == ["scale_n8_per_agent_s0"] and scale[0].budget == 20_000
+    assert "env.num_agents=8" in scale[0].sets and scale[0].algorithm == "maddpg"
     with pytest.raises(ValueError, match="unknown \\['nope'\\]"):
         grid(["nope"], [0])
 
