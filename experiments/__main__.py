@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 from cmcl.config import ALGORITHMS
-from experiments.grids import ABLATIONS, CURRICULUM_ARMS, EPISODES, GRIDS, ROOT, grid, prefix_reference_runs
+from experiments.grids import ABLATIONS, CURRICULUM_ARMS, EPISODES, GRIDS, ROOT, Run, grid, prefix_reference_runs
 from experiments.report import blocks, figures, update
 from experiments.runner import run_grid
 from experiments.stalls import analyse_folder
@@ -29,6 +29,15 @@ def shown(path: Path) -> str:
     return str(path.relative_to(ROOT) if path.is_relative_to(ROOT) else path)
 
 
+def selected_runs(args: argparse.Namespace) -> list[Run]:
+    """The runs of `args.grids` that the filters keep (--arms filters only the curriculum arms), with the prefix
+    references the kept ablations need."""
+    runs = [r for r in grid(args.grids, args.seeds, args.algorithms, args.episodes)
+            if (r.ablation is None or r.ablation in args.ablations)
+            and (r.arm not in CURRICULUM_ARMS or r.arm in args.arms) and r.mode in args.modes]
+    return runs + prefix_reference_runs(runs, args.episodes)
+
+
 def run(args: argparse.Namespace) -> int:
     folders = {GRIDS[g] for g in args.grids}
     if args.out is None and len(folders) > 1:
@@ -37,10 +46,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     store = ResultsStore(args.out or folders.pop())
     store.root.mkdir(parents=True, exist_ok=True)
-    runs = [r for r in grid(args.grids, args.seeds, args.algorithms, args.episodes)
-            if (r.ablation is None or r.ablation in args.ablations) and (r.arm is None or r.arm in args.arms)
-            and r.mode in args.modes]
-    runs += prefix_reference_runs(runs, args.episodes)
+    runs = selected_runs(args)
     failed = run_grid(runs, store, args.jobs, report=lambda line: print(line, flush=True))
     print(f"results: {shown(store.write_csv())}" + (f"; {failed} runs failed (a rerun retries them)" if failed else ""))
     return 1 if failed else 0
@@ -70,7 +76,8 @@ def draw(args: argparse.Namespace) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line: run, report, figures, stalls."""
     parser = argparse.ArgumentParser(prog="python -m experiments", description=__doc__.split("\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
     p = commands.add_parser("run", help="train the runs of one or more grids (resumable)")
@@ -97,7 +104,11 @@ def main(argv: list[str] | None = None) -> int:
     p = commands.add_parser("stalls", help="write the stall records of a curriculum grid's finished runs")
     p.add_argument("folders", nargs="+", type=Path, metavar="FOLDER", help="a grid folder with runs/ and summaries/")
     p.set_defaults(handler=stalls)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     return args.handler(args)
 
 

@@ -126,3 +126,13 @@ def test_an_own_env_run_trains_from_its_settings_and_is_measured_per_team_agains
     assert len(lines) == 4
     assert lines[2].startswith(f"| mpe2 simple_tag_v3 | service | adversary | {adversary:.1f} ± 0.0 |")
     assert lines[3].split(" | ")[2] == "agent" and " | 0,1 | 8 | " in lines[3]
+
+
+def test_the_command_line_keeps_the_scale_grid_and_filters_only_curriculum_arms():
+    """`--arms` names curriculum arms; a grid whose runs carry other arms (the scale cells) is not filtered away."""
+    from experiments.__main__ import build_parser, selected_runs
+
+    scale = selected_runs(build_parser().parse_args(["run", "scale", "--seeds", "0", "1"]))
+    assert [r.id for r in scale] == ["scale_n8_per_agent_s0", "scale_n8_per_agent_s1"]
+    some = selected_runs(build_parser().parse_args(["run", "curriculum", "--seeds", "0", "--arms", "cmcl"]))
+    assert [r.id for r in some] == ["curriculum_cmcl_s0"]
