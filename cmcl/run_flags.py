@@ -117,12 +117,28 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
             lock.release()
             raise
     config = load_config(request.config_file, overrides)
+    check_warm_start(config)
     lock = RunLock.acquire(config.run.dir, holder_command())
     try:
         return config, RunDirectory.create(config.run.dir, config, overwrite=request.overwrite), lock
     except BaseException:
         lock.release()
         raise
+
+
+def check_warm_start(config: Config) -> None:
+    """Refuse a run.init_from whose policy this config cannot load (no run, no policy, other network shapes) with a
+    ConfigError naming the field and the value, before the new run's directory exists."""
+    if not config.run.init_from:
+        return
+    from cmcl.learners.warm_start import warm_start_from_config
+    from cmcl.system import agent_layout, build_maddpg, make_batched_env
+
+    probe = build_maddpg(config, agent_layout(config, make_batched_env(config, num_envs=1)), seed=0)
+    try:
+        warm_start_from_config(config.run.init_from, probe)
+    except ValueError as err:
+        raise ConfigError(str(err)) from err
 
 
 def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, RunLock], int]) -> int:

@@ -26,6 +26,7 @@ from typing import Any
 from cmcl.config import Config
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunLock
+from cmcl.learners.warm_start import warm_start_source
 from cmcl.run_flags import RunRequest, alias_parser, request_from, resume_command, train_in_run
 from cmcl.stopping import STOP_SIGNALS, StopSignals
 
@@ -139,6 +140,8 @@ def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: Ru
 
     if request.resume_dir:
         print(resume_notice(run_dir))
+    elif config.run.init_from:  # the learner actor loads it (services/learner.py); checked by open_run
+        print(f"actors and critics initialised from {warm_start_source(config.run.init_from).path}")
     if not request.address and not ray.is_initialized():
         start_reaper(keep_fds=(lock.fd,))  # no process of the embedded Ray outlives this one, SIGKILL included
     stop = StopSignals(notice=print)

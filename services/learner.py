@@ -14,6 +14,7 @@ import numpy as np
 
 from cmcl.config import ConfigError
 from cmcl.learners import network_steps
+from cmcl.learners.warm_start import warm_start_from_config
 from cmcl.learners.weights import published_weights
 from cmcl.messages import LearnerBatch, LearnerFeedback
 from cmcl.system import agent_layout, build_maddpg, make_batched_env
@@ -40,6 +41,8 @@ class Learner:
         if state is not None:
             self.maddpg.load_state_dict(state["maddpg"])
             self.version = int(state["version"])
+        else:  # a fresh run (or a restart before the first checkpoint): the same warm start, if any
+            warm_start_from_config(cfg.run.init_from, self.maddpg)
 
     def update(self, batch: LearnerBatch | None) -> tuple[LearnerFeedback | None, Report]:
         """Run one MADDPG update per minibatch of `batch` ([n, N, S, ...] arrays); None does nothing.

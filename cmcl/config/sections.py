@@ -243,6 +243,9 @@ class RunConfig:
     # (spread only; 0: off, train all run.episodes)
     stop_coverage: float = 0.0
     max_seconds: float = 0.0  # wall-clock budget of training, inline and in the service (0: none)
+    # a run directory whose newest policy initialises this new run's actors and critics (cmcl.learners.warm_start;
+    # same network shapes required); "" = random initial weights. A resumed run ignores it (its checkpoint wins)
+    init_from: str = ""
 
     def __post_init__(self) -> None:
         _require(self.episodes >= 1, "run.episodes", self.episodes, "must be >= 1")

@@ -16,6 +16,7 @@ from cmcl.config import Config
 from cmcl.io import codec
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.verified import CheckpointError
+from cmcl.learners.warm_start import warm_start_from_config
 from cmcl.loop.inline import InlineLoop
 from cmcl.progress import solved
 from cmcl.run_flags import RunRequest, RunRequestError, alias_parser, request_from, resume_command, train_in_run
@@ -76,6 +77,8 @@ def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
             return 2
         run_dir.truncate_rows_after(loop.counters["episodes"])
         print(f"resumed from {checkpoint} at episode {loop.counters['episodes']}")
+    elif config.run.init_from:
+        print(f"actors and critics initialised from {warm_start_from_config(config.run.init_from, loop.maddpg)}")
     with StopSignals(notice=print) as stop:
         row = loop.run(stop=lambda: stop.requested)
         stop.training_over()
