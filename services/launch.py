@@ -174,12 +174,14 @@ def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: Ru
 def _report(request: RunRequest, config: Config, run_dir: RunDirectory, summary: dict[str, Any],
             stop: StopSignals) -> int:
     """The end of a run: summary.json, the `done` line, then the resume hint (stopped) or the evaluation."""
-    ended = stop.name or ("solved" if summary.get("solved") else "budget")
+    ended = stop.name or ("solved" if summary.get("solved") else "plateau" if summary.get("plateau") else "budget")
     run_dir.write_summary({**{k: v for k, v in summary.items() if k != "metrics_text"}, "ended": ended,
                            "runner": "service"})
     print(f"done: {summary['episodes']} episodes, {summary['env_steps']} env steps, {summary['updates']} updates "
           f"in {summary['elapsed_s']:.0f}s" + (f" (coverage target {config.run.stop_coverage} reached)"
-                                               if summary.get("solved") else ""))
+                                               if summary.get("solved") else
+                                               " (learning stopped progressing: run.stop_progress)"
+                                               if summary.get("plateau") else ""))
     if stop.requested:
         print(f"stopped by {stop.name}; every role is checkpointed. Resume with: "
               f"{resume_command(run_dir.path)}")

@@ -23,6 +23,7 @@ import ray
 from cmcl.config import Config
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
+from cmcl.learning_progress import LearningProgress
 from cmcl.messages import ReplayStatus
 from cmcl.progress import episode_rows, solved, window_summary
 from services.call_budget import calls_to_issue
@@ -76,6 +77,8 @@ class Supervisor:
         self.lags: dict[str, int] = {}  # weight versions each rollout worker / teacher is behind
         self.episodes_logged = 0
         self.solved = False  # the coverage target run.stop_coverage was reached
+        # run.stop_progress: fed the learner's critic losses (a resumed service run starts it afresh)
+        self.learning_progress = LearningProgress.from_run_config(config.run)
         self.last_replay_report: Report | None = None
         self.started = time.perf_counter()
         self.view = ProgressView(config.run.episodes, self.started, self.status)
@@ -177,6 +180,9 @@ class Supervisor:
             return
         if value.weight_version is not None:
             self.lags[value.source] = max(0, self.version - int(value.weight_version))
+        if value.role == "learner" and value.learner.losses:
+            critic = [kinds["critic"] for kinds in value.learner.losses.values()]
+            self.learning_progress.record(self.status.episodes, sum(critic) / len(critic))
         if value.role == "learner" and value.learner.weight_version != self.version:
             self.version = value.learner.weight_version
             self.weights = self.roles.learner.publish.remote()
@@ -302,6 +308,8 @@ class Supervisor:
             if solved(self.window, cfg.run):
                 self.solved = True
                 break
+            if self.learning_progress.plateaued:  # run.stop_progress
+                break
             collecting = self.status.episodes < cfg.run.episodes
             if not collecting and self._caught_up() and self._caught_up(fresh=True):
                 break  # episode target reached; the learner, every teacher and the ICM have caught up
@@ -332,6 +340,7 @@ class Supervisor:
                 "failures": dict(self.failures), "hung": dict(self.hung),
                 "reports_rejected": dict(self.reports_rejected),
                 "recovery_s": {k: list(v) for k, v in self.recovery.times.items()}, "solved": self.solved,
+                "plateau": self.learning_progress.plateaued,
                 "stopped": self.stopped, "episodes_logged": self.episodes_logged,
                 "checkpoint_seconds": list(self.checkpoint_seconds),
                 "window": window_summary(self.window), "elapsed_s": time.perf_counter() - self.started}

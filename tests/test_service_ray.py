@@ -148,3 +148,12 @@ def test_infeasible_resources_are_refused_clearly(tmp_path, ray_cluster):
                               dir=str(tmp_path / "big"))
     with pytest.raises(InfeasibleResources, match="rollout_workers"):
         create_roles(config, RunDirectory.create(config.run.dir, config))
+
+
+def test_the_service_ends_a_run_whose_learning_stopped_progressing(tmp_path, ray_cluster):
+    """run.stop_progress in the supervisor, fed the learner's critic losses: with an enormous threshold the run ends
+    after a few 4-episode windows of updates, far before its 400-episode budget."""
+    config = make_tiny_config("maddpg", service=True, dir=str(tmp_path / "plateau"), episodes=400,
+                              stop_progress=1e9, progress_window=4, progress_patience=2)
+    summary = run_service(config, RunDirectory.create(config.run.dir, config), progress=None)
+    assert summary["plateau"] and summary["episodes"] < 200, {k: summary[k] for k in ("episodes", "updates")}

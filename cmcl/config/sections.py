@@ -243,6 +243,12 @@ class RunConfig:
     # (spread only; 0: off, train all run.episodes)
     stop_coverage: float = 0.0
     max_seconds: float = 0.0  # wall-clock budget of training, inline and in the service (0: none)
+    # stop early once learning stops progressing (cmcl.learning_progress): the relative change of the mean critic
+    # loss between consecutive windows of progress_window episodes stays below this for progress_patience windows
+    # (0: off). The agent-count curriculum (python -m cmcl stages) ends its stages by it
+    stop_progress: float = 0.0
+    progress_window: int = 500  # episodes per learning-progress window
+    progress_patience: int = 3  # consecutive windows below stop_progress that end the run
     # a run directory whose newest policy initialises this new run's actors and critics (cmcl.learners.warm_start;
     # same network shapes required); "" = random initial weights. A resumed run ignores it (its checkpoint wins)
     init_from: str = ""
@@ -254,7 +260,9 @@ class RunConfig:
                  "must be a finite number >= 0")
         _require(bool(self.dir), "run.dir", self.dir, "must be a non-empty path")
         _require(self.seed >= 0, "run.seed", self.seed, "must be >= 0")
-        for name in ("log_every", "smoothing_window"):
+        _require(self.stop_progress >= 0 and math.isfinite(self.stop_progress), "run.stop_progress",
+                 self.stop_progress, "must be a finite number >= 0")
+        for name in ("log_every", "smoothing_window", "progress_window", "progress_patience"):
             _require(getattr(self, name) >= 1, f"run.{name}", getattr(self, name), "must be >= 1")
         _require(self.checkpoint_every >= 0, "run.checkpoint_every", self.checkpoint_every, "must be >= 0")
 

@@ -82,7 +82,8 @@ def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
     with StopSignals(notice=print) as stop:
         row = loop.run(stop=lambda: stop.requested)
         stop.training_over()
-        ended = stop.name or ("solved" if solved(loop.window, config.run) else "budget")
+        ended = stop.name or ("solved" if solved(loop.window, config.run) else
+                              "plateau" if loop.learning_progress.plateaued else "budget")
         run_dir.write_summary({"runner": "inline", "ended": ended, **loop.counters, "elapsed_s": loop.elapsed_s,
                                "window": row.get("window", {})})
         if stop.requested:

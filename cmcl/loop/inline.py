@@ -28,6 +28,7 @@ from cmcl.episodes import WorldEpisodes
 from cmcl.io import codec
 from cmcl.io.rundir import RunDirectory, load_checkpoint
 from cmcl.learners import network_steps
+from cmcl.learning_progress import LearningProgress
 from cmcl.messages import LearnerFeedback, Rows
 from cmcl.progress import episode_rows, ess_part, finished_episodes, progress_line, solved, window_summary
 from cmcl.replay import buffer_steps
@@ -78,6 +79,7 @@ class InlineLoop:
         self.schedule = build_schedule(config)
         self.prioritized = uses_curriculum(self.layout.algorithms)
         self.pacing = pacing_from_config(config)  # what is due: updates per env step, fit steps per update
+        self.learning_progress = LearningProgress.from_run_config(config.run)  # run.stop_progress
         self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "rounds": 0}
         self.elapsed_s = 0.0  # training wall clock so far, seconds (kept across checkpoint + resume)
         self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
@@ -147,6 +149,7 @@ class InlineLoop:
             self.replay.recompute_priorities(self.schedule.lam)
         result = self._learner_step()
         stats["critic_loss"] = result["critic_loss"]
+        self.learning_progress.record(c["episodes"], float(np.mean(result["critic_loss"])))
         stats["actor_loss"] = result["actor_loss"]
         c["updates"] += 1
         self.last_stats = stats
@@ -235,6 +238,7 @@ class InlineLoop:
             "schedule": {"env_steps": self.schedule.env_steps},
             "counters": dict(self.counters),
             "pacing": self.pacing.state_dict(),
+            "learning_progress": self.learning_progress.state_dict(),
             "elapsed_s": self.elapsed_s,
             "env": {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in self.env.get_state().items()},
             "obs": torch.from_numpy(self.obs.copy()),
@@ -261,6 +265,8 @@ class InlineLoop:
             old = state["counters"]
             self.pacing.restore_counts(old["env_steps"], old["updates"], old.get("teacher_steps", 0),
                                        old.get("icm_steps", 0))
+        if "learning_progress" in state:  # checkpoints before run.stop_progress: it starts afresh
+            self.learning_progress.load_state_dict(state["learning_progress"])
         self.elapsed_s = float(state.get("elapsed_s", 0.0))  # checkpoints before the clock was kept: 0
         for name, g in self.rng.items():
             g.bit_generator.state = state["rng"][name]
@@ -297,8 +303,9 @@ class InlineLoop:
     # ------------------------------------------------------------------ main loop
     def run(self, stop: Callable[[], bool] | None = None) -> dict[str, Any]:
         """Train until run.episodes episodes have finished, the coverage target `run.stop_coverage` is reached,
-        the budget `run.max_seconds` is spent or `stop()` says so (polled after every batched env step: a graceful
-        SIGINT / SIGTERM); checkpoints at the end in every case; returns the final progress row."""
+        learning stops progressing (`run.stop_progress`), the budget `run.max_seconds` is spent or `stop()` says so
+        (polled after every batched env step: a graceful SIGINT / SIGTERM); checkpoints at the end in every case;
+        returns the final progress row."""
         cfg, c = self.config, self.counters
         start = time.perf_counter() - self.elapsed_s  # a resumed run's clock goes on from its checkpoint
         last_t = time.perf_counter()
@@ -314,6 +321,7 @@ class InlineLoop:
                     self.run_dir.log(episode_row)
             self.stopped = stop is not None and stop()
             done = (c["episodes"] >= cfg.run.episodes or solved(self.window, cfg.run) or self.stopped
+                    or self.learning_progress.plateaued
                     or (cfg.run.max_seconds > 0 and time.perf_counter() - start >= cfg.run.max_seconds))
             if c["episodes"] >= next_log or done:
                 now = time.perf_counter()
