@@ -3,6 +3,7 @@
     python -m cmcl train [--runner service|inline] [--config F] [--set section.key=value ...] [--overwrite]
     python -m cmcl resume RUN_DIR [--set run.episodes=N ...]        (the runner that wrote RUN_DIR, by default)
     python -m cmcl evaluate RUN_DIR [--episodes 100] [--checkpoint PATH] [--random] [--no-gif]
+    python -m cmcl stages --agents 2 4 8 [--stage-episodes E E E] [train's flags]   (cmcl/agent_stages.py)
 
 The default runner of `train` is the service on an embedded Ray: the system this project is about, what `make run`
 starts, and the one that ends with the held-out evaluation and the GIF. `--runner inline` trains in this process
@@ -31,7 +32,7 @@ RUNNER_ENTRIES = {"inline": ("cmcl.loop.__main__", "run_inline"), "service": ("s
 def build_parser() -> argparse.ArgumentParser:
     """The parser of `python -m cmcl`: one sub-command per verb; the run flags are those of cmcl/run_flags.py."""
     parser = argparse.ArgumentParser(prog="python -m cmcl", description=__doc__.split("\n")[0])
-    verbs = parser.add_subparsers(dest="verb", metavar="{train,resume,evaluate}", required=True)
+    verbs = parser.add_subparsers(dest="verb", metavar="{train,resume,evaluate,stages}", required=True)
     train = verbs.add_parser("train", help="train a new run", description="Train a new run in run.dir.")
     train.add_argument("--runner", choices=RUNNERS, default=DEFAULT_RUNNER,
                        help="service (Ray; default) or inline (one process, no Ray)")
@@ -44,6 +45,16 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate = verbs.add_parser("evaluate", help="held-out evaluation of a run's policy, a GIF, the curve",
                                 description="Evaluate the newest verified policy of RUN_DIR on held-out worlds.")
     add_evaluate_flags(evaluate)
+    stages = verbs.add_parser("stages", help="a curriculum over the number of agents: one run per agent count",
+                              description="Train navigation with N_1 < N_2 < ... agents in turn, each stage starting "
+                                          "from the networks of the one before (cmcl/agent_stages.py); rerun the "
+                                          "same command to go on after a stop.")
+    stages.add_argument("--agents", type=int, nargs="+", required=True, metavar="N", help="agent counts, increasing")
+    stages.add_argument("--stage-episodes", type=int, nargs="+", default=None, metavar="E",
+                        help="episode budget of each stage (default: run.episodes each)")
+    stages.add_argument("--runner", choices=RUNNERS, default=DEFAULT_RUNNER,
+                        help="service (Ray; default) or inline (one process, no Ray)")
+    add_run_flags(stages)
     return parser
 
 
@@ -80,6 +91,15 @@ def main(argv: list[str] | None = None) -> int:
         from cmcl.evaluate import evaluate_run
 
         return evaluate_run(args)
+    if args.verb == "stages":
+        from cmcl.agent_stages import run_stages
+
+        try:
+            base = request_from(args, args.runner)
+        except RunRequestError as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
+        return run_stages(base, args.agents, args.stage_episodes, run)
     try:
         if args.verb == "resume":
             runner = args.runner or runner_of(RunDirectory.open(args.run_dir))

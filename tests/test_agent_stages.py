@@ -1,0 +1,66 @@
+"""python -m cmcl stages (cmcl/agent_stages.py): the plan of an agent-count curriculum, what is refused before any
+stage trains, and how a rerun goes on from a stopped stage."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from cmcl.__main__ import main
+from cmcl.agent_stages import plan_stages, stage_finished, stage_request
+from cmcl.config import ConfigError
+from cmcl.io.rundir import RunDirectory
+from cmcl.run_flags import RunRequest
+
+
+def test_the_plan_chains_each_stage_to_the_one_before(tiny_config, tmp_path):
+    config = tiny_config("maddpg", dir=str(tmp_path / "cur"))
+    stages = plan_stages(config, [2, 4, 8], [100, 200, 300])
+    assert [s.num_agents for s in stages] == [2, 4, 8]
+    assert [s.run_dir.name for s in stages] == ["n2", "n4", "n8"]
+    assert "run.init_from" not in " ".join(stages[0].overrides)
+    assert f"run.init_from={tmp_path / 'cur' / 'n2'}" in stages[1].overrides
+    assert "run.episodes=300" in stages[2].overrides and "run.stop_progress=0.0" in stages[2].overrides
+    assert [s.last for s in stages] == [False, False, True]
+
+
+@pytest.mark.parametrize(("agents", "episodes", "message"), [
+    ([4, 2], None, "increasing order"), ([2, 2], None, "increasing order"), ([0, 2], None, "agent counts >= 1"),
+    ([2, 4], [100], "one budget per stage"), ([2, 4], [100, 0], "must be >= 1")])
+def test_a_bad_plan_names_the_flag_and_the_value(tiny_config, agents, episodes, message):
+    with pytest.raises(ConfigError, match=message):
+        plan_stages(tiny_config("maddpg"), agents, episodes)
+
+
+def test_networks_that_grow_with_the_agent_count_are_refused_before_anything_trains(tmp_path, tiny_config_file,
+                                                                                      capsys):
+    config = str(tiny_config_file("maddpg", dir=str(tmp_path / "cur")))
+    for extra in ([], ["--set", "maddpg.share_parameters=true"]):
+        assert main(["stages", "--runner", "inline", "--agents", "2", "3", "--config", config, *extra]) == 2
+        err = capsys.readouterr().err
+        assert "shapes do not depend on the number of agents" in err and "at N = 2" in err and "at N = 3" in err
+    assert not (tmp_path / "cur").exists()
+
+
+def test_a_rerun_keeps_finished_stages_and_resumes_a_stopped_one(tmp_path, tiny_config):
+    """A stage folder with a finished summary is kept, one with a checkpoint is resumed, one without starts over."""
+    from cmcl.loop.inline import InlineLoop
+
+    config = tiny_config("maddpg", dir=str(tmp_path / "cur"), episodes=4)
+    stages = plan_stages(config, [2, 3], None)
+    base = RunRequest(runner="inline", overrides=("run.seed=3",))
+    fresh = stage_request(base, stages[0])
+    assert fresh.resume_dir is None and fresh.overwrite and fresh.no_eval  # not the last stage: no evaluation
+    assert fresh.overrides[0] == "run.seed=3" and "env.num_agents=2" in fresh.overrides
+    staged = tiny_config("maddpg", dir=str(stages[0].run_dir), episodes=4)
+    run_dir = RunDirectory.create(staged.run.dir, staged)
+    InlineLoop(staged, run_dir, progress=None).run()
+    resumed = stage_request(base, stages[0])
+    assert resumed.resume_dir == str(stages[0].run_dir) and resumed.overrides == ()
+    assert not stage_finished(stages[0])
+    run_dir.write_summary({"ended": "SIGINT"})
+    assert not stage_finished(stages[0])
+    run_dir.write_summary({"ended": "plateau"})
+    assert stage_finished(stages[0]) and not stage_request(base, stages[1]).no_eval
+    assert not Path(stages[1].run_dir).exists()
