@@ -80,7 +80,9 @@ class Run:
     under configs/ (default `<task>_<algorithm>.toml`); sets: extra `--set SECTION.KEY=VALUE` overrides; source:
     the id of a finished run whose first `budget` episodes this one reads instead of training (a prefix
     reference); mode: the runner; stop_coverage / max_seconds: early stops (None: train the whole budget); env: a
-    name of experiments.own_envs.OWN_ENVS (task "own_env": no config file, the defaults and `sets`)."""
+    name of experiments.own_envs.OWN_ENVS (task "own_env": no config file, the defaults and `sets`); stages: the
+    agent counts of an agent-count curriculum, trained by `python -m cmcl stages` into <run folder>/n<N>, measured on
+    its last stage, with the earlier stages' episodes and seconds added to its costs."""
 
     id: str
     grid: str
@@ -98,6 +100,8 @@ class Run:
     stop_coverage: float | None = None
     max_seconds: float | None = None
     env: str | None = None
+    stages: tuple[int, ...] = ()  # an agent-count curriculum (python -m cmcl stages --agents ...); () = one run
+    stage_episodes: tuple[int, ...] = ()  # its budget per stage (--stage-episodes); () = `budget` per stage
 
     def record(self) -> dict[str, Any]:
         """The run's fields as its summary stores them: the seven every summary has, then those set."""
@@ -110,6 +114,8 @@ class Run:
                 out[key] = getattr(self, key)
         if self.sets:
             out["sets"] = list(self.sets)
+        if self.stages:
+            out["stages"], out["stage_episodes"] = list(self.stages), list(self.stage_episodes)
         if self.mode != "inline":
             out["mode"] = self.mode
         return out

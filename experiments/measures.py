@@ -43,7 +43,8 @@ def summarise(run: Run, run_path: Path, upto: int | None = None) -> dict[str, An
     """The measures of one finished run (training curves, time to 0.5/0.9, area, final rates, held-out), or of
     its first `upto` episodes (held-out from its checkpoint at episode `upto`, which must exist). The run's own
     fields (Run.record) come first."""
-    run_dir = RunDirectory.open(run_path)
+    earlier = [RunDirectory.open(run_path / f"n{n}") for n in run.stages[:-1]]
+    run_dir = RunDirectory.open(run_path / f"n{run.stages[-1]}" if run.stages else run_path)
     config = run_dir.config()
     rows = list(run_dir.rows("episode"))[:upto]
     progress = list(run_dir.rows("progress"))
@@ -86,9 +87,20 @@ def summarise(run: Run, run_path: Path, upto: int | None = None) -> dict[str, An
                       win_vs_trained_prey=held_out["predator_win"],
                       win_vs_random_prey=evaluate_policy(config, policy, HELD_OUT, run.seed,
                                                          random_teams=("prey",))["predator_win"])
+    if run.stages:  # the curriculum's whole cost: every stage's episodes and seconds
+        result["stage_costs"] = [stage_cost(d) for d in (*earlier, run_dir)]
+        result["total_episodes"] = sum(c["episodes"] for c in result["stage_costs"])
+        result["total_wall_s"] = sum(c["wall_s"] for c in result["stage_costs"])
     result["curves"] = window_curves(series)
     result.update(sampling_over_training(progress, upto))
     return result
+
+
+def stage_cost(run_dir: RunDirectory) -> dict[str, Any]:
+    """One stage of an agent-count curriculum: its agent count, episodes, training seconds and how it ended."""
+    rows = list(run_dir.rows("episode"))
+    return {"agents": run_dir.config().env.spread.num_agents, "episodes": len(rows),
+            "wall_s": float(rows[-1].get("elapsed_s", 0.0)) if rows else 0.0, "ended": run_dir.summary().get("ended")}
 
 
 def sampling_over_training(progress: list[dict[str, Any]], upto: int | None = None) -> dict[str, Any]:

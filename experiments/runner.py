@@ -51,7 +51,7 @@ def command(run: Run, run_path: Path) -> list[str]:
     start from the run's config file with its overrides."""
     launcher = "cmcl.loop" if run.mode == "inline" else "services.launch"
     service_flags = [] if run.mode == "inline" else ["--metrics-port", "0"]
-    if run_path.exists():
+    if run_path.exists() and not run.stages:  # (the stages command resumes by itself: cmcl/agent_stages.py)
         runners = RunDirectory.open(run_path).runners()
         if runners:  # a checkpoint exists (a runner refuses a folder the other runner wrote; say so loudly)
             return [sys.executable, "-m", launcher, "--resume", str(run_path), "--quiet", *service_flags]
@@ -66,8 +66,12 @@ def command(run: Run, run_path: Path) -> list[str]:
     sets += run.sets
     config_file = ROOT / "configs" / (run.config or f"{run.task}_{run.algorithm}.toml")
     config = [] if run.task == "own_env" else ["--config", str(config_file)]  # own envs: defaults and their sets
-    return [sys.executable, "-m", launcher, *config, *[a for s in sets for a in ("--set", s)],
-            "--overwrite", "--quiet", *service_flags]
+    set_flags = [a for s in sets for a in ("--set", s)]
+    if run.stages:
+        budgets = ["--stage-episodes", *map(str, run.stage_episodes)] if run.stage_episodes else []
+        return [sys.executable, "-m", "cmcl", "stages", "--runner", run.mode, "--agents", *map(str, run.stages),
+                *budgets, *config, *set_flags, "--quiet", *service_flags]
+    return [sys.executable, "-m", launcher, *config, *set_flags, "--overwrite", "--quiet", *service_flags]
 
 
 def train(run: Run, store: ResultsStore) -> Path:

@@ -136,3 +136,19 @@ def test_the_command_line_keeps_the_scale_grid_and_filters_only_curriculum_arms(
     assert [r.id for r in scale] == ["scale_n8_per_agent_s0", "scale_n8_per_agent_s1"]
     some = selected_runs(build_parser().parse_args(["run", "curriculum", "--seeds", "0", "--arms", "cmcl"]))
     assert [r.id for r in some] == ["curriculum_cmcl_s0"]
+
+
+def test_an_agent_count_curriculum_run_is_trained_by_the_stages_command(tmp_path):
+    """A run with stages: `python -m cmcl stages` with its agent counts and budgets, no --overwrite (the stages
+    resume by themselves), the run folder as the curriculum's root; its record names the stages."""
+    from experiments.grids import Run
+    from experiments.runner import command
+
+    run = Run("scale_x_s0", "scale", "spread", "maddpg", None, 0, 500, arm="x", config="spread_maddpg.toml",
+              stages=(2, 4), stage_episodes=(100, 400))
+    argv = command(run, tmp_path / "root")
+    assert argv[1:4] == ["-m", "cmcl", "stages"] and "--overwrite" not in argv
+    assert argv[argv.index("--agents") + 1:argv.index("--agents") + 3] == ["2", "4"]
+    assert argv[argv.index("--stage-episodes") + 1:argv.index("--stage-episodes") + 3] == ["100", "400"]
+    assert f"run.dir={tmp_path / 'root'}" in argv
+    assert run.record()["stages"] == [2, 4] and run.record()["stage_episodes"] == [100, 400]
