@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cmcl.config import Config, ConfigError
+from cmcl.envs.entities import EntityLayout, entity_layout
 from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.curriculum import CurriculumSchedule, default_growth
 
@@ -52,6 +53,9 @@ class AgentLayout:
     # Gumbel-softmax actors (A17): maddpg.discrete for the built-in tasks (MPE's 5-way action), or an env.factory
     # environment whose agents' action spaces are Discrete
     discrete: bool = False
+    # how each flat observation splits into entities (cmcl.envs.entities), for maddpg.networks = "entity";
+    # None for an env.factory environment (no known layout)
+    entities: EntityLayout | None = None
 
     @property
     def team_of(self) -> list[str]:
@@ -133,7 +137,8 @@ def agent_layout(config: Config, env) -> AgentLayout:
                        importance_weights=tuple(isw), difficulty_source=tuple(source),
                        teacher_agents=np.asarray(sorted(teacher), dtype=np.int64),
                        icm_agents=np.asarray(sorted(icm), dtype=np.int64),
-                       act_mask=None if mask is None or mask.all() else mask.copy(), discrete=discrete)
+                       act_mask=None if mask is None or mask.all() else mask.copy(), discrete=discrete,
+                       entities=entity_layout(getattr(env, "params", None)))
 
 
 def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
@@ -141,9 +146,12 @@ def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
     from cmcl.learners.maddpg import MADDPG
 
     m = config.maddpg
+    if m.network_kind == "entity" and layout.entities is None:
+        raise ConfigError("maddpg.networks = 'entity' needs a built-in task (env.task spread or tag): this "
+                          "environment's observations have no known entity layout")
     return MADDPG(layout.num_agents, layout.obs_dim, layout.act_dim, hidden=m.hidden, actor_lr=m.actor_lr,
                   critic_lr=m.critic_lr, gamma=m.gamma, tau=m.tau, grad_clip=m.grad_clip, discrete=layout.discrete,
-                  seed=seed, share_parameters=m.share_parameters, act_mask=layout.act_mask)
+                  seed=seed, act_mask=layout.act_mask, networks=m.network_kind, entity_layout=layout.entities)
 
 
 def build_replay(config: Config, layout: AgentLayout) -> ReplayBuffer:

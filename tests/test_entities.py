@@ -32,6 +32,7 @@ def test_spread_split_is_the_world_state(n):
     for i in range(n):
         others = [j for j in range(n) if j != i]
         np.testing.assert_allclose(ents[:, i, n:, :2], pos[:, others] - pos[:, i : i + 1], atol=1e-6)
+        assert layout.entity_agent[i].tolist() == [-1] * n + others
     assert (ents[:, :, :n, 2] == 1).all() and (ents[:, :, n:, 3] == 1).all()
     assert (ents[:, :, :n, 3] == 0).all() and (ents[:, :, n:, 2] == 0).all()
 
@@ -72,7 +73,8 @@ def test_tag_split_is_the_world_state():
             row = ents[:, i, o + k]
             np.testing.assert_allclose(row[:, :2], pos[:, j] - pos[:, i], atol=1e-6)
             np.testing.assert_allclose(row[:, 2:4], vel[:, j] if j >= m else 0.0, atol=1e-6)
-            assert (row[:, 5 if j < m else 6] == 1).all()
+            assert (row[:, 5 if j < m else 6] == 1).all() and layout.entity_agent[i, o + k] == j
+        assert (layout.entity_agent[i, :o] == -1).all()
 
 
 def test_entity_layout_dispatch():

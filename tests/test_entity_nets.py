@@ -54,16 +54,34 @@ def test_actor_ignores_the_order_of_landmarks_and_other_agents():
     assert not torch.allclose(actor(moved.transpose(0, 1))[0], out[0], atol=1e-4)
 
 
-def test_critic_outputs_follow_a_permutation_of_the_agents():
+def test_critic_outputs_follow_a_permutation_of_the_agents_and_ignore_the_landmark_order():
     n = 4
     _, critic = nets(n)
     pos, vel, lm = world(n, seed=1)
     act = torch.rand(6, n, 2) * 2 - 1
-    q = critic.q_all(spread_obs(pos, vel, lm)[None], act[None])[0]  # [M, N]
+    q = critic(joint_input(spread_obs(pos, vel, lm), act))[..., 0]  # [N, M]
     perm = [2, 0, 3, 1]
-    q_perm = critic.q_all(spread_obs(pos[:, perm], vel[:, perm], lm)[None], act[:, perm][None])[0]
-    torch.testing.assert_close(q_perm, q[:, perm], atol=1e-5, rtol=1e-5)
-    assert not torch.allclose(q[:, 0], q[:, 1], atol=1e-4)  # the agents are told apart by what they see
+    q_perm = critic(joint_input(spread_obs(pos[:, perm], vel[:, perm], lm), act[:, perm]))[..., 0]
+    torch.testing.assert_close(q_perm, q[perm], atol=1e-5, rtol=1e-5)
+    q_lm = critic(joint_input(spread_obs(pos, vel, lm[:, [1, 3, 0, 2]]), act))[..., 0]
+    torch.testing.assert_close(q_lm, q, atol=1e-5, rtol=1e-5)
+    assert not torch.allclose(q[0], q[1], atol=1e-4)  # the agents are told apart by what they see
+
+
+def test_critic_is_centralised_it_reads_the_other_agents_actions_and_velocities():
+    n = 3
+    _, critic = nets(n)
+    pos, vel, lm = world(n, seed=5)
+    act = torch.rand(6, n, 2) * 2 - 1
+    q = critic(joint_input(spread_obs(pos, vel, lm), act))[..., 0]
+    other_act = act.clone()
+    other_act[:, 2] = -other_act[:, 2]
+    q_act = critic(joint_input(spread_obs(pos, vel, lm), other_act))[..., 0]
+    assert not torch.allclose(q_act[0], q[0], atol=1e-5)  # agent 0's Q moves with agent 2's action
+    other_vel = vel.copy()
+    other_vel[:, 1] += 0.5
+    q_vel = critic(joint_input(spread_obs(pos, other_vel, lm), act))[..., 0]
+    assert not torch.allclose(q_vel[0], q[0], atol=1e-5)  # and with agent 1's velocity, absent from o_0
 
 
 def test_parameter_count_does_not_depend_on_the_number_of_agents():

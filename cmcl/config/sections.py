@@ -15,6 +15,8 @@ from typing import Any, Literal
 
 AlgorithmName = Literal["maddpg", "per", "acl", "cmcl"]
 TaskName = Literal["spread", "tag"]
+NetworkKind = Literal["per_agent", "shared", "entity"]
+NETWORK_KINDS: tuple[str, ...] = typing.get_args(NetworkKind)
 ALGORITHMS: tuple[str, ...] = typing.get_args(AlgorithmName)  # the four compared algorithms (ALGORITHM.md §5)
 TASKS: tuple[str, ...] = typing.get_args(TaskName)
 TASK_TEAMS = {"spread": ("agent",), "tag": ("predator", "prey")}  # teams of each task, in agent order
@@ -66,8 +68,18 @@ class MADDPGConfig:
     # one actor and one critic network for all agents, each with its own first-layer bias (an agent-id embedding,
     # cmcl.learners.nets); for N = 8 / 16 (bench/scale.py). False = the paper's per-agent networks
     share_parameters: bool = False
+    # the networks' kind (issue 22): "per_agent" (one actor and critic per agent, the paper's), "shared" (the same
+    # as share_parameters = true) or "entity" (one attention actor and one permutation-invariant critic for all
+    # agents over the observation's entities, a parameter count independent of N: cmcl.learners.entity_nets;
+    # built-in tasks only). Unset: "shared" if share_parameters else "per_agent"
+    networks: NetworkKind | None = None
 
     def __post_init__(self) -> None:
+        if self.share_parameters and self.networks not in (None, "shared"):
+            raise ConfigError(f"maddpg.share_parameters = true contradicts maddpg.networks = {self.networks!r}: "
+                              "set only maddpg.networks (share_parameters = true means networks = 'shared')")
+        _require(self.networks in (None, *NETWORK_KINDS), "maddpg.networks", self.networks,
+                 f"must be one of {list(NETWORK_KINDS)}")
         for name in ("actor_lr", "critic_lr", "grad_clip"):
             _positive(f"maddpg.{name}", getattr(self, name))
         _probability("maddpg.gamma", self.gamma)
@@ -76,6 +88,13 @@ class MADDPGConfig:
             _require(getattr(self, name) >= 1, f"maddpg.{name}", getattr(self, name), "must be >= 1")
         _require(self.warmup >= 0, "maddpg.warmup", self.warmup, "must be >= 0")
         _require(self.exploration_std >= 0, "maddpg.exploration_std", self.exploration_std, "must be >= 0")
+
+    @property
+    def network_kind(self) -> str:
+        """The networks built: maddpg.networks, or what share_parameters implies when it is unset."""
+        if self.networks is not None:
+            return self.networks
+        return "shared" if self.share_parameters else "per_agent"
 
 
 @dataclass(frozen=True)

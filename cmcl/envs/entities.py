@@ -44,6 +44,8 @@ class EntityLayout:
     own_const: float32[N, S_c], constant own features appended after them (the team one-hot; S_c may be 0).
     entity_index: int64[N, E, P], the flat column of each raw entity feature, ABSENT (-1) for an unobserved one.
     entity_type: float32[N, E, T], each entity's type one-hot.  mask: bool[N, E], present entities.
+    entity_agent: int64[N, E], the agent an entity slot shows (-1 for a landmark or an obstacle): what a centralised
+        critic adds that agent's own features and action to.
     """
 
     obs_dim: int
@@ -53,11 +55,13 @@ class EntityLayout:
     entity_index: np.ndarray
     entity_type: np.ndarray
     mask: np.ndarray
+    entity_agent: np.ndarray
 
     def __post_init__(self) -> None:
         n, e, _ = self.entity_index.shape
         if self.own_index.shape[0] != n or self.own_const.shape[0] != n or self.entity_type.shape[:2] != (n, e) \
-                or self.mask.shape != (n, e) or self.entity_type.shape[2] != len(self.type_names):
+                or self.mask.shape != (n, e) or self.entity_type.shape[2] != len(self.type_names) \
+                or self.entity_agent.shape != (n, e):
             raise ValueError("entity layout arrays disagree on the agent / entity / type counts")
         used = np.concatenate([self.own_index.ravel(), self.entity_index.ravel()])
         if used.size and (used.min() < ABSENT or used.max() >= self.obs_dim):
@@ -148,8 +152,9 @@ def spread_layout(num_agents: int) -> EntityLayout:
     index = np.broadcast_to(np.concatenate([lm, oth])[None], (n, num_l + others, 2)).copy()
     kind = np.r_[np.zeros(num_l, np.int64), np.ones(others, np.int64)]
     types = np.broadcast_to(np.eye(2, dtype=np.float32)[kind][None], (n, num_l + others, 2)).copy()
+    shown = np.array([[-1] * num_l + [j for j in range(n) if j != i] for i in range(n)], np.int64).reshape(n, -1)
     return EntityLayout(obs_dim, ("landmark", "agent"), np.broadcast_to(np.arange(4), (n, 4)).copy(),
-                        np.zeros((n, 0), np.float32), index, types, np.ones((n, num_l + others), bool))
+                        np.zeros((n, 0), np.float32), index, types, np.ones((n, num_l + others), bool), shown)
 
 
 def tag_layout(params: TagParams) -> EntityLayout:
@@ -159,12 +164,13 @@ def tag_layout(params: TagParams) -> EntityLayout:
     e = o + n - 1
     index = np.full((n, e, 4), ABSENT, np.int64)
     kind = np.zeros((n, e), np.int64)  # 0 obstacle, 1 predator, 2 prey
+    shown = np.full((n, e), -1, np.int64)
     index[:, :o, :2] = 4 + 2 * np.arange(o)[:, None] + np.arange(2)
     for i in range(n):  # layout construction only, once per run
         other_prey = [p for p in range(q) if p != i - m]  # a prey's velocity block lists the other prey only
         for k, j in enumerate(jj for jj in range(n) if jj != i):
             index[i, o + k, :2] = off_a + 2 * k + np.arange(2)
-            kind[i, o + k] = 1 if j < m else 2
+            kind[i, o + k], shown[i, o + k] = (1 if j < m else 2), j
             if j >= m:
                 slot = j - m if i < m else other_prey.index(j - m)
                 index[i, o + k, 2:] = off_v + 2 * slot + np.arange(2)
@@ -172,7 +178,7 @@ def tag_layout(params: TagParams) -> EntityLayout:
     team[:m, 0], team[m:, 1] = 1.0, 1.0
     obs_dim = max(params.obs_dims)
     return EntityLayout(obs_dim, ("obstacle", "predator", "prey"), np.broadcast_to(np.arange(4), (n, 4)).copy(),
-                        team, index, np.eye(3, dtype=np.float32)[kind], np.ones((n, e), bool))
+                        team, index, np.eye(3, dtype=np.float32)[kind], np.ones((n, e), bool), shown)
 
 
 def entity_layout(params: Any) -> EntityLayout | None:
