@@ -174,16 +174,23 @@ def control_seed(seed: int) -> np.random.SeedSequence:
     return np.random.SeedSequence([int(seed), CONTROL_STREAM])
 
 
-def build_teachers(config: Config, layout: AgentLayout, seed: int) -> TeacherEnsemble | None:
-    """All K teachers of every teacher-using agent as one ensemble, or None when no team uses teachers."""
+def build_teachers(config: Config, layout: AgentLayout, seed: int, num_folds: int | None = None
+                   ) -> TeacherEnsemble | None:
+    """All K teachers of every teacher-using agent as one ensemble (or `num_folds` of them: a service teacher actor
+    hosting some folds), or None when no team uses teachers."""
     if layout.teacher_agents.size == 0:
         return None
     from cmcl.learners.teachers import TeacherEnsemble
 
     t = config.teachers
+    if t.network_kind == "entity" and layout.entities is None:
+        raise ConfigError("teachers.networks = 'entity' needs a built-in task (env.task spread or tag): this "
+                          "environment's observations have no known entity layout")
     in_dim = layout.num_agents * (layout.obs_dim + layout.act_dim)
-    return TeacherEnsemble(int(layout.teacher_agents.size), in_dim=in_dim, num_folds=t.num_folds, hidden=t.hidden,
-                           lr=t.lr, seed=seed, share_parameters=t.share_parameters)
+    return TeacherEnsemble(int(layout.teacher_agents.size), in_dim=in_dim,
+                           num_folds=t.num_folds if num_folds is None else num_folds, hidden=t.hidden, lr=t.lr,
+                           seed=seed, networks=t.network_kind, agents=layout.teacher_agents,
+                           entity_layout=layout.entities, act_dim=layout.act_dim)
 
 
 def build_icm(config: Config, layout: AgentLayout, seed: int) -> ICM | None:

@@ -74,3 +74,6 @@ def test_network_settings_are_checked():
         load_config(None, ["maddpg.networks=entity", "maddpg.share_parameters=true"])
     with pytest.raises(ConfigError, match="maddpg.networks"):
         load_config(None, ["maddpg.networks=graph"])
+    assert load_config(None, ["teachers.networks=entity"]).teachers.network_kind == "entity"
+    with pytest.raises(ConfigError, match="teachers.share_parameters = true contradicts teachers.networks"):
+        load_config(None, ["teachers.networks=per_agent", "teachers.share_parameters=true"])

@@ -310,3 +310,16 @@ def test_entity_networks_run_through_every_role():
     work, _ = replay.teacher_work([0], 2)
     scores, _ = teachers[0].step(work, published)
     assert np.isfinite(scores.errors).all()
+
+
+def test_a_teacher_actor_hosts_entity_teachers():
+    cfg = in_process_config("acl", service={"teacher_actors": 1, "score_rows_per_call": 360},
+                            teachers={"networks": "entity"})
+    replay, worker, learner = ReplayServer(cfg), RolloutWorker(cfg, 0, 0), Learner(cfg, 0)
+    teacher = TeacherWorker(cfg, [0, 1, 2], 0)
+    assert teacher.teachers.networks == "entity" and teacher.teachers.num_folds == 3
+    for _ in range(3):
+        replay.insert(worker.rollout(None)[0])
+    work, _ = replay.teacher_work([0, 1, 2], 2)
+    scores, _ = teacher.step(work, learner.publish())
+    assert scores.errors.shape == (360, 4, 3) and np.isfinite(scores.errors).all()

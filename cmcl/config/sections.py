@@ -42,6 +42,19 @@ def _positive(key: str, value: float) -> None:
     _require(value > 0 and math.isfinite(value), key, value, "must be a finite number > 0")
 
 
+def _check_networks(section: str, networks: str | None, share_parameters: bool) -> None:
+    """A section's `networks` is a known kind and agrees with its `share_parameters` (which means 'shared')."""
+    if share_parameters and networks not in (None, "shared"):
+        raise ConfigError(f"{section}.share_parameters = true contradicts {section}.networks = {networks!r}: set "
+                          f"only {section}.networks (share_parameters = true means networks = 'shared')")
+    _require(networks in (None, *NETWORK_KINDS), f"{section}.networks", networks,
+             f"must be one of {list(NETWORK_KINDS)}")
+
+
+def _network_kind(networks: str | None, share_parameters: bool) -> str:
+    return networks if networks is not None else ("shared" if share_parameters else "per_agent")
+
+
 def _probability(key: str, value: float, *, open_low: bool = False) -> None:
     ok = (0 < value <= 1) if open_low else (0 <= value <= 1)
     _require(ok, key, value, "must lie in (0, 1]" if open_low else "must lie in [0, 1]")
@@ -75,11 +88,7 @@ class MADDPGConfig:
     networks: NetworkKind | None = None
 
     def __post_init__(self) -> None:
-        if self.share_parameters and self.networks not in (None, "shared"):
-            raise ConfigError(f"maddpg.share_parameters = true contradicts maddpg.networks = {self.networks!r}: "
-                              "set only maddpg.networks (share_parameters = true means networks = 'shared')")
-        _require(self.networks in (None, *NETWORK_KINDS), "maddpg.networks", self.networks,
-                 f"must be one of {list(NETWORK_KINDS)}")
+        _check_networks("maddpg", self.networks, self.share_parameters)
         for name in ("actor_lr", "critic_lr", "grad_clip"):
             _positive(f"maddpg.{name}", getattr(self, name))
         _probability("maddpg.gamma", self.gamma)
@@ -92,9 +101,7 @@ class MADDPGConfig:
     @property
     def network_kind(self) -> str:
         """The networks built: maddpg.networks, or what share_parameters implies when it is unset."""
-        if self.networks is not None:
-            return self.networks
-        return "shared" if self.share_parameters else "per_agent"
+        return _network_kind(self.networks, self.share_parameters)
 
 
 @dataclass(frozen=True)
@@ -167,13 +174,22 @@ class TeacherConfig:
     # one teacher network per fold for all agents, each agent with its own first-layer bias (cmcl.learners.nets,
     # grouped sharing); the folds stay separate. For N = 8 / 16 (bench/scale.py). False = per-(agent, fold) networks
     share_parameters: bool = False
+    # the teachers' kind, as maddpg.networks: "entity" = one entity critic (cmcl.learners.entity_nets) per fold for
+    # all agents, its parameter count independent of N; unset: "shared" if share_parameters else "per_agent"
+    networks: NetworkKind | None = None
 
     def __post_init__(self) -> None:
+        _check_networks("teachers", self.networks, self.share_parameters)
         _require(self.num_folds >= 2, "teachers.num_folds", self.num_folds, "must be >= 2")
         for name in ("batch_size", "hidden", "rescore_rows_per_update"):
             _require(getattr(self, name) >= 1, f"teachers.{name}", getattr(self, name), "must be >= 1")
         _positive("teachers.lr", self.lr)
         _positive("teachers.steps_per_update", self.steps_per_update)
+
+    @property
+    def network_kind(self) -> str:
+        """The teachers' networks: teachers.networks, or what share_parameters implies when it is unset."""
+        return _network_kind(self.networks, self.share_parameters)
 
 
 @dataclass(frozen=True)
