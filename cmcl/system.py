@@ -141,14 +141,19 @@ def agent_layout(config: Config, env) -> AgentLayout:
                        entities=entity_layout(getattr(env, "params", None)))
 
 
+def _require_entity_layout(layout: AgentLayout, key: str, kind: str) -> None:
+    """ConfigError when `key` asks for entity networks in a world without an entity layout (an env.factory one)."""
+    if kind == "entity" and layout.entities is None:
+        raise ConfigError(f"{key} = 'entity' needs a built-in task (env.task spread or tag): this environment's "
+                          "observations have no known entity layout")
+
+
 def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
     """The stacked MADDPG learner of every agent."""
     from cmcl.learners.maddpg import MADDPG
 
     m = config.maddpg
-    if m.network_kind == "entity" and layout.entities is None:
-        raise ConfigError("maddpg.networks = 'entity' needs a built-in task (env.task spread or tag): this "
-                          "environment's observations have no known entity layout")
+    _require_entity_layout(layout, "maddpg.networks", m.network_kind)
     return MADDPG(layout.num_agents, layout.obs_dim, layout.act_dim, hidden=m.hidden, actor_lr=m.actor_lr,
                   critic_lr=m.critic_lr, gamma=m.gamma, tau=m.tau, grad_clip=m.grad_clip, discrete=layout.discrete,
                   seed=seed, act_mask=layout.act_mask, networks=m.network_kind, entity_layout=layout.entities)
@@ -183,9 +188,7 @@ def build_teachers(config: Config, layout: AgentLayout, seed: int, num_folds: in
     from cmcl.learners.teachers import TeacherEnsemble
 
     t = config.teachers
-    if t.network_kind == "entity" and layout.entities is None:
-        raise ConfigError("teachers.networks = 'entity' needs a built-in task (env.task spread or tag): this "
-                          "environment's observations have no known entity layout")
+    _require_entity_layout(layout, "teachers.networks", t.network_kind)
     in_dim = layout.num_agents * (layout.obs_dim + layout.act_dim)
     return TeacherEnsemble(int(layout.teacher_agents.size), in_dim=in_dim,
                            num_folds=t.num_folds if num_folds is None else num_folds, hidden=t.hidden, lr=t.lr,
@@ -200,8 +203,10 @@ def build_icm(config: Config, layout: AgentLayout, seed: int) -> ICM | None:
     from cmcl.learners.icm import ICM
 
     c = config.icm
+    _require_entity_layout(layout, "icm.networks", c.networks)
     return ICM(int(layout.icm_agents.size), layout.obs_dim, layout.act_dim, feature_dim=c.feature_dim,
-               hidden=c.hidden, beta_forward=c.beta_forward, lr=c.lr, discrete=layout.discrete, seed=seed)
+               hidden=c.hidden, beta_forward=c.beta_forward, lr=c.lr, discrete=layout.discrete, seed=seed,
+               networks=c.networks, agents=layout.icm_agents, entity_layout=layout.entities)
 
 
 def build_schedule(config: Config) -> CurriculumSchedule:

@@ -82,3 +82,14 @@ def test_entity_layout_dispatch():
     assert entity_layout(TagParams()).entity_dim == 7
     assert entity_layout(object()) is None
     assert (tag_layout(TagParams()).entity_index[:, :, 2:] == ABSENT).any()
+
+
+def test_split_of_some_agents_is_their_rows_of_the_full_split():
+    layout = tag_layout(TagParams(num_predators=2, num_prey=2, num_obstacles=1))
+    obs = np.random.default_rng(1).normal(size=(3, layout.num_agents, layout.obs_dim)).astype(np.float32)
+    full = layout.split(obs)
+    some = layout.split(obs[:, [3, 1]], agents=[3, 1])
+    for a, b in zip(full, some, strict=True):
+        np.testing.assert_array_equal(a[:, [3, 1]], b)
+    with pytest.raises(ValueError, match="A=2"):
+        layout.split(obs, agents=[3, 1])

@@ -294,11 +294,12 @@ def test_the_supervisor_issues_the_calls_the_allowances_leave_room_for():
 
 def test_entity_networks_run_through_every_role():
     """maddpg.networks = "entity": the rollout worker acts with the numpy entity actor, the learner and the
-    teachers' target networks load what the learner publishes."""
+    teachers' target networks load what the learner publishes; icm.networks = "entity" scores curiosity."""
     from cmcl.learners.policy import NumpyEntityPolicy
 
-    cfg = in_process_config("cmcl", maddpg={"networks": "entity"}, service={"score_rows_per_call": 360})
-    replay, learner, worker, teachers, _ = roles(cfg)
+    cfg = in_process_config("cmcl", maddpg={"networks": "entity"}, service={"score_rows_per_call": 360},
+                            icm={"networks": "entity"})
+    replay, learner, worker, teachers, icm = roles(cfg)
     for _ in range(3):
         replay.insert(worker.rollout(None)[0])
     assert isinstance(worker.policy, NumpyEntityPolicy)
@@ -310,6 +311,8 @@ def test_entity_networks_run_through_every_role():
     work, _ = replay.teacher_work([0], 2)
     scores, _ = teachers[0].step(work, published)
     assert np.isfinite(scores.errors).all()
+    work, _ = replay.icm_work(2)
+    assert np.isfinite(icm.step(work)[0].rho).all()
 
 
 def test_a_teacher_actor_hosts_entity_teachers():

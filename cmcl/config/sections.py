@@ -204,6 +204,9 @@ class ICMConfig:
     cp_input: Literal["std", "raw"] = "std"
     intrinsic_reward_coef: float = 0.0  # A6: curiosity feeds priority only
     steps_per_update: float = 0.5  # ICM steps per learner update, inline and in the service (§3.8: 1)
+    # "per_agent": one encoder, inverse and forward model per curiosity agent; "entity": one of each for all of
+    # them, the encoder over the observation's entities (cmcl.learners.entity_nets), a size independent of N
+    networks: Literal["per_agent", "entity"] = "per_agent"
 
     def __post_init__(self) -> None:
         for name in ("feature_dim", "hidden", "batch_size"):

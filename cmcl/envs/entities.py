@@ -5,6 +5,7 @@ The entity networks (`cmcl.learners.entity_nets`) read it through an :class:`Ent
 agent, which flat columns are its own features and which are each entity's features:
 
     split(obs float32[..., N, obs_dim]) -> own float32[..., N, S], entities float32[..., N, E, F], mask bool[..., N, E]
+    (or the rows of some agents only: split(obs [..., A, obs_dim], agents int64[A]))
 
 An entity row is ``[raw features (P), type one-hot (T)]`` (F = P + T); a raw feature the agent does not observe
 (an obstacle's or a predator's velocity in tag) is 0. The mask marks present entities; it is all True for a built-in
@@ -86,23 +87,25 @@ class EntityLayout:
         """F = P raw features + T type one-hot."""
         return int(self.entity_index.shape[2] + self.entity_type.shape[2])
 
-    def split(self, obs: Any) -> tuple[Any, Any, Any]:
-        """obs float32[..., N, obs_dim] (numpy or torch) -> own [..., N, S], entities [..., N, E, F], mask
-        [..., N, E] (same library as obs)."""
-        if obs.shape[-2:] != (self.num_agents, self.obs_dim):
-            raise ValueError(f"obs must be [..., N={self.num_agents}, obs_dim={self.obs_dim}], got {tuple(obs.shape)}")
+    def split(self, obs: Any, agents: Any = None) -> tuple[Any, Any, Any]:
+        """obs float32[..., A, obs_dim] (numpy or torch), row a being agent agents[a]'s observation (default: all
+        N agents in order) -> own [..., A, S], entities [..., A, E, F], mask [..., A, E] (same library as obs)."""
+        agents = np.arange(self.num_agents) if agents is None else np.asarray(agents, np.int64)
+        if obs.shape[-2:] != (len(agents), self.obs_dim):
+            raise ValueError(f"obs must be [..., A={len(agents)}, obs_dim={self.obs_dim}], got {tuple(obs.shape)}")
         xp = _namespace(obs)
-        lead = tuple(obs.shape[:-2])
+        lead, a = tuple(obs.shape[:-2]), len(agents)
         padded = xp.cat([obs, xp.zeros_like(obs[..., :1])], -1)  # column obs_dim is 0: ABSENT reads it
-        n = self.num_agents
-        rows = np.arange(n).reshape(n, 1, 1)
-        cols = np.where(self.entity_index == ABSENT, self.obs_dim, self.entity_index)
-        raw = padded[..., xp.index(np.broadcast_to(rows, cols.shape)), xp.index(cols)]  # [..., N, E, P]
-        ents = xp.cat([raw, xp.expand(xp.const(self.entity_type, obs), (*lead, *self.entity_type.shape))], -1)
-        own = obs[..., xp.index(np.arange(n)[:, None].repeat(self.own_index.shape[1], 1)), xp.index(self.own_index)]
-        own = xp.cat([own, xp.expand(xp.const(self.own_const, obs), (*lead, *self.own_const.shape))], -1)
-        mask = xp.expand(xp.const(self.mask, obs), (*lead, *self.mask.shape))
-        return own, ents, mask
+        cols = np.where(self.entity_index == ABSENT, self.obs_dim, self.entity_index)[agents]  # [A, E, P]
+        raw = padded[..., xp.index(np.broadcast_to(np.arange(a).reshape(a, 1, 1), cols.shape)), xp.index(cols)]
+        types = self.entity_type[agents]
+        ents = xp.cat([raw, xp.expand(xp.const(types, obs), (*lead, *types.shape))], -1)
+        own_cols = self.own_index[agents]
+        own = obs[..., xp.index(np.broadcast_to(np.arange(a)[:, None], own_cols.shape)), xp.index(own_cols)]
+        const = self.own_const[agents]
+        own = xp.cat([own, xp.expand(xp.const(const, obs), (*lead, *const.shape))], -1)
+        mask = self.mask[agents]
+        return own, ents, xp.expand(xp.const(mask, obs), (*lead, *mask.shape))
 
 
 class _Numpy:

@@ -34,7 +34,7 @@ from torch import nn
 from cmcl.envs.entities import ABSENT, EntityLayout
 from cmcl.learners.nets import StackedLinear, StackedMLP
 
-__all__ = ["EntityActor", "EntityCritic", "EntityEncoder"]
+__all__ = ["EntityActor", "EntityCritic", "EntityEncoder", "EntityFeatures"]
 
 
 class EntityEncoder(nn.Module):
@@ -92,6 +92,23 @@ class EntityActor(nn.Module):
         own, ents, mask = self.layout.split(x.transpose(0, 1))  # [B, N, S], [B, N, E, F], [B, N, E]
         z = self.encoder(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
         return self.head(z).view(x.shape[1], self.num_agents, self.act_dim).transpose(0, 1)
+
+
+class EntityFeatures(nn.Module):
+    """One observation encoder for some agents (the ICM's φ, eq. 13): float32[A, M, obs_dim], row a being agent
+    agents[a]'s observations -> float32[A, M, out_dim] = W·z + b, z the entity encoder's output."""
+
+    def __init__(self, layout: EntityLayout, agents: list[int], hidden: int, out_dim: int,
+                 generator: torch.Generator):
+        super().__init__()
+        self.layout, self.agents, self.out_dim = layout, [int(a) for a in agents], int(out_dim)
+        self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim, hidden, generator)
+        self.out = StackedLinear(1, self.encoder.out_dim, out_dim, generator)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        own, ents, mask = self.layout.split(x.transpose(0, 1), self.agents)  # [M, A, S], [M, A, E, F], [M, A, E]
+        z = self.encoder(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
+        return self.out(z).view(x.shape[1], x.shape[0], self.out_dim).transpose(0, 1)
 
 
 class EntityCritic(nn.Module):
