@@ -156,7 +156,8 @@ def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
     _require_entity_layout(layout, "maddpg.networks", m.network_kind)
     return MADDPG(layout.num_agents, layout.obs_dim, layout.act_dim, hidden=m.hidden, actor_lr=m.actor_lr,
                   critic_lr=m.critic_lr, gamma=m.gamma, tau=m.tau, grad_clip=m.grad_clip, discrete=layout.discrete,
-                  seed=seed, act_mask=layout.act_mask, networks=m.network_kind, entity_layout=layout.entities)
+                  seed=seed, act_mask=layout.act_mask, networks=m.network_kind, entity_layout=layout.entities,
+                  entity_pool=m.entity_pool)
 
 
 def build_replay(config: Config, layout: AgentLayout) -> ReplayBuffer:
@@ -193,7 +194,8 @@ def build_teachers(config: Config, layout: AgentLayout, seed: int, num_folds: in
     return TeacherEnsemble(int(layout.teacher_agents.size), in_dim=in_dim,
                            num_folds=t.num_folds if num_folds is None else num_folds, hidden=t.hidden, lr=t.lr,
                            seed=seed, networks=t.network_kind, agents=layout.teacher_agents,
-                           entity_layout=layout.entities, act_dim=layout.act_dim)
+                           entity_layout=layout.entities, act_dim=layout.act_dim,
+                           entity_pool=config.maddpg.entity_pool)
 
 
 def build_icm(config: Config, layout: AgentLayout, seed: int) -> ICM | None:
@@ -206,7 +208,8 @@ def build_icm(config: Config, layout: AgentLayout, seed: int) -> ICM | None:
     _require_entity_layout(layout, "icm.networks", c.networks)
     return ICM(int(layout.icm_agents.size), layout.obs_dim, layout.act_dim, feature_dim=c.feature_dim,
                hidden=c.hidden, beta_forward=c.beta_forward, lr=c.lr, discrete=layout.discrete, seed=seed,
-               networks=c.networks, agents=layout.icm_agents, entity_layout=layout.entities)
+               networks=c.networks, agents=layout.icm_agents, entity_layout=layout.entities,
+               entity_pool=config.maddpg.entity_pool)
 
 
 def build_schedule(config: Config) -> CurriculumSchedule:

@@ -26,19 +26,21 @@ def world(n, m=6, seed=0):
     return rng.uniform(-0.5, 0.5, (m, n, 2)), rng.normal(0, 0.3, (m, n, 2)), rng.uniform(-0.4, 0.4, (m, n, 2))
 
 
-def nets(n, hidden=32, seed=0):
+def nets(n, hidden=32, seed=0, pool="attention"):
     gen = torch.Generator().manual_seed(seed)
     layout = spread_layout(n)
-    return EntityActor(layout, 2, hidden, gen, out_act=torch.nn.Tanh), EntityCritic(layout, 2, hidden, gen)
+    return (EntityActor(layout, 2, hidden, gen, out_act=torch.nn.Tanh, pool=pool),
+            EntityCritic(layout, 2, hidden, gen, pool=pool))
 
 
 def count(module):
     return sum(p.numel() for p in module.parameters())
 
 
-def test_actor_ignores_the_order_of_landmarks_and_other_agents():
+@pytest.mark.parametrize("pool", ["attention", "mean"])
+def test_actor_ignores_the_order_of_landmarks_and_other_agents(pool):
     n = 5
-    actor, _ = nets(n)
+    actor, _ = nets(n, pool=pool)
     pos, vel, lm = world(n)
     obs = spread_obs(pos, vel, lm)
     out = actor(obs.transpose(0, 1))  # [N, M, 2]
@@ -54,9 +56,10 @@ def test_actor_ignores_the_order_of_landmarks_and_other_agents():
     assert not torch.allclose(actor(moved.transpose(0, 1))[0], out[0], atol=1e-4)
 
 
-def test_critic_outputs_follow_a_permutation_of_the_agents_and_ignore_the_landmark_order():
+@pytest.mark.parametrize("pool", ["attention", "mean"])
+def test_critic_outputs_follow_a_permutation_of_the_agents_and_ignore_the_landmark_order(pool):
     n = 4
-    _, critic = nets(n)
+    _, critic = nets(n, pool=pool)
     pos, vel, lm = world(n, seed=1)
     act = torch.rand(6, n, 2) * 2 - 1
     q = critic(joint_input(spread_obs(pos, vel, lm), act))[..., 0]  # [N, M]
@@ -84,10 +87,13 @@ def test_critic_is_centralised_it_reads_the_other_agents_actions_and_velocities(
     assert not torch.allclose(q_vel[0], q[0], atol=1e-5)  # and with agent 1's velocity, absent from o_0
 
 
-def test_parameter_count_does_not_depend_on_the_number_of_agents():
-    counts = {n: tuple(count(m) for m in nets(n)) for n in (4, 8, 16)}
+@pytest.mark.parametrize("pool", ["attention", "mean"])
+def test_parameter_count_does_not_depend_on_the_number_of_agents(pool):
+    counts = {n: tuple(count(m) for m in nets(n, pool=pool)) for n in (4, 8, 16)}
     assert counts[4] == counts[8] == counts[16], counts
     assert min(counts[4]) > 0
+    with pytest.raises(ValueError, match="pool"):
+        nets(4, pool="max")
 
 
 def test_critic_signatures_agree_on_shared_and_per_owner_rows():
@@ -122,9 +128,10 @@ def test_masked_entities_are_ignored():
     assert torch.isfinite(empty).all()
 
 
-def test_gradients_reach_every_parameter():
+@pytest.mark.parametrize("pool", ["attention", "mean"])
+def test_gradients_reach_every_parameter(pool):
     n = 4
-    actor, critic = nets(n)
+    actor, critic = nets(n, pool=pool)
     pos, vel, lm = world(n, seed=4)
     obs = spread_obs(pos, vel, lm)
     act = actor(obs.transpose(0, 1)).transpose(0, 1)  # [M, N, 2]

@@ -86,6 +86,10 @@ class MADDPGConfig:
     # agents over the observation's entities, a parameter count independent of N: cmcl.learners.entity_nets;
     # built-in tasks only). Unset: "shared" if share_parameters else "per_agent"
     networks: NetworkKind | None = None
+    # how every entity network of the run (learner, teachers.networks and icm.networks = "entity") pools its
+    # entities: "attention" (one head from the agent's own embedding, plus a mean) or "mean" (the mean only, about
+    # half the cost per update)
+    entity_pool: Literal["attention", "mean"] = "attention"
 
     def __post_init__(self) -> None:
         _check_networks("maddpg", self.networks, self.share_parameters)

@@ -34,40 +34,52 @@ from torch import nn
 from cmcl.envs.entities import ABSENT, EntityLayout
 from cmcl.learners.nets import StackedLinear, StackedMLP
 
-__all__ = ["EntityActor", "EntityCritic", "EntityEncoder", "EntityFeatures"]
+__all__ = ["POOLS", "EntityActor", "EntityCritic", "EntityEncoder", "EntityFeatures"]
+
+POOLS = ("attention", "mean")  # the encoder's pooling over entities (maddpg.entity_pool)
 
 
 class EntityEncoder(nn.Module):
-    """z = [s, attention pool, mean pool] of each (own, entities, mask) row, G groups (module docstring).
+    """z = [s, attention pool, mean pool] of each (own, entities, mask) row, G groups (module docstring); with
+    pool="mean" z = [s, mean pool] (no attention: ~2x cheaper per entity, DeepSets-style).
 
-    own float32[G, R, S], entities float32[G, R, E, F], mask bool[G, R, E] -> z float32[G, R, 3H].
+    own float32[G, R, S], entities float32[G, R, E, F], mask bool[G, R, E] -> z float32[G, R, 3H] (or 2H).
     """
 
-    def __init__(self, groups: int, own_dim: int, entity_dim: int, hidden: int, generator: torch.Generator):
+    def __init__(self, groups: int, own_dim: int, entity_dim: int, hidden: int, generator: torch.Generator,
+                 pool: str = "attention"):
         super().__init__()
-        self.hidden = int(hidden)
+        if pool not in POOLS:
+            raise ValueError(f"pool must be one of {list(POOLS)}, got {pool!r}")
+        self.hidden, self.pool = int(hidden), pool
         self.own = StackedLinear(groups, own_dim, hidden, generator)
         self.entity = StackedLinear(groups, entity_dim, hidden, generator)
-        self.query = StackedLinear(groups, hidden, hidden, generator)
+        if pool == "attention":
+            self.query = StackedLinear(groups, hidden, hidden, generator)
 
     @property
     def out_dim(self) -> int:
-        return 3 * self.hidden
+        return (3 if self.pool == "attention" else 2) * self.hidden
 
     def forward(self, own: torch.Tensor, entities: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         g, r, e, f = entities.shape
         s = self.own(own).relu_()  # [G, R, H] (in place: torch.relu on a fresh tensor runs ~5x slower here)
         if e == 0:
-            return torch.cat([s, torch.zeros_like(s), torch.zeros_like(s)], -1)
+            return torch.cat([s, *[torch.zeros_like(s)] * (self.out_dim // self.hidden - 1)], -1)
         h = self.entity(entities.reshape(g, r * e, f)).relu_().view(g, r, e, self.hidden)  # [G, R, E, H]
-        q = self.query(s) / math.sqrt(self.hidden)  # [G, R, H]
-        logits = torch.einsum("greh,grh->gre", h, q)  # [G, R, E]
-        if bool(mask.all()):
-            alpha, mean = torch.softmax(logits, -1), h.mean(-2)
+        everyone = bool(mask.all())
+        if everyone:
+            mean = h.mean(-2)
         else:
-            alpha = torch.softmax(logits.masked_fill(~mask, float("-inf")), -1).nan_to_num(0.0)  # none present: 0
             weight = mask.to(h.dtype)
             mean = (h * weight.unsqueeze(-1)).sum(-2) / weight.sum(-1, keepdim=True).clamp(min=1.0)
+        if self.pool == "mean":
+            return torch.cat([s, mean], -1)
+        q = self.query(s) / math.sqrt(self.hidden)  # [G, R, H]
+        logits = torch.einsum("greh,grh->gre", h, q)  # [G, R, E]
+        if not everyone:
+            logits = logits.masked_fill(~mask, float("-inf"))
+        alpha = torch.softmax(logits, -1).nan_to_num(0.0)  # a row without entities attends to nothing
         pooled = torch.einsum("gre,greh->grh", alpha, h)  # [G, R, H]
         return torch.cat([s, pooled, mean], -1)
 
@@ -79,10 +91,10 @@ class EntityActor(nn.Module):
     """
 
     def __init__(self, layout: EntityLayout, act_dim: int, hidden: int, generator: torch.Generator,
-                 out_act: type[nn.Module] | None = None):
+                 out_act: type[nn.Module] | None = None, pool: str = "attention"):
         super().__init__()
         self.layout, self.num_agents, self.act_dim = layout, layout.num_agents, int(act_dim)
-        self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim, hidden, generator)
+        self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim, hidden, generator, pool)
         self.head = StackedMLP(1, self.encoder.out_dim, (hidden,), act_dim, out_act=out_act, generator=generator)
 
     def forward(self, x: torch.Tensor, members: torch.Tensor | None = None) -> torch.Tensor:
@@ -99,10 +111,10 @@ class EntityFeatures(nn.Module):
     agents[a]'s observations -> float32[A, M, out_dim] = W·z + b, z the entity encoder's output."""
 
     def __init__(self, layout: EntityLayout, agents: list[int], hidden: int, out_dim: int,
-                 generator: torch.Generator):
+                 generator: torch.Generator, pool: str = "attention"):
         super().__init__()
         self.layout, self.agents, self.out_dim = layout, [int(a) for a in agents], int(out_dim)
-        self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim, hidden, generator)
+        self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim, hidden, generator, pool)
         self.out = StackedLinear(1, self.encoder.out_dim, out_dim, generator)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -122,12 +134,12 @@ class EntityCritic(nn.Module):
     """
 
     def __init__(self, layout: EntityLayout, act_dim: int, hidden: int, generator: torch.Generator,
-                 groups: int = 1):
+                 groups: int = 1, pool: str = "attention"):
         super().__init__()
         self.layout, self.num_agents, self.act_dim, self.groups = layout, layout.num_agents, int(act_dim), int(groups)
         self.obs_dim = layout.obs_dim
         own_in = layout.own_dim + act_dim
-        self.encoder = EntityEncoder(groups, own_in, layout.entity_dim + own_in, hidden, generator)
+        self.encoder = EntityEncoder(groups, own_in, layout.entity_dim + own_in, hidden, generator, pool)
         self.value = StackedMLP(groups, self.encoder.out_dim, (hidden,), 1, generator=generator)
         n = layout.num_agents
         # index arrays (not parameters: kept out of the state dict) for the per-agent gathers of q_agent

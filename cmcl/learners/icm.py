@@ -44,7 +44,7 @@ class ICM:
         grad_clip: optional per-agent gradient-norm clip (None = off, as specified).
         chunk_size: rows per forward pass in :meth:`curiosity`.  seed: initial weights.
         networks: "per_agent" (one φ, g, F per agent) or "entity" (module docstring; needs entity_layout and
-            agents, the agent index of each of the A rows).
+            agents, the agent index of each of the A rows; entity_pool: the encoder's pooling).
     """
 
     def __init__(
@@ -63,6 +63,7 @@ class ICM:
         networks: str = "per_agent",
         agents: Sequence[int] | np.ndarray | None = None,
         entity_layout: EntityLayout | None = None,
+        entity_pool: str = "attention",
     ):
         self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
         self.feature_dim, self.beta = int(feature_dim), float(beta_forward)
@@ -72,7 +73,8 @@ class ICM:
         if networks == "entity":
             if entity_layout is None or agents is None or len(agents) != a:
                 raise ValueError(f"an entity ICM needs the entity layout and the index of each of its {a} agents")
-            self.phi: torch.nn.Module = EntityFeatures(entity_layout, list(agents), hidden, feature_dim, gen)
+            self.phi: torch.nn.Module = EntityFeatures(entity_layout, list(agents), hidden, feature_dim, gen,
+                                                          entity_pool)
             a = 1  # one inverse and one forward model, broadcast over the agents
         elif networks == "per_agent":
             self.phi = StackedMLP(a, obs_dim, (hidden,), feature_dim, generator=gen)

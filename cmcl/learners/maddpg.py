@@ -53,6 +53,7 @@ class MADDPG:
             width H); None: what share_parameters says. The gradient clip then applies to the one network, and the
             per-agent grad norms report its norm for every agent.
         entity_layout: how the flat observation splits into entities (cmcl.envs.entities); needed by "entity".
+        entity_pool: the entity encoder's pooling, "attention" or "mean" (cmcl.learners.entity_nets).
         act_mask: float32[N, act_dim], 1 on the action entries each agent has and 0 on zero padding (agents whose
             action sizes differ); every actor output is multiplied by it, so the critics only ever see zeros there.
             None: every entry is used.
@@ -77,6 +78,7 @@ class MADDPG:
         act_mask: np.ndarray | None = None,
         networks: str | None = None,
         entity_layout: EntityLayout | None = None,
+        entity_pool: str = "attention",
     ):
         self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
         self.gamma, self.tau, self.grad_clip = float(gamma), float(tau), float(grad_clip)
@@ -88,7 +90,7 @@ class MADDPG:
         self.networks = network_kind(networks, share_parameters)
         self.share_parameters = self.networks == "shared"
         self.actor, self.critic = build_networks(self.networks, n, obs_dim, act_dim, widths, discrete, gen,
-                                                 entity_layout)
+                                                 entity_layout, entity_pool)
         self.target_actor = copy.deepcopy(self.actor).requires_grad_(False)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
         self.actor_opt = make_adam(self.actor.parameters(), actor_lr)

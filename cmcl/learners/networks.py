@@ -29,8 +29,10 @@ def network_kind(networks: str | None, share_parameters: bool) -> str:
 
 
 def build_networks(kind: str, n: int, obs_dim: int, act_dim: int, widths: tuple[int, ...], discrete: bool,
-                   gen: torch.Generator, layout: EntityLayout | None) -> tuple[nn.Module, nn.Module]:
-    """(actor, critic) of the given kind: StackedMLPs with N members (per agent or shared), or entity networks."""
+                   gen: torch.Generator, layout: EntityLayout | None, pool: str = "attention"
+                   ) -> tuple[nn.Module, nn.Module]:
+    """(actor, critic) of the given kind: StackedMLPs with N members (per agent or shared), or entity networks
+    (pooling over entities `pool`: entity_nets.POOLS)."""
     out_act = None if discrete else nn.Tanh
     if kind != "entity":
         share = kind == "shared"
@@ -41,5 +43,5 @@ def build_networks(kind: str, n: int, obs_dim: int, act_dim: int, widths: tuple[
                          f"{None if layout is None else (layout.num_agents, layout.obs_dim)}")
     if len(set(widths)) != 1:
         raise ValueError(f"entity networks take one hidden width, got {widths}")
-    return (EntityActor(layout, act_dim, widths[0], gen, out_act=out_act),
-            EntityCritic(layout, act_dim, widths[0], gen))
+    return (EntityActor(layout, act_dim, widths[0], gen, out_act=out_act, pool=pool),
+            EntityCritic(layout, act_dim, widths[0], gen, pool=pool))

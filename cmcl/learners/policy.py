@@ -77,7 +77,9 @@ class NumpyEntityPolicy(NumpyPolicy):
         self.act_mask = None if act_mask is None else np.asarray(act_mask, np.float32)
         self.layout = layout
         heads = len([k for k in weights if k.startswith("head.layers.") and k.endswith(".weight")])
-        names = [f"encoder.{part}.{p}" for part in ("own", "entity", "query") for p in ("weight", "bias")]
+        self.attention = "encoder.query.weight" in weights  # maddpg.entity_pool = "attention" (else "mean")
+        parts = ("own", "entity", "query") if self.attention else ("own", "entity")
+        names = [f"encoder.{part}.{p}" for part in parts for p in ("weight", "bias")]
         w = _checked(weights, names + [f"head.layers.{i}.{p}" for i in range(heads) for p in ("weight", "bias")])
         self.enc = {k.split(".")[1] + "." + k.split(".")[2]: v[0] for k, v in w.items() if k.startswith("encoder.")}
         self.weights = [w[f"head.layers.{i}.weight"] for i in range(heads)]
@@ -85,20 +87,23 @@ class NumpyEntityPolicy(NumpyPolicy):
         self.hidden = self.enc["own.weight"].shape[1]
 
     def mean_action(self, obs: np.ndarray) -> np.ndarray:
-        """obs float32[B, N, obs_dim] -> tanh(head(z)) float32[B, N, act_dim], z the encoder's [s, attention, mean]."""
+        """obs float32[B, N, obs_dim] -> tanh(head(z)) float32[B, N, act_dim], z the encoder's [s, attention, mean]
+        (or [s, mean])."""
         own, ents, mask = self.layout.split(np.asarray(obs, dtype=np.float32))  # [B, N, S], [B, N, E, F], [B, N, E]
         e = self.enc
         s = np.maximum(own @ e["own.weight"] + e["own.bias"], 0.0)  # [B, N, H]
         h = np.maximum(ents @ e["entity.weight"] + e["entity.bias"], 0.0)  # [B, N, E, H]
-        q = (s @ e["query.weight"] + e["query.bias"]) / np.float32(np.sqrt(self.hidden))
-        logits = np.where(mask, np.matmul(h, q[..., None])[..., 0], -np.inf)  # [B, N, E]
-        top = logits.max(-1, keepdims=True)
-        weight = np.where(mask, np.exp(logits - np.where(np.isfinite(top), top, 0.0)), 0.0)
-        alpha = weight / np.maximum(weight.sum(-1, keepdims=True), np.finfo(np.float32).tiny)
-        pooled = np.matmul(alpha[..., None, :], h)[..., 0, :]  # [B, N, H]
         count = mask.sum(-1, keepdims=True)
         mean = np.where(mask[..., None], h, 0.0).sum(-2) / np.maximum(count, 1)
-        z = np.concatenate([s, pooled, mean], -1).astype(np.float32)
+        pools = [s, mean]
+        if self.attention:
+            q = (s @ e["query.weight"] + e["query.bias"]) / np.float32(np.sqrt(self.hidden))
+            logits = np.where(mask, np.matmul(h, q[..., None])[..., 0], -np.inf)  # [B, N, E]
+            top = logits.max(-1, keepdims=True)
+            weight = np.where(mask, np.exp(logits - np.where(np.isfinite(top), top, 0.0)), 0.0)
+            alpha = weight / np.maximum(weight.sum(-1, keepdims=True), np.finfo(np.float32).tiny)
+            pools = [s, np.matmul(alpha[..., None, :], h)[..., 0, :], mean]  # [B, N, H] each
+        z = np.concatenate(pools, -1).astype(np.float32)
         b, n = z.shape[:2]
         x = _mlp(z.reshape(1, b * n, -1), self.weights, self.biases)
         return np.tanh(x).reshape(b, n, -1)

@@ -52,7 +52,8 @@ class TeacherEnsemble:
             docstring); parameters ~A times fewer, for N = 8 / 16.
         networks: "per_agent", "shared" (= share_parameters) or "entity" (module docstring); None: share_parameters.
         agents: int64[A], the agents the teachers stand for (entity teachers read their Q); default 0..A-1.
-        entity_layout, act_dim: the observation's entity layout and the action width (entity teachers only).
+        entity_layout, act_dim, entity_pool: the observation's entity layout, the action width and the encoder's
+            pooling (entity teachers only).
     """
 
     def __init__(
@@ -71,6 +72,7 @@ class TeacherEnsemble:
         agents: Sequence[int] | np.ndarray | None = None,
         entity_layout: EntityLayout | None = None,
         act_dim: int = 2,
+        entity_pool: str = "attention",
     ):
         self.num_agents, self.num_folds, self.in_dim = int(num_agents), int(num_folds), int(in_dim)
         self.grad_clip, self.chunk_size = grad_clip, int(chunk_size)
@@ -84,7 +86,7 @@ class TeacherEnsemble:
             if len(set(widths)) != 1:
                 raise ValueError(f"entity teachers take one hidden width, got {widths}")
             self.net = EntityCritic(entity_layout, act_dim, widths[0], torch.Generator().manual_seed(int(seed)),
-                                    groups=self.num_folds)
+                                    groups=self.num_folds, pool=entity_pool)
         else:
             self.net = StackedMLP(self.num_agents * self.num_folds, self.in_dim, widths, 1, seed=seed,
                                   share=self.share_parameters, share_groups=self.num_folds)
