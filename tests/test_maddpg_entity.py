@@ -77,3 +77,12 @@ def test_network_settings_are_checked():
     assert load_config(None, ["teachers.networks=entity"]).teachers.network_kind == "entity"
     with pytest.raises(ConfigError, match="teachers.share_parameters = true contradicts teachers.networks"):
         load_config(None, ["teachers.networks=per_agent", "teachers.share_parameters=true"])
+
+
+def test_discrete_entity_actors_update():
+    m = MADDPG(N, OD, 5, hidden=32, seed=0, discrete=True, networks="entity", entity_layout=LAYOUT)
+    rows = joint_rows(od=OD, n=N, ad=5)
+    out = m.update(owner_batch(rows, n=N))
+    assert np.isfinite(out["critic_loss"]).all() and np.isfinite(out["actor_loss"]).all()
+    probs = m.act(rows["obs"][:6], 0.0)
+    np.testing.assert_allclose(probs.sum(-1), 1.0, atol=1e-5)
