@@ -15,8 +15,8 @@ targets, the teachers' targets and the checkpoints run unchanged. The flat obser
            (landmarks / obstacles: [x_e, 0, 0]). Agent i's own view already holds the relative position of every
            other agent and landmark, so this is the full state and joint action, seen from i, pooled symmetrically
            over the other agents (the permutation invariance of PIC, Liu et al. 2019, whose graph critic embeds
-           every agent's whole observation instead: N·E entity rows per Q against E here; built that way, at N = 8
-           one update took ~1.4 s on one core against ~0.15 s for this one).
+           every agent's whole observation instead: N·E entity rows per Q against E here; built that way, with an
+           encoder since made about twice as fast, an update at N = 8 took ~1.4 s on one core).
            Permuting the agents permutes the Q's; permuting agent i's landmarks or other agents leaves Q_i as it is.
 
 Every layer is a :class:`~cmcl.learners.nets.StackedLinear` with a leading *group* axis G of independent networks:
