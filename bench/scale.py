@@ -1,7 +1,8 @@
 """Scale past the paper's N = 4: what one update costs, and how learning goes, at N = 4, 8 and 16 agents.
 
 Cost (default): for each N and each network kind (NETWORKS: per-agent networks, the paper's; `maddpg.
-share_parameters = true`; and that plus `teachers.share_parameters = true`, one teacher network per fold),
+share_parameters = true`; and that plus `teachers.share_parameters = true`, one teacher network per fold; and
+`maddpg.networks = "entity"`, one attention actor and critic whose size does not depend on N),
 the inline loop of cooperative navigation (N agents, N landmarks) is filled to its buffer capacity by its own
 policy, then timed over interleaved rounds of `InlineLoop.update()` (everything the loop does per update at the
 defaults: the MADDPG step, and for CMCL the teacher and ICM steps, scoring and the priority recompute). Printed:
@@ -37,18 +38,18 @@ from cmcl.io.rundir import RunDirectory  # noqa: E402
 from cmcl.loop import InlineLoop  # noqa: E402
 from experiments.measures import WINDOW, first_reaching  # noqa: E402
 
-NETWORKS = {  # network kind -> (maddpg.share_parameters, teachers.share_parameters)
-    "own": (False, False),  # per-agent actors, critics and (agent, fold) teachers: the paper's
-    "shared": (True, False),  # one actor and one critic for all agents
-    "shared_teachers": (True, True),  # ... and one teacher per fold for all agents
+NETWORKS = {  # network kind -> (maddpg.networks, teachers.share_parameters)
+    "own": ("per_agent", False),  # per-agent actors, critics and (agent, fold) teachers: the paper's
+    "shared": ("shared", False),  # one actor and one critic for all agents
+    "shared_teachers": ("shared", True),  # ... and one teacher per fold for all agents
+    "entity": ("entity", False),  # entity actor and critic (cmcl.learners.entity_nets); per-agent teachers
 }
 
 
 def overrides(n: int, kind: str) -> list[str]:
     """Config overrides of the navigation preset for N agents (and N landmarks) with the networks of `kind`."""
     maddpg, teachers = NETWORKS[kind]
-    return [f"env.num_agents={n}", f"maddpg.share_parameters={str(maddpg).lower()}",
-            f"teachers.share_parameters={str(teachers).lower()}"]
+    return [f"env.num_agents={n}", f"maddpg.networks={maddpg}", f"teachers.share_parameters={str(teachers).lower()}"]
 
 
 def parameter_counts(loop: InlineLoop) -> tuple[int, int]:
@@ -105,8 +106,8 @@ def learn(algorithm: str, agents: list[int], seeds: list[int], episodes: int, ou
                 rows = list(RunDirectory.open(run_dir).rows("episode"))
                 coverage = np.array([r["coverage"] for r in rows], np.float64)
                 success = np.array([r["success"] for r in rows], np.float64)
-                summary = {"algorithm": algorithm, "agents": n, "networks": kind, "shared": NETWORKS[kind][0],
-                           "shared_teachers": NETWORKS[kind][1], "seed": seed,
+                summary = {"algorithm": algorithm, "agents": n, "networks": kind,
+                           "shared": NETWORKS[kind][0] == "shared", "shared_teachers": NETWORKS[kind][1], "seed": seed,
                            "episodes": len(coverage), "wall_s": rows[-1]["elapsed_s"],  # resumes included
                            "final_ma_coverage": float(coverage[-WINDOW:].mean()),
                            "final_ma_success": float(success[-WINDOW:].mean()),

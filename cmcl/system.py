@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cmcl.config import Config, ConfigError
+from cmcl.envs.entities import EntityLayout, entity_layout
 from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.curriculum import CurriculumSchedule, default_growth
 
@@ -52,6 +53,9 @@ class AgentLayout:
     # Gumbel-softmax actors (A17): maddpg.discrete for the built-in tasks (MPE's 5-way action), or an env.factory
     # environment whose agents' action spaces are Discrete
     discrete: bool = False
+    # how each flat observation splits into entities (cmcl.envs.entities), for maddpg.networks = "entity";
+    # None for an env.factory environment (no known layout)
+    entities: EntityLayout | None = None
 
     @property
     def team_of(self) -> list[str]:
@@ -133,7 +137,15 @@ def agent_layout(config: Config, env) -> AgentLayout:
                        importance_weights=tuple(isw), difficulty_source=tuple(source),
                        teacher_agents=np.asarray(sorted(teacher), dtype=np.int64),
                        icm_agents=np.asarray(sorted(icm), dtype=np.int64),
-                       act_mask=None if mask is None or mask.all() else mask.copy(), discrete=discrete)
+                       act_mask=None if mask is None or mask.all() else mask.copy(), discrete=discrete,
+                       entities=entity_layout(getattr(env, "params", None)))
+
+
+def _require_entity_layout(layout: AgentLayout, key: str, kind: str) -> None:
+    """ConfigError when `key` asks for entity networks in a world without an entity layout (an env.factory one)."""
+    if kind == "entity" and layout.entities is None:
+        raise ConfigError(f"{key} = 'entity' needs a built-in task (env.task spread or tag): this environment's "
+                          "observations have no known entity layout")
 
 
 def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
@@ -141,9 +153,11 @@ def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
     from cmcl.learners.maddpg import MADDPG
 
     m = config.maddpg
+    _require_entity_layout(layout, "maddpg.networks", m.network_kind)
     return MADDPG(layout.num_agents, layout.obs_dim, layout.act_dim, hidden=m.hidden, actor_lr=m.actor_lr,
                   critic_lr=m.critic_lr, gamma=m.gamma, tau=m.tau, grad_clip=m.grad_clip, discrete=layout.discrete,
-                  seed=seed, share_parameters=m.share_parameters, act_mask=layout.act_mask)
+                  seed=seed, act_mask=layout.act_mask, networks=m.network_kind, entity_layout=layout.entities,
+                  entity_pool=m.entity_pool)
 
 
 def build_replay(config: Config, layout: AgentLayout) -> ReplayBuffer:
@@ -166,16 +180,22 @@ def control_seed(seed: int) -> np.random.SeedSequence:
     return np.random.SeedSequence([int(seed), CONTROL_STREAM])
 
 
-def build_teachers(config: Config, layout: AgentLayout, seed: int) -> TeacherEnsemble | None:
-    """All K teachers of every teacher-using agent as one ensemble, or None when no team uses teachers."""
+def build_teachers(config: Config, layout: AgentLayout, seed: int, num_folds: int | None = None
+                   ) -> TeacherEnsemble | None:
+    """All K teachers of every teacher-using agent as one ensemble (or `num_folds` of them: a service teacher actor
+    hosting some folds), or None when no team uses teachers."""
     if layout.teacher_agents.size == 0:
         return None
     from cmcl.learners.teachers import TeacherEnsemble
 
     t = config.teachers
+    _require_entity_layout(layout, "teachers.networks", t.network_kind)
     in_dim = layout.num_agents * (layout.obs_dim + layout.act_dim)
-    return TeacherEnsemble(int(layout.teacher_agents.size), in_dim=in_dim, num_folds=t.num_folds, hidden=t.hidden,
-                           lr=t.lr, seed=seed, share_parameters=t.share_parameters)
+    return TeacherEnsemble(int(layout.teacher_agents.size), in_dim=in_dim,
+                           num_folds=t.num_folds if num_folds is None else num_folds, hidden=t.hidden, lr=t.lr,
+                           seed=seed, networks=t.network_kind, agents=layout.teacher_agents,
+                           entity_layout=layout.entities, act_dim=layout.act_dim,
+                           entity_pool=config.maddpg.entity_pool)
 
 
 def build_icm(config: Config, layout: AgentLayout, seed: int) -> ICM | None:
@@ -185,8 +205,11 @@ def build_icm(config: Config, layout: AgentLayout, seed: int) -> ICM | None:
     from cmcl.learners.icm import ICM
 
     c = config.icm
+    _require_entity_layout(layout, "icm.networks", c.networks)
     return ICM(int(layout.icm_agents.size), layout.obs_dim, layout.act_dim, feature_dim=c.feature_dim,
-               hidden=c.hidden, beta_forward=c.beta_forward, lr=c.lr, discrete=layout.discrete, seed=seed)
+               hidden=c.hidden, beta_forward=c.beta_forward, lr=c.lr, discrete=layout.discrete, seed=seed,
+               networks=c.networks, agents=layout.icm_agents, entity_layout=layout.entities,
+               entity_pool=config.maddpg.entity_pool)
 
 
 def build_schedule(config: Config) -> CurriculumSchedule:

@@ -68,6 +68,7 @@ ABLATIONS = {  # name -> (config file, --set overrides, episode budget or None f
 # cell -> (config file, --set overrides) of the scale grid (issue 22): N agents and N landmarks, MADDPG
 SCALE_CELLS = {
     "n8_per_agent": ("spread_maddpg.toml", ["env.num_agents=8"]),  # the paper's per-agent networks: the baseline
+    "n8_entity": ("spread_maddpg.toml", ["env.num_agents=8", "maddpg.networks=entity"]),  # cmcl.learners.entity_nets
 }
 
 UPDATE_EVERY, BATCHES = (1, 4, 16, 64), (128, 512)  # the schedule grid's maddpg.update_every x maddpg.batch_size

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from cmcl.episodes import EpisodeChunker
-from cmcl.learners.policy import NumpyPolicy
+from cmcl.learners.policy import numpy_policy
 from cmcl.messages import Chunk
 from cmcl.progress import REPORTED_STATS, finished_episodes
 from cmcl.system import agent_layout, build_maddpg, make_batched_env, to_env_actions
@@ -57,11 +57,11 @@ class RolloutWorker:
 
                 load_published(self.policy, published["weights"], parts=("actor",))
             else:
-                self.policy = NumpyPolicy(published["weights"]["actor"], act_mask=self.layout.act_mask)
+                self.policy = numpy_policy(published["weights"]["actor"], self.layout.act_mask, self.layout.entities)
             self.version = int(published["version"])
         if self.policy is None:  # no weights published yet: a fresh actor, initialised like the learner's
-            self.policy = NumpyPolicy(_initial_actor(self.config, self.layout, self.net_seed),
-                                      act_mask=self.layout.act_mask)
+            self.policy = numpy_policy(_initial_actor(self.config, self.layout, self.net_seed), self.layout.act_mask,
+                                       self.layout.entities)
         cfg, b = self.config, self.env.num_envs
         finished: list[dict[str, np.ndarray]] = []  # info["episode"] of the steps in which episodes ended
         while self.chunker.ready < b:

@@ -17,7 +17,7 @@ from cmcl.learners import network_steps
 from cmcl.learners.teachers import TeacherEnsemble
 from cmcl.learners.weights import load_published
 from cmcl.messages import TeacherScores, TeacherWork
-from cmcl.system import agent_layout, build_maddpg, make_batched_env
+from cmcl.system import agent_layout, build_maddpg, build_teachers, make_batched_env
 from services.common import actor_setup, load_state, new_incarnation, save_state
 from services.report_schema import Report
 
@@ -34,10 +34,10 @@ class TeacherWorker:
         self.folds, self.incarnation, self.checkpoint_path = [int(f) for f in folds], new_incarnation(), checkpoint_path
         self.name = "teacher-" + "-".join(map(str, self.folds))
         self.layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
-        in_dim = self.layout.num_agents * (self.layout.obs_dim + self.layout.act_dim)
-        self.teachers = TeacherEnsemble(len(self.layout.teacher_agents), in_dim=in_dim, num_folds=len(self.folds),
-                                        hidden=cfg.teachers.hidden, lr=cfg.teachers.lr, seed=seed,
-                                        share_parameters=cfg.teachers.share_parameters)
+        teachers = build_teachers(cfg, self.layout, seed, num_folds=len(self.folds))
+        if teachers is None:
+            raise ValueError("no team of this config uses teachers (algorithm acl or cmcl): no teacher actor to run")
+        self.teachers: TeacherEnsemble = teachers
         self.targets = build_maddpg(cfg, self.layout, seed)  # only its target nets are used
         self.version, self.steps, self.scores, self.loss = -1, 0, 0, 0.0
         state, refused = load_state(checkpoint_path)

@@ -64,3 +64,27 @@ def test_a_rerun_keeps_finished_stages_and_resumes_a_stopped_one(tmp_path, tiny_
     run_dir.write_summary({"ended": "plateau"})
     assert stage_finished(stages[0]) and not stage_request(base, stages[1]).no_eval
     assert not Path(stages[1].run_dir).exists()
+
+
+def test_entity_networks_carry_from_two_agents_to_three_and_a_rerun_keeps_the_stages(tmp_path, tiny_config_file,
+                                                                                     capsys):
+    """The whole command, inline: stage N = 2 trains, N = 3 starts from its networks (the same parameters, now
+    acting for 3 agents), and the same command afterwards trains nothing again."""
+    import torch
+
+    root = tmp_path / "cur"
+    argv = ["stages", "--runner", "inline", "--agents", "2", "3", "--stage-episodes", "8", "8", "--no-eval",
+            "--config", str(tiny_config_file("maddpg", dir=str(root))), "--set", "maddpg.networks=entity"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert f"actors and critics initialised from {root / 'n2' / 'checkpoints'}" in out
+    assert "stage N = 3 ended (budget) at episode 8" in out
+    first, second = (RunDirectory.open(root / f"n{n}") for n in (2, 3))
+    assert first.config().env.spread.num_agents == 2 and second.config().env.spread.num_agents == 3
+    assert second.config().run.init_from == str(root / "n2")
+    a, b = (d.newest_policy().state["maddpg"]["actor"] for d in (first, second))
+    assert a.keys() == b.keys() and all(a[k].shape == b[k].shape for k in a)
+    assert any(not torch.equal(a[k], b[k]) for k in a), "the second stage trained on from the first's weights"
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "stage N = 2: done earlier" in out and "stage N = 3: done earlier" in out

@@ -146,7 +146,7 @@ def test_cli_rejects_bad_config(capsys):
 
 
 @pytest.mark.parametrize("changed", ["teachers.share_parameters=true", "maddpg.share_parameters=true",
-                                     "teachers.num_folds=2"])
+                                     "teachers.num_folds=2", "maddpg.networks=entity"])
 def test_resuming_under_other_network_settings_names_them_and_keeps_the_run(tmp_path, capsys, changed,
                                                                              tiny_config):
     config = tiny_config("cmcl", dir=str(tmp_path / "run"), episodes=4)
@@ -157,6 +157,8 @@ def test_resuming_under_other_network_settings_names_them_and_keeps_the_run(tmp_
     assert "cannot resume under these settings" in err and "Traceback" not in err
     if "share_parameters" in changed:  # named with both shapes
         assert changed.split("=")[0] in err and "has shape (" in err and "this config builds (" in err
+    elif "networks" in changed:  # other tensors altogether: both name lists and the setting
+        assert "maddpg.networks" in err and "encoder.entity.weight" in err and "layers.0.weight" in err
     else:
         assert "n_folds in state (5) differs from this storage (2)" in err
     # run.lock names the last holder (this refused resume): the one file a refusal may write

@@ -290,3 +290,39 @@ def test_the_supervisor_issues_the_calls_the_allowances_leave_room_for():
     assert calls[("teacher", 0)] == 1 and calls[("teacher", 1)] == 1  # room 4 - 2 = 2; min(2, 1) = 1
     assert calls[("icm", 0)] == 1 and (calls[("rollout", 0)], calls[("rollout", 1)]) == (0, 1)
     assert calls_to_issue(warm, busy, cfg, 2, groups, icm=False)[("icm", 0)] == 0
+
+
+def test_entity_networks_run_through_every_role():
+    """maddpg.networks = "entity": the rollout worker acts with the numpy entity actor, the learner and the
+    teachers' target networks load what the learner publishes; icm.networks = "entity" scores curiosity."""
+    from cmcl.learners.policy import NumpyEntityPolicy
+
+    cfg = in_process_config("cmcl", maddpg={"networks": "entity"}, service={"score_rows_per_call": 360},
+                            icm={"networks": "entity"})
+    replay, learner, worker, teachers, icm = roles(cfg)
+    for _ in range(3):
+        replay.insert(worker.rollout(None)[0])
+    assert isinstance(worker.policy, NumpyEntityPolicy)
+    learner.update(replay.sample(4)[0])
+    published = learner.publish()
+    assert "encoder.entity.weight" in published["weights"]["target_critic"]
+    chunk, _ = worker.rollout(published)
+    assert worker.version == published["version"] and np.isfinite(chunk.act).all()
+    work, _ = replay.teacher_work([0], 2)
+    scores, _ = teachers[0].step(work, published)
+    assert np.isfinite(scores.errors).all()
+    work, _ = replay.icm_work(2)
+    assert np.isfinite(icm.step(work)[0].rho).all()
+
+
+def test_a_teacher_actor_hosts_entity_teachers():
+    cfg = in_process_config("acl", service={"teacher_actors": 1, "score_rows_per_call": 360},
+                            teachers={"networks": "entity"})
+    replay, worker, learner = ReplayServer(cfg), RolloutWorker(cfg, 0, 0), Learner(cfg, 0)
+    teacher = TeacherWorker(cfg, [0, 1, 2], 0)
+    assert teacher.teachers.networks == "entity" and teacher.teachers.num_folds == 3
+    for _ in range(3):
+        replay.insert(worker.rollout(None)[0])
+    work, _ = replay.teacher_work([0, 1, 2], 2)
+    scores, _ = teacher.step(work, learner.publish())
+    assert scores.errors.shape == (360, 4, 3) and np.isfinite(scores.errors).all()

@@ -15,6 +15,8 @@ from typing import Any, Literal
 
 AlgorithmName = Literal["maddpg", "per", "acl", "cmcl"]
 TaskName = Literal["spread", "tag"]
+NetworkKind = Literal["per_agent", "shared", "entity"]
+NETWORK_KINDS: tuple[str, ...] = typing.get_args(NetworkKind)
 ALGORITHMS: tuple[str, ...] = typing.get_args(AlgorithmName)  # the four compared algorithms (ALGORITHM.md §5)
 TASKS: tuple[str, ...] = typing.get_args(TaskName)
 TASK_TEAMS = {"spread": ("agent",), "tag": ("predator", "prey")}  # teams of each task, in agent order
@@ -38,6 +40,19 @@ def _require(ok: bool, key: str, value: Any, why: str) -> None:
 
 def _positive(key: str, value: float) -> None:
     _require(value > 0 and math.isfinite(value), key, value, "must be a finite number > 0")
+
+
+def _check_networks(section: str, networks: str | None, share_parameters: bool) -> None:
+    """A section's `networks` is a known kind and agrees with its `share_parameters` (which means 'shared')."""
+    if share_parameters and networks not in (None, "shared"):
+        raise ConfigError(f"{section}.share_parameters = true contradicts {section}.networks = {networks!r}: set "
+                          f"only {section}.networks (share_parameters = true means networks = 'shared')")
+    _require(networks in (None, *NETWORK_KINDS), f"{section}.networks", networks,
+             f"must be one of {list(NETWORK_KINDS)}")
+
+
+def _network_kind(networks: str | None, share_parameters: bool) -> str:
+    return networks if networks is not None else ("shared" if share_parameters else "per_agent")
 
 
 def _probability(key: str, value: float, *, open_low: bool = False) -> None:
@@ -66,8 +81,18 @@ class MADDPGConfig:
     # one actor and one critic network for all agents, each with its own first-layer bias (an agent-id embedding,
     # cmcl.learners.nets); for N = 8 / 16 (bench/scale.py). False = the paper's per-agent networks
     share_parameters: bool = False
+    # the networks' kind (issue 22): "per_agent" (one actor and critic per agent, the paper's), "shared" (the same
+    # as share_parameters = true) or "entity" (one attention actor and one permutation-invariant critic for all
+    # agents over the observation's entities, a parameter count independent of N: cmcl.learners.entity_nets;
+    # built-in tasks only). Unset: "shared" if share_parameters else "per_agent"
+    networks: NetworkKind | None = None
+    # how every entity network of the run (learner, teachers.networks and icm.networks = "entity") pools its
+    # entities: "attention" (one head from the agent's own embedding, plus a mean) or "mean" (the mean only, about
+    # half the cost per update)
+    entity_pool: Literal["attention", "mean"] = "attention"
 
     def __post_init__(self) -> None:
+        _check_networks("maddpg", self.networks, self.share_parameters)
         for name in ("actor_lr", "critic_lr", "grad_clip"):
             _positive(f"maddpg.{name}", getattr(self, name))
         _probability("maddpg.gamma", self.gamma)
@@ -76,6 +101,11 @@ class MADDPGConfig:
             _require(getattr(self, name) >= 1, f"maddpg.{name}", getattr(self, name), "must be >= 1")
         _require(self.warmup >= 0, "maddpg.warmup", self.warmup, "must be >= 0")
         _require(self.exploration_std >= 0, "maddpg.exploration_std", self.exploration_std, "must be >= 0")
+
+    @property
+    def network_kind(self) -> str:
+        """The networks built: maddpg.networks, or what share_parameters implies when it is unset."""
+        return _network_kind(self.networks, self.share_parameters)
 
 
 @dataclass(frozen=True)
@@ -148,13 +178,22 @@ class TeacherConfig:
     # one teacher network per fold for all agents, each agent with its own first-layer bias (cmcl.learners.nets,
     # grouped sharing); the folds stay separate. For N = 8 / 16 (bench/scale.py). False = per-(agent, fold) networks
     share_parameters: bool = False
+    # the teachers' kind, as maddpg.networks: "entity" = one entity critic (cmcl.learners.entity_nets) per fold for
+    # all agents, its parameter count independent of N; unset: "shared" if share_parameters else "per_agent"
+    networks: NetworkKind | None = None
 
     def __post_init__(self) -> None:
+        _check_networks("teachers", self.networks, self.share_parameters)
         _require(self.num_folds >= 2, "teachers.num_folds", self.num_folds, "must be >= 2")
         for name in ("batch_size", "hidden", "rescore_rows_per_update"):
             _require(getattr(self, name) >= 1, f"teachers.{name}", getattr(self, name), "must be >= 1")
         _positive("teachers.lr", self.lr)
         _positive("teachers.steps_per_update", self.steps_per_update)
+
+    @property
+    def network_kind(self) -> str:
+        """The teachers' networks: teachers.networks, or what share_parameters implies when it is unset."""
+        return _network_kind(self.networks, self.share_parameters)
 
 
 @dataclass(frozen=True)
@@ -169,6 +208,9 @@ class ICMConfig:
     cp_input: Literal["std", "raw"] = "std"
     intrinsic_reward_coef: float = 0.0  # A6: curiosity feeds priority only
     steps_per_update: float = 0.5  # ICM steps per learner update, inline and in the service (§3.8: 1)
+    # "per_agent": one encoder, inverse and forward model per curiosity agent; "entity": one of each for all of
+    # them, the encoder over the observation's entities (cmcl.learners.entity_nets), a size independent of N
+    networks: Literal["per_agent", "entity"] = "per_agent"
 
     def __post_init__(self) -> None:
         for name in ("feature_dim", "hidden", "batch_size"):

@@ -8,6 +8,8 @@ and the MADDPG actors/critics: separate modules and a separate optimiser.
 
 Members are agents (the A agents that use CMCL): phi_v: o -> 64 -> feature_dim, g_v: [phi(o), phi(o')] -> 64 ->
 act_dim (inverse model), F_v: [phi(o), a] -> 64 -> feature_dim (forward model).
+With ``networks="entity"`` one network of each kind serves every agent: φ is the entity encoder
+(cmcl.learners.entity_nets.EntityFeatures) and g, F one MLP each, so the ICM's size depends on neither N nor A.
 Inputs are per-agent slices ``obs[A, M, obs_dim]`` (from joint rows: ``obs[:, agents].transpose(0, 1)``).
 ``icm_scope="joint"`` (A5 option) needs no extra code: use ``ICM(num_agents=1, obs_dim=N*od, act_dim=N*ad)`` on
 flattened joint rows ``[1, M, N*od]`` and share the resulting rho across the team.
@@ -16,12 +18,14 @@ Public boundary: numpy or torch in (float32), numpy out.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
+from cmcl.envs.entities import EntityLayout
+from cmcl.learners.entity_nets import EntityFeatures
 from cmcl.learners.nets import StackedMLP, as_tensor, clip_grad_norm_per_member_, make_adam
 from cmcl.learners.state_check import require_same_shapes
 
@@ -39,6 +43,8 @@ class ICM:
         discrete: inverse loss = cross-entropy against argmax(a) instead of ||tanh(g) - a||^2.
         grad_clip: optional per-agent gradient-norm clip (None = off, as specified).
         chunk_size: rows per forward pass in :meth:`curiosity`.  seed: initial weights.
+        networks: "per_agent" (one φ, g, F per agent) or "entity" (module docstring; needs entity_layout and
+            agents, the agent index of each of the A rows; entity_pool: the encoder's pooling).
     """
 
     def __init__(
@@ -54,13 +60,26 @@ class ICM:
         grad_clip: float | None = None,
         chunk_size: int = 4096,
         seed: int = 0,
+        networks: str = "per_agent",
+        agents: Sequence[int] | np.ndarray | None = None,
+        entity_layout: EntityLayout | None = None,
+        entity_pool: str = "attention",
     ):
         self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
         self.feature_dim, self.beta = int(feature_dim), float(beta_forward)
         self.discrete, self.grad_clip, self.chunk_size = bool(discrete), grad_clip, int(chunk_size)
         gen = torch.Generator().manual_seed(int(seed))
-        a = self.num_agents
-        self.phi = StackedMLP(a, obs_dim, (hidden,), feature_dim, generator=gen)
+        a, self.networks = self.num_agents, networks
+        if networks == "entity":
+            if entity_layout is None or agents is None or len(agents) != a:
+                raise ValueError(f"an entity ICM needs the entity layout and the index of each of its {a} agents")
+            self.phi: torch.nn.Module = EntityFeatures(entity_layout, list(agents), hidden, feature_dim, gen,
+                                                          entity_pool)
+            a = 1  # one inverse and one forward model, broadcast over the agents
+        elif networks == "per_agent":
+            self.phi = StackedMLP(a, obs_dim, (hidden,), feature_dim, generator=gen)
+        else:
+            raise ValueError(f"networks must be 'per_agent' or 'entity', got {networks!r}")
         self.inverse = StackedMLP(a, 2 * feature_dim, (hidden,), act_dim, generator=gen)
         self.forward_model = StackedMLP(a, feature_dim + act_dim, (hidden,), feature_dim, generator=gen)
         self.opt = make_adam(self.parameters(), lr)
@@ -151,7 +170,8 @@ class ICM:
     def load_state_dict(self, state: Mapping) -> None:
         """Restore :meth:`state_dict` output (same architecture: checked first, by name)."""
         require_same_shapes("checkpoint icm", {"phi": self.phi, "inverse": self.inverse,
-                                               "forward": self.forward_model}, state, "icm settings or agents")
+                                               "forward": self.forward_model}, state,
+                            "icm.networks, icm settings or agents")
         self.phi.load_state_dict(state["phi"])
         self.inverse.load_state_dict(state["inverse"])
         self.forward_model.load_state_dict(state["forward"])

@@ -25,7 +25,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from cmcl.learners.nets import StackedMLP, as_tensor, clip_grad_norm_per_member_, joint_input, make_adam, soft_update_
+from cmcl.envs.entities import EntityLayout
+from cmcl.learners.nets import as_tensor, clip_grad_norm_per_member_, joint_input, make_adam, soft_update_
+from cmcl.learners.networks import build_networks, network_kind
 from cmcl.learners.state_check import require_same_shapes
 
 __all__ = ["MADDPG"]
@@ -46,6 +48,12 @@ class MADDPG:
         seed: initial weights and the internal noise generator.
         share_parameters: one actor and one critic network for all agents, each agent keeping its own first-layer
             bias (an agent-id embedding; cmcl.learners.nets). Off by default (the paper's per-agent networks).
+        networks: "per_agent", "shared" (= share_parameters) or "entity": one attention actor and one
+            permutation-invariant critic for all agents (cmcl.learners.entity_nets; ``hidden`` must be an int, the
+            width H); None: what share_parameters says. The gradient clip then applies to the one network, and the
+            per-agent grad norms report its norm for every agent.
+        entity_layout: how the flat observation splits into entities (cmcl.envs.entities); needed by "entity".
+        entity_pool: the entity encoder's pooling, "attention" or "mean" (cmcl.learners.entity_nets).
         act_mask: float32[N, act_dim], 1 on the action entries each agent has and 0 on zero padding (agents whose
             action sizes differ); every actor output is multiplied by it, so the critics only ever see zeros there.
             None: every entry is used.
@@ -68,6 +76,9 @@ class MADDPG:
         seed: int = 0,
         share_parameters: bool = False,
         act_mask: np.ndarray | None = None,
+        networks: str | None = None,
+        entity_layout: EntityLayout | None = None,
+        entity_pool: str = "attention",
     ):
         self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
         self.gamma, self.tau, self.grad_clip = float(gamma), float(tau), float(grad_clip)
@@ -76,10 +87,10 @@ class MADDPG:
         init_seed, noise_seed = np.random.SeedSequence(seed).generate_state(2)
         gen = torch.Generator().manual_seed(int(init_seed))
         n = self.num_agents
-        share = self.share_parameters = bool(share_parameters)
-        self.actor = StackedMLP(n, obs_dim, widths, act_dim, out_act=None if discrete else nn.Tanh, generator=gen,
-                                share=share)
-        self.critic = StackedMLP(n, n * (obs_dim + act_dim), widths, 1, generator=gen, share=share)
+        self.networks = network_kind(networks, share_parameters)
+        self.share_parameters = self.networks == "shared"
+        self.actor, self.critic = build_networks(self.networks, n, obs_dim, act_dim, widths, discrete, gen,
+                                                 entity_layout, entity_pool)
         self.target_actor = copy.deepcopy(self.actor).requires_grad_(False)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
         self.actor_opt = make_adam(self.actor.parameters(), actor_lr)
@@ -91,7 +102,7 @@ class MADDPG:
         self.act_mask = None if act_mask is None else torch.as_tensor(act_mask, dtype=torch.float32).view(n, 1, -1)
 
     # ------------------------------------------------------------------ policies
-    def _policy(self, net: StackedMLP, obs: torch.Tensor, sample: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    def _policy(self, net: nn.Module, obs: torch.Tensor, sample: bool) -> tuple[torch.Tensor, torch.Tensor]:
         """obs [N, B, obs_dim] -> (actions [N, B, act_dim], raw outputs [N, B, act_dim]).
 
         Continuous: the tanh output is the action. Discrete: Gumbel-softmax sample of the logits (``sample``),
@@ -113,7 +124,7 @@ class MADDPG:
         """Logits with −inf on the padded entries (mask 0, broadcast against logits): a softmax gives them 0."""
         return logits if mask is None else logits.masked_fill(mask == 0, float("-inf"))
 
-    def _joint_actions(self, net: StackedMLP, obs: torch.Tensor, sample: bool) -> torch.Tensor:
+    def _joint_actions(self, net: nn.Module, obs: torch.Tensor, sample: bool) -> torch.Tensor:
         """Every agent's action from its own obs: obs [..., N, obs_dim] -> act [..., N, act_dim]."""
         lead = obs.shape[:-2]
         x = obs.reshape(-1, self.num_agents, self.obs_dim).transpose(0, 1)  # [N, B, obs_dim]
@@ -219,8 +230,8 @@ class MADDPG:
         sq = delta.pow(2)
         loss = (sq * w).mean(1) if w is not None else sq.mean(1)  # [N]
         self.critic_opt.zero_grad(set_to_none=True)
-        loss.sum().backward()
-        norms = clip_grad_norm_per_member_(self.critic.parameters(), self.grad_clip)
+        self._total(loss).backward()
+        norms = self._clip(self.critic.parameters())
         self.critic_opt.step()
         return loss.detach(), delta.detach(), norms
 
@@ -238,10 +249,20 @@ class MADDPG:
             loss = loss + self.logit_l2 * raw.pow(2).mean((1, 2))
         params = list(self.actor.parameters())
         self.actor_opt.zero_grad(set_to_none=True)
-        loss.sum().backward(inputs=params)
-        norms = clip_grad_norm_per_member_(params, self.grad_clip)
+        self._total(loss).backward(inputs=params)
+        norms = self._clip(params)
         self.actor_opt.step()
         return loss.detach(), norms
+
+    def _total(self, loss: torch.Tensor) -> torch.Tensor:
+        """The scalar to differentiate from per-agent losses [N]: their sum (each member's gradient is its own
+        agent's), their mean for the one entity network (its gradient then has one agent's scale for the clip)."""
+        return loss.mean() if self.networks == "entity" else loss.sum()
+
+    def _clip(self, params) -> torch.Tensor:
+        """Clip the gradients per member (one norm for a shared network); pre-clip norms float32[N]."""
+        norms = clip_grad_norm_per_member_(params, self.grad_clip)
+        return norms.expand(self.num_agents) if norms.numel() == 1 else norms
 
     def update(self, batch: Mapping[str, ArrayLike]) -> dict[str, np.ndarray]:
         """One MADDPG step for all agents on per-owner minibatches (§2): critic (eq. 5), actor (eq. 4), targets (eq. 6).
@@ -315,7 +336,7 @@ class MADDPG:
         """Restore everything saved by :meth:`state_dict` (same architecture required: checked first, by name)."""
         parts = ("actor", "critic", "target_actor", "target_critic")
         require_same_shapes("checkpoint maddpg", {name: getattr(self, name) for name in parts}, state,
-                            "maddpg.share_parameters, maddpg.hidden, agents or observation sizes")
+                            "maddpg.networks, maddpg.share_parameters, maddpg.hidden, agents or observation sizes")
         for name in parts:
             getattr(self, name).load_state_dict(state[name])
         self.actor_opt.load_state_dict(state["actor_opt"])

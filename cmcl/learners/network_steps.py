@@ -104,5 +104,5 @@ def online_td_abs(maddpg: MADDPG, rows: dict[str, np.ndarray]) -> np.ndarray:
     """|y − Q_v(s, a)| of every agent's online critic on joint rows -> float32[M, N] (ACL td_self scores)."""
     y = torch.as_tensor(maddpg.td_targets(rows["rew"], rows["next_obs"], rows.get("done")))  # [N, M]
     x = joint_input(torch.as_tensor(rows["obs"]), torch.as_tensor(rows["act"]))  # [M, in]
-    q = maddpg.critic(x.unsqueeze(0).expand(maddpg.num_agents, -1, -1)).squeeze(-1)  # [N, M]
+    q = maddpg.critic(x).squeeze(-1)  # shared rows [M, in] -> [N, M]
     return (y - q).abs().T.numpy().copy()

@@ -1,9 +1,10 @@
-"""Numpy inference of the stacked tanh actors: what rollout workers run, without loading torch.
+"""Numpy inference of the tanh actors: what rollout workers run, without loading torch.
 
-Where it sits: rollout workers load the learner's published online actor (cmcl.learners.weights, "actor" part) into a
-`NumpyPolicy` and act with it. It computes exactly MADDPG.act for continuous actions (tanh MLP, Gaussian
-noise, clip to [-1, 1]); a parity test ties the two. Keeping torch out of rollout workers (and the replay
-server) saves ~190 MB of private memory per process.
+Where it sits: rollout workers load the learner's published online actor (cmcl.learners.weights, "actor" part) with
+`numpy_policy` and act with it. It computes exactly MADDPG.act for continuous actions (the actor's tanh output,
+Gaussian noise, clip to [-1, 1]); parity tests tie the two. Two actors: `NumpyPolicy`, the stacked per-agent (or
+shared) MLPs, and `NumpyEntityPolicy`, the entity actor of cmcl.learners.entity_nets (maddpg.networks = "entity").
+Keeping torch out of rollout workers (and the replay server) saves ~190 MB of private memory per process.
 """
 
 from __future__ import annotations
@@ -11,6 +12,21 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
+
+from cmcl.envs.entities import EntityLayout
+
+ENTITY_KEY = "encoder.entity.weight"  # present in the entity actor's weights only
+
+
+def _checked(weights: Mapping[str, np.ndarray], keys: list[str]) -> dict[str, np.ndarray]:
+    """The named weights as contiguous finite float32 arrays; ValueError naming what is missing or non-finite."""
+    missing = [k for k in keys if k not in weights]
+    if missing:
+        raise ValueError(f"actor weights lack {missing}, got {sorted(weights)}")
+    out = {k: np.ascontiguousarray(weights[k], dtype=np.float32) for k in keys}
+    if not all(np.isfinite(w).all() for w in out.values()):
+        raise ValueError("actor weights must be finite")
+    return out
 
 
 class NumpyPolicy:
@@ -20,29 +36,84 @@ class NumpyPolicy:
         """act_mask: float32[N, act_dim] multiplied into every action (0 on padded entries), as MADDPG's."""
         self.act_mask = None if act_mask is None else np.asarray(act_mask, np.float32)
         count = len([k for k in weights if k.endswith(".weight")])
-        if count < 1 or any(f"layers.{i}.weight" not in weights or f"layers.{i}.bias" not in weights
-                            for i in range(count)):
-            raise ValueError(f"actor weights must hold layers.0..{count - 1}.weight/.bias, got {sorted(weights)}")
-        self.weights = [np.ascontiguousarray(weights[f"layers.{i}.weight"], dtype=np.float32) for i in range(count)]
-        self.biases = [np.ascontiguousarray(weights[f"layers.{i}.bias"], dtype=np.float32)[:, None, :]
-                       for i in range(count)]
-        for w in [*self.weights, *self.biases]:
-            if not np.isfinite(w).all():
-                raise ValueError("actor weights must be finite")
+        if count < 1:
+            raise ValueError(f"actor weights must hold layers.0..k.weight/.bias, got {sorted(weights)}")
+        w = _checked(weights, [f"layers.{i}.{p}" for i in range(count) for p in ("weight", "bias")])
+        self.weights = [w[f"layers.{i}.weight"] for i in range(count)]
+        self.biases = [w[f"layers.{i}.bias"][:, None, :] for i in range(count)]
+
+    def mean_action(self, obs: np.ndarray) -> np.ndarray:
+        """obs float32[B, N, obs_dim] -> tanh(MLP(o)) float32[B, N, act_dim]."""
+        x = np.ascontiguousarray(np.asarray(obs, dtype=np.float32).transpose(1, 0, 2))  # [N, B, obs_dim]
+        x = _mlp(x, self.weights, self.biases)
+        np.tanh(x, out=x)
+        return x.transpose(1, 0, 2)
 
     def act(self, obs: np.ndarray, noise_std: float = 0.1, rng: np.random.Generator | None = None) -> np.ndarray:
-        """obs float32[B, N, obs_dim] -> actions float32[B, N, act_dim] = clip(tanh(MLP(o)) + N(0, σ²), -1, 1)."""
-        x = np.ascontiguousarray(np.asarray(obs, dtype=np.float32).transpose(1, 0, 2))  # [N, B, obs_dim]
-        last = len(self.weights) - 1
-        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
-            x = np.matmul(x, w)
-            x += b
-            if i < last:
-                np.maximum(x, 0.0, out=x)
-        np.tanh(x, out=x)
-        out = x.transpose(1, 0, 2)  # [B, N, act_dim]
+        """obs float32[B, N, obs_dim] -> actions float32[B, N, act_dim] = clip(mean_action(o) + N(0, σ²), -1, 1)."""
+        out = self.mean_action(obs)
         if noise_std > 0:
             rng = rng if rng is not None else np.random.default_rng()
             out = out + rng.normal(0.0, noise_std, size=out.shape).astype(np.float32)
         out = np.clip(out, -1.0, 1.0).astype(np.float32, copy=False)
         return out if self.act_mask is None else out * self.act_mask
+
+
+def _mlp(x: np.ndarray, weights: list[np.ndarray], biases: list[np.ndarray]) -> np.ndarray:
+    """ReLU MLP on stacked weights: x [G, R, in] @ w [G, in, out] + b [G, 1, out] per layer (no output activation)."""
+    last = len(weights) - 1
+    for i, (w, b) in enumerate(zip(weights, biases, strict=True)):
+        x = np.matmul(x, w)
+        x += b
+        if i < last:
+            np.maximum(x, 0.0, out=x)
+    return x
+
+
+class NumpyEntityPolicy(NumpyPolicy):
+    """The entity actor (cmcl.learners.entity_nets.EntityActor) in numpy: one network for all agents."""
+
+    def __init__(self, weights: Mapping[str, np.ndarray], layout: EntityLayout, act_mask: np.ndarray | None = None):
+        self.act_mask = None if act_mask is None else np.asarray(act_mask, np.float32)
+        self.layout = layout
+        heads = len([k for k in weights if k.startswith("head.layers.") and k.endswith(".weight")])
+        self.attention = "encoder.query.weight" in weights  # maddpg.entity_pool = "attention" (else "mean")
+        parts = ("own", "entity", "query") if self.attention else ("own", "entity")
+        names = [f"encoder.{part}.{p}" for part in parts for p in ("weight", "bias")]
+        w = _checked(weights, names + [f"head.layers.{i}.{p}" for i in range(heads) for p in ("weight", "bias")])
+        self.enc = {k.split(".")[1] + "." + k.split(".")[2]: v[0] for k, v in w.items() if k.startswith("encoder.")}
+        self.weights = [w[f"head.layers.{i}.weight"] for i in range(heads)]
+        self.biases = [w[f"head.layers.{i}.bias"][:, None, :] for i in range(heads)]
+        self.hidden = self.enc["own.weight"].shape[1]
+
+    def mean_action(self, obs: np.ndarray) -> np.ndarray:
+        """obs float32[B, N, obs_dim] -> tanh(head(z)) float32[B, N, act_dim], z the encoder's [s, attention, mean]
+        (or [s, mean])."""
+        own, ents, mask = self.layout.split(np.asarray(obs, dtype=np.float32))  # [B, N, S], [B, N, E, F], [B, N, E]
+        e = self.enc
+        s = np.maximum(own @ e["own.weight"] + e["own.bias"], 0.0)  # [B, N, H]
+        h = np.maximum(ents @ e["entity.weight"] + e["entity.bias"], 0.0)  # [B, N, E, H]
+        count = mask.sum(-1, keepdims=True)
+        mean = np.where(mask[..., None], h, 0.0).sum(-2) / np.maximum(count, 1)
+        pools = [s, mean]
+        if self.attention:
+            q = (s @ e["query.weight"] + e["query.bias"]) / np.float32(np.sqrt(self.hidden))
+            logits = np.where(mask, np.matmul(h, q[..., None])[..., 0], -np.inf)  # [B, N, E]
+            top = logits.max(-1, keepdims=True)
+            weight = np.where(mask, np.exp(logits - np.where(np.isfinite(top), top, 0.0)), 0.0)
+            alpha = weight / np.maximum(weight.sum(-1, keepdims=True), np.finfo(np.float32).tiny)
+            pools = [s, np.matmul(alpha[..., None, :], h)[..., 0, :], mean]  # [B, N, H] each
+        z = np.concatenate(pools, -1).astype(np.float32)
+        b, n = z.shape[:2]
+        x = _mlp(z.reshape(1, b * n, -1), self.weights, self.biases)
+        return np.tanh(x).reshape(b, n, -1)
+
+
+def numpy_policy(weights: Mapping[str, np.ndarray], act_mask: np.ndarray | None = None,
+                 entities: EntityLayout | None = None) -> NumpyPolicy:
+    """The numpy twin of a published actor: the entity actor when the weights are one, else the stacked MLPs."""
+    if ENTITY_KEY not in weights:
+        return NumpyPolicy(weights, act_mask)
+    if entities is None:
+        raise ValueError("entity actor weights need the task's entity layout (cmcl.envs.entities)")
+    return NumpyEntityPolicy(weights, entities, act_mask)

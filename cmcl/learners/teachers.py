@@ -13,6 +13,9 @@ slot a (0..A-1, the agents that use teachers) and fold i (0..K-1). Folds are 0-b
 With ``share_parameters`` the A teachers of each fold are one network (``StackedMLP(share=True, share_groups=K)``:
 member ``a*K + i`` uses network i), each agent keeping its own first-layer bias; the K folds stay separate networks,
 so a fold's network is still fitted on its own fold only and the cross-validation of eq. (11) holds.
+With ``networks="entity"`` each fold is one :class:`~cmcl.learners.entity_nets.EntityCritic` for all agents (group
+axis K: fold i's network only ever reads fold i's rows), teacher (a, i) being fold i's Q of agent ``agents[a]``;
+its parameter count does not depend on N.
 Teacher input = the centralized critic input (all obs then all actions, flattened; see ``nets.joint_input``).
 Public boundary: numpy or torch in (converted once, float32 / int64); numpy out.
 """
@@ -24,7 +27,10 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import torch
 
+from cmcl.envs.entities import EntityLayout
+from cmcl.learners.entity_nets import EntityCritic
 from cmcl.learners.nets import StackedMLP, as_tensor, clip_grad_norm_per_member_, make_adam
+from cmcl.learners.networks import network_kind
 from cmcl.learners.state_check import require_same_shapes
 
 __all__ = ["TeacherEnsemble"]
@@ -44,6 +50,10 @@ class TeacherEnsemble:
         seed: initial weights (every teacher independently initialised).
         share_parameters: one network per fold for all A agents, a per-(agent, fold) first-layer bias (module
             docstring); parameters ~A times fewer, for N = 8 / 16.
+        networks: "per_agent", "shared" (= share_parameters) or "entity" (module docstring); None: share_parameters.
+        agents: int64[A], the agents the teachers stand for (entity teachers read their Q); default 0..A-1.
+        entity_layout, act_dim, entity_pool: the observation's entity layout, the action width and the encoder's
+            pooling (entity teachers only).
     """
 
     def __init__(
@@ -58,13 +68,28 @@ class TeacherEnsemble:
         chunk_size: int = 1024,
         seed: int = 0,
         share_parameters: bool = False,
+        networks: str | None = None,
+        agents: Sequence[int] | np.ndarray | None = None,
+        entity_layout: EntityLayout | None = None,
+        act_dim: int = 2,
+        entity_pool: str = "attention",
     ):
         self.num_agents, self.num_folds, self.in_dim = int(num_agents), int(num_folds), int(in_dim)
         self.grad_clip, self.chunk_size = grad_clip, int(chunk_size)
         widths = (hidden, hidden) if isinstance(hidden, int) else tuple(hidden)
-        self.share_parameters = bool(share_parameters)
-        self.net = StackedMLP(self.num_agents * self.num_folds, self.in_dim, widths, 1, seed=seed,
-                              share=self.share_parameters, share_groups=self.num_folds)
+        self.networks = network_kind(networks, share_parameters)
+        self.share_parameters = self.networks == "shared"
+        self.agents = torch.arange(self.num_agents) if agents is None else torch.as_tensor(np.asarray(agents))
+        if self.networks == "entity":
+            if entity_layout is None or in_dim != entity_layout.num_agents * (entity_layout.obs_dim + act_dim):
+                raise ValueError(f"entity teachers need the entity layout whose joint input is in_dim={in_dim}")
+            if len(set(widths)) != 1:
+                raise ValueError(f"entity teachers take one hidden width, got {widths}")
+            self.net = EntityCritic(entity_layout, act_dim, widths[0], torch.Generator().manual_seed(int(seed)),
+                                    groups=self.num_folds, pool=entity_pool)
+        else:
+            self.net = StackedMLP(self.num_agents * self.num_folds, self.in_dim, widths, 1, seed=seed,
+                                  share=self.share_parameters, share_groups=self.num_folds)
         self.opt = make_adam(self.net.parameters(), lr)
         self.steps = 0
 
@@ -77,7 +102,10 @@ class TeacherEnsemble:
         a_n, k_n, s_n, _ = x_t.shape
         if (a_n, k_n) != (self.num_agents, self.num_folds):
             raise ValueError(f"x must be [A={self.num_agents}, K={self.num_folds}, S, in], got {tuple(x_t.shape)}")
-        if self.share_parameters and x_t.stride(0) == 0:  # one fold batch for all agents (fit_batch "shared")
+        if self.networks == "entity":  # fold i's network on every agent's rows of fold i: [K, A*S] -> [A*K, S]
+            pred = self._entity_q(x_t.transpose(0, 1).reshape(k_n, a_n * s_n, -1)).view(k_n, a_n, s_n)
+            pred = pred.transpose(0, 1).reshape(a_n * k_n, s_n)
+        elif self.share_parameters and x_t.stride(0) == 0:  # one fold batch for all agents (fit_batch "shared")
             pred = self.net(x_t[0]).squeeze(-1)  # [K, S, in] per fold network -> [A*K, S], first layer once per fold
         else:
             pred = self.net(x_t.reshape(a_n * k_n, s_n, -1)).squeeze(-1)  # [A*K, S]
@@ -94,9 +122,23 @@ class TeacherEnsemble:
     def predict(self, x: ArrayLike) -> np.ndarray:
         """Teacher outputs on shared rows: x float32[M, in_dim] -> float32[A, M, K] (chunked)."""
         x_t = as_tensor(x)
-        parts = [self.net(x_t[s : s + self.chunk_size]).squeeze(-1) for s in range(0, x_t.shape[0], self.chunk_size)]
+        net = self._entity_rows if self.networks == "entity" else (lambda rows: self.net(rows).squeeze(-1))
+        parts = [net(x_t[s : s + self.chunk_size]) for s in range(0, x_t.shape[0], self.chunk_size)]
         p = torch.cat(parts, dim=1) if parts else torch.zeros(self.num_agents * self.num_folds, 0)  # [A*K, M]
         return p.reshape(self.num_agents, self.num_folds, -1).permute(0, 2, 1).contiguous().numpy()
+
+    def _entity_q(self, x: torch.Tensor) -> torch.Tensor:
+        """Fold inputs float32[K, A*S, in] (agent-major within each fold) -> each fold's Q of its agent [K, A*S]."""
+        rows = x.shape[1] // self.num_agents
+        agent = self.agents.repeat_interleave(rows).unsqueeze(0).expand(self.num_folds, -1)
+        return self.net.joint_q(x, agent)
+
+    def _entity_rows(self, x: torch.Tensor) -> torch.Tensor:
+        """Shared rows float32[M, in] -> every teacher's output [A*K, M] (member a*K + i), as the stacked MLP's."""
+        m = x.shape[0]
+        q = self._entity_q(x.unsqueeze(0).expand(self.num_folds * self.num_agents, m, -1)
+                           .reshape(self.num_folds, self.num_agents * m, -1))  # [K, A*M]
+        return q.view(self.num_folds, self.num_agents, m).transpose(0, 1).reshape(-1, m)
 
     def errors(self, x: ArrayLike, y: ArrayLike, squared: bool = True) -> np.ndarray:
         """Errors e_{a,j,i} = (y_{a,j} - T_{a,i}(x_j))^2 (eq. 10; or |.|): x [M, in], y [A, M] -> [A, M, K]."""
@@ -110,7 +152,8 @@ class TeacherEnsemble:
     def load_state_dict(self, state: Mapping) -> None:
         """Restore :meth:`state_dict` output (same A, K, in_dim, hidden, sharing: checked first, by name)."""
         require_same_shapes("checkpoint teachers", {"net": self.net}, state,
-                            "teachers.share_parameters, teachers.num_folds, teachers.hidden or agents")
+                            "teachers.networks, teachers.share_parameters, teachers.num_folds, teachers.hidden or "
+                            "agents")
         self.net.load_state_dict(state["net"])
         self.opt.load_state_dict(state["opt"])
         self.steps = int(state["steps"])

@@ -1,0 +1,47 @@
+"""Which actor and critic a learner builds (maddpg.networks): per-agent or shared StackedMLPs, or entity networks.
+
+Where it sits: :class:`cmcl.learners.maddpg.MADDPG` calls `build_networks` once; every kind takes the same flat
+inputs and gives the same shapes (actor [N, B, obs_dim] -> [N, B, act_dim]; critic on the joint input, shared rows
+[M, in] -> [N, M, 1] or per-owner rows [N, S, in] -> [N, S, 1]), so nothing downstream depends on the kind.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from cmcl.config.sections import NETWORK_KINDS
+from cmcl.envs.entities import EntityLayout
+from cmcl.learners.entity_nets import EntityActor, EntityCritic
+from cmcl.learners.nets import StackedMLP
+
+__all__ = ["build_networks", "network_kind"]
+
+
+def network_kind(networks: str | None, share_parameters: bool) -> str:
+    """The networks' kind from the two settings (the config validates the same rule and names its fields)."""
+    if networks is None:
+        return "shared" if share_parameters else "per_agent"
+    if networks not in NETWORK_KINDS or (share_parameters and networks != "shared"):
+        raise ValueError(f"networks must be one of {list(NETWORK_KINDS)} and agree with share_parameters="
+                         f"{share_parameters}, got {networks!r}")
+    return networks
+
+
+def build_networks(kind: str, n: int, obs_dim: int, act_dim: int, widths: tuple[int, ...], discrete: bool,
+                   gen: torch.Generator, layout: EntityLayout | None, pool: str = "attention"
+                   ) -> tuple[nn.Module, nn.Module]:
+    """(actor, critic) of the given kind: StackedMLPs with N members (per agent or shared), or entity networks
+    (pooling over entities `pool`: entity_nets.POOLS)."""
+    out_act = None if discrete else nn.Tanh
+    if kind != "entity":
+        share = kind == "shared"
+        return (StackedMLP(n, obs_dim, widths, act_dim, out_act=out_act, generator=gen, share=share),
+                StackedMLP(n, n * (obs_dim + act_dim), widths, 1, generator=gen, share=share))
+    if layout is None or layout.num_agents != n or layout.obs_dim != obs_dim:
+        raise ValueError(f"entity networks need the entity layout of {n} agents with obs_dim {obs_dim}, got "
+                         f"{None if layout is None else (layout.num_agents, layout.obs_dim)}")
+    if len(set(widths)) != 1:
+        raise ValueError(f"entity networks take one hidden width, got {widths}")
+    return (EntityActor(layout, act_dim, widths[0], gen, out_act=out_act, pool=pool),
+            EntityCritic(layout, act_dim, widths[0], gen, pool=pool))

@@ -1,0 +1,152 @@
+"""Entity actor and PIC-style critic (cmcl.learners.entity_nets): invariances, parameter counts, gradients."""
+
+import numpy as np
+import pytest
+import torch
+
+from cmcl.envs.entities import spread_layout, tag_layout
+from cmcl.envs.params import TagParams
+from cmcl.learners.entity_nets import EntityActor, EntityCritic
+from cmcl.learners.nets import joint_input
+
+
+def spread_obs(pos, vel, lm):
+    """Navigation's flat obs from the world state (as BatchedSparseSpread): pos, vel [M, N, 2], lm [M, L, 2]."""
+    n = pos.shape[1]
+    rows = []
+    for i in range(n):
+        others = [j for j in range(n) if j != i]
+        rows.append(np.concatenate([vel[:, i], pos[:, i], (lm - pos[:, i : i + 1]).reshape(len(pos), -1),
+                                    (pos[:, others] - pos[:, i : i + 1]).reshape(len(pos), -1)], -1))
+    return torch.as_tensor(np.stack(rows, 1), dtype=torch.float32)  # [M, N, obs_dim]
+
+
+def world(n, m=6, seed=0):
+    rng = np.random.default_rng(seed)
+    return rng.uniform(-0.5, 0.5, (m, n, 2)), rng.normal(0, 0.3, (m, n, 2)), rng.uniform(-0.4, 0.4, (m, n, 2))
+
+
+def nets(n, hidden=32, seed=0, pool="attention"):
+    gen = torch.Generator().manual_seed(seed)
+    layout = spread_layout(n)
+    return (EntityActor(layout, 2, hidden, gen, out_act=torch.nn.Tanh, pool=pool),
+            EntityCritic(layout, 2, hidden, gen, pool=pool))
+
+
+def count(module):
+    return sum(p.numel() for p in module.parameters())
+
+
+@pytest.mark.parametrize("pool", ["attention", "mean"])
+def test_actor_ignores_the_order_of_landmarks_and_other_agents(pool):
+    n = 5
+    actor, _ = nets(n, pool=pool)
+    pos, vel, lm = world(n)
+    obs = spread_obs(pos, vel, lm)
+    out = actor(obs.transpose(0, 1))  # [N, M, 2]
+    shuffled = spread_obs(pos, vel, lm[:, [3, 0, 4, 2, 1]])  # the landmarks listed in another order
+    torch.testing.assert_close(actor(shuffled.transpose(0, 1)), out, atol=1e-5, rtol=1e-5)
+    swapped = obs.clone()  # agent 0's view: the first two other agents' blocks exchanged
+    base = 4 + 2 * n
+    swapped[:, 0, base : base + 2], swapped[:, 0, base + 2 : base + 4] = obs[:, 0, base + 2 : base + 4], \
+        obs[:, 0, base : base + 2]
+    torch.testing.assert_close(actor(swapped.transpose(0, 1)), out, atol=1e-5, rtol=1e-5)
+    moved = obs.clone()  # but moving a landmark changes the action
+    moved[:, 0, 4:6] += 0.3
+    assert not torch.allclose(actor(moved.transpose(0, 1))[0], out[0], atol=1e-4)
+
+
+@pytest.mark.parametrize("pool", ["attention", "mean"])
+def test_critic_outputs_follow_a_permutation_of_the_agents_and_ignore_the_landmark_order(pool):
+    n = 4
+    _, critic = nets(n, pool=pool)
+    pos, vel, lm = world(n, seed=1)
+    act = torch.rand(6, n, 2) * 2 - 1
+    q = critic(joint_input(spread_obs(pos, vel, lm), act))[..., 0]  # [N, M]
+    perm = [2, 0, 3, 1]
+    q_perm = critic(joint_input(spread_obs(pos[:, perm], vel[:, perm], lm), act[:, perm]))[..., 0]
+    torch.testing.assert_close(q_perm, q[perm], atol=1e-5, rtol=1e-5)
+    q_lm = critic(joint_input(spread_obs(pos, vel, lm[:, [1, 3, 0, 2]]), act))[..., 0]
+    torch.testing.assert_close(q_lm, q, atol=1e-5, rtol=1e-5)
+    assert not torch.allclose(q[0], q[1], atol=1e-4)  # the agents are told apart by what they see
+
+
+def test_critic_is_centralised_it_reads_the_other_agents_actions_and_velocities():
+    n = 3
+    _, critic = nets(n)
+    pos, vel, lm = world(n, seed=5)
+    act = torch.rand(6, n, 2) * 2 - 1
+    q = critic(joint_input(spread_obs(pos, vel, lm), act))[..., 0]
+    other_act = act.clone()
+    other_act[:, 2] = -other_act[:, 2]
+    q_act = critic(joint_input(spread_obs(pos, vel, lm), other_act))[..., 0]
+    assert not torch.allclose(q_act[0], q[0], atol=1e-5)  # agent 0's Q moves with agent 2's action
+    other_vel = vel.copy()
+    other_vel[:, 1] += 0.5
+    q_vel = critic(joint_input(spread_obs(pos, other_vel, lm), act))[..., 0]
+    assert not torch.allclose(q_vel[0], q[0], atol=1e-5)  # and with agent 1's velocity, absent from o_0
+
+
+@pytest.mark.parametrize("pool", ["attention", "mean"])
+def test_parameter_count_does_not_depend_on_the_number_of_agents(pool):
+    counts = {n: tuple(count(m) for m in nets(n, pool=pool)) for n in (4, 8, 16)}
+    assert counts[4] == counts[8] == counts[16], counts
+    assert min(counts[4]) > 0
+    with pytest.raises(ValueError, match="pool"):
+        nets(4, pool="max")
+
+
+def test_critic_signatures_agree_on_shared_and_per_owner_rows():
+    n = 3
+    _, critic = nets(n)
+    pos, vel, lm = world(n, m=5, seed=2)
+    x = joint_input(spread_obs(pos, vel, lm), torch.rand(5, n, 2))  # [M, in]
+    shared = critic(x)  # [N, M, 1]
+    assert shared.shape == (n, 5, 1)
+    per_owner = critic(x.unsqueeze(0).repeat(n, 1, 1))  # the same rows, materialised per owner
+    torch.testing.assert_close(per_owner, shared, atol=1e-6, rtol=1e-6)
+    torch.testing.assert_close(critic(x, torch.tensor([2, 0])), shared[[2, 0]])
+    with pytest.raises(ValueError, match="one agent per owner"):
+        critic(x.unsqueeze(0).repeat(n, 1, 1), torch.tensor([0]))
+
+
+def test_masked_entities_are_ignored():
+    layout = spread_layout(3)
+    gen = torch.Generator().manual_seed(0)
+    actor = EntityActor(layout, 2, 16, gen)
+    pos, vel, lm = world(3, m=4, seed=3)
+    own, ents, _ = layout.split(spread_obs(pos, vel, lm)[None])
+    own, ents = own.reshape(1, -1, own.shape[-1]), ents.reshape(1, -1, *ents.shape[-2:])
+    mask = torch.ones(ents.shape[:-1], dtype=torch.bool)
+    mask[..., 1] = False
+    z = actor.encoder(own, ents, mask)
+    changed = ents.clone()
+    changed[..., 1, :2] += 5.0
+    torch.testing.assert_close(actor.encoder(own, changed, mask), z)
+    assert not torch.allclose(actor.encoder(own, changed, torch.ones_like(mask)), z)
+    empty = actor.encoder(own, ents, torch.zeros_like(mask))  # no entity at all: finite
+    assert torch.isfinite(empty).all()
+
+
+@pytest.mark.parametrize("pool", ["attention", "mean"])
+def test_gradients_reach_every_parameter(pool):
+    n = 4
+    actor, critic = nets(n, pool=pool)
+    pos, vel, lm = world(n, seed=4)
+    obs = spread_obs(pos, vel, lm)
+    act = actor(obs.transpose(0, 1)).transpose(0, 1)  # [M, N, 2]
+    q = critic(joint_input(obs, act))
+    q.sum().backward()
+    for module in (actor, critic):
+        for name, p in module.named_parameters():
+            assert p.grad is not None and p.grad.abs().sum() > 0, name
+
+
+def test_predator_prey_layout_runs_through_both_networks():
+    params = TagParams()
+    layout = tag_layout(params)
+    gen = torch.Generator().manual_seed(0)
+    actor, critic = EntityActor(layout, 2, 16, gen), EntityCritic(layout, 2, 16, gen)
+    obs = torch.randn(7, params.num_agents, layout.obs_dim)
+    assert actor(obs.transpose(0, 1)).shape == (params.num_agents, 7, 2)
+    assert critic(joint_input(obs, torch.randn(7, params.num_agents, 2))).shape == (params.num_agents, 7, 1)
