@@ -65,10 +65,20 @@ ABLATIONS = {  # name -> (config file, --set overrides, episode budget or None f
     "paper_schedule": ("paper/spread_cmcl.toml", [], 4_000),
 }
 
-# cell -> (config file, --set overrides) of the scale grid (issue 22): N agents and N landmarks, MADDPG
-SCALE_CELLS = {
-    "n8_per_agent": ("spread_maddpg.toml", ["env.num_agents=8"]),  # the paper's per-agent networks: the baseline
-    "n8_entity": ("spread_maddpg.toml", ["env.num_agents=8", "maddpg.networks=entity"]),  # cmcl.learners.entity_nets
+# cell -> (config file, --set overrides, agent-count stages, episodes per stage) of the scale grid (issue 22): N
+# agents and N landmarks, MADDPG. Entity networks cost 6x more per update at N = 8 (docs/RESULTS.md), so their cells
+# train for a wall-clock budget: 45 min, or 15 min per stage of the agent-count curriculum (2 -> 4 -> 8, each stage
+# starting from the networks of the one before: python -m cmcl stages), ended by its budget or, in the "progress"
+# cell, once the critics' TD-error learning progress stays below 5% for three 500-episode windows
+SCALE_CELLS: dict[str, tuple[str, list[str], tuple[int, ...], tuple[int, ...]]] = {
+    "n8_per_agent": ("spread_maddpg.toml", ["env.num_agents=8"], (), ()),  # the paper's networks: the baseline
+    "n8_entity": ("spread_maddpg.toml", ["env.num_agents=8", "maddpg.networks=entity", "run.max_seconds=2700"],
+                  (), ()),
+    "n8_entity_stages": ("spread_maddpg.toml", ["maddpg.networks=entity", "run.max_seconds=900"], (2, 4, 8),
+                         (3_000, 5_000, 20_000)),
+    "n8_entity_stages_progress": ("spread_maddpg.toml", ["maddpg.networks=entity", "run.max_seconds=900",
+                                                         "run.stop_progress=0.05", "run.progress_window=500",
+                                                         "run.progress_patience=3"], (2, 4, 8), (3_000, 5_000, 20_000)),
 }
 
 UPDATE_EVERY, BATCHES = (1, 4, 16, 64), (128, 512)  # the schedule grid's maddpg.update_every x maddpg.batch_size
@@ -165,8 +175,8 @@ def solve_runs(name: str, seed: int, budget: int, algorithms: list[str]) -> list
 def scale_runs(seed: int, budget: int) -> list[Run]:
     """The scale grid: every cell of SCALE_CELLS with MADDPG at the grid's budget, id "scale_<cell>_s<seed>"."""
     return [Run(f"scale_{cell}_s{seed}", "scale", "spread", "maddpg", None, seed, budget, arm=cell, config=config,
-                sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *sets))
-            for cell, (config, sets) in SCALE_CELLS.items()]
+                sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *sets), stages=stages, stage_episodes=episodes)
+            for cell, (config, sets, stages, episodes) in SCALE_CELLS.items()]
 
 
 def own_env_runs(seed: int) -> list[Run]:
