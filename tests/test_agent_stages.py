@@ -88,3 +88,22 @@ def test_entity_networks_carry_from_two_agents_to_three_and_a_rerun_keeps_the_st
     assert main(argv) == 0
     out = capsys.readouterr().out
     assert "stage N = 2: done earlier" in out and "stage N = 3: done earlier" in out
+
+
+@pytest.mark.slow
+def test_the_readme_stages_command_runs_on_the_service(tmp_path):
+    """The README's command as a user types it (the service runner, its own embedded Ray per stage), at a tiny
+    budget: both stages end, the second starts from the first's learner checkpoint and ends with the evaluation."""
+    import subprocess
+    import sys
+
+    from tests.tiny import tiny_overrides
+
+    sets = [a for s in (*tiny_overrides(service=True), f"run.dir={tmp_path / 'cur'}", "maddpg.networks=entity")
+            for a in ("--set", s)]
+    done = subprocess.run([sys.executable, "-m", "cmcl", "stages", "--agents", "2", "3", "--stage-episodes", "8",
+                           "8", "--config", "configs/spread_maddpg.toml", "--num-cpus", "2", *sets],
+                          capture_output=True, text=True, timeout=600, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "actors and critics initialised from" in done.stdout and "learner-" in done.stdout
+    assert "held-out evaluation" in done.stdout and "stage N = 3 ended (budget)" in done.stdout
