@@ -28,6 +28,13 @@ if TYPE_CHECKING:
 
 MPE_KWARGS = "env.factory_kwargs={continuous_actions=true, max_cycles=25}"
 MPE_LEARNER = ("replay.capacity=50000", "maddpg.update_every=4")  # calibrated on simple_spread, seed 0 (inline)
+# simple_tag: Lowe et al. (2017)'s MADDPG settings (openai/maddpg experiments/train.py: Adam lr 0.01, gamma 0.95,
+# batch 1024, a warm-up of batch x episode length transitions), an update every 25 world steps instead of their 100
+# and exploration noise 0.5 instead of 0.1; calibrated on simple_tag, seed 0 (inline), docs/RESULTS.md. At the spread
+# settings (gamma 0.99, lr 0.001, an update every 4) both teams' critics diverged and neither team beat random.
+TAG_LEARNER = ("maddpg.actor_lr=0.01", "maddpg.critic_lr=0.01", "maddpg.gamma=0.95", "maddpg.batch_size=1024",
+               "maddpg.warmup=25600", "maddpg.update_every=25", "maddpg.exploration_std=0.5",
+               "replay.capacity=200000")
 
 
 @dataclass(frozen=True)
@@ -53,7 +60,7 @@ OWN_ENVS = {
                                "mpe2 simple_speaker_listener_v4"),
     "tag": OwnEnv("mpe2.simple_tag_v3:parallel_env",
                   (MPE_KWARGS, "env.episode_length=25", "teams.adversary.algorithm=maddpg",
-                   "teams.agent.algorithm=maddpg", *MPE_LEARNER), 3_000, "mpe2 simple_tag_v3",
+                   "teams.agent.algorithm=maddpg", *TAG_LEARNER), 6_000, "mpe2 simple_tag_v3",
                   competing=True),
     "halfcheetah": OwnEnv("gymnasium_robotics:mamujoco_v1.parallel_env",
                           ('env.factory_kwargs={scenario="HalfCheetah", agent_conf="2x3", max_episode_steps=100}',

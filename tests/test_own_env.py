@@ -239,13 +239,11 @@ def test_the_rollout_worker_sends_whole_episodes_of_any_length_and_the_replay_ke
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["spread", "speaker_listener", pytest.param("tag", marks=pytest.mark.xfail(
-    strict=True, reason="seed 0 (own_envs grid): adversaries 10.1 vs random prey against 7.8 all-random, the good "
-    "agent -14.4 vs random adversaries against -10.1; not yet calibrated")), "halfcheetah"])
+@pytest.mark.parametrize("name", ["spread", "speaker_listener", "tag", "halfcheetah"])
 def test_each_environment_of_the_own_envs_grid_learns_above_the_random_policy(name):
     """The full run of the own_envs grid (experiments/own_envs.py), seed 0, inline: every team's held-out return
     (against random other teams when the teams compete) beats the random policy's by more than 5 on the same
-    200 held-out episodes. A few minutes each on one free core."""
+    200 held-out episodes. A few minutes each on one free core (simple_tag, 6,000 episodes: about 10)."""
     from cmcl.evaluate import evaluate_policy
     from experiments.own_envs import OWN_ENVS
 
