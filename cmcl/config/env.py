@@ -17,7 +17,8 @@ import re
 from dataclasses import dataclass, field
 from typing import Any
 
-from cmcl.config.sections import TASKS, TaskName, _require
+from cmcl.config.checks import _require
+from cmcl.config.sections import TASKS, TaskName
 from cmcl.envs.params import EPISODE_LENGTH, SpreadParams, TagParams
 
 FACTORY_PATTERN = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_][\w.]*$")  # "package.module:callable"

@@ -3,7 +3,7 @@
 Every field has the paper's Table 1 value or the resolution of ../shared/ALGORITHM.md §5 as its default. Each
 `__post_init__` checks ranges and raises `ConfigError` naming the full key (e.g. ``maddpg.gamma``) and the value.
 The whole run (`Config`) is in cmcl.config.experiment, the [env] section (`EnvConfig`) in cmcl.config.env; TOML
-loading in cmcl.config.toml_io.
+loading in cmcl.config.toml_io; the value checks (`ConfigError`, `_require`, ...) in cmcl.config.checks.
 """
 
 from __future__ import annotations
@@ -11,7 +11,9 @@ from __future__ import annotations
 import math
 import typing
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal
+
+from cmcl.config.checks import ConfigError, _positive, _probability, _require
 
 AlgorithmName = Literal["maddpg", "per", "acl", "cmcl"]
 TaskName = Literal["spread", "tag"]
@@ -28,20 +30,6 @@ __all__ = ["ALGORITHMS", "DEFAULT_ALPHA", "TASKS", "TASK_TEAMS", "ConfigError",
            "MADDPGConfig", "ReplayConfig", "RunConfig", "ServiceConfig", "TeacherConfig", "TeamConfig"]
 
 
-class ConfigError(ValueError):
-    """A configuration key is unknown, of the wrong type, or out of range."""
-
-
-def _require(ok: bool, key: str, value: Any, why: str) -> None:
-    """Raise ConfigError('<key> <why>, got <value>') unless ok."""
-    if not ok:
-        raise ConfigError(f"{key} {why}, got {value!r}")
-
-
-def _positive(key: str, value: float) -> None:
-    _require(value > 0 and math.isfinite(value), key, value, "must be a finite number > 0")
-
-
 def _check_networks(section: str, networks: str | None, share_parameters: bool) -> None:
     """A section's `networks` is a known kind and agrees with its `share_parameters` (which means 'shared')."""
     if share_parameters and networks not in (None, "shared"):
@@ -53,11 +41,6 @@ def _check_networks(section: str, networks: str | None, share_parameters: bool) 
 
 def _network_kind(networks: str | None, share_parameters: bool) -> str:
     return networks if networks is not None else ("shared" if share_parameters else "per_agent")
-
-
-def _probability(key: str, value: float, *, open_low: bool = False) -> None:
-    ok = (0 < value <= 1) if open_low else (0 <= value <= 1)
-    _require(ok, key, value, "must lie in (0, 1]" if open_low else "must lie in [0, 1]")
 
 
 @dataclass(frozen=True)

@@ -16,9 +16,10 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any, Literal
 
+from cmcl.config.checks import ConfigError, _require
 from cmcl.config.env import WORLD_KEYS, EnvConfig, WorldKey
 from cmcl.config.experiment import Config
-from cmcl.config.sections import TASK_TEAMS, TASKS, ConfigError, TeamConfig, _require
+from cmcl.config.sections import TASK_TEAMS, TASKS, TeamConfig
 
 _SECTIONS = {f.name: f for f in dataclasses.fields(Config) if f.name != "teams"}
 
