@@ -78,11 +78,11 @@ def check_networks_carry(low: Config, high: Config) -> None:
     the first and the last stage's configs): their weights cannot go from one stage to the next. Raises ConfigError
     naming the tensor and its shapes at both counts."""
     from cmcl.learners.warm_start import WARM_PARTS
-    from cmcl.system import agent_layout, build_maddpg, make_batched_env
+    from cmcl.system import build_maddpg, layout_of
 
     shapes = []
     for config in (low, high):
-        maddpg = build_maddpg(config, agent_layout(config, make_batched_env(config, num_envs=1)), seed=0)
+        maddpg = build_maddpg(config, layout_of(config), seed=0)
         shapes.append({f"{part}.{key}": tuple(t.shape) for part in WARM_PARTS
                        for key, t in getattr(maddpg, part).state_dict().items()})
     for name, shape in shapes[0].items():

@@ -26,7 +26,7 @@ from cmcl.io.rundir import PolicyCheckpoint, RunDirectory, load_checkpoint
 from cmcl.learners.maddpg import MADDPG
 from cmcl.run_flags import add_evaluate_flags
 from cmcl.stalls import MissAnatomy, miss_anatomy
-from cmcl.system import agent_layout, build_maddpg, make_batched_env, make_parallel_env, to_env_actions
+from cmcl.system import build_maddpg, layout_of, make_batched_env, make_parallel_env, to_env_actions
 
 EVAL_SEED_OFFSET = 10_000  # evaluation worlds never reuse the training seed's worlds
 
@@ -34,8 +34,7 @@ EVAL_SEED_OFFSET = 10_000  # evaluation worlds never reuse the training seed's w
 def load_policy(config: Config, checkpoint: PolicyCheckpoint | str | Path) -> MADDPG:
     """MADDPG with the weights of `checkpoint`: a run's `PolicyCheckpoint` (already verified and decoded), or a
     file (checked against its `.sha256` manifest when it has one; torch.load(weights_only=True))."""
-    env = make_batched_env(config, num_envs=1)
-    maddpg = build_maddpg(config, agent_layout(config, env), seed=0)
+    maddpg = build_maddpg(config, layout_of(config), seed=0)
     state = checkpoint.state if isinstance(checkpoint, PolicyCheckpoint) else load_checkpoint(checkpoint)
     maddpg.load_state_dict(state["maddpg"])
     return maddpg

@@ -132,9 +132,9 @@ def check_warm_start(config: Config) -> None:
     if not config.run.init_from:
         return
     from cmcl.learners.warm_start import warm_start_from_config
-    from cmcl.system import agent_layout, build_maddpg, make_batched_env
+    from cmcl.system import build_maddpg, layout_of
 
-    probe = build_maddpg(config, agent_layout(config, make_batched_env(config, num_envs=1)), seed=0)
+    probe = build_maddpg(config, layout_of(config), seed=0)
     try:
         warm_start_from_config(config.run.init_from, probe)
     except ValueError as err:

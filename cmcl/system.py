@@ -141,6 +141,12 @@ def agent_layout(config: Config, env) -> AgentLayout:
                        entities=entity_layout(getattr(env, "params", None)))
 
 
+def layout_of(config: Config) -> AgentLayout:
+    """The agent layout of `config`, read from one world of its batched twin (what every role that does not step the
+    worlds itself builds its networks from)."""
+    return agent_layout(config, make_batched_env(config, num_envs=1))
+
+
 def _require_entity_layout(layout: AgentLayout, key: str, kind: str) -> None:
     """ConfigError when `key` asks for entity networks in a world without an entity layout (an env.factory one)."""
     if kind == "entity" and layout.entities is None:

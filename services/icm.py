@@ -13,7 +13,7 @@ import numpy as np
 
 from cmcl.learners import network_steps
 from cmcl.messages import CuriosityScores, CuriosityWork
-from cmcl.system import agent_layout, build_icm, make_batched_env
+from cmcl.system import build_icm, layout_of
 from services.common import actor_setup, load_state, new_incarnation, save_state
 from services.report_schema import Report
 
@@ -24,7 +24,7 @@ class ICMWorker:
     def __init__(self, config: Any, seed: int, checkpoint_path: str | None = None):
         self.config = cfg = actor_setup(config)
         self.incarnation, self.checkpoint_path = new_incarnation(), checkpoint_path
-        self.layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
+        self.layout = layout_of(cfg)
         self.icm = build_icm(cfg, self.layout, seed)
         if self.icm is None:
             raise ValueError("no team uses curiosity: the ICM actor is not needed for this config")

@@ -17,7 +17,7 @@ from cmcl.learners import network_steps
 from cmcl.learners.warm_start import warm_start_from_config
 from cmcl.learners.weights import published_weights
 from cmcl.messages import LearnerBatch, LearnerFeedback
-from cmcl.system import agent_layout, build_maddpg, make_batched_env
+from cmcl.system import build_maddpg, layout_of
 from services.common import actor_setup, load_state, new_incarnation, save_state
 from services.report_schema import LearnerReport, Report
 
@@ -32,7 +32,7 @@ class Learner:
                               "inline runner only (python -m cmcl train --runner inline); the service's learner "
                               "holds no ICM")
         self.incarnation, self.checkpoint_path = new_incarnation(), checkpoint_path
-        self.layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
+        self.layout = layout_of(cfg)
         self.maddpg = build_maddpg(cfg, self.layout, seed)
         self.version, self.losses = 0, {}
         state, refused = load_state(checkpoint_path)

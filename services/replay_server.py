@@ -38,7 +38,7 @@ from cmcl.replay.dedupe import InsertLedger
 from cmcl.replay.pacing import pacing_from_config
 from cmcl.replay.priority import uses_curriculum
 from cmcl.replay.scoring import ScoringState
-from cmcl.system import agent_layout, beta_is, build_replay, build_schedule, make_batched_env
+from cmcl.system import beta_is, build_replay, build_schedule, layout_of
 from services.common import actor_setup, new_incarnation
 from services.replay_report import REPORT_SAMPLES, ReplayTallies, replay_report
 from services.report_schema import Report
@@ -52,7 +52,7 @@ class ReplayServer:
         self.config = cfg = actor_setup(config, uses_torch=False)
         self.incarnation = new_incarnation()
         self.store = ReplayStore(store_dir, fsync=cfg.service.replay_log_fsync) if store_dir else None
-        self.layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
+        self.layout = layout_of(cfg)
         self.replay = build_replay(cfg, self.layout)
         self.schedule = build_schedule(cfg)
         self.pacing = pacing_from_config(cfg, asynchronous=True)  # the rate limits, with the service's slack

@@ -17,7 +17,7 @@ from cmcl.learners import network_steps
 from cmcl.learners.teachers import TeacherEnsemble
 from cmcl.learners.weights import load_published
 from cmcl.messages import TeacherScores, TeacherWork
-from cmcl.system import agent_layout, build_maddpg, build_teachers, make_batched_env
+from cmcl.system import build_maddpg, build_teachers, layout_of
 from services.common import actor_setup, load_state, new_incarnation, save_state
 from services.report_schema import Report
 
@@ -33,7 +33,7 @@ class TeacherWorker:
         self.config = cfg = actor_setup(config)
         self.folds, self.incarnation, self.checkpoint_path = [int(f) for f in folds], new_incarnation(), checkpoint_path
         self.name = "teacher-" + "-".join(map(str, self.folds))
-        self.layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
+        self.layout = layout_of(cfg)
         teachers = build_teachers(cfg, self.layout, seed, num_folds=len(self.folds))
         if teachers is None:
             raise ValueError("no team of this config uses teachers (algorithm acl or cmcl): no teacher actor to run")
