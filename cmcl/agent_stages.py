@@ -76,21 +76,20 @@ def plan_stages(config: Config, agents: Sequence[int], stage_episodes: Sequence[
 def check_networks_carry(low: Config, high: Config) -> None:
     """Refuse, before anything trains, networks whose parameter shapes change with the agent count (`low` and `high`:
     the first and the last stage's configs): their weights cannot go from one stage to the next. Raises ConfigError
-    naming the tensor and its shapes at both counts."""
+    naming the tensor and its shapes at both counts (the warm start's own shape check, cmcl.learners.state_check)."""
+    from cmcl.learners.state_check import require_same_shapes
     from cmcl.learners.warm_start import WARM_PARTS
     from cmcl.system import build_maddpg, layout_of
 
-    shapes = []
-    for config in (low, high):
-        maddpg = build_maddpg(config, layout_of(config), seed=0)
-        shapes.append({f"{part}.{key}": tuple(t.shape) for part in WARM_PARTS
-                       for key, t in getattr(maddpg, part).state_dict().items()})
-    for name, shape in shapes[0].items():
-        if shapes[1].get(name) != shape:
-            raise ConfigError(f"agent-count stages need networks whose shapes do not depend on the number of agents: "
-                              f"maddpg {name} is {shape} at N = {low.env.spread.num_agents} and "
-                              f"{shapes[1].get(name)} at N = {high.env.spread.num_agents} (per-agent and flat-input "
-                              "networks grow with N)")
+    first, last = (build_maddpg(config, layout_of(config), seed=0) for config in (low, high))
+    try:
+        require_same_shapes("maddpg", {part: getattr(last, part) for part in WARM_PARTS},
+                            {part: getattr(first, part).state_dict() for part in WARM_PARTS},
+                            f"agent counts (the first stage at N = {low.env.spread.num_agents}, the last at N = "
+                            f"{high.env.spread.num_agents}); per-agent and flat-input networks grow with N")
+    except ValueError as err:
+        raise ConfigError(f"agent-count stages need networks whose shapes do not depend on the number of agents: "
+                          f"{err}") from err
 
 
 def stage_request(base: RunRequest, stage: Stage) -> RunRequest:
@@ -106,7 +105,7 @@ def stage_request(base: RunRequest, stage: Stage) -> RunRequest:
 
 def stage_finished(stage: Stage) -> bool:
     """The stage's run ended on its own (budget, solved, plateau), not stopped by a signal or unfinished."""
-    return (stage.run_dir / "summary.json").is_file() and RunDirectory(stage.run_dir).summary().get("ended") in FINISHED
+    return RunDirectory(stage.run_dir).summary().get("ended") in FINISHED
 
 
 def run_stages(base: RunRequest, agents: Sequence[int], stage_episodes: Sequence[int] | None,
