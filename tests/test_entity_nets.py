@@ -6,7 +6,7 @@ import torch
 
 from cmcl.envs.entities import spread_layout, tag_layout
 from cmcl.envs.params import TagParams
-from cmcl.learners.entity_nets import EntityActor, EntityCritic
+from cmcl.learners.entity_nets import POOLS, EntityActor, EntityCritic, EntityEncoder
 from cmcl.learners.nets import joint_input
 
 
@@ -37,7 +37,7 @@ def count(module):
     return sum(p.numel() for p in module.parameters())
 
 
-@pytest.mark.parametrize("pool", ["attention", "mean"])
+@pytest.mark.parametrize("pool", POOLS)
 def test_actor_ignores_the_order_of_landmarks_and_other_agents(pool):
     n = 5
     actor, _ = nets(n, pool=pool)
@@ -56,7 +56,7 @@ def test_actor_ignores_the_order_of_landmarks_and_other_agents(pool):
     assert not torch.allclose(actor(moved.transpose(0, 1))[0], out[0], atol=1e-4)
 
 
-@pytest.mark.parametrize("pool", ["attention", "mean"])
+@pytest.mark.parametrize("pool", POOLS)
 def test_critic_outputs_follow_a_permutation_of_the_agents_and_ignore_the_landmark_order(pool):
     n = 4
     _, critic = nets(n, pool=pool)
@@ -87,7 +87,7 @@ def test_critic_is_centralised_it_reads_the_other_agents_actions_and_velocities(
     assert not torch.allclose(q_vel[0], q[0], atol=1e-5)  # and with agent 1's velocity, absent from o_0
 
 
-@pytest.mark.parametrize("pool", ["attention", "mean"])
+@pytest.mark.parametrize("pool", POOLS)
 def test_parameter_count_does_not_depend_on_the_number_of_agents(pool):
     counts = {n: tuple(count(m) for m in nets(n, pool=pool)) for n in (4, 8, 16)}
     assert counts[4] == counts[8] == counts[16], counts
@@ -110,10 +110,11 @@ def test_critic_signatures_agree_on_shared_and_per_owner_rows():
         critic(x.unsqueeze(0).repeat(n, 1, 1), torch.tensor([0]))
 
 
-def test_masked_entities_are_ignored():
+@pytest.mark.parametrize("pool", POOLS)
+def test_masked_entities_are_ignored(pool):
     layout = spread_layout(3)
     gen = torch.Generator().manual_seed(0)
-    actor = EntityActor(layout, 2, 16, gen)
+    actor = EntityActor(layout, 2, 16, gen, pool=pool)
     pos, vel, lm = world(3, m=4, seed=3)
     own, ents, _ = layout.split(spread_obs(pos, vel, lm)[None])
     own, ents = own.reshape(1, -1, own.shape[-1]), ents.reshape(1, -1, *ents.shape[-2:])
@@ -128,7 +129,7 @@ def test_masked_entities_are_ignored():
     assert torch.isfinite(empty).all()
 
 
-@pytest.mark.parametrize("pool", ["attention", "mean"])
+@pytest.mark.parametrize("pool", POOLS)
 def test_gradients_reach_every_parameter(pool):
     n = 4
     actor, critic = nets(n, pool=pool)
@@ -150,3 +151,21 @@ def test_predator_prey_layout_runs_through_both_networks():
     obs = torch.randn(7, params.num_agents, layout.obs_dim)
     assert actor(obs.transpose(0, 1)).shape == (params.num_agents, 7, 2)
     assert critic(joint_input(obs, torch.randn(7, params.num_agents, 2))).shape == (params.num_agents, 7, 1)
+
+
+def test_the_relational_round_lets_one_entity_see_another_and_keeps_absent_ones_out():
+    """After `relate`, entity 0's embedding moves when entity 1 moves (a landmark can tell that an agent holds
+    it); entity 0's embedding before it does not; a masked entity moves nothing."""
+    gen = torch.Generator().manual_seed(0)
+    encoder = EntityEncoder(1, 4, 5, 16, gen, pool="relational")
+    ents = torch.randn(1, 6, 3, 5, generator=gen)
+    moved = ents.clone()
+    moved[..., 1, :] += 2.0
+    mask = torch.ones(1, 6, 3, dtype=torch.bool)
+    embed = lambda e: encoder.entity(e.reshape(1, -1, 5)).relu().view(1, 6, 3, 16)  # noqa: E731
+    torch.testing.assert_close(embed(moved)[..., 0, :], embed(ents)[..., 0, :])
+    related, related_moved = encoder.relate(embed(ents), mask, True), encoder.relate(embed(moved), mask, True)
+    assert not torch.allclose(related_moved[..., 0, :], related[..., 0, :])
+    mask[..., 1] = False
+    torch.testing.assert_close(encoder.relate(embed(moved), mask, False)[..., 0, :],
+                               encoder.relate(embed(ents), mask, False)[..., 0, :])

@@ -41,7 +41,7 @@ def test_published_weights_round_trip_into_another_learner():
         load_published(target, bad)
 
 
-@pytest.mark.parametrize("pool", ["attention", "mean"])
+@pytest.mark.parametrize("pool", ["attention", "mean", "relational"])
 @pytest.mark.parametrize("noise", [0.0, 0.1])
 def test_numpy_entity_policy_matches_maddpg_act(noise, pool):
     from cmcl.envs.entities import spread_layout, tag_layout

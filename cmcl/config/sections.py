@@ -70,9 +70,10 @@ class MADDPGConfig:
     # built-in tasks only). Unset: "shared" if share_parameters else "per_agent"
     networks: NetworkKind | None = None
     # how every entity network of the run (learner, teachers.networks and icm.networks = "entity") pools its
-    # entities: "attention" (one head from the agent's own embedding, plus a mean) or "mean" (the mean only, about
-    # half the cost per update)
-    entity_pool: Literal["attention", "mean"] = "attention"
+    # entities: "attention" (one head from the agent's own embedding, plus a mean), "mean" (the mean only, about
+    # half the cost per update) or "relational" ("attention" after one round of self-attention among the
+    # entities, so that a landmark's embedding can say another agent holds it: cmcl.learners.entity_nets)
+    entity_pool: Literal["attention", "mean", "relational"] = "attention"
 
     def __post_init__(self) -> None:
         _check_networks("maddpg", self.networks, self.share_parameters)

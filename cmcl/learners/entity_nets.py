@@ -36,12 +36,21 @@ from cmcl.learners.nets import StackedLinear, StackedMLP
 
 __all__ = ["POOLS", "EntityActor", "EntityCritic", "EntityEncoder", "EntityFeatures"]
 
-POOLS = ("attention", "mean")  # the encoder's pooling over entities (maddpg.entity_pool)
+# the encoder's pooling over entities (maddpg.entity_pool); "relational" is "attention" after one round of
+# self-attention among the entities (EntityEncoder)
+POOLS = ("attention", "mean", "relational")
+RELATION_DIM = 16  # query / key width of the relational round
 
 
 class EntityEncoder(nn.Module):
     """z = [s, attention pool, mean pool] of each (own, entities, mask) row, G groups (module docstring); with
     pool="mean" z = [s, mean pool] (no attention: ~2x cheaper per entity, DeepSets-style).
+
+    pool="relational" first lets every entity attend to the present entities (one head, queries and keys of
+    RELATION_DIM): h_e <- h_e + relu(W_r Σ_e' β_ee' h_e'), β_e = softmax_e'(W_a h_e · W_b h_e' / √RELATION_DIM).
+    An entity's embedding then carries what is near it (a landmark, that another agent already sits on it), a
+    relation between two entities that pooling from the agent's own embedding cannot form: with the plain
+    attention pool, shared actors at N = 8 left half their agents on a landmark another agent also held.
 
     own float32[G, R, S], entities float32[G, R, E, F], mask bool[G, R, E] -> z float32[G, R, 3H] (or 2H).
     """
@@ -54,12 +63,29 @@ class EntityEncoder(nn.Module):
         self.hidden, self.pool = int(hidden), pool
         self.own = StackedLinear(groups, own_dim, hidden, generator)
         self.entity = StackedLinear(groups, entity_dim, hidden, generator)
-        if pool == "attention":
+        if pool != "mean":
             self.query = StackedLinear(groups, hidden, hidden, generator)
+        if pool == "relational":
+            self.relate_query = StackedLinear(groups, hidden, RELATION_DIM, generator)
+            self.relate_key = StackedLinear(groups, hidden, RELATION_DIM, generator)
+            self.relate_out = StackedLinear(groups, hidden, hidden, generator)
 
     @property
     def out_dim(self) -> int:
-        return (3 if self.pool == "attention" else 2) * self.hidden
+        return (2 if self.pool == "mean" else 3) * self.hidden
+
+    def relate(self, h: torch.Tensor, mask: torch.Tensor, everyone: bool) -> torch.Tensor:
+        """One round of masked self-attention among the entities: h float32[G, R, E, H] -> the same shape."""
+        g, r, e, hid = h.shape
+        flat = h.reshape(g, r * e, hid)
+        q = self.relate_query(flat).view(g * r, e, RELATION_DIM)
+        k = self.relate_key(flat).view(g * r, e, RELATION_DIM)
+        logits = torch.bmm(q, k.transpose(1, 2)) / math.sqrt(RELATION_DIM)  # [GR, E (query), E (key)]
+        if not everyone:
+            logits = logits.masked_fill(~mask.reshape(g * r, 1, e), float("-inf"))
+        beta = torch.softmax(logits, -1).nan_to_num(0.0)
+        context = torch.bmm(beta, h.reshape(g * r, e, hid)).view(g, r * e, hid)
+        return h + self.relate_out(context).relu_().view(g, r, e, hid)
 
     def forward(self, own: torch.Tensor, entities: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         g, r, e, f = entities.shape
@@ -68,6 +94,8 @@ class EntityEncoder(nn.Module):
             return torch.cat([s, *[torch.zeros_like(s)] * (self.out_dim // self.hidden - 1)], -1)
         h = self.entity(entities.reshape(g, r * e, f)).relu_().view(g, r, e, self.hidden)  # [G, R, E, H]
         everyone = bool(mask.all())
+        if self.pool == "relational":
+            h = self.relate(h, mask, everyone)
         if everyone:
             mean = h.mean(-2)
         else:

@@ -70,6 +70,15 @@ def _mlp(x: np.ndarray, weights: list[np.ndarray], biases: list[np.ndarray]) -> 
     return x
 
 
+def _masked_softmax(logits: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Softmax over the last axis of `logits` where `mask` (broadcast) holds; 0 elsewhere, and 0 for a row with
+    nothing present."""
+    logits = np.where(mask, logits, -np.inf)
+    top = logits.max(-1, keepdims=True)
+    weight = np.where(mask, np.exp(logits - np.where(np.isfinite(top), top, 0.0)), 0.0)
+    return weight / np.maximum(weight.sum(-1, keepdims=True), np.finfo(np.float32).tiny)
+
+
 class NumpyEntityPolicy(NumpyPolicy):
     """The entity actor (cmcl.learners.entity_nets.EntityActor) in numpy: one network for all agents."""
 
@@ -77,14 +86,26 @@ class NumpyEntityPolicy(NumpyPolicy):
         self.act_mask = None if act_mask is None else np.asarray(act_mask, np.float32)
         self.layout = layout
         heads = len([k for k in weights if k.startswith("head.layers.") and k.endswith(".weight")])
-        self.attention = "encoder.query.weight" in weights  # maddpg.entity_pool = "attention" (else "mean")
+        self.attention = "encoder.query.weight" in weights  # maddpg.entity_pool = "attention" or "relational"
+        self.relational = "encoder.relate_query.weight" in weights  # maddpg.entity_pool = "relational"
         parts = ("own", "entity", "query") if self.attention else ("own", "entity")
+        parts += ("relate_query", "relate_key", "relate_out") if self.relational else ()
         names = [f"encoder.{part}.{p}" for part in parts for p in ("weight", "bias")]
         w = _checked(weights, names + [f"head.layers.{i}.{p}" for i in range(heads) for p in ("weight", "bias")])
         self.enc = {k.split(".")[1] + "." + k.split(".")[2]: v[0] for k, v in w.items() if k.startswith("encoder.")}
         self.weights = [w[f"head.layers.{i}.weight"] for i in range(heads)]
         self.biases = [w[f"head.layers.{i}.bias"][:, None, :] for i in range(heads)]
         self.hidden = self.enc["own.weight"].shape[1]
+
+    def _relate(self, h: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """EntityEncoder.relate: h float32[B, N, E, H], mask bool[B, N, E] -> the same shape."""
+        e = self.enc
+        q = h @ e["relate_query.weight"] + e["relate_query.bias"]  # [B, N, E, K]
+        k = h @ e["relate_key.weight"] + e["relate_key.bias"]
+        logits = np.matmul(q, np.swapaxes(k, -1, -2)) / np.float32(np.sqrt(q.shape[-1]))  # [B, N, E, E]
+        beta = _masked_softmax(logits, mask[..., None, :])
+        out = np.matmul(beta, h) @ e["relate_out.weight"] + e["relate_out.bias"]
+        return h + np.maximum(out, 0.0)
 
     def mean_action(self, obs: np.ndarray) -> np.ndarray:
         """obs float32[B, N, obs_dim] -> tanh(head(z)) float32[B, N, act_dim], z the encoder's [s, attention, mean]
@@ -93,15 +114,14 @@ class NumpyEntityPolicy(NumpyPolicy):
         e = self.enc
         s = np.maximum(own @ e["own.weight"] + e["own.bias"], 0.0)  # [B, N, H]
         h = np.maximum(ents @ e["entity.weight"] + e["entity.bias"], 0.0)  # [B, N, E, H]
+        if self.relational:
+            h = self._relate(h, mask)
         count = mask.sum(-1, keepdims=True)
         mean = np.where(mask[..., None], h, 0.0).sum(-2) / np.maximum(count, 1)
         pools = [s, mean]
         if self.attention:
             q = (s @ e["query.weight"] + e["query.bias"]) / np.float32(np.sqrt(self.hidden))
-            logits = np.where(mask, np.matmul(h, q[..., None])[..., 0], -np.inf)  # [B, N, E]
-            top = logits.max(-1, keepdims=True)
-            weight = np.where(mask, np.exp(logits - np.where(np.isfinite(top), top, 0.0)), 0.0)
-            alpha = weight / np.maximum(weight.sum(-1, keepdims=True), np.finfo(np.float32).tiny)
+            alpha = _masked_softmax(np.matmul(h, q[..., None])[..., 0], mask)  # [B, N, E]
             pools = [s, np.matmul(alpha[..., None, :], h)[..., 0, :], mean]  # [B, N, H] each
         z = np.concatenate(pools, -1).astype(np.float32)
         b, n = z.shape[:2]
