@@ -9,6 +9,8 @@ import sys
 import time
 from dataclasses import asdict
 
+import pytest
+
 from cmcl.io.rundir import RunDirectory
 from experiments.grids import ROOT, Run
 from experiments.runner import command, run_grid
@@ -83,3 +85,21 @@ def test_a_killed_runner_kills_its_child_and_a_rerun_resumes_it_and_skips_finish
     episodes = [r["episodes"] for r in RunDirectory.open(store.runs_dir(interrupted.id)).rows("episode")]
     assert episodes == list(range(1, 201))  # every episode once: the rows after the checkpoint were replayed
     assert (tmp_path / "results.csv").read_text().count("\n") == 3  # header and two runs
+
+
+SESSION_PROBE = """
+import os, sys
+from experiments.runner import session_yields_like_nice
+print(session_yields_like_nice(), open("/proc/self/autogroup").read().split()[-1])
+"""
+
+
+def test_a_niced_runner_leading_its_session_gives_its_autogroup_that_nice_and_one_in_a_shell_session_does_not():
+    if not os.path.exists("/proc/self/autogroup"):
+        pytest.skip("this kernel has no scheduling autogroups (CONFIG_SCHED_AUTOGROUP)")
+    probe = [sys.executable, "-c", SESSION_PROBE]
+    own = subprocess.run(["nice", "-n", "7", *probe], cwd=ROOT, capture_output=True, text=True, timeout=60,
+                         start_new_session=True)
+    assert own.stdout.split() == ["True", "7"], own.stdout + own.stderr
+    shared = subprocess.run(["nice", "-n", "7", *probe], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert shared.stdout.split()[0] == "False", shared.stdout + shared.stderr
