@@ -31,3 +31,14 @@ def test_replay_stage_and_batched_envs_never_load_torch():
              "cmcl.learners.policy, cmcl.system")
     assert loaded_after_importing("cmcl.replay", extra, ("torch",)) == []
     assert loaded_after_importing("cmcl.learners", "", ("torch",)) == ["torch"], "the check can see torch"
+
+
+def test_the_training_commands_load_no_torch_before_the_run_directory_is_taken():
+    """`python -m cmcl train` and `python -m services.launch` import the launcher, then take the run directory's
+    lock: a second launcher on a run in use is refused without first loading torch (~4 s of a 2-core machine's
+    time; the learner actor and the evaluation import it themselves)."""
+    code = ("import json, sys, cmcl.__main__, services.launch\n"
+            "print(json.dumps(sorted({n.split('.')[0] for n in sys.modules} & {'torch', 'ray'})))\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout) == []
