@@ -42,3 +42,13 @@ def test_the_training_commands_load_no_torch_before_the_run_directory_is_taken()
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout) == []
+
+
+def test_a_command_ends_with_its_exit_status_its_output_flushed_and_no_teardown():
+    """cmcl.stopping.exit_without_teardown, the last step of every training and evaluation command."""
+    code = ("import atexit, sys\nfrom cmcl.stopping import exit_without_teardown\n"
+            "atexit.register(lambda: print('teardown ran'))\n"
+            "print('the last line', end='')\nprint('and its error', end='', file=sys.stderr)\n"
+            "exit_without_teardown(130)\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert (result.returncode, result.stdout, result.stderr) == (130, "the last line", "and its error")

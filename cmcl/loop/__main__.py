@@ -20,7 +20,7 @@ from cmcl.learners.warm_start import warm_start_from_config
 from cmcl.loop.inline import InlineLoop
 from cmcl.progress import solved
 from cmcl.run_flags import RunRequest, RunRequestError, alias_parser, request_from, resume_command, train_in_run
-from cmcl.stopping import StopSignals
+from cmcl.stopping import StopSignals, exit_without_teardown
 
 
 def restore_newest_good(loop: InlineLoop, run_dir: RunDirectory) -> Path | None:
@@ -102,4 +102,4 @@ def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_without_teardown(main())  # the exit status of sys.exit, without ~1-2 s of teardown
