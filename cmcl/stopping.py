@@ -5,7 +5,7 @@ services/launch.py) install a `StopSignals` around training. The first SIGINT (C
 Kubernetes, `kill`) only sets `requested`; the training loop polls it between steps, stops issuing work, drains,
 checkpoints and returns, and the CLI exits with `exit_code` (130 for SIGINT, 143 for SIGTERM: 128 + the signal
 number, the shell's convention). A second signal while that is under way calls `force` (default: exit at once with
-the same code, no checkpoint).
+the same code, no checkpoint). `exit_without_teardown` is how every training and evaluation command ends.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import signal
 import sys
 from collections.abc import Callable
 from types import FrameType
-from typing import Any
+from typing import Any, NoReturn
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -80,3 +80,15 @@ class StopSignals:
 
     def __exit__(self, *exc: object) -> None:
         self.restore()
+
+
+def exit_without_teardown(code: int | None) -> NoReturn:
+    """End a command with exit status `code` (None: 0, as `sys.exit`) at once, without the interpreter's teardown
+    of its modules: with torch, Ray and matplotlib loaded that teardown took 1-2.5 s on a 2-core machine after every
+    run (measured), before the prompt came back. For a command's last step only: stdout and stderr are flushed here,
+    every file a run writes is closed by the time its function returns, and atexit handlers do not run (Ray's, the
+    one registered, has nothing left to do once the launcher has stopped Ray). An exception still ends the command
+    the ordinary way."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code or 0)

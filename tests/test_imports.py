@@ -31,3 +31,24 @@ def test_replay_stage_and_batched_envs_never_load_torch():
              "cmcl.learners.policy, cmcl.system")
     assert loaded_after_importing("cmcl.replay", extra, ("torch",)) == []
     assert loaded_after_importing("cmcl.learners", "", ("torch",)) == ["torch"], "the check can see torch"
+
+
+def test_the_training_commands_load_no_torch_before_the_run_directory_is_taken():
+    """`python -m cmcl train`, `python -m cmcl.loop` and `python -m services.launch` import their runner, then take
+    the run directory's lock: a second writer on a run in use is refused without first loading torch (~4 s of a
+    2-core machine's time; the training itself imports it once the lock is held)."""
+    code = ("import json, sys, cmcl.__main__, cmcl.loop.__main__, services.launch\n"
+            "print(json.dumps(sorted({n.split('.')[0] for n in sys.modules} & {'torch', 'ray'})))\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout) == []
+
+
+def test_a_command_ends_with_its_exit_status_its_output_flushed_and_no_teardown():
+    """cmcl.stopping.exit_without_teardown, the last step of every training and evaluation command."""
+    code = ("import atexit, sys\nfrom cmcl.stopping import exit_without_teardown\n"
+            "atexit.register(lambda: print('teardown ran'))\n"
+            "print('the last line', end='')\nprint('and its error', end='', file=sys.stderr)\n"
+            "exit_without_teardown(130)\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert (result.returncode, result.stdout, result.stderr) == (130, "the last line", "and its error")

@@ -45,7 +45,10 @@ def head(tmp_path):
          # the dashboard agent's HTTP port defaults to 52365 for every Ray on the machine: the test session's own
          # Ray holds it, and an agent that cannot bind it leaves the job API answering "No available agent"
          f"--dashboard-agent-listen-port={agent}", f"--dashboard-agent-grpc-port={agent_grpc}",
-         "--disable-usage-stats"], env=env, cwd=tmp_path, stdout=open(tmp_path / "head.log", "w"),
+         # on SIGTERM `ray start --block` first drains the node for Ray Serve, up to 30 s by default; nothing here
+         # serves (the job has finished), so the head stops at once
+         "--disable-usage-stats"], env={**env, "RAY_GRACEFUL_SHUTDOWN_DRAIN_TIMEOUT_S": "0"}, cwd=tmp_path,
+        stdout=open(tmp_path / "head.log", "w"),
         stderr=subprocess.STDOUT, start_new_session=True)
     try:
         deadline = time.monotonic() + 120

@@ -169,11 +169,13 @@ def assert_clean_stop(run: Launched, code: int, name: str, run_dir: Path) -> Non
 def resume_then_stop(run_dir: Path, version: int, logged: int, stop: signal.Signals,
                      command: str | list[str]) -> None:
     """Resume with `command` (a key of RESUME_COMMANDS, or a printed hint's argv), which must announce the
-    checkpoint's policy `version`; stop it with `stop` after two progress lines; a clean stop, and the resumed run's
-    first episodes (after episode `logged`) played with that policy."""
+    checkpoint's policy `version`; stop it with `stop` at the first progress line that counts a learner update of
+    the resumed run; a clean stop, and the resumed run's first episodes (after episode `logged`) played with that
+    policy."""
+    checkpointed = json.loads((run_dir / "checkpoints" / "service" / "supervisor.json").read_text())
     again = resume(run_dir, command)
     again.wait_for(lambda line: f"(policy version {version})" in line, "the resume notice")
-    again.progress_lines(2)
+    again.progress_lines(1, min_updates=checkpointed["status"]["updates"] + 1)
     os.killpg(again.proc.pid, stop)
     assert_clean_stop(again, 128 + stop, stop.name, run_dir)
     assert wait_until_gone(again.seen) == set()
@@ -201,7 +203,7 @@ def test_make_run_stopped_by_ctrl_c_a_second_launcher_refused_and_the_printed_co
     run_dir = tmp_path / "run"
     first = Launched(["make", "-s", "run", f"RUN_ARGS=--set run.dir={run_dir} --set run.max_seconds=120 "
                                            "--metrics-port 0"])
-    first.progress_lines(2, min_updates=16)
+    first.progress_lines(1, min_updates=16)
     second = subprocess.run([PY, "-m", "services.launch", "--config", "configs/spread_cmcl.toml", "--set",
                              f"run.dir={run_dir}", "--overwrite", "--metrics-port", "0"], cwd=ROOT,
                             capture_output=True, text=True, timeout=120)
@@ -224,7 +226,7 @@ def test_make_run_stopped_by_ctrl_c_a_second_launcher_refused_and_the_printed_co
 def test_sigkill_of_the_launcher_leaves_no_ray_process_and_resume_goes_on_from_the_last_checkpoint(tmp_path):
     run_dir = tmp_path / "run"
     first = launch(run_dir, "--set", "service.checkpoint_every_s=2")
-    first.progress_lines(3, min_updates=16)
+    first.progress_lines(1, min_updates=16)
     manifest = run_dir / "checkpoints" / "service" / "learner.pt.manifest.json"
     first.wait_for(lambda line: manifest.is_file() and learner_version(run_dir) > 0, "a learner checkpoint")
     first.proc.kill()  # the launcher alone, as the OOM killer or `kill -9 PID` would

@@ -11,16 +11,18 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from cmcl.config import Config
 from cmcl.io import codec
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.verified import CheckpointError
-from cmcl.learners.warm_start import warm_start_from_config
-from cmcl.loop.inline import InlineLoop
 from cmcl.progress import solved
 from cmcl.run_flags import RunRequest, RunRequestError, alias_parser, request_from, resume_command, train_in_run
-from cmcl.stopping import StopSignals
+from cmcl.stopping import StopSignals, exit_without_teardown
+
+if TYPE_CHECKING:  # torch: imported by `_train` once the run directory is taken (a run in use is refused first)
+    from cmcl.loop.inline import InlineLoop
 
 
 def restore_newest_good(loop: InlineLoop, run_dir: RunDirectory) -> Path | None:
@@ -64,6 +66,9 @@ def run_inline(request: RunRequest) -> int:
 
 def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
     """Build the loop, restore it when resuming, train until done or stopped; the run directory is locked."""
+    from cmcl.learners.warm_start import warm_start_from_config
+    from cmcl.loop.inline import InlineLoop
+
     loop = InlineLoop(config, run_dir, progress=None if request.quiet else print)
     if request.resume_dir:
         resume_dir = request.resume_dir
@@ -102,4 +107,4 @@ def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_without_teardown(main())  # the exit status of sys.exit, without ~1-2 s of teardown
