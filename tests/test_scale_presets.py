@@ -3,8 +3,8 @@
 Default run: each preset trains a few updates inline with its own networks, and the N = 16 preset, whose networks
 start from the N = 8 preset's last stage, names `run.init_from` when that run does not exist.
 Slow (`pytest -m slow`): the commands the presets' headers give, run as a user runs them, on either runner: the
-agent-count curriculum 2 -> 4 -> 8 of spread_n8 (45 minutes), then spread_n16 from it (90 minutes), each held-out
-evaluated against a floor below what docs/RESULTS.md measured.
+agent-count curriculum 2 -> 4 -> 8 of spread_n8 (about 16 minutes on a free core), then spread_n16 from it (about
+13 minutes), each held-out evaluated against a floor below what docs/RESULTS.md measured.
 """
 
 import json
@@ -20,7 +20,7 @@ from cmcl.loop import InlineLoop
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
 PY = sys.executable
-N8_STAGES = ["--agents", "2", "4", "8", "--stage-episodes", "3000", "5000", "20000", "--set", "run.max_seconds=900"]
+N8_STAGES = ["--agents", "2", "4", "8", "--stage-episodes", "3008", "2624", "1136"]
 
 
 @pytest.mark.parametrize("preset, agents", [("spread_n8.toml", 8), ("spread_n16.toml", 16)])
@@ -60,11 +60,11 @@ def test_the_n8_stages_then_the_n16_preset_learn_as_their_headers_say(runner, tm
                             cwd=ROOT, capture_output=True, text=True, timeout=3 * 3600)
     assert stages.returncode == 0, stages.stderr[-3000:]
     n8_result = held_out(n8 / "n8")
-    assert n8_result["coverage"] >= 0.75, n8_result  # measured 0.83 / 0.84 (inline, one seed)
+    assert n8_result["coverage"] >= 0.78, n8_result  # measured 0.826 / 0.855 / 0.844 (inline, 3 seeds)
 
     n16 = subprocess.run([PY, "-m", "cmcl", "train", "--runner", runner, "--config", "configs/spread_n16.toml",
                           "--set", f"run.dir={tmp_path / 'spread_n16'}", "--set", f"run.init_from={n8 / 'n8'}",
                           "--quiet", "--no-eval"], cwd=ROOT, capture_output=True, text=True, timeout=3 * 3600)
     assert n16.returncode == 0, n16.stderr[-3000:]
     n16_result = held_out(tmp_path / "spread_n16")
-    assert n16_result["coverage"] >= 0.8, n16_result
+    assert n16_result["coverage"] >= 0.85, n16_result  # measured 0.909 / 0.934 / 0.901 (inline, 3 seeds)
