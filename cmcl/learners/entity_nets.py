@@ -42,6 +42,14 @@ POOLS = ("attention", "mean", "relational")
 RELATION_DIM = 16  # query / key width of the relational round
 
 
+def masked_softmax(logits: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+    """Softmax over the last axis of `logits` where `mask` (broadcast against it; None: everywhere) holds, 0 elsewhere;
+    a row with nothing present gets all 0 (it attends to nothing)."""
+    if mask is not None:
+        logits = logits.masked_fill(~mask, float("-inf"))
+    return torch.softmax(logits, -1).nan_to_num(0.0)
+
+
 class EntityEncoder(nn.Module):
     """z = [s, attention pool, mean pool] of each (own, entities, mask) row, G groups (module docstring); with
     pool="mean" z = [s, mean pool] (no attention: ~2x cheaper per entity, DeepSets-style).
@@ -81,10 +89,8 @@ class EntityEncoder(nn.Module):
         q = self.relate_query(flat).view(g * r, e, RELATION_DIM)
         k = self.relate_key(flat).view(g * r, e, RELATION_DIM)
         logits = torch.bmm(q, k.transpose(1, 2)) / math.sqrt(RELATION_DIM)  # [GR, E (query), E (key)]
-        if not everyone:
-            logits = logits.masked_fill(~mask.reshape(g * r, 1, e), float("-inf"))
-        beta = torch.softmax(logits, -1).nan_to_num(0.0)
-        context = torch.bmm(beta, h.reshape(g * r, e, hid)).view(g, r * e, hid)
+        beta = masked_softmax(logits, None if everyone else mask.reshape(g * r, 1, e))
+        context = torch.bmm(beta, flat.view(g * r, e, hid)).view(g, r * e, hid)
         return h + self.relate_out(context).relu_().view(g, r, e, hid)
 
     def forward(self, own: torch.Tensor, entities: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -104,10 +110,7 @@ class EntityEncoder(nn.Module):
         if self.pool == "mean":
             return torch.cat([s, mean], -1)
         q = self.query(s) / math.sqrt(self.hidden)  # [G, R, H]
-        logits = torch.einsum("greh,grh->gre", h, q)  # [G, R, E]
-        if not everyone:
-            logits = logits.masked_fill(~mask, float("-inf"))
-        alpha = torch.softmax(logits, -1).nan_to_num(0.0)  # a row without entities attends to nothing
+        alpha = masked_softmax(torch.einsum("greh,grh->gre", h, q), None if everyone else mask)  # [G, R, E]
         pooled = torch.einsum("gre,greh->grh", alpha, h)  # [G, R, H]
         return torch.cat([s, pooled, mean], -1)
 
