@@ -27,6 +27,7 @@ from cmcl.loop import InlineLoop
 from cmcl.loop.__main__ import build_parser as loop_alias_parser
 from cmcl.run_flags import RunRequest, python_command, request_from
 from services.launch import build_parser as launch_alias_parser
+from tests.evaluation_output import evaluation_json
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -130,7 +131,7 @@ def test_evaluate_finds_the_newest_policy(tmp_path, tiny_config):
     run_dir = trained_run(tiny_config, tmp_path / "run")
     evaluated = run_cli("evaluate", str(run_dir.path), "--episodes", "8", "--no-gif")
     assert evaluated.returncode == 0, evaluated.stderr
-    result = json.loads(evaluated.stdout[:evaluated.stdout.rindex("}") + 1])
+    result = evaluation_json(evaluated.stdout)
     assert result["policy"] == "trained" and result["episodes"] == 8
     assert Path(result["checkpoint"]).name == "ckpt_00000004.pt"
 

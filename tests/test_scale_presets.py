@@ -7,7 +7,6 @@ agent-count curriculum 2 -> 4 -> 8 of spread_n8 (about 16 minutes on a free core
 13 minutes), each held-out evaluated against a floor below what docs/RESULTS.md measured.
 """
 
-import json
 import subprocess
 import sys
 from pathlib import Path
@@ -16,6 +15,7 @@ import pytest
 
 from cmcl.config import load_config
 from cmcl.loop import InlineLoop
+from tests.evaluation_output import evaluation_json
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
@@ -47,7 +47,7 @@ def held_out(run_dir: Path) -> dict:
     done = subprocess.run([PY, "-m", "cmcl", "evaluate", str(run_dir), "--episodes", "200", "--no-gif"], cwd=ROOT,
                           capture_output=True, text=True, timeout=1200)
     assert done.returncode == 0, done.stderr
-    return json.loads(done.stdout[:done.stdout.rindex("}") + 1])
+    return evaluation_json(done.stdout)
 
 
 @pytest.mark.slow

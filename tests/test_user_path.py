@@ -31,6 +31,7 @@ import pytest
 
 from cmcl.io.rundir import RunDirectory
 from services.reaper import descendants, process_table
+from tests.evaluation_output import evaluation_json
 
 ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable
@@ -195,7 +196,7 @@ def test_make_run_ends_with_the_held_out_evaluation_and_a_gif_and_evaluate_finds
     evaluated = subprocess.run([PY, "-m", "cmcl.evaluate", str(run_dir), "--episodes", "20", "--no-gif"], cwd=ROOT,
                                capture_output=True, text=True, timeout=300)
     assert evaluated.returncode == 0, evaluated.stderr
-    result = json.loads(evaluated.stdout[:evaluated.stdout.rindex("}") + 1])
+    result = evaluation_json(evaluated.stdout)
     assert Path(result["checkpoint"]).name.startswith("learner-") and result["episodes"] == 20
 
 
@@ -264,5 +265,5 @@ def test_inline_runner_stops_on_ctrl_c_refuses_a_second_writer_and_resumes(tmp_p
     evaluated = subprocess.run([PY, "-m", "cmcl.evaluate", str(run_dir), "--episodes", "20", "--no-gif"], cwd=ROOT,
                                capture_output=True, text=True, timeout=300)
     assert evaluated.returncode == 0, evaluated.stderr
-    assert Path(json.loads(evaluated.stdout[:evaluated.stdout.rindex("}") + 1])["checkpoint"]).name == \
+    assert Path(evaluation_json(evaluated.stdout)["checkpoint"]).name == \
         f"ckpt_{ended_at:08d}.pt"
