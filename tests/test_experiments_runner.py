@@ -100,6 +100,6 @@ def test_a_niced_runner_leading_its_session_gives_its_autogroup_that_nice_and_on
     probe = [sys.executable, "-c", SESSION_PROBE]
     own = subprocess.run(["nice", "-n", "7", *probe], cwd=ROOT, capture_output=True, text=True, timeout=60,
                          start_new_session=True)
-    assert own.stdout.split() == ["True", "7"], own.stdout + own.stderr
+    assert own.stdout.split() == ["True", "7"], (own.returncode, own.stdout, own.stderr)
     shared = subprocess.run(["nice", "-n", "7", *probe], cwd=ROOT, capture_output=True, text=True, timeout=60)
-    assert shared.stdout.split()[0] == "False", shared.stdout + shared.stderr
+    assert shared.stdout.split()[:1] == ["False"], (shared.returncode, shared.stdout, shared.stderr)
