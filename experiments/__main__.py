@@ -1,7 +1,7 @@
 """Command line of the experiments: run grids, write the report, draw the figures.
 
     python -m experiments run GRID [GRID ...] [--seeds 0 1 2 3 4] [--jobs 2] [--out DIR]
-            [--arms ...] [--ablations ...] [--algorithms ...] [--modes inline service] [--episodes 20000]
+            [--arms ...] [--cells ...] [--ablations ...] [--algorithms ...] [--modes inline service] [--episodes 20000]
     python -m experiments report [--update docs/RESULTS.md] [--results bench/results]
     python -m experiments figures [--results bench/results]
     python -m experiments stalls FOLDER [FOLDER ...]      (e.g. bench/results/curriculum: its runs/ directories)
@@ -18,7 +18,17 @@ import sys
 from pathlib import Path
 
 from cmcl.config import ALGORITHMS
-from experiments.grids import ABLATIONS, CURRICULUM_ARMS, EPISODES, GRIDS, ROOT, Run, grid, prefix_reference_runs
+from experiments.grids import (
+    ABLATIONS,
+    CURRICULUM_ARMS,
+    EPISODES,
+    GRIDS,
+    ROOT,
+    SCALE_CELLS,
+    Run,
+    grid,
+    prefix_reference_runs,
+)
 from experiments.report import blocks, figures, update
 from experiments.runner import run_grid
 from experiments.stalls import analyse_folder
@@ -30,11 +40,12 @@ def shown(path: Path) -> str:
 
 
 def selected_runs(args: argparse.Namespace) -> list[Run]:
-    """The runs of `args.grids` that the filters keep (--arms filters only the curriculum arms), with the prefix
-    references the kept ablations need."""
+    """The runs of `args.grids` that the filters keep (--arms filters only the curriculum arms, --cells only the
+    scale grid's cells), with the prefix references the kept ablations need."""
     runs = [r for r in grid(args.grids, args.seeds, args.algorithms, args.episodes)
             if (r.ablation is None or r.ablation in args.ablations)
-            and (r.arm not in CURRICULUM_ARMS or r.arm in args.arms) and r.mode in args.modes]
+            and (r.arm not in CURRICULUM_ARMS or r.arm in args.arms)
+            and (r.arm not in SCALE_CELLS or r.arm in args.cells) and r.mode in args.modes]
     return runs + prefix_reference_runs(runs, args.episodes)
 
 
@@ -87,6 +98,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=None, help="results folder (default: the grid's, bench/results/...)")
     p.add_argument("--arms", nargs="+", choices=list(CURRICULUM_ARMS), default=list(CURRICULUM_ARMS),
                    help="curriculum grids: only these arms")
+    p.add_argument("--cells", nargs="+", choices=list(SCALE_CELLS), default=list(SCALE_CELLS),
+                   help="scale grid: only these cells")
     p.add_argument("--ablations", nargs="+", choices=list(ABLATIONS), default=list(ABLATIONS),
                    help="ablations grid: only these variants")
     p.add_argument("--algorithms", nargs="+", choices=ALGORITHMS, default=list(ALGORITHMS))
