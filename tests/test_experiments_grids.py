@@ -92,10 +92,16 @@ def test_every_grid_has_a_results_folder_and_the_time_to_solve_grids_stop_early(
     assert len(schedule) == 8 and all(r.stop_coverage == 0.95 and r.max_seconds == 900 for r in schedule)
     assert {r.mode for r in grid(["algorithms"], [0])} == {"inline", "service"}
     scale = grid(["scale"], [0])
-    assert [r.arm for r in scale] == ["n8_per_agent", "n8_entity", "n8_entity_stages", "n8_entity_stages_progress"]
+    assert [r.arm for r in scale] == ["n8_per_agent", "n8_entity", "n8_entity_stages", "n8_entity_stages_progress",
+                                      "n4_entity", "n4_entity_stages", "n16_per_agent", "n16_entity"]
     assert scale[0].budget == 20_000 and "env.num_agents=8" in scale[0].sets and scale[0].algorithm == "maddpg"
     assert "maddpg.networks=entity" in scale[1].sets and not scale[1].stages
     assert scale[2].stages == scale[3].stages == (2, 4, 8) and "run.stop_progress=0.05" in scale[3].sets
+    by_arm = {r.arm: r for r in grid(["scale"], [0], budget=123)}
+    assert by_arm["n8_per_agent"].budget == 123  # a cell without its own budget takes the grid's
+    assert by_arm["n16_entity"].budget == by_arm["n16_per_agent"].budget == 3_040  # equal episodes at N = 16
+    assert "run.init_from=" in by_arm["n16_entity"].sets  # from scratch: the preset's warm start cleared
+    assert by_arm["n4_entity_stages"].stages == (2, 4) and by_arm["n4_entity"].config == "spread_n8.toml"
     with pytest.raises(ValueError, match="unknown \\['nope'\\]"):
         grid(["nope"], [0])
 
@@ -130,12 +136,16 @@ def test_an_own_env_run_trains_from_its_settings_and_is_measured_per_team_agains
     assert lines[3].split(" | ")[2] == "agent" and " | 0,1 | 8 | " in lines[3]
 
 
-def test_the_command_line_keeps_the_scale_grid_and_filters_only_curriculum_arms():
-    """`--arms` names curriculum arms; a grid whose runs carry other arms (the scale cells) is not filtered away."""
+def test_the_command_line_filters_curriculum_arms_with_arms_and_scale_cells_with_cells():
+    """`--arms` names curriculum arms and `--cells` scale cells; neither filters the other grid's runs away."""
     from experiments.__main__ import build_parser, selected_runs
 
-    scale = selected_runs(build_parser().parse_args(["run", "scale", "--seeds", "0", "1"]))
-    assert [r.id for r in scale][:2] == ["scale_n8_per_agent_s0", "scale_n8_entity_s0"] and len(scale) == 8
+    scale = selected_runs(build_parser().parse_args(["run", "scale", "--seeds", "0", "1", "--arms", "cmcl"]))
+    assert [r.id for r in scale][:2] == ["scale_n8_per_agent_s0", "scale_n8_entity_s0"] and len(scale) == 16
+    cells = selected_runs(build_parser().parse_args(["run", "scale", "--seeds", "0", "1", "--cells", "n16_entity"]))
+    assert [r.id for r in cells] == ["scale_n16_entity_s0", "scale_n16_entity_s1"]
+    with pytest.raises(SystemExit):  # argparse: an unknown cell is refused, naming the choices
+        build_parser().parse_args(["run", "scale", "--cells", "n32_entity"])
     some = selected_runs(build_parser().parse_args(["run", "curriculum", "--seeds", "0", "--arms", "cmcl"]))
     assert [r.id for r in some] == ["curriculum_cmcl_s0"]
 
