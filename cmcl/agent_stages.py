@@ -13,8 +13,12 @@ Only networks whose shapes do not depend on the number of agents can be carried 
 setting is refused before the first stage starts, naming the tensor and its shapes at both N.
 
 Rerunning the same command goes on where it stopped: a stage whose summary says it ended (budget, solved, plateau) is
-kept, a stage with a checkpoint is resumed, a stage folder without one starts over. Each stage's replay buffer holds
-that stage's N only; mixing rows of several N in one buffer is not built.
+kept, a stage with a checkpoint is resumed, a stage folder without one starts over.
+
+Each stage starts with an empty replay buffer, unless `--set run.carry_replay=true` (inline runner, entity networks,
+MADDPG or PER sampling): then every stage after the first also starts with the rows of the stage before (its newest
+checkpoint's buffer, cmcl.loop.carried_replay), padded to its N with the absent agents masked
+(cmcl.replay.agent_padding), so that its buffer holds rows of both counts until its own rows overwrite them.
 """
 
 from __future__ import annotations
@@ -64,6 +68,8 @@ def plan_stages(config: Config, agents: Sequence[int], stage_episodes: Sequence[
         sets = [f"env.num_agents={n}", f"run.dir={root / f'n{n}'}"]
         if previous is not None:
             sets.append(f"run.init_from={previous}")
+        elif config.run.carry_replay:
+            sets.append("run.carry_replay=false")  # the first stage has no stage before it to carry rows from
         if stage_episodes is not None:
             sets.append(f"run.episodes={int(stage_episodes[k])}")
         if last:
@@ -117,6 +123,9 @@ def run_stages(base: RunRequest, agents: Sequence[int], stage_episodes: Sequence
             raise ConfigError("--overwrite: the stages go on from where they stopped; to start over, name another "
                               "run.dir")
         config = load_config(base.config_file, base.config_overrides())
+        if config.run.carry_replay and base.runner != "inline":
+            raise ConfigError(f"run.carry_replay=True is built for the inline runner only (--runner inline), got "
+                              f"--runner {base.runner}")
         stages = plan_stages(config, agents, stage_episodes)
         low, high = (load_config(base.config_file, (*base.config_overrides(), f"env.num_agents={s.num_agents}"))
                      for s in (stages[0], stages[-1]))

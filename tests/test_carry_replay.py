@@ -1,0 +1,70 @@
+"""run.carry_replay: a stage of the agent-count curriculum starts with the replay rows of the stage before (inline),
+and what is refused, naming the field."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cmcl.__main__ import main
+from cmcl.config import ConfigError, load_config
+from cmcl.io import codec
+from cmcl.io.rundir import RunDirectory
+
+
+def newest_storage(run_dir):
+    from cmcl.loop.inline import replay_snapshot_path
+
+    checkpoint = list(RunDirectory.open(run_dir).inline_checkpoints().values())[-1]
+    return codec.read_snapshot(replay_snapshot_path(checkpoint), limits=codec.SNAPSHOT_LIMITS)["replay"]["storage"]
+
+
+def test_a_stages_run_two_to_four_starts_the_second_stage_with_the_first_stages_rows(tmp_path, tiny_config_file,
+                                                                                     capsys):
+    root = tmp_path / "cur"
+    argv = ["stages", "--runner", "inline", "--agents", "2", "4", "--stage-episodes", "8", "8", "--no-eval",
+            "--config", str(tiny_config_file("maddpg", dir=str(root))), "--set", "maddpg.networks=entity",
+            "--set", "run.carry_replay=true"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    first = newest_storage(root / "n2")
+    assert first["n_agents"] == 2 and first["size"] > 0 and "present" not in first  # the first stage: its own rows
+    assert f"replay: starts with the {first['size']} rows of {root / 'n2'} ({first['size']} of them with absent " \
+           "agents)" in out
+    assert not RunDirectory.open(root / "n2").config().run.carry_replay  # nothing before the first stage
+    second = newest_storage(root / "n4")
+    assert second["n_agents"] == 4 and second["size"] > first["size"]  # the capacity (600) holds both stages' rows
+    carried = first["size"]
+    present = second["present"]
+    np.testing.assert_array_equal(present[:carried], [[True, True, False, False]] * carried)  # oldest: stage 1's
+    assert present[carried:].all()  # then stage 2's own rows, all four agents
+    order = np.argsort(first["id"])
+    np.testing.assert_array_equal(second["act"][:carried, :2], first["act"][order])
+    np.testing.assert_array_equal(second["obs"][:carried, :2, :8], first["obs"][order][:, :, :8])
+    assert not second["obs"][:carried, 2:].any() and not second["rew"][:carried, 2:].any()
+
+
+@pytest.mark.parametrize(("overrides", "message"), [
+    (("maddpg.networks='per_agent'", "teams.agent.algorithm='maddpg'"), "maddpg.networks = 'entity'"),
+    (("maddpg.networks='entity'",), "every team's algorithm to be 'maddpg' or 'per'")])
+def test_carry_replay_without_entity_networks_or_with_scoring_teachers_is_refused(overrides, message):
+    with pytest.raises(ConfigError, match=f"run.carry_replay needs {message}.*got True"):
+        load_config(None, ("run.carry_replay=true", *overrides))
+
+
+def test_carry_replay_outside_navigation_is_refused():
+    with pytest.raises(ConfigError, match="run.carry_replay needs env.task = 'spread'.*got True"):
+        load_config("configs/tag_maddpg.toml", ("run.carry_replay=true", "maddpg.networks='entity'"))
+
+
+def test_carry_replay_without_a_stage_before_or_on_the_service_is_refused(tmp_path, tiny_config_file, capsys):
+    config = str(tiny_config_file("maddpg", dir=str(tmp_path / "run")))
+    sets = ["--set", "maddpg.networks=entity", "--set", "run.carry_replay=true"]
+    assert main(["train", "--runner", "inline", "--config", config, *sets]) == 2
+    assert "run.carry_replay=True needs run.init_from" in capsys.readouterr().err
+    assert main(["train", "--runner", "inline", "--config", config, *sets,
+                 "--set", f"run.init_from={tmp_path / 'nothing'}"]) == 2
+    assert "run.init_from" in capsys.readouterr().err
+    assert main(["stages", "--runner", "service", "--agents", "2", "3", "--config", config, *sets]) == 2
+    assert "run.carry_replay=True is built for the inline runner only" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
