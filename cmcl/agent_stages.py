@@ -15,9 +15,9 @@ setting is refused before the first stage starts, naming the tensor and its shap
 Rerunning the same command goes on where it stopped: a stage whose summary says it ended (budget, solved, plateau) is
 kept, a stage with a checkpoint is resumed, a stage folder without one starts over.
 
-Each stage starts with an empty replay buffer, unless `--set run.carry_replay=true` (inline runner, entity networks,
-MADDPG or PER sampling): then every stage after the first also starts with the rows of the stage before (its newest
-checkpoint's buffer, cmcl.loop.carried_replay), padded to its N with the absent agents masked
+Each stage starts with an empty replay buffer, unless `--set run.carry_replay=true` (entity networks, MADDPG or PER
+sampling, either runner): then every stage after the first also starts with the rows of the stage before (its newest
+checkpoint's buffer, cmcl.carried_replay), padded to its N with the absent agents masked
 (cmcl.replay.agent_padding), so that its buffer holds rows of both counts until its own rows overwrite them.
 """
 
@@ -123,9 +123,6 @@ def run_stages(base: RunRequest, agents: Sequence[int], stage_episodes: Sequence
             raise ConfigError("--overwrite: the stages go on from where they stopped; to start over, name another "
                               "run.dir")
         config = load_config(base.config_file, base.config_overrides())
-        if config.run.carry_replay and base.runner != "inline":
-            raise ConfigError(f"run.carry_replay=True is built for the inline runner only (--runner inline), got "
-                              f"--runner {base.runner}")
         stages = plan_stages(config, agents, stage_episodes)
         low, high = (load_config(base.config_file, (*base.config_overrides(), f"env.num_agents={s.num_agents}"))
                      for s in (stages[0], stages[-1]))

@@ -57,7 +57,8 @@ def test_carry_replay_outside_navigation_is_refused():
         load_config("configs/tag_maddpg.toml", ("run.carry_replay=true", "maddpg.networks='entity'"))
 
 
-def test_carry_replay_without_a_stage_before_or_on_the_service_is_refused(tmp_path, tiny_config_file, capsys):
+def test_carry_replay_without_a_stage_before_or_from_a_run_without_rows_is_refused(tmp_path, tiny_config_file,
+                                                                                  capsys):
     config = str(tiny_config_file("maddpg", dir=str(tmp_path / "run")))
     sets = ["--set", "maddpg.networks=entity", "--set", "run.carry_replay=true"]
     assert main(["train", "--runner", "inline", "--config", config, *sets]) == 2
@@ -65,6 +66,37 @@ def test_carry_replay_without_a_stage_before_or_on_the_service_is_refused(tmp_pa
     assert main(["train", "--runner", "inline", "--config", config, *sets,
                  "--set", f"run.init_from={tmp_path / 'nothing'}"]) == 2
     assert "run.init_from" in capsys.readouterr().err
-    assert main(["stages", "--runner", "service", "--agents", "2", "3", "--config", config, *sets]) == 2
-    assert "run.carry_replay=True is built for the inline runner only" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
+
+
+def test_the_service_replay_server_starts_with_the_rows_of_the_run_before_and_restores_them_once(tmp_path,
+                                                                                                 tiny_config):
+    """The service runner's side, in-process: a new replay server carries the rows of the run before from its replay
+    store, snapshots them (a restart restores them, it does not carry them twice), and the learner trains on them."""
+    from services.learner import Learner
+    from services.replay_server import ReplayServer
+    from tests.test_agent_padding import small_rows
+
+    def config(n, **run):
+        return tiny_config("maddpg", service=True, sections={"maddpg": {"networks": "entity"},
+                                                             "env": {"num_agents": n}}, **run)
+
+    small = config(2, dir=str(tmp_path / "n2"))
+    source = ReplayServer(small.to_dict(), str(RunDirectory.create(small.run.dir, small).service_replay_dir))
+    rows = small_rows(m=120)  # over the tiny warm-up (96), so that it samples
+    source.replay.add(rows["obs"], rows["act"], rows["rew"], rows["next_obs"], rows["done"], np.arange(120) // 30)
+    source.snapshot()
+    big = config(4, dir=str(tmp_path / "n4"), init_from=small.run.dir, carry_replay=True)
+    store = str(RunDirectory.create(big.run.dir, big).service_replay_dir)
+    server = ReplayServer(big.to_dict(), store)
+    assert not server.resumed and server.replay.size == 120 and server.replay.storage.absent_rows == 120
+    np.testing.assert_array_equal(server.replay.storage.act[:120, :2], rows["act"])
+    again = ReplayServer(big.to_dict(), store)
+    assert again.resumed and again.replay.size == 120 and again.replay.storage.absent_rows == 120
+    from cmcl.replay.buffer_steps import sample_owner_batches
+
+    batch = sample_owner_batches(server.replay, 2, 8, [np.random.default_rng(i) for i in range(4)], [0.0] * 4)
+    assert batch.minibatch(0, False)["present"][:, :, 2:].sum() == 0
+    learner = Learner(config(4).to_dict(), 0)  # its own warm start is another test's: only the update here
+    feedback, _ = learner.update(batch)
+    assert np.isfinite(feedback.td_abs).all() and (feedback.td_abs[:, 2:] == 0).all()  # agents 2, 3: never present

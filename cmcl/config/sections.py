@@ -281,7 +281,7 @@ class RunConfig:
     # with init_from, also start with that run's replay rows (its newest checkpoint's buffer), padded to this run's
     # agent count (cmcl.replay.agent_padding: absent agents zero and masked per row), so that the buffer holds rows
     # of both counts (issue 22's agent curriculum: `python -m cmcl stages ... --set run.carry_replay=true`). Needs
-    # maddpg.networks = "entity", task spread, algorithms maddpg or per, and the inline runner; off: an empty buffer
+    # maddpg.networks = "entity", task spread and algorithms maddpg or per; either runner. Off: an empty buffer
     carry_replay: bool = False
 
     def __post_init__(self) -> None:

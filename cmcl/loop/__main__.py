@@ -85,7 +85,7 @@ def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
     elif config.run.init_from:
         print(f"actors and critics initialised from {warm_start_from_config(config.run.init_from, loop.maddpg)}")
         if config.run.carry_replay:
-            from cmcl.loop.carried_replay import carry_replay_rows
+            from cmcl.carried_replay import carry_replay_rows
 
             loop.scoring.inserted(carry_replay_rows(loop.replay, config.run.init_from, loop.layout.entities), 0)
             print(f"replay: starts with the {loop.replay.size} rows of {config.run.init_from} "
