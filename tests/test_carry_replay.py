@@ -100,3 +100,28 @@ def test_the_service_replay_server_starts_with_the_rows_of_the_run_before_and_re
     learner = Learner(config(4).to_dict(), 0)  # its own warm start is another test's: only the update here
     feedback, _ = learner.update(batch)
     assert np.isfinite(feedback.td_abs).all() and (feedback.td_abs[:, 2:] == 0).all()  # agents 2, 3: never present
+
+
+@pytest.mark.slow
+def test_the_stages_command_carries_the_rows_on_the_service(tmp_path):
+    """`python -m cmcl stages --set run.carry_replay=true` on the service runner (its own embedded Ray per stage), at
+    a tiny budget: the second stage's replay server starts with the first stage's rows."""
+    import subprocess
+    import sys
+
+    from tests.tiny import tiny_overrides
+
+    sets = [a for s in (*tiny_overrides(service=True), f"run.dir={tmp_path / 'cur'}", "maddpg.networks=entity",
+                        "run.carry_replay=true") for a in ("--set", s)]
+    done = subprocess.run([sys.executable, "-m", "cmcl", "stages", "--agents", "2", "3", "--stage-episodes", "8",
+                           "8", "--config", "configs/spread_maddpg.toml", "--num-cpus", "2", "--no-eval", *sets],
+                          capture_output=True, text=True, timeout=600, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert f"replay: starts with the rows of {tmp_path / 'cur' / 'n2'}" in done.stdout
+    from cmcl.io.durable import ReplayStore
+
+    first, second = (ReplayStore(RunDirectory.open(tmp_path / "cur" / f"n{n}").service_replay_dir).read_snapshot()
+                     ["replay"]["storage"] for n in (2, 3))
+    carried = first["size"]
+    assert carried > 0 and second["n_agents"] == 3
+    assert (second["present"][:carried] == [True, True, False]).all() and second["present"][carried:].all()

@@ -246,8 +246,7 @@ class MADDPG:
         count = None if presence is None else presence.count
         y = self._td_targets_t(rew, next_obs, done, None, count)  # [N, S]
         delta = y - self._q(self.critic, joint_input(obs, act), None, count)  # [N, S]
-        if presence is not None:
-            delta = delta * presence.own
+        delta = delta if presence is None else delta * presence.own
         loss = row_mean(delta.pow(2), w, presence)  # [N]
         self.critic_opt.zero_grad(set_to_none=True)
         self._total(loss, presence).backward()
@@ -327,18 +326,11 @@ class MADDPG:
         return {k: v.detach().numpy().copy() for k, v in self.actor.state_dict().items()}
 
     def load_actor_weights(self, weights: Mapping[str, ArrayLike]) -> None:
-        """Load :meth:`actor_weights` output into the ONLINE actor (rollout workers); targets untouched."""
-        own = self.actor.state_dict()
-        if set(weights) != set(own):
-            raise ValueError(f"actor weight keys {sorted(weights)} != expected {sorted(own)}")
-        new = {}
-        for k, v in weights.items():
-            t = as_tensor(v)
-            if t.shape != own[k].shape or not torch.isfinite(t).all():
-                raise ValueError(f"actor weight {k!r}: shape {tuple(t.shape)} (expected {tuple(own[k].shape)}) "
-                                 "or non-finite values")
-            new[k] = t
-        self.actor.load_state_dict(new)
+        """Load :meth:`actor_weights` output into the ONLINE actor (rollout workers); targets untouched. Keys, shapes
+        and finiteness are checked first (ValueError), as for every published part (cmcl.learners.weights)."""
+        from cmcl.learners.weights import load_published  # it imports this module
+
+        load_published(self, {"actor": weights}, ("actor",))
 
     def state_dict(self) -> dict:
         """Nets, targets, optimisers, noise generator state and update counter (torch.load(weights_only=True) safe).
