@@ -13,8 +13,12 @@ Only networks whose shapes do not depend on the number of agents can be carried 
 setting is refused before the first stage starts, naming the tensor and its shapes at both N.
 
 Rerunning the same command goes on where it stopped: a stage whose summary says it ended (budget, solved, plateau) is
-kept, a stage with a checkpoint is resumed, a stage folder without one starts over. Each stage's replay buffer holds
-that stage's N only; mixing rows of several N in one buffer is not built.
+kept, a stage with a checkpoint is resumed, a stage folder without one starts over.
+
+Each stage starts with an empty replay buffer, unless `--set run.carry_replay=true` (entity networks, MADDPG or PER
+sampling, either runner): then every stage after the first also starts with the rows of the stage before (its newest
+checkpoint's buffer, cmcl.carried_replay), padded to its N with the absent agents masked
+(cmcl.replay.agent_padding), so that its buffer holds rows of both counts until its own rows overwrite them.
 """
 
 from __future__ import annotations
@@ -64,6 +68,8 @@ def plan_stages(config: Config, agents: Sequence[int], stage_episodes: Sequence[
         sets = [f"env.num_agents={n}", f"run.dir={root / f'n{n}'}"]
         if previous is not None:
             sets.append(f"run.init_from={previous}")
+        elif config.run.carry_replay:
+            sets.append("run.carry_replay=false")  # the first stage has no stage before it to carry rows from
         if stage_episodes is not None:
             sets.append(f"run.episodes={int(stage_episodes[k])}")
         if last:

@@ -19,6 +19,7 @@ import numpy as np
 from cmcl.replay.pacing import PacingStatus
 
 ROW_KEYS = ("obs", "act", "rew", "next_obs", "done")  # one joint transition: obs [N, od], act [N, ad], rew [N], ...
+PRESENT_KEY = "present"  # bool [N]: the agents a row holds, in learner batches of a buffer with carried rows only
 
 
 class MessageError(ValueError):
@@ -74,7 +75,8 @@ class Rows:
 @dataclass(frozen=True)
 class LearnerBatch:
     """Replay -> learner: n per-owner minibatches. rows: obs [n, N, S, N, od], act, rew [n, N, S, N], next_obs,
-    done [n, N, S, N]; is_weights float32[n, N, S]; slots / generations int64[n, N, S] (owner v's minibatch is
+    done [n, N, S, N], and present bool[n, N, S, N] when the buffer holds rows carried from fewer agents
+    (run.carry_replay); is_weights float32[n, N, S]; slots / generations int64[n, N, S] (owner v's minibatch is
     [:, v])."""
 
     rows: dict[str, np.ndarray]
@@ -88,7 +90,7 @@ class LearnerBatch:
 
     def minibatch(self, i: int, importance_weights: bool) -> dict[str, np.ndarray]:
         """The i-th minibatch as `MADDPG.update` takes it ([N, S, ...]); is_weights only if some agent uses them."""
-        batch = {k: self.rows[k][i] for k in ROW_KEYS}
+        batch = {k: self.rows[k][i] for k in (*ROW_KEYS, PRESENT_KEY) if k in self.rows}
         if importance_weights:
             batch["is_weights"] = self.is_weights[i]
         return batch

@@ -118,6 +118,9 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
             raise
     config = load_config(request.config_file, overrides)
     check_warm_start(config)
+    from cmcl.carried_replay import check_carry_source  # numpy only: no torch, no Ray
+
+    check_carry_source(config)
     lock = RunLock.acquire(config.run.dir, holder_command())
     try:
         return config, RunDirectory.create(config.run.dir, config, overwrite=request.overwrite), lock

@@ -164,6 +164,8 @@ def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: Ru
         from cmcl.learners.warm_start import warm_start_source  # torch: imported only when needed
 
         print(f"actors and critics initialised from {warm_start_source(config.run.init_from).path}")
+        if config.run.carry_replay:  # the replay server reads them when it starts (services/replay_server.py)
+            print(f"replay: starts with the rows of {config.run.init_from}")
     if not request.address and not ray.is_initialized():
         start_reaper(keep_fds=(lock.fd,))  # no process of the embedded Ray outlives this one, SIGKILL included
     stop = StopSignals(notice=print)

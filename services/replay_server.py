@@ -73,6 +73,18 @@ class ReplayServer:
         self.resumed = self.store is not None and self.store.exists()
         if self.resumed:
             self.restore()
+        elif cfg.run.carry_replay and cfg.run.init_from:  # a new run starting with the rows of the run before
+            self._carry_replay(cfg.run.init_from)
+
+    def _carry_replay(self, init_from: str) -> None:
+        """Add init_from's replay rows, padded to this run's agents (cmcl.carried_replay), then snapshot them, so
+        that a restart of this actor restores them rather than carrying them again."""
+        from cmcl.carried_replay import carry_replay_rows
+
+        self.scoring.inserted(carry_replay_rows(self.replay, init_from, self.layout.entities), 0)
+        self.dirty = True
+        if self.store is not None:
+            self.snapshot()
 
     # ------------------------------------------------------------------ pacing
     def status(self) -> ReplayStatus:

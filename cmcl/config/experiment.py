@@ -57,6 +57,24 @@ class Config:
                  f"must not exceed replay.capacity ({self.replay.capacity})")
         _require(self.maddpg.batch_size <= max(self.maddpg.warmup, 1) or self.maddpg.warmup == 0,
                  "maddpg.batch_size", self.maddpg.batch_size, f"must not exceed maddpg.warmup ({self.maddpg.warmup})")
+        if self.run.carry_replay:
+            self._check_carry_replay()
+
+    def _check_carry_replay(self) -> None:
+        """run.carry_replay's needs (cmcl.replay.agent_padding): rows of fewer agents padded into the navigation
+        layout, read by the entity networks, which alone mask absent agents; the teachers, the ICM and ACL's online
+        critic score rows without the mask, so only MADDPG's uniform and PER's sampling may draw them."""
+        why = "needs {} ({} here)"
+        _require(self.maddpg.network_kind == "entity", "run.carry_replay", True,
+                 why.format("maddpg.networks = 'entity' (networks whose parameters do not depend on N)",
+                            f"maddpg.networks = {self.maddpg.network_kind!r}"))
+        _require(self.env.task == "spread" and not self.env.factory, "run.carry_replay", True,
+                 why.format("env.task = 'spread' (its rows of fewer agents are padded into its entity layout)",
+                            f"env.task = {self.env.task!r}" + (" with env.factory" if self.env.factory else "")))
+        algorithms = sorted({team.algorithm for team in self.teams.values()})
+        _require(set(algorithms) <= {"maddpg", "per"}, "run.carry_replay", True,
+                 why.format("every team's algorithm to be 'maddpg' or 'per' (the teachers, the ICM and ACL's "
+                            "online critic do not mask absent agents when they score rows)", f"{algorithms}"))
 
     @property
     def total_env_steps(self) -> int:

@@ -278,6 +278,11 @@ class RunConfig:
     # a run directory whose newest policy initialises this new run's actors and critics (cmcl.learners.warm_start;
     # same network shapes required); "" = random initial weights. A resumed run ignores it (its checkpoint wins)
     init_from: str = ""
+    # with init_from, also start with that run's replay rows (its newest checkpoint's buffer), padded to this run's
+    # agent count (cmcl.replay.agent_padding: absent agents zero and masked per row), so that the buffer holds rows
+    # of both counts (issue 22's agent curriculum: `python -m cmcl stages ... --set run.carry_replay=true`). Needs
+    # maddpg.networks = "entity", task spread and algorithms maddpg or per; either runner. Off: an empty buffer
+    carry_replay: bool = False
 
     def __post_init__(self) -> None:
         _require(self.episodes >= 1, "run.episodes", self.episodes, "must be >= 1")

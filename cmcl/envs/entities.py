@@ -9,8 +9,9 @@ agent, which flat columns are its own features and which are each entity's featu
 
 An entity row is ``[raw features (P), type one-hot (T)]`` (F = P + T); a raw feature the agent does not observe
 (an obstacle's or a predator's velocity in tag) is 0. The mask marks present entities; it is all True for a built-in
-world of one size and exists so that rows of several agent counts can share a padded buffer later (issue 22's
-agent curriculum). The layouts:
+world of one size. Rows of several agent counts share one padded buffer (issue 22's agent curriculum,
+`run.carry_replay`, cmcl.replay.agent_padding): a row holding only the first n of the N agents masks, in every
+agent's view, the entities that exist only with more agents (`needs_agents`, `present_mask`). The layouts:
 
   navigation (BatchedSparseSpread, SpreadParams.obs_dim = 4 + 2L + 2(N-1), L = N):
     own [vel(2), pos(2)] (S = 4); entities: L landmarks [landmark_l - pos_i], then N-1 other agents
@@ -47,6 +48,10 @@ class EntityLayout:
     entity_type: float32[N, E, T], each entity's type one-hot.  mask: bool[N, E], present entities.
     entity_agent: int64[N, E], the agent an entity slot shows (-1 for a landmark or an obstacle): what a centralised
         critic adds that agent's own features and action to.
+    needs_agents: int64[N, E], the fewest agents a world holds for the entity to exist (an entity showing agent j:
+        j + 1; navigation's landmark l: l + 1, since L = N; an obstacle: 0). None: 0 for landmarks and obstacles,
+        j + 1 for agents. Rows of n present agents (the first n; cmcl.replay.agent_padding) see entity e iff
+        needs_agents[i, e] <= n.
     """
 
     obs_dim: int
@@ -57,9 +62,14 @@ class EntityLayout:
     entity_type: np.ndarray
     mask: np.ndarray
     entity_agent: np.ndarray
+    needs_agents: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n, e, _ = self.entity_index.shape
+        if self.needs_agents is None:
+            object.__setattr__(self, "needs_agents", np.where(self.entity_agent >= 0, self.entity_agent + 1, 0))
+        if np.shape(self.needs_agents) != (n, e):
+            raise ValueError("entity layout needs_agents disagrees on the agent / entity counts")
         if self.own_index.shape[0] != n or self.own_const.shape[0] != n or self.entity_type.shape[:2] != (n, e) \
                 or self.mask.shape != (n, e) or self.entity_type.shape[2] != len(self.type_names) \
                 or self.entity_agent.shape != (n, e):
@@ -86,6 +96,15 @@ class EntityLayout:
     def entity_dim(self) -> int:
         """F = P raw features + T type one-hot."""
         return int(self.entity_index.shape[2] + self.entity_type.shape[2])
+
+    def present_mask(self, count: Any, agents: Any = None) -> Any:
+        """Entities present in rows of `count` present agents (the first ones): count int64[..., A] (numpy or torch),
+        the present agents of agent agents[a]'s row (default: all N agents) -> bool[..., A, E] = mask &
+        (needs_agents <= count)."""
+        agents = np.arange(self.num_agents) if agents is None else np.asarray(agents, np.int64)
+        xp = _namespace(count)
+        mask, needs = xp.const(self.mask[agents], count), xp.const(self.needs_agents[agents], count)
+        return mask & (needs <= count[..., None])
 
     def split(self, obs: Any, agents: Any = None) -> tuple[Any, Any, Any]:
         """obs float32[..., A, obs_dim] (numpy or torch), row a being agent agents[a]'s observation (default: all
@@ -156,8 +175,9 @@ def spread_layout(num_agents: int) -> EntityLayout:
     kind = np.r_[np.zeros(num_l, np.int64), np.ones(others, np.int64)]
     types = np.broadcast_to(np.eye(2, dtype=np.float32)[kind][None], (n, num_l + others, 2)).copy()
     shown = np.array([[-1] * num_l + [j for j in range(n) if j != i] for i in range(n)], np.int64).reshape(n, -1)
+    needs = np.where(shown >= 0, shown + 1, np.arange(num_l + others) + 1)  # landmark l exists from l + 1 agents
     return EntityLayout(obs_dim, ("landmark", "agent"), np.broadcast_to(np.arange(4), (n, 4)).copy(),
-                        np.zeros((n, 0), np.float32), index, types, np.ones((n, num_l + others), bool), shown)
+                        np.zeros((n, 0), np.float32), index, types, np.ones((n, num_l + others), bool), shown, needs)
 
 
 def tag_layout(params: TagParams) -> EntityLayout:

@@ -83,6 +83,16 @@ class ReplayStore:
         manifest or the snapshot is bad."""
         if not self.manifest_path.exists():
             return None, *self._replay_log(0)
+        state, generation = self._read_snapshot()
+        return state, *self._replay_log(generation)
+
+    def read_snapshot(self) -> dict[str, Any] | None:
+        """The snapshot state (checked against the manifest), None before the first snapshot; read only: the log is
+        neither read nor opened (another run reading a finished run's replay, run.carry_replay)."""
+        return self._read_snapshot()[0] if self.manifest_path.exists() else None
+
+    def _read_snapshot(self) -> tuple[dict[str, Any], int]:
+        """(the state of the snapshot the manifest names, its generation); StoreError naming a bad file."""
         try:
             manifest = json.loads(self.manifest_path.read_text())
             generation, name, digest = int(manifest["generation"]), str(manifest["snapshot"]), manifest["sha256"]
@@ -99,7 +109,7 @@ class ReplayStore:
             state = codec.decode_snapshot(data, limits=codec.SNAPSHOT_LIMITS)
         except codec.CodecError as err:
             raise StoreError(f"replay snapshot {path}: {err}") from err
-        return state, *self._replay_log(generation)
+        return state, generation
 
     def _replay_log(self, generation: int) -> tuple[list[bytes], str | None]:
         """The good frames of generation's log (truncated to them), which is then open for appending."""

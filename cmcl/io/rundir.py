@@ -141,8 +141,13 @@ class RunDirectory:
         actors' files, one per fold group)."""
         base = self.service_dir
         base.mkdir(parents=True, exist_ok=True)
-        return {**{role: base / f"{role}.pt" for role in SERVICE_ROLES}, "replay": base / "replay",
+        return {**{role: base / f"{role}.pt" for role in SERVICE_ROLES}, "replay": self.service_replay_dir,
                 "supervisor": self.supervisor_counters, "teacher": base}
+
+    @property
+    def service_replay_dir(self) -> Path:
+        """The service's replay store (cmcl.io.durable.ReplayStore), in `service_dir`."""
+        return self.service_dir / "replay"
 
     @property
     def supervisor_counters(self) -> Path:

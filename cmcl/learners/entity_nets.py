@@ -22,6 +22,11 @@ targets, the teachers' targets and the checkpoints run unchanged. The flat obser
 Every layer is a :class:`~cmcl.learners.nets.StackedLinear` with a leading *group* axis G of independent networks:
 G = 1 for the learner, G = K for the K-fold teachers (one network per fold, so a fold's network never sees another
 fold's rows). No Python loop over agents or entities.
+
+Rows carried from fewer agents (run.carry_replay; cmcl.replay.agent_padding): the actor and the critic take an
+optional ``count`` (int64, the present agents of each row, always the first ones) and mask, in every agent's view,
+the entities that exist only with more agents (EntityLayout.present_mask): an absent agent's entity slot, its
+observation and its action never reach a present agent's embedding or Q.
 """
 
 from __future__ import annotations
@@ -119,6 +124,7 @@ class EntityActor(nn.Module):
     """One actor for all agents: float32[N, B, obs_dim] (agent axis first, as StackedMLP) -> float32[N, B, act_dim].
 
     ``members`` is accepted for StackedMLP's signature and must be None (every agent acts from its own row).
+    ``count`` int64[N, B]: the present agents of agent i's row b (None: all N; module docstring).
     """
 
     def __init__(self, layout: EntityLayout, act_dim: int, hidden: int, generator: torch.Generator,
@@ -128,11 +134,14 @@ class EntityActor(nn.Module):
         self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim, hidden, generator, pool)
         self.head = StackedMLP(1, self.encoder.out_dim, (hidden,), act_dim, out_act=out_act, generator=generator)
 
-    def forward(self, x: torch.Tensor, members: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, members: torch.Tensor | None = None,
+                count: torch.Tensor | None = None) -> torch.Tensor:
         if members is not None or x.shape[0] != self.num_agents:
             raise ValueError(f"the entity actor takes every agent's rows [N={self.num_agents}, B, obs_dim], "
                              f"got {tuple(x.shape)} (members={members})")
         own, ents, mask = self.layout.split(x.transpose(0, 1))  # [B, N, S], [B, N, E, F], [B, N, E]
+        if count is not None:
+            mask = self.layout.present_mask(count.transpose(0, 1))
         z = self.encoder(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
         return self.head(z).view(x.shape[1], self.num_agents, self.act_dim).transpose(0, 1)
 
@@ -162,6 +171,8 @@ class EntityCritic(nn.Module):
     :meth:`forward` is StackedMLP's critic signature on the joint input (nets.joint_input, [..., N·obs_dim +
     N·act_dim]), for G = 1: shared rows [M, in] -> [A, M, 1] (A = len(members), default N); per-owner rows
     [N', S, in] -> [N', S, 1], owner v's rows scored by agent members[v] (default v).
+    Each takes an optional ``count``, the present agents of each row (int64 [G, R]; [M] or [N', S] for forward;
+    None: all N; module docstring).
     """
 
     def __init__(self, layout: EntityLayout, act_dim: int, hidden: int, generator: torch.Generator,
@@ -180,10 +191,12 @@ class EntityCritic(nn.Module):
         self.register_buffer("_own_const", torch.as_tensor(layout.own_const), persistent=False)  # [N, S_c]
         self.register_buffer("_types", torch.as_tensor(layout.entity_type), persistent=False)  # [N, E, T]
         self.register_buffer("_mask", torch.as_tensor(layout.mask), persistent=False)  # [N, E]
+        self.register_buffer("_needs", torch.as_tensor(layout.needs_agents), persistent=False)  # [N, E]
         shown = torch.as_tensor(layout.entity_agent)
         self.register_buffer("_shown", torch.where(shown < 0, n, shown), persistent=False)  # [N, E]; n = none
 
-    def q_agent(self, obs: torch.Tensor, act: torch.Tensor, agent: torch.Tensor) -> torch.Tensor:
+    def q_agent(self, obs: torch.Tensor, act: torch.Tensor, agent: torch.Tensor,
+                count: torch.Tensor | None = None) -> torch.Tensor:
         g, r, n, od = obs.shape
         rows = g * r
         ag = agent.reshape(rows)
@@ -194,10 +207,12 @@ class EntityCritic(nn.Module):
         flat = torch.cat([obs, torch.zeros_like(obs[..., :1])], -1).view(rows, n, od + 1)  # column od reads 0
         raw = flat[at.view(rows, 1, 1), ag.view(rows, 1, 1), self._ent_cols[ag]]  # agent ag's entities [GR, E, P]
         ents = torch.cat([raw, self._types[ag], known[at.unsqueeze(1), self._shown[ag]]], -1)  # [GR, E, F+S+A]
-        z = self.encoder(known[at, ag].view(g, r, -1), ents.view(g, r, *ents.shape[1:]), self._mask[ag].view(g, r, -1))
+        mask = self._mask[ag] if count is None else self._mask[ag] & (self._needs[ag] <= count.reshape(rows, 1))
+        z = self.encoder(known[at, ag].view(g, r, -1), ents.view(g, r, *ents.shape[1:]), mask.view(g, r, -1))
         return self.value(z).view(g, r)
 
-    def forward(self, x: torch.Tensor, members: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, members: torch.Tensor | None = None,
+                count: torch.Tensor | None = None) -> torch.Tensor:
         if self.groups != 1:
             raise ValueError("forward is the learner's signature (one group); use q_agent for grouped critics")
         agents = torch.arange(self.num_agents) if members is None else members
@@ -206,17 +221,20 @@ class EntityCritic(nn.Module):
         if x.dim() == 2:  # shared rows [M, in]: each selected agent scores every row
             m = x.shape[0]
             q = self.joint_q(x.unsqueeze(0).expand(len(agents), m, -1).reshape(1, len(agents) * m, -1),
-                             agents.repeat_interleave(m).unsqueeze(0))
+                             agents.repeat_interleave(m).unsqueeze(0),
+                             None if count is None else count.repeat(len(agents)).unsqueeze(0))
             return q.view(len(agents), m, 1)
         owners, s = x.shape[0], x.shape[1]
         if owners != len(agents):
             raise ValueError(f"per-owner rows {tuple(x.shape)} need one agent per owner, got {len(agents)}")
-        q = self.joint_q(x.reshape(1, owners * s, -1), agents.repeat_interleave(s).unsqueeze(0))
+        q = self.joint_q(x.reshape(1, owners * s, -1), agents.repeat_interleave(s).unsqueeze(0),
+                         None if count is None else count.reshape(1, owners * s))
         return q.view(owners, s, 1)
 
-    def joint_q(self, x: torch.Tensor, agent: torch.Tensor) -> torch.Tensor:
-        """Joint inputs float32[G, R, N·obs_dim + N·act_dim], agent int64[G, R] -> Q float32[G, R]."""
+    def joint_q(self, x: torch.Tensor, agent: torch.Tensor, count: torch.Tensor | None = None) -> torch.Tensor:
+        """Joint inputs float32[G, R, N·obs_dim + N·act_dim], agent int64[G, R] (count int64[G, R] or None)
+        -> Q float32[G, R]."""
         n, split = self.num_agents, self.num_agents * self.obs_dim
         obs = x[..., :split].unflatten(-1, (n, self.obs_dim))
         act = x[..., split:].unflatten(-1, (n, self.act_dim))
-        return self.q_agent(obs, act, agent)
+        return self.q_agent(obs, act, agent, count)

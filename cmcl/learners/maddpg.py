@@ -12,7 +12,8 @@ same obs_dim (shorter observations zero-padded by the env) and act_dim.
 Public boundary: inputs may be numpy arrays or torch tensors (converted once, float32); outputs are numpy.
 Data conventions: joint rows ``obs[M, N, obs_dim], act[M, N, act_dim], rew[M, N], next_obs[M, N, obs_dim],
 done[M, N]`` (per agent; ``[M]`` per row); per-owner stacks add a leading owner axis: ``obs[N, S, N, obs_dim]``,
-``rew[N, S, N]``, ``done[N, S, N]`` (or the owner's own ``[N, S]``).
+``rew[N, S, N]``, ``done[N, S, N]`` (or the owner's own ``[N, S]``); with rows carried from fewer agents
+(run.carry_replay) an optional ``present[N, S, N]`` bool masks the absent agents (cmcl.learners.agent_presence).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from cmcl.envs.entities import EntityLayout
+from cmcl.learners.agent_presence import AgentPresence, row_mean
 from cmcl.learners.nets import as_tensor, clip_grad_norm_per_member_, joint_input, make_adam, soft_update_
 from cmcl.learners.networks import build_networks, network_kind
 from cmcl.learners.state_check import require_same_shapes
@@ -102,13 +104,15 @@ class MADDPG:
         self.act_mask = None if act_mask is None else torch.as_tensor(act_mask, dtype=torch.float32).view(n, 1, -1)
 
     # ------------------------------------------------------------------ policies
-    def _policy(self, net: nn.Module, obs: torch.Tensor, sample: bool) -> tuple[torch.Tensor, torch.Tensor]:
-        """obs [N, B, obs_dim] -> (actions [N, B, act_dim], raw outputs [N, B, act_dim]).
+    def _policy(self, net: nn.Module, obs: torch.Tensor, sample: bool,
+                count: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """obs [N, B, obs_dim] (count: the present agents of each row, int64[N, B], entity networks only)
+        -> (actions [N, B, act_dim], raw outputs [N, B, act_dim]).
 
         Continuous: the tanh output is the action. Discrete: Gumbel-softmax sample of the logits (``sample``),
         else their softmax; padded entries (act_mask 0) get probability 0 (and raw output 0).
         """
-        out = net(obs)
+        out = net(obs) if count is None else net(obs, count=count)
         if self.act_mask is not None:
             out = out * self.act_mask
         if not self.discrete:
@@ -124,11 +128,13 @@ class MADDPG:
         """Logits with −inf on the padded entries (mask 0, broadcast against logits): a softmax gives them 0."""
         return logits if mask is None else logits.masked_fill(mask == 0, float("-inf"))
 
-    def _joint_actions(self, net: nn.Module, obs: torch.Tensor, sample: bool) -> torch.Tensor:
-        """Every agent's action from its own obs: obs [..., N, obs_dim] -> act [..., N, act_dim]."""
+    def _joint_actions(self, net: nn.Module, obs: torch.Tensor, sample: bool,
+                       count: torch.Tensor | None = None) -> torch.Tensor:
+        """Every agent's action from its own obs: obs [..., N, obs_dim] (count int64[...]) -> act [..., N, act_dim]."""
         lead = obs.shape[:-2]
         x = obs.reshape(-1, self.num_agents, self.obs_dim).transpose(0, 1)  # [N, B, obs_dim]
-        a, _ = self._policy(net, x, sample)
+        rows = None if count is None else count.reshape(1, -1).expand(self.num_agents, -1)  # [N, B]
+        a, _ = self._policy(net, x, sample, rows)
         return a.transpose(0, 1).reshape(*lead, self.num_agents, self.act_dim)
 
     @torch.no_grad()
@@ -165,17 +171,25 @@ class MADDPG:
         return out.numpy()
 
     # ------------------------------------------------------------------ targets
+    def _q(self, net: nn.Module, x: torch.Tensor, members: torch.Tensor | None = None,
+           count: torch.Tensor | None = None) -> torch.Tensor:
+        """A critic's Q on joint inputs (shared rows [M, in] -> [A, M]; per-owner [N, S, in] -> [N, S]); count: the
+        present agents of each row ([M] or [N, S]; entity networks only)."""
+        return (net(x, members) if count is None else net(x, members, count=count)).squeeze(-1)
+
     def _td_targets_t(
-        self, rew: torch.Tensor, next_obs: torch.Tensor, done: torch.Tensor | None, agents: torch.Tensor | None
+        self, rew: torch.Tensor, next_obs: torch.Tensor, done: torch.Tensor | None, agents: torch.Tensor | None,
+        count: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """y = r + gamma (1 - done) Q'_v(s', pi'(o')) with TARGET nets (eqs. 5, 10; no grad); see :meth:`td_targets`."""
+        """y = r + gamma (1 - done) Q'_v(s', pi'(o')) with TARGET nets (eqs. 5, 10; no grad); see :meth:`td_targets`;
+        count: the present agents of each row ([M] or per owner [N, S]), None for all."""
         ag = self._agents if agents is None else agents
         if next_obs.dim() == 4 and next_obs.shape[0] != len(ag):
             raise ValueError(f"per-owner next_obs has {next_obs.shape[0]} owners but {len(ag)} agents are selected")
         with torch.no_grad():
-            a_next = self._joint_actions(self.target_actor, next_obs, sample=True)
+            a_next = self._joint_actions(self.target_actor, next_obs, True, count)
             x = joint_input(next_obs, a_next)
-            q = self.target_critic(x, None if agents is None else ag).squeeze(-1)
+            q = self._q(self.target_critic, x, None if agents is None else ag, count)
             if next_obs.dim() == 3:  # joint rows: x [M, in] shared by the selected critics -> q [A, M]
                 r = rew.T[ag]
                 d = torch.zeros(rew.shape[0]) if done is None else done
@@ -209,9 +223,9 @@ class MADDPG:
         return self._td_targets_t(as_tensor(rew), as_tensor(next_obs), d, ag).numpy()
 
     # ------------------------------------------------------------------ update
-    def _unpack(self, batch: Mapping[str, ArrayLike]) -> tuple[torch.Tensor, ...]:
+    def _unpack(self, batch: Mapping[str, ArrayLike]) -> tuple:
         """Per-owner minibatch dict -> tensors (obs, act, rew, next_obs, done [N,S] or [N,S,N], weights [N,S] or
-        None)."""
+        None) and the agents' presence (None: every agent of every row)."""
         obs, act = as_tensor(batch["obs"]), as_tensor(batch["act"])
         n, s = obs.shape[0], obs.shape[1]
         if obs.dim() != 4 or n != self.num_agents or obs.shape[2] != self.num_agents:
@@ -219,44 +233,55 @@ class MADDPG:
         done = batch.get("done")
         done = torch.zeros(n, s) if done is None else as_tensor(done)
         w = batch.get("is_weights")
+        presence = AgentPresence.of_batch(batch.get("present"), self.num_agents)
+        if presence is not None and self.networks != "entity":
+            raise ValueError(f"rows with absent agents (run.carry_replay) need entity networks, not {self.networks!r}")
         return (obs, act, as_tensor(batch["rew"]), as_tensor(batch["next_obs"]), done,
-                None if w is None else as_tensor(w))
+                None if w is None else as_tensor(w), presence)
 
-    def _critic_step(self, obs, act, rew, next_obs, done, w) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """One batched critic step on (y − Q_v(s, a))² (eq. 5). Returns (loss [N], delta [N, S], grad norm [N])."""
-        y = self._td_targets_t(rew, next_obs, done, None)  # [N, S]
-        q = self.critic(joint_input(obs, act)).squeeze(-1)  # [N, S]
-        delta = y - q
-        sq = delta.pow(2)
-        loss = (sq * w).mean(1) if w is not None else sq.mean(1)  # [N]
+    def _critic_step(self, obs, act, rew, next_obs, done, w, presence: AgentPresence | None = None
+                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """One batched critic step on (y − Q_v(s, a))² (eq. 5), over the rows where owner v is present. Returns
+        (loss [N], delta [N, S] (0 where the owner is absent), grad norm [N])."""
+        count = None if presence is None else presence.count
+        y = self._td_targets_t(rew, next_obs, done, None, count)  # [N, S]
+        delta = y - self._q(self.critic, joint_input(obs, act), None, count)  # [N, S]
+        delta = delta if presence is None else delta * presence.own
+        loss = row_mean(delta.pow(2), w, presence)  # [N]
         self.critic_opt.zero_grad(set_to_none=True)
-        self._total(loss).backward()
+        self._total(loss, presence).backward()
         norms = self._clip(self.critic.parameters())
         self.critic_opt.step()
         return loss.detach(), delta.detach(), norms
 
-    def _actor_step(self, obs: torch.Tensor, act: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """One batched actor step (eq. 4): owner v's own action -> pi_v(o_v), others from the buffer.
+    def _actor_step(self, obs: torch.Tensor, act: torch.Tensor, presence: AgentPresence | None = None
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """One batched actor step (eq. 4): owner v's own action -> pi_v(o_v), others from the buffer; over the rows
+        where owner v is present.
 
         Returns (loss [N], pre-clip grad norm [N]). Only actor parameters receive gradients.
         """
         own_obs = obs[self._agents, :, self._agents]  # [N, S, obs_dim]
-        pi, raw = self._policy(self.actor, own_obs, sample=True)  # [N, S, act_dim]
+        count = None if presence is None else presence.count
+        pi, raw = self._policy(self.actor, own_obs, True, count)  # [N, S, act_dim]
         joint_act = torch.where(self._own_mask, pi.unsqueeze(2), act)  # [N, S, N, act_dim]
-        q = self.critic(joint_input(obs, joint_act)).squeeze(-1)  # [N, S]
-        loss = -q.mean(1)
+        loss = -row_mean(self._q(self.critic, joint_input(obs, joint_act), None, count), None, presence)  # [N]
         if self.discrete:
-            loss = loss + self.logit_l2 * raw.pow(2).mean((1, 2))
+            l2 = raw.pow(2).mean((1, 2)) if presence is None else row_mean(raw.pow(2).mean(2), None, presence)
+            loss = loss + self.logit_l2 * l2
         params = list(self.actor.parameters())
         self.actor_opt.zero_grad(set_to_none=True)
-        self._total(loss).backward(inputs=params)
+        self._total(loss, presence).backward(inputs=params)
         norms = self._clip(params)
         self.actor_opt.step()
         return loss.detach(), norms
 
-    def _total(self, loss: torch.Tensor) -> torch.Tensor:
+    def _total(self, loss: torch.Tensor, presence: AgentPresence | None = None) -> torch.Tensor:
         """The scalar to differentiate from per-agent losses [N]: their sum (each member's gradient is its own
-        agent's), their mean for the one entity network (its gradient then has one agent's scale for the clip)."""
+        agent's), their mean for the one entity network (its gradient then has one agent's scale for the clip),
+        over the owners present in some row when agents are absent."""
+        if presence is not None:
+            return presence.total(loss)
         return loss.mean() if self.networks == "entity" else loss.sum()
 
     def _clip(self, params) -> torch.Tensor:
@@ -273,9 +298,9 @@ class MADDPG:
         Returns numpy: critic_loss [N] (pre-step, weighted), actor_loss [N], td_abs |y - Q| [N, S] (pre-step,
         for PER), critic_grad_norm [N], actor_grad_norm [N] (pre-clip).
         """
-        obs, act, rew, next_obs, done, w = self._unpack(batch)
-        c_loss, delta, c_norm = self._critic_step(obs, act, rew, next_obs, done, w)
-        a_loss, a_norm = self._actor_step(obs, act)
+        obs, act, rew, next_obs, done, w, presence = self._unpack(batch)
+        c_loss, delta, c_norm = self._critic_step(obs, act, rew, next_obs, done, w, presence)
+        a_loss, a_norm = self._actor_step(obs, act, presence)
         soft_update_(self.target_critic, self.critic, self.tau)
         soft_update_(self.target_actor, self.actor, self.tau)
         self.updates += 1
@@ -290,10 +315,10 @@ class MADDPG:
     @torch.no_grad()
     def critic_loss(self, batch: Mapping[str, ArrayLike]) -> np.ndarray:
         """Per-agent (weighted) critic MSE on a per-owner batch without updating anything -> float32[N]."""
-        obs, act, rew, next_obs, done, w = self._unpack(batch)
-        y = self._td_targets_t(rew, next_obs, done, None)
-        sq = (y - self.critic(joint_input(obs, act)).squeeze(-1)).pow(2)
-        return ((sq * w).mean(1) if w is not None else sq.mean(1)).numpy()
+        obs, act, rew, next_obs, done, w, presence = self._unpack(batch)
+        count = None if presence is None else presence.count
+        y = self._td_targets_t(rew, next_obs, done, None, count)
+        return row_mean((y - self._q(self.critic, joint_input(obs, act), None, count)).pow(2), w, presence).numpy()
 
     # ------------------------------------------------------------------ weights / state
     def actor_weights(self) -> dict[str, np.ndarray]:
@@ -301,18 +326,11 @@ class MADDPG:
         return {k: v.detach().numpy().copy() for k, v in self.actor.state_dict().items()}
 
     def load_actor_weights(self, weights: Mapping[str, ArrayLike]) -> None:
-        """Load :meth:`actor_weights` output into the ONLINE actor (rollout workers); targets untouched."""
-        own = self.actor.state_dict()
-        if set(weights) != set(own):
-            raise ValueError(f"actor weight keys {sorted(weights)} != expected {sorted(own)}")
-        new = {}
-        for k, v in weights.items():
-            t = as_tensor(v)
-            if t.shape != own[k].shape or not torch.isfinite(t).all():
-                raise ValueError(f"actor weight {k!r}: shape {tuple(t.shape)} (expected {tuple(own[k].shape)}) "
-                                 "or non-finite values")
-            new[k] = t
-        self.actor.load_state_dict(new)
+        """Load :meth:`actor_weights` output into the ONLINE actor (rollout workers); targets untouched. Keys, shapes
+        and finiteness are checked first (ValueError), as for every published part (cmcl.learners.weights)."""
+        from cmcl.learners.weights import load_published  # it imports this module
+
+        load_published(self, {"actor": weights}, ("actor",))
 
     def state_dict(self) -> dict:
         """Nets, targets, optimisers, noise generator state and update counter (torch.load(weights_only=True) safe).

@@ -2,11 +2,11 @@
 
 Set by `run.init_from = "runs/OTHER"` for a fresh run of either runner; a resumed run takes its own checkpoint
 instead. What is carried: the four networks of `MADDPG` (actor, critic, target_actor, target_critic). What starts
-afresh: the optimisers' moments, the exploration noise, the update counter, the replay buffer, the teachers, the ICM
-and every counter of the run. The networks must have the same shapes, so a run with other agent counts or network
-settings is refused, naming the tensor and both shapes; networks whose parameter count does not depend on the
-number of agents can carry weights from N agents to another N (the agent-count curriculum of issue 22).
-"""
+afresh: the optimisers' moments, the exploration noise, the update counter, the replay buffer (unless
+run.carry_replay: cmcl.carried_replay), the teachers, the ICM and every counter of the run. The networks must
+have the same shapes, so a run with other agent counts or network settings is refused, naming the tensor and both
+shapes; networks whose parameter count does not depend on the number of agents can carry weights from N agents to
+another N (the agent-count curriculum of issue 22)."""
 
 from __future__ import annotations
 

@@ -84,6 +84,12 @@ def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
         print(f"resumed from {checkpoint} at episode {loop.counters['episodes']}")
     elif config.run.init_from:
         print(f"actors and critics initialised from {warm_start_from_config(config.run.init_from, loop.maddpg)}")
+        if config.run.carry_replay:
+            from cmcl.carried_replay import carry_replay_rows
+
+            loop.scoring.inserted(carry_replay_rows(loop.replay, config.run.init_from, loop.layout.entities), 0)
+            print(f"replay: starts with the {loop.replay.size} rows of {config.run.init_from} "
+                  f"({loop.replay.storage.absent_rows} of them with absent agents)")
     with StopSignals(notice=print) as stop:
         row = loop.run(stop=lambda: stop.requested)
         stop.training_over()

@@ -114,12 +114,13 @@ class ReplayBuffer:
     def n_agents(self) -> int:
         return self.storage.n_agents
 
-    def add(self, obs, act, rew, next_obs, done, episode, policy_version=0) -> np.ndarray:
-        """Append T transitions (see `TransitionStorage.add`) -> int64[T] slots (−1 = self-overwritten).
+    def add(self, obs, act, rew, next_obs, done, episode, policy_version=0, present=None) -> np.ndarray:
+        """Append T transitions (see `TransitionStorage.add`; `present` marks the agents of rows carried from fewer
+        agents) -> int64[T] slots (−1 = self-overwritten).
 
         New slots get the PER maximum priority for "per" agents and ε_p for "acl"/"cmcl" agents.
         """
-        slots = self.storage.add(obs, act, rew, next_obs, done, episode, policy_version)
+        slots = self.storage.add(obs, act, rew, next_obs, done, episode, policy_version, present)
         written = slots[slots >= 0]
         if written.size:
             for sampling in self.sampling:

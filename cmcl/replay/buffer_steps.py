@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.messages import ROW_KEYS, LearnerBatch, LearnerFeedback, Rows
+from cmcl.messages import PRESENT_KEY, ROW_KEYS, LearnerBatch, LearnerFeedback, Rows
 from cmcl.replay.buffer import ReplayBuffer
 
 
@@ -38,11 +38,13 @@ def sample_owner_batches(replay: ReplayBuffer, count: int, batch_size: int, rngs
                          betas: Sequence[float]) -> LearnerBatch:
     """`count` learner minibatches: every agent v draws its own S slots from its own P_v (eq. 20) per minibatch.
 
-    betas: IS exponent per agent (0: weights of 1). Returns a LearnerBatch of [count, N, S] arrays.
+    betas: IS exponent per agent (0: weights of 1). Returns a LearnerBatch of [count, N, S] arrays, with the
+    agents' presence when the buffer holds rows carried from fewer agents (run.carry_replay).
     """
     draws = [replay.sample_all(batch_size, list(rngs), beta=list(betas)) for _ in range(count)]
     slots = np.stack([d[0] for d in draws])  # [n, N, S]
-    return LearnerBatch(rows_at(replay, slots), np.stack([d[1] for d in draws]), slots,
+    keys = (*ROW_KEYS, PRESENT_KEY) if replay.storage.absent_rows else ROW_KEYS
+    return LearnerBatch(rows_at(replay, slots, keys), np.stack([d[1] for d in draws]), slots,
                         replay.generations(slots.reshape(-1)).reshape(slots.shape))
 
 

@@ -13,6 +13,10 @@ Layout (cap = capacity, N agents):
     generation     int64[cap]  0 = never written, +1 on every write of the slot
     policy_version int64[cap]
     scores[col]    float32[cap, N] for col in SCORE_COLUMNS; scored[col] bool[cap, N] (reset on overwrite)
+    present        bool[cap, N]  the agents the row holds: all True, except rows carried from a run with fewer agents
+                   (run.carry_replay, cmcl.replay.agent_padding): the first n agents present, the others absent
+                   (observation, action, reward and done 0), always a prefix. `absent_rows` counts the valid rows
+                   with an absent agent; a snapshot holds the column only when some row has one.
 Slots [0, size) are valid; the ring fills from slot 0 and wraps once full.
 """
 
@@ -81,6 +85,8 @@ class TransitionStorage:
             np.zeros(cap, np.int64) for _ in _META)
         self.scores = {c: np.zeros((cap, n), np.float32) for c in SCORE_COLUMNS}
         self.scored = {c: np.zeros((cap, n), bool) for c in SCORE_COLUMNS}
+        self.present = np.ones((cap, n), bool)
+        self.absent_rows = 0
         self.size = 0
         self.next_id = 0
         self.stale_dropped_total = 0
@@ -110,24 +116,28 @@ class TransitionStorage:
             "policy_version": _int_array("policy_version", policy_version, (t,)),
         }
 
-    def add(self, obs, act, rew, next_obs, done, episode, policy_version=0) -> np.ndarray:
+    def add(self, obs, act, rew, next_obs, done, episode, policy_version=0, present=None) -> np.ndarray:
         """Append T transitions (vectorised); returns int64[T] slots, −1 for the ones a longer-than-capacity
         chunk overwrote itself (only its last `capacity` transitions are kept).
 
         Args: obs, next_obs [T, N, obs_dim]; act [T, N, act_dim]; rew [T, N]; done [T, N] (or [T]: one per
             row, every agent's) in [0, 1];
-            episode int[T] >= 0; policy_version int scalar or int[T] >= 0.
+            episode int[T] >= 0; policy_version int scalar or int[T] >= 0;
+            present bool[T, N], a prefix of present agents per row (None: every agent; module docstring).
         Raises ValueError naming the bad field; nothing is stored then.
         """
         chunk = self._validate_chunk(obs, act, rew, next_obs, done, episode, policy_version)
         t = chunk["done"].shape[0]
+        chunk["present"] = np.ones((t, self.n_agents), bool) if present is None else self._present(present, t)
         out = np.full(t, -1, np.int64)
         if t == 0:
             return out
         keep = slice(max(0, t - self.capacity), t)
         ids = self.next_id + np.arange(t, dtype=np.int64)[keep]
         slots = ids % self.capacity
-        for name in ("obs", "act", "rew", "next_obs", "done", "episode", "policy_version"):
+        overwritten = slots[slots < self.size]
+        self.absent_rows += int((~chunk["present"][keep]).any(1).sum() - (~self.present[overwritten]).any(1).sum())
+        for name in ("obs", "act", "rew", "next_obs", "done", "episode", "policy_version", "present"):
             getattr(self, name)[slots] = chunk[name][keep]
         self.id[slots] = ids
         self.fold[slots] = chunk["episode"][keep] % self.n_folds
@@ -199,9 +209,9 @@ class TransitionStorage:
 
     def get(self, slots) -> dict:
         """Rows of valid slots int[S] -> dict: obs/next_obs [S,N,od], act [S,N,ad], rew [S,N], done [S,N],
-        id/episode/fold/generation/policy_version int64[S] (copies)."""
+        present bool[S,N], id/episode/fold/generation/policy_version int64[S] (copies)."""
         s = self.check_slots(slots)
-        names = ("obs", "act", "rew", "next_obs", "done") + _META
+        names = ("obs", "act", "rew", "next_obs", "done", "present") + _META
         return {name: getattr(self, name)[s] for name in names}
 
     def valid_slots(self) -> np.ndarray:
@@ -228,6 +238,8 @@ class TransitionStorage:
             out[name] = getattr(self, name)[:n].copy()
         out["scores"] = {c: self.scores[c][:n].copy() for c in SCORE_COLUMNS}
         out["scored"] = {c: self.scored[c][:n].copy() for c in SCORE_COLUMNS}
+        if self.absent_rows:
+            out["present"] = self.present[:n].copy()
         return out
 
     def load_state_dict(self, state: dict) -> None:
@@ -259,6 +271,7 @@ class TransitionStorage:
             if m.dtype != bool or m.shape != (n, na):
                 raise ValueError(f"scored.{c} must be bool of shape {(n, na)}, got {m.dtype} {m.shape}")
             scored[c] = m
+        new["present"] = self._present(state["present"], n) if "present" in state else np.ones((n, na), bool)
         self._reset_rows(n)
         for name, arr in new.items():
             getattr(self, name)[:n] = arr
@@ -266,6 +279,7 @@ class TransitionStorage:
             self.scores[c][:n], self.scored[c][:n] = scores[c], scored[c]
         self.size, self.next_id = int(n), int(next_id)
         self.stale_dropped_total = int(state.get("stale_dropped_total", 0))
+        self.absent_rows = int((~new["present"]).any(1).sum())
 
     def _per_agent_done(self, done, t: int) -> np.ndarray:
         """done [t, N], or [t] (one flag per joint row, as before per-agent termination) broadcast to every agent:
@@ -275,8 +289,19 @@ class TransitionStorage:
             arr = _real_array("done", arr, (t,))[:, None].repeat(self.n_agents, axis=1)
         return _real_array("done", arr, (t, self.n_agents))
 
+    def _present(self, present, t: int) -> np.ndarray:
+        """present bool[t, N] whose every row is a non-empty prefix of agents (module docstring), validated."""
+        arr = np.asarray(present)
+        if arr.dtype != bool or arr.shape != (t, self.n_agents):
+            raise ValueError(f"present must be bool of shape {(t, self.n_agents)}, got {arr.dtype} {arr.shape}")
+        prefix = np.arange(self.n_agents) < arr.sum(1, keepdims=True)
+        if t and (not arr[:, 0].all() or not np.array_equal(arr, prefix)):
+            raise ValueError("present must mark the first n >= 1 agents of every row (a prefix)")
+        return arr
+
     def _reset_rows(self, n: int) -> None:
-        """Zero rows [n, capacity) of every column (used on load)."""
+        """Zero rows [n, capacity) of every column (used on load); `present` there is True."""
+        self.present[n:] = True
         for name in ("obs", "act", "rew", "next_obs", "done") + _META:
             getattr(self, name)[n:] = 0
         for c in SCORE_COLUMNS:
