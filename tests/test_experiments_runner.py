@@ -104,6 +104,7 @@ def test_a_niced_runner_leading_its_session_gives_its_autogroup_that_nice_and_on
     probe = [sys.executable, "-c", SESSION_PROBE]
     own = subprocess.run(probe, cwd=ROOT, capture_output=True, text=True, timeout=60,
                          start_new_session=True)
+    assert len(own.stdout.split()) == 3, (own.returncode, own.stdout, own.stderr)
     leader, nice, autogroup_nice = own.stdout.split()  # nice: 7 above the suite's own (`nice -n 5 make test`: 12)
     assert (leader, autogroup_nice) == ("True", nice) and int(nice) > 0, (own.returncode, own.stdout, own.stderr)
     shared = subprocess.run(probe, cwd=ROOT, capture_output=True, text=True, timeout=60)
