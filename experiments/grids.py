@@ -100,6 +100,9 @@ SCALE_CELLS: dict[str, ScaleCell] = {
     "n4_entity_stages": ScaleCell("spread_n8.toml", (NO_CAP,), (2, 4), (3_008, 3_000), budget=3_000),
     "n16_per_agent": ScaleCell("spread_maddpg.toml", ("env.num_agents=16", NO_CAP), budget=3_040),
     "n16_entity": ScaleCell("spread_n16.toml", ("run.init_from=", NO_CAP), budget=3_040),
+    # from scratch for as many episodes as the staged run trains in all (3,008 + 2,624 + 1,136 at N = 2, 4, 8, then
+    # 3,040 at N = 16), all at N = 16: does the curriculum's gain survive equal episodes?
+    "n16_entity_long": ScaleCell("spread_n16.toml", ("run.init_from=", NO_CAP), budget=9_808),
 }
 
 UPDATE_EVERY, BATCHES = (1, 4, 16, 64), (128, 512)  # the schedule grid's maddpg.update_every x maddpg.batch_size

@@ -93,7 +93,8 @@ def test_every_grid_has_a_results_folder_and_the_time_to_solve_grids_stop_early(
     assert {r.mode for r in grid(["algorithms"], [0])} == {"inline", "service"}
     scale = grid(["scale"], [0])
     assert [r.arm for r in scale] == ["n8_per_agent", "n8_entity", "n8_entity_stages", "n8_entity_stages_progress",
-                                      "n4_entity", "n4_entity_stages", "n16_per_agent", "n16_entity"]
+                                      "n4_entity", "n4_entity_stages", "n16_per_agent", "n16_entity",
+                                      "n16_entity_long"]
     assert scale[0].budget == 20_000 and "env.num_agents=8" in scale[0].sets and scale[0].algorithm == "maddpg"
     assert "maddpg.networks=entity" in scale[1].sets and not scale[1].stages
     assert scale[2].stages == scale[3].stages == (2, 4, 8) and "run.stop_progress=0.05" in scale[3].sets
@@ -141,7 +142,7 @@ def test_the_command_line_filters_curriculum_arms_with_arms_and_scale_cells_with
     from experiments.__main__ import build_parser, selected_runs
 
     scale = selected_runs(build_parser().parse_args(["run", "scale", "--seeds", "0", "1", "--arms", "cmcl"]))
-    assert [r.id for r in scale][:2] == ["scale_n8_per_agent_s0", "scale_n8_entity_s0"] and len(scale) == 16
+    assert [r.id for r in scale][:2] == ["scale_n8_per_agent_s0", "scale_n8_entity_s0"] and len(scale) == 18
     cells = selected_runs(build_parser().parse_args(["run", "scale", "--seeds", "0", "1", "--cells", "n16_entity"]))
     assert [r.id for r in cells] == ["scale_n16_entity_s0", "scale_n16_entity_s1"]
     with pytest.raises(SystemExit):  # argparse: an unknown cell is refused, naming the choices
