@@ -94,7 +94,10 @@ SESSION_PROBE = """
 import os, sys
 from experiments.runner import session_yields_like_nice
 nice = os.nice(7)
-print(session_yields_like_nice(), nice, open("/proc/self/autogroup").read().split()[-1], flush=True)
+leader = session_yields_like_nice()
+# A process in the kernel's root autogroup (never below a setsid since boot, as PID 1's children) reads an empty file.
+autogroup = open("/proc/self/autogroup").read().split() or ["root-autogroup"]
+print(leader, nice, autogroup[-1], flush=True)
 """
 
 
