@@ -32,9 +32,16 @@ import numpy as np
 
 from cmcl.envs.params import SpreadParams, TagParams
 
-__all__ = ["EntityLayout", "entity_layout", "spread_layout", "tag_layout"]
+__all__ = ["EntityLayout", "entities_present", "entity_layout", "spread_layout", "tag_layout"]
 
 ABSENT = -1  # entity_index value of a raw feature the agent does not observe (read as 0)
+
+
+def entities_present(mask: Any, needs_agents: Any, count: Any) -> Any:
+    """The presence rule, in one place: an entity slot is present when the layout has it (mask bool[..., E]) and
+    its row holds at least the agents it needs (needs_agents int64[..., E] <= count int64[...]) -> bool[..., E].
+    Numpy or torch alike (EntityLayout.present_mask; the entity critic calls it on its registered buffers)."""
+    return mask & (needs_agents <= count[..., None])
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,8 +110,7 @@ class EntityLayout:
         (needs_agents <= count)."""
         agents = np.arange(self.num_agents) if agents is None else np.asarray(agents, np.int64)
         xp = _namespace(count)
-        mask, needs = xp.const(self.mask[agents], count), xp.const(self.needs_agents[agents], count)
-        return mask & (needs <= count[..., None])
+        return entities_present(xp.const(self.mask[agents], count), xp.const(self.needs_agents[agents], count), count)
 
     def split(self, obs: Any, agents: Any = None) -> tuple[Any, Any, Any]:
         """obs float32[..., A, obs_dim] (numpy or torch), row a being agent agents[a]'s observation (default: all

@@ -36,7 +36,7 @@ import math
 import torch
 from torch import nn
 
-from cmcl.envs.entities import ABSENT, EntityLayout
+from cmcl.envs.entities import ABSENT, EntityLayout, entities_present
 from cmcl.learners.nets import StackedLinear, StackedMLP
 
 __all__ = ["POOLS", "EntityActor", "EntityCritic", "EntityEncoder", "EntityFeatures"]
@@ -207,7 +207,9 @@ class EntityCritic(nn.Module):
         flat = torch.cat([obs, torch.zeros_like(obs[..., :1])], -1).view(rows, n, od + 1)  # column od reads 0
         raw = flat[at.view(rows, 1, 1), ag.view(rows, 1, 1), self._ent_cols[ag]]  # agent ag's entities [GR, E, P]
         ents = torch.cat([raw, self._types[ag], known[at.unsqueeze(1), self._shown[ag]]], -1)  # [GR, E, F+S+A]
-        mask = self._mask[ag] if count is None else self._mask[ag] & (self._needs[ag] <= count.reshape(rows, 1))
+        mask = self._mask[ag]
+        if count is not None:
+            mask = entities_present(mask, self._needs[ag], count.reshape(rows))
         z = self.encoder(known[at, ag].view(g, r, -1), ents.view(g, r, *ents.shape[1:]), mask.view(g, r, -1))
         return self.value(z).view(g, r)
 

@@ -28,16 +28,16 @@ from torch import nn
 
 from cmcl.envs.entities import EntityLayout
 from cmcl.learners.agent_presence import AgentPresence, row_mean
+from cmcl.learners.maddpg_checkpoint import MADDPGCheckpoint
 from cmcl.learners.nets import as_tensor, clip_grad_norm_per_member_, joint_input, make_adam, soft_update_
 from cmcl.learners.networks import build_networks, network_kind
-from cmcl.learners.state_check import require_same_shapes
 
 __all__ = ["MADDPG"]
 
 ArrayLike = np.ndarray | torch.Tensor
 
 
-class MADDPG:
+class MADDPG(MADDPGCheckpoint):
     """Stacked MADDPG learner (continuous tanh actions by default; Gumbel-softmax option, A17).
 
     Args:
@@ -319,45 +319,3 @@ class MADDPG:
         count = None if presence is None else presence.count
         y = self._td_targets_t(rew, next_obs, done, None, count)
         return row_mean((y - self._q(self.critic, joint_input(obs, act), None, count)).pow(2), w, presence).numpy()
-
-    # ------------------------------------------------------------------ weights / state
-    def actor_weights(self) -> dict[str, np.ndarray]:
-        """Online actor parameters as numpy copies, e.g. {"layers.0.weight": float32[N, obs_dim, 64], ...}."""
-        return {k: v.detach().numpy().copy() for k, v in self.actor.state_dict().items()}
-
-    def load_actor_weights(self, weights: Mapping[str, ArrayLike]) -> None:
-        """Load :meth:`actor_weights` output into the ONLINE actor (rollout workers); targets untouched. Keys, shapes
-        and finiteness are checked first (ValueError), as for every published part (cmcl.learners.weights)."""
-        from cmcl.learners.weights import load_published  # it imports this module
-
-        load_published(self, {"actor": weights}, ("actor",))
-
-    def state_dict(self) -> dict:
-        """Nets, targets, optimisers, noise generator state and update counter (torch.load(weights_only=True) safe).
-
-        Layout: {"actor", "critic", "target_actor", "target_critic": module state dicts with stacked
-        tensors [N, in, out] / [N, out]; "actor_opt", "critic_opt": Adam state dicts; "noise_gen": uint8 tensor;
-        "updates": int}.
-        """
-        return {
-            "actor": self.actor.state_dict(),
-            "critic": self.critic.state_dict(),
-            "target_actor": self.target_actor.state_dict(),
-            "target_critic": self.target_critic.state_dict(),
-            "actor_opt": self.actor_opt.state_dict(),
-            "critic_opt": self.critic_opt.state_dict(),
-            "noise_gen": self.noise_gen.get_state(),
-            "updates": int(self.updates),
-        }
-
-    def load_state_dict(self, state: Mapping) -> None:
-        """Restore everything saved by :meth:`state_dict` (same architecture required: checked first, by name)."""
-        parts = ("actor", "critic", "target_actor", "target_critic")
-        require_same_shapes("checkpoint maddpg", {name: getattr(self, name) for name in parts}, state,
-                            "maddpg.networks, maddpg.share_parameters, maddpg.hidden, agents or observation sizes")
-        for name in parts:
-            getattr(self, name).load_state_dict(state[name])
-        self.actor_opt.load_state_dict(state["actor_opt"])
-        self.critic_opt.load_state_dict(state["critic_opt"])
-        self.noise_gen.set_state(state["noise_gen"])
-        self.updates = int(state["updates"])

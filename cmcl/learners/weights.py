@@ -8,11 +8,13 @@ actor and target critic they need for TD targets (ALGORITHM.md §3.2, A2). Numpy
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
-from cmcl.learners.maddpg import MADDPG
+if TYPE_CHECKING:  # the learner's checkpoint mixin imports this module
+    from cmcl.learners.maddpg import MADDPG
 
 PARTS = ("actor", "target_actor", "target_critic")
 
