@@ -3,29 +3,27 @@
 Where it sits: the learner publishes `published_weights(maddpg)` once per version (the service puts it in the
 object store); rollout workers load the online actors, teachers and the ICM-free scorers load the target
 actor and target critic they need for TD targets (ALGORITHM.md §3.2, A2). Numpy only crosses the boundary.
+`maddpg` is any learner holding the parts as torch modules under those attribute names (cmcl.learners.maddpg.MADDPG);
+this module does not import it, so the learner can use the loader.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
-if TYPE_CHECKING:  # the learner's checkpoint mixin imports this module
-    from cmcl.learners.maddpg import MADDPG
-
 PARTS = ("actor", "target_actor", "target_critic")
 
 
-def published_weights(maddpg: MADDPG) -> dict[str, dict[str, np.ndarray]]:
+def published_weights(maddpg: object) -> dict[str, dict[str, np.ndarray]]:
     """{"actor": online actor, "target_actor": ..., "target_critic": ...}, each {param name: float32 array}."""
     return {part: {k: v.detach().numpy().copy() for k, v in getattr(maddpg, part).state_dict().items()}
             for part in PARTS}
 
 
-def load_published(maddpg: MADDPG, weights: Mapping[str, Mapping[str, np.ndarray]],
+def load_published(maddpg: object, weights: Mapping[str, Mapping[str, np.ndarray]],
                    parts: tuple[str, ...] = PARTS) -> None:
     """Load the given parts of `published_weights` output into `maddpg` (shapes and finiteness checked first)."""
     staged = {}
