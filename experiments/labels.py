@@ -4,3 +4,5 @@ ORDER = ("maddpg", "per", "acl", "cmcl")  # the algorithms, in the order of ever
 LABEL = {"maddpg": "MADDPG", "per": "PER-MADDPG", "acl": "ACL", "cmcl": "CMCL"}
 COLOUR = {"maddpg": "tab:blue", "per": "tab:orange", "acl": "tab:green", "cmcl": "tab:red"}
 ARM_LABEL = {**LABEL, "cmcl_permuted": "CMCL, permuted control", "cmcl_anti": "CMCL, anti-curriculum"}
+ARM_COLOUR = {**COLOUR, "cmcl_permuted": "tab:purple", "cmcl_anti": "tab:brown"}
+ARM_ORDER = (*ORDER, "cmcl_permuted", "cmcl_anti")  # the curriculum grids' arms, in table and legend order

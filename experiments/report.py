@@ -69,12 +69,23 @@ def blocks(results: Path | None = None) -> dict[str, str]:
     return out
 
 
+CURRICULUM_TASKS = {"curriculum": "Sparse navigation N=4",  # grid -> the task named in its figure's title
+                    "curriculum_hard": "Harder sparse navigation N=4 (cover radius 0.075)"}
+
+
 def figures(results: Path | None = None) -> list[Path]:
-    """Draw the figures of the paper's grids into <reproduce folder>/figures/; returns the PNGs written."""
+    """Draw the figures of the paper's grids into <reproduce folder>/figures/ and each curriculum grid's sampling
+    figure into <its folder>/figures/curriculum_sampling.png; returns the PNGs written."""
+    from experiments.curriculum_figure import curriculum_figure
     from experiments.figures import figures as draw
 
-    folder = folders(results)["spread"]
-    return draw(ResultsStore(folder).load(), folder / "figures")
+    where = folders(results)
+    written = draw(ResultsStore(where["spread"]).load(), where["spread"] / "figures")
+    for grid_name, task in CURRICULUM_TASKS.items():
+        runs = ResultsStore(where[grid_name]).load()
+        if runs:
+            written.append(curriculum_figure(runs, task, where[grid_name] / "figures" / "curriculum_sampling.png"))
+    return written
 
 
 def update(path: Path, new: dict[str, str]) -> None:
