@@ -77,13 +77,31 @@ def window_summary(window: Sequence[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def ess_part(row: dict[str, Any]) -> list[str]:
-    """The compact ESS part of a progress line: ["ESS 0.42"] (mean over the agents that do not sample uniformly,
-    from the row's "sampling" diagnostics), or [] when every agent samples uniformly or there is no such row."""
+def sampling_parts(ess: Sequence[float], reward_rows_sampled: Sequence[float],
+                   reward_rows_buffer: Sequence[float], uniform: Sequence[bool]) -> list[str]:
+    """The compact sampling part of a progress line, means over the agents that do not sample uniformly:
+    ["ESS 0.42", "reward rows 0.02/0.18"], the ESS as a fraction of the buffer (1 = uniform) and the share of
+    reward-bearing rows in a sampled minibatch / in the buffer (a curriculum that excludes the hard rows starves
+    the learner of reward when the first is far below the second; docs/RESULTS.md, "Sampling and stalls").
+    [] when every agent samples uniformly. Both runners' lines call it."""
+    keep = [a for a, flat in enumerate(uniform) if not flat and a < len(ess)]
+    if not keep:
+        return []
+    parts = [f"ESS {sum(ess[a] for a in keep) / len(keep):.2f}"]
+    if len(reward_rows_sampled) == len(reward_rows_buffer) == len(ess):
+        sampled = sum(reward_rows_sampled[a] for a in keep) / len(keep)
+        parts.append(f"reward rows {sampled:.2f}/{sum(reward_rows_buffer[a] for a in keep) / len(keep):.2f}")
+    return parts
+
+
+def row_sampling_parts(row: dict[str, Any]) -> list[str]:
+    """`sampling_parts` of an inline progress row's "sampling" diagnostics (an agent is uniform by its "modes"
+    entry); [] when the row has none."""
     sampling = row.get("sampling") or {}
-    ess = [e for e, m in zip(sampling.get("ess_fraction", []), sampling.get("modes", []), strict=False)
-           if m != "uniform"]
-    return [f"ESS {sum(ess) / len(ess):.2f}"] if ess else []
+    ess = sampling.get("ess_fraction", [])
+    modes = sampling.get("modes", [])
+    return sampling_parts(ess, sampling.get("reward_rows_sampled", []), sampling.get("reward_rows_buffer", []),
+                          [m == "uniform" for m in modes][:len(ess)])
 
 
 def progress_line(episodes: int, target: int, env_steps: int, updates: int, window: dict[str, Any], lam: float,

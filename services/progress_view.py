@@ -12,23 +12,26 @@ from typing import Any
 import numpy as np
 
 from cmcl.messages import ReplayStatus
-from cmcl.progress import progress_line, window_summary
+from cmcl.progress import progress_line, sampling_parts, window_summary
 from services.report_schema import Report
 
 
 def replay_parts(status: ReplayStatus, report: Report | None, lags: dict[str, int]) -> list[str]:
     """The service's own fields of the line: buffer size, median teacher-score age (updates), the mean sampling ESS
-    of the agents that do not sample uniformly, and each source's weight lag (versions)."""
+    and reward-row shares (sampled/buffer) of the agents that do not sample uniformly (cmcl.progress.sampling_parts),
+    and each source's weight lag (versions)."""
     parts = [f"buf {status.size}"]
     replay = report.replay if report is not None else None
     ages = replay.score_age if replay is not None else None
     if ages is not None and len(ages):
         parts.append(f"score age {float(np.median(ages)):.0f} upd")
     if replay is not None and replay.agent_sampling_ess:
-        ess = np.fromiter(replay.agent_sampling_ess.values(), float)
-        ess = ess[ess < 1]  # a uniform sampler's ESS is 1 by construction: as in cmcl.progress.ess_part, the
-        if ess.size:  # mean is over the agents that do not sample uniformly
-            parts.append(f"ESS {ess.mean():.2f}")
+        agents = list(replay.agent_sampling_ess)
+        ess = [replay.agent_sampling_ess[a] for a in agents]
+        sampled, buffer = replay.reward_rows_sampled or {}, replay.reward_rows_buffer or {}
+        shares = ([sampled[a] for a in agents], [buffer[a] for a in agents]) \
+            if set(agents) <= set(sampled) and set(agents) <= set(buffer) else ([], [])
+        parts += sampling_parts(ess, *shares, [e >= 1 for e in ess])  # a uniform sampler's ESS is 1 by construction
     if lags:
         parts.append("lag " + ",".join(f"{k}:{v}" for k, v in sorted(lags.items())))
     return parts

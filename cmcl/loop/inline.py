@@ -30,7 +30,7 @@ from cmcl.io.rundir import RunDirectory, load_checkpoint
 from cmcl.learners import network_steps
 from cmcl.learning_progress import LearningProgress
 from cmcl.messages import LearnerFeedback, Rows
-from cmcl.progress import episode_rows, ess_part, finished_episodes, progress_line, solved, window_summary
+from cmcl.progress import episode_rows, finished_episodes, progress_line, row_sampling_parts, solved, window_summary
 from cmcl.replay import buffer_steps
 from cmcl.replay.pacing import pacing_from_config
 from cmcl.replay.priority import uses_curriculum
@@ -226,7 +226,7 @@ class InlineLoop:
     def format_progress(self, row: dict[str, Any]) -> str:
         """One terminal line from a progress row."""
         return progress_line(row["episodes"], self.config.run.episodes, row["env_steps"], row["updates"],
-                             row["window"], row["lambda"], row, row["elapsed_s"], extra=ess_part(row))
+                             row["window"], row["lambda"], row, row["elapsed_s"], extra=row_sampling_parts(row))
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, Any]:
