@@ -14,8 +14,8 @@ import numpy as np
 
 from cmcl.envs import metrics
 from cmcl.envs.batched_core import BatchedWorld, strided_view
-from cmcl.envs.common import sample_spread
 from cmcl.envs.params import EPISODE_LENGTH, SpreadParams
+from cmcl.envs.spawn import sample_spread
 
 
 class BatchedSparseSpread(BatchedWorld):

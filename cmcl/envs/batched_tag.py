@@ -14,8 +14,8 @@ import numpy as np
 
 from cmcl.envs import metrics
 from cmcl.envs.batched_core import BatchedWorld, softplus_contact, strided_view
-from cmcl.envs.common import sample_tag
 from cmcl.envs.params import EPISODE_LENGTH, TagParams
+from cmcl.envs.spawn import sample_tag
 
 
 class BatchedSparseTag(BatchedWorld):

@@ -26,9 +26,9 @@ import numpy as np
 from mpe2._mpe_utils.core import Agent, Landmark
 
 from cmcl.envs import metrics
-from cmcl.envs.common import sample_spread
 from cmcl.envs.params import EPISODE_LENGTH, SpreadParams
 from cmcl.envs.pz_base import SparseParallelEnv
+from cmcl.envs.spawn import sample_spread
 
 NAME = "sparse_spread_v0"
 

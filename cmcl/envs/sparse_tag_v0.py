@@ -31,9 +31,9 @@ import numpy as np
 from mpe2._mpe_utils.core import Agent, Landmark
 
 from cmcl.envs import metrics
-from cmcl.envs.common import sample_tag
 from cmcl.envs.params import EPISODE_LENGTH, TagParams
 from cmcl.envs.pz_base import SparseParallelEnv
+from cmcl.envs.spawn import sample_tag
 
 NAME = "sparse_tag_v0"
 
