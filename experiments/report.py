@@ -21,7 +21,7 @@ from experiments.curriculum_tables import curriculum_table, curriculum_tests
 from experiments.grids import GRIDS
 from experiments.labels import ARM_LABEL
 from experiments.own_envs import own_env_table
-from experiments.stalls import load_stalls, stall_table
+from experiments.stalls import early_learner_table, load_stalls, stall_table
 from experiments.store import ResultsStore
 from experiments.tables import (
     ablation_table,
@@ -34,8 +34,9 @@ from experiments.tables import (
 )
 
 NO_RUNS = "no runs yet"
-CURRICULUM_BLOCKS = {"curriculum": ("curriculum", "curriculumtests", "curriculumstalls"),  # grid -> its blocks
-                     "curriculum_hard": ("curriculumhard", "curriculumhardtests", "curriculumhardstalls")}
+CURRICULUM_BLOCKS = {"curriculum": ("curriculum", "curriculumtests", "curriculumstalls", "curriculumearly"),
+                     "curriculum_hard": ("curriculumhard", "curriculumhardtests", "curriculumhardstalls",
+                                         "curriculumhardearly")}  # grid -> its blocks
 
 
 def folders(results: Path | None = None) -> dict[str, Path]:
@@ -56,11 +57,12 @@ def blocks(results: Path | None = None) -> dict[str, str]:
                                           + [r for r in runs if r.get("grid") == "ablation_reference"])
     if tag:
         out["tag"], out["tagtests"] = tag_table(tag), tag_tests_table(tag)
-    for grid_name, (table, tests, stalls) in CURRICULUM_BLOCKS.items():
+    for grid_name, (table, tests, stalls, early) in CURRICULUM_BLOCKS.items():
         curriculum = ResultsStore(where[grid_name]).load()
         out[table], out[tests] = (curriculum_table(curriculum), curriculum_tests(curriculum)) if curriculum \
             else (NO_RUNS, NO_RUNS)
-        out[stalls] = stall_table(load_stalls(where[grid_name]), ARM_LABEL)
+        records = load_stalls(where[grid_name])
+        out[stalls], out[early] = stall_table(records, ARM_LABEL), early_learner_table(records, ARM_LABEL)
     solve = ResultsStore(where["schedule"]).load()
     if solve:
         out["timetosolve"] = solve_table(solve)

@@ -10,7 +10,10 @@ Per run:
 * `plateau_episodes`: episodes whose 100-episode moving average of coverage lies in [0.65, 0.85]
   (`cmcl.stalls.on_plateau`), and `plateau_middle`, the episode in the middle of that time;
 * `early`: means over the progress rows while λ < 0.5 (the only time KP excludes any row, ALGORITHM.md A1) of the
-  sampling ESS and the share of reward-bearing rows sampled and in the buffer (averaged over agents);
+  sampling ESS and the share of reward-bearing rows sampled and in the buffer (averaged over agents), and of what
+  the learner was trained on then (`early_learner`, rows from episode WARM_UP on): the critic's loss on its sampled
+  minibatches, their Q (minus the actor's loss, eq. 4: the mean Q of the actor's own actions on those rows), and
+  for the curriculum arms the mean normalised difficulty ĉ of the sampled rows against the buffer's;
 * `at_plateau` (runs with a plateau of at least MIN_PLATEAU episodes): the held-out anatomy of the misses
   (`cmcl.stalls.miss_anatomy`, 200 worlds) of the checkpoint nearest `plateau_middle`, the agent most often on no
   landmark, and the curriculum's state at the progress row nearest that episode (λ, ESS, that agent's and the
@@ -29,6 +32,7 @@ from cmcl.evaluate import evaluate_policy, load_policy
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
 from cmcl.stalls import MissAnatomy, on_plateau
+from experiments.stats import fmt
 from experiments.store import ResultsStore
 
 MIN_PLATEAU = 1000  # episodes on the plateau before its anatomy is taken
@@ -37,8 +41,30 @@ ANATOMY_WORLDS = 200
 PLATEAU = (0.65, 0.85)
 
 
+WARM_UP = 600  # episodes before the learner measures of `early` count (the first updates start from random nets)
+LEARNER_KEYS = ("critic_loss", "q_sampled", "difficulty_sampled", "difficulty_buffer")  # added to `early`
+
+
 def _mean_over_agents(rows: list[dict[str, Any]], key: str) -> float:
     return float(np.mean([np.mean(r["sampling"][key]) for r in rows])) if rows else float("nan")
+
+
+def early_learner(progress: list[dict[str, Any]]) -> dict[str, float | None]:
+    """What the learner was trained on while λ < EARLY_LAMBDA, from episode WARM_UP on: means over those progress
+    rows and over agents of critic_loss (its sampled minibatches' weighted MSE, eq. 5), q_sampled (minus the
+    actor's loss: mean Q of the actor's own actions on its sampled rows, eq. 4; continuous actions) and, where the
+    rows carry the curriculum's diagnostics (ACL, CMCL), difficulty_sampled / difficulty_buffer (mean ĉ, after the
+    arm's difficulty transform, of the sampled rows and of the buffer). None where no row has the measure."""
+    rows = [r for r in progress if r["lambda"] < EARLY_LAMBDA and r["episodes"] >= WARM_UP]
+
+    def mean(values: list[float]) -> float | None:
+        return float(np.mean(values)) if values else None
+
+    curriculum = [r["curriculum"] for r in rows if r.get("curriculum")]
+    return {"critic_loss": mean([float(np.mean(r["critic_loss"])) for r in rows if "critic_loss" in r]),
+            "q_sampled": mean([-float(np.mean(r["actor_loss"])) for r in rows if "actor_loss" in r]),
+            "difficulty_sampled": mean([float(np.mean(c["difficulty_sampled"])) for c in curriculum]),
+            "difficulty_buffer": mean([float(np.mean(c["difficulty_buffer"])) for c in curriculum])}
 
 
 def analyse_run(run_path: Path, arm: str) -> dict[str, Any] | None:
@@ -59,7 +85,7 @@ def analyse_run(run_path: Path, arm: str) -> dict[str, Any] | None:
         "plateau_middle": int(np.median(plateau)) + 1 if plateau.size else None,
         "early": {"rows": len(early), "ess": _mean_over_agents(early, "ess_fraction"),
                   "reward_rows_sampled": _mean_over_agents(early, "reward_rows_sampled"),
-                  "reward_rows_buffer": _mean_over_agents(early, "reward_rows_buffer")},
+                  "reward_rows_buffer": _mean_over_agents(early, "reward_rows_buffer"), **early_learner(progress)},
         "at_plateau": None,
     }
     if record["plateau_episodes"] >= MIN_PLATEAU:
@@ -94,14 +120,23 @@ def _at_plateau(run: RunDirectory, config: Any, middle: int, progress: list[dict
 
 def analyse_folder(folder: str | Path, report=print) -> list[Path]:
     """Write GRID_FOLDER/stalls/<run id>.json for every run of GRID_FOLDER/runs that has a summary (a finished run;
-    its arm is the summary's) and no stall record yet."""
+    its arm is the summary's) and no stall record yet; a record written before the learner measures existed gets
+    them added to its `early` part (from the run's progress rows; nothing else of it is recomputed)."""
     folder = Path(folder)
     out_dir = folder / "stalls"
     arms = {r["id"]: r.get("arm") for r in ResultsStore(folder).load()}
     written = []
     for run_path in sorted(p for p in (folder / "runs").glob("*") if p.is_dir()):
         target = out_dir / f"{run_path.name}.json"
-        if target.exists() or arms.get(run_path.name) is None:
+        if target.exists():
+            old = json.loads(target.read_text())
+            if not set(LEARNER_KEYS) <= set(old["early"]):
+                progress = [r for r in RunDirectory.open(run_path).rows("progress") if "sampling" in r]
+                old["early"].update(early_learner(progress))
+                atomic_write_bytes(target, json.dumps(old, indent=1).encode())
+                written.append(target)
+            continue
+        if arms.get(run_path.name) is None:
             continue
         record = analyse_run(run_path, arms[run_path.name])
         if record is None:
@@ -152,5 +187,29 @@ def stall_table(records: list[dict[str, Any]], arm_labels: dict[str, str]) -> st
                        f"{mean([c['other_agents_reward_rows'][1] for c in with_state]):.3f}") if with_state else "—"]
         else:
             cells += ["—", "—", "—"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def early_learner_table(records: list[dict[str, Any]], arm_labels: dict[str, str]) -> str:
+    """Markdown, one row per arm: what the learner was trained on while λ < 0.5 (the `early` learner measures), each
+    a mean ± 95% t half-width over the arm's runs: the critic's loss on its sampled rows, their Q, the sampled
+    rows' mean difficulty against the buffer's (curriculum arms), and the reward-bearing rows sampled / buffer."""
+    with_learner = [r for r in records if r["early"].get("critic_loss") is not None]
+    if not with_learner:
+        return "no runs analysed yet"
+    lines = ["| arm | runs | critic loss on the sampled rows | Q of the actor's actions on them | difficulty ĉ: "
+             "sampled / buffer | reward rows: sampled / buffer |", "| --- | --- | --- | --- | --- | --- |"]
+    for arm, label in arm_labels.items():
+        early = [r["early"] for r in with_learner if r["arm"] == arm]
+        if not early:
+            continue
+        difficulty = [e for e in early if e.get("difficulty_sampled") is not None]
+        cells = [label, str(len(early)), fmt([e["critic_loss"] for e in early], 3),
+                 fmt([e["q_sampled"] for e in early], 1),
+                 (f"{np.mean([e['difficulty_sampled'] for e in difficulty]):.2f} / "
+                  f"{np.mean([e['difficulty_buffer'] for e in difficulty]):.2f}") if difficulty else "—",
+                 f"{np.mean([e['reward_rows_sampled'] for e in early]):.3f} / "
+                 f"{np.mean([e['reward_rows_buffer'] for e in early]):.3f}"]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)

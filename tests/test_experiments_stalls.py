@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from cmcl.io.rundir import RunDirectory
 from cmcl.loop import InlineLoop
 from experiments.labels import ARM_LABEL
@@ -47,3 +49,63 @@ def test_the_table_has_one_row_per_arm_with_the_plateau_anatomy():
     assert "0.60 / 0.10" in table[2] and "0.20 / 0.50 / 0.30" in table[2]
     assert "0.200 / 0.300 vs 0.700 / 0.800" in table[2]
     assert stall_table([], ARM_LABEL) == "no runs analysed yet"
+
+
+def progress_row(episodes, lam, critic, actor, curriculum=None):
+    row = {"kind": "progress", "episodes": episodes, "lambda": lam, "critic_loss": critic, "actor_loss": actor,
+           "sampling": {"ess_fraction": [0.5, 0.5], "reward_rows_sampled": [0.0, 0.0],
+                        "reward_rows_buffer": [0.1, 0.1]}}
+    return {**row, "curriculum": curriculum} if curriculum else row
+
+
+def test_the_early_learner_measures_average_the_rows_after_warm_up_while_lambda_is_below_half():
+    from experiments.stalls import WARM_UP, early_learner
+
+    curriculum = {"difficulty_sampled": [0.2, 0.4], "difficulty_buffer": [0.5, 0.5]}
+    rows = [progress_row(WARM_UP - 1, 0.1, [9.0, 9.0], [-90.0, -90.0], curriculum),  # before the warm-up: left out
+            progress_row(WARM_UP, 0.2, [1.0, 3.0], [-10.0, -30.0], curriculum),
+            progress_row(WARM_UP + 200, 0.4, [2.0, 2.0], [-40.0, -40.0], curriculum),
+            progress_row(WARM_UP + 400, 0.5, [9.0, 9.0], [-90.0, -90.0], curriculum)]  # λ = 0.5: left out
+    assert early_learner(rows) == pytest.approx({"critic_loss": 2.0, "q_sampled": 30.0, "difficulty_sampled": 0.3,
+                                                 "difficulty_buffer": 0.5})
+    uniform = early_learner([progress_row(WARM_UP, 0.2, [1.0, 1.0], [-5.0, -5.0])])  # MADDPG: no curriculum rows
+    assert uniform["q_sampled"] == 5.0 and uniform["difficulty_sampled"] is None
+    assert early_learner(rows[-1:]) == dict.fromkeys(("critic_loss", "q_sampled", "difficulty_sampled",
+                                                      "difficulty_buffer"))
+
+
+def test_a_record_written_before_the_learner_measures_gets_them_and_keeps_the_rest(tmp_path, monkeypatch):
+    import experiments.stalls as stalls
+
+    monkeypatch.setattr(stalls, "WARM_UP", 0)  # the tiny run is shorter than the real warm-up
+    folder = tmp_path / "grid"
+    config = make_tiny_config("cmcl", sections=INLINE_SECTIONS, dir=str(folder / "runs" / "curriculum_cmcl_s0"),
+                              episodes=24)
+    InlineLoop(config, RunDirectory.create(config.run.dir, config), progress=None).run()
+    ResultsStore(folder).write({"id": "curriculum_cmcl_s0", "arm": "cmcl"})
+    [path] = analyse_folder(folder, report=lambda line: None)
+    fresh = json.loads(path.read_text())
+    assert fresh["early"]["critic_loss"] > 0 and fresh["early"]["difficulty_sampled"] is not None
+    old = {**fresh, "early": {k: v for k, v in fresh["early"].items() if k not in stalls.LEARNER_KEYS},
+           "plateau_episodes": 7}  # a marker: an old record's other fields are kept, not recomputed
+    path.write_text(json.dumps(old))
+    assert analyse_folder(folder, report=lambda line: None) == [path]
+    assert json.loads(path.read_text()) == {**old, "early": fresh["early"]}
+    assert analyse_folder(folder, report=lambda line: None) == []  # now complete: left alone
+
+
+def test_the_early_learner_table_has_a_row_per_arm_and_skips_records_without_the_measures():
+    from experiments.stalls import early_learner_table
+
+    def record(arm, critic, q, difficulty=None):
+        early = {"rows": 3, "ess": 0.5, "reward_rows_sampled": 0.02, "reward_rows_buffer": 0.2, "critic_loss": critic,
+                 "q_sampled": q, "difficulty_sampled": difficulty, "difficulty_buffer": 0.5 if difficulty else None}
+        return {"arm": arm, "early": early}
+
+    records = [record("maddpg", 2.0, 20.0), record("maddpg", 4.0, 30.0), record("cmcl", 0.2, 1.0, 0.25),
+               {"arm": "acl", "early": {"rows": 3, "ess": 0.5, "reward_rows_sampled": 0.0, "reward_rows_buffer": 0.1}}]
+    table = early_learner_table(records, ARM_LABEL).splitlines()
+    assert len(table) == 4  # header, rule, MADDPG, CMCL; the old ACL record has no learner measures
+    assert table[2].startswith("| MADDPG | 2 | 3.000 ± ") and "| 25.0 ± " in table[2] and "| — |" in table[2]
+    assert table[3] == "| CMCL | 1 | 0.200 | 1.0 | 0.25 / 0.50 | 0.020 / 0.200 |"
+    assert early_learner_table(records[3:], ARM_LABEL) == "no runs analysed yet"
