@@ -1,4 +1,5 @@
-"""The service's progress line and rates: what the supervisor prints every report and returns in its summary.
+"""The service's progress line, rows and rates: what the supervisor prints and logs every report and returns in its
+summary.
 
 Where it sits: `services.supervisor.Supervisor` owns one `ProgressView`, feeds it the replay server's newest status
 and report, and prints `line()`. Read-only over what it is given; the line's common part is `cmcl.progress`.
@@ -37,11 +38,33 @@ def replay_parts(status: ReplayStatus, report: Report | None, lags: dict[str, in
     return parts
 
 
+def sampling_row(report: Report | None, modes: list[str]) -> dict[str, Any]:
+    """The service's progress row entries on the sampling distribution, in the inline rows' shape so that both
+    runners' runs are measured alike (experiments.measures.sampling_over_training): {"sampling": {"modes",
+    "ess_fraction", "reward_rows_sampled", "reward_rows_buffer": lists over agents in index order}} from the replay
+    server's newest report, plus "kp_branches" (buffer share per KP branch, eq. 12) and "score_coverage" when it
+    has them. modes: each agent's sampling distribution's name (cmcl.replay.sampling.sampling_name). {} before
+    the first report with sampling diagnostics."""
+    replay = report.replay if report is not None else None
+    shares = (replay.agent_sampling_ess, replay.reward_rows_sampled, replay.reward_rows_buffer) if replay else ()
+    if not shares or any(not share or len(share) != len(modes) for share in shares):
+        return {}
+    ess, sampled, buffer = ([float(share[str(a)]) for a in range(len(modes))] for share in shares)
+    row: dict[str, Any] = {"sampling": {"modes": list(modes), "ess_fraction": ess, "reward_rows_sampled": sampled,
+                                        "reward_rows_buffer": buffer}}
+    if replay.kp_branches:
+        row["kp_branches"] = dict(replay.kp_branches)
+    if replay.score_coverage is not None:
+        row["score_coverage"] = float(replay.score_coverage)
+    return row
+
+
 class ProgressView:
     """Env steps and updates per second between refreshes (at least 0.5 s apart), and the progress line."""
 
-    def __init__(self, episodes_target: int, started: float, status: ReplayStatus) -> None:
-        self.episodes_target, self.started = episodes_target, started
+    def __init__(self, episodes_target: int, started: float, status: ReplayStatus, sampling_modes: list[str]) -> None:
+        """sampling_modes: each agent's sampling distribution's name (cmcl.replay.sampling.sampling_name)."""
+        self.episodes_target, self.started, self.sampling_modes = episodes_target, started, list(sampling_modes)
         self.rates = {"env_steps_per_s": 0.0, "updates_per_s": 0.0}
         self.mark = (started, status.env_steps, status.updates)  # (time, env steps, updates) of the last refresh
 
@@ -58,3 +81,9 @@ class ProgressView:
         return progress_line(status.episodes, self.episodes_target, status.env_steps, status.updates,
                              window_summary(window), status.lam, self.rates, time.perf_counter() - self.started,
                              replay_parts(status, report, lags))
+
+    def row(self, status: ReplayStatus, report: Report | None) -> dict[str, Any]:
+        """The progress row of metrics.jsonl: counters, rates, elapsed seconds and the sampling entries
+        (`sampling_row`) of the replay server's newest report."""
+        return {"kind": "progress", **status.counters(), **self.rates, "elapsed_s": time.perf_counter() - self.started,
+                **sampling_row(report, self.sampling_modes)}

@@ -26,6 +26,8 @@ from cmcl.io.rundir import RunDirectory
 from cmcl.learning_progress import LearningProgress
 from cmcl.messages import ReplayStatus
 from cmcl.progress import episode_rows, solved, window_summary
+from cmcl.replay.sampling import sampling_name
+from cmcl.system import layout_of
 from services.call_budget import calls_to_issue
 from services.health import (
     CallWatch,
@@ -81,7 +83,8 @@ class Supervisor:
         self.learning_progress = LearningProgress.from_run_config(config.run)
         self.last_replay_report: Report | None = None
         self.started = time.perf_counter()
-        self.view = ProgressView(config.run.episodes, self.started, self.status)
+        self.view = ProgressView(config.run.episodes, self.started, self.status,
+                                 [sampling_name(a) for a in layout_of(config).algorithms])
         self._first_reports()
 
     def _first_reports(self) -> None:
@@ -326,14 +329,14 @@ class Supervisor:
                 self.metrics.update_rates()
                 if self.progress is not None:
                     self.progress(self.progress_line())
-                self.run_dir.log({"kind": "progress", **self.status.counters(), **self.view.rates,
-                                  "elapsed_s": now - self.started})
+                self.run_dir.log(self.view.row(self.status, self.last_replay_report))
             if now - last_ckpt >= cfg.service.checkpoint_every_s:
                 self.checkpoint()
                 last_ckpt = time.perf_counter()
         self.final_cut()
         self.checkpoint()
         self.view.refresh(self.status)
+        self.run_dir.log(self.view.row(self.status, self.last_replay_report))  # the rows end at the final cut
         if self.progress is not None:
             self.progress(self.progress_line())
         return {**dataclasses.asdict(self.status), **self.status.counters(), **self.view.rates,

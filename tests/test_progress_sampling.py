@@ -1,6 +1,8 @@
 """The sampling part of both runners' progress lines (cmcl.progress.sampling_parts, its inline and service callers):
 ESS and the reward rows sampled against the buffer, averaged over the agents that do not sample uniformly."""
 
+import pytest
+
 from cmcl.messages import ReplayStatus
 from cmcl.progress import row_sampling_parts, sampling_parts
 from services.progress_view import replay_parts
@@ -34,3 +36,34 @@ def test_the_service_line_shows_the_same_parts_from_the_replay_report():
     assert parts == ["buf 500", "ESS 0.40", "reward rows 0.02/0.15"]
     uniform = ReplayReport(agent_sampling_ess={"0": 1.0}, reward_rows_sampled={"0": 0.2}, reward_rows_buffer={"0": 0.2})
     assert replay_parts(status, Report(replay=uniform), {}) == ["buf 500"]
+
+
+def test_the_service_progress_row_carries_the_sampling_entry_in_the_inline_rows_shape():
+    from experiments.measures import sampling_over_training
+    from services.progress_view import sampling_row
+
+    replay = ReplayReport(agent_sampling_ess={"1": 0.5, "0": 1.0}, reward_rows_sampled={"0": 0.2, "1": 0.01},
+                          reward_rows_buffer={"0": 0.2, "1": 0.1}, kp_branches={"rising": 0.5, "falling": 0.3,
+                                                                                 "excluded": 0.2},
+                          score_coverage=0.9)
+    row = sampling_row(Report(replay=replay), ["uniform", "cmcl"])
+    assert row == {"sampling": {"modes": ["uniform", "cmcl"], "ess_fraction": [1.0, 0.5],
+                                "reward_rows_sampled": [0.2, 0.01], "reward_rows_buffer": [0.2, 0.1]},
+                   "kp_branches": {"rising": 0.5, "falling": 0.3, "excluded": 0.2}, "score_coverage": 0.9}
+    curve = sampling_over_training([{"episodes": 100, "lambda": 0.2, **row}])["sampling_curve"]
+    assert curve["ess"] == [0.5] and curve["reward_rows_sampled"] == [0.01]  # the cmcl agent's, as inline
+    assert sampling_row(None, ["cmcl"]) == {} and sampling_row(Report(replay=ReplayReport(size=3)), ["cmcl"]) == {}
+    assert sampling_row(Report(replay=replay), ["cmcl"]) == {}  # a report of another agent count is not mixed in
+
+
+def test_sampling_name_is_the_name_of_the_distribution_sampling_for_builds():
+    from cmcl.config import ALGORITHMS
+    from cmcl.replay.sampling import sampling_for, sampling_name
+
+    for algorithm in ALGORITHMS:
+        built = sampling_for(algorithm, 0, capacity=8, alpha=1.0, backend="cdf", eps=1e-3, eta=0.5,
+                             difficulty_source="difficulty", difficulty_norm="rank", cp_input="std", lam_max=1.0,
+                             reversed_difficulty=False)
+        assert sampling_name(algorithm) == built.name
+    with pytest.raises(ValueError, match="'ddpg'"):
+        sampling_name("ddpg")

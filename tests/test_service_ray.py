@@ -81,6 +81,17 @@ def test_each_preset_runs_end_to_end(algorithm, tmp_path, ray_cluster):
     assert value(live, "cmcl_learner_updates_total") == summary["updates"], "the live endpoint served the run"
     rows = list(RunDirectory.open(config.run.dir).rows("episode"))
     assert len(rows) == summary["episodes"]
+    # the rows end with the final cut's progress row, its sampling entry in the inline rows' shape
+    last = list(RunDirectory.open(config.run.dir).rows("progress"))[-1]
+    assert last["episodes"] == summary["episodes"] and last["updates"] == summary["updates"]
+    mode = {"maddpg": "uniform"}.get(algorithm, algorithm)
+    assert last["sampling"]["modes"] == [mode] * config.env.spread.num_agents
+    assert all(len(last["sampling"][k]) == config.env.spread.num_agents
+               for k in ("ess_fraction", "reward_rows_sampled", "reward_rows_buffer"))
+    if algorithm == "maddpg":  # uniform: ESS 1 and the sampled share is the buffer's
+        assert last["sampling"]["ess_fraction"] == [1.0] * config.env.spread.num_agents
+        assert last["sampling"]["reward_rows_sampled"] == pytest.approx(last["sampling"]["reward_rows_buffer"])
+    assert ("kp_branches" in last) == (algorithm in ("acl", "cmcl"))
     # the final line shows the age of the teachers' scores (from the final replay report) where there are teachers
     assert ("score age" in scraped["line"]) == (algorithm in ("acl", "cmcl")), scraped["line"]
 

@@ -177,3 +177,11 @@ def sampling_for(algorithm: str, agent: int, *, capacity: int, alpha: float, bac
                                   difficulty_source=difficulty_source, difficulty_norm=difficulty_norm,
                                   cp_input=cp_input, lam_max=lam_max, reversed_difficulty=reversed_difficulty)
     raise ValueError(f"algorithm must be one of {ALGORITHMS}, got {algorithm!r}")
+
+
+def sampling_name(algorithm: str) -> str:
+    """The `name` of the sampling distribution `sampling_for(algorithm, ...)` builds ("uniform", "per", "acl",
+    "cmcl": the metrics' "sampling.modes"), without building it."""
+    if algorithm not in ALGORITHMS:
+        raise ValueError(f"algorithm must be one of {ALGORITHMS}, got {algorithm!r}")
+    return {"maddpg": UniformSampling.name, "per": PrioritizedSampling.name}.get(algorithm, algorithm)
