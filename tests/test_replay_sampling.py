@@ -39,12 +39,33 @@ def test_eta_zero_cmcl_equals_acl_and_ci_range(backend):  # property 8
     assert ci.min() >= -1e-12 and ci[:, 2].max() <= 1.7 and ci[:, 2].max() > 1.0
 
 
-def test_unscored_rows_get_floor():
-    rb = scored_buffer()
+@pytest.mark.parametrize("alpha", [1.0, 0.6])
+def test_unscored_rows_are_drawn_as_often_as_an_average_scored_row(alpha):
+    """A11 / DESIGN's provisional priority: rows the teachers have not scored yet (the service's newest rows) are
+    neither excluded (the old ε_p floor, which hid them from the learner until scored) nor favoured."""
+    rb = scored_buffer(alpha=alpha)
+    rb.recompute_priorities(0.2)
     new = rb.add(*chunk(30, 10, np.random.default_rng(2)))  # overwrites slots 0..29, unscored
-    d = rb.recompute_priorities(0.2, details=True)
-    assert np.all(d["priority"][new] == EPS_P) and not d["scored"][new].any()
-    assert np.all(d["scored"][30:])
+    scored = np.arange(30, 300)
+    for when in ("at insertion", "after a recompute"):
+        for agent in (0, 1):  # acl, cmcl
+            p_new = rb.probabilities(agent, new)
+            assert np.allclose(p_new, p_new[0]), when
+            assert p_new.sum() == pytest.approx(30 / 300), when  # their share of the rows: the mean weight each
+            raw = rb.sampling[agent].priorities[scored] ** alpha  # the scored rows keep their relative weights
+            assert np.allclose(rb.probabilities(agent, scored) / rb.probabilities(agent, scored).sum(), raw / raw.sum())
+        assert np.allclose(rb.probabilities(2, new), 1 / 300), when  # maddpg: uniform
+        d = rb.recompute_priorities(0.2, details=True)
+    assert not d["scored"][new].any() and np.all(d["scored"][30:])
+    assert (d["kp"][scored, 0] == 0).any(), "λ = 0.2 excludes some scored rows, so ε_p is not the mean"
+
+
+def test_a_buffer_without_scores_samples_uniformly():
+    rb = filled(algorithms=["acl", "cmcl", "per"])
+    rb.recompute_priorities(0.2)
+    s = rb.valid_slots()
+    for agent in (0, 1):
+        assert np.allclose(rb.probabilities(agent, s), 1 / s.size)
 
 
 @pytest.mark.parametrize("backend", BACKENDS)

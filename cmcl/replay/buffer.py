@@ -8,7 +8,7 @@ priority column in bulk; the learner calls `sample(agent, S, rng)` per agent.
 
 Each agent samples from the distribution of its algorithm (`cmcl.replay.sampling`, chosen once at construction):
 maddpg uniform, per PER (|δ| + ε_p, new slots at the running maximum), acl / cmcl the curriculum index recomputed
-from the score columns (unscored rows at the floor ε_p, A11).
+from the score columns (rows not yet scored at the scored rows' mean sampling weight, A11).
 """
 
 from __future__ import annotations
@@ -175,7 +175,8 @@ class ReplayBuffer:
     def recompute_priorities(self, lam: float, details: bool = False, apply: bool = True) -> dict | None:
         """Rebuild every ACL/CMCL agent's priorities from the score columns at curriculum factor `lam`.
 
-        p = KP(ĉ, λ) + η·CP(ρ̂) + ε_p over the valid rows (η = 0 for ACL); unscored rows get ε_p. Under the
+        p = KP(ĉ, λ) + η·CP(ρ̂) + ε_p over the valid rows (η = 0 for ACL); unscored rows get the scored rows' mean
+        sampling weight (`cmcl.replay.priority.provisional_priority`). Under the
         "reversed" control ĉ is 1 − ĉ; under "permuted" each agent's p column is shuffled across the valid rows
         (one draw from `control_rng` per recompute) after it is computed.
         Args: lam in (0, lam_max]; details: also return the per-row terms; apply: False computes the terms only

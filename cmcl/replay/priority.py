@@ -195,14 +195,33 @@ def _over_scored(values: np.ndarray, scored: np.ndarray, normalise) -> np.ndarra
     return out
 
 
+def provisional_priority(p: np.ndarray, alpha: float) -> float:
+    """The priority of a row whose scores have not arrived: (mean_j p_j^α)^(1/α) over the given priorities p
+    float[M] (> 0), so that its sampling weight p^α of eq. 20 is the mean weight of those rows: an unscored row
+    is drawn as often as an average scored row, neither excluded nor favoured (DESIGN.md: "a provisional
+    priority" for new transitions; A11's "score at insertion" when, as in the service, scores arrive later).
+    α = 0: every row weighs 1, and 1 is returned."""
+    arr = np.asarray(p, dtype=np.float64)
+    if arr.size == 0:
+        raise ValueError("provisional_priority needs at least one scored row, got none")
+    if alpha == 0:
+        return 1.0
+    if arr.min() == arr.max():  # all rows alike (e.g. all at ε_p before any score): that value, exactly
+        return float(arr[0])
+    return float(np.mean(np.power(arr, alpha)) ** (1.0 / alpha))
+
+
 def curriculum_priority(difficulty: np.ndarray, has_difficulty: np.ndarray, curiosity: np.ndarray,
                         has_curiosity: np.ndarray, lam: float, eta: float, *, eps: float = EPS_P,
                         difficulty_norm: str = "rank", cp_input: str = "std", lam_max: float = LAM_MAX,
-                        reversed_difficulty: bool = False) -> tuple[np.ndarray, ...]:
+                        reversed_difficulty: bool = False, alpha: float = 1.0) -> tuple[np.ndarray, ...]:
     """One ACL / CMCL agent's sampling priority over the M valid rows from its raw score columns.
 
     ĉ = normalised c over the rows that have one (§3.3, A1: rank by default); ρ̂ = normalised ρ likewise (§3.5, only
-    when η > 0); p = CI(KP(ĉ, λ), CP(ρ̂), η) + ε_p (eqs. 12, 19, 8), and ε_p on rows without a difficulty score (A11).
+    when η > 0); p = CI(KP(ĉ, λ), CP(ρ̂), η) + ε_p (eqs. 12, 19, 8). A row without a difficulty score yet gets
+    `provisional_priority` of the scored rows under the sampling exponent `alpha` (eq. 20's α_s): the sampling
+    weight of an average scored row (A11; ε_p if no row is scored, i.e. uniform). The inline loop scores every new
+    row before it samples, so only the service, whose teachers score asynchronously, samples such rows.
     difficulty, curiosity float[M]; has_* bool[M]; eta = 0 gives ACL. reversed_difficulty: the anti-curriculum
     control, ĉ -> 1 − ĉ on the scored rows before KP (the returned c_hat is the reversed one, the ĉ KP saw).
     Returns float64[M] arrays (c_hat, kp, cp, p) and has_difficulty.
@@ -216,7 +235,9 @@ def curriculum_priority(difficulty: np.ndarray, has_difficulty: np.ndarray, curi
     if eta > 0:
         rho_hat = _over_scored(curiosity, has_curiosity, lambda x: normalise_curiosity(x, cp_input))
         cp = curiosity_priority(rho_hat)
-    p = np.where(has_difficulty, curriculum_index(kp, cp, eta) + eps, eps)
+    p = curriculum_index(kp, cp, eta) + eps
+    if not has_difficulty.all():
+        p = np.where(has_difficulty, p, provisional_priority(p[has_difficulty], alpha) if has_difficulty.any() else eps)
     return c_hat, kp, cp, p, has_difficulty
 
 

@@ -9,7 +9,8 @@ methods on every one of them: `added` (new slots), `sample`, `probabilities`, `s
   per ............ PrioritizedSampling: p = |δ| + ε_p kept incrementally (`update_priorities`); new slots get the
                                         running maximum priority (starts at 1.0), which each update raises.
   acl, cmcl ...... CurriculumSampling:  p = KP(ĉ, λ) [+ η·CP(ρ̂)] + ε_p recomputed from the score columns
-                                        (`terms`, eqs. 8, 12, 19); new slots sit at ε_p until then (A11).
+                                        (`terms`, eqs. 8, 12, 19); a row not yet scored gets the
+                                        mean sampling weight of the scored rows (`provisional_priority`, A11).
 Prioritized draws use P(j) = p_j^α / Σ_k p_k^α (eq. 20) from a `cmcl.replay.sampler.PrioritySampler` (cdf or sum
 tree backend, vectorised).
 """
@@ -19,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from cmcl.config import ALGORITHMS
-from cmcl.replay.priority import curriculum_priority
+from cmcl.replay.priority import curriculum_priority, provisional_priority
 from cmcl.replay.sampler import PrioritySampler, importance_weights
 from cmcl.replay.storage import TransitionStorage
 
@@ -63,12 +64,13 @@ class _ProportionalSampling:
         """float64[capacity] raw priorities (0 on empty slots)."""
         return self.sampler.p
 
-    def initial_priority(self) -> float:
+    def initial_priority(self, slots: np.ndarray) -> float:
+        """The raw priority new `slots` int64[k] start at."""
         raise NotImplementedError
 
     def added(self, slots: np.ndarray) -> None:
         """New slots int64[k] get the initial priority."""
-        self.sampler.update(slots, np.full(slots.size, self.initial_priority()))
+        self.sampler.update(slots, np.full(slots.size, self.initial_priority(slots)))
 
     def probabilities(self, slots: np.ndarray, size: int) -> np.ndarray:
         """P(j) of eq. 20 for valid slots int64[k] -> float64[k]."""
@@ -103,7 +105,7 @@ class PrioritizedSampling(_ProportionalSampling):
         super().__init__(capacity, alpha, backend, eps)
         self.max_priority = 1.0  # the PER rule: starts at 1.0, raised by every update
 
-    def initial_priority(self) -> float:
+    def initial_priority(self, slots: np.ndarray) -> float:
         return self.max_priority
 
     def update_priorities(self, slots: np.ndarray, td_abs: np.ndarray) -> None:
@@ -143,8 +145,13 @@ class CurriculumSampling(_ProportionalSampling):
         self.difficulty_source, self.difficulty_norm, self.cp_input = difficulty_source, difficulty_norm, cp_input
         self.lam_max, self.reversed_difficulty = float(lam_max), bool(reversed_difficulty)
 
-    def initial_priority(self) -> float:
-        return self.eps
+    def initial_priority(self, slots: np.ndarray) -> float:
+        """The provisional priority of the rows already held, new `slots` aside (their mean sampling weight,
+        `provisional_priority`), until the next recompute sees the new rows' scores; ε_p in an empty buffer."""
+        held = self.sampler.p.copy()
+        held[slots] = 0.0
+        held = held[held > 0]
+        return provisional_priority(held, self.sampler.alpha) if held.size else self.eps
 
     def terms(self, storage: TransitionStorage, lam: float) -> tuple[np.ndarray, ...]:
         """(c_hat, kp, cp, p, has_difficulty) float64[size] (bool for the last) of this agent over the valid rows
@@ -154,7 +161,7 @@ class CurriculumSampling(_ProportionalSampling):
                                    storage.scores["curiosity"][:size, a], storage.scored["curiosity"][:size, a],
                                    lam, self.eta, eps=self.eps, difficulty_norm=self.difficulty_norm,
                                    cp_input=self.cp_input, lam_max=self.lam_max,
-                                   reversed_difficulty=self.reversed_difficulty)
+                                   reversed_difficulty=self.reversed_difficulty, alpha=self.sampler.alpha)
 
     def set_priorities(self, p: np.ndarray) -> None:
         """Bulk replace: p float64[size] for slots [0, size)."""
