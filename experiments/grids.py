@@ -13,6 +13,8 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
   across rows: same ESS, no information) and ``cmcl_anti`` (difficulty reversed) -- progress rows every 200
   episodes so that the summary holds the sampling distribution's ESS and reward-row shares over training;
 * ``curriculum_hard``: the same arms on the calibrated harder navigation of configs/spread_hard.toml;
+* ``curriculum_tag``: the same arms as the predators of sparse predator-prey (configs/tag_<algorithm>.toml), the
+  prey MADDPG (the paper's Fig. 12 at the issue-21 defaults);
 * ``schedule``: time to solve navigation with MADDPG inline, maddpg.update_every x maddpg.batch_size, each run
   stopped once its 100-episode moving-average coverage reaches 0.95 or after 900 s of training;
 * ``algorithms``: time to solve with each algorithm, inline and on the embedded service, same stops;
@@ -157,12 +159,17 @@ class Run:
 
 
 def curriculum_runs(name: str, seed: int, budget: int) -> list[Run]:
+    """The arms of CURRICULUM_ARMS on the grid's task: navigation N=4 (``curriculum``), the harder navigation
+    (``curriculum_hard``) or predator-prey, each arm's algorithm for the predators against MADDPG prey
+    (``curriculum_tag``)."""
     runs = []
     for arm, (config, sets) in CURRICULUM_ARMS.items():
-        algorithm = arm.split("_")[0]
+        algorithm, task, prey = arm.split("_")[0], "spread", None
         if name == "curriculum_hard":  # the same arms on the harder task: its config, each algorithm
             config, sets = HARD_CONFIG, [f"teams.agent.algorithm={algorithm}", *sets]
-        runs.append(Run(f"{name}_{arm}_s{seed}", name, "spread", algorithm, None, seed, budget, arm=arm,
+        elif name == "curriculum_tag":  # the predators' config of each algorithm; its prey learn with MADDPG
+            config, task, prey = f"tag_{algorithm}.toml", "tag", "maddpg"
+        runs.append(Run(f"{name}_{arm}_s{seed}", name, task, algorithm, prey, seed, budget, arm=arm,
                         config=config, sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *sets)))
     return runs
 
@@ -215,7 +222,8 @@ def own_env_runs(seed: int) -> list[Run]:
 GRIDS = {  # name -> results folder (its summaries/ and runs/)
     "spread": RESULTS / "reproduce", "tag": RESULTS / "reproduce", "winrate": RESULTS / "reproduce",
     "ablations": RESULTS / "reproduce", "curriculum": RESULTS / "curriculum",
-    "curriculum_hard": RESULTS / "curriculum_hard", "schedule": RESULTS / "time_to_solve",
+    "curriculum_hard": RESULTS / "curriculum_hard", "curriculum_tag": RESULTS / "curriculum_tag",
+    "schedule": RESULTS / "time_to_solve",
     "algorithms": RESULTS / "time_to_solve", "own_envs": RESULTS / "own_envs", "scale": RESULTS / "scale",
 }
 

@@ -1,9 +1,10 @@
 """The measures of one run, read from its run directory: the summary the results store keeps.
 
 Training curves are the per-episode rows of the run (`RunDirectory.rows("episode")`); "MA x" is the first episode
-at which the trailing WINDOW-episode moving average of the final-step coverage reaches x. Held-out: the final
-weights (or those of the checkpoint at episode `upto`) without exploration noise on HELD_OUT worlds the run never
-saw (`cmcl.evaluate.evaluate_policy`, seeded by the run's seed).
+at which the trailing WINDOW-episode moving average of the final-step coverage (predator-prey: of the predators'
+win, an episode with a capture) reaches x; the area under a training curve is its mean over the run's episodes.
+Held-out: the final weights (or those of the checkpoint at episode `upto`) without exploration noise on HELD_OUT
+worlds the run never saw (`cmcl.evaluate.evaluate_policy`, seeded by the run's seed).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ WINDOW, TARGETS, HELD_OUT = 100, (0.5, 0.9), 200  # moving-average episodes; cov
 
 def first_reaching(coverage: np.ndarray, target: float) -> int | None:
     """Index of the first episode whose trailing WINDOW-episode mean coverage is >= target (None: never).
-    coverage: float[T], one final-step coverage per episode in order of completion."""
+    coverage: float[T], one final-step coverage (or predator win, 0/1) per episode in order of completion."""
     if coverage.size < WINDOW:
         return None
     moving = np.convolve(coverage, np.ones(WINDOW) / WINDOW, mode="valid")  # moving[i] ends at episode i+W-1
@@ -80,8 +81,15 @@ def summarise(run: Run, run_path: Path, upto: int | None = None) -> dict[str, An
                       mean_reward=float(series["reward_agent"].sum() / run.budget),  # Fig. 9's definition (§6.3)
                       held_out_coverage=held_out["coverage"], held_out_success=held_out["success"],
                       held_out_collisions=held_out["collisions"], held_out_wall_hits=held_out["wall_hits"])
-    else:
-        result.update(mean_reward_predator=float(series["reward_predator"].sum() / run.budget),
+    else:  # predator-prey: the predators' capture rate ("win") stands where navigation has coverage
+        win = series["predator_win"]
+        for target in TARGETS:
+            i = first_reaching(win, target)
+            tag = f"win_{int(target * 100)}"
+            result[f"episodes_to_{tag}"] = None if i is None else i + 1
+            result[f"seconds_to_{tag}"] = None if i is None else float(elapsed[i])
+        result.update(auc_predator_win=float(win.mean()),
+                      mean_reward_predator=float(series["reward_predator"].sum() / run.budget),
                       mean_reward_prey=float(series["reward_prey"].sum() / run.budget),
                       final_ma_predator_win=float(series["predator_win"][-WINDOW:].mean()),
                       win_vs_trained_prey=held_out["predator_win"],

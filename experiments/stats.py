@@ -13,8 +13,9 @@ import numpy as np
 from scipy import stats
 
 RATES = ("held_out_coverage", "held_out_success", "auc_coverage", "final_ma_coverage", "final_ma_success",
-         "final_ma_predator_win", "win_vs_trained_prey", "win_vs_random_prey")  # measures in [0, 1]
-TIMES = ("episodes_to_50", "episodes_to_90")  # censored at the run's budget when never reached (None)
+         "final_ma_predator_win", "win_vs_trained_prey", "win_vs_random_prey", "auc_predator_win")  # measures in [0, 1]
+# censored at the run's budget when never reached (None)
+TIMES = ("episodes_to_50", "episodes_to_90", "episodes_to_win_50", "episodes_to_win_90")
 BOOTSTRAP = 10_000
 
 
