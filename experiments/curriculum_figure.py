@@ -1,7 +1,8 @@
 """The curriculum grids' figure: what each arm learned and how it sampled, over training, from the runs' summaries.
 
 Three panels per grid (x: episodes), each a mean over an arm's seeds with a 95% t band:
-(a) the training coverage (final-step landmark cover rate, 100-episode windows);
+(a) the training coverage (final-step landmark cover rate, 100-episode windows); on predator-prey the predators' win
+    (share of episodes with a capture);
 (b) the ESS of the sampling distribution as a fraction of the buffer (1 = uniform);
 (c) the share of reward-bearing rows in the sampled minibatches divided by their share in the buffer (log axis;
     1 = as in the buffer, below 1 = the sampler avoids them).
@@ -68,7 +69,7 @@ def episode_lambda_reaches(runs: list[dict[str, Any]], level: float) -> float | 
 
 def curriculum_figure(runs: list[dict[str, Any]], task: str, path: Path) -> Path:
     """Draw the three panels for the finished runs of one curriculum grid (summaries with `arm`,
-    `curves.coverage` and `sampling_curve`) into `path`; returns it."""
+    `curves.coverage` (predator-prey: `curves.predator_win`) and `sampling_curve`) into `path`; returns it."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -76,13 +77,15 @@ def curriculum_figure(runs: list[dict[str, Any]], task: str, path: Path) -> Path
 
     path.parent.mkdir(parents=True, exist_ok=True)
     budget = max(r["budget"] for r in runs)
+    predator_prey = runs[0].get("task") == "tag"
+    curve = "predator_win" if predator_prey else "coverage"
     x = np.arange(SAMPLING_STEP, budget + 1, SAMPLING_STEP, dtype=np.float64)
     fig, axes = plt.subplots(1, 3, figsize=(17, 4.6))
     for arm in ARM_ORDER:
         rs = [r for r in runs if r.get("arm") == arm and r.get("sampling_curve")]
         if not rs:
             continue
-        band(axes[0], [r["curves"]["coverage"] for r in rs], ARM_COLOUR[arm], ARM_LABEL[arm])
+        band(axes[0], [r["curves"][curve] for r in rs], ARM_COLOUR[arm], ARM_LABEL[arm])
         sampling_band(axes[1], x, [on_grid(r, x, "ess") for r in rs], ARM_COLOUR[arm])
         sampling_band(axes[2], x, [reward_row_ratio(r, x) for r in rs], ARM_COLOUR[arm])
     no_exclusion = episode_lambda_reaches(runs, 0.5)
@@ -90,8 +93,12 @@ def curriculum_figure(runs: list[dict[str, Any]], task: str, path: Path) -> Path
         if no_exclusion is not None:
             ax.axvline(no_exclusion, color="grey", linestyle=":", linewidth=1)
         ax.set_xlabel("episode")
-    axes[0].set(ylabel="final-step landmark cover rate (100-episode windows)", ylim=(0, 1.02),
-                title="(a) training coverage")
+    if predator_prey:
+        axes[0].set(ylabel="episodes with a capture (100-episode windows)", ylim=(0, 1.02),
+                    title="(a) training predator win")
+    else:
+        axes[0].set(ylabel="final-step landmark cover rate (100-episode windows)", ylim=(0, 1.02),
+                    title="(a) training coverage")
     axes[0].legend(loc="lower right", fontsize=7)
     axes[1].set(ylabel="ESS / buffer rows (1 = uniform)", ylim=(0, 1.02),
                 title="(b) effective sample size of the sampling")

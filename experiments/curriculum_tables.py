@@ -1,9 +1,11 @@
 """The tables of the curriculum grids (issue 21; the protocol of docs/RESULTS.md): per arm the learning measures,
 the stalls and the sampling distribution over training; then the pre-registered tests, one primary comparison
-unadjusted and every other one Holm-corrected."""
+unadjusted and every other one Holm-corrected. Navigation grids are measured on coverage, the predator-prey grid on
+the predators' win (an episode with a capture): TaskMeasures names the fields of each."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -12,31 +14,69 @@ from experiments.grids import CURRICULUM_ARMS
 from experiments.labels import ARM_LABEL
 from experiments.stats import TIMES, difference, fmt, fmt_time, holm, logrank_p, spread
 
-PRIMARY = ("cmcl", "maddpg", "auc_coverage")  # the pre-registered primary comparison (docs/RESULTS.md, protocol)
-SECONDARY = [("cmcl", "per", "auc_coverage"), ("cmcl", "acl", "auc_coverage"), ("cmcl", "cmcl_permuted",
-             "auc_coverage"), ("cmcl", "cmcl_anti", "auc_coverage"), ("acl", "maddpg", "auc_coverage"),
-             ("per", "maddpg", "auc_coverage"), ("cmcl", "maddpg", "held_out_success"),
-             ("cmcl", "maddpg", "episodes_to_90")]  # Holm-corrected together
 STALL = (0.65, 0.85)  # final MA coverage of a run stuck at about three landmarks of four (issue 21)
 
 
+@dataclass(frozen=True)
+class TaskMeasures:
+    """The summary fields a curriculum grid's tables read on one task. area: the area under the training curve, the
+    primary comparison's measure (in [0, 1]); held_out: the held-out rate tested; time: the censored episodes to the
+    curve's moving average 0.9; columns: (header, field, digits) of the per-arm table; stalls: whether the table
+    counts runs stalled at about three landmarks of four (navigation only)."""
+
+    area: str
+    held_out: str
+    time: str
+    columns: tuple[tuple[str, str, int], ...]
+    stalls: bool
+
+    def comparisons(self) -> list[tuple[str, str, str]]:
+        """(arm, arm, field) of the protocol's tests: the primary comparison first (CMCL against MADDPG on the area),
+        then the ones Holm-corrected together."""
+        return [("cmcl", "maddpg", self.area), ("cmcl", "per", self.area), ("cmcl", "acl", self.area),
+                ("cmcl", "cmcl_permuted", self.area), ("cmcl", "cmcl_anti", self.area), ("acl", "maddpg", self.area),
+                ("per", "maddpg", self.area), ("cmcl", "maddpg", self.held_out), ("cmcl", "maddpg", self.time)]
+
+
+NAVIGATION = TaskMeasures("auc_coverage", "held_out_success", "episodes_to_90",
+                          (("area under coverage", "auc_coverage", 3), ("held-out coverage", "held_out_coverage", 3),
+                           ("held-out success", "held_out_success", 3), ("episodes to MA 0.9", "episodes_to_90", 0)),
+                          stalls=True)
+# held-out against random prey: every run trains its own prey, so a win against "its trained prey" is against a
+# different opponent in each run
+PREDATOR_PREY = TaskMeasures("auc_predator_win", "win_vs_random_prey", "episodes_to_win_90",
+                             (("area under predator win", "auc_predator_win", 3),
+                              ("final MA win", "final_ma_predator_win", 3),
+                              ("held-out win vs random prey", "win_vs_random_prey", 3),
+                              ("held-out win vs its trained prey", "win_vs_trained_prey", 3),
+                              ("episodes to MA win 0.9", "episodes_to_win_90", 0)), stalls=False)
+
+
+def task_measures(runs: list[dict[str, Any]]) -> TaskMeasures:
+    """The measures of the grid these runs belong to (one task per grid)."""
+    return PREDATOR_PREY if runs and runs[0].get("task") == "tag" else NAVIGATION
+
+
 def curriculum_table(runs: list[dict[str, Any]]) -> str:
-    """The curriculum grid per arm: learning measures, stalls, and the sampling distribution over training."""
-    keys = [("area under coverage", "auc_coverage", 3), ("held-out coverage", "held_out_coverage", 3),
-            ("held-out success", "held_out_success", 3), ("episodes to MA 0.9", "episodes_to_90", 0)]
-    lines = ["| arm | seeds | " + " | ".join(k[0] for k in keys) + " | stalled at ~3 of 4 | ESS over training | "
+    """The curriculum grid per arm: learning measures, stalls (navigation), and the sampling distribution over
+    training."""
+    measures = task_measures(runs)
+    keys = measures.columns
+    stall_header = " stalled at ~3 of 4 |" if measures.stalls else ""
+    lines = ["| arm | seeds | " + " | ".join(k[0] for k in keys) + f" |{stall_header} ESS over training | "
              "ESS, first quarter | reward-bearing rows, first quarter: sampled / buffer | wall s, mean (min..max) |",
-             "| --- " * (len(keys) + 7) + "|"]
+             "| --- " * (len(keys) + 6 + measures.stalls) + "|"]
     for arm in CURRICULUM_ARMS:
         rs = sorted((r for r in runs if r.get("arm") == arm), key=lambda r: r["seed"])
         if not rs:
             continue
-        stalled = sum(STALL[0] <= r["final_ma_coverage"] <= STALL[1] for r in rs)
+        stalled = f" {sum(STALL[0] <= r['final_ma_coverage'] <= STALL[1] for r in rs)}/{len(rs)} |" \
+            if measures.stalls else ""
         sampled, buffer = (np.mean([first_quarter(r, k) for r in rs]) for k in ("reward_rows_sampled",
                                                                                  "reward_rows_buffer"))
         lines.append(f"| {ARM_LABEL[arm]} | {len(rs)} | " + " | ".join(fmt([r.get(k) for r in rs], d, k)
                                                                    for _, k, d in keys)
-                     + f" | {stalled}/{len(rs)} | {fmt([r['ess_mean'] for r in rs], 2, 'auc_coverage')} | "
+                     + f" |{stalled} {fmt([r['ess_mean'] for r in rs], 2, 'auc_coverage')} | "
                      f"{fmt([r['ess_first_quarter'] for r in rs], 2, 'auc_coverage')} | {sampled:.3f} / {buffer:.3f} | "
                      f"{spread([r['wall_s'] for r in rs])} |")  # seconds are skewed by load: no t interval
     return "\n".join(lines)
@@ -55,7 +95,7 @@ def curriculum_tests(runs: list[dict[str, Any]]) -> str:
     KM medians and a log-rank test."""
     by_arm = {arm: [r for r in runs if r.get("arm") == arm] for arm in CURRICULUM_ARMS}
     rows, pvalues = [], []
-    for a, b, key in [PRIMARY, *SECONDARY]:
+    for a, b, key in task_measures(runs).comparisons():
         ra, rb = by_arm[a], by_arm[b]
         if len(ra) < 2 or len(rb) < 2:
             rows.append((a, b, key, "n/a (fewer than 2 runs)", None))

@@ -6,8 +6,10 @@ the text between them (a block whose markers the page lacks is only printed):
 * spread, seeds, tests: the spread grid (bench/results/reproduce); ablations: the ablations grid against the
   unchanged CMCL runs; tag, tagtests: the tag and winrate grids;
 * curriculum, curriculumtests, curriculumstalls: the curriculum grid (bench/results/curriculum); curriculumhard,
-  curriculumhardtests, curriculumhardstalls: the curriculum_hard grid (bench/results/curriculum_hard); "no runs
-  yet" while a curriculum grid has no summary; the stalls blocks from `python -m experiments stalls FOLDER`;
+  curriculumhardtests, curriculumhardstalls: the curriculum_hard grid (bench/results/curriculum_hard);
+  curriculumtag, curriculumtagtests: the curriculum_tag grid (bench/results/curriculum_tag; predator-prey has no
+  stall analysis); "no runs yet" while a curriculum grid has no summary; the stalls blocks from
+  `python -m experiments stalls FOLDER`;
 * timetosolve: the schedule and algorithms grids (bench/results/time_to_solve), printed only;
 * ownenvs: the own_envs grid (bench/results/own_envs), each environment against the random policy.
 """
@@ -36,7 +38,8 @@ from experiments.tables import (
 NO_RUNS = "no runs yet"
 CURRICULUM_BLOCKS = {"curriculum": ("curriculum", "curriculumtests", "curriculumstalls", "curriculumearly"),
                      "curriculum_hard": ("curriculumhard", "curriculumhardtests", "curriculumhardstalls",
-                                         "curriculumhardearly")}  # grid -> its blocks
+                                         "curriculumhardearly"),
+                     "curriculum_tag": ("curriculumtag", "curriculumtagtests", None, None)}  # grid -> its blocks
 
 
 def folders(results: Path | None = None) -> dict[str, Path]:
@@ -61,8 +64,9 @@ def blocks(results: Path | None = None) -> dict[str, str]:
         curriculum = ResultsStore(where[grid_name]).load()
         out[table], out[tests] = (curriculum_table(curriculum), curriculum_tests(curriculum)) if curriculum \
             else (NO_RUNS, NO_RUNS)
-        records = load_stalls(where[grid_name])
-        out[stalls], out[early] = stall_table(records, ARM_LABEL), early_learner_table(records, ARM_LABEL)
+        if stalls is not None:
+            records = load_stalls(where[grid_name])
+            out[stalls], out[early] = stall_table(records, ARM_LABEL), early_learner_table(records, ARM_LABEL)
     solve = ResultsStore(where["schedule"]).load()
     if solve:
         out["timetosolve"] = solve_table(solve)
@@ -72,7 +76,8 @@ def blocks(results: Path | None = None) -> dict[str, str]:
 
 
 CURRICULUM_TASKS = {"curriculum": "Sparse navigation N=4",  # grid -> the task named in its figure's title
-                    "curriculum_hard": "Harder sparse navigation N=4 (cover radius 0.075)"}
+                    "curriculum_hard": "Harder sparse navigation N=4 (cover radius 0.075)",
+                    "curriculum_tag": "Sparse predator-prey, each arm's predators against MADDPG prey"}
 
 
 def figures(results: Path | None = None) -> list[Path]:

@@ -67,6 +67,28 @@ def test_curriculum_grid_interleaves_arms_by_seed_and_only_the_controls_differ()
     assert hard["cmcl_anti"].sets[1:] == ("teams.agent.algorithm=cmcl", "teachers.difficulty_transform=reversed")
 
 
+def test_the_predator_prey_curriculum_grid_trains_each_arm_as_predators_against_maddpg_prey():
+    tag = {r.arm: r for r in grid(["curriculum_tag"], [3], [])}
+    assert list(tag) == ["maddpg", "per", "acl", "cmcl", "cmcl_permuted", "cmcl_anti"]
+    assert all(r.task == "tag" and r.prey_algorithm == "maddpg" and r.seed == 3 for r in tag.values())
+    assert tag["per"].config == "tag_per.toml" and tag["per"].sets == ("run.log_every=200",)
+    assert tag["cmcl_permuted"].config == "tag_cmcl.toml"
+    assert tag["cmcl_permuted"].sets[1:] == ("teachers.difficulty_transform=permuted",)
+    assert tag["cmcl_anti"].id == "curriculum_tag_cmcl_anti_s3"
+
+
+def test_a_predator_prey_summary_has_the_area_under_the_win_curve_and_the_censored_times(tmp_path):
+    path = tmp_path / "curriculum_tag_cmcl_s0"
+    config = make_tiny_config("cmcl", "tag", sections=INLINE_SECTIONS, dir=str(path))
+    InlineLoop(config, RunDirectory.create(path, config), progress=None).run()
+    run = grid(["curriculum_tag"], [0], [])[3]
+    s = summarise(replace(run, budget=config.run.episodes), path)
+    wins = [r["predator_win"] for r in RunDirectory.open(path).rows("episode")]
+    assert s["auc_predator_win"] == pytest.approx(np.mean(wins))
+    assert s["episodes_to_win_90"] is None  # fewer episodes than the moving average's window: never reached
+    assert 0 <= s["win_vs_random_prey"] <= 1 and s["sampling_curve"]["episode"]
+
+
 def test_a_summary_holds_the_sampling_distribution_over_training(finished_run):
     s = summarise(Run("spread_cmcl_s0", "spread", "spread", "cmcl", None, 0, 12), finished_run)
     curve = s["sampling_curve"]
@@ -86,8 +108,8 @@ def test_a_summary_starts_with_the_fields_the_committed_summaries_have(finished_
 
 
 def test_every_grid_has_a_results_folder_and_the_time_to_solve_grids_stop_early():
-    assert set(GRIDS) == {"spread", "tag", "winrate", "ablations", "curriculum", "curriculum_hard", "schedule",
-                          "algorithms", "own_envs", "scale"}
+    assert set(GRIDS) == {"spread", "tag", "winrate", "ablations", "curriculum", "curriculum_hard", "curriculum_tag",
+                          "schedule", "algorithms", "own_envs", "scale"}
     schedule = grid(["schedule"], [0])
     assert len(schedule) == 8 and all(r.stop_coverage == 0.95 and r.max_seconds == 900 for r in schedule)
     assert {r.mode for r in grid(["algorithms"], [0])} == {"inline", "service"}

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from experiments.curriculum_tables import curriculum_tests
+from experiments.curriculum_tables import curriculum_table, curriculum_tests
 from experiments.stats import bootstrap_ci, fmt, holm, km_median, logrank_p, mean_ci, paired
 from experiments.tables import ablation_table
 
@@ -110,6 +110,25 @@ def test_curriculum_tests_put_the_primary_comparison_first_and_holm_correct_the_
     lines = curriculum_tests(runs).splitlines()[2:]
     assert lines[0].startswith("| CMCL − MADDPG | auc_coverage | 5 vs 5 | +0.") and lines[0].endswith("| primary |")
     assert len(lines) == 9 and all(line.split(" | ")[-1].strip(" |") for line in lines[1:])
+
+
+def test_predator_prey_curriculum_tables_test_the_win_curve_and_count_no_stalls():
+    rng = np.random.default_rng(1)
+    runs = [{"arm": arm, "seed": s, "budget": 100, "task": "tag", "auc_predator_win": base + rng.normal(0, 0.01),
+             "final_ma_predator_win": 0.9, "win_vs_random_prey": 0.9 + rng.normal(0, 0.01),
+             "win_vs_trained_prey": 0.8, "episodes_to_win_90": None if s == 0 else 60 + s, "ess_mean": 0.8,
+             "ess_first_quarter": 0.5, "wall_s": 10.0,
+             "sampling_curve": {"episode": [20, 100], "reward_rows_sampled": [0.1, 0.2],
+                                "reward_rows_buffer": [0.1, 0.2]}}
+            for arm, base in (("maddpg", 0.60), ("per", 0.6), ("acl", 0.6), ("cmcl", 0.5), ("cmcl_permuted", 0.6),
+                              ("cmcl_anti", 0.6)) for s in range(4)]
+    lines = curriculum_tests(runs).splitlines()[2:]
+    assert lines[0].startswith("| CMCL − MADDPG | auc_predator_win | 4 vs 4 | -0.") and lines[0].endswith("| primary |")
+    assert [line.split(" | ")[1] for line in lines[-2:]] == ["win_vs_random_prey", "episodes_to_win_90"]
+    assert "KM median" in lines[-1] and "(3/4 reached)" in lines[-1]
+    table = curriculum_table(runs).splitlines()
+    assert "stalled" not in table[0] and "area under predator win" in table[0]
+    assert all(line.count("|") == table[0].count("|") for line in table)
 
 
 def test_the_report_of_the_committed_results_is_the_page_as_committed(tmp_path):
