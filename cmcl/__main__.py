@@ -1,7 +1,7 @@
 """One entry point for both runners: `python -m cmcl train | resume | evaluate`.
 
     python -m cmcl train [--runner service|inline] [--config F] [--set section.key=value ...] [--overwrite]
-    python -m cmcl resume RUN_DIR [--set run.episodes=N ...]        (the runner that wrote RUN_DIR, by default)
+    python -m cmcl resume RUN_DIR [--more-episodes N] [--set ...]  (the runner that wrote RUN_DIR, by default)
     python -m cmcl evaluate RUN_DIR [--episodes 100] [--checkpoint PATH] [--random] [--no-gif]
     python -m cmcl stages --agents 2 4 8 [--stage-episodes E E E] [train's flags]   (cmcl/agent_stages.py)
 

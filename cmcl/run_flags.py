@@ -42,10 +42,12 @@ class RunRequest:
 
     runner: which runner trains; config_file: TOML experiment file (None: built-in CMCL defaults; ignored on resume);
     overrides: "section.key=value" strings, in order; resume_dir: the run to continue (None: a new run in run.dir);
-    overwrite: start over in a run.dir that holds a run; quiet: no progress lines; no_eval: no evaluation, GIF or
-    learning curve at the end. Service only: address (Ray cluster to join, None: embedded Ray), num_cpus (CPUs of
-    the embedded Ray, None: all), ray_metrics_port (port of the embedded Ray's own metrics). metrics_port /
-    metrics_host become `service.metrics_port` / `service.metrics_host` overrides (`config_overrides`).
+    overwrite: start over in a run.dir that holds a run; more_episodes: on resume, train this many episodes past
+    those the run has done (run.episodes becomes their sum; a default λ schedule keeps its stride); quiet: no
+    progress lines; no_eval: no evaluation, GIF or learning curve at the end. Service only: address (Ray cluster to
+    join, None: embedded Ray), num_cpus (CPUs of the embedded Ray, None: all), ray_metrics_port (port of the
+    embedded Ray's own metrics). metrics_port / metrics_host become `service.metrics_port` /
+    `service.metrics_host` overrides (`config_overrides`).
     """
 
     runner: Runner
@@ -53,6 +55,7 @@ class RunRequest:
     overrides: tuple[str, ...] = ()
     resume_dir: str | None = None
     overwrite: bool = False
+    more_episodes: int = 0
     quiet: bool = False
     no_eval: bool = False
     address: str | None = None
@@ -64,6 +67,11 @@ class RunRequest:
     def __post_init__(self) -> None:
         if self.runner not in RUNNERS:
             raise RunRequestError(f"--runner must be one of {', '.join(RUNNERS)}, got {self.runner!r}")
+        if self.more_episodes < 0:
+            raise RunRequestError(f"--more-episodes must be >= 0, got {self.more_episodes}")
+        if self.more_episodes and not self.resume_dir:
+            raise RunRequestError(f"--more-episodes {self.more_episodes} trains a run further: give the run "
+                                  "(python -m cmcl resume RUN_DIR --more-episodes N)")
         if self.runner == "inline":
             for field, flag in SERVICE_ONLY_FLAGS.items():
                 if getattr(self, field) is not None:
@@ -112,7 +120,7 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
             if written_by and request.runner not in written_by:
                 raise ResumeMismatch(f"{request.resume_dir} was written by the {' and '.join(sorted(written_by))} "
                                      f"runner; resume it with {resume_command(request.resume_dir)}")
-            return run_dir.config(overrides), run_dir, lock
+            return resumed_config(run_dir, overrides, request), run_dir, lock
         except BaseException:
             lock.release()
             raise
@@ -127,6 +135,26 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
     except BaseException:
         lock.release()
         raise
+
+
+def resumed_config(run_dir: RunDirectory, overrides: tuple[str, ...], request: RunRequest) -> Config:
+    """The resumed run's config: its config.toml with `overrides`, and with `request.more_episodes` > 0
+    run.episodes set to the episodes done (its last episode row's) plus those, the λ stride pinned first when it was
+    derived from the old budget (curriculum.stride = 0), so that λ goes on along the schedule it had. A run whose
+    episodes are all done, resumed without more, is said so on stderr (it then only evaluates)."""
+    config = run_dir.config(overrides)
+    done = max((int(row["episodes"]) for row in run_dir.rows("episode")), default=0)
+    if request.more_episodes:
+        stride = config.curriculum.stride or config.curriculum_stride()
+        total = done + request.more_episodes
+        config = run_dir.config((*overrides, f"curriculum.stride={stride!r}", f"run.episodes={total}"))
+        if not request.quiet:
+            print(f"run.episodes: {total} ({request.more_episodes} more than the {done} done); "
+                  f"λ stride {stride:.4g} per env step")
+    elif done >= config.run.episodes:
+        print(f"note: {run_dir.path} has done all its run.episodes = {config.run.episodes}: nothing to train. To "
+              f"train further: {resume_command(run_dir.path)} --more-episodes N", file=sys.stderr)
+    return config
 
 
 def check_warm_start(config: Config) -> None:
@@ -165,6 +193,8 @@ def add_run_flags(parser: argparse.ArgumentParser, *, new_run: bool = True) -> N
                         help="override one config value (repeatable)")
     if new_run:
         parser.add_argument("--overwrite", action="store_true", help="start over in a run.dir that holds a run")
+    else:
+        add_more_episodes_flag(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
     parser.add_argument("--no-eval", action="store_true",
                         help="skip the held-out evaluation, the GIF and the learning curve at the end")
@@ -185,14 +215,23 @@ def alias_parser(prog: str, description: str) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=prog, description=description)
     add_run_flags(parser)
     parser.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its newest checkpoint")
+    add_more_episodes_flag(parser)
     return parser
+
+
+def add_more_episodes_flag(parser: argparse.ArgumentParser) -> None:
+    """`--more-episodes N` of a resume: train N episodes past those the run has done."""
+    parser.add_argument("--more-episodes", type=int, default=0, metavar="N",
+                        help="resume only: train N episodes past those the run has done (run.episodes grows; "
+                             "the λ schedule keeps its stride)")
 
 
 def request_from(args: argparse.Namespace, runner: str, resume_dir: str | None = None) -> RunRequest:
     """The `RunRequest` of a parsed namespace (from `add_run_flags`, plus `--resume` on the aliases)."""
     return RunRequest(runner=runner, config_file=getattr(args, "config", None), overrides=tuple(args.overrides),
                       resume_dir=resume_dir or getattr(args, "resume", None),
-                      overwrite=getattr(args, "overwrite", False), quiet=args.quiet, no_eval=args.no_eval,
+                      overwrite=getattr(args, "overwrite", False),
+                      more_episodes=getattr(args, "more_episodes", 0), quiet=args.quiet, no_eval=args.no_eval,
                       address=args.address, num_cpus=args.num_cpus, metrics_port=args.metrics_port,
                       metrics_host=args.metrics_host, ray_metrics_port=args.ray_metrics_port)
 

@@ -79,10 +79,10 @@ def test_the_training_commands_have_one_set_of_flags_and_make_the_same_request()
     train, resume = verbs()["train"], verbs()["resume"]
     aliases = {"cmcl.loop": loop_alias_parser(), "services.launch": launch_alias_parser()}
     for name, alias in aliases.items():
-        assert options(alias) == options(train) - {"--runner"} | {"--resume"}, name
-    assert options(resume) == options(train) - {"--config", "--overwrite"}
+        assert options(alias) == options(train) - {"--runner"} | {"--resume", "--more-episodes"}, name
+    assert options(resume) == options(train) - {"--config", "--overwrite"} | {"--more-episodes"}
 
-    argv = one_value_each(train, skip={"--runner"})
+    argv = one_value_each(train, skip={"--runner", "--more-episodes"})
     expected = request_from(train.parse_args(["--runner", "service", *argv]), "service")
     assert expected.overrides == ("run.episodes=3", "run.seed=5") and expected.address == "value-of--address"
     for name, alias in aliases.items():
@@ -90,7 +90,7 @@ def test_the_training_commands_have_one_set_of_flags_and_make_the_same_request()
 
     argv = one_value_each(resume, skip={"--runner"})
     expected = request_from(resume.parse_args(["runs/x", *argv]), "service", resume_dir="runs/x")
-    assert expected.resume_dir == "runs/x" and expected.num_cpus == 7
+    assert expected.resume_dir == "runs/x" and expected.num_cpus == 7 and expected.more_episodes == 7
     for name, alias in aliases.items():
         assert request_from(alias.parse_args(["--resume", "runs/x", *argv]), "service") == expected, name
 
@@ -125,6 +125,37 @@ def test_resume_finds_the_runner_that_wrote_the_run_and_goes_on(tmp_path, tiny_c
     assert [r["episodes"] for r in run_dir.rows("episode")] == list(range(1, 9))
     assert run_dir.summary()["runner"] == "inline" and run_dir.summary()["episodes"] == 8
     assert not (run_dir.path / "learning_curve.png").exists(), "--no-eval: no learning curve"
+
+
+def test_a_finished_run_is_said_so_on_resume_and_more_episodes_train_it_further(tmp_path, tiny_config):
+    """A run that ended at its budget, resumed as it is, only evaluates and says how to train further; with
+    --more-episodes N it trains N episodes past those it did, its derived λ stride unchanged."""
+    run_dir = trained_run(tiny_config, tmp_path / "run")
+    checkpoints = sorted(run_dir.inline_checkpoints())
+    again = run_cli("resume", str(run_dir.path), "--quiet", "--no-eval")
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert "has done all its run.episodes = 4: nothing to train" in again.stderr
+    assert f"-m cmcl resume {run_dir.path} --more-episodes N" in again.stderr
+    assert [r["episodes"] for r in run_dir.rows("episode")] == [1, 2, 3, 4]
+    assert sorted(run_dir.inline_checkpoints()) == checkpoints == [4]
+
+    stride = run_dir.config().curriculum_stride()
+    more = run_cli("resume", str(run_dir.path), "--more-episodes", "4", "--no-eval")
+    assert more.returncode == 0, more.stdout + more.stderr
+    assert f"run.episodes: 8 (4 more than the 4 done); λ stride {stride:.4g} per env step" in more.stdout
+    assert [r["episodes"] for r in run_dir.rows("episode")] == list(range(1, 9))
+    assert run_dir.summary()["episodes"] == 8
+
+
+@pytest.mark.parametrize(("request_args", "named"), [
+    ({"resume_dir": "runs/x", "more_episodes": -1}, "--more-episodes must be >= 0, got -1"),
+    ({"more_episodes": 5}, "--more-episodes 5 trains a run further: give the run"),
+])
+def test_more_episodes_is_refused_negative_or_without_a_run(request_args, named):
+    from cmcl.run_flags import RunRequestError
+
+    with pytest.raises(RunRequestError, match=named):
+        RunRequest(runner="inline", **request_args)
 
 
 def test_evaluate_finds_the_newest_policy(tmp_path, tiny_config):

@@ -198,6 +198,14 @@ def test_make_run_ends_with_the_held_out_evaluation_and_a_gif_and_evaluate_finds
     assert evaluated.returncode == 0, evaluated.stderr
     result = evaluation_json(evaluated.stdout)
     assert Path(result["checkpoint"]).name.startswith("learner-") and result["episodes"] == 20
+    # the README's `make resume` on a run that ended at its episode budget: it trains RESUME_EPISODES more
+    done = json.loads((run_dir / "summary.json").read_text())["episodes_logged"]
+    resumed = Launched(["make", "-s", "resume", f"RUN_DIR={run_dir}", "RESUME_EPISODES=32",
+                        "RUN_ARGS=--metrics-port 0 --no-eval"])
+    assert resumed.finish() == 0, resumed.text
+    assert f"run.episodes: {done + 32} (32 more than the {done} done)" in resumed.text, resumed.text
+    assert json.loads((run_dir / "summary.json").read_text())["episodes_logged"] >= done + 32
+    assert not alive(resumed.seen), f"processes left behind: {alive(resumed.seen)}"
 
 
 def test_make_run_stopped_by_ctrl_c_a_second_launcher_refused_and_the_printed_command_resumes_the_policy(tmp_path):
