@@ -140,11 +140,16 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
 def resumed_config(run_dir: RunDirectory, overrides: tuple[str, ...], request: RunRequest) -> Config:
     """The resumed run's config: its config.toml with `overrides`, and with `request.more_episodes` > 0
     run.episodes set to the episodes done (its last episode row's) plus those, the λ stride pinned first when it was
-    derived from the old budget (curriculum.stride = 0), so that λ goes on along the schedule it had. A run whose
-    episodes are all done, resumed without more, is said so on stderr (it then only evaluates)."""
+    derived from the old budget (curriculum.stride = 0), so that λ goes on along the schedule it had (a multiplicative
+    schedule, whose growth has no setting, is refused: ConfigError). A run whose episodes are all done, resumed
+    without more, is said so on stderr (it then only evaluates)."""
     config = run_dir.config(overrides)
     done = max((int(row["episodes"]) for row in run_dir.rows("episode")), default=0)
     if request.more_episodes:
+        if config.curriculum.kind != "linear":  # its growth per step is derived from run.episodes, with no setting
+            raise ConfigError(f"--more-episodes {request.more_episodes}: curriculum.kind = "
+                              f"{config.curriculum.kind!r} derives λ's growth from run.episodes, so λ would jump; "
+                              "only the linear kind keeps its schedule")
         stride = config.curriculum.stride or config.curriculum_stride()
         total = done + request.more_episodes
         config = run_dir.config((*overrides, f"curriculum.stride={stride!r}", f"run.episodes={total}"))

@@ -127,9 +127,10 @@ def test_resume_finds_the_runner_that_wrote_the_run_and_goes_on(tmp_path, tiny_c
     assert not (run_dir.path / "learning_curve.png").exists(), "--no-eval: no learning curve"
 
 
-def test_a_finished_run_is_said_so_on_resume_and_more_episodes_train_it_further(tmp_path, tiny_config):
+def test_a_finished_run_is_said_so_on_resume_and_more_episodes_train_it_further(tmp_path, tiny_config, capsys):
     """A run that ended at its budget, resumed as it is, only evaluates and says how to train further; with
-    --more-episodes N it trains N episodes past those it did, its derived λ stride unchanged."""
+    --more-episodes N it trains N episodes past those it did, its derived λ stride unchanged; a multiplicative λ
+    schedule, whose growth follows run.episodes, is refused naming it, the run untouched."""
     run_dir = trained_run(tiny_config, tmp_path / "run")
     checkpoints = sorted(run_dir.inline_checkpoints())
     again = run_cli("resume", str(run_dir.path), "--quiet", "--no-eval")
@@ -145,6 +146,13 @@ def test_a_finished_run_is_said_so_on_resume_and_more_episodes_train_it_further(
     assert f"run.episodes: 8 (4 more than the 4 done); λ stride {stride:.4g} per env step" in more.stdout
     assert [r["episodes"] for r in run_dir.rows("episode")] == list(range(1, 9))
     assert run_dir.summary()["episodes"] == 8
+
+    checkpoints = sorted(run_dir.inline_checkpoints())
+    assert main(["resume", str(run_dir.path), "--more-episodes", "4", "--set", "curriculum.kind=multiplicative",
+                 "--quiet", "--no-eval"]) == 2
+    assert "--more-episodes 4: curriculum.kind = 'multiplicative' derives λ's growth from run.episodes" in \
+        capsys.readouterr().err
+    assert sorted(run_dir.inline_checkpoints()) == checkpoints and run_dir.summary()["episodes"] == 8
 
 
 @pytest.mark.parametrize(("request_args", "named"), [
