@@ -33,6 +33,18 @@ def first_reaching(coverage: np.ndarray, target: float) -> int | None:
     return int(hit[0]) + WINDOW - 1 if hit.size else None
 
 
+def times_to_targets(curve: np.ndarray, elapsed: np.ndarray, prefix: str) -> dict[str, int | float | None]:
+    """Episodes and seconds until the curve's moving average first reaches each of TARGETS: {"episodes_to_<prefix>50",
+    "seconds_to_<prefix>50", ...}, None where never. curve, elapsed: float[T], one per episode."""
+    out: dict[str, int | float | None] = {}
+    for target in TARGETS:
+        i = first_reaching(curve, target)
+        tag = f"{prefix}{int(target * 100)}"
+        out[f"episodes_to_{tag}"] = None if i is None else i + 1
+        out[f"seconds_to_{tag}"] = None if i is None else float(elapsed[i])
+    return out
+
+
 def window_curves(series: dict[str, np.ndarray]) -> dict[str, list[float]]:
     """Means over consecutive WINDOW-episode windows of every per-episode column: {name: [T // WINDOW]}."""
     n = series["episode"].size // WINDOW * WINDOW
@@ -71,11 +83,7 @@ def summarise(run: Run, run_path: Path, upto: int | None = None) -> dict[str, An
         result.update(own_env_measures(config, policy, series, held_out, HELD_OUT, run.seed))
     elif run.task == "spread":
         coverage = series["coverage"]
-        for target in TARGETS:
-            i = first_reaching(coverage, target)
-            tag = f"{int(target * 100)}"
-            result[f"episodes_to_{tag}"] = None if i is None else i + 1
-            result[f"seconds_to_{tag}"] = None if i is None else float(elapsed[i])
+        result.update(times_to_targets(coverage, elapsed, ""))
         result.update(auc_coverage=float(coverage.mean()), final_ma_coverage=float(coverage[-WINDOW:].mean()),
                       final_ma_success=float(series["success"][-WINDOW:].mean()),
                       mean_reward=float(series["reward_agent"].sum() / run.budget),  # Fig. 9's definition (§6.3)
@@ -83,11 +91,7 @@ def summarise(run: Run, run_path: Path, upto: int | None = None) -> dict[str, An
                       held_out_collisions=held_out["collisions"], held_out_wall_hits=held_out["wall_hits"])
     else:  # predator-prey: the predators' capture rate ("win") stands where navigation has coverage
         win = series["predator_win"]
-        for target in TARGETS:
-            i = first_reaching(win, target)
-            tag = f"win_{int(target * 100)}"
-            result[f"episodes_to_{tag}"] = None if i is None else i + 1
-            result[f"seconds_to_{tag}"] = None if i is None else float(elapsed[i])
+        result.update(times_to_targets(win, elapsed, "win_"))
         result.update(auc_predator_win=float(win.mean()),
                       mean_reward_predator=float(series["reward_predator"].sum() / run.budget),
                       mean_reward_prey=float(series["reward_prey"].sum() / run.budget),
