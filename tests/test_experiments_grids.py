@@ -9,7 +9,7 @@ import pytest
 
 from cmcl.io.rundir import RunDirectory
 from cmcl.loop import InlineLoop
-from experiments.grids import ABLATIONS, GRIDS, Run, grid, prefix_reference_runs
+from experiments.grids import ABLATIONS, GRIDS, ROOT, Run, grid, prefix_reference_runs
 from experiments.measures import summarise
 from tests.test_loop import INLINE_SECTIONS
 from tests.tiny import make_tiny_config
@@ -77,6 +77,18 @@ def test_the_predator_prey_curriculum_grid_trains_each_arm_as_predators_against_
     assert tag["cmcl_anti"].id == "curriculum_tag_cmcl_anti_s3"
 
 
+def test_the_stride_grid_runs_cmcl_on_the_harder_task_at_twice_and_half_the_default_stride():
+    from cmcl.config import load_config
+
+    runs = grid(["curriculum_stride"], [0, 1], [])
+    assert [r.id for r in runs] == [f"curriculum_stride_cmcl_stride_{k}_s{s}" for s in (0, 1) for k in ("x2", "half")]
+    assert all(r.config == "spread_hard.toml" and r.algorithm == "cmcl" and r.task == "spread" for r in runs)
+    default = load_config(ROOT / "configs" / "spread_hard.toml").curriculum_stride()
+    for r in runs[:2]:  # the strides against the derived default of the 20,000-episode budget
+        stride = float(r.sets[1].split("=")[1])
+        assert stride / default == {"cmcl_stride_x2": 2.0, "cmcl_stride_half": 0.5}[r.arm]
+
+
 def test_a_predator_prey_summary_has_the_area_under_the_win_curve_and_the_censored_times(tmp_path):
     path = tmp_path / "curriculum_tag_cmcl_s0"
     config = make_tiny_config("cmcl", "tag", sections=INLINE_SECTIONS, dir=str(path))
@@ -109,6 +121,7 @@ def test_a_summary_starts_with_the_fields_the_committed_summaries_have(finished_
 
 def test_every_grid_has_a_results_folder_and_the_time_to_solve_grids_stop_early():
     assert set(GRIDS) == {"spread", "tag", "winrate", "ablations", "curriculum", "curriculum_hard", "curriculum_tag",
+                          "curriculum_stride",
                           "schedule", "algorithms", "own_envs", "scale"}
     schedule = grid(["schedule"], [0])
     assert len(schedule) == 8 and all(r.stop_coverage == 0.95 and r.max_seconds == 900 for r in schedule)
