@@ -67,9 +67,22 @@ def episode_lambda_reaches(runs: list[dict[str, Any]], level: float) -> float | 
     return float(np.mean(reached)) if reached else None
 
 
-def curriculum_figure(runs: list[dict[str, Any]], task: str, path: Path) -> Path:
+def lambda_half_lines(runs: list[dict[str, Any]], arms: tuple[str, ...], budget: int) -> dict[str | None, float]:
+    """Where the figure marks λ reaching 0.5: {None: episode} when the arms' λ schedules agree (within a tenth of the
+    budget), else {arm: episode} for each arm whose λ got there (the λ-schedule grid)."""
+    per_arm = {arm: episode_lambda_reaches([r for r in runs if r.get("arm") == arm], 0.5) for arm in arms}
+    reached = {arm: e for arm, e in per_arm.items() if e is not None}
+    if reached and max(reached.values()) - min(reached.values()) > budget / 10:
+        return reached
+    everyone = episode_lambda_reaches([r for r in runs if r.get("arm") in arms], 0.5)
+    return {} if everyone is None else {None: everyone}
+
+
+def curriculum_figure(runs: list[dict[str, Any]], task: str, path: Path,
+                      arms: tuple[str, ...] = ARM_ORDER) -> Path:
     """Draw the three panels for the finished runs of one curriculum grid (summaries with `arm`,
-    `curves.coverage` (predator-prey: `curves.predator_win`) and `sampling_curve`) into `path`; returns it."""
+    `curves.coverage` (predator-prey: `curves.predator_win`) and `sampling_curve`) into `path`, one band per arm of
+    `arms` in that order; returns it."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -81,17 +94,17 @@ def curriculum_figure(runs: list[dict[str, Any]], task: str, path: Path) -> Path
     curve = "predator_win" if predator_prey else "coverage"
     x = np.arange(SAMPLING_STEP, budget + 1, SAMPLING_STEP, dtype=np.float64)
     fig, axes = plt.subplots(1, 3, figsize=(17, 4.6))
-    for arm in ARM_ORDER:
+    for arm in arms:
         rs = [r for r in runs if r.get("arm") == arm and r.get("sampling_curve")]
         if not rs:
             continue
         band(axes[0], [r["curves"][curve] for r in rs], ARM_COLOUR[arm], ARM_LABEL[arm])
         sampling_band(axes[1], x, [on_grid(r, x, "ess") for r in rs], ARM_COLOUR[arm])
         sampling_band(axes[2], x, [reward_row_ratio(r, x) for r in rs], ARM_COLOUR[arm])
-    no_exclusion = episode_lambda_reaches(runs, 0.5)
+    no_exclusion = lambda_half_lines(runs, arms, budget)
     for ax in axes:
-        if no_exclusion is not None:
-            ax.axvline(no_exclusion, color="grey", linestyle=":", linewidth=1)
+        for arm, episode in no_exclusion.items():
+            ax.axvline(episode, color="grey" if arm is None else ARM_COLOUR[arm], linestyle=":", linewidth=1)
         ax.set_xlabel("episode")
     if predator_prey:
         axes[0].set(ylabel="episodes with a capture (100-episode windows)", ylim=(0, 1.02),
@@ -108,5 +121,5 @@ def curriculum_figure(runs: list[dict[str, Any]], task: str, path: Path) -> Path
     axes[2].set(ylabel="reward-bearing rows: share sampled / share in buffer",
                 title="(c) reward rows sampled against the buffer (1 = as in it)")
     fig.suptitle(f"{task}: mean and 95% band over seeds, {budget:,} episodes per run, inline; dotted: λ reaches 0.5 "
-                 "(KP excludes no row after it)")
+                 "(KP excludes no row after it" + ("" if None in no_exclusion else "; in each arm's colour") + ")")
     return save(fig, path)

@@ -90,12 +90,57 @@ def first_quarter(run: dict[str, Any], key: str) -> float:
     return float(np.mean(values)) if values else float("nan")
 
 
-def curriculum_tests(runs: list[dict[str, Any]]) -> str:
+# The λ-schedule grid (docs/RESULTS.md, "The λ schedule on the harder task"): its arms in table order, beside the
+# harder task's MADDPG and default-stride CMCL, and its tests, all Holm-corrected together (no primary comparison)
+STRIDE_TABLE_ARMS = ("maddpg", "cmcl_stride_x2", "cmcl", "cmcl_stride_half")
+STRIDE_COMPARISONS = [("cmcl_stride_x2", "cmcl", "auc_coverage"), ("cmcl_stride_half", "cmcl", "auc_coverage"),
+                      ("cmcl_stride_x2", "maddpg", "auc_coverage")]
+
+
+def while_excluding(run: dict[str, Any], key: str) -> float:
+    """Mean of a run's sampling_curve column over the progress rows with λ < 0.5 (where KP can exclude rows)."""
+    curve = run["sampling_curve"]
+    values = [v for lam, v in zip(curve["lambda"], curve[key], strict=True) if lam < 0.5]
+    return float(np.mean(values)) if values else float("nan")
+
+
+def last_excluding_episode(run: dict[str, Any]) -> float:
+    """The last progress row's episode with λ < 0.5 (0 when λ starts at 0.5 or above)."""
+    curve = run["sampling_curve"]
+    return float(max((e for lam, e in zip(curve["lambda"], curve["episode"], strict=True) if lam < 0.5), default=0))
+
+
+def stride_table(runs: list[dict[str, Any]]) -> str:
+    """The λ-schedule grid per arm: learning measures, how long λ stays below 0.5 and the sampling while it does."""
+    lines = ["| arm | seeds | area under coverage | held-out coverage | held-out success | episodes to MA 0.5 | "
+             "episodes to MA 0.9 | stalled at ~3 of 4 | last progress row with λ < 0.5 | ESS while λ < 0.5 | "
+             "reward-bearing rows while λ < 0.5: sampled / buffer |", "| --- " * 11 + "|"]
+    for arm in STRIDE_TABLE_ARMS:
+        rs = sorted((r for r in runs if r.get("arm") == arm), key=lambda r: r["seed"])
+        if not rs:
+            continue
+        stalled = sum(STALL[0] <= r["final_ma_coverage"] <= STALL[1] for r in rs)
+        ess, sampled, buffer = (np.nanmean([while_excluding(r, k) for r in rs])
+                                for k in ("ess", "reward_rows_sampled", "reward_rows_buffer"))
+        curriculum = "— | — | —" if arm == "maddpg" else \
+            f"{np.mean([last_excluding_episode(r) for r in rs]):,.0f} | {ess:.2f} | {sampled:.3f} / {buffer:.3f}"
+        lines.append(f"| {ARM_LABEL[arm]} | {len(rs)} | " + " | ".join(
+            fmt([r[k] for r in rs], d, k) for k, d in (("auc_coverage", 3), ("held_out_coverage", 3),
+                                                       ("held_out_success", 3), ("episodes_to_50", 0),
+                                                       ("episodes_to_90", 0)))
+                     + f" | {stalled}/{len(rs)} | {curriculum} |")
+    return "\n".join(lines)
+
+
+def curriculum_tests(runs: list[dict[str, Any]], comparisons: list[tuple[str, str, str]] | None = None) -> str:
     """The protocol's tests: the primary comparison unadjusted, every other one Holm-corrected; times to MA 0.9 by
-    KM medians and a log-rank test."""
-    by_arm = {arm: [r for r in runs if r.get("arm") == arm] for arm in CURRICULUM_ARMS}
+    KM medians and a log-rank test. comparisons: (arm, arm, field) to test instead of the task's protocol, all
+    Holm-corrected together (no primary)."""
+    primary = comparisons is None
+    comparisons = task_measures(runs).comparisons() if comparisons is None else comparisons
+    by_arm = {arm: [r for r in runs if r.get("arm") == arm] for pair in comparisons for arm in pair[:2]}
     rows, pvalues = [], []
-    for a, b, key in task_measures(runs).comparisons():
+    for a, b, key in comparisons:
         ra, rb = by_arm[a], by_arm[b]
         if len(ra) < 2 or len(rb) < 2:
             rows.append((a, b, key, "n/a (fewer than 2 runs)", None))
@@ -111,11 +156,12 @@ def curriculum_tests(runs: list[dict[str, Any]]) -> str:
         rows.append((a, b, key, text, p))
         pvalues.append(p)
     # Holm over the whole pre-registered family: a test without its runs yet counts as p = 1 (conservative)
-    adjusted = [None, *holm([1.0 if p is None else p for p in pvalues[1:]])]
+    tested = pvalues[1:] if primary else pvalues
+    adjusted = [None] * primary + holm([1.0 if p is None else p for p in tested])
     lines = ["| comparison | measure | seeds | difference [bootstrap 95%] | p | p (Holm) |", "| --- " * 6 + "|"]
     for i, (a, b, key, text, p) in enumerate(rows):
         n = f"{len(by_arm[a])} vs {len(by_arm[b])}"
-        adj = "primary" if i == 0 else "" if p is None else f"{adjusted[i]:.3f}"
+        adj = "primary" if primary and i == 0 else "" if p is None else f"{adjusted[i]:.3f}"
         lines.append(f"| {ARM_LABEL[a]} − {ARM_LABEL[b]} | {key} | {n} | {text} | "
                      f"{'' if p is None else f'{p:.3f}'} | {adj} |")
     return "\n".join(lines)

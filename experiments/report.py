@@ -8,8 +8,9 @@ the text between them (a block whose markers the page lacks is only printed):
 * curriculum, curriculumtests, curriculumstalls: the curriculum grid (bench/results/curriculum); curriculumhard,
   curriculumhardtests, curriculumhardstalls: the curriculum_hard grid (bench/results/curriculum_hard);
   curriculumtag, curriculumtagtests: the curriculum_tag grid (bench/results/curriculum_tag; predator-prey has no
-  stall analysis); "no runs yet" while a curriculum grid has no summary; the stalls blocks from
-  `python -m experiments stalls FOLDER`;
+  stall analysis); curriculumstride, curriculumstridetests: the curriculum_stride grid
+  (bench/results/curriculum_stride) beside the curriculum_hard grid's MADDPG and CMCL runs; "no runs yet" while a
+  curriculum grid has no summary; the stalls blocks from `python -m experiments stalls FOLDER`;
 * timetosolve: the schedule and algorithms grids (bench/results/time_to_solve), printed only;
 * ownenvs: the own_envs grid (bench/results/own_envs), each environment against the random policy.
 """
@@ -18,8 +19,15 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import Any
 
-from experiments.curriculum_tables import curriculum_table, curriculum_tests
+from experiments.curriculum_tables import (
+    STRIDE_COMPARISONS,
+    STRIDE_TABLE_ARMS,
+    curriculum_table,
+    curriculum_tests,
+    stride_table,
+)
 from experiments.grids import GRIDS
 from experiments.labels import ARM_LABEL
 from experiments.own_envs import own_env_table
@@ -67,12 +75,21 @@ def blocks(results: Path | None = None) -> dict[str, str]:
         if stalls is not None:
             records = load_stalls(where[grid_name])
             out[stalls], out[early] = stall_table(records, ARM_LABEL), early_learner_table(records, ARM_LABEL)
+    strides = stride_runs(where)
+    out["curriculumstride"], out["curriculumstridetests"] = (stride_table(strides), curriculum_tests(
+        strides, STRIDE_COMPARISONS)) if any(r["grid"] == "curriculum_stride" for r in strides) else (NO_RUNS, NO_RUNS)
     solve = ResultsStore(where["schedule"]).load()
     if solve:
         out["timetosolve"] = solve_table(solve)
     own = ResultsStore(where["own_envs"]).load()
     out["ownenvs"] = own_env_table(own) if own else NO_RUNS
     return out
+
+
+def stride_runs(where: dict[str, Path]) -> list[dict[str, Any]]:
+    """The λ-schedule grid's runs with the harder task's MADDPG and default-stride CMCL runs beside them."""
+    hard = [r for r in ResultsStore(where["curriculum_hard"]).load() if r.get("arm") in STRIDE_TABLE_ARMS]
+    return [*hard, *ResultsStore(where["curriculum_stride"]).load()]
 
 
 CURRICULUM_TASKS = {"curriculum": "Sparse navigation N=4",  # grid -> the task named in its figure's title
@@ -92,6 +109,11 @@ def figures(results: Path | None = None) -> list[Path]:
         runs = ResultsStore(where[grid_name]).load()
         if runs:
             written.append(curriculum_figure(runs, task, where[grid_name] / "figures" / "curriculum_sampling.png"))
+    strides = stride_runs(where)
+    if any(r["grid"] == "curriculum_stride" for r in strides):
+        written.append(curriculum_figure(strides, f"{CURRICULUM_TASKS['curriculum_hard']}, CMCL at three λ strides",
+                                         where["curriculum_stride"] / "figures" / "curriculum_sampling.png",
+                                         STRIDE_TABLE_ARMS))
     return written
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from experiments.curriculum_tables import curriculum_table, curriculum_tests
+from experiments.curriculum_tables import STRIDE_COMPARISONS, curriculum_table, curriculum_tests, stride_table
 from experiments.stats import bootstrap_ci, fmt, holm, km_median, logrank_p, mean_ci, paired
 from experiments.tables import ablation_table
 
@@ -129,6 +129,35 @@ def test_predator_prey_curriculum_tables_test_the_win_curve_and_count_no_stalls(
     table = curriculum_table(runs).splitlines()
     assert "stalled" not in table[0] and "area under predator win" in table[0]
     assert all(line.count("|") == table[0].count("|") for line in table)
+
+
+def test_the_stride_tables_holm_correct_every_test_and_measure_the_curriculum_while_lambda_is_below_half():
+    """The λ-schedule grid has no primary comparison; its table reads the sampling while λ < 0.5 in each arm's own
+    schedule, not over a fixed quarter of the budget."""
+    rng = np.random.default_rng(2)
+
+    def run(arm: str, seed: int, base: float, lam_step: float) -> dict:
+        lam = [min(1.0, 0.1 + lam_step * k) for k in range(1, 11)]
+        return {"arm": arm, "seed": seed, "budget": 1000, "auc_coverage": base + rng.normal(0, 0.01),
+                "held_out_coverage": 0.9, "held_out_success": 0.5, "episodes_to_50": 300 + seed,
+                "episodes_to_90": None, "final_ma_coverage": 0.75 if seed == 0 else 0.95,
+                "sampling_curve": {"episode": [100 * k for k in range(1, 11)], "lambda": lam,
+                                   "ess": [0.4 if v < 0.5 else 0.9 for v in lam],
+                                   "reward_rows_sampled": [0.01 if v < 0.5 else 0.2 for v in lam],
+                                   "reward_rows_buffer": [0.1] * 10}}
+
+    runs = [run(arm, s, base, step) for arm, base, step in (("maddpg", 0.6, 0.0), ("cmcl", 0.4, 0.1),
+                                                            ("cmcl_stride_x2", 0.5, 0.2), ("cmcl_stride_half", 0.3, 0.05))
+            for s in range(4)]
+    tests = curriculum_tests(runs, STRIDE_COMPARISONS).splitlines()[2:]
+    assert [line.split(" | ")[0] for line in tests] == ["| CMCL, λ stride ×2 − CMCL", "| CMCL, λ stride ×½ − CMCL",
+                                                        "| CMCL, λ stride ×2 − MADDPG"]
+    assert all(float(line.split(" | ")[-1].strip(" |")) >= float(line.split(" | ")[-2]) for line in tests)
+    table = {line.split(" | ")[0]: line.split(" | ") for line in stride_table(runs).splitlines()[2:]}
+    assert list(table) == ["| MADDPG", "| CMCL, λ stride ×2", "| CMCL", "| CMCL, λ stride ×½"]
+    assert table["| CMCL"][8:10] == ["300", "0.40"]  # λ = 0.2, 0.3, 0.4 below 0.5: the rows up to episode 300
+    assert table["| CMCL, λ stride ×2"][8] == "100" and table["| CMCL, λ stride ×½"][8] == "700"
+    assert table["| CMCL"][10] == "0.010 / 0.100 |" and table["| MADDPG"][7] == "1/4"
 
 
 def test_the_report_of_the_committed_results_is_the_page_as_committed(tmp_path):
