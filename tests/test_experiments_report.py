@@ -146,9 +146,8 @@ def test_the_stride_tables_holm_correct_every_test_and_measure_the_curriculum_wh
                                    "reward_rows_sampled": [0.01 if v < 0.5 else 0.2 for v in lam],
                                    "reward_rows_buffer": [0.1] * 10}}
 
-    runs = [run(arm, s, base, step) for arm, base, step in (("maddpg", 0.6, 0.0), ("cmcl", 0.4, 0.1),
-                                                            ("cmcl_stride_x2", 0.5, 0.2), ("cmcl_stride_half", 0.3, 0.05))
-            for s in range(4)]
+    arms = (("maddpg", 0.6, 0.0), ("cmcl", 0.4, 0.1), ("cmcl_stride_x2", 0.5, 0.2), ("cmcl_stride_half", 0.3, 0.05))
+    runs = [run(arm, s, base, step) for arm, base, step in arms for s in range(4)]
     tests = curriculum_tests(runs, STRIDE_COMPARISONS).splitlines()[2:]
     assert [line.split(" | ")[0] for line in tests] == ["| CMCL, λ stride ×2 − CMCL", "| CMCL, λ stride ×½ − CMCL",
                                                         "| CMCL, λ stride ×2 − MADDPG"]
