@@ -23,7 +23,7 @@ from cmcl.config import Config, ConfigError
 from cmcl.envs.entities import EntityLayout, spread_layout
 from cmcl.io import codec
 from cmcl.io.durable import ReplayStore
-from cmcl.io.rundir import RunDirectory
+from cmcl.io.rundir import RunDirectory, replay_snapshot_path
 from cmcl.replay.agent_padding import pad_rows
 from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.storage import TransitionStorage
@@ -38,8 +38,6 @@ def _source(init_from: str) -> tuple[str, Path]:
     run = RunDirectory.open(init_from) if (Path(init_from) / "config.toml").is_file() else None
     checkpoints = list(run.inline_checkpoints().values()) if run is not None else []
     if checkpoints:
-        from cmcl.loop.inline import replay_snapshot_path  # torch: only for rows an inline run wrote
-
         if replay_snapshot_path(checkpoints[-1]).is_file():
             return "inline", replay_snapshot_path(checkpoints[-1])
     if run is not None and ReplayStore(run.service_replay_dir).manifest_path.is_file():

@@ -16,8 +16,6 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.replay.pacing import PacingStatus
-
 ROW_KEYS = ("obs", "act", "rew", "next_obs", "done")  # one joint transition: obs [N, od], act [N, ad], rew [N], ...
 PRESENT_KEY = "present"  # bool [N]: the agents a row holds, in learner batches of a buffer with carried rows only
 
@@ -207,9 +205,25 @@ def check_feedback(msg: Any, num_agents: int) -> LearnerFeedback:
 
 
 @dataclass(frozen=True)
+class PacingStatus:
+    """Work each role may be given now (the first fields of `ReplayStatus`; built by
+    `cmcl.replay.pacing.Pacing.status`). allowed_updates: learner updates;
+    allowed_inserts: transitions; update_deficit / scoring_deficit: learner updates, teacher and ICM fit steps still
+    owed to their ratios (< 1: caught up); teacher_allowed: fit steps per fold [K]; icm_allowed: ICM fit steps.
+    Every allowance is 0 before the warm-up ends, except the inserts that fill it."""
+
+    allowed_updates: int
+    allowed_inserts: int
+    update_deficit: float
+    scoring_deficit: float
+    teacher_allowed: tuple[int, ...]
+    icm_allowed: int
+
+
+@dataclass(frozen=True)
 class ReplayStatus(PacingStatus):
     """Replay -> supervisor, with every reply of the replay server: how much work each role may be given now (the
-    fields of `cmcl.replay.pacing.PacingStatus`: allowed_updates, allowed_inserts, update_deficit, scoring_deficit,
+    fields of `PacingStatus`: allowed_updates, allowed_inserts, update_deficit, scoring_deficit,
     teacher_allowed [K], icm_allowed) and the counters the supervisor shows.
 
     size: transitions stored; env_steps, episodes, updates: totals so far; lam: the curriculum factor λ;

@@ -1,7 +1,7 @@
 """How many calls the supervisor gives each actor now, from the replay server's allowances (pure, no Ray).
 
 Where it sits: `services.supervisor.Supervisor._issue` asks `calls_to_issue` after every reply, then submits that
-many calls. The allowances are the replay server's pacing (`cmcl.replay.pacing.PacingStatus`, the first fields of
+many calls. The allowances are the replay server's pacing (`cmcl.messages.PacingStatus`, the first fields of
 every `ReplayStatus`: ALGORITHM.md §3.9, DESIGN.md data-flow step 7); the work already promised to calls in flight
 is taken off them. At most CALLS_IN_FLIGHT calls per actor: one computing, one prefetched, so that while one
 computes the replay server prepares the next (the learner's prefetch; the same for teachers and the ICM).

@@ -14,12 +14,11 @@ from dataclasses import dataclass
 from typing import Literal
 
 from cmcl.config.checks import ConfigError, _positive, _probability, _require
+from cmcl.replay.sampling import ALGORITHMS, AlgorithmName
 
-AlgorithmName = Literal["maddpg", "per", "acl", "cmcl"]
 TaskName = Literal["spread", "tag"]
 NetworkKind = Literal["per_agent", "shared", "entity"]
 NETWORK_KINDS: tuple[str, ...] = typing.get_args(NetworkKind)
-ALGORITHMS: tuple[str, ...] = typing.get_args(AlgorithmName)  # the four compared algorithms (ALGORITHM.md §5)
 TASKS: tuple[str, ...] = typing.get_args(TaskName)
 TASK_TEAMS = {"spread": ("agent",), "tag": ("predator", "prey")}  # teams of each task, in agent order
 # α_s of eq. 20 when nothing sets it (ALGORITHM.md A8, revised 2026-12): "proportional to the K-fold priority" for

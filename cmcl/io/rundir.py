@@ -232,6 +232,11 @@ def digest_path(path: str | Path) -> Path:
     return Path(str(path) + ".sha256")
 
 
+def replay_snapshot_path(checkpoint: Path) -> Path:
+    """The replay snapshot an inline run writes beside a checkpoint file (ckpt_N.pt -> replay_N.msgpack)."""
+    return checkpoint.with_name(checkpoint.name.replace("ckpt_", "replay_").replace(".pt", ".msgpack"))
+
+
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
     """Load a checkpoint written by `save_torch_atomic`: checked against its manifest first (a truncated or
     corrupted file raises `CheckpointError` naming it), then torch.load(weights_only=True): no arbitrary pickle.

@@ -7,7 +7,7 @@ imports this package, and it takes the run directory's lock before it loads torc
 
 from typing import Any
 
-__all__ = ["RNG_NAMES", "InlineLoop", "replay_snapshot_path"]
+__all__ = ["RNG_NAMES", "InlineLoop"]
 
 
 def __getattr__(name: str) -> Any:

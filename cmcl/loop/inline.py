@@ -26,7 +26,7 @@ from cmcl.config import Config
 from cmcl.diagnostics import buffer_diagnostics
 from cmcl.episodes import WorldEpisodes
 from cmcl.io import codec
-from cmcl.io.rundir import RunDirectory, load_checkpoint
+from cmcl.io.rundir import RunDirectory, load_checkpoint, replay_snapshot_path
 from cmcl.learners import network_steps
 from cmcl.learning_progress import LearningProgress
 from cmcl.messages import LearnerFeedback, Rows
@@ -51,11 +51,6 @@ RESCORE_CHUNK = 2048  # rows per scoring pass (bounds memory of the A×K teacher
 RNG_NAMES = ("env", "noise", "teacher", "icm")  # the loop's generators, checkpointed by name
 SAMPLER_SEED = 4  # seed stream of the learner's per-agent sampling generators (`sampler_rngs`), spawned from it
 TORCH_SEEDS = slice(5, 8)  # seed streams of MADDPG, the teachers and the ICM
-
-
-def replay_snapshot_path(checkpoint: Path) -> Path:
-    """The replay snapshot written beside a checkpoint file."""
-    return checkpoint.with_name(checkpoint.name.replace("ckpt_", "replay_").replace(".pt", ".msgpack"))
 
 
 class InlineLoop:

@@ -26,27 +26,12 @@ Built by `pacing_from_config`, the one place the config's ratios become limiters
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from cmcl.messages import PacingStatus
 from cmcl.replay.ratelimit import RateLimiter, slack_for
-
-
-@dataclass(frozen=True)
-class PacingStatus:
-    """Work each role may be given now (carried by `cmcl.messages.ReplayStatus`). allowed_updates: learner updates;
-    allowed_inserts: transitions; update_deficit / scoring_deficit: learner updates, teacher and ICM fit steps still
-    owed to their ratios (< 1: caught up); teacher_allowed: fit steps per fold [K]; icm_allowed: ICM fit steps.
-    Every allowance is 0 before the warm-up ends, except the inserts that fill it."""
-
-    allowed_updates: int
-    allowed_inserts: int
-    update_deficit: float
-    scoring_deficit: float
-    teacher_allowed: tuple[int, ...]
-    icm_allowed: int
 
 
 class Pacing:

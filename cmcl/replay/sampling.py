@@ -17,13 +17,19 @@ tree backend, vectorised).
 
 from __future__ import annotations
 
+import typing
+from typing import Literal
+
 import numpy as np
 
-from cmcl.config import ALGORITHMS
 from cmcl.replay.priority import curriculum_priority, provisional_priority
 from cmcl.replay.sampler import PrioritySampler, importance_weights
 from cmcl.replay.storage import TransitionStorage
 
+# The four compared algorithms (ALGORITHM.md §5): one code, told apart by the sampling distribution of their replay.
+# cmcl.config's `teams.<team>.algorithm` takes its values from here.
+AlgorithmName = Literal["maddpg", "per", "acl", "cmcl"]
+ALGORITHMS: tuple[str, ...] = typing.get_args(AlgorithmName)
 DIFFICULTY_SOURCES = ("difficulty", "td_abs")  # "td_abs" = ACL's td_self variant (§5)
 
 
@@ -174,7 +180,7 @@ Sampling = UniformSampling | PrioritizedSampling | CurriculumSampling
 def sampling_for(algorithm: str, agent: int, *, capacity: int, alpha: float, backend: str, eps: float, eta: float,
                  difficulty_source: str, difficulty_norm: str, cp_input: str, lam_max: float,
                  reversed_difficulty: bool) -> Sampling:
-    """The sampling distribution of one agent learning with `algorithm` (one of cmcl.config.ALGORITHMS)."""
+    """The sampling distribution of one agent learning with `algorithm` (one of ALGORITHMS)."""
     if algorithm == "maddpg":
         return UniformSampling()
     if algorithm == "per":
