@@ -90,11 +90,16 @@ def first_quarter(run: dict[str, Any], key: str) -> float:
     return float(np.mean(values)) if values else float("nan")
 
 
-# The λ-schedule grid (docs/RESULTS.md, "The λ schedule on the harder task"): its arms in table order, beside the
-# harder task's MADDPG and default-stride CMCL, and its tests, all Holm-corrected together (no primary comparison)
-STRIDE_TABLE_ARMS = ("maddpg", "cmcl_stride_x2", "cmcl", "cmcl_stride_half")
-STRIDE_COMPARISONS = [("cmcl_stride_x2", "cmcl", "auc_coverage"), ("cmcl_stride_half", "cmcl", "auc_coverage"),
-                      ("cmcl_stride_x2", "maddpg", "auc_coverage")]
+# The grids of CMCL on the harder task with one setting changed (experiments.grids.HARD_SETTING_GRIDS; docs/RESULTS.md,
+# "The λ schedule on the harder task", "The curiosity weight on the harder task"): grid -> (the arms of its table in
+# order, beside the harder task's MADDPG and default CMCL; its tests, all Holm-corrected together: no primary)
+AREA = "auc_coverage"
+SETTING_TABLES: dict[str, tuple[tuple[str, ...], list[tuple[str, str, str]]]] = {
+    "curriculum_stride": (("maddpg", "cmcl_stride_x2", "cmcl", "cmcl_stride_half"),
+                          [("cmcl_stride_x2", "cmcl", AREA), ("cmcl_stride_half", "cmcl", AREA),
+                           ("cmcl_stride_x2", "maddpg", AREA)]),
+    "curriculum_eta": (("maddpg", "cmcl", "cmcl_eta1"), [("cmcl_eta1", "cmcl", AREA), ("cmcl_eta1", "maddpg", AREA)]),
+}
 
 
 def while_excluding(run: dict[str, Any], key: str) -> float:
@@ -110,12 +115,13 @@ def last_excluding_episode(run: dict[str, Any]) -> float:
     return float(max((e for lam, e in zip(curve["lambda"], curve["episode"], strict=True) if lam < 0.5), default=0))
 
 
-def stride_table(runs: list[dict[str, Any]]) -> str:
-    """The λ-schedule grid per arm: learning measures, how long λ stays below 0.5 and the sampling while it does."""
+def setting_table(runs: list[dict[str, Any]], arms: tuple[str, ...]) -> str:
+    """A harder-task settings grid per arm of `arms`: learning measures, how long λ stays below 0.5 and the sampling
+    while it does."""
     lines = ["| arm | seeds | area under coverage | held-out coverage | held-out success | episodes to MA 0.5 | "
              "episodes to MA 0.9 | stalled at ~3 of 4 | last progress row with λ < 0.5 | ESS while λ < 0.5 | "
              "reward-bearing rows while λ < 0.5: sampled / buffer |", "| --- " * 11 + "|"]
-    for arm in STRIDE_TABLE_ARMS:
+    for arm in arms:
         rs = sorted((r for r in runs if r.get("arm") == arm), key=lambda r: r["seed"])
         if not rs:
             continue

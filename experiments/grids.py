@@ -50,12 +50,17 @@ CURRICULUM_ARMS = {
     "cmcl_anti": ("spread_cmcl.toml", ["teachers.difficulty_transform=reversed"]),
 }
 HARD_CONFIG = "spread_hard.toml"  # the calibrated harder task (docs/RESULTS.md, "A harder task: calibration")
-# arm -> --set overrides of the λ-schedule grid (curriculum_stride): CMCL on the harder task at other strides than the
-# default 3e-6 per env step (λ from 0.1 to 1 at half of the 20,000 episodes); with rank difficulty the curriculum can
-# exclude rows only while λ < 0.5: the first ~2,200 (×2), ~4,400 (default) or ~8,900 (×½) episodes
-STRIDE_ARMS = {
-    "cmcl_stride_x2": ["curriculum.stride=6e-6"],  # λ_max at a quarter of training
-    "cmcl_stride_half": ["curriculum.stride=1.5e-6"],  # λ_max at the end
+# grid -> {arm: --set overrides}: CMCL on the harder task with one setting changed, every other setting the
+# curriculum_hard grid's, whose MADDPG and default CMCL runs stand beside them in the report.
+# curriculum_stride, the λ schedule: other strides than the default 3e-6 per env step (λ from 0.1 to 1 at half of the
+# 20,000 episodes); with rank difficulty KP can exclude rows only while λ < 0.5: the first ~2,350 (×2), ~4,570
+# (default) or ~9,020 (×½) episodes. curriculum_eta: the curiosity weight η = 1 (default 0.5) in CI = KP + η·CP.
+HARD_SETTING_GRIDS: dict[str, dict[str, list[str]]] = {
+    "curriculum_stride": {
+        "cmcl_stride_x2": ["curriculum.stride=6e-6"],  # λ_max at a quarter of training
+        "cmcl_stride_half": ["curriculum.stride=1.5e-6"],  # λ_max at the end
+    },
+    "curriculum_eta": {"cmcl_eta1": ["teams.agent.eta=1.0"]},
 }
 CURRICULUM_LOG_EVERY = 200  # episodes between progress rows (the ESS curve's resolution) in the curriculum grids
 
@@ -181,12 +186,11 @@ def curriculum_runs(name: str, seed: int, budget: int) -> list[Run]:
     return runs
 
 
-def stride_runs(seed: int, budget: int) -> list[Run]:
-    """The λ-schedule grid (``curriculum_stride``): the arms of STRIDE_ARMS, CMCL on the harder task, logged as the
-    curriculum grids are; its default-stride CMCL and its MADDPG are the curriculum_hard grid's runs."""
-    return [Run(f"curriculum_stride_{arm}_s{seed}", "curriculum_stride", "spread", "cmcl", None, seed, budget,
-                arm=arm, config=HARD_CONFIG, sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *sets))
-            for arm, sets in STRIDE_ARMS.items()]
+def setting_runs(name: str, seed: int, budget: int) -> list[Run]:
+    """A grid of HARD_SETTING_GRIDS: its arms, CMCL on the harder task, logged as the curriculum grids are."""
+    return [Run(f"{name}_{arm}_s{seed}", name, "spread", "cmcl", None, seed, budget, arm=arm, config=HARD_CONFIG,
+                sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *sets))
+            for arm, sets in HARD_SETTING_GRIDS[name].items()]
 
 
 def ablation_runs(seed: int, budget: int) -> list[Run]:
@@ -238,7 +242,7 @@ GRIDS = {  # name -> results folder (its summaries/ and runs/)
     "spread": RESULTS / "reproduce", "tag": RESULTS / "reproduce", "winrate": RESULTS / "reproduce",
     "ablations": RESULTS / "reproduce", "curriculum": RESULTS / "curriculum",
     "curriculum_hard": RESULTS / "curriculum_hard", "curriculum_tag": RESULTS / "curriculum_tag",
-    "curriculum_stride": RESULTS / "curriculum_stride",
+    "curriculum_stride": RESULTS / "curriculum_stride", "curriculum_eta": RESULTS / "curriculum_eta",
     "schedule": RESULTS / "time_to_solve",
     "algorithms": RESULTS / "time_to_solve", "own_envs": RESULTS / "own_envs", "scale": RESULTS / "scale",
 }
@@ -254,8 +258,8 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str] = ALGORITHMS,
     runs = []
     for seed in seeds:
         for name in names:
-            if name == "curriculum_stride":
-                runs += stride_runs(seed, budget)
+            if name in HARD_SETTING_GRIDS:
+                runs += setting_runs(name, seed, budget)
             elif name.startswith("curriculum"):
                 runs += curriculum_runs(name, seed, budget)
             elif name == "ablations":

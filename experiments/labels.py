@@ -4,7 +4,9 @@ ORDER = ("maddpg", "per", "acl", "cmcl")  # the algorithms, in the order of ever
 LABEL = {"maddpg": "MADDPG", "per": "PER-MADDPG", "acl": "ACL", "cmcl": "CMCL"}
 COLOUR = {"maddpg": "tab:blue", "per": "tab:orange", "acl": "tab:green", "cmcl": "tab:red"}
 ARM_LABEL = {**LABEL, "cmcl_permuted": "CMCL, permuted control", "cmcl_anti": "CMCL, anti-curriculum",
-             "cmcl_stride_x2": "CMCL, λ stride ×2", "cmcl_stride_half": "CMCL, λ stride ×½"}
+             "cmcl_stride_x2": "CMCL, λ stride ×2", "cmcl_stride_half": "CMCL, λ stride ×½",
+             "cmcl_eta1": "CMCL, η = 1"}
 ARM_COLOUR = {**COLOUR, "cmcl_permuted": "tab:purple", "cmcl_anti": "tab:brown",
-              "cmcl_stride_x2": "tab:pink", "cmcl_stride_half": "tab:olive"}
+              "cmcl_stride_x2": "tab:pink", "cmcl_stride_half": "tab:olive",
+              "cmcl_eta1": "tab:cyan"}
 ARM_ORDER = (*ORDER, "cmcl_permuted", "cmcl_anti")  # the curriculum grids' arms, in table and legend order

@@ -8,9 +8,9 @@ the text between them (a block whose markers the page lacks is only printed):
 * curriculum, curriculumtests, curriculumstalls: the curriculum grid (bench/results/curriculum); curriculumhard,
   curriculumhardtests, curriculumhardstalls: the curriculum_hard grid (bench/results/curriculum_hard);
   curriculumtag, curriculumtagtests: the curriculum_tag grid (bench/results/curriculum_tag; predator-prey has no
-  stall analysis); curriculumstride, curriculumstridetests: the curriculum_stride grid
-  (bench/results/curriculum_stride) beside the curriculum_hard grid's MADDPG and CMCL runs; "no runs yet" while a
-  curriculum grid has no summary; the stalls blocks from `python -m experiments stalls FOLDER`;
+  stall analysis); curriculumstride, curriculumstridetests and curriculumeta, curriculumetatests: the
+  curriculum_stride and curriculum_eta grids beside the curriculum_hard grid's MADDPG and CMCL runs; "no runs yet"
+  while a curriculum grid has no summary; the stalls blocks from `python -m experiments stalls FOLDER`;
 * timetosolve: the schedule and algorithms grids (bench/results/time_to_solve), printed only;
 * ownenvs: the own_envs grid (bench/results/own_envs), each environment against the random policy.
 """
@@ -22,11 +22,10 @@ from pathlib import Path
 from typing import Any
 
 from experiments.curriculum_tables import (
-    STRIDE_COMPARISONS,
-    STRIDE_TABLE_ARMS,
+    SETTING_TABLES,
     curriculum_table,
     curriculum_tests,
-    stride_table,
+    setting_table,
 )
 from experiments.grids import GRIDS
 from experiments.labels import ARM_LABEL
@@ -48,6 +47,9 @@ CURRICULUM_BLOCKS = {"curriculum": ("curriculum", "curriculumtests", "curriculum
                      "curriculum_hard": ("curriculumhard", "curriculumhardtests", "curriculumhardstalls",
                                          "curriculumhardearly"),
                      "curriculum_tag": ("curriculumtag", "curriculumtagtests", None, None)}  # grid -> its blocks
+SETTING_BLOCKS = {"curriculum_stride": ("curriculumstride", "curriculumstridetests"),
+                  "curriculum_eta": ("curriculumeta", "curriculumetatests")}  # CMCL settings on the harder task
+SETTING_TITLES = {"curriculum_stride": "CMCL at three λ strides", "curriculum_eta": "CMCL at η = 0.5 and 1"}
 
 
 def folders(results: Path | None = None) -> dict[str, Path]:
@@ -75,9 +77,11 @@ def blocks(results: Path | None = None) -> dict[str, str]:
         if stalls is not None:
             records = load_stalls(where[grid_name])
             out[stalls], out[early] = stall_table(records, ARM_LABEL), early_learner_table(records, ARM_LABEL)
-    strides = stride_runs(where)
-    out["curriculumstride"], out["curriculumstridetests"] = (stride_table(strides), curriculum_tests(
-        strides, STRIDE_COMPARISONS)) if any(r["grid"] == "curriculum_stride" for r in strides) else (NO_RUNS, NO_RUNS)
+    for grid_name, (table, tests) in SETTING_BLOCKS.items():
+        arms, comparisons = SETTING_TABLES[grid_name]
+        runs = setting_runs(where, grid_name)
+        out[table], out[tests] = (setting_table(runs, arms), curriculum_tests(runs, comparisons)) \
+            if any(r["grid"] == grid_name for r in runs) else (NO_RUNS, NO_RUNS)
     solve = ResultsStore(where["schedule"]).load()
     if solve:
         out["timetosolve"] = solve_table(solve)
@@ -86,10 +90,10 @@ def blocks(results: Path | None = None) -> dict[str, str]:
     return out
 
 
-def stride_runs(where: dict[str, Path]) -> list[dict[str, Any]]:
-    """The λ-schedule grid's runs with the harder task's MADDPG and default-stride CMCL runs beside them."""
-    hard = [r for r in ResultsStore(where["curriculum_hard"]).load() if r.get("arm") in STRIDE_TABLE_ARMS]
-    return [*hard, *ResultsStore(where["curriculum_stride"]).load()]
+def setting_runs(where: dict[str, Path], grid_name: str) -> list[dict[str, Any]]:
+    """A harder-task settings grid's runs with the harder task's MADDPG and default-stride CMCL runs beside them."""
+    hard = [r for r in ResultsStore(where["curriculum_hard"]).load() if r.get("arm") in ("maddpg", "cmcl")]
+    return [*hard, *ResultsStore(where[grid_name]).load()]
 
 
 CURRICULUM_TASKS = {"curriculum": "Sparse navigation N=4",  # grid -> the task named in its figure's title
@@ -109,11 +113,12 @@ def figures(results: Path | None = None) -> list[Path]:
         runs = ResultsStore(where[grid_name]).load()
         if runs:
             written.append(curriculum_figure(runs, task, where[grid_name] / "figures" / "curriculum_sampling.png"))
-    strides = stride_runs(where)
-    if any(r["grid"] == "curriculum_stride" for r in strides):
-        written.append(curriculum_figure(strides, f"{CURRICULUM_TASKS['curriculum_hard']}, CMCL at three λ strides",
-                                         where["curriculum_stride"] / "figures" / "curriculum_sampling.png",
-                                         STRIDE_TABLE_ARMS))
+    for grid_name, title in SETTING_TITLES.items():
+        runs = setting_runs(where, grid_name)
+        if any(r["grid"] == grid_name for r in runs):
+            written.append(curriculum_figure(runs, f"{CURRICULUM_TASKS['curriculum_hard']}, {title}",
+                                             where[grid_name] / "figures" / "curriculum_sampling.png",
+                                             SETTING_TABLES[grid_name][0]))
     return written
 
 

@@ -77,7 +77,7 @@ def test_the_predator_prey_curriculum_grid_trains_each_arm_as_predators_against_
     assert tag["cmcl_anti"].id == "curriculum_tag_cmcl_anti_s3"
 
 
-def test_the_stride_grid_runs_cmcl_on_the_harder_task_at_twice_and_half_the_default_stride():
+def test_the_settings_grids_run_cmcl_on_the_harder_task_with_the_stride_or_the_curiosity_weight_changed():
     from cmcl.config import load_config
 
     runs = grid(["curriculum_stride"], [0, 1], [])
@@ -87,6 +87,10 @@ def test_the_stride_grid_runs_cmcl_on_the_harder_task_at_twice_and_half_the_defa
     for r in runs[:2]:  # the strides against the derived default of the 20,000-episode budget
         stride = float(r.sets[1].split("=")[1])
         assert stride / default == {"cmcl_stride_x2": 2.0, "cmcl_stride_half": 0.5}[r.arm]
+    (eta,) = grid(["curriculum_eta"], [3], [])  # one setting changed: the curiosity weight
+    assert eta.id == "curriculum_eta_cmcl_eta1_s3" and eta.config == "spread_hard.toml"
+    assert eta.sets == ("run.log_every=200", "teams.agent.eta=1.0")
+    assert load_config(ROOT / "configs" / "spread_hard.toml").teams["agent"].eta == 0.5  # the default it doubles
 
 
 def test_a_predator_prey_summary_has_the_area_under_the_win_curve_and_the_censored_times(tmp_path):
@@ -121,7 +125,7 @@ def test_a_summary_starts_with_the_fields_the_committed_summaries_have(finished_
 
 def test_every_grid_has_a_results_folder_and_the_time_to_solve_grids_stop_early():
     assert set(GRIDS) == {"spread", "tag", "winrate", "ablations", "curriculum", "curriculum_hard", "curriculum_tag",
-                          "curriculum_stride",
+                          "curriculum_stride", "curriculum_eta",
                           "schedule", "algorithms", "own_envs", "scale"}
     schedule = grid(["schedule"], [0])
     assert len(schedule) == 8 and all(r.stop_coverage == 0.95 and r.max_seconds == 900 for r in schedule)

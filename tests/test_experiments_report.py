@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from experiments.curriculum_tables import STRIDE_COMPARISONS, curriculum_table, curriculum_tests, stride_table
+from experiments.curriculum_tables import SETTING_TABLES, curriculum_table, curriculum_tests, setting_table
 from experiments.stats import bootstrap_ci, fmt, holm, km_median, logrank_p, mean_ci, paired
 from experiments.tables import ablation_table
 
@@ -148,11 +148,12 @@ def test_the_stride_tables_holm_correct_every_test_and_measure_the_curriculum_wh
 
     arms = (("maddpg", 0.6, 0.0), ("cmcl", 0.4, 0.1), ("cmcl_stride_x2", 0.5, 0.2), ("cmcl_stride_half", 0.3, 0.05))
     runs = [run(arm, s, base, step) for arm, base, step in arms for s in range(4)]
-    tests = curriculum_tests(runs, STRIDE_COMPARISONS).splitlines()[2:]
+    arms, comparisons = SETTING_TABLES["curriculum_stride"]
+    tests = curriculum_tests(runs, comparisons).splitlines()[2:]
     assert [line.split(" | ")[0] for line in tests] == ["| CMCL, λ stride ×2 − CMCL", "| CMCL, λ stride ×½ − CMCL",
                                                         "| CMCL, λ stride ×2 − MADDPG"]
     assert all(float(line.split(" | ")[-1].strip(" |")) >= float(line.split(" | ")[-2]) for line in tests)
-    table = {line.split(" | ")[0]: line.split(" | ") for line in stride_table(runs).splitlines()[2:]}
+    table = {line.split(" | ")[0]: line.split(" | ") for line in setting_table(runs, arms).splitlines()[2:]}
     assert list(table) == ["| MADDPG", "| CMCL, λ stride ×2", "| CMCL", "| CMCL, λ stride ×½"]
     assert table["| CMCL"][8:10] == ["300", "0.40"]  # λ = 0.2, 0.3, 0.4 below 0.5: the rows up to episode 300
     assert table["| CMCL, λ stride ×2"][8] == "100" and table["| CMCL, λ stride ×½"][8] == "700"
