@@ -93,7 +93,7 @@ def curriculum_figure(runs: list[dict[str, Any]], task: str, path: Path,
     predator_prey = runs[0].get("task") == "tag"
     curve = "predator_win" if predator_prey else "coverage"
     x = np.arange(SAMPLING_STEP, budget + 1, SAMPLING_STEP, dtype=np.float64)
-    fig, axes = plt.subplots(1, 3, figsize=(17, 4.6))
+    fig, axes = plt.subplots(1, 3, figsize=(17, 4.9))
     for arm in arms:
         rs = [r for r in runs if r.get("arm") == arm and r.get("sampling_curve")]
         if not rs:
@@ -120,6 +120,6 @@ def curriculum_figure(runs: list[dict[str, Any]], task: str, path: Path,
     axes[2].axhline(1.0, color="black", linewidth=0.8)
     axes[2].set(ylabel="reward-bearing rows: share sampled / share in buffer",
                 title="(c) reward rows sampled against the buffer (1 = as in it)")
-    fig.suptitle(f"{task}: mean and 95% band over seeds, {budget:,} episodes per run, inline; dotted: λ reaches 0.5 "
+    fig.suptitle(f"{task}: mean and 95% band over seeds, {budget:,} episodes per run, inline;\ndotted: λ reaches 0.5 "
                  "(KP excludes no row after it" + ("" if None in no_exclusion else "; in each arm's colour") + ")")
     return save(fig, path)
