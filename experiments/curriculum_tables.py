@@ -82,12 +82,16 @@ def curriculum_table(runs: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def curve_mean(run: dict[str, Any], key: str, rows: np.ndarray) -> float:
+    """Mean of a run's sampling_curve column over the progress rows where `rows` (bool[rows]) holds; nan if none."""
+    values = np.asarray(run["sampling_curve"][key], dtype=np.float64)[rows]
+    return float(values.mean()) if values.size else float("nan")
+
+
 def first_quarter(run: dict[str, Any], key: str) -> float:
     """Mean of a run's sampling_curve column over its first quarter of episodes (λ < 0.5 at the default stride,
     where the curriculum can exclude rows)."""
-    curve = run["sampling_curve"]
-    values = [v for e, v in zip(curve["episode"], curve[key], strict=True) if e <= run["budget"] / 4]
-    return float(np.mean(values)) if values else float("nan")
+    return curve_mean(run, key, np.asarray(run["sampling_curve"]["episode"]) <= run["budget"] / 4)
 
 
 # The grids of CMCL on the harder task with one setting changed (experiments.grids.HARD_SETTING_GRIDS; docs/RESULTS.md,
@@ -104,9 +108,7 @@ SETTING_TABLES: dict[str, tuple[tuple[str, ...], list[tuple[str, str, str]]]] = 
 
 def while_excluding(run: dict[str, Any], key: str) -> float:
     """Mean of a run's sampling_curve column over the progress rows with λ < 0.5 (where KP can exclude rows)."""
-    curve = run["sampling_curve"]
-    values = [v for lam, v in zip(curve["lambda"], curve[key], strict=True) if lam < 0.5]
-    return float(np.mean(values)) if values else float("nan")
+    return curve_mean(run, key, np.asarray(run["sampling_curve"]["lambda"]) < 0.5)
 
 
 def last_excluding_episode(run: dict[str, Any]) -> float:

@@ -47,9 +47,9 @@ CURRICULUM_BLOCKS = {"curriculum": ("curriculum", "curriculumtests", "curriculum
                      "curriculum_hard": ("curriculumhard", "curriculumhardtests", "curriculumhardstalls",
                                          "curriculumhardearly"),
                      "curriculum_tag": ("curriculumtag", "curriculumtagtests", None, None)}  # grid -> its blocks
-SETTING_BLOCKS = {"curriculum_stride": ("curriculumstride", "curriculumstridetests"),
-                  "curriculum_eta": ("curriculumeta", "curriculumetatests")}  # CMCL settings on the harder task
-SETTING_TITLES = {"curriculum_stride": "CMCL at three λ strides", "curriculum_eta": "CMCL at η = 0.5 and 1"}
+# the harder task's settings grids (SETTING_TABLES) -> (their table block, tests block, figure title's tail)
+SETTING_BLOCKS = {"curriculum_stride": ("curriculumstride", "curriculumstridetests", "CMCL at three λ strides"),
+                  "curriculum_eta": ("curriculumeta", "curriculumetatests", "CMCL at η = 0.5 and 1")}
 
 
 def folders(results: Path | None = None) -> dict[str, Path]:
@@ -77,7 +77,7 @@ def blocks(results: Path | None = None) -> dict[str, str]:
         if stalls is not None:
             records = load_stalls(where[grid_name])
             out[stalls], out[early] = stall_table(records, ARM_LABEL), early_learner_table(records, ARM_LABEL)
-    for grid_name, (table, tests) in SETTING_BLOCKS.items():
+    for grid_name, (table, tests, _) in SETTING_BLOCKS.items():
         arms, comparisons = SETTING_TABLES[grid_name]
         runs = setting_runs(where, grid_name)
         out[table], out[tests] = (setting_table(runs, arms), curriculum_tests(runs, comparisons)) \
@@ -91,8 +91,10 @@ def blocks(results: Path | None = None) -> dict[str, str]:
 
 
 def setting_runs(where: dict[str, Path], grid_name: str) -> list[dict[str, Any]]:
-    """A harder-task settings grid's runs with the harder task's MADDPG and default-stride CMCL runs beside them."""
-    hard = [r for r in ResultsStore(where["curriculum_hard"]).load() if r.get("arm") in ("maddpg", "cmcl")]
+    """A harder-task settings grid's runs with the harder task's runs of the other arms of its table (MADDPG and the
+    default CMCL) beside them."""
+    arms = SETTING_TABLES[grid_name][0]
+    hard = [r for r in ResultsStore(where["curriculum_hard"]).load() if r.get("arm") in arms]
     return [*hard, *ResultsStore(where[grid_name]).load()]
 
 
@@ -113,7 +115,7 @@ def figures(results: Path | None = None) -> list[Path]:
         runs = ResultsStore(where[grid_name]).load()
         if runs:
             written.append(curriculum_figure(runs, task, where[grid_name] / "figures" / "curriculum_sampling.png"))
-    for grid_name, title in SETTING_TITLES.items():
+    for grid_name, (_, _, title) in SETTING_BLOCKS.items():
         runs = setting_runs(where, grid_name)
         if any(r["grid"] == grid_name for r in runs):
             written.append(curriculum_figure(runs, f"{CURRICULUM_TASKS['curriculum_hard']}, {title}",
