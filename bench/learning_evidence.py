@@ -21,6 +21,7 @@ from cmcl.evaluate import evaluate_policy, load_policy
 from cmcl.io.plots import plot_learning_curves
 from cmcl.io.rundir import RunDirectory
 from cmcl.loop import InlineLoop
+from cmcl.provenance import provenance
 
 
 def run_one(task: str, algorithm: str, seed: int, episodes: int, out: Path, overrides: list[str]) -> dict:
@@ -63,7 +64,7 @@ def main() -> None:
         table[algorithm] = [run_one(args.task, algorithm, s, args.episodes, out, args.overrides) for s in args.seeds]
     config = load_config(f"configs/{args.task}_{args.algorithms[0]}.toml")
     table["random"] = [evaluate_policy(config, None, episodes=200, seed=s) for s in args.seeds]
-    (out / "results.json").write_text(json.dumps(table, indent=2))
+    (out / "results.json").write_text(json.dumps({**table, "provenance": provenance()}, indent=2))
     runs = [out / f"{args.task}_{a}_s{s}" for a in args.algorithms for s in args.seeds]
     plot_learning_curves(runs, out / "learning_curves.png", window=50)
     print(f"\n{args.task}: {args.episodes} training episodes, seeds {args.seeds}, 200 evaluation episodes each")

@@ -22,6 +22,7 @@ from learning_evidence import run_one, summarise  # noqa: E402
 from cmcl.config import load_config  # noqa: E402
 from cmcl.evaluate import evaluate_policy, load_policy  # noqa: E402
 from cmcl.io.rundir import RunDirectory  # noqa: E402
+from cmcl.provenance import provenance  # noqa: E402
 
 
 def run_service_one(task: str, algorithm: str, seed: int, episodes: int, out: Path, overrides: list[str]) -> dict:
@@ -78,7 +79,8 @@ def main() -> None:
         r = table["service"][-1]
         print(f"service seed {seed}: coverage {r.get('coverage', float('nan')):.3f} "
               f"win {r.get('predator_win', float('nan')):.3f} ({r['train_seconds']:.0f}s)", flush=True)
-    (out / f"parity_{args.task}_{args.algorithm}.json").write_text(json.dumps(table, indent=2))
+    (out / f"parity_{args.task}_{args.algorithm}.json").write_text(
+        json.dumps({**table, "provenance": provenance()}, indent=2))
     key = "coverage" if args.task == "spread" else "predator_win"
     print(f"\n{args.task} {args.algorithm}: {args.episodes} episodes per run, seeds {args.seeds}, 200 eval episodes")
     for mode, results in table.items():

@@ -72,6 +72,8 @@ from peer_agilerl_loop import (  # noqa: E402
 )
 from peer_envs import ENVS, PeerEnv, eval_seeds, heldout_evaluation, random_policy  # noqa: E402
 
+from cmcl.provenance import provenance  # noqa: E402
+
 
 def first_ma_crossing(values: list[float], times: list[float], window: int, threshold: float):
     """1-based episode index (and its seconds) where the `window`-episode moving average first reaches threshold."""
@@ -208,7 +210,7 @@ def main() -> None:
         "eval_returns": ev["returns"],
         "argv": sys.argv[1:],
     }
-    line = json.dumps(summary, separators=(",", ":"))
+    line = json.dumps({**summary, "provenance": provenance()}, separators=(",", ":"))
     with open(args.out, "w") as f:
         f.write(line + "\n")
     print(line, flush=True)

@@ -34,6 +34,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(1, str(Path(__file__).resolve().parents[1]))
 from peer_envs import ENVS, PeerEnv, Policy, eval_seeds, heldout_evaluation, random_policy  # noqa: E402
 
+from cmcl.provenance import provenance  # noqa: E402
+
 NUM_ENVS = 16  # env.num_envs, our default and AgileRL's yaml value: worlds stepped at once
 
 
@@ -137,7 +139,7 @@ def main() -> None:
         "command": cmd[1:],
         "argv": sys.argv[1:],
     }
-    line = json.dumps(result, separators=(",", ":"))
+    line = json.dumps({**result, "provenance": provenance()}, separators=(",", ":"))
     Path(args.out).write_text(line + "\n")
     print(line, flush=True)
 

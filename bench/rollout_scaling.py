@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from cmcl.config import Config, load_config
+from cmcl.provenance import provenance
 from cmcl.system import make_batched_env
 from experiments.own_envs import OWN_ENVS
 
@@ -140,7 +141,7 @@ def main() -> None:
     print(f"load average: start {result['load_average_start']}, end {result['load_average_end']}", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"{slowest}.json"
-    path.write_text(json.dumps(result, indent=1))
+    path.write_text(json.dumps({**result, "provenance": provenance()}, indent=1))
     print(f"written: {path}")
 
 

@@ -36,6 +36,7 @@ sys.path.insert(0, str(ROOT))
 from bench.learner_throughput import filled_loop  # noqa: E402
 from cmcl.io.rundir import RunDirectory  # noqa: E402
 from cmcl.loop import InlineLoop  # noqa: E402
+from cmcl.provenance import provenance  # noqa: E402
 from experiments.measures import WINDOW, first_reaching  # noqa: E402
 
 NETWORKS = {  # network kind -> (maddpg.networks, teachers.share_parameters)
@@ -113,6 +114,7 @@ def learn(algorithm: str, agents: list[int], seeds: list[int], episodes: int, ou
                            "final_ma_success": float(success[-WINDOW:].mean()),
                            "episodes_to_50": first_reaching(coverage, 0.5),
                            "episodes_to_90": first_reaching(coverage, 0.9)}
+                summary["provenance"] = provenance()
                 (out / f"{name}.json").write_text(json.dumps(summary, indent=1))
                 print(json.dumps(summary), flush=True)
 

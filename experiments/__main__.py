@@ -2,6 +2,7 @@
 
     python -m experiments run GRID [GRID ...] [--seeds 0 1 2 3 4] [--jobs 2] [--out DIR]
             [--arms ...] [--cells ...] [--ablations ...] [--algorithms ...] [--modes inline service] [--episodes 20000]
+            [--allow-dirty]
     python -m experiments report [--update docs/RESULTS.md] [--results bench/results]
     python -m experiments figures [--results bench/results]
     python -m experiments stalls FOLDER [FOLDER ...]      (e.g. bench/results/curriculum: its runs/ directories)
@@ -18,6 +19,7 @@ import sys
 from pathlib import Path
 
 from cmcl.config import ALGORITHMS
+from cmcl.provenance import code_state
 from experiments.grids import (
     ABLATIONS,
     CURRICULUM_ARMS,
@@ -57,6 +59,14 @@ def run(args: argparse.Namespace) -> int:
         return 2
     store = ResultsStore(args.out or folders.pop())
     store.root.mkdir(parents=True, exist_ok=True)
+    commit, dirty = code_state()
+    if dirty and not args.allow_dirty:
+        print(f"error: the checkout at {ROOT} has uncommitted changes to tracked files (commit "
+              f"{(commit or '?')[:7]}); commit them, or pass --allow-dirty (every summary then records dirty: true)",
+              file=sys.stderr)
+        return 2
+    print(f"grid code: commit {commit or 'unknown'}" + (" with uncommitted changes (--allow-dirty)" if dirty else ""),
+          flush=True)
     runs = selected_runs(args)
     failed = run_grid(runs, store, args.jobs, report=lambda line: print(line, flush=True))
     print(f"results: {shown(store.write_csv())}" + (f"; {failed} runs failed (a rerun retries them)" if failed else ""))
@@ -106,6 +116,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--modes", nargs="+", choices=["inline", "service"], default=["inline", "service"],
                    help="algorithms grid: only these runners")
     p.add_argument("--episodes", type=int, default=EPISODES, help="budget of every run (the paper: 20,000)")
+    p.add_argument("--allow-dirty", action="store_true",
+                   help="train even though tracked files differ from the commit (recorded in every summary)")
     p.set_defaults(handler=run)
     for name, handler, text in (("report", report, "print the tables, draw the figures, optionally update a page"),
                                 ("figures", draw, "draw the figures only")):

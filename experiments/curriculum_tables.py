@@ -12,6 +12,7 @@ import numpy as np
 
 from experiments.grids import CURRICULUM_ARMS
 from experiments.labels import ARM_LABEL
+from experiments.provenance import cell_versions
 from experiments.stats import TIMES, difference, fmt, fmt_time, holm, logrank_p, spread
 
 STALL = (0.65, 0.85)  # final MA coverage of a run stuck at about three landmarks of four (issue 21)
@@ -150,8 +151,10 @@ def curriculum_tests(runs: list[dict[str, Any]], comparisons: list[tuple[str, st
     rows, pvalues = [], []
     for a, b, key in comparisons:
         ra, rb = by_arm[a], by_arm[b]
-        if len(ra) < 2 or len(rb) < 2:
-            rows.append((a, b, key, "n/a (fewer than 2 runs)", None))
+        code, testable = cell_versions(ra + rb)
+        if len(ra) < 2 or len(rb) < 2 or not testable:
+            rows.append((a, b, key, code, "n/a (fewer than 2 runs)" if testable else "not tested: code versions mixed",
+                         None))
             pvalues.append(None)
             continue
         if key in TIMES:
@@ -161,15 +164,16 @@ def curriculum_tests(runs: list[dict[str, Any]], comparisons: list[tuple[str, st
         else:
             d, lo, hi, p = difference([r[key] for r in ra], [r[key] for r in rb])
             text = f"{d:+.3f} [{lo:+.3f}, {hi:+.3f}]"
-        rows.append((a, b, key, text, p))
+        rows.append((a, b, key, code, text, p))
         pvalues.append(p)
     # Holm over the whole pre-registered family: a test without its runs yet counts as p = 1 (conservative)
     tested = pvalues[1:] if primary else pvalues
     adjusted = [None] * primary + holm([1.0 if p is None else p for p in tested])
-    lines = ["| comparison | measure | seeds | difference [bootstrap 95%] | p | p (Holm) |", "| --- " * 6 + "|"]
-    for i, (a, b, key, text, p) in enumerate(rows):
+    lines = ["| comparison | measure | seeds | code | difference [bootstrap 95%] | p | p (Holm) |",
+             "| --- " * 7 + "|"]
+    for i, (a, b, key, code, text, p) in enumerate(rows):
         n = f"{len(by_arm[a])} vs {len(by_arm[b])}"
         adj = "primary" if primary and i == 0 else "" if p is None else f"{adjusted[i]:.3f}"
-        lines.append(f"| {ARM_LABEL[a]} − {ARM_LABEL[b]} | {key} | {n} | {text} | "
+        lines.append(f"| {ARM_LABEL[a]} − {ARM_LABEL[b]} | {key} | {n} | {code} | {text} | "
                      f"{'' if p is None else f'{p:.3f}'} | {adj} |")
     return "\n".join(lines)

@@ -24,8 +24,10 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 from cmcl.io.rundir import RunDirectory
+from cmcl.provenance import LoadSampler
 from experiments.grids import ROOT, Run
 from experiments.measures import summarise
+from experiments.provenance import run_provenance
 from experiments.store import ResultsStore
 
 CHECKPOINT_EVERY = 2_000  # episodes between an inline run's checkpoints (what an interrupted run resumes from)
@@ -104,12 +106,18 @@ def train(run: Run, store: ResultsStore) -> Path:
 
 def run_one(run: Run, store: ResultsStore) -> str:
     """Train, summarise and store one run (a prefix reference only reads its source run); returns a one-line
-    report."""
+    report. The summary carries its provenance (`experiments.provenance.run_provenance`): the commit and versions of
+    this checkout, the load over the training, the commits the run directory's segments recorded and the training
+    fingerprint of the run's settings."""
     started = time.perf_counter()
     if run.source is not None:
         summary = summarise(run, store.runs_dir(run.source), upto=run.budget)
+        summary["provenance"] = run_provenance(run, store.runs_dir(run.source), None)
     else:
-        summary = summarise(run, train(run, store))
+        with LoadSampler() as load:
+            run_path = train(run, store)
+        summary = summarise(run, run_path)
+        summary["provenance"] = run_provenance(run, run_path, load.summary())
     store.write(summary)
     keys = ("held_out_coverage", "held_out_success", "episodes_to_90", "win_vs_trained_prey", "wall_s", "ess_mean")
     return f"{run.id} done in {time.perf_counter() - started:.0f} s: " + \

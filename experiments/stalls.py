@@ -31,6 +31,7 @@ import numpy as np
 from cmcl.evaluate import evaluate_policy, load_policy
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
+from cmcl.provenance import provenance
 from cmcl.stalls import MissAnatomy, on_plateau
 from experiments.stats import fmt
 from experiments.store import ResultsStore
@@ -142,7 +143,7 @@ def analyse_folder(folder: str | Path, report=print) -> list[Path]:
         if record is None:
             continue
         out_dir.mkdir(parents=True, exist_ok=True)
-        atomic_write_bytes(target, json.dumps(record, indent=1).encode())
+        atomic_write_bytes(target, json.dumps({**record, "provenance": provenance()}, indent=1).encode())
         written.append(target)
         report(f"{run_path.name}: plateau {record['plateau_episodes']} episodes")
     return written

@@ -5,7 +5,7 @@ Layout of `<dir>/`:
   config.toml            the resolved configuration (reloadable with cmcl.config.load_config)
   metrics.jsonl          one JSON object per line (episode rows and update rows, each with a "kind")
   run.lock               the one writer's lock (cmcl.io.runlock)
-  summary.json           the runner's last summary (how the run ended, its counters)
+  summary.json           the runner's last summary (how the run ended, its counters, its provenance)
   checkpoints/ckpt_<episodes:08d>.pt   inline runner: torch.save of plain state dicts, read with weights_only=True
   checkpoints/replay_<episodes:08d>.msgpack  inline runner: the replay snapshot beside each checkpoint
   checkpoints/service/   service: each role's checkpoint generations and manifest (cmcl.io.verified), the replay
@@ -28,6 +28,7 @@ from typing import Any, Literal
 from cmcl.config import Config, dump_toml, load_config
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.verified import CheckpointError, VerifiedFile
+from cmcl.provenance import provenance
 
 CHECKPOINT_GLOB = "ckpt_*.pt"
 SERVICE_ROLES = ("learner", "icm")  # roles whose checkpoint is one VerifiedFile at checkpoints/service/<role>.pt
@@ -199,8 +200,15 @@ class RunDirectory:
         return self.path / "summary.json"
 
     def write_summary(self, summary: Mapping[str, Any]) -> Path:
-        """Write the runner's summary (how the run ended, its counters) to summary.json, atomically."""
-        atomic_write_bytes(self.summary_path, json.dumps(_json_safe(summary), indent=2, sort_keys=True).encode())
+        """Write the runner's summary (how the run ended, its counters) to summary.json, atomically, with the
+        provenance of the code, config and machine that produced it (`cmcl.provenance`, key "provenance")."""
+        config_text = self.config_path.read_text() if self.config_path.is_file() else None
+        record = {**summary, "provenance": provenance(config_text)}
+        # the commits of every segment of the run (a resume after a code change adds one), oldest first
+        earlier = self.summary().get("provenance", {})
+        seen = [*earlier.get("segment_commits", [earlier.get("commit")]), record["provenance"]["commit"]]
+        record["provenance"]["segment_commits"] = list(dict.fromkeys(c for c in seen if c))
+        atomic_write_bytes(self.summary_path, json.dumps(_json_safe(record), indent=2, sort_keys=True).encode())
         return self.summary_path
 
     def summary(self) -> dict[str, Any]:
