@@ -33,9 +33,9 @@ ARENA_HALF = 0.5  # walls at x = +-0.5 and y = +-0.5 (side 1)
 def check_int(name: str, value: object, minimum: int) -> int:
     """Return `value` as int or raise ValueError naming the argument (bools and non-integers are refused)."""
     if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        raise ValueError(f"{name} {IntAtLeast(minimum).why}, got {value!r}")
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
     if value < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {value}")
+        raise ValueError(f"{name} {IntAtLeast(minimum).why}, got {value}")
     return int(value)
 
 
@@ -58,7 +58,7 @@ class IntAtLeast:
 
     @property
     def why(self) -> str:
-        return f"must be an integer >= {self.minimum}"
+        return f"must be >= {self.minimum}"
 
     def check(self, name: str, value: object) -> None:
         check_int(name, value, self.minimum)
