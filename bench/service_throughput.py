@@ -1,11 +1,15 @@
 """Service vs inline loop: env-steps/s and learner updates/s on the same config, same machine, same ratio.
 
-Both run one update per env step after the same warm-up (the service's rate limiter holds the ratio, and the
-supervisor lets the learner catch up before it stops). Rates are steady-state: measured between the first
-progress row after warm-up and the end of the run, from each run's metrics.jsonl. The service's memory is
-the summed RSS of the driver and every Ray process it started, sampled while it trains.
+Both run one update per `maddpg.update_every` world steps after the same warm-up (the service's rate limiter holds
+the ratio, and the supervisor lets the learner catch up before it stops). Rates are steady-state, from each run's
+metrics.jsonl: measured from the first progress row after warm-up to the row where the last env step is counted,
+so the service's catch-up tail (updates only, no env steps) is left out. The default 2000 episodes give a window of
+~30 s (service) to ~60 s (inline) on 2 cores at spread_cmcl's defaults; the former default of 300 was mostly warm-up
+and catch-up (a ~5 s window reading a ratio of 1.0 and 0 env steps/s for the service), and a window shorter than
+MIN_WINDOW_S is said so. The service's memory is the summed
+RSS / PSS of the driver and every Ray process it started, sampled while it trains.
 
-    python bench/service_throughput.py [--config configs/spread_cmcl.toml] [--episodes 300] [--set k=v ...]
+    python bench/service_throughput.py [--config configs/spread_cmcl.toml] [--episodes 2000] [--set k=v ...]
 """
 
 from __future__ import annotations
@@ -22,13 +26,21 @@ from cmcl.config import load_config
 from cmcl.io.rundir import RunDirectory
 from cmcl.loop import InlineLoop
 
+DEFAULT_EPISODES = 2000
+MIN_WINDOW_S = 20.0  # a shorter measured window is warm-up / catch-up dominated: main says so
 
-def steady_rates(run: RunDirectory) -> dict[str, float]:
-    """Updates/s and env-steps/s between the first progress row with updates > 0 and the last row."""
+
+def steady_rates(run: RunDirectory, while_collecting: bool = False) -> dict[str, float]:
+    """Updates/s and env-steps/s between the first progress row with updates > 0 and the last row, or with
+    `while_collecting` the first row that counts the run's last env step (the service's learner, teachers and ICM
+    then only catch up: no env steps, and updates at a rate the rate limiter no longer holds)."""
     rows = [r for r in run.rows("progress") if "elapsed_s" in r]
     warm = [r for r in rows if r["updates"] > 0]
+    if while_collecting and warm:
+        final = rows[-1]["env_steps"]
+        warm = warm[:next(i for i, r in enumerate(warm) if r["env_steps"] >= final) + 1]
     if len(warm) < 2:
-        raise RuntimeError(f"{run.path}: too few progress rows after warm-up to measure a rate")
+        raise RuntimeError(f"{run.path}: too few progress rows after warm-up to measure a rate (raise --episodes)")
     first, last = warm[0], warm[-1]
     dt = last["elapsed_s"] - first["elapsed_s"]
     return {"updates_per_s": (last["updates"] - first["updates"]) / dt,
@@ -75,7 +87,7 @@ def run_inline(config_path: str, overrides: list[str], out: Path) -> dict[str, f
     config = load_config(config_path, [*overrides, f"run.dir={out}", "run.log_every=16"])
     run = RunDirectory.create(out, config, overwrite=True)
     InlineLoop(config, run, progress=None).run()
-    return steady_rates(run)
+    return steady_rates(run, while_collecting=True)
 
 
 def run_service(config_path: str, overrides: list[str], out: Path) -> tuple[dict[str, float], MemorySampler]:
@@ -91,13 +103,14 @@ def run_service(config_path: str, overrides: list[str], out: Path) -> tuple[dict
             launch(config, run, progress=None)
     finally:
         ray.shutdown()
-    return steady_rates(run), memory
+    return steady_rates(run, while_collecting=True), memory
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--config", default="configs/spread_cmcl.toml")
-    parser.add_argument("--episodes", type=int, default=300)
+    parser.add_argument("--episodes", type=int, default=DEFAULT_EPISODES,
+                        help=f"episodes of each run (default {DEFAULT_EPISODES}: a steady-state window of 30-60 s)")
     parser.add_argument("--set", dest="overrides", action="append", default=[])
     parser.add_argument("--out", default="runs/bench_service")
     args = parser.parse_args()
@@ -115,6 +128,10 @@ def main() -> None:
     print(f"service memory, driver + all {memory.processes} Ray processes: peak PSS {memory.peak_pss / 2**30:.2f} GiB "
           f"(peak RSS sum {memory.peak_rss / 2**30:.2f} GiB, shared pages counted once per process)")
     print(f"ratio: {service['updates_per_s'] / inline['updates_per_s']:.2f}")
+    short = [name for name, r in (("inline", inline), ("service", service)) if r["seconds"] < MIN_WINDOW_S]
+    if short:
+        print(f"warning: the {' and '.join(short)} window is shorter than {MIN_WINDOW_S:.0f} s, mostly warm-up: "
+              f"not a steady state; raise --episodes")
 
 
 if __name__ == "__main__":

@@ -1,9 +1,10 @@
-"""One entry point for both runners: `python -m cmcl train | resume | evaluate`.
+"""One entry point for both runners: `python -m cmcl train | resume | evaluate`, and the config reference.
 
     python -m cmcl train [--runner service|inline] [--config F] [--set section.key=value ...] [--overwrite]
     python -m cmcl resume RUN_DIR [--more-episodes N] [--set ...]  (the runner that wrote RUN_DIR, by default)
     python -m cmcl evaluate RUN_DIR [--episodes 100] [--checkpoint PATH] [--random] [--no-gif]
     python -m cmcl stages --agents 2 4 8 [--stage-episodes E E E] [train's flags]   (cmcl/agent_stages.py)
+    python -m cmcl config [SECTION] [--markdown]   (every config key: meaning, unit, default, range; docs/CONFIG.md)
 
 The default runner of `train` is the service on an embedded Ray: the system this project is about, what `make run`
 starts, and the one that ends with the held-out evaluation and the GIF. `--runner inline` trains in this process
@@ -33,7 +34,7 @@ RUNNER_ENTRIES = {"inline": ("cmcl.loop.__main__", "run_inline"), "service": ("s
 def build_parser() -> argparse.ArgumentParser:
     """The parser of `python -m cmcl`: one sub-command per verb; the run flags are those of cmcl/run_flags.py."""
     parser = argparse.ArgumentParser(prog="python -m cmcl", description=__doc__.split("\n")[0])
-    verbs = parser.add_subparsers(dest="verb", metavar="{train,resume,evaluate,stages}", required=True)
+    verbs = parser.add_subparsers(dest="verb", metavar="{train,resume,evaluate,stages,config}", required=True)
     train = verbs.add_parser("train", help="train a new run", description="Train a new run in run.dir.")
     train.add_argument("--runner", choices=RUNNERS, default=DEFAULT_RUNNER,
                        help="service (Ray; default) or inline (one process, no Ray)")
@@ -56,6 +57,11 @@ def build_parser() -> argparse.ArgumentParser:
     stages.add_argument("--runner", choices=RUNNERS, default=DEFAULT_RUNNER,
                         help="service (Ray; default) or inline (one process, no Ray)")
     add_run_flags(stages)
+    config = verbs.add_parser("config", help="every config key: its meaning, unit, default and allowed range",
+                              description="Print every key of a run configuration (or of SECTION) with its meaning, "
+                                          "unit, default and allowed range (cmcl/config/reference.py).")
+    config.add_argument("section", nargs="?", metavar="SECTION", help="one section, e.g. maddpg (default: all)")
+    config.add_argument("--markdown", action="store_true", help="Markdown tables (docs/CONFIG.md)")
     return parser
 
 
@@ -88,6 +94,10 @@ def run(request: RunRequest) -> int:
 def main(argv: list[str] | None = None) -> int:
     """CLI entry point (see the module docstring for the verbs and the exit codes)."""
     args = build_parser().parse_args(argv)
+    if args.verb == "config":
+        from cmcl.config.reference import config_command
+
+        return config_command(args.section, args.markdown)
     if args.verb == "evaluate":
         from cmcl.evaluate import evaluate_run
 

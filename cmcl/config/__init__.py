@@ -6,7 +6,9 @@ and the resolutions of ../shared/ALGORITHM.md §5 (each [R] choice is an option 
 
 Layout: `sections` (the section dataclasses and their range checks), `env` (the [env] section: the world
 parameters are cmcl.envs.params' SpreadParams / TagParams, under their flat TOML keys), `experiment` (`Config`, its
-derived quantities, `preset`), `toml_io` (mapping / TOML loading, `--set` overrides, type coercion, `dump_toml`).
+derived quantities, `preset`), `toml_io` (mapping / TOML loading, `--set` overrides, type coercion, `dump_toml`),
+`reference` (every key's meaning, unit, default and range from the fields' metadata: `python -m cmcl config`,
+docs/CONFIG.md).
 Import every name from `cmcl.config`; the submodules are an implementation detail.
 
 Errors: any unknown key, wrong type or out-of-range value raises `ConfigError` naming the full key

@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import dataclasses
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
-from cmcl.config.checks import _require
+from cmcl.config.checks import AT_LEAST_1, check_fields, rule
 from cmcl.config.sections import TASKS, TaskName
 from cmcl.envs.params import EPISODE_LENGTH, SpreadParams, TagParams
+from cmcl.field_docs import documented
 
 FACTORY_PATTERN = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_][\w.]*$")  # "package.module:callable"
 
@@ -55,29 +56,35 @@ def _individual_reward_spread() -> SpreadParams:
 class EnvConfig:
     """Sparse MPE world (ALGORITHM.md §6): the task, its world parameters, the episode length and the batch."""
 
-    task: TaskName = "spread"
-    episode_length: int = EPISODE_LENGTH  # steps per episode [P]
-    num_envs: int = 16  # worlds stepped at once by the batched twin (inline loop / rollout worker)
-    # the world of each task (only `task`'s is used); TOML: its fields flat in [env], see WORLD_KEYS. Tag's
-    # defaults are §6.2's calibrated world; env.tag_shared_reward = true pays every predator +5 per pair in contact
-    spread: SpreadParams = field(default_factory=_individual_reward_spread)
-    tag: TagParams = field(default_factory=TagParams)
-    # your own environment (docs/OWN_ENVIRONMENT.md): "package.module:callable" returning a PettingZoo ParallelEnv,
-    # called with `factory_kwargs`; "" = the built-in `task`. Its episodes end when the env ends them or at
-    # `episode_length` steps, whichever comes first; `spread` and `tag` are then unused
-    factory: str = ""
-    factory_kwargs: dict[str, Any] = field(default_factory=dict)
-    team_of: dict[str, str] = field(default_factory=dict)  # agent id -> team; default: the id's prefix (adversary_0)
-    success_key: str = ""  # the env's per-agent `info` key read as episode success at its last step ("": none)
-    coverage_key: str = ""  # likewise for coverage in [0, 1] (what run.stop_coverage watches)
+    task: TaskName = documented("spread", "the built-in task: 'spread' (sparse cooperative navigation, §6.1) or "
+                                "'tag' (sparse predator-prey, §6.2); its world is set by the world keys below")
+    episode_length: int = documented(EPISODE_LENGTH, "steps per episode [P]", unit="steps", rule=AT_LEAST_1)
+    num_envs: int = documented(16, "worlds stepped at once by the batched twin (inline loop / rollout worker)",
+                               unit="worlds", rule=AT_LEAST_1)
+    spread: SpreadParams = documented(
+        meaning="the navigation world (cmcl.envs.params.SpreadParams), used when task = 'spread'; TOML: its fields "
+        "flat in [env], see WORLD_KEYS. The run's default pays each agent its own reward (shared_reward = false)",
+        factory=_individual_reward_spread, rule=rule("must be a SpreadParams", lambda v: isinstance(v, SpreadParams)))
+    tag: TagParams = documented(
+        meaning="the predator-prey world (cmcl.envs.params.TagParams, §6.2's calibrated world), used when task = "
+        "'tag'; TOML: its fields flat in [env]; env.tag_shared_reward = true pays every predator +5 per pair in "
+        "contact", factory=TagParams, rule=rule("must be a TagParams", lambda v: isinstance(v, TagParams)))
+    factory: str = documented(
+        "", "your own environment (docs/OWN_ENVIRONMENT.md): 'package.module:callable' returning a PettingZoo "
+        "ParallelEnv, called with env.factory_kwargs; '' = the built-in env.task. Its episodes end when the env ends "
+        "them or at env.episode_length steps, whichever comes first; the world keys are then unused",
+        rule=rule("must look like 'package.module:callable' (or be empty for the built-in task)",
+                  lambda v: v == "" or bool(FACTORY_PATTERN.match(v))))
+    factory_kwargs: dict[str, Any] = documented(meaning="keyword arguments of env.factory (a table of scalars)",
+                                                factory=dict)
+    team_of: dict[str, str] = documented(meaning="agent id -> team, for env.factory; default: the id's prefix "
+                                         "(adversary_0 -> adversary)", factory=dict)
+    success_key: str = documented("", "the env's per-agent `info` key read as episode success at its last step "
+                                  "('': none)")
+    coverage_key: str = documented("", "likewise for coverage in [0, 1] (what run.stop_coverage watches)")
 
     def __post_init__(self) -> None:
-        _require(self.factory == "" or bool(FACTORY_PATTERN.match(self.factory)), "env.factory", self.factory,
-                 "must look like 'package.module:callable' (or be empty for the built-in task)")
-        for name in ("episode_length", "num_envs"):
-            _require(getattr(self, name) >= 1, f"env.{name}", getattr(self, name), "must be >= 1")
-        _require(isinstance(self.spread, SpreadParams), "env.spread", self.spread, "must be a SpreadParams")
-        _require(isinstance(self.tag, TagParams), "env.tag", self.tag, "must be a TagParams")
+        check_fields(self, "env")
 
     @property
     def world(self) -> SpreadParams | TagParams:

@@ -1,7 +1,9 @@
 """The section dataclasses of a run configuration: one frozen, self-validating dataclass per component.
 
-Every field has the paper's Table 1 value or the resolution of ../shared/ALGORITHM.md §5 as its default. Each
-`__post_init__` checks ranges and raises `ConfigError` naming the full key (e.g. ``maddpg.gamma``) and the value.
+Every field has the paper's Table 1 value or the resolution of ../shared/ALGORITHM.md §5 as its default. Each field
+is declared with `documented(default, meaning, unit=..., rule=...)` (cmcl.field_docs): its meaning, unit and range
+check live there, once, and `python -m cmcl config` / docs/CONFIG.md print them. Each `__post_init__` runs the rules
+(`check_fields`) and raises `ConfigError` naming the full key (e.g. ``maddpg.gamma``) and the value.
 The whole run (`Config`) is in cmcl.config.experiment, the [env] section (`EnvConfig`) in cmcl.config.env; TOML
 loading in cmcl.config.toml_io; the value checks (`ConfigError`, `_require`, ...) in cmcl.config.checks.
 """
@@ -13,7 +15,21 @@ import typing
 from dataclasses import dataclass
 from typing import Literal
 
-from cmcl.config.checks import ConfigError, _positive, _probability, _require
+from cmcl.config.checks import (
+    AT_LEAST_0,
+    AT_LEAST_1,
+    FINITE_AT_LEAST_0,
+    OPEN_PROBABILITY,
+    OPTIONAL_ALPHA,
+    POSITIVE,
+    PROBABILITY,
+    ConfigError,
+    Rule,
+    _require,
+    check_fields,
+    rule,
+)
+from cmcl.field_docs import documented
 from cmcl.replay.sampling import ALGORITHMS, AlgorithmName
 
 TaskName = Literal["spread", "tag"]
@@ -46,44 +62,45 @@ def _network_kind(networks: str | None, share_parameters: bool) -> str:
 class MADDPGConfig:
     """Base learner (ALGORITHM.md §2, Table 1)."""
 
-    actor_lr: float = 1e-3
-    critic_lr: float = 1e-3
-    gamma: float = 0.99
-    tau: float = 0.01
-    hidden: int = 64
-    batch_size: int = 128
-    grad_clip: float = 0.5
-    exploration_std: float = 0.1  # Gaussian noise on tanh actions
-    discrete: bool = False  # Gumbel-softmax variant (A17)
-    warmup: int = 3840  # transitions before the first update: batch × episode length (A18)
-    # world steps (one step of one world = one transition) per learner update; 16 solves navigation fastest in
-    # wall clock (docs/LEARNING.md, python -m experiments run schedule); the paper presets (configs/paper/)
-    # use 1 (A18)
-    update_every: int = 16
-    # one actor and one critic network for all agents, each with its own first-layer bias (an agent-id embedding,
-    # cmcl.learners.nets); for N = 8 / 16 (bench/scale.py). False = the paper's per-agent networks
-    share_parameters: bool = False
-    # the networks' kind (issue 22): "per_agent" (one actor and critic per agent, the paper's), "shared" (the same
-    # as share_parameters = true) or "entity" (one attention actor and one permutation-invariant critic for all
-    # agents over the observation's entities, a parameter count independent of N: cmcl.learners.entity_nets;
-    # built-in tasks only). Unset: "shared" if share_parameters else "per_agent"
-    networks: NetworkKind | None = None
-    # how every entity network of the run (learner, teachers.networks and icm.networks = "entity") pools its
-    # entities: "attention" (one head from the agent's own embedding, plus a mean), "mean" (the mean only, about
-    # half the cost per update) or "relational" ("attention" after one round of self-attention among the
-    # entities, so that a landmark's embedding can say another agent holds it: cmcl.learners.entity_nets)
-    entity_pool: Literal["attention", "mean", "relational"] = "attention"
+    actor_lr: float = documented(1e-3, "Adam learning rate of the actor networks (eq. 4)", rule=POSITIVE)
+    critic_lr: float = documented(1e-3, "Adam learning rate of the critic networks (eq. 5)", rule=POSITIVE)
+    gamma: float = documented(0.99, "discount factor γ of the critics' TD target (eq. 5)", rule=PROBABILITY)
+    tau: float = documented(0.01, "soft target-network update rate τ (eq. 6): target ← τ·online + (1 − τ)·target "
+                            "after every update", rule=OPEN_PROBABILITY)
+    hidden: int = documented(64, "width of each hidden layer of the actor and critic networks", unit="units",
+                             rule=AT_LEAST_1)
+    batch_size: int = documented(128, "transitions per minibatch of one learner update; must not exceed "
+                                 "maddpg.warmup (unless that is 0)", unit="transitions", rule=AT_LEAST_1)
+    grad_clip: float = documented(0.5, "gradient-norm clip of every actor and critic step, per agent",
+                                  rule=POSITIVE)
+    exploration_std: float = documented(0.1, "standard deviation of the Gaussian noise on the tanh actions "
+                                        "(exploration)", unit="action units", rule=AT_LEAST_0)
+    discrete: bool = documented(False, "Gumbel-softmax actors over the built-in tasks' 5-way discrete action (A17); "
+                                "must be false with env.factory")
+    warmup: int = documented(3840, "transitions stored before the first learner update: batch × episode length "
+                             "(A18); must not exceed replay.capacity", unit="transitions", rule=AT_LEAST_0)
+    update_every: int = documented(
+        16, "world steps (one step of one world = one transition) per learner update; 16 solves navigation fastest "
+        "in wall clock (docs/LEARNING.md, python -m experiments run schedule); the paper presets (configs/paper/) "
+        "use 1 (A18)", unit="world steps per update", rule=AT_LEAST_1)
+    share_parameters: bool = documented(
+        False, "one actor and one critic network for all agents, each with its own first-layer bias (an agent-id "
+        "embedding, cmcl.learners.nets); for N = 8 / 16 (bench/scale.py). False = the paper's per-agent networks")
+    networks: NetworkKind | None = documented(
+        None, "the networks' kind (issue 22): 'per_agent' (one actor and critic per agent, the paper's), 'shared' "
+        "(the same as share_parameters = true) or 'entity' (one attention actor and one permutation-invariant "
+        "critic for all agents over the observation's entities, a parameter count independent of N: "
+        "cmcl.learners.entity_nets; built-in tasks only). Unset: 'shared' if share_parameters else 'per_agent'")
+    entity_pool: Literal["attention", "mean", "relational"] = documented(
+        "attention", "how every entity network of the run (learner, teachers.networks and icm.networks = "
+        "'entity') pools its entities: 'attention' (one head from the agent's own embedding, plus a mean), 'mean' "
+        "(the mean only, about half the cost per update) or 'relational' ('attention' after one round of "
+        "self-attention among the entities, so that a landmark's embedding can say another agent holds it: "
+        "cmcl.learners.entity_nets)")
 
     def __post_init__(self) -> None:
         _check_networks("maddpg", self.networks, self.share_parameters)
-        for name in ("actor_lr", "critic_lr", "grad_clip"):
-            _positive(f"maddpg.{name}", getattr(self, name))
-        _probability("maddpg.gamma", self.gamma)
-        _probability("maddpg.tau", self.tau, open_low=True)
-        for name in ("hidden", "batch_size", "update_every"):
-            _require(getattr(self, name) >= 1, f"maddpg.{name}", getattr(self, name), "must be >= 1")
-        _require(self.warmup >= 0, "maddpg.warmup", self.warmup, "must be >= 0")
-        _require(self.exploration_std >= 0, "maddpg.exploration_std", self.exploration_std, "must be >= 0")
+        check_fields(self, "maddpg")
 
     @property
     def network_kind(self) -> str:
@@ -95,83 +112,96 @@ class MADDPGConfig:
 class ReplayConfig:
     """Replay storage and prioritized sampling (ALGORITHM.md §3.1, §3.6)."""
 
-    capacity: int = 5000
-    # sampling exponent α_s of eq. 20 for every team (A8). None (default): each team's own `teams.<t>.alpha`, else
-    # the per-algorithm default DEFAULT_ALPHA (1 for acl / cmcl, 0.6 for per). A number here applies to every team
-    # that does not set its own; precedence: teams.<t>.alpha > replay.alpha > DEFAULT_ALPHA[algorithm]
-    alpha: float | None = None
-    priority_eps: float = 1e-6  # ε_p floor
-    beta_is_start: float = 0.4  # PER importance-sampling exponent, annealed linearly …
-    beta_is_end: float = 1.0  # … to this value over training
-    backend: Literal["cdf", "sumtree"] = "cdf"
+    capacity: int = documented(5000, "rows the replay buffer holds (eq. 3's B), one per world step; the oldest is "
+                               "overwritten first", unit="transitions", rule=AT_LEAST_1)
+    alpha: float | None = documented(
+        None, "sampling exponent α_s of eq. 20 for every team (A8). Unset: each team's own teams.<t>.alpha, else "
+        "the per-algorithm default (1 for acl / cmcl, 0.6 for per). A number here applies to every team that does "
+        "not set its own; precedence: teams.<t>.alpha > replay.alpha > the per-algorithm default",
+        rule=OPTIONAL_ALPHA)
+    priority_eps: float = documented(1e-6, "ε_p, the floor added to every priority (no row has probability 0)",
+                                     rule=POSITIVE)
+    beta_is_start: float = documented(0.4, "PER importance-sampling exponent β at the start of training, annealed "
+                                      "linearly to replay.beta_is_end", rule=PROBABILITY)
+    beta_is_end: float = documented(1.0, "PER importance-sampling exponent β at the end of training",
+                                    rule=PROBABILITY)
+    backend: Literal["cdf", "sumtree"] = documented(
+        "cdf", "the samplers' structure (cmcl.replay.sampler): 'cdf' (inverse CDF) or 'sumtree' (a vectorised sum "
+        "tree); both draw from the same distribution")
 
     def __post_init__(self) -> None:
-        _require(self.capacity >= 1, "replay.capacity", self.capacity, "must be >= 1")
-        _require(self.alpha is None or (self.alpha >= 0 and math.isfinite(self.alpha)), "replay.alpha", self.alpha,
-                 "must be a finite number >= 0 (or unset: the per-algorithm default)")
-        _positive("replay.priority_eps", self.priority_eps)
-        _probability("replay.beta_is_start", self.beta_is_start)
-        _probability("replay.beta_is_end", self.beta_is_end)
+        check_fields(self, "replay")
 
 
 @dataclass(frozen=True)
 class CurriculumConfig:
     """Curriculum factor λ schedule (ALGORITHM.md §3.7)."""
 
-    lam0: float = 0.1
-    lam_max: float = 1.0
-    # Δλ per post-warm-up env step; 0 means "reach lam_max at half of run.episodes" (3e-6 for 20k episodes).
-    stride: float = 0.0
-    kind: Literal["linear", "multiplicative"] = "linear"
+    lam0: float = documented(0.1, "λ at the end of the warm-up: the difficulty the K-fold priority KP favours "
+                             "first (eq. 12)", rule=Rule("must lie in (0, lam_max]", lambda value, section: (
+                                 not OPEN_PROBABILITY.ok(section.lam_max, section) or 0 < value <= section.lam_max)))
+    # (lam0's rule passes while lam_max is itself out of range: lam_max's own error is the one raised)
+    lam_max: float = documented(1.0, "the largest λ, where the schedule stops", rule=OPEN_PROBABILITY)
+    stride: float = documented(0.0, "Δλ per post-warm-up env step (kind = 'linear'); 0 means 'reach lam_max at "
+                               "half of run.episodes' (3e-6 for 20k episodes)", unit="λ per env step",
+                               rule=AT_LEAST_0)
+    kind: Literal["linear", "multiplicative"] = documented(
+        "linear", "how λ grows: 'linear' (λ_0 + Δλ·t) or 'multiplicative' (λ_0·(1 + κ)^t, κ reaching lam_max at "
+        "half of training; CHER-style), t in post-warm-up env steps, capped at lam_max (cmcl.replay.curriculum)")
 
     def __post_init__(self) -> None:
-        _probability("curriculum.lam_max", self.lam_max, open_low=True)
-        _require(0 < self.lam0 <= self.lam_max, "curriculum.lam0", self.lam0, "must lie in (0, lam_max]")
-        _require(self.stride >= 0, "curriculum.stride", self.stride, "must be >= 0")
+        check_fields(self, "curriculum")
 
 
 @dataclass(frozen=True)
 class TeacherConfig:
     """K-fold teacher critics (ALGORITHM.md §3.2, A13, A14)."""
 
-    num_folds: int = 5
-    batch_size: int = 128
-    lr: float = 1e-3
-    hidden: int = 64
-    # rows rescored per learner update (every never-scored row, then the oldest scores, cmcl.replay.scoring): the
-    # whole 5000-row buffer every ~39 updates; the paper preset's 167 = all of it every 30 updates (§3.8)
-    rescore_rows_per_update: int = 128
-    # "shared": one fold batch per fold serves every agent's teacher of that fold (one target pass; the service's
-    # layout); "per_agent": each (agent, fold) teacher draws its own batch (§3.2 literally, A x the target cost)
-    fit_batch: Literal["shared", "per_agent"] = "shared"
-    # ĉ of §3.3 (A1, revised 2026-12): "rank" = percentile over the buffer, rank/(|D|−1) (λ reads as a difficulty
-    # percentile, so KP excludes rows while λ < 0.5); "max" = min(1, c / max c), the earlier default, which puts the
-    # heavy-tailed c at ĉ ≈ 0.05 (every row on KP's rising branch: near-uniform sampling, ESS >= 0.9)
-    difficulty_norm: Literal["max", "rank"] = "rank"
-    # sampling controls of the acl / cmcl teams (issue 21), to tell "the curriculum helps" from "sampling is just
-    # different": "none" = the method; "reversed" = anti-curriculum, ĉ -> 1 − ĉ before KP (eq. 12); "permuted" =
-    # each recompute, every curriculum agent's priority column is shuffled across the buffer's rows by a seeded
-    # permutation (cmcl.replay.priority.permute_priorities): the same multiset of probabilities, hence the same
-    # ESS, carrying no information about the rows. Uniform and PER agents are unaffected
-    difficulty_transform: Literal["none", "permuted", "reversed"] = "none"
-    difficulty_error: Literal["squared", "abs"] = "squared"
-    # teacher fit steps per learner update, inline and in the service (its rate limiter); §3.8 has 1, the
-    # default 0.5 halves the teachers' cost (CMCL update cost vs MADDPG: bench/learner_throughput.py)
-    steps_per_update: float = 0.5
-    # one teacher network per fold for all agents, each agent with its own first-layer bias (cmcl.learners.nets,
-    # grouped sharing); the folds stay separate. For N = 8 / 16 (bench/scale.py). False = per-(agent, fold) networks
-    share_parameters: bool = False
-    # the teachers' kind, as maddpg.networks: "entity" = one entity critic (cmcl.learners.entity_nets) per fold for
-    # all agents, its parameter count independent of N; unset: "shared" if share_parameters else "per_agent"
-    networks: NetworkKind | None = None
+    num_folds: int = documented(5, "K: the buffer's rows are split by episode into K folds, and each agent has K "
+                                "teacher critics, each fitted on its own fold (§3.2)", unit="folds",
+                                rule=rule("must be >= 2", lambda v: v >= 2))
+    batch_size: int = documented(128, "transitions per teacher fit batch", unit="transitions", rule=AT_LEAST_1)
+    lr: float = documented(1e-3, "Adam learning rate of the teacher critics (eq. 9)", rule=POSITIVE)
+    hidden: int = documented(64, "width of each hidden layer of a teacher critic", unit="units", rule=AT_LEAST_1)
+    rescore_rows_per_update: int = documented(
+        128, "rows rescored per learner update (every never-scored row, then the oldest scores, "
+        "cmcl.replay.scoring): the whole 5000-row buffer every ~39 updates; the paper preset's 167 = all of it "
+        "every 30 updates (§3.8)", unit="rows per update", rule=AT_LEAST_1)
+    fit_batch: Literal["shared", "per_agent"] = documented(
+        "shared", "'shared': one fold batch per fold serves every agent's teacher of that fold (one target pass; "
+        "the service's layout); 'per_agent': each (agent, fold) teacher draws its own batch (§3.2 literally, A × "
+        "the target cost)")
+    difficulty_norm: Literal["max", "rank"] = documented(
+        "rank", "ĉ of §3.3 (A1, revised 2026-12): 'rank' = percentile over the buffer, rank/(|D|−1) (λ reads as a "
+        "difficulty percentile, so KP excludes rows while λ < 0.5); 'max' = min(1, c / max c), the earlier "
+        "default, which puts the heavy-tailed c at ĉ ≈ 0.05 (every row on KP's rising branch: near-uniform "
+        "sampling, ESS >= 0.9)")
+    difficulty_transform: Literal["none", "permuted", "reversed"] = documented(
+        "none", "sampling controls of the acl / cmcl teams (issue 21), to tell 'the curriculum helps' from "
+        "'sampling is just different': 'none' = the method; 'reversed' = anti-curriculum, ĉ → 1 − ĉ before KP "
+        "(eq. 12); 'permuted' = each recompute, every curriculum agent's priority column is shuffled across the "
+        "buffer's rows by a seeded permutation (cmcl.replay.priority.permute_priorities): the same multiset of "
+        "probabilities, hence the same ESS, carrying no information about the rows. Uniform and PER agents are "
+        "unaffected")
+    difficulty_error: Literal["squared", "abs"] = documented(
+        "squared", "a teacher's error on a row against the learner's TD target (eq. 10): 'squared' (δ²) or 'abs' "
+        "(|δ|)")
+    steps_per_update: float = documented(
+        0.5, "teacher fit steps per learner update, inline and in the service (its rate limiter); §3.8 has 1, the "
+        "default 0.5 halves the teachers' cost (CMCL update cost vs MADDPG: bench/learner_throughput.py)",
+        unit="fit steps per update", rule=POSITIVE)
+    share_parameters: bool = documented(
+        False, "one teacher network per fold for all agents, each agent with its own first-layer bias "
+        "(cmcl.learners.nets, grouped sharing); the folds stay separate. For N = 8 / 16 (bench/scale.py). False = "
+        "per-(agent, fold) networks")
+    networks: NetworkKind | None = documented(
+        None, "the teachers' kind, as maddpg.networks: 'entity' = one entity critic (cmcl.learners.entity_nets) per "
+        "fold for all agents, its parameter count independent of N; unset: 'shared' if share_parameters else "
+        "'per_agent'")
 
     def __post_init__(self) -> None:
         _check_networks("teachers", self.networks, self.share_parameters)
-        _require(self.num_folds >= 2, "teachers.num_folds", self.num_folds, "must be >= 2")
-        for name in ("batch_size", "hidden", "rescore_rows_per_update"):
-            _require(getattr(self, name) >= 1, f"teachers.{name}", getattr(self, name), "must be >= 1")
-        _positive("teachers.lr", self.lr)
-        _positive("teachers.steps_per_update", self.steps_per_update)
+        check_fields(self, "teachers")
 
     @property
     def network_kind(self) -> str:
@@ -183,49 +213,54 @@ class TeacherConfig:
 class ICMConfig:
     """Intrinsic curiosity module (ALGORITHM.md §3.4–3.5, A5–A7)."""
 
-    feature_dim: int = 32
-    hidden: int = 64
-    beta_forward: float = 0.2
-    lr: float = 1e-3
-    batch_size: int = 128
-    cp_input: Literal["std", "raw"] = "std"
-    intrinsic_reward_coef: float = 0.0  # A6: curiosity feeds priority only
-    steps_per_update: float = 0.5  # ICM steps per learner update, inline and in the service (§3.8: 1)
-    # "per_agent": one encoder, inverse and forward model per curiosity agent; "entity": one of each for all of
-    # them, the encoder over the observation's entities (cmcl.learners.entity_nets), a size independent of N
-    networks: Literal["per_agent", "entity"] = "per_agent"
+    feature_dim: int = documented(32, "size of the encoder's feature vector φ(s) (eq. 13)", unit="features",
+                                  rule=AT_LEAST_1)
+    hidden: int = documented(64, "width of each hidden layer of the encoder, inverse and forward models",
+                             unit="units", rule=AT_LEAST_1)
+    beta_forward: float = documented(0.2, "β of the ICM objective (eq. 17): the forward loss's weight against the "
+                                     "inverse loss's 1 − β", rule=PROBABILITY)
+    lr: float = documented(1e-3, "Adam learning rate of the ICM (eq. 17)", rule=POSITIVE)
+    batch_size: int = documented(128, "transitions per ICM fit batch", unit="transitions", rule=AT_LEAST_1)
+    cp_input: Literal["std", "raw"] = documented(
+        "std", "the curiosity the curiosity priority CP (eq. 19) reads (A7): 'std' = ρ divided by its standard "
+        "deviation over the buffer, per agent; 'raw' = ρ as is")
+    intrinsic_reward_coef: float = documented(0.0, "weight of the curiosity ρ added to the reward; 0 (A6): "
+                                              "curiosity feeds priority only", rule=AT_LEAST_0)
+    steps_per_update: float = documented(0.5, "ICM fit steps per learner update, inline and in the service "
+                                         "(§3.8: 1)", unit="fit steps per update", rule=POSITIVE)
+    networks: Literal["per_agent", "entity"] = documented(
+        "per_agent", "'per_agent': one encoder, inverse and forward model per curiosity agent; 'entity': one of "
+        "each for all of them, the encoder over the observation's entities (cmcl.learners.entity_nets), a size "
+        "independent of N")
 
     def __post_init__(self) -> None:
-        for name in ("feature_dim", "hidden", "batch_size"):
-            _require(getattr(self, name) >= 1, f"icm.{name}", getattr(self, name), "must be >= 1")
-        _probability("icm.beta_forward", self.beta_forward)
-        _positive("icm.lr", self.lr)
-        _require(self.intrinsic_reward_coef >= 0, "icm.intrinsic_reward_coef", self.intrinsic_reward_coef,
-                 "must be >= 0")
-        _positive("icm.steps_per_update", self.steps_per_update)
+        check_fields(self, "icm")
 
 
 @dataclass(frozen=True)
 class TeamConfig:
-    """Which algorithm a team of agents learns with (ALGORITHM.md §5)."""
+    """Which algorithm a team of agents learns with (ALGORITHM.md §5): one [teams.<team>] table per team."""
 
-    algorithm: AlgorithmName = "cmcl"
-    eta: float = 0.5  # curiosity weight in CI (A15); forced to 0 for acl
-    # this team's sampling exponent α_s (eq. 20, A8); None: replay.alpha if set, else DEFAULT_ALPHA[algorithm]
-    # (1 for acl / cmcl, 0.6 for per); see `effective_alpha`
-    alpha: float | None = None
-    is_correction: bool | None = None  # None: on for per, off for acl/cmcl (A9)
-    acl_variant: Literal["teachers", "td_self"] = "teachers"
-    # one sampler per agent (A3); A3's option "team_mean" (one sampler per team on the team's mean ĉ and ρ̂) is
-    # refused here, not implemented
-    priority_sharing: Literal["per_agent"] = "per_agent"
+    algorithm: AlgorithmName = documented(
+        "cmcl", "the team's algorithm (§5): 'maddpg' (uniform sampling), 'per' (PER-MADDPG, |δ| priorities), "
+        "'acl' (the curriculum's K-fold priority alone) or 'cmcl' (K-fold priority plus η × curiosity)")
+    eta: float = documented(0.5, "η, the curiosity weight in CI = KP + η·CP (eq. 8, A15); forced to 0 for acl",
+                            rule=rule("must be >= 0", lambda v: v >= 0 and math.isfinite(v)))
+    alpha: float | None = documented(
+        None, "this team's sampling exponent α_s (eq. 20, A8); unset: replay.alpha if set, else the per-algorithm "
+        "default (1 for acl / cmcl, 0.6 for per)", rule=OPTIONAL_ALPHA)
+    is_correction: bool | None = documented(None, "importance-sampling weights on the critic loss; unset: on for "
+                                            "per, off for acl / cmcl (A9)")
+    acl_variant: Literal["teachers", "td_self"] = documented(
+        "teachers", "where an acl team's difficulty comes from: 'teachers' (the K-fold teachers' errors, as cmcl) "
+        "or 'td_self' (the learner's own |δ| on the row)")
+    priority_sharing: Literal["per_agent"] = documented(
+        "per_agent", "one sampler per agent (A3); A3's option 'team_mean' (one sampler per team on the team's mean "
+        "ĉ and ρ̂) is refused here, not implemented",
+        rule=rule("must be 'per_agent' (A3's 'team_mean' is not implemented)", lambda v: v == "per_agent"))
 
     def __post_init__(self) -> None:
-        _require(self.eta >= 0 and math.isfinite(self.eta), "team.eta", self.eta, "must be >= 0")
-        _require(self.priority_sharing == "per_agent", "team.priority_sharing", self.priority_sharing,
-                 "must be 'per_agent' (A3's 'team_mean' is not implemented)")
-        _require(self.alpha is None or (self.alpha >= 0 and math.isfinite(self.alpha)), "team.alpha", self.alpha,
-                 "must be a finite number >= 0 (or unset: the per-algorithm default)")
+        check_fields(self, "team")
 
     def effective_alpha(self, run_alpha: float | None = None) -> float:
         """α_s this team samples with: its own `alpha`, else `run_alpha` (replay.alpha), else DEFAULT_ALPHA."""
@@ -258,88 +293,90 @@ class TeamConfig:
 class RunConfig:
     """Budget, seed, output and bookkeeping of one run."""
 
-    episodes: int = 20000
-    dir: str = "runs/default"
-    seed: int = 0
-    log_every: int = 10  # episodes between progress lines / metric rows
-    checkpoint_every: int = 500  # episodes between checkpoints (0: only at the end)
-    smoothing_window: int = 100  # episodes, for curves and moving averages
-    # stop early once the moving average (over smoothing_window episodes) of final-step coverage reaches this
-    # (spread only; 0: off, train all run.episodes)
-    stop_coverage: float = 0.0
-    max_seconds: float = 0.0  # wall-clock budget of training, inline and in the service (0: none)
-    # stop early once learning stops progressing (cmcl.learning_progress): the relative change of the mean critic
-    # loss between consecutive windows of progress_window episodes stays below this for progress_patience windows
-    # (0: off). The agent-count curriculum (python -m cmcl stages) ends its stages by it
-    stop_progress: float = 0.0
-    progress_window: int = 500  # episodes per learning-progress window
-    progress_patience: int = 3  # consecutive windows below stop_progress that end the run
-    # a run directory whose newest policy initialises this new run's actors and critics (cmcl.learners.warm_start;
-    # same network shapes required); "" = random initial weights. A resumed run ignores it (its checkpoint wins)
-    init_from: str = ""
-    # with init_from, also start with that run's replay rows (its newest checkpoint's buffer), padded to this run's
-    # agent count (cmcl.replay.agent_padding: absent agents zero and masked per row), so that the buffer holds rows
-    # of both counts (issue 22's agent curriculum: `python -m cmcl stages ... --set run.carry_replay=true`). Needs
-    # maddpg.networks = "entity", task spread and algorithms maddpg or per; either runner. Off: an empty buffer
-    carry_replay: bool = False
+    episodes: int = documented(20000, "training budget", unit="episodes", rule=AT_LEAST_1)
+    dir: str = documented("runs/default", "the run directory (config, metrics, checkpoints, evaluation; "
+                          "cmcl.io.rundir)", unit="path", rule=rule("must be a non-empty path", bool))
+    seed: int = documented(0, "seed of the run's random generators (worlds, networks, sampling)", rule=AT_LEAST_0)
+    log_every: int = documented(10, "episodes between progress lines / metric rows", unit="episodes",
+                                rule=AT_LEAST_1)
+    checkpoint_every: int = documented(500, "episodes between checkpoints of the inline runner (0: only at the "
+                                       "end); the service's cadence is service.checkpoint_every_s",
+                                       unit="episodes", rule=AT_LEAST_0)
+    smoothing_window: int = documented(100, "window of the curves' and progress lines' moving averages",
+                                       unit="episodes", rule=AT_LEAST_1)
+    stop_coverage: float = documented(0.0, "stop early once the moving average (over smoothing_window episodes) "
+                                      "of final-step coverage reaches this (spread only; 0: off, train all "
+                                      "run.episodes)", unit="fraction of landmarks", rule=PROBABILITY)
+    max_seconds: float = documented(0.0, "wall-clock budget of training, inline and in the service (0: none)",
+                                    unit="seconds", rule=FINITE_AT_LEAST_0)
+    stop_progress: float = documented(
+        0.0, "stop early once learning stops progressing (cmcl.learning_progress): the relative change of the mean "
+        "critic loss between consecutive windows of progress_window episodes stays below this for "
+        "progress_patience windows (0: off). The agent-count curriculum (python -m cmcl stages) ends its stages "
+        "by it", unit="relative change", rule=FINITE_AT_LEAST_0)
+    progress_window: int = documented(500, "episodes per learning-progress window (run.stop_progress)",
+                                      unit="episodes", rule=AT_LEAST_1)
+    progress_patience: int = documented(3, "consecutive windows below stop_progress that end the run",
+                                        unit="windows", rule=AT_LEAST_1)
+    init_from: str = documented(
+        "", "a run directory whose newest policy initialises this new run's actors and critics "
+        "(cmcl.learners.warm_start; same network shapes required); '' = random initial weights. A resumed run "
+        "ignores it (its checkpoint wins)", unit="path")
+    carry_replay: bool = documented(
+        False, "with init_from, also start with that run's replay rows (its newest checkpoint's buffer), padded to "
+        "this run's agent count (cmcl.replay.agent_padding: absent agents zero and masked per row), so that the "
+        "buffer holds rows of both counts (issue 22's agent curriculum: `python -m cmcl stages ... --set "
+        "run.carry_replay=true`). Needs maddpg.networks = 'entity', task spread and algorithms maddpg or per; "
+        "either runner. Off: an empty buffer")
 
     def __post_init__(self) -> None:
-        _require(self.episodes >= 1, "run.episodes", self.episodes, "must be >= 1")
-        _probability("run.stop_coverage", self.stop_coverage)
-        _require(self.max_seconds >= 0 and math.isfinite(self.max_seconds), "run.max_seconds", self.max_seconds,
-                 "must be a finite number >= 0")
-        _require(bool(self.dir), "run.dir", self.dir, "must be a non-empty path")
-        _require(self.seed >= 0, "run.seed", self.seed, "must be >= 0")
-        _require(self.stop_progress >= 0 and math.isfinite(self.stop_progress), "run.stop_progress",
-                 self.stop_progress, "must be a finite number >= 0")
-        for name in ("log_every", "smoothing_window", "progress_window", "progress_patience"):
-            _require(getattr(self, name) >= 1, f"run.{name}", getattr(self, name), "must be >= 1")
-        _require(self.checkpoint_every >= 0, "run.checkpoint_every", self.checkpoint_every, "must be >= 0")
+        check_fields(self, "run")
 
 
 @dataclass(frozen=True)
 class ServiceConfig:
     """Distributed service (services/): actor counts, per-call work, rate-limiter slack, CPUs, metrics."""
 
-    rollout_workers: int = 1
-    # actors sharing the K teacher folds: K = one fold each, 1 = all folds stacked in one actor; 0 = automatic:
-    # K when the cluster has at least 2K CPUs, else 1 (on 2 cores one stacked actor is 1.4x faster than K)
-    teacher_actors: int = 0  # placement policy: services.placement.teacher_groups
-    updates_per_call: int = 16  # learner updates per learner call (batches sampled per replay call)
-    fit_steps_per_call: int = 8  # teacher / ICM fit steps per call
-    score_rows_per_call: int = 1024  # rows a teacher / the ICM rescores per call
-    slack_updates: int = 256  # how far updates may run ahead of / behind the env-step ratio
-    call_timeout_s: float = 300.0  # a call in flight longer than this marks its actor hung: killed, restarted (0: off)
-    replay_log_fsync: bool = False  # fsync every replay-log append (survives power loss; flush-only survives crashes)
-    recompute_every: int = 0  # inserts between bulk priority recomputes (0: one episode of every worker)
-    # seconds between checkpoints of every role (and one at the end, and one on a graceful stop): bounds the
-    # learning a hard crash loses; measured cost at 60 s: bench/checkpoint_cadence.py
-    checkpoint_every_s: float = 60.0
-    max_restarts: int = 3  # per actor
-    rollout_cpus: float = 0.25
-    learner_cpus: float = 0.5
-    teacher_cpus: float = 0.1
-    icm_cpus: float = 0.1
-    replay_cpus: float = 0.25
-    # a custom Ray resource the rollout workers require (0.01 of it each), to keep them on the nodes that
-    # advertise it (e.g. `ray start --resources='{"rollout": 100}'` on CPU worker nodes); "" = any node
-    rollout_resource: str = ""
-    metrics_port: int = 9100  # 0: pick a free port
-    metrics_host: str = "127.0.0.1"
+    rollout_workers: int = documented(1, "rollout worker actors, each stepping env.num_envs worlds",
+                                      unit="actors", rule=AT_LEAST_1)
+    teacher_actors: int = documented(
+        0, "actors sharing the K teacher folds: K = one fold each, 1 = all folds stacked in one actor; 0 = "
+        "automatic: K when the cluster has at least 2K CPUs, else 1 (on 2 cores one stacked actor is 1.4x faster "
+        "than K); placement policy: services.placement.teacher_groups", unit="actors", rule=AT_LEAST_0)
+    updates_per_call: int = documented(16, "learner updates per learner call (batches sampled per replay call)",
+                                       unit="updates", rule=AT_LEAST_1)
+    fit_steps_per_call: int = documented(8, "teacher / ICM fit steps per call", unit="fit steps", rule=AT_LEAST_1)
+    score_rows_per_call: int = documented(1024, "rows a teacher / the ICM rescores per call", unit="rows",
+                                          rule=AT_LEAST_1)
+    slack_updates: int = documented(256, "how far updates may run ahead of / behind the env-step ratio (the rate "
+                                    "limiter's slack)", unit="updates", rule=AT_LEAST_1)
+    call_timeout_s: float = documented(300.0, "a call in flight longer than this marks its actor hung: killed, "
+                                       "restarted (0: off)", unit="seconds", rule=rule("must be >= 0 (0: off)",
+                                                                                      lambda v: v >= 0))
+    replay_log_fsync: bool = documented(False, "fsync every replay-log append (survives power loss; flush-only "
+                                        "survives crashes)")
+    recompute_every: int = documented(0, "inserts between bulk priority recomputes (0: one episode of every "
+                                      "worker)", unit="inserts", rule=AT_LEAST_0)
+    checkpoint_every_s: float = documented(
+        60.0, "seconds between checkpoints of every role (and one at the end, and one on a graceful stop): bounds "
+        "the learning a hard crash loses; measured cost at 60 s: bench/checkpoint_cadence.py", unit="seconds",
+        rule=POSITIVE)
+    max_restarts: int = documented(3, "restarts Ray may make of one actor after it dies", unit="restarts",
+                                   rule=AT_LEAST_0)
+    rollout_cpus: float = documented(0.25, "CPUs Ray reserves for each rollout worker", unit="CPUs",
+                                     rule=POSITIVE)
+    learner_cpus: float = documented(0.5, "CPUs Ray reserves for the learner", unit="CPUs", rule=POSITIVE)
+    teacher_cpus: float = documented(0.1, "CPUs Ray reserves for each teacher actor", unit="CPUs", rule=POSITIVE)
+    icm_cpus: float = documented(0.1, "CPUs Ray reserves for the ICM actor", unit="CPUs", rule=POSITIVE)
+    replay_cpus: float = documented(0.25, "CPUs Ray reserves for the replay server", unit="CPUs", rule=POSITIVE)
+    rollout_resource: str = documented(
+        "", "a custom Ray resource the rollout workers require (0.01 of it each), to keep them on the nodes that "
+        "advertise it (e.g. `ray start --resources='{\"rollout\": 100}'` on CPU worker nodes); '' = any node",
+        rule=rule("must be a Ray resource name ([A-Za-z0-9_-]+)",
+                  lambda v: v == "" or v.replace("_", "").replace("-", "").isalnum()))
+    metrics_port: int = documented(9100, "port of the Prometheus metrics endpoint (0: pick a free port)",
+                                   unit="TCP port", rule=rule("must lie in [0, 65535]", lambda v: 0 <= v <= 65535))
+    metrics_host: str = documented("127.0.0.1", "address the metrics endpoint listens on", unit="host")
 
     def __post_init__(self) -> None:
-        for name in ("rollout_workers", "updates_per_call", "fit_steps_per_call", "score_rows_per_call",
-                     "slack_updates"):
-            _require(getattr(self, name) >= 1, f"service.{name}", getattr(self, name), "must be >= 1")
-        _require(self.recompute_every >= 0, "service.recompute_every", self.recompute_every, "must be >= 0")
-        _require(self.teacher_actors >= 0, "service.teacher_actors", self.teacher_actors, "must be >= 0")
-        _require(self.max_restarts >= 0, "service.max_restarts", self.max_restarts, "must be >= 0")
-        _require(self.call_timeout_s >= 0, "service.call_timeout_s", self.call_timeout_s, "must be >= 0 (0: off)")
-        for name in ("rollout_cpus", "learner_cpus", "teacher_cpus", "icm_cpus", "replay_cpus"):
-            _positive(f"service.{name}", getattr(self, name))
-        _positive("service.checkpoint_every_s", self.checkpoint_every_s)
-        _require(self.rollout_resource == "" or self.rollout_resource.replace("_", "").replace("-", "").isalnum(),
-                 "service.rollout_resource", self.rollout_resource, "must be a Ray resource name ([A-Za-z0-9_-]+)")
-        _require(0 <= self.metrics_port <= 65535, "service.metrics_port", self.metrics_port, "must lie in [0, 65535]")
-
-
+        check_fields(self, "service")

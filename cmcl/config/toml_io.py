@@ -24,12 +24,28 @@ from cmcl.config.sections import TASK_TEAMS, TASKS, TeamConfig
 _SECTIONS = {f.name: f for f in dataclasses.fields(Config) if f.name != "teams"}
 
 
+_TYPE_REQUIREMENTS = {bool: "must be true or false", int: "must be an integer", float: "must be a number",
+                      str: "must be a string", Any: "must be a number, a string or a boolean"}
+
+
+def type_requirement(hint: Any) -> str:
+    """What a value of type hint `hint` must be, in the words of the ConfigError `_coerce` raises for it."""
+    origin = typing.get_origin(hint)
+    if origin is Literal:
+        return f"must be one of {list(typing.get_args(hint))}"
+    if origin in (typing.Union, types.UnionType):
+        inner = [a for a in typing.get_args(hint) if a is not type(None)]
+        return type_requirement(inner[0]) + (" (or unset)" if len(inner) < len(typing.get_args(hint)) else "")
+    if origin is dict:
+        return "must be a table"
+    return _TYPE_REQUIREMENTS[hint]
+
+
 def _coerce(key: str, value: Any, hint: Any) -> Any:
     """Check `value` against the type hint `hint` (bool, int, float, str, Literal, Optional)."""
     origin = typing.get_origin(hint)
     if origin is Literal:
-        choices = typing.get_args(hint)
-        _require(value in choices, key, value, f"must be one of {list(choices)}")
+        _require(value in typing.get_args(hint), key, value, type_requirement(hint))
         return value
     if origin in (typing.Union, types.UnionType):
         args = typing.get_args(hint)
@@ -38,24 +54,24 @@ def _coerce(key: str, value: Any, hint: Any) -> Any:
         inner = [a for a in args if a is not type(None)]
         return _coerce(key, value, inner[0])
     if hint is bool:
-        _require(isinstance(value, bool), key, value, "must be true or false")
+        _require(isinstance(value, bool), key, value, type_requirement(hint))
         return value
     if hint is int:
-        _require(isinstance(value, int) and not isinstance(value, bool), key, value, "must be an integer")
+        _require(isinstance(value, int) and not isinstance(value, bool), key, value, type_requirement(hint))
         return value
     if hint is float:
         ok = isinstance(value, int | float) and not isinstance(value, bool)
-        _require(ok, key, value, "must be a number")
+        _require(ok, key, value, type_requirement(hint))
         return float(value)
     if hint is str:
-        _require(isinstance(value, str), key, value, "must be a string")
+        _require(isinstance(value, str), key, value, type_requirement(hint))
         return value
     if origin is dict:  # a table of scalars, e.g. env.factory_kwargs = {continuous_actions = true}
-        _require(isinstance(value, Mapping), key, value, "must be a table")
+        _require(isinstance(value, Mapping), key, value, type_requirement(hint))
         value_hint = typing.get_args(hint)[1]
         return {str(k): _coerce(f"{key}.{k}", v, value_hint) for k, v in value.items()}
     if hint is Any:
-        _require(isinstance(value, bool | int | float | str), key, value, "must be a number, a string or a boolean")
+        _require(isinstance(value, bool | int | float | str), key, value, type_requirement(hint))
         return value
     raise ConfigError(f"{key}: unsupported field type {hint!r}")
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -34,7 +35,7 @@ def check_int(name: str, value: object, minimum: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int | np.integer):
         raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
     if value < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {value}")
+        raise ValueError(f"{name} {IntAtLeast(minimum).why}, got {value}")
     return int(value)
 
 
@@ -45,9 +46,38 @@ def check_float(name: str, value: object, low: float = 0.0, high: float = math.i
     v = float(value)
     bad_low = v <= low if low_open else v < low
     if not math.isfinite(v) or bad_low or v >= high:
-        lo = "(" if low_open else "["
-        raise ValueError(f"{name} must be a finite number in {lo}{low}, {high}), got {value!r}")
+        raise ValueError(f"{name} {FloatIn(low, high, low_open).why}, got {value!r}")
     return v
+
+
+@dataclass(frozen=True)
+class IntAtLeast:
+    """The range rule of an integer world parameter (cmcl.field_docs): `check_int(name, value, minimum)`."""
+
+    minimum: int
+
+    @property
+    def why(self) -> str:
+        return f"must be >= {self.minimum}"
+
+    def check(self, name: str, value: object) -> None:
+        check_int(name, value, self.minimum)
+
+
+@dataclass(frozen=True)
+class FloatIn:
+    """The range rule of a real world parameter (cmcl.field_docs): `check_float(name, value, low, high, low_open)`."""
+
+    low: float = 0.0
+    high: float = math.inf
+    low_open: bool = True
+
+    @property
+    def why(self) -> str:
+        return f"must be a finite number in {'(' if self.low_open else '['}{self.low}, {self.high})"
+
+    def check(self, name: str, value: object) -> None:
+        check_float(name, value, self.low, self.high, self.low_open)
 
 
 def check_dtype(dtype: object) -> np.dtype:

@@ -6,8 +6,10 @@ takes any field as a keyword), the batched twins (`BatchedSparseSpread(B, params
 build or take these objects; none of them lists the fields again.
 
 Units: lengths in arena units (the arena is the square [-0.5, 0.5]^2, side 1), speeds in arena units per unit
-time (dt = 0.1), rewards per agent and step. Each `__post_init__` raises ValueError naming the field and the
-value ("agent_radius must be ..., got 0.7"); the message starts with the field name.
+time (dt = 0.1), rewards per agent and step. Each field is declared with its meaning, unit and range rule
+(cmcl.field_docs.documented; `python -m cmcl config env` prints them). Each `__post_init__` runs the rules and raises
+ValueError naming the field and the value ("agent_radius must be ..., got 0.7"); the message starts with the field
+name.
 """
 
 from __future__ import annotations
@@ -17,15 +19,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cmcl.envs.common import ARENA_HALF, check_float, check_int
+from cmcl.envs.common import ARENA_HALF, FloatIn, IntAtLeast
+from cmcl.field_docs import documented, ruled_fields
 
+LENGTH, SPEED, REWARD = "arena units", "arena units per unit time", "per agent and step"
 EPISODE_LENGTH = 30  # steps per episode of both tasks [P] (EnvConfig.episode_length, the twins, max_cycles)
 
 
-def _check_rewards(params: SpreadParams | TagParams, names: tuple[str, ...]) -> None:
-    """Check the reward fields `names` (any finite number, of either sign) and store `shared_reward` as a bool."""
-    for name in names:
-        check_float(name, getattr(params, name), -math.inf)
+def _check_fields(params: SpreadParams | TagParams) -> None:
+    """Run every field's rule (its range, cmcl.field_docs) in field order; store `shared_reward` as a bool."""
+    for name, value, rule in ruled_fields(params):
+        rule.check(name, value)
     object.__setattr__(params, "shared_reward", bool(params.shared_reward))
 
 
@@ -37,26 +41,27 @@ class SpreadParams:
     `collaborative=True`); the run configuration's default is the individual reward (EnvConfig.spread).
     """
 
-    num_agents: int = 4  # N agents, and as many landmarks [P]
-    agent_radius: float = 0.05  # [R] MPE's default entity size; option 0.15 (simple_spread); in (0, 0.5)
-    landmark_radius: float = 0.05  # drawing only: landmarks are not collidable; in (0, 0.5)
-    # a landmark is covered by the closest agent whose centre is closer than this [P: 0.1]; smaller values make the
-    # sparse reward rarer (the harder-task calibration of docs/RESULTS.md); > 0
-    cover_radius: float = 0.1
-    sensitivity: float = 5.0  # force = action x sensitivity (MPE's default [V]); > 0
-    landmark_spawn: float = 0.4  # landmarks uniform in [-landmark_spawn, landmark_spawn]^2; in [0, 0.5)
-    collision_reward: float = -1.0  # C1, at most once per agent per step (agent contact or wall hit) [P]
-    cover_reward: float = 4.0  # C2, at most once per agent per step (covering a landmark) [P]
-    shared_reward: bool = True  # True: every agent receives the team sum (MPE); False: its own C1 + C2 (§6.1 revised)
+    num_agents: int = documented(4, "N agents, and as many landmarks [P]", unit="agents", rule=IntAtLeast(1))
+    agent_radius: float = documented(0.05, "an agent's radius [R]: MPE's default entity size; option 0.15 "
+                                     "(simple_spread)", unit=LENGTH, rule=FloatIn(0.0, ARENA_HALF))
+    landmark_radius: float = documented(0.05, "a landmark's radius, for drawing only: landmarks are not collidable",
+                                        unit=LENGTH, rule=FloatIn(0.0, ARENA_HALF))
+    cover_radius: float = documented(
+        0.1, "a landmark is covered by the closest agent whose centre is closer than this [P: 0.1]; smaller values "
+        "make the sparse reward rarer (the harder-task calibration of docs/RESULTS.md)", unit=LENGTH, rule=FloatIn())
+    sensitivity: float = documented(5.0, "force = action × sensitivity (MPE's default [V])", unit="force per action "
+                                    "unit", rule=FloatIn())
+    landmark_spawn: float = documented(0.4, "landmarks are placed uniformly in [-landmark_spawn, landmark_spawn]^2",
+                                       unit=LENGTH, rule=FloatIn(0.0, ARENA_HALF, low_open=False))
+    collision_reward: float = documented(-1.0, "C1, at most once per agent per step (agent contact or wall hit) "
+                                         "[P]", unit=REWARD, rule=FloatIn(-math.inf))
+    cover_reward: float = documented(4.0, "C2, at most once per agent per step (covering a landmark) [P]",
+                                     unit=REWARD, rule=FloatIn(-math.inf))
+    shared_reward: bool = documented(True, "true: every agent receives the team sum (MPE); false: its own C1 + C2 "
+                                     "(§6.1 revised)")
 
     def __post_init__(self) -> None:
-        check_int("num_agents", self.num_agents, 1)
-        check_float("agent_radius", self.agent_radius, 0.0, ARENA_HALF)
-        check_float("landmark_radius", self.landmark_radius, 0.0, ARENA_HALF)
-        check_float("cover_radius", self.cover_radius)
-        check_float("sensitivity", self.sensitivity)
-        check_float("landmark_spawn", self.landmark_spawn, 0.0, ARENA_HALF, low_open=False)
-        _check_rewards(self, ("collision_reward", "cover_reward"))
+        _check_fields(self)
 
     @property
     def num_landmarks(self) -> int:
@@ -78,31 +83,36 @@ class TagParams:
     gave 0.90).
     """
 
-    num_predators: int = 2  # m, calibrated [R]; §6.2's first recommendation was 4; >= 1
-    num_prey: int = 2  # n; >= 1
-    num_obstacles: int = 3  # immovable, collidable [P: 3 large obstacles]; >= 0
-    predator_radius: float = 0.0375  # calibrated [R]: MPE's 0.075 x 0.5; in (0, 0.5)
-    prey_radius: float = 0.025  # calibrated [R]: MPE's 0.05 x 0.5; capture when distance < 0.0625; in (0, 0.5)
-    obstacle_radius: float = 0.1  # [R]; option 0.2 (MPE's "large"); > 0
-    predator_accel: float = 3.0  # force = action x accel; > 0
-    predator_max_speed: float = 1.0  # > 0
-    prey_accel: float = 4.0  # > 0
-    prey_max_speed: float = 2.0  # twice the predators' [P]; > 0
-    obstacle_spawn: float = 0.3  # obstacle centres uniform in [-obstacle_spawn, obstacle_spawn]^2; in [0, 0.5)
-    capture_reward: float = 5.0  # D1, per (predator, prey) pair in contact: +5 to that predator, -5 to that prey
-    wall_reward: float = -1.0  # D2: to any agent clamped at a wall this step
-    shared_reward: bool = False  # D1 option: every predator receives +5 per pair in contact anywhere (MPE)
+    num_predators: int = documented(2, "m predators, calibrated [R]; §6.2's first recommendation was 4",
+                                    unit="agents", rule=IntAtLeast(1))
+    num_prey: int = documented(2, "n prey", unit="agents", rule=IntAtLeast(1))
+    num_obstacles: int = documented(3, "immovable, collidable obstacles [P: 3 large obstacles]", unit="obstacles",
+                                    rule=IntAtLeast(0))
+    predator_radius: float = documented(0.0375, "a predator's radius, calibrated [R]: MPE's 0.075 × 0.5",
+                                        unit=LENGTH, rule=FloatIn(0.0, ARENA_HALF))
+    prey_radius: float = documented(0.025, "a prey's radius, calibrated [R]: MPE's 0.05 × 0.5; capture when the "
+                                    "distance < predator_radius + prey_radius (0.0625)", unit=LENGTH,
+                                    rule=FloatIn(0.0, ARENA_HALF))
+    obstacle_radius: float = documented(0.1, "an obstacle's radius [R]; option 0.2 (MPE's 'large')", unit=LENGTH,
+                                        rule=FloatIn())
+    predator_accel: float = documented(3.0, "a predator's force = action × accel", unit="force per action unit",
+                                       rule=FloatIn())
+    predator_max_speed: float = documented(1.0, "a predator's speed limit", unit=SPEED, rule=FloatIn())
+    prey_accel: float = documented(4.0, "a prey's force = action × accel", unit="force per action unit",
+                                   rule=FloatIn())
+    prey_max_speed: float = documented(2.0, "a prey's speed limit: twice the predators' [P]", unit=SPEED,
+                                       rule=FloatIn())
+    obstacle_spawn: float = documented(0.3, "obstacle centres are placed uniformly in [-obstacle_spawn, "
+                                       "obstacle_spawn]^2", unit=LENGTH, rule=FloatIn(0.0, ARENA_HALF, low_open=False))
+    capture_reward: float = documented(5.0, "D1, per (predator, prey) pair in contact: +capture_reward to that "
+                                       "predator, −capture_reward to that prey", unit=REWARD, rule=FloatIn(-math.inf))
+    wall_reward: float = documented(-1.0, "D2: to any agent clamped at a wall this step", unit=REWARD,
+                                    rule=FloatIn(-math.inf))
+    shared_reward: bool = documented(False, "D1 option: every predator receives +capture_reward per pair in contact "
+                                     "anywhere (MPE)")
 
     def __post_init__(self) -> None:
-        check_int("num_predators", self.num_predators, 1)
-        check_int("num_prey", self.num_prey, 1)
-        check_int("num_obstacles", self.num_obstacles, 0)
-        for name in ("predator_radius", "prey_radius"):
-            check_float(name, getattr(self, name), 0.0, ARENA_HALF)
-        for name in ("obstacle_radius", "predator_accel", "predator_max_speed", "prey_accel", "prey_max_speed"):
-            check_float(name, getattr(self, name))
-        check_float("obstacle_spawn", self.obstacle_spawn, 0.0, ARENA_HALF, low_open=False)
-        _check_rewards(self, ("capture_reward", "wall_reward"))
+        _check_fields(self)
 
     @property
     def num_agents(self) -> int:
