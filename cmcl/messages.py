@@ -96,13 +96,15 @@ class LearnerBatch:
 
 @dataclass(frozen=True)
 class LearnerFeedback:
-    """Learner -> replay: |δ| float32[n, N, S] of each sampled (slot, generation) and the last losses per agent."""
+    """Learner -> replay: |δ| float32[n, N, S] of each sampled (slot, generation), |y − Q_target| when a rule asks
+    for it (ReLo; else None), and the last losses per agent."""
 
     slots: np.ndarray
     generations: np.ndarray
     td_abs: np.ndarray
     losses: dict[str, Any] = field(default_factory=dict)
     incarnation: str = ""  # the learner actor's incarnation id ("" inline)
+    target_td_abs: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -201,6 +203,9 @@ def check_feedback(msg: Any, num_agents: int) -> LearnerFeedback:
         raise MessageError(f"LearnerFeedback.slots / generations must be [n, N={num_agents}, S], got "
                            f"{np.shape(msg.slots)} and {np.shape(msg.generations)}")
     _check_rows("LearnerFeedback.td_abs", np.ravel(msg.slots), np.ravel(msg.generations), np.ravel(msg.td_abs), ())
+    if msg.target_td_abs is not None:
+        _check_rows("LearnerFeedback.target_td_abs", np.ravel(msg.slots), np.ravel(msg.generations),
+                    np.ravel(msg.target_td_abs), ())
     return msg
 
 

@@ -30,7 +30,7 @@ DISCRETE_ACT_DIM = 5  # MPE's discrete action: no-op, +x, -x, +y, -y
 class AgentLayout:
     """Who is who: agent indices per team and what each agent's algorithm needs.
 
-    algorithms: each agent's algorithm ("maddpg" | "per" | "acl" | "cmcl", its team's), length N.
+    algorithms: each agent's algorithm (a name of cmcl.algorithms.REGISTRY, its team's), length N.
     alpha: sampling exponent α_s of eq. 20 per agent, length N (its team's `effective_alpha`, A8).
     teacher_agents / icm_agents: int64[A_t] / int64[A_c] indices of agents that need teacher / curiosity scores.
     """
@@ -47,6 +47,10 @@ class AgentLayout:
     difficulty_source: tuple[str, ...]
     teacher_agents: np.ndarray
     icm_agents: np.ndarray
+    # u, the uniform floor of each agent's prioritised rule (its team's `uniform_floor`), length N
+    floor: tuple[float, ...] = ()
+    # the learner's per-row losses some agent's rule asks back ("td_abs", "target_td_abs"; cmcl.algorithms.Needs)
+    learner_scores: tuple[str, ...] = ()
     # float32[N, act_dim]: 1 where the agent has that action entry, 0 on padding (agents whose action sizes differ,
     # env.factory); None when every agent uses every entry (the built-in tasks)
     act_mask: np.ndarray | None = None
@@ -112,21 +116,24 @@ def agent_layout(config: Config, env) -> AgentLayout:
         members = {team: [ids[i] for i in idx] for team, idx in env.teams.items()}
         raise ConfigError(f"teams: the config names {sorted(config.teams)}, the environment's agents form the teams "
                           f"{members} (by agent-id prefix or env.team_of); give every one a [teams.<name>] table")
-    algorithms, eta, isw, source, alpha = [""] * n, [0.0] * n, [False] * n, ["difficulty"] * n, [1.0] * n
-    teacher, icm = [], []
+    algorithms, eta, isw, source, alpha, floor = [""] * n, [0.0] * n, [False] * n, ["difficulty"] * n, [1.0] * n, \
+        [0.0] * n
+    teacher, icm, learner_scores = [], [], set()
     for team, members in env.teams.items():
         spec = config.teams[team]
+        needs = spec.needs
         for agent in members:
             algorithms[agent] = spec.algorithm
             eta[agent] = spec.effective_eta
             alpha[agent] = spec.effective_alpha(config.replay.alpha)
             isw[agent] = spec.importance_weights
-            if spec.algorithm == "acl" and spec.acl_variant == "td_self":
-                source[agent] = "td_abs"
-            if spec.uses_teachers:
+            floor[agent] = spec.uniform_floor
+            source[agent] = needs.difficulty_source
+            if needs.teachers:
                 teacher.append(agent)
-            if spec.uses_icm:
+            if needs.icm:
                 icm.append(agent)
+            learner_scores.update(needs.learner_scores)
     act_dim = DISCRETE_ACT_DIM if config.maddpg.discrete else env.act_dim
     discrete = config.maddpg.discrete or bool(getattr(env, "discrete", False))
     mask = getattr(env, "act_mask", None)
@@ -134,7 +141,8 @@ def agent_layout(config: Config, env) -> AgentLayout:
                        teams={k: list(v) for k, v in env.teams.items()}, algorithms=tuple(algorithms),
                        eta=tuple(eta),
                        alpha=tuple(alpha),
-                       importance_weights=tuple(isw), difficulty_source=tuple(source),
+                       importance_weights=tuple(isw), difficulty_source=tuple(source), floor=tuple(floor),
+                       learner_scores=tuple(sorted(learner_scores)),
                        teacher_agents=np.asarray(sorted(teacher), dtype=np.int64),
                        icm_agents=np.asarray(sorted(icm), dtype=np.int64),
                        act_mask=None if mask is None or mask.all() else mask.copy(), discrete=discrete,
@@ -163,7 +171,7 @@ def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
     return MADDPG(layout.num_agents, layout.obs_dim, layout.act_dim, hidden=m.hidden, actor_lr=m.actor_lr,
                   critic_lr=m.critic_lr, gamma=m.gamma, tau=m.tau, grad_clip=m.grad_clip, discrete=layout.discrete,
                   seed=seed, act_mask=layout.act_mask, networks=m.network_kind, entity_layout=layout.entities,
-                  entity_pool=m.entity_pool)
+                  entity_pool=m.entity_pool, target_scores="target_td_abs" in layout.learner_scores)
 
 
 def build_replay(config: Config, layout: AgentLayout) -> ReplayBuffer:
@@ -174,7 +182,8 @@ def build_replay(config: Config, layout: AgentLayout) -> ReplayBuffer:
                         act_dim=layout.act_dim, n_folds=config.teachers.num_folds, algorithms=list(layout.algorithms),
                         alpha=list(layout.alpha), eps=r.priority_eps, backend=r.backend, eta=list(layout.eta),
                         difficulty_norm=config.teachers.difficulty_norm, cp_input=config.icm.cp_input,
-                        difficulty_source=list(layout.difficulty_source),
+                        difficulty_source=list(layout.difficulty_source), floor=list(layout.floor),
+                        difficulty_squared=config.teachers.difficulty_error == "squared",
                         min_size=max(1, config.maddpg.warmup), lam_max=config.curriculum.lam_max,
                         difficulty_transform=config.teachers.difficulty_transform,
                         control_seed=control_seed(config.run.seed))

@@ -18,7 +18,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from cmcl.config import ALGORITHMS
+from cmcl.algorithms import PAPER_ALGORITHMS
 from cmcl.provenance import code_state
 from experiments.grids import (
     ABLATIONS,
@@ -46,7 +46,7 @@ def selected_runs(args: argparse.Namespace) -> list[Run]:
     scale grid's cells), with the prefix references the kept ablations need."""
     runs = [r for r in grid(args.grids, args.seeds, args.algorithms, args.episodes)
             if (r.ablation is None or r.ablation in args.ablations)
-            and (r.arm not in CURRICULUM_ARMS or r.arm in args.arms)
+            and (r.arm not in CURRICULUM_ARMS or r.arm in args.arms or r.grid == "screen")
             and (r.arm not in SCALE_CELLS or r.arm in args.cells) and r.mode in args.modes]
     return runs + prefix_reference_runs(runs, args.episodes)
 
@@ -112,7 +112,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="scale grid: only these cells")
     p.add_argument("--ablations", nargs="+", choices=list(ABLATIONS), default=list(ABLATIONS),
                    help="ablations grid: only these variants")
-    p.add_argument("--algorithms", nargs="+", choices=ALGORITHMS, default=list(ALGORITHMS))
+    p.add_argument("--algorithms", nargs="+", choices=PAPER_ALGORITHMS, default=list(PAPER_ALGORITHMS),
+                   help="paper grids: only these of the paper's four algorithms")
     p.add_argument("--modes", nargs="+", choices=["inline", "service"], default=["inline", "service"],
                    help="algorithms grid: only these runners")
     p.add_argument("--episodes", type=int, default=EPISODES, help="budget of every run (the paper: 20,000)")

@@ -15,6 +15,8 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
 * ``curriculum_hard``: the same arms on the calibrated harder navigation of configs/spread_hard.toml;
 * ``curriculum_tag``: the same arms as the predators of sparse predator-prey (configs/tag_<algorithm>.toml), the
   prey MADDPG (the paper's Fig. 12 at the issue-21 defaults);
+* ``screen`` (issue 36): candidate sampling rules of the registry (cmcl.algorithms) on the harder task, seeds
+  100-104 (SCREEN_ARMS), MADDPG and PER-MADDPG beside them for reference;
 * ``schedule``: time to solve navigation with MADDPG inline, maddpg.update_every x maddpg.batch_size, each run
   stopped once its 100-episode moving-average coverage reaches 0.95 or after 900 s of training;
 * ``algorithms``: time to solve with each algorithm, inline and on the embedded service, same stops;
@@ -33,7 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from cmcl.config import ALGORITHMS
+from cmcl.algorithms import PAPER_ALGORITHMS
 from experiments.own_envs import OWN_ENV_LOG_EVERY, OWN_ENVS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,6 +65,21 @@ HARD_SETTING_GRIDS: dict[str, dict[str, list[str]]] = {
     "curriculum_eta": {"cmcl_eta1": ["teams.agent.eta=1.0"]},
 }
 CURRICULUM_LOG_EVERY = 200  # episodes between progress rows (the ESS curve's resolution) in the curriculum grids
+# The screen of issue 36 (protocol in docs/RESULTS.md, "Sampling rules that help: the screen"): candidate sampling
+# rules on the harder task, seeds 100-104, every setting the harder grid's but the team's rule; MADDPG and PER-MADDPG
+# at the same seeds for reference (not candidates). arm -> --set overrides.
+SCREEN_ARMS: dict[str, list[str]] = {
+    "maddpg": ["teams.agent.algorithm=maddpg"],
+    "per": ["teams.agent.algorithm=per"],
+    "relo": ["teams.agent.algorithm=relo"],
+    "rho": ["teams.agent.algorithm=rho"],
+    "lp": ["teams.agent.algorithm=lp"],
+    "per_floor": ["teams.agent.algorithm=per", "teams.agent.uniform_floor=0.2"],
+    "cmcl_lam05": ["teams.agent.algorithm=cmcl", "curriculum.lam0=0.5"],  # no exclusion phase (λ ≥ 0.5 from the start)
+    "cmcl_floor": ["teams.agent.algorithm=cmcl", "teams.agent.uniform_floor=0.2"],
+}
+SCREEN_REFERENCES = ("maddpg", "per")  # run beside the candidates, never selected
+SCREEN_SEEDS = (100, 101, 102, 103, 104)
 
 ABLATIONS = {  # name -> (config file, --set overrides, episode budget or None for the grid's) of CMCL variants
     "eta0": ("spread_cmcl.toml", ["teams.agent.eta=0.0"], None),
@@ -193,6 +210,13 @@ def setting_runs(name: str, seed: int, budget: int) -> list[Run]:
             for arm, sets in HARD_SETTING_GRIDS[name].items()]
 
 
+def screen_runs(seed: int, budget: int) -> list[Run]:
+    """The screen's arms (SCREEN_ARMS) on the harder task, logged as the curriculum grids are."""
+    return [Run(f"screen_{arm}_s{seed}", "screen", "spread", sets[0].split("=")[1], None, seed, budget, arm=arm,
+                config=HARD_CONFIG, sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *sets))
+            for arm, sets in SCREEN_ARMS.items()]
+
+
 def ablation_runs(seed: int, budget: int) -> list[Run]:
     return [Run(f"ablation_{name}_s{seed}", "ablations", "spread", "cmcl", None, seed,
                 min(budget, own_budget or budget), ablation=name, config=config, sets=tuple(sets))
@@ -243,12 +267,13 @@ GRIDS = {  # name -> results folder (its summaries/ and runs/)
     "ablations": RESULTS / "reproduce", "curriculum": RESULTS / "curriculum",
     "curriculum_hard": RESULTS / "curriculum_hard", "curriculum_tag": RESULTS / "curriculum_tag",
     "curriculum_stride": RESULTS / "curriculum_stride", "curriculum_eta": RESULTS / "curriculum_eta",
+    "screen": RESULTS / "screen",
     "schedule": RESULTS / "time_to_solve",
     "algorithms": RESULTS / "time_to_solve", "own_envs": RESULTS / "own_envs", "scale": RESULTS / "scale",
 }
 
 
-def grid(names: list[str], seeds: list[int], algorithms: list[str] = ALGORITHMS,
+def grid(names: list[str], seeds: list[int], algorithms: list[str] = PAPER_ALGORITHMS,
          budget: int = EPISODES) -> list[Run]:
     """The runs of the named grids, seed outermost (every cell has seed k before any has seed k+1), duplicates
     (same id) once."""
@@ -260,6 +285,8 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str] = ALGORITHMS,
         for name in names:
             if name in HARD_SETTING_GRIDS:
                 runs += setting_runs(name, seed, budget)
+            elif name == "screen":
+                runs += screen_runs(seed, budget)
             elif name.startswith("curriculum"):
                 runs += curriculum_runs(name, seed, budget)
             elif name == "ablations":

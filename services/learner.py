@@ -47,20 +47,25 @@ class Learner:
     def update(self, batch: LearnerBatch | None) -> tuple[LearnerFeedback | None, Report]:
         """Run one MADDPG update per minibatch of `batch` ([n, N, S, ...] arrays); None does nothing.
 
-        Returns (feedback for the replay server: |δ| float32[n, N, S] of each sampled row, metrics report).
+        Returns (feedback for the replay server: |δ| float32[n, N, S] of each sampled row, and |y − Q_target| when
+        a rule asks for it, metrics report).
         """
         if batch is None:
             return None, self.report()
         use_weights = any(self.layout.importance_weights)
         td = np.empty(batch.slots.shape, np.float32)
+        target = np.empty(batch.slots.shape, np.float32) if self.maddpg.target_scores else None
         stats: dict[str, Any] = {}
         for i in range(batch.count):
             stats = network_steps.learner_update(self.maddpg, batch.minibatch(i, use_weights))
             td[i] = stats["td_abs"]
+            if target is not None:
+                target[i] = stats["target_td_abs"]
         self.version += 1
         self.losses = {f"agent_{a}": {"critic": float(stats["critic_loss"][a]), "actor": float(stats["actor_loss"][a])}
                        for a in range(self.layout.num_agents)}
-        return LearnerFeedback(batch.slots, batch.generations, td, self.losses, self.incarnation), self.report()
+        return LearnerFeedback(batch.slots, batch.generations, td, self.losses, self.incarnation,
+                               target), self.report()
 
     def publish(self) -> dict[str, Any]:
         """The current weights with their version (the supervisor puts this in the object store)."""

@@ -36,7 +36,6 @@ from cmcl.messages import (
 from cmcl.replay import buffer_steps
 from cmcl.replay.dedupe import InsertLedger
 from cmcl.replay.pacing import pacing_from_config
-from cmcl.replay.priority import uses_curriculum
 from cmcl.replay.scoring import ScoringState
 from cmcl.system import beta_is, build_replay, build_schedule, layout_of
 from services.common import actor_setup, new_incarnation
@@ -161,7 +160,7 @@ class ReplayServer:
     # ------------------------------------------------------------------ replay -> learner
     def _maybe_recompute(self) -> None:
         """Bulk priority recompute when λ or scores changed, at most every `recompute_every` inserts."""
-        if not uses_curriculum(self.layout.algorithms):
+        if not self.replay.recomputes:
             return
         every = self.config.service.recompute_every or self.config.env.num_envs * self.config.env.episode_length
         due = self.counters["inserts"] - self.inserts_at_recompute >= every
@@ -185,7 +184,8 @@ class ReplayServer:
         return batch, self.status()
 
     def learner_result(self, result: Any) -> ReplayStatus:
-        """PER / ACL-td_self feedback: |δ| for the sampled (slot, generation) pairs; stale ones are dropped."""
+        """The learner's per-row losses of the sampled (slot, generation) pairs, to the samplers that ask for them
+        (PER, ReLo, ACL td_self, ...); stale ones are dropped."""
         if result is None:
             return self.status()
         try:
@@ -267,7 +267,7 @@ class ReplayServer:
     def report(self) -> Report:
         """Metrics report: buffer, λ, difficulty / priority distributions, score age and coverage."""
         details = None
-        if self.replay.size and uses_curriculum(self.layout.algorithms):  # the report reads priorities at the current λ
+        if self.replay.size and self.replay.curriculum:  # the report reads the curriculum's terms at the current λ
             details = self.replay.recompute_priorities(self.schedule.lam, details=True)
             self.dirty, self.inserts_at_recompute = False, self.counters["inserts"]
         c = self.counters

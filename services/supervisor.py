@@ -20,13 +20,13 @@ from typing import Any
 
 import ray
 
+from cmcl.algorithms import sampling_name
 from cmcl.config import Config
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
 from cmcl.learning_progress import LearningProgress
 from cmcl.messages import ReplayStatus
 from cmcl.progress import episode_rows, solved, window_summary
-from cmcl.replay.sampling import sampling_name
 from cmcl.system import layout_of
 from services.call_budget import calls_to_issue
 from services.health import (

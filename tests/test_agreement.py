@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 import torch
 
-from cmcl.config import config_from_dict
+from cmcl.algorithms import ALGORITHMS, REGISTRY
+from cmcl.config import TeamConfig, config_from_dict
 from cmcl.learners.network_steps import learner_update
 from cmcl.loop import InlineLoop
 from cmcl.messages import LearnerFeedback
@@ -26,10 +27,15 @@ from services.rollout import RolloutWorker
 from services.teachers import TeacherWorker
 from tests.test_service_inprocess import in_process_config
 
+# every registered rule and its controls: the agreement holds for each (issue 36)
+TEACHER_RULES = [a for a in ALGORITHMS if REGISTRY[a].needs(TeamConfig(algorithm=a)).teachers]
+CONTROLS = ("none", "permuted", "reversed")
 
-def twins(algorithm):
+
+def twins(algorithm, transform="none"):
     """A replay server and an inline loop whose buffers hold the same three rollout chunks."""
-    cfg = in_process_config(algorithm, service={"score_rows_per_call": 360})  # every row scored in one call
+    cfg = in_process_config(algorithm, service={"score_rows_per_call": 360},  # every row scored in one call
+                            teachers={"difficulty_transform": transform})
     server, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
     loop = InlineLoop(config_from_dict(cfg), progress=None)
     for _ in range(3):
@@ -61,9 +67,10 @@ def without_fit(work):
     return dataclasses.replace(work, fit={k: v[:0] for k, v in work.fit.items()})
 
 
-@pytest.mark.parametrize("algorithm", ["acl", "cmcl"])
-def test_difficulty_and_priorities_agree(algorithm):
-    cfg, server, loop = twins(algorithm)
+@pytest.mark.parametrize("transform", CONTROLS)
+@pytest.mark.parametrize("algorithm", TEACHER_RULES)
+def test_difficulty_and_priorities_agree(algorithm, transform):
+    cfg, server, loop = twins(algorithm, transform)
     for fold in range(loop.teachers.num_folds):  # service: every teacher scores the rows of the other folds
         teacher = teacher_worker_like(cfg, loop, fold)
         work, _ = server.teacher_work([fold], 1)
@@ -86,10 +93,14 @@ def test_difficulty_and_priorities_agree(algorithm):
     service = server.replay.recompute_priorities(lam, details=True)
     for key in ("c_hat", "kp", "cp", "priority"):
         np.testing.assert_allclose(inline[key], service[key], rtol=1e-5, atol=1e-7, err_msg=key)
+    np.testing.assert_allclose(loop.replay.sampling_distribution(), server.replay.sampling_distribution(),
+                               rtol=1e-5, atol=1e-9)
 
 
-def test_learner_batch_feedback_and_update_agree():
-    cfg, server, loop = twins("per")
+@pytest.mark.parametrize("transform", ["none", "permuted"])
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_learner_batch_feedback_and_update_agree(algorithm, transform):
+    cfg, server, loop = twins(algorithm, transform)
     rngs = [copy.deepcopy(g) for g in server.sampler_rngs]
     batch, _ = server.sample(1)
     beta = beta_is(loop.config, server.counters["inserts"])
@@ -104,11 +115,21 @@ def test_learner_batch_feedback_and_update_agree():
     feedback, _ = learner.update(batch)
     inline_stats = learner_update(loop.maddpg, inline.minibatch(0, any(loop.layout.importance_weights)))
     np.testing.assert_allclose(feedback.td_abs[0], inline_stats["td_abs"], rtol=1e-6)
+    target = inline_stats.get("target_td_abs")
+    assert (feedback.target_td_abs is None) == (target is None) == ("target_td_abs" not in loop.layout.learner_scores)
+    if target is not None:
+        np.testing.assert_allclose(feedback.target_td_abs[0], target, rtol=1e-6)
     for name, value in loop.maddpg.state_dict()["critic"].items():
         torch.testing.assert_close(learner.maddpg.state_dict()["critic"][name], value)
     server.learner_result(feedback)
-    buffer_steps.apply_learner_feedback(loop.replay, loop.layout,
-                                  LearnerFeedback(inline.slots, inline.generations, inline_stats["td_abs"][None]))
+    buffer_steps.apply_learner_feedback(loop.replay, loop.layout, LearnerFeedback(
+        inline.slots, inline.generations, inline_stats["td_abs"][None],
+        target_td_abs=None if target is None else target[None]))
+    if loop.replay.recomputes:  # both sides rebuild at the same λ, the permuted control from the same state (the
+        # server recomputed once more, before it sampled)
+        loop.replay.control_rng = copy.deepcopy(server.replay.control_rng)
+        loop.replay.recompute_priorities(0.4)
+        server.replay.recompute_priorities(0.4)
     for agent in range(loop.layout.num_agents):
         slots = np.unique(batch.slots[0, agent])
         np.testing.assert_allclose(server.replay.probabilities(agent, slots), loop.replay.probabilities(agent, slots),

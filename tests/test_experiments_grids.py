@@ -125,7 +125,7 @@ def test_a_summary_starts_with_the_fields_the_committed_summaries_have(finished_
 
 def test_every_grid_has_a_results_folder_and_the_time_to_solve_grids_stop_early():
     assert set(GRIDS) == {"spread", "tag", "winrate", "ablations", "curriculum", "curriculum_hard", "curriculum_tag",
-                          "curriculum_stride", "curriculum_eta",
+                          "curriculum_stride", "curriculum_eta", "screen",
                           "schedule", "algorithms", "own_envs", "scale"}
     schedule = grid(["schedule"], [0])
     assert len(schedule) == 8 and all(r.stop_coverage == 0.95 and r.max_seconds == 900 for r in schedule)
@@ -204,3 +204,15 @@ def test_an_agent_count_curriculum_run_is_trained_by_the_stages_command(tmp_path
     assert argv[argv.index("--stage-episodes") + 1:argv.index("--stage-episodes") + 3] == ["100", "400"]
     assert f"run.dir={tmp_path / 'root'}" in argv
     assert run.record()["stages"] == [2, 4] and run.record()["stage_episodes"] == [100, 400]
+
+
+def test_the_screen_runs_each_candidate_rule_on_the_harder_task_with_one_override_more_than_its_rule():
+    from cmcl.algorithms import REGISTRY
+    from experiments.grids import SCREEN_ARMS, SCREEN_REFERENCES, SCREEN_SEEDS
+
+    runs = grid(["screen"], list(SCREEN_SEEDS))
+    assert [r.seed for r in runs[:len(SCREEN_ARMS)]] == [100] * len(SCREEN_ARMS)  # seed outermost
+    assert {r.config for r in runs} == {"spread_hard.toml"} and set(SCREEN_REFERENCES) < set(SCREEN_ARMS)
+    for r in runs:
+        assert r.algorithm in REGISTRY and f"teams.agent.algorithm={r.algorithm}" in r.sets
+        assert len(r.sets) <= 3  # the log cadence, the rule and at most one more override

@@ -56,14 +56,12 @@ def test_the_service_progress_row_carries_the_sampling_entry_in_the_inline_rows_
     assert sampling_row(Report(replay=replay), ["cmcl"]) == {}  # a report of another agent count is not mixed in
 
 
-def test_sampling_name_is_the_name_of_the_distribution_sampling_for_builds():
-    from cmcl.config import ALGORITHMS
-    from cmcl.replay.sampling import sampling_for, sampling_name
+def test_sampling_name_is_the_name_of_the_distribution_the_registry_builds():
+    from cmcl.algorithms import ALGORITHMS, build_sampler, sampling_name
+    from cmcl.replay.sampling import SamplerArgs
 
     for algorithm in ALGORITHMS:
-        built = sampling_for(algorithm, 0, capacity=8, alpha=1.0, backend="cdf", eps=1e-3, eta=0.5,
-                             difficulty_source="difficulty", difficulty_norm="rank", cp_input="std", lam_max=1.0,
-                             reversed_difficulty=False)
+        built = build_sampler(algorithm, SamplerArgs(capacity=8, alpha=1.0, backend="cdf", eps=1e-3, eta=0.5))
         assert sampling_name(algorithm) == built.name
     with pytest.raises(ValueError, match="'ddpg'"):
         sampling_name("ddpg")

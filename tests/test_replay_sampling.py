@@ -108,8 +108,11 @@ def test_per_max_priority_rule(backend):  # property 19
     rb.add(*chunk(70, 2, np.random.default_rng(1)))  # wraps over slot 0
     assert rb.update_priorities(0, [0], [100.0], generations=old_gen) == 0
     assert rb.sampling[0].max_priority == pytest.approx(3.0 + EPS_P)
-    with pytest.raises(ValueError, match="'per' agent"):
-        filled(capacity=50, episodes=1).update_priorities(0, [0], [1.0])
+    uniform = filled(capacity=50, episodes=1)  # a sampler that takes no feedback: nothing changes, nothing stored
+    assert uniform.feedback(0, [0], uniform.generations([0]), {"td_abs": [1.0]}) == (1, False)
+    assert not uniform.storage.scored["td_abs"].any()
+    with pytest.raises(ValueError, match="learner scores must be named in"):
+        uniform.feedback(0, [0], uniform.generations([0]), {"loss": [1.0]})
 
 
 def test_is_weights_in_buffer():  # property 18

@@ -15,6 +15,7 @@ import typing
 from dataclasses import dataclass
 from typing import Literal
 
+from cmcl.algorithms import ALGORITHMS, REGISTRY, AlgorithmName
 from cmcl.config.checks import (
     AT_LEAST_0,
     AT_LEAST_1,
@@ -30,16 +31,15 @@ from cmcl.config.checks import (
     rule,
 )
 from cmcl.field_docs import documented
-from cmcl.replay.sampling import ALGORITHMS, AlgorithmName
 
 TaskName = Literal["spread", "tag"]
 NetworkKind = Literal["per_agent", "shared", "entity"]
 NETWORK_KINDS: tuple[str, ...] = typing.get_args(NetworkKind)
 TASKS: tuple[str, ...] = typing.get_args(TaskName)
 TASK_TEAMS = {"spread": ("agent",), "tag": ("predator", "prey")}  # teams of each task, in agent order
-# α_s of eq. 20 when nothing sets it (ALGORITHM.md A8, revised 2026-12): "proportional to the K-fold priority" for
-# ACL and CMCL, Schaul's proportional-variant 0.6 for PER-MADDPG; MADDPG samples uniformly (α unused)
-DEFAULT_ALPHA = {"maddpg": 1.0, "per": 0.6, "acl": 1.0, "cmcl": 1.0}
+# α_s of eq. 20 when nothing sets it (ALGORITHM.md A8, revised 2026-12): each registered algorithm's default
+# (cmcl.algorithms: "proportional to the K-fold priority" for ACL and CMCL, Schaul's 0.6 for PER-MADDPG and ReLo)
+DEFAULT_ALPHA = {name: spec.default_alpha for name, spec in REGISTRY.items()}
 __all__ = ["ALGORITHMS", "DEFAULT_ALPHA", "TASKS", "TASK_TEAMS", "ConfigError",
            "CurriculumConfig", "ICMConfig",
            "MADDPGConfig", "ReplayConfig", "RunConfig", "ServiceConfig", "TeacherConfig", "TeamConfig"]
@@ -242,15 +242,15 @@ class TeamConfig:
     """Which algorithm a team of agents learns with (ALGORITHM.md §5): one [teams.<team>] table per team."""
 
     algorithm: AlgorithmName = documented(
-        "cmcl", "the team's algorithm (§5): 'maddpg' (uniform sampling), 'per' (PER-MADDPG, |δ| priorities), "
-        "'acl' (the curriculum's K-fold priority alone) or 'cmcl' (K-fold priority plus η × curiosity)")
+        "cmcl", "the team's algorithm, i.e. its replay's sampling rule (cmcl.algorithms): " +
+        "; ".join(f"'{name}' ({spec.summary})" for name, spec in REGISTRY.items()))
     eta: float = documented(0.5, "η, the curiosity weight in CI = KP + η·CP (eq. 8, A15); forced to 0 for acl",
                             rule=rule("must be >= 0", lambda v: v >= 0 and math.isfinite(v)))
     alpha: float | None = documented(
         None, "this team's sampling exponent α_s (eq. 20, A8); unset: replay.alpha if set, else the per-algorithm "
-        "default (1 for acl / cmcl, 0.6 for per)", rule=OPTIONAL_ALPHA)
-    is_correction: bool | None = documented(None, "importance-sampling weights on the critic loss; unset: on for "
-                                            "per, off for acl / cmcl (A9)")
+        "default (cmcl.algorithms: 0.6 for per and relo, 1 for the others)", rule=OPTIONAL_ALPHA)
+    is_correction: bool | None = documented(None, "importance-sampling weights on the critic loss; unset: the "
+                                            "algorithm's default (on for per and relo, off for the others; A9)")
     acl_variant: Literal["teachers", "td_self"] = documented(
         "teachers", "where an acl team's difficulty comes from: 'teachers' (the K-fold teachers' errors, as cmcl) "
         "or 'td_self' (the learner's own |δ| on the row)")
@@ -258,35 +258,44 @@ class TeamConfig:
         "per_agent", "one sampler per agent (A3); A3's option 'team_mean' (one sampler per team on the team's mean "
         "ĉ and ρ̂) is refused here, not implemented",
         rule=rule("must be 'per_agent' (A3's 'team_mean' is not implemented)", lambda v: v == "per_agent"))
+    uniform_floor: float = documented(
+        0.0, "u, the uniform floor of a prioritised rule: P = (1 − u)·P_rule + u/|D| (issue 36); 0 = the rule alone; "
+        "no effect on maddpg", rule=rule("must lie in [0, 1)", lambda v: math.isfinite(v) and 0 <= v < 1))
 
     def __post_init__(self) -> None:
         check_fields(self, "team")
 
     def effective_alpha(self, run_alpha: float | None = None) -> float:
-        """α_s this team samples with: its own `alpha`, else `run_alpha` (replay.alpha), else DEFAULT_ALPHA."""
+        """α_s this team samples with: its own `alpha`, else `run_alpha` (replay.alpha), else its algorithm's
+        default (DEFAULT_ALPHA, from the registry)."""
         if self.alpha is not None:
             return self.alpha
         return DEFAULT_ALPHA[self.algorithm] if run_alpha is None else run_alpha
 
     @property
+    def needs(self):
+        """What this team's sampling rule needs (cmcl.algorithms.Needs: teachers, icm, learner scores)."""
+        return REGISTRY[self.algorithm].needs(self)
+
+    @property
     def uses_teachers(self) -> bool:
         """True when this team's priority needs K-fold teacher difficulty scores."""
-        return self.algorithm == "cmcl" or (self.algorithm == "acl" and self.acl_variant == "teachers")
+        return self.needs.teachers
 
     @property
     def uses_icm(self) -> bool:
         """True when this team's priority needs curiosity scores."""
-        return self.algorithm == "cmcl" and self.eta > 0
+        return self.needs.icm
 
     @property
     def effective_eta(self) -> float:
-        """η as used in CI: 0 for every algorithm but CMCL."""
-        return self.eta if self.algorithm == "cmcl" else 0.0
+        """η as used in the priority: 0 for every algorithm whose rule has no η (all but CMCL)."""
+        return self.eta if REGISTRY[self.algorithm].uses_eta else 0.0
 
     @property
     def importance_weights(self) -> bool:
-        """Whether IS weights correct this team's critic loss."""
-        return (self.algorithm == "per") if self.is_correction is None else self.is_correction
+        """Whether IS weights correct this team's critic loss (its algorithm's default unless is_correction)."""
+        return REGISTRY[self.algorithm].importance_weights if self.is_correction is None else self.is_correction
 
 
 @dataclass(frozen=True)

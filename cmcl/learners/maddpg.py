@@ -81,8 +81,11 @@ class MADDPG(MADDPGCheckpoint):
         networks: str | None = None,
         entity_layout: EntityLayout | None = None,
         entity_pool: str = "attention",
+        target_scores: bool = False,
     ):
         self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
+        # also return |y − Q_target(s, a)| per sampled row (ReLo's target loss; cmcl.algorithms Needs.learner_scores)
+        self.target_scores = bool(target_scores)
         self.gamma, self.tau, self.grad_clip = float(gamma), float(tau), float(grad_clip)
         self.discrete, self.temperature, self.logit_l2 = bool(discrete), float(gumbel_temperature), float(logit_l2)
         widths = (hidden, hidden) if isinstance(hidden, int) else tuple(hidden)
@@ -247,6 +250,10 @@ class MADDPG(MADDPGCheckpoint):
         y = self._td_targets_t(rew, next_obs, done, None, count)  # [N, S]
         delta = y - self._q(self.critic, joint_input(obs, act), None, count)  # [N, S]
         delta = delta if presence is None else delta * presence.own
+        if self.target_scores:  # the same target against the target critic, before the step moves it (ReLo)
+            with torch.no_grad():
+                target_delta = y - self._q(self.target_critic, joint_input(obs, act), None, count)
+            self.last_target_td = (target_delta if presence is None else target_delta * presence.own).abs()
         loss = row_mean(delta.pow(2), w, presence)  # [N]
         self.critic_opt.zero_grad(set_to_none=True)
         self._total(loss, presence).backward()
@@ -296,7 +303,8 @@ class MADDPG(MADDPGCheckpoint):
                next_obs [N, S, N, obs_dim], optional done [N, S] or per agent [N, S, N] (owner v reads its own
                column), optional is_weights [N, S] (critic only).
         Returns numpy: critic_loss [N] (pre-step, weighted), actor_loss [N], td_abs |y - Q| [N, S] (pre-step,
-        for PER), critic_grad_norm [N], actor_grad_norm [N] (pre-clip).
+        for PER), critic_grad_norm [N], actor_grad_norm [N] (pre-clip), and with `target_scores` target_td_abs
+        |y − Q_target| [N, S] (pre-step, ReLo).
         """
         obs, act, rew, next_obs, done, w, presence = self._unpack(batch)
         c_loss, delta, c_norm = self._critic_step(obs, act, rew, next_obs, done, w, presence)
@@ -310,6 +318,7 @@ class MADDPG(MADDPGCheckpoint):
             "td_abs": delta.abs().numpy(),
             "critic_grad_norm": c_norm.numpy(),
             "actor_grad_norm": a_norm.numpy(),
+            **({"target_td_abs": self.last_target_td.numpy()} if self.target_scores else {}),
         }
 
     @torch.no_grad()

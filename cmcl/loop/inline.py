@@ -33,7 +33,6 @@ from cmcl.messages import LearnerFeedback, Rows
 from cmcl.progress import episode_rows, finished_episodes, progress_line, row_sampling_parts, solved, window_summary
 from cmcl.replay import buffer_steps
 from cmcl.replay.pacing import pacing_from_config
-from cmcl.replay.priority import uses_curriculum
 from cmcl.replay.scoring import ScoringState
 from cmcl.system import (
     agent_layout,
@@ -72,7 +71,7 @@ class InlineLoop:
         self.icm = build_icm(config, self.layout, torch_seeds[2])
         self.scoring = ScoringState.for_layout(self.layout, config.replay.capacity, config.teachers.num_folds)
         self.schedule = build_schedule(config)
-        self.prioritized = uses_curriculum(self.layout.algorithms)
+        self.prioritized = self.replay.recomputes  # some agent's sampler rebuilds its priorities each update
         self.pacing = pacing_from_config(config)  # what is due: updates per env step, fit steps per update
         self.learning_progress = LearningProgress.from_run_config(config.run)  # run.stop_progress
         self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "rounds": 0}
@@ -186,14 +185,17 @@ class InlineLoop:
                                          stamp)
 
     def _learner_step(self) -> dict[str, Any]:
-        """Every agent draws its own minibatch, one batched MADDPG update, PER / td_self |δ| written back."""
+        """Every agent draws its own minibatch, one batched MADDPG update, the per-row losses fed back to the
+        samplers that ask for them."""
         cfg, layout = self.config, self.layout
         beta = beta_is(cfg, self.counters["env_steps"])
         betas = [beta if isw else 0.0 for isw in layout.importance_weights]
         batch = buffer_steps.sample_owner_batches(self.replay, 1, cfg.maddpg.batch_size, self.sampler_rngs, betas)
         stats = network_steps.learner_update(self.maddpg, batch.minibatch(0, any(layout.importance_weights)), self.icm,
                                      layout.icm_agents, cfg.icm.intrinsic_reward_coef)
-        feedback = LearnerFeedback(batch.slots, batch.generations, np.asarray(stats["td_abs"])[None])
+        target = stats.get("target_td_abs")
+        feedback = LearnerFeedback(batch.slots, batch.generations, np.asarray(stats["td_abs"])[None],
+                                   target_td_abs=None if target is None else np.asarray(target)[None])
         buffer_steps.apply_learner_feedback(self.replay, layout, feedback)
         return stats
 

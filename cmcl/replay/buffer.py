@@ -2,13 +2,12 @@
 A9, A11).
 
 Where it sits in the flow: the inline loop (or the replay server actor) owns one `ReplayBuffer`. Rollouts
-`add` chunks; teachers / ICM / learner return scores through `update_scores` (and PER's |δ| through
-`update_priorities`); after λ or scores change, `recompute_priorities(lam)` rebuilds every ACL/CMCL agent's
-priority column in bulk; the learner calls `sample(agent, S, rng)` per agent.
+`add` chunks; teachers / ICM return scores through `update_scores`, the learner its per-row losses through
+`feedback`; after λ or scores change, `recompute_priorities(lam)` rebuilds the priority column of every agent whose
+sampler recomputes, in bulk; the learner calls `sample(agent, S, rng)` per agent.
 
-Each agent samples from the distribution of its algorithm (`cmcl.replay.sampling`, chosen once at construction):
-maddpg uniform, per PER (|δ| + ε_p, new slots at the running maximum), acl / cmcl the curriculum index recomputed
-from the score columns (rows not yet scored at the scored rows' mean sampling weight, A11).
+Each agent samples from the sampler of its algorithm (the registry, `cmcl.algorithms`, builds it once at
+construction); the buffer only calls the sampler protocol of `cmcl.replay.sampling`, never asks its kind.
 """
 
 from __future__ import annotations
@@ -20,7 +19,7 @@ import numpy as np
 
 from cmcl.replay.priority import DIFFICULTY_TRANSFORMS, EPS_P, LAM_MAX, kfold_priority, permute_priorities
 from cmcl.replay.sampler import BACKENDS
-from cmcl.replay.sampling import CurriculumSampling, PrioritizedSampling, Sampling, sampling_for
+from cmcl.replay.sampling import LEARNER_SCORES, SamplerArgs
 from cmcl.replay.snapshot import STATE_FORMAT, rng_state, set_rng_state, upgrade_state
 from cmcl.replay.storage import TransitionStorage
 
@@ -44,7 +43,7 @@ class ReplayBuffer:
 
     Args:
         capacity, n_agents, obs_dim, act_dim, n_folds: storage layout (see `cmcl.replay.storage`).
-        algorithms: one algorithm for all agents or one per agent ("maddpg", "per", "acl", "cmcl"; the teams'
+        algorithms: one algorithm for all agents or one per agent (names of cmcl.algorithms.REGISTRY; the teams'
             `algorithm` in the config).
         alpha: sampling exponent α_s of eq. 20, scalar or per agent (A8: 1 for acl / cmcl, 0.6 for per; the
             config resolves each team's, cmcl.config.TeamConfig.effective_alpha). eps: priority floor ε_p.
@@ -57,13 +56,16 @@ class ReplayBuffer:
             `state_dict`, so a resumed run draws the same permutations).
         difficulty_source: "difficulty" (teachers) or "td_abs" (ACL td_self), scalar or per agent.
         min_size: transitions required before `sample` works (e.g. 3840 warm-up). lam_max: cap on λ.
+        floor: uniform floor u of each agent's prioritised rule, scalar or per agent (0 = none).
+        difficulty_squared: the teachers' held-out error is a squared TD error (rules comparing it with δ).
     """
 
     def __init__(self, *, capacity: int = 5000, n_agents: int, obs_dim: int, act_dim: int, n_folds: int = 5,
                  algorithms="maddpg", alpha=1.0, eps: float = EPS_P, backend: str = "cdf", eta=0.5,
                  difficulty_norm: str = "rank", cp_input: str = "std",
                  difficulty_source="difficulty", min_size: int = 1, lam_max: float = LAM_MAX,
-                 difficulty_transform: str = "none", control_seed: int | np.random.SeedSequence = 0) -> None:
+                 difficulty_transform: str = "none", control_seed: int | np.random.SeedSequence = 0,
+                 floor=0.0, difficulty_squared: bool = True) -> None:
         self.storage = TransitionStorage(capacity=capacity, n_agents=n_agents, obs_dim=obs_dim,
                                          act_dim=act_dim, n_folds=n_folds)
         if backend not in BACKENDS:
@@ -92,13 +94,28 @@ class ReplayBuffer:
         self.control_rng = np.random.default_rng(control_seed)  # draws the permuted control's permutations
         self.min_size, self.lam_max = int(min_size), float(lam_max)
         self.lam: float | None = None  # λ of the last recompute
-        reversed_difficulty = difficulty_transform == "reversed"
-        self.sampling: list[Sampling] = [
-            sampling_for(algo, a, capacity=self.capacity, alpha=self.alpha[a], backend=backend, eps=self.eps,
-                         eta=etas[a], difficulty_source=sources[a], difficulty_norm=difficulty_norm,
-                         cp_input=cp_input, lam_max=self.lam_max, reversed_difficulty=reversed_difficulty)
+        floors = [float(f) for f in _per_agent("floor", floor, n)]
+        from cmcl.algorithms import build_sampler  # the registry (it imports the samplers of this package)
+
+        self.sampling = [
+            build_sampler(algo, SamplerArgs(
+                capacity=self.capacity, alpha=self.alpha[a], backend=backend, eps=self.eps, agent=a, eta=etas[a],
+                difficulty_source=sources[a], difficulty_norm=difficulty_norm, difficulty_squared=difficulty_squared,
+                cp_input=cp_input, lam_max=self.lam_max, reversed_difficulty=difficulty_transform == "reversed",
+                permuted=difficulty_transform == "permuted", floor=floors[a]))
             for a, algo in enumerate(self.algorithms)]
-        self.curriculum = [(a, s) for a, s in enumerate(self.sampling) if isinstance(s, CurriculumSampling)]
+        self._index_recomputing()
+
+    def _index_recomputing(self) -> None:
+        """The agents whose sampler recomputes its priorities (`recomputes`), and those among them that also give
+        the curriculum's per-row terms (`terms`: ACL / CMCL, for the diagnostics)."""
+        self.recomputing = [(a, s) for a, s in enumerate(self.sampling) if s.recomputes]
+        self.curriculum = [(a, s) for a, s in self.recomputing if hasattr(s, "terms")]
+
+    @property
+    def recomputes(self) -> bool:
+        """Whether `recompute_priorities` has anything to rebuild (the runners call it before each update)."""
+        return bool(self.recomputing)
 
     # ------------------------------------------------------------------ storage passthrough
     @property
@@ -118,7 +135,7 @@ class ReplayBuffer:
         """Append T transitions (see `TransitionStorage.add`; `present` marks the agents of rows carried from fewer
         agents) -> int64[T] slots (−1 = self-overwritten).
 
-        New slots get the PER maximum priority for "per" agents and ε_p for "acl"/"cmcl" agents.
+        Each sampler gives the new slots its initial priority (`added`).
         """
         slots = self.storage.add(obs, act, rew, next_obs, done, episode, policy_version, present)
         written = slots[slots >= 0]
@@ -130,8 +147,8 @@ class ReplayBuffer:
     def update_scores(self, column: str, slots, generations, values, agents=None) -> int:
         """Write score column values for fresh (slot, generation) pairs -> accepted count (see storage).
 
-        Scores only enter ACL/CMCL priorities at the next `recompute_priorities`; PER priorities change only
-        through `update_priorities`.
+        Scores only enter the priorities at the next `recompute_priorities`; feedback-driven rules (PER, ReLo)
+        change only through `feedback`.
         """
         return self.storage.update_scores(column, slots, generations, values, agents)
 
@@ -152,38 +169,45 @@ class ReplayBuffer:
         return self.storage.generation[self.storage.check_slots(slots)]
 
     # ------------------------------------------------------------------ priorities
-    def update_priorities(self, agent: int, slots, td_abs, generations=None) -> int:
-        """PER: set p = |δ| + ε_p for fresh slots of a "per" agent and raise its tracked maximum.
+    def feedback(self, agent: int, slots, generations, scores: dict[str, np.ndarray]) -> tuple[int, bool]:
+        """The learner's per-row losses of one agent's sampled rows, to that agent's sampler (`feedback`).
 
-        Args: agent index; slots int[M]; td_abs float[M] (finite); generations int[M] or None (no staleness
-        check). Also stores |δ| in the td_abs score column. Returns the accepted count.
+        Args: agent index; slots int[M]; generations int[M] (stale pairs are dropped); scores {name: float[M]}
+        for names in LEARNER_SCORES (finite, >= 0 after abs). Returns (accepted count, whether a score column
+        changed, i.e. a recompute is due).
         """
         self._check_agent(agent)
-        sampling = self.sampling[agent]
-        if not isinstance(sampling, PrioritizedSampling):
-            raise ValueError(f"update_priorities needs a 'per' agent; agent {agent} is {self.algorithms[agent]!r}")
+        s = self.storage.check_slots(slots)
+        gens = np.asarray(generations, dtype=np.int64).reshape(-1)
+        clean = {}
+        for name, values in scores.items():
+            if name not in LEARNER_SCORES:
+                raise ValueError(f"learner scores must be named in {LEARNER_SCORES}, got {name!r}")
+            v = np.abs(np.asarray(values, dtype=np.float64)).reshape(-1)
+            if v.shape != s.shape or not np.all(np.isfinite(v)):
+                raise ValueError(f"{name} must be finite with shape {s.shape}, got {np.shape(values)}")
+            clean[name] = v
+        return self.sampling[agent].feedback(self.storage, int(agent), s, gens, clean)
+
+    def update_priorities(self, agent: int, slots, td_abs, generations=None) -> int:
+        """|δ| feedback of one agent (PER's rule: p = |δ| + ε_p, the running maximum raised); generations None =
+        no staleness check. Returns the accepted count (see `feedback`)."""
         s = self.storage.check_slots(slots)
         gens = self.storage.generation[s] if generations is None else generations
-        td = np.abs(np.asarray(td_abs, dtype=np.float64)).reshape(-1)
-        if td.shape != s.shape or not np.all(np.isfinite(td)):
-            raise ValueError(f"td_abs must be finite with shape {s.shape}, got {np.shape(td_abs)}")
-        accepted = self.storage.update_scores("td_abs", s, gens, td.astype(np.float32), agents=[agent])
-        ok = self.storage.fresh_mask(s, gens)
-        sampling.update_priorities(s[ok], td[ok])
-        return accepted
+        return self.feedback(agent, s, gens, {"td_abs": td_abs})[0]
 
     def recompute_priorities(self, lam: float, details: bool = False, apply: bool = True) -> dict | None:
-        """Rebuild every ACL/CMCL agent's priorities from the score columns at curriculum factor `lam`.
+        """Rebuild the priorities of every agent whose sampler recomputes, at curriculum factor `lam`.
 
-        p = KP(ĉ, λ) + η·CP(ρ̂) + ε_p over the valid rows (η = 0 for ACL); unscored rows get the scored rows' mean
-        sampling weight (`cmcl.replay.priority.provisional_priority`). Under the
-        "reversed" control ĉ is 1 − ĉ; under "permuted" each agent's p column is shuffled across the valid rows
-        (one draw from `control_rng` per recompute) after it is computed.
-        Args: lam in (0, lam_max]; details: also return the per-row terms; apply: False computes the terms only
-        (read-only: the samplers, λ and the permuted control's generator are left as they are, and "priority" is
-        the unpermuted one), for diagnostics that must not change the run.
+        ACL / CMCL: p = KP(ĉ, λ) + η·CP(ρ̂) + ε_p over the valid rows (η = 0 for ACL); unscored rows get the scored
+        rows' mean sampling weight (`cmcl.replay.priority.provisional_priority`); other rules: their own column
+        (`recompute`). Under the "reversed" control ĉ is 1 − ĉ; under "permuted" every recomputed column is
+        shuffled across the valid rows (one draw from `control_rng` per recompute) after it is computed.
+        Args: lam in (0, lam_max]; details: also return the curriculum's per-row terms; apply: False computes the
+        terms only (read-only: the samplers, λ and the permuted control's generator are left as they are, and
+        "priority" is the unpermuted one), for diagnostics that must not change the run.
         Returns: None, or {"agents": int64[A'], "c_hat", "kp", "cp", "priority": float64[size, A'],
-        "scored": bool[size, A']} for the A' recomputed agents ("priority" is what the samplers hold, permuted
+        "scored": bool[size, A']} for the A' ACL / CMCL agents ("priority" is what the samplers hold, permuted
         under the permuted control; c_hat and kp are the rows' own).
         """
         kfold_priority(0.0, lam, self.lam_max)  # validates lam before anything changes
@@ -195,13 +219,19 @@ class ReplayBuffer:
         out["agents"] = np.asarray(agents, dtype=np.int64)
         if not apply:
             return out
-        priority = out["priority"]
-        if self.difficulty_transform == "permuted" and agents:
-            priority = permute_priorities(priority, self.control_rng)
-        for i, (_, sampling) in enumerate(self.curriculum):
-            sampling.set_priorities(priority[:, i])
+        # the curriculum's columns first (from their terms), then every other recomputing sampler's
+        others = [(a, s) for a, s in self.recomputing if not hasattr(s, "terms")]
+        columns = [(s, out["priority"][:, i]) for i, (_, s) in enumerate(self.curriculum)]
+        columns += [(s, p) for _, s in others if (p := s.recompute(self.storage, lam)) is not None]
+        if columns:
+            priority = np.stack([p for _, p in columns], axis=1)
+            if self.difficulty_transform == "permuted":
+                priority = permute_priorities(priority, self.control_rng)
+            for i, (sampling, _) in enumerate(columns):
+                sampling.set_priorities(priority[:, i])
+            out["priority"] = priority[:, :len(self.curriculum)]
         self.lam = float(lam)
-        return {**out, "priority": priority} if details else None
+        return out if details else None
 
     def sampling_distribution(self) -> np.ndarray:
         """P_v(j) of every agent over the valid rows as the samplers hold it now (eq. 20; uniform agents 1/|D|):
@@ -304,7 +334,7 @@ class ReplayBuffer:
             except (KeyError, ValueError) as err:
                 raise ValueError(f"sampling state of agent {a}: {err}") from err
         self.storage, self.sampling = staged, sampling
-        self.curriculum = [(a, s) for a, s in enumerate(self.sampling) if isinstance(s, CurriculumSampling)]
+        self._index_recomputing()
         self.lam = None if lam < 0 else lam
         if "control_rng" in state:
             self.control_rng = control_rng

@@ -5,7 +5,7 @@ buffer; `services.replay_server` calls the same functions when a role asks for w
 side of each step (networks) is `cmcl.learners.network_steps`. Numpy only.
 
   learner minibatches ...... sample_owner_batches       -> LearnerBatch [n, N, S]      (per-agent samplers, eq. 20)
-  learner feedback ......... apply_learner_feedback      <- LearnerFeedback (PER |δ|, ACL td_self)
+  learner feedback ......... apply_learner_feedback      <- LearnerFeedback (per-row losses to each sampler)
   teacher fit rows ......... fold_batch_slots            -> slots [steps, B, F, S] from each fold only (eq. 9)
   ICM fit rows ............. uniform_slots               -> slots, drawn uniformly (§3.4)
   rows to (re)score, scores written back: the scoring state, `cmcl.replay.scoring.ScoringState`
@@ -49,24 +49,23 @@ def sample_owner_batches(replay: ReplayBuffer, count: int, batch_size: int, rngs
 
 
 def apply_learner_feedback(replay: ReplayBuffer, layout: Any, feedback: LearnerFeedback) -> tuple[int, bool]:
-    """PER: p = |δ| + ε_p for a "per" agent's sampled rows; ACL td_self: |δ| into its "td_abs" score column.
+    """The learner's per-row losses of every sampled row, to each agent's sampler (`ReplayBuffer.feedback`): PER
+    and ReLo set their priorities from them, ACL td_self and the reducible held-out rule write the "td_abs" column.
+    Only the scores the layout's rules ask for are passed (`layout.learner_scores`).
 
     Stale (slot, generation) pairs are dropped. Returns (stale pairs dropped, whether a score column changed,
-    i.e. ACL/CMCL priorities need a recompute).
+    i.e. priorities need a recompute).
     """
     stale, scores_changed = 0, False
-    for agent, algorithm in enumerate(layout.algorithms):
+    if not layout.learner_scores:
+        return stale, scores_changed
+    columns = {name: np.asarray(getattr(feedback, name)) for name in layout.learner_scores}
+    for agent in range(layout.num_agents):
         s = feedback.slots[:, agent].reshape(-1)
         g = feedback.generations[:, agent].reshape(-1)
-        v = np.asarray(feedback.td_abs)[:, agent].reshape(-1)
-        if algorithm == "per":
-            accepted = replay.update_priorities(agent, s, v, g)
-        elif layout.difficulty_source[agent] == "td_abs":
-            accepted = replay.update_scores("td_abs", s, g, v[:, None], agents=[agent])
-            scores_changed = True
-        else:
-            continue
+        accepted, changed = replay.feedback(agent, s, g, {k: v[:, agent].reshape(-1) for k, v in columns.items()})
         stale += s.size - accepted
+        scores_changed |= changed
     return stale, scores_changed
 
 

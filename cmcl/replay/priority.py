@@ -19,17 +19,10 @@ import numpy as np
 EPS_P = 1e-6  # ε_p: priority floor keeping every transition reachable
 LAM_MAX = 1.0  # largest admissible curriculum factor (KP is undefined above 1)
 STD_EPS = 1e-8  # added to the std in curiosity normalisation
-CURRICULUM_ALGORITHMS = ("acl", "cmcl")  # algorithms whose priority is recomputed from score columns at λ (eqs. 8,
-# 12, 19); the others sample uniformly (maddpg) or by |δ| (per), see cmcl.replay.sampling
 # sampling controls of the curriculum agents (issue 21; config teachers.difficulty_transform): "none" = the method,
 # "reversed" = anti-curriculum (ĉ -> 1 − ĉ before KP), "permuted" = priorities shuffled across rows
 # (`permute_priorities`)
 DIFFICULTY_TRANSFORMS = ("none", "permuted", "reversed")
-
-
-def uses_curriculum(algorithms) -> bool:
-    """Whether any agent's algorithm samples by the curriculum index (its priorities need recomputing at λ)."""
-    return any(a in CURRICULUM_ALGORITHMS for a in algorithms)
 
 
 def _finite_array(name: str, x) -> np.ndarray:
