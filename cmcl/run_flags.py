@@ -22,6 +22,7 @@ from typing import Literal, get_args
 from cmcl.config import Config, ConfigError, load_config
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
+from cmcl.io.verified import CheckpointError
 
 Runner = Literal["inline", "service"]
 RUNNERS: tuple[str, ...] = get_args(Runner)
@@ -110,7 +111,8 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
     """The config (file, or the run's own config.toml on resume, with `config_overrides`), the run directory (new, or
     the one resumed) and its lock, taken before anything in the directory changes: a run in use is refused, naming
     its holder, and left untouched; so is the other runner's run. Raises ConfigError, FileExistsError (a run.dir
-    holding a run, without `overwrite`), FileNotFoundError (no run to resume), RunDirectoryInUse, ResumeMismatch."""
+    holding a run, without `overwrite`), FileNotFoundError (no run to resume), RunDirectoryInUse, ResumeMismatch,
+    CheckpointError (a resumed run holds checkpoint files that cannot be verified)."""
     overrides = request.config_overrides()
     if request.resume_dir:
         run_dir = RunDirectory.open(request.resume_dir)
@@ -120,6 +122,7 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
             if written_by and request.runner not in written_by:
                 raise ResumeMismatch(f"{request.resume_dir} was written by the {' and '.join(sorted(written_by))} "
                                      f"runner; resume it with {resume_command(request.resume_dir)}")
+            run_dir.check_no_unverifiable_checkpoint()
             return resumed_config(run_dir, overrides, request), run_dir, lock
         except BaseException:
             lock.release()
@@ -182,7 +185,8 @@ def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, Run
     code, or 2 after printing the error when the run cannot be opened (nothing in the directory changed then)."""
     try:
         config, run_dir, lock = open_run(request)
-    except (ConfigError, FileExistsError, FileNotFoundError, RunDirectoryInUse, RunRequestError) as err:
+    except (CheckpointError, ConfigError, FileExistsError, FileNotFoundError, RunDirectoryInUse,
+            RunRequestError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     with lock:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import re
 import shutil
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
@@ -27,7 +28,7 @@ from typing import Any, Literal
 
 from cmcl.config import Config, dump_toml, load_config
 from cmcl.io.atomic import atomic_write_bytes
-from cmcl.io.verified import CheckpointError, VerifiedFile
+from cmcl.io.verified import CheckpointError, VerifiedFile, read_checked, write_checked
 
 CHECKPOINT_GLOB = "ckpt_*.pt"
 SERVICE_ROLES = ("learner", "icm")  # roles whose checkpoint is one VerifiedFile at checkpoints/service/<role>.pt
@@ -164,9 +165,29 @@ class RunDirectory:
         found = set()
         if any(self.checkpoints.glob(CHECKPOINT_GLOB)):
             found.add("inline")
-        if VerifiedFile(self.service_dir / "learner.pt").manifest.exists():
+        learner = VerifiedFile(self.service_dir / "learner.pt")
+        if learner.manifest.exists() or learner.generations():
             found.add("service")
         return found
+
+    def service_checkpoints(self) -> list[VerifiedFile]:
+        """Every service role checkpoint (learner, ICM, each teacher group) that has a file in `service_dir`."""
+        bases = {re.sub(r"-\d{6,}$", "", p.stem) for p in self.service_dir.glob("*-*.pt")}
+        found = [VerifiedFile(self.service_dir / f"{base}.pt") for base in sorted(bases)]
+        return [vf for vf in found if vf.generations()]
+
+    def check_no_unverifiable_checkpoint(self) -> None:
+        """Refuse (CheckpointError, one line naming the files) a service run in which a role has generation files
+        but none that verifies and at least one with no checksum at all (its manifest lost, no digest file: files
+        written before digest files existed). Such a file may hold the trained state; a resume would start the
+        role afresh and its next saves would in time delete it."""
+        unverifiable = [file for vf in self.service_checkpoints() if (loaded := vf.load()).payload is None
+                        for file in loaded.unverifiable]
+        if unverifiable:
+            raise CheckpointError(
+                f"{self.service_dir}: {len(unverifiable)} checkpoint file(s) cannot be verified (no manifest names "
+                f"them, no .sha256 beside them): {', '.join(f.name for f in unverifiable)}; refusing to start those "
+                "roles afresh over them (restore the manifest, or move the files away to start afresh)")
 
     def newest_policy(self) -> PolicyCheckpoint | None:
         """The newest policy checkpoint that passes its checks, whichever runner wrote it (by file time), or None.
@@ -213,23 +234,13 @@ class RunDirectory:
 
 
 def save_torch_atomic(path: str | Path, state: Mapping[str, Any]) -> None:
-    """torch.save `state` (tensors and plain containers, no numpy) to `path`, all or nothing, then its manifest
+    """torch.save `state` (tensors and plain containers, no numpy) to `path`, all or nothing, then its digest file
     `<path>.sha256` ("<hex digest> <bytes>"), which `load_checkpoint` checks before decoding."""
-    import hashlib
-    import io
-
     import torch
 
     buffer = io.BytesIO()
     torch.save(dict(state), buffer)
-    payload = buffer.getvalue()
-    atomic_write_bytes(path, payload)
-    atomic_write_bytes(digest_path(path), f"{hashlib.sha256(payload).hexdigest()} {len(payload)}".encode())
-
-
-def digest_path(path: str | Path) -> Path:
-    """Where the manifest (SHA-256 and size) of checkpoint `path` lives."""
-    return Path(str(path) + ".sha256")
+    write_checked(path, buffer.getvalue())
 
 
 def replay_snapshot_path(checkpoint: Path) -> Path:
@@ -237,22 +248,33 @@ def replay_snapshot_path(checkpoint: Path) -> Path:
     return checkpoint.with_name(checkpoint.name.replace("ckpt_", "replay_").replace(".pt", ".msgpack"))
 
 
+def write_replay_snapshot(path: str | Path, state: dict[str, Any]) -> int:
+    """Encode a replay snapshot (msgpack, `cmcl.io.codec`) and write it with its digest file, like a checkpoint;
+    returns its bytes."""
+    from cmcl.io import codec
+
+    payload = codec.encode_snapshot(state)
+    write_checked(path, payload)
+    return len(payload)
+
+
+def read_replay_snapshot(path: str | Path) -> dict[str, Any]:
+    """A replay snapshot written by `write_replay_snapshot`: checked against its digest file (CheckpointError naming
+    the file when it is missing, truncated, flipped or has no digest file), then decoded within the snapshot
+    limits (codec.CodecError)."""
+    from cmcl.io import codec
+
+    path = Path(path)
+    size = path.stat().st_size if path.exists() else 0
+    if size > codec.SNAPSHOT_LIMITS.max_bytes:
+        raise CheckpointError(f"{path}: {size} bytes exceeds the limit of {codec.SNAPSHOT_LIMITS.max_bytes}")
+    return codec.decode_snapshot(read_checked(path), limits=codec.SNAPSHOT_LIMITS)
+
+
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
-    """Load a checkpoint written by `save_torch_atomic`: checked against its manifest first (a truncated or
-    corrupted file raises `CheckpointError` naming it), then torch.load(weights_only=True): no arbitrary pickle.
-    Checkpoints written before manifests existed (no `.sha256` beside them) are decoded without the check."""
+    """Load a checkpoint written by `save_torch_atomic`: checked against its digest file first (a missing,
+    truncated or corrupted file, or one without a digest file, raises `CheckpointError` naming it), then
+    torch.load(weights_only=True): no arbitrary pickle. A file that cannot be verified is never decoded."""
     import torch
 
-    from cmcl.io.verified import check
-
-    path, manifest = Path(path), digest_path(path)
-    if manifest.exists():
-        try:
-            digest, size = manifest.read_text().split()
-            payload = check(path, int(size), digest)
-        except ValueError as err:
-            if isinstance(err, CheckpointError):
-                raise
-            raise CheckpointError(f"{manifest}: not a checkpoint manifest ({err})") from err
-        return torch.load(io.BytesIO(payload), map_location="cpu", weights_only=True)
-    return torch.load(path, map_location="cpu", weights_only=True)
+    return torch.load(io.BytesIO(read_checked(path)), map_location="cpu", weights_only=True)
