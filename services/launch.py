@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from cmcl.config import Config
+from cmcl.io.durable import ReplayStore
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunLock
 from cmcl.run_flags import RunRequest, alias_parser, request_from, resume_command, train_in_run
@@ -160,6 +161,9 @@ def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: Ru
 
     if request.resume_dir:
         print(resume_notice(run_dir))
+        damage = ReplayStore(run_dir.service_replay_dir).recover_log()
+        if damage is not None:
+            print(f"replay log of {run_dir.path}: {damage}", file=sys.stderr)
     elif config.run.init_from:  # the learner actor loads it (services/learner.py); checked by open_run
         from cmcl.learners.warm_start import warm_start_source  # torch: imported only when needed
 
