@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Literal, get_args
 
 from cmcl.config import Config, ConfigError, load_config
-from cmcl.io.rundir import RunDirectory
+from cmcl.io.rundir import MetricsError, RunDirectory
 from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
 from cmcl.io.verified import CheckpointError
 
@@ -112,7 +112,8 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
     the one resumed) and its lock, taken before anything in the directory changes: a run in use is refused, naming
     its holder, and left untouched; so is the other runner's run. Raises ConfigError, FileExistsError (a run.dir
     holding a run, without `overwrite`), FileNotFoundError (no run to resume), RunDirectoryInUse, ResumeMismatch,
-    CheckpointError (a resumed run holds checkpoint files that cannot be verified)."""
+    CheckpointError (a resumed run holds checkpoint files that cannot be verified), MetricsError (its metrics.jsonl
+    has a corrupt line before its last)."""
     overrides = request.config_overrides()
     if request.resume_dir:
         run_dir = RunDirectory.open(request.resume_dir)
@@ -185,7 +186,7 @@ def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, Run
     code, or 2 after printing the error when the run cannot be opened (nothing in the directory changed then)."""
     try:
         config, run_dir, lock = open_run(request)
-    except (CheckpointError, ConfigError, FileExistsError, FileNotFoundError, RunDirectoryInUse,
+    except (CheckpointError, ConfigError, FileExistsError, FileNotFoundError, MetricsError, RunDirectoryInUse,
             RunRequestError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -19,8 +19,10 @@ from __future__ import annotations
 import io
 import json
 import math
+import os
 import re
 import shutil
+import sys
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +34,22 @@ from cmcl.io.verified import CheckpointError, VerifiedFile, read_checked, write_
 
 CHECKPOINT_GLOB = "ckpt_*.pt"
 SERVICE_ROLES = ("learner", "icm")  # roles whose checkpoint is one VerifiedFile at checkpoints/service/<role>.pt
+
+
+TAIL_BYTES = 1 << 20  # the last line of metrics.jsonl is looked for in its last MiB
+
+
+class MetricsError(ValueError):
+    """metrics.jsonl holds a line that does not parse and is not its last: the message names the file and line."""
+
+
+def _parse_row(line: bytes) -> dict[str, Any] | None:
+    """One metrics line as its row, or None when it is not a JSON object."""
+    try:
+        row = json.loads(line)
+    except (ValueError, UnicodeDecodeError):
+        return None
+    return row if isinstance(row, dict) else None
 
 
 @dataclass(frozen=True)
@@ -66,6 +84,7 @@ class RunDirectory:
         self.checkpoints = self.path / "checkpoints"
         self.metrics_path = self.path / "metrics.jsonl"
         self.config_path = self.path / "config.toml"
+        self._tail_checked = self._torn_said = False  # metrics.jsonl: torn last line set aside / said (`rows`)
 
     @classmethod
     def create(cls, path: str | Path, config: Config, *, overwrite: bool = False) -> RunDirectory:
@@ -95,20 +114,62 @@ class RunDirectory:
         return load_config(self.config_path, overrides)
 
     def log(self, row: Mapping[str, Any]) -> None:
-        """Append one metrics row (a flat or nested mapping) as a JSON line."""
+        """Append one metrics row (a flat or nested mapping) as a JSON line (the first append of this object first
+        moves a torn last line aside, `_set_torn_line_aside`, so that no row is ever glued to it)."""
+        if not self._tail_checked:
+            self._set_torn_line_aside()
+            self._tail_checked = True
         with self.metrics_path.open("a") as handle:
             handle.write(json.dumps(_json_safe(row), sort_keys=True) + "\n")
 
-    def rows(self, kind: str | None = None) -> Iterator[dict[str, Any]]:
-        """Metrics rows in order, optionally only those with row["kind"] == kind."""
+    def _set_torn_line_aside(self) -> None:
+        """A metrics file whose last line has no newline (a write cut by a crash or a full disk, e.g. EFBIG): that
+        line is appended to `metrics.jsonl.torn` and removed from the file; a complete row only gets its newline."""
         if not self.metrics_path.exists():
             return
-        with self.metrics_path.open() as handle:
-            for line in handle:
-                if line.strip():
-                    row = json.loads(line)
-                    if kind is None or row.get("kind") == kind:
-                        yield row
+        with self.metrics_path.open("rb") as handle:
+            size = handle.seek(0, 2)
+            handle.seek(max(0, size - TAIL_BYTES))
+            tail = handle.read()
+        if not tail or tail.endswith(b"\n"):
+            return
+        cut = tail.rfind(b"\n") + 1
+        if cut == 0 and size > len(tail):
+            raise MetricsError(f"{self.metrics_path}: its last line is longer than {TAIL_BYTES} bytes and has no "
+                               "end; not appending to it")
+        torn = tail[cut:]
+        if _parse_row(torn) is not None:
+            with self.metrics_path.open("ab") as handle:
+                handle.write(b"\n")
+            return
+        with self.metrics_path.with_name(self.metrics_path.name + ".torn").open("ab") as aside:
+            aside.write(torn + b"\n")
+        os.truncate(self.metrics_path, size - len(torn))
+        print(f"metrics: moved the torn last line of {self.metrics_path} ({len(torn)} bytes) to "
+              f"{self.metrics_path.name}.torn", file=sys.stderr)
+
+    def rows(self, kind: str | None = None) -> Iterator[dict[str, Any]]:
+        """Metrics rows in order, optionally only those with row["kind"] == kind. A last line that does not parse
+        (torn by a crash or a full disk) is left out and said once on stderr; a line that does not parse with rows
+        after it raises MetricsError naming the file and the line."""
+        if not self.metrics_path.exists():
+            return
+        bad: tuple[int, str] | None = None  # a line that did not parse, until it proves not to be the last
+        with self.metrics_path.open("rb") as handle:
+            for number, line in enumerate(handle, 1):
+                if not line.strip():
+                    continue
+                if bad is not None:
+                    raise MetricsError(f"{self.metrics_path} line {bad[0]}: {bad[1]}, with rows after it; refusing "
+                                       "to read a corrupt metrics file")
+                row = _parse_row(line)
+                if row is None:
+                    bad = (number, f"not a JSON object ({line[:40]!r})")
+                elif kind is None or row.get("kind") == kind:
+                    yield row
+        if bad is not None and not self._torn_said:
+            self._torn_said = True
+            print(f"metrics: ignored the torn last line of {self.metrics_path} (line {bad[0]})", file=sys.stderr)
 
     def truncate_rows_after(self, episodes: int) -> None:
         """On resume: drop rows logged after the checkpoint (row["episodes"] > episodes), atomically."""
