@@ -70,6 +70,9 @@ class RunRequest:
             raise RunRequestError(f"--runner must be one of {', '.join(RUNNERS)}, got {self.runner!r}")
         if self.more_episodes < 0:
             raise RunRequestError(f"--more-episodes must be >= 0, got {self.more_episodes}")
+        if self.num_cpus is not None and (isinstance(self.num_cpus, bool) or self.num_cpus < 1):
+            raise RunRequestError(f"--num-cpus must be a positive integer (CPUs of the embedded Ray), got "
+                                  f"{self.num_cpus}")
         if self.more_episodes and not self.resume_dir:
             raise RunRequestError(f"--more-episodes {self.more_episodes} trains a run further: give the run "
                                   "(python -m cmcl resume RUN_DIR --more-episodes N)")
@@ -214,7 +217,8 @@ def add_run_flags(parser: argparse.ArgumentParser, *, new_run: bool = True) -> N
     service = parser.add_argument_group("service runner only")
     service.add_argument("--address", default=None,
                          help="Ray cluster to join ('auto' after `ray start --head`); default: embedded Ray")
-    service.add_argument("--num-cpus", type=int, default=None, help="CPUs of the embedded Ray (default: all)")
+    service.add_argument("--num-cpus", type=int, default=None,
+                         help="CPUs of the embedded Ray, a positive integer (default: all)")
     service.add_argument("--ray-metrics-port", type=int, default=None,
                          help="embedded Ray only: port of Ray's own Prometheus metrics (default: Ray picks one)")
 
@@ -244,6 +248,17 @@ def request_from(args: argparse.Namespace, runner: str, resume_dir: str | None =
                       more_episodes=getattr(args, "more_episodes", 0), quiet=args.quiet, no_eval=args.no_eval,
                       address=args.address, num_cpus=args.num_cpus, metrics_port=args.metrics_port,
                       metrics_host=args.metrics_host, ray_metrics_port=args.ray_metrics_port)
+
+
+def run_alias(args: argparse.Namespace, runner: str, run: Callable[[RunRequest], int]) -> int:
+    """A runner's own command: `run(request_from(args, runner))`, or exit code 2 after a one-line error when the
+    flags make no valid request (e.g. --num-cpus 0)."""
+    try:
+        request = request_from(args, runner)
+    except RunRequestError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    return run(request)
 
 
 def add_evaluate_flags(parser: argparse.ArgumentParser) -> None:
