@@ -21,9 +21,8 @@ import numpy as np
 
 from cmcl.config import Config, ConfigError
 from cmcl.envs.entities import EntityLayout, spread_layout
-from cmcl.io import codec
 from cmcl.io.durable import ReplayStore
-from cmcl.io.rundir import RunDirectory, replay_snapshot_path
+from cmcl.io.rundir import RunDirectory, read_replay_snapshot, replay_snapshot_path
 from cmcl.replay.agent_padding import pad_rows
 from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.storage import TransitionStorage
@@ -64,8 +63,7 @@ def check_carry_source(config: Config) -> None:
 def source_rows(init_from: str) -> TransitionStorage:
     """The validated storage (TransitionStorage.load_state_dict) of init_from's newest replay (`_source`)."""
     kind, path = _source(init_from)
-    snapshot = (codec.read_snapshot(path, limits=codec.SNAPSHOT_LIMITS) if kind == "inline"
-                else ReplayStore(path).read_snapshot())
+    snapshot = read_replay_snapshot(path) if kind == "inline" else ReplayStore(path).read_snapshot()
     state = snapshot["replay"]["storage"]
     storage = TransitionStorage(capacity=state["capacity"], n_agents=state["n_agents"], obs_dim=state["obs_dim"],
                                 act_dim=state["act_dim"], n_folds=state["n_folds"])

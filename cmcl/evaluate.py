@@ -181,6 +181,7 @@ def evaluate_run(args: argparse.Namespace) -> int:
                 raise FileNotFoundError(f"no checkpoint that passes its checks in {args.run_dir} (pass --checkpoint "
                                         "or --random)")
         maddpg = None if args.random or checkpoint is None else load_policy(config, checkpoint)
+        episode_rows = sum(1 for _ in run.rows("episode"))  # a corrupt metrics file is refused before any work
     except (FileNotFoundError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -194,7 +195,7 @@ def evaluate_run(args: argparse.Namespace) -> int:
                        args.seed))
     from cmcl.io.plots import plot_learning_curves
 
-    if any(True for _ in run.rows("episode")):
+    if episode_rows:
         print(f"learning curve: {plot_learning_curves([run.path], run.path / 'learning_curve.png')}")
     return 0
 

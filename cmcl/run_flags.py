@@ -20,8 +20,9 @@ from dataclasses import dataclass
 from typing import Literal, get_args
 
 from cmcl.config import Config, ConfigError, load_config
-from cmcl.io.rundir import RunDirectory
+from cmcl.io.rundir import MetricsError, RunDirectory
 from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
+from cmcl.io.verified import CheckpointError
 
 Runner = Literal["inline", "service"]
 RUNNERS: tuple[str, ...] = get_args(Runner)
@@ -69,6 +70,9 @@ class RunRequest:
             raise RunRequestError(f"--runner must be one of {', '.join(RUNNERS)}, got {self.runner!r}")
         if self.more_episodes < 0:
             raise RunRequestError(f"--more-episodes must be >= 0, got {self.more_episodes}")
+        if self.num_cpus is not None and (isinstance(self.num_cpus, bool) or self.num_cpus < 1):
+            raise RunRequestError(f"--num-cpus must be a positive integer (CPUs of the embedded Ray), got "
+                                  f"{self.num_cpus}")
         if self.more_episodes and not self.resume_dir:
             raise RunRequestError(f"--more-episodes {self.more_episodes} trains a run further: give the run "
                                   "(python -m cmcl resume RUN_DIR --more-episodes N)")
@@ -110,7 +114,9 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
     """The config (file, or the run's own config.toml on resume, with `config_overrides`), the run directory (new, or
     the one resumed) and its lock, taken before anything in the directory changes: a run in use is refused, naming
     its holder, and left untouched; so is the other runner's run. Raises ConfigError, FileExistsError (a run.dir
-    holding a run, without `overwrite`), FileNotFoundError (no run to resume), RunDirectoryInUse, ResumeMismatch."""
+    holding a run, without `overwrite`), FileNotFoundError (no run to resume), RunDirectoryInUse, ResumeMismatch,
+    CheckpointError (a resumed run holds checkpoint files that cannot be verified), MetricsError (its metrics.jsonl
+    has a corrupt line before its last)."""
     overrides = request.config_overrides()
     if request.resume_dir:
         run_dir = RunDirectory.open(request.resume_dir)
@@ -120,6 +126,7 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
             if written_by and request.runner not in written_by:
                 raise ResumeMismatch(f"{request.resume_dir} was written by the {' and '.join(sorted(written_by))} "
                                      f"runner; resume it with {resume_command(request.resume_dir)}")
+            run_dir.check_no_unverifiable_checkpoint()
             return resumed_config(run_dir, overrides, request), run_dir, lock
         except BaseException:
             lock.release()
@@ -182,7 +189,8 @@ def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, Run
     code, or 2 after printing the error when the run cannot be opened (nothing in the directory changed then)."""
     try:
         config, run_dir, lock = open_run(request)
-    except (ConfigError, FileExistsError, FileNotFoundError, RunDirectoryInUse, RunRequestError) as err:
+    except (CheckpointError, ConfigError, FileExistsError, FileNotFoundError, MetricsError, RunDirectoryInUse,
+            RunRequestError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     with lock:
@@ -209,7 +217,8 @@ def add_run_flags(parser: argparse.ArgumentParser, *, new_run: bool = True) -> N
     service = parser.add_argument_group("service runner only")
     service.add_argument("--address", default=None,
                          help="Ray cluster to join ('auto' after `ray start --head`); default: embedded Ray")
-    service.add_argument("--num-cpus", type=int, default=None, help="CPUs of the embedded Ray (default: all)")
+    service.add_argument("--num-cpus", type=int, default=None,
+                         help="CPUs of the embedded Ray, a positive integer (default: all)")
     service.add_argument("--ray-metrics-port", type=int, default=None,
                          help="embedded Ray only: port of Ray's own Prometheus metrics (default: Ray picks one)")
 
@@ -239,6 +248,17 @@ def request_from(args: argparse.Namespace, runner: str, resume_dir: str | None =
                       more_episodes=getattr(args, "more_episodes", 0), quiet=args.quiet, no_eval=args.no_eval,
                       address=args.address, num_cpus=args.num_cpus, metrics_port=args.metrics_port,
                       metrics_host=args.metrics_host, ray_metrics_port=args.ray_metrics_port)
+
+
+def run_alias(args: argparse.Namespace, runner: str, run: Callable[[RunRequest], int]) -> int:
+    """A runner's own command: `run(request_from(args, runner))`, or exit code 2 after a one-line error when the
+    flags make no valid request (e.g. --num-cpus 0)."""
+    try:
+        request = request_from(args, runner)
+    except RunRequestError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    return run(request)
 
 
 def add_evaluate_flags(parser: argparse.ArgumentParser) -> None:

@@ -24,9 +24,10 @@ from pathlib import Path
 from typing import Any
 
 from cmcl.config import Config
+from cmcl.io.durable import ReplayStore
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunLock
-from cmcl.run_flags import RunRequest, alias_parser, request_from, resume_command, train_in_run
+from cmcl.run_flags import RunRequest, alias_parser, resume_command, run_alias, train_in_run
 from cmcl.stopping import STOP_SIGNALS, StopSignals, exit_without_teardown
 
 
@@ -59,8 +60,8 @@ def start_ray(address: str | None, num_cpus: int | None, metrics_export_port: in
                                   f"`ray start --head`, or omit --address for an embedded Ray") from None
         return
     signal.pthread_sigmask(signal.SIG_BLOCK, set(STOP_SIGNALS))
-    ray.init(address="local", num_cpus=num_cpus or os.cpu_count(), include_dashboard=False, log_to_driver=False,
-             _metrics_export_port=metrics_export_port)
+    ray.init(address="local", num_cpus=os.cpu_count() if num_cpus is None else num_cpus, include_dashboard=False,
+             log_to_driver=False, _metrics_export_port=metrics_export_port)
 
 
 def stop_ray() -> None:
@@ -142,7 +143,7 @@ def resume_notice(run_dir: RunDirectory) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """`python -m services.launch`: the alias of `python -m cmcl train|resume --runner service`."""
-    return run_launch(request_from(parse_args(argv), "service"))
+    return run_alias(parse_args(argv), "service", run_launch)
 
 
 def run_launch(request: RunRequest) -> int:
@@ -160,6 +161,9 @@ def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: Ru
 
     if request.resume_dir:
         print(resume_notice(run_dir))
+        damage = ReplayStore(run_dir.service_replay_dir).recover_log()
+        if damage is not None:
+            print(f"replay log of {run_dir.path}: {damage}", file=sys.stderr)
     elif config.run.init_from:  # the learner actor loads it (services/learner.py); checked by open_run
         from cmcl.learners.warm_start import warm_start_source  # torch: imported only when needed
 

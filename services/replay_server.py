@@ -18,6 +18,7 @@ Every method returns (or ends with) a `ReplayStatus` the supervisor uses to pace
 from __future__ import annotations
 
 import dataclasses
+import sys
 from typing import Any
 
 import numpy as np
@@ -115,7 +116,7 @@ class ReplayServer:
         except (ValueError, TypeError) as err:
             return self._reject("invalid", str(err))
         if self.store is not None:
-            self.store.append(records.encode_chunk(chunk))
+            self.store.append(records.encode_chunk(chunk), chunk.rows)
             self.logged_rows += chunk.rows
             if self.logged_rows >= self.replay.capacity:  # the log never holds more than one buffer's worth
                 self.snapshot()
@@ -296,8 +297,9 @@ class ReplayServer:
         return self.store.snapshot(self.state_dict())
 
     def restore(self) -> None:
-        """Load the store's snapshot (checked against its manifest), then replay the chunks logged since it."""
-        state, frames, problem = self.store.load()
+        """Load the store's snapshot (checked against its manifest), then replay the chunks logged since it that
+        verify; a damaged log (moved aside by the store) is counted and said on stderr, with what was lost."""
+        state, frames, damage = self.store.load()
         if state is not None:
             self._load_state(state)
         for payload in frames:  # in the order they were applied
@@ -309,8 +311,9 @@ class ReplayServer:
                 if not self.ledger.seen(record.writer_key, record.seq):
                     self._store(record)
         self.counters["restored_records"] = len(frames)
-        if problem is not None:
+        if damage is not None:  # counted under the label it always had; the line says what was lost and where
             self.rejected["log_truncated"] = self.rejected.get("log_truncated", 0) + 1
+            print(f"replay log: {damage}", file=sys.stderr)
 
     def _load_state(self, state: dict[str, Any]) -> None:
         """Apply a `state_dict()` (each part validated by its owner before use)."""

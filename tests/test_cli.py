@@ -166,6 +166,19 @@ def test_more_episodes_is_refused_negative_or_without_a_run(request_args, named)
         RunRequest(runner="inline", **request_args)
 
 
+@pytest.mark.parametrize("value", ["0", "-1"])
+@pytest.mark.parametrize("command", ["python -m cmcl train", "python -m services.launch"])
+def test_num_cpus_must_be_a_positive_integer(command, value, tmp_path, capsys):
+    """Issue 37: 0 silently meant all cores and -1 was a traceback from Ray."""
+    from services.launch import main as launch
+
+    flags = ["--num-cpus", value, "--config", str(tmp_path / "absent.toml"), "--set", f"run.dir={tmp_path / 'run'}"]
+    assert (main(["train", *flags]) if command.endswith("cmcl train") else launch(flags)) == 2
+    assert capsys.readouterr().err == f"error: --num-cpus must be a positive integer (CPUs of the embedded Ray), " \
+                                      f"got {value}\n"
+    assert not (tmp_path / "run").exists()
+
+
 def test_evaluate_finds_the_newest_policy(tmp_path, tiny_config):
     run_dir = trained_run(tiny_config, tmp_path / "run")
     evaluated = run_cli("evaluate", str(run_dir.path), "--episodes", "8", "--no-gif")

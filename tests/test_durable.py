@@ -1,6 +1,7 @@
 """Exactly-once inserts, the durable replay store, and bad bytes at the chunk boundary (issue 9)."""
 
 import dataclasses
+import hashlib
 import pickle
 import re
 from pathlib import Path
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 
 from cmcl.io import codec, records
-from cmcl.io.durable import FRAME, ReplayStore, StoreError, frame, read_frames
+from cmcl.io.durable import FRAME, LEGACY_FRAME, ReplayStore, StoreError, frame, read_frames
 from cmcl.messages import Chunk
 from cmcl.replay.dedupe import InsertLedger
 from tests.test_codec import make_chunk
@@ -39,21 +40,60 @@ def test_ledger_accepts_each_seq_once_in_any_order_and_stays_bounded():
         ledger.accept("w:3", -1)
 
 
-def test_frames_round_trip_and_every_cut_or_flip_stops_at_the_last_good_frame():
+def test_frames_round_trip_a_cut_drops_only_the_torn_frame_and_a_flip_loses_only_its_own_frame():
     payloads = [bytes([i]) * (10 + i) for i in range(5)]
-    data = b"".join(frame(p) for p in payloads)
-    assert read_frames(data) == (payloads, len(data), None)
+    rows = [3, 0, 5, 7, 11]  # transitions per frame (0: an event)
+    data = b"".join(frame(p, r) for p, r in zip(payloads, rows, strict=True))
+    scan = read_frames(data)
+    assert scan.frames == payloads and scan.problem is None and scan.spans[-1][1] == len(data)
     ends = np.cumsum([FRAME.size + len(p) for p in payloads])
+    starts = ends - [FRAME.size + len(p) for p in payloads]
     for cut in range(len(data)):  # a crash can tear the log at any byte
-        frames, good, problem = read_frames(data[:cut])
-        assert frames == payloads[:int((ends <= cut).sum())] and good == (ends[ends <= cut][-1] if cut >= ends[0]
-                                                                          else 0)
-        assert (problem is None) == (cut in (0, *ends))
-    for pos in range(0, len(data), 7):  # a flipped bit anywhere loses that frame and the ones after, no more
+        scan = read_frames(data[:cut])
+        whole = int((ends <= cut).sum())
+        assert scan.frames == payloads[:whole] and scan.lost_frames == 0 and scan.unknown_ranges == 0
+        assert scan.torn_tail == (None if cut in (0, *ends) else starts[whole]), cut
+    for pos in range(len(data)):  # a flipped bit anywhere loses the frame it hits, never another
         flipped = bytearray(data)
         flipped[pos] ^= 0x40
-        frames, _, problem = read_frames(bytes(flipped))
-        assert problem is not None and frames == payloads[:int((ends <= pos).sum())]
+        scan = read_frames(bytes(flipped))
+        hit = int((ends <= pos).sum())
+        assert scan.frames == payloads[:hit] + payloads[hit + 1:], pos
+        in_payload = pos >= starts[hit] + FRAME.size
+        assert (scan.lost_frames, scan.lost_transitions, scan.unknown_ranges) == (
+            (1, rows[hit], 0) if in_payload else (0, 0, 1)), pos
+        assert scan.damaged == [(starts[hit], ends[hit])] and scan.torn_tail is None
+
+
+def test_a_legacy_log_is_still_read_and_a_bad_legacy_frame_costs_only_itself():
+    payloads = [bytes([i]) * 40 for i in range(4)]
+    legacy = [LEGACY_FRAME.pack(b"CMCL", len(p), hashlib.sha256(p).digest()) + p for p in payloads]
+    data = b"".join(legacy) + frame(b"new", 2)  # a run of the old code resumed by the new one
+    assert read_frames(data).frames == [*payloads, b"new"]
+    flipped = bytearray(data)
+    flipped[len(legacy[0]) + LEGACY_FRAME.size + 3] ^= 1  # in the second frame's payload
+    scan = read_frames(bytes(flipped))
+    assert scan.frames == [payloads[0], *payloads[2:], b"new"] and scan.unknown_ranges == 1
+
+
+def test_a_corrupt_frame_moves_the_log_aside_whole_and_keeps_every_good_frame(tmp_path):
+    store = ReplayStore(tmp_path / "s")
+    for i in range(5):
+        store.append(bytes([i]) * 100, transitions=10 * (i + 1))
+    store.close()
+    log = tmp_path / "s" / "log-000000.bin"
+    damaged = bytearray(log.read_bytes())
+    damaged[2 * (FRAME.size + 100) + FRAME.size + 50] ^= 0xFF  # the payload of the third frame (30 transitions)
+    log.write_bytes(bytes(damaged))
+    state, frames, damage = ReplayStore(tmp_path / "s").load()
+    assert state is None and frames == [bytes([i]) * 100 for i in (0, 1, 3, 4)]
+    assert damage.copy == tmp_path / "s" / "log-000000.bin.damaged-1" and damage.copy.read_bytes() == damaged
+    assert "1 corrupt frame(s) skipped (30 transitions lost)" in str(damage) and str(damage.copy) in str(damage)
+    again = ReplayStore(tmp_path / "s")
+    assert again.load()[1:] == (frames, None), "the new log holds exactly the good frames"
+    again.append(b"after", 1)
+    again.close()
+    assert ReplayStore(tmp_path / "s").recover_log() is None and len(list((tmp_path / "s").glob("*.damaged-*"))) == 1
 
 
 def test_store_snapshots_switch_atomically_and_missing_files_are_named(tmp_path):
@@ -63,8 +103,8 @@ def test_store_snapshots_switch_atomically_and_missing_files_are_named(tmp_path)
     store.append(b"two")
     store.close()
     again = ReplayStore(tmp_path / "s")
-    state, frames, problem = again.load()
-    assert state["x"].tolist() == [0, 1, 2] and frames == [b"two"] and problem is None
+    state, frames, damage = again.load()
+    assert state["x"].tolist() == [0, 1, 2] and frames == [b"two"] and damage is None
     assert sorted(p.name for p in (tmp_path / "s").iterdir()) == ["log-000001.bin", "manifest.json",
                                                                   "snapshot-000001.msgpack"]
     (tmp_path / "s" / "snapshot-000001.msgpack").unlink()

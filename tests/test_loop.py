@@ -198,7 +198,7 @@ def test_a_run_killed_while_checkpointing_never_leaves_a_checkpoint_without_its_
     def killed_while_writing(*args, **kwargs):
         raise KeyboardInterrupt("killed while writing the replay snapshot")
 
-    monkeypatch.setattr("cmcl.loop.inline.codec.write_snapshot_atomic", killed_while_writing)
+    monkeypatch.setattr("cmcl.loop.inline.write_replay_snapshot", killed_while_writing)
     loop.counters["episodes"] = 12
     with pytest.raises(KeyboardInterrupt):
         loop.save_checkpoint()

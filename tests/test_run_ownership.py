@@ -87,3 +87,33 @@ def test_after_training_the_first_signal_exits_at_once():
         stop.training_over()
         os.kill(os.getpid(), signal.SIGINT)
         assert forced == [signal.SIGINT]
+
+
+def test_a_torn_last_metrics_line_is_ignored_and_set_aside_and_a_corrupt_one_before_it_refused(tmp_path, capsys):
+    """Issue 37: a last line torn by a full disk (EFBIG) made resume and evaluate crash with JSONDecodeError."""
+    from cmcl.config import load_config
+    from cmcl.run_flags import RunRequest, resumed_config, train_in_run
+
+    run = RunDirectory.create(tmp_path / "run", load_config(None, ("run.episodes=3",)))
+    for episode in (1, 2, 3):
+        run.log({"kind": "episode", "episodes": episode})
+    with run.metrics_path.open("a") as handle:
+        handle.write('{"episodes": 4, "kind": "epi')  # the write the full disk cut
+    again = RunDirectory.open(run.path)
+    config = resumed_config(again, ("run.episodes=5",), RunRequest(runner="inline", resume_dir=str(run.path)))
+    assert config.run.episodes == 5 and [r["episodes"] for r in again.rows("episode")] == [1, 2, 3]
+    assert capsys.readouterr().err == f"metrics: ignored the torn last line of {run.metrics_path} (line 4)\n"
+    again.log({"kind": "episode", "episodes": 4})  # the resumed run appends: the torn line goes aside first
+    assert [r["episodes"] for r in again.rows("episode")] == [1, 2, 3, 4]
+    assert (run.path / "metrics.jsonl.torn").read_text() == '{"episodes": 4, "kind": "epi\n'
+    lines = run.metrics_path.read_text().splitlines()
+    run.metrics_path.write_text("\n".join([lines[0], lines[1][:9], *lines[2:]]) + "\n")  # line 2 corrupt
+    capsys.readouterr()
+    code = train_in_run(RunRequest(runner="inline", resume_dir=str(run.path)), lambda *a: 0)
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and f"{run.metrics_path} line 2: not a JSON object" in err, err
+    from cmcl.evaluate import main as evaluate
+
+    assert evaluate([str(run.path), "--random", "--episodes", "1", "--no-gif"]) == 2, "refused before any work"
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{run.metrics_path} line 2: not a JSON object" in err, err

@@ -235,6 +235,27 @@ def test_a_torn_log_tail_is_cut_and_a_bad_snapshot_refused(tmp_path):
         ReplayServer(cfg, store_dir=str(store))
 
 
+def test_a_corrupt_frame_costs_only_its_own_transitions_and_the_log_is_moved_aside(tmp_path, capsys):
+    """Issue 37: one flipped byte in the first frame used to truncate the log there and lose every chunk after."""
+    cfg = in_process_config("maddpg")  # capacity 360: two chunks of 120 stay in the log
+    store = tmp_path / "replay"
+    replay, worker = ReplayServer(cfg, store_dir=str(store)), RolloutWorker(cfg, 0, 0)
+    chunks = [worker.rollout(None)[0] for _ in range(2)]
+    for chunk in chunks:
+        assert replay.insert(chunk).accepted == 120
+    log = store / "log-000000.bin"
+    damaged = bytearray(log.read_bytes())
+    damaged[len(damaged) // 4] ^= 0xFF  # inside the first chunk's frame
+    log.write_bytes(bytes(damaged))
+    restored = ReplayServer(cfg, store_dir=str(store))
+    assert restored.replay.size == 120 and restored.rejected == {"log_truncated": 1}
+    assert "duplicate" in restored.insert(chunks[1]).error, "the chunk after the bad frame is kept"
+    assert restored.insert(chunks[0]).accepted == 120, "the lost one is not marked stored: a retry is taken"
+    err = capsys.readouterr().err
+    assert "1 corrupt frame(s) skipped (120 transitions lost)" in err and "log-000000.bin.damaged-1" in err
+    assert (store / "log-000000.bin.damaged-1").read_bytes() == bytes(damaged), "moved aside whole, not cut"
+
+
 def test_the_log_never_holds_more_than_one_buffer_of_transitions(tmp_path):
     cfg = in_process_config("maddpg")  # capacity 360 = 3 chunks of 120
     store = tmp_path / "replay"

@@ -2,8 +2,9 @@
 refused by name and the previous generation is used; the roles and the inline resume do so too."""
 
 import json
+import shutil
+from pathlib import Path
 
-import numpy as np
 import pytest
 import torch
 
@@ -75,12 +76,132 @@ def test_the_inline_resume_skips_a_corrupt_checkpoint_for_the_one_before(tmp_pat
     assert episodes == list(range(1, 81)), "resumed at episode 32: rows after it rewritten once"
 
 
-def test_a_checkpoint_without_manifest_and_a_bad_manifest(tmp_path):
+def test_a_checkpoint_without_its_digest_file_or_with_a_bad_one_is_refused(tmp_path):
     path = tmp_path / "ckpt.pt"
     save_torch_atomic(path, {"w": torch.ones(3)})
     assert json.dumps(load_checkpoint(path)["w"].tolist()) == "[1.0, 1.0, 1.0]"
     (tmp_path / "ckpt.pt.sha256").write_text("zz")
-    with pytest.raises(CheckpointError, match="not a checkpoint manifest"):
+    with pytest.raises(CheckpointError, match="not a checkpoint digest"):
         load_checkpoint(path)
-    (tmp_path / "ckpt.pt.sha256").unlink()  # written before manifests existed: decoded without the check
-    np.testing.assert_array_equal(load_checkpoint(path)["w"].numpy(), np.ones(3))
+    (tmp_path / "ckpt.pt.sha256").unlink()  # never trusted without a checksum, never decoded
+    with pytest.raises(CheckpointError, match=r"ckpt.pt: no ckpt.pt.sha256 beside it, so it cannot be verified"):
+        load_checkpoint(path)
+
+
+@pytest.mark.parametrize("manifest", ["missing", "unreadable"])
+def test_a_lost_manifest_is_rebuilt_from_the_files_and_never_costs_a_generation(tmp_path, manifest):
+    """Issue 37: with the manifest gone, resume used to start afresh and its first save wrote generation 1 and
+    deleted the intact generations 2 and 3."""
+    vf = VerifiedFile(tmp_path / "learner.pt")
+    for i in (1, 2, 3):
+        vf.save(f"policy {i}".encode() * 100)
+    if manifest == "missing":
+        vf.manifest.unlink()
+    else:
+        vf.manifest.write_text("{not json")
+    loaded = vf.load()
+    assert (loaded.payload, loaded.generation) == (b"policy 3" * 100, 3), loaded.refused
+    assert vf.save(b"policy 4").name == "learner-000004.pt", "numbered above every generation on disk"
+    assert sorted(p.name for p in tmp_path.glob("learner-*.pt")) == ["learner-000003.pt", "learner-000004.pt"]
+    assert json.loads(vf.manifest.read_text())["previous"]["generation"] == 3, "the manifest is rebuilt"
+    flip(tmp_path / "learner-000004.pt")
+    assert vf.load().payload == b"policy 3" * 100, "the previous generation still backs the newest"
+
+
+def test_a_new_save_numbers_above_a_corrupt_newest_and_deletes_only_after_it_verifies(tmp_path):
+    vf = VerifiedFile(tmp_path / "icm.pt")
+    for i in (1, 2, 3):
+        vf.save(f"state {i}".encode())
+    vf.manifest.unlink()
+    flip(tmp_path / "icm-000003.pt")
+    assert vf.load().generation == 2 and "icm-000003.pt: SHA-256 differs" in vf.load().refused[0]
+    assert vf.save(b"state 4").name == "icm-000004.pt"
+    assert sorted(p.name for p in tmp_path.glob("icm-*.pt")) == ["icm-000002.pt", "icm-000004.pt"]
+
+
+def test_a_resume_over_checkpoint_files_that_cannot_be_verified_is_refused_naming_them(tmp_path, capsys):
+    """Files written before digest files existed, their manifest lost: refused, never started afresh over."""
+    from cmcl.config import load_config
+    from cmcl.run_flags import RunRequest, train_in_run
+
+    run = RunDirectory.create(tmp_path / "run", load_config(None))
+    learner = VerifiedFile(run.service_paths()["learner"])
+    for i in (1, 2, 3):
+        learner.save(f"policy {i}".encode())
+    for generation in (2, 3):
+        (run.service_dir / f"learner-{generation:06d}.pt.sha256").unlink(missing_ok=True)  # none before them
+    learner.manifest.unlink()
+    trained = []
+    code = train_in_run(RunRequest(runner="service", resume_dir=str(run.path)), lambda *a: trained.append(a) or 0)
+    err = capsys.readouterr().err
+    assert code == 2 and not trained and err.count("\n") == 1
+    assert "learner-000003.pt, learner-000002.pt" in err and "cannot be verified" in err
+    assert sorted(p.name for p in run.service_dir.glob("learner-*.pt")) == ["learner-000002.pt", "learner-000003.pt"]
+
+
+def test_resume_finds_the_trained_policy_when_the_learner_manifest_is_lost(tmp_path):
+    import io
+
+    from services.launch import resume_notice
+
+    run = RunDirectory(tmp_path)
+    learner = VerifiedFile(run.service_paths()["learner"])
+    for version in (1, 2, 3):
+        buffer = io.BytesIO()
+        torch.save({"maddpg": {"w": torch.zeros(2)}, "version": version}, buffer)
+        learner.save(buffer.getvalue())
+    learner.manifest.unlink()
+    assert run.runners() == {"service"}
+    notice = resume_notice(run)
+    assert "afresh" not in notice and notice.endswith("learner-000003.pt (policy version 3)"), notice
+
+
+@pytest.fixture(scope="module")
+def inline_run(tmp_path_factory):
+    """A tiny inline run with checkpoints (and replay snapshots) at episodes 4 and 8."""
+    from cmcl.loop.inline import InlineLoop
+    from tests.tiny import make_tiny_config
+
+    config = make_tiny_config("cmcl", dir=str(tmp_path_factory.mktemp("inline") / "run"), episodes=8,
+                              checkpoint_every=4)
+    InlineLoop(config, RunDirectory.create(config.run.dir, config), progress=None).run()
+    return Path(config.run.dir)
+
+
+def flip_a_float(snapshot: Path) -> None:
+    """Flip the lowest bit of the first stored observation: the snapshot still decodes, to a value never seen."""
+    from cmcl.io import codec
+
+    obs = codec.decode_snapshot(snapshot.read_bytes(), limits=codec.SNAPSHOT_LIMITS)["replay"]["storage"]["obs"]
+    data = bytearray(snapshot.read_bytes())
+    data[data.index(obs.tobytes()[:64])] ^= 0x01
+    snapshot.write_bytes(bytes(data))
+
+
+DAMAGE = {
+    "replay snapshot: a flipped bit in its data": lambda run: flip_a_float(run / "replay_00000008.msgpack"),
+    "replay snapshot: truncated": lambda run: truncate(run / "replay_00000008.msgpack"),
+    "checkpoint: its .sha256 missing": lambda run: (run / "ckpt_00000008.pt.sha256").unlink(),
+    "checkpoint: truncated": lambda run: truncate(run / "ckpt_00000008.pt"),
+    "checkpoint: truncated, its .sha256 missing": lambda run: (truncate(run / "ckpt_00000008.pt"),
+                                                               (run / "ckpt_00000008.pt.sha256").unlink()),
+}
+
+
+def truncate(path: Path) -> None:
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+
+
+@pytest.mark.parametrize("damage", list(DAMAGE))
+def test_an_inline_resume_refuses_a_damaged_checkpoint_or_snapshot_for_the_one_before(inline_run, tmp_path, damage,
+                                                                                      capsys):
+    from cmcl.loop.__main__ import restore_newest_good
+    from cmcl.loop.inline import InlineLoop
+
+    run = RunDirectory(shutil.copytree(inline_run, tmp_path / "run"))
+    DAMAGE[damage](run.checkpoints)
+    loop = InlineLoop(run.config(), run, progress=None)
+    restored = restore_newest_good(loop, run)
+    assert restored is not None and restored.name == "ckpt_00000004.pt" and loop.counters["episodes"] == 4
+    refused = capsys.readouterr().err.strip().splitlines()
+    assert len(refused) == 1 and refused[0].startswith("checkpoint refused: ") and "_00000008." in refused[0]

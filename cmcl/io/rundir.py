@@ -19,7 +19,10 @@ from __future__ import annotations
 import io
 import json
 import math
+import os
+import re
 import shutil
+import sys
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,11 +30,27 @@ from typing import Any, Literal
 
 from cmcl.config import Config, dump_toml, load_config
 from cmcl.io.atomic import atomic_write_bytes
-from cmcl.io.verified import CheckpointError, VerifiedFile
+from cmcl.io.verified import CheckpointError, VerifiedFile, read_checked, write_checked
 from cmcl.provenance import provenance
 
 CHECKPOINT_GLOB = "ckpt_*.pt"
 SERVICE_ROLES = ("learner", "icm")  # roles whose checkpoint is one VerifiedFile at checkpoints/service/<role>.pt
+
+
+TAIL_BYTES = 1 << 20  # the last line of metrics.jsonl is looked for in its last MiB
+
+
+class MetricsError(ValueError):
+    """metrics.jsonl holds a line that does not parse and is not its last: the message names the file and line."""
+
+
+def _parse_row(line: bytes) -> dict[str, Any] | None:
+    """One metrics line as its row, or None when it is not a JSON object."""
+    try:
+        row = json.loads(line)
+    except (ValueError, UnicodeDecodeError):
+        return None
+    return row if isinstance(row, dict) else None
 
 
 @dataclass(frozen=True)
@@ -66,6 +85,7 @@ class RunDirectory:
         self.checkpoints = self.path / "checkpoints"
         self.metrics_path = self.path / "metrics.jsonl"
         self.config_path = self.path / "config.toml"
+        self._tail_checked = self._torn_said = False  # metrics.jsonl: torn last line set aside / said (`rows`)
 
     @classmethod
     def create(cls, path: str | Path, config: Config, *, overwrite: bool = False) -> RunDirectory:
@@ -95,20 +115,62 @@ class RunDirectory:
         return load_config(self.config_path, overrides)
 
     def log(self, row: Mapping[str, Any]) -> None:
-        """Append one metrics row (a flat or nested mapping) as a JSON line."""
+        """Append one metrics row (a flat or nested mapping) as a JSON line (the first append of this object first
+        moves a torn last line aside, `_set_torn_line_aside`, so that no row is ever glued to it)."""
+        if not self._tail_checked:
+            self._set_torn_line_aside()
+            self._tail_checked = True
         with self.metrics_path.open("a") as handle:
             handle.write(json.dumps(_json_safe(row), sort_keys=True) + "\n")
 
-    def rows(self, kind: str | None = None) -> Iterator[dict[str, Any]]:
-        """Metrics rows in order, optionally only those with row["kind"] == kind."""
+    def _set_torn_line_aside(self) -> None:
+        """A metrics file whose last line has no newline (a write cut by a crash or a full disk, e.g. EFBIG): that
+        line is appended to `metrics.jsonl.torn` and removed from the file; a complete row only gets its newline."""
         if not self.metrics_path.exists():
             return
-        with self.metrics_path.open() as handle:
-            for line in handle:
-                if line.strip():
-                    row = json.loads(line)
-                    if kind is None or row.get("kind") == kind:
-                        yield row
+        with self.metrics_path.open("rb") as handle:
+            size = handle.seek(0, 2)
+            handle.seek(max(0, size - TAIL_BYTES))
+            tail = handle.read()
+        if not tail or tail.endswith(b"\n"):
+            return
+        cut = tail.rfind(b"\n") + 1
+        if cut == 0 and size > len(tail):
+            raise MetricsError(f"{self.metrics_path}: its last line is longer than {TAIL_BYTES} bytes and has no "
+                               "end; not appending to it")
+        torn = tail[cut:]
+        if _parse_row(torn) is not None:
+            with self.metrics_path.open("ab") as handle:
+                handle.write(b"\n")
+            return
+        with self.metrics_path.with_name(self.metrics_path.name + ".torn").open("ab") as aside:
+            aside.write(torn + b"\n")
+        os.truncate(self.metrics_path, size - len(torn))
+        print(f"metrics: moved the torn last line of {self.metrics_path} ({len(torn)} bytes) to "
+              f"{self.metrics_path.name}.torn", file=sys.stderr)
+
+    def rows(self, kind: str | None = None) -> Iterator[dict[str, Any]]:
+        """Metrics rows in order, optionally only those with row["kind"] == kind. A last line that does not parse
+        (torn by a crash or a full disk) is left out and said once on stderr; a line that does not parse with rows
+        after it raises MetricsError naming the file and the line."""
+        if not self.metrics_path.exists():
+            return
+        bad: tuple[int, str] | None = None  # a line that did not parse, until it proves not to be the last
+        with self.metrics_path.open("rb") as handle:
+            for number, line in enumerate(handle, 1):
+                if not line.strip():
+                    continue
+                if bad is not None:
+                    raise MetricsError(f"{self.metrics_path} line {bad[0]}: {bad[1]}, with rows after it; refusing "
+                                       "to read a corrupt metrics file")
+                row = _parse_row(line)
+                if row is None:
+                    bad = (number, f"not a JSON object ({line[:40]!r})")
+                elif kind is None or row.get("kind") == kind:
+                    yield row
+        if bad is not None and not self._torn_said:
+            self._torn_said = True
+            print(f"metrics: ignored the torn last line of {self.metrics_path} (line {bad[0]})", file=sys.stderr)
 
     def truncate_rows_after(self, episodes: int) -> None:
         """On resume: drop rows logged after the checkpoint (row["episodes"] > episodes), atomically."""
@@ -165,9 +227,29 @@ class RunDirectory:
         found = set()
         if any(self.checkpoints.glob(CHECKPOINT_GLOB)):
             found.add("inline")
-        if VerifiedFile(self.service_dir / "learner.pt").manifest.exists():
+        learner = VerifiedFile(self.service_dir / "learner.pt")
+        if learner.manifest.exists() or learner.generations():
             found.add("service")
         return found
+
+    def service_checkpoints(self) -> list[VerifiedFile]:
+        """Every service role checkpoint (learner, ICM, each teacher group) that has a file in `service_dir`."""
+        bases = {re.sub(r"-\d{6,}$", "", p.stem) for p in self.service_dir.glob("*-*.pt")}
+        found = [VerifiedFile(self.service_dir / f"{base}.pt") for base in sorted(bases)]
+        return [vf for vf in found if vf.generations()]
+
+    def check_no_unverifiable_checkpoint(self) -> None:
+        """Refuse (CheckpointError, one line naming the files) a service run in which a role has generation files
+        but none that verifies and at least one with no checksum at all (its manifest lost, no digest file: files
+        written before digest files existed). Such a file may hold the trained state; a resume would start the
+        role afresh and its next saves would in time delete it."""
+        unverifiable = [file for vf in self.service_checkpoints() if (loaded := vf.load()).payload is None
+                        for file in loaded.unverifiable]
+        if unverifiable:
+            raise CheckpointError(
+                f"{self.service_dir}: {len(unverifiable)} checkpoint file(s) cannot be verified (no manifest names "
+                f"them, no .sha256 beside them): {', '.join(f.name for f in unverifiable)}; refusing to start those "
+                "roles afresh over them (restore the manifest, or move the files away to start afresh)")
 
     def newest_policy(self) -> PolicyCheckpoint | None:
         """The newest policy checkpoint that passes its checks, whichever runner wrote it (by file time), or None.
@@ -221,23 +303,13 @@ class RunDirectory:
 
 
 def save_torch_atomic(path: str | Path, state: Mapping[str, Any]) -> None:
-    """torch.save `state` (tensors and plain containers, no numpy) to `path`, all or nothing, then its manifest
+    """torch.save `state` (tensors and plain containers, no numpy) to `path`, all or nothing, then its digest file
     `<path>.sha256` ("<hex digest> <bytes>"), which `load_checkpoint` checks before decoding."""
-    import hashlib
-    import io
-
     import torch
 
     buffer = io.BytesIO()
     torch.save(dict(state), buffer)
-    payload = buffer.getvalue()
-    atomic_write_bytes(path, payload)
-    atomic_write_bytes(digest_path(path), f"{hashlib.sha256(payload).hexdigest()} {len(payload)}".encode())
-
-
-def digest_path(path: str | Path) -> Path:
-    """Where the manifest (SHA-256 and size) of checkpoint `path` lives."""
-    return Path(str(path) + ".sha256")
+    write_checked(path, buffer.getvalue())
 
 
 def replay_snapshot_path(checkpoint: Path) -> Path:
@@ -245,22 +317,33 @@ def replay_snapshot_path(checkpoint: Path) -> Path:
     return checkpoint.with_name(checkpoint.name.replace("ckpt_", "replay_").replace(".pt", ".msgpack"))
 
 
+def write_replay_snapshot(path: str | Path, state: dict[str, Any]) -> int:
+    """Encode a replay snapshot (msgpack, `cmcl.io.codec`) and write it with its digest file, like a checkpoint;
+    returns its bytes."""
+    from cmcl.io import codec
+
+    payload = codec.encode_snapshot(state)
+    write_checked(path, payload)
+    return len(payload)
+
+
+def read_replay_snapshot(path: str | Path) -> dict[str, Any]:
+    """A replay snapshot written by `write_replay_snapshot`: checked against its digest file (CheckpointError naming
+    the file when it is missing, truncated, flipped or has no digest file), then decoded within the snapshot
+    limits (codec.CodecError)."""
+    from cmcl.io import codec
+
+    path = Path(path)
+    size = path.stat().st_size if path.exists() else 0
+    if size > codec.SNAPSHOT_LIMITS.max_bytes:
+        raise CheckpointError(f"{path}: {size} bytes exceeds the limit of {codec.SNAPSHOT_LIMITS.max_bytes}")
+    return codec.decode_snapshot(read_checked(path), limits=codec.SNAPSHOT_LIMITS)
+
+
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
-    """Load a checkpoint written by `save_torch_atomic`: checked against its manifest first (a truncated or
-    corrupted file raises `CheckpointError` naming it), then torch.load(weights_only=True): no arbitrary pickle.
-    Checkpoints written before manifests existed (no `.sha256` beside them) are decoded without the check."""
+    """Load a checkpoint written by `save_torch_atomic`: checked against its digest file first (a missing,
+    truncated or corrupted file, or one without a digest file, raises `CheckpointError` naming it), then
+    torch.load(weights_only=True): no arbitrary pickle. A file that cannot be verified is never decoded."""
     import torch
 
-    from cmcl.io.verified import check
-
-    path, manifest = Path(path), digest_path(path)
-    if manifest.exists():
-        try:
-            digest, size = manifest.read_text().split()
-            payload = check(path, int(size), digest)
-        except ValueError as err:
-            if isinstance(err, CheckpointError):
-                raise
-            raise CheckpointError(f"{manifest}: not a checkpoint manifest ({err})") from err
-        return torch.load(io.BytesIO(payload), map_location="cpu", weights_only=True)
-    return torch.load(path, map_location="cpu", weights_only=True)
+    return torch.load(io.BytesIO(read_checked(path)), map_location="cpu", weights_only=True)

@@ -18,7 +18,7 @@ from cmcl.io import codec
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.verified import CheckpointError
 from cmcl.progress import solved
-from cmcl.run_flags import RunRequest, RunRequestError, alias_parser, request_from, resume_command, train_in_run
+from cmcl.run_flags import RunRequest, alias_parser, resume_command, run_alias, train_in_run
 from cmcl.stopping import StopSignals, exit_without_teardown
 
 if TYPE_CHECKING:  # torch: imported by `_train` once the run directory is taken (a run in use is refused first)
@@ -49,12 +49,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     """`python -m cmcl.loop`: the alias of `python -m cmcl train|resume --runner inline`."""
-    try:
-        request = request_from(parse_args(argv), "inline")
-    except RunRequestError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    return run_inline(request)
+    return run_alias(parse_args(argv), "inline", run_inline)
 
 
 def run_inline(request: RunRequest) -> int:

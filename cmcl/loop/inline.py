@@ -25,8 +25,13 @@ import torch
 from cmcl.config import Config
 from cmcl.diagnostics import buffer_diagnostics
 from cmcl.episodes import WorldEpisodes
-from cmcl.io import codec
-from cmcl.io.rundir import RunDirectory, load_checkpoint, replay_snapshot_path
+from cmcl.io.rundir import (
+    RunDirectory,
+    load_checkpoint,
+    read_replay_snapshot,
+    replay_snapshot_path,
+    write_replay_snapshot,
+)
 from cmcl.learners import network_steps
 from cmcl.learning_progress import LearningProgress
 from cmcl.messages import LearnerFeedback, Rows
@@ -285,14 +290,15 @@ class InlineLoop:
         if self.run_dir is None:
             return None
         path = self.run_dir.checkpoint_path(self.counters["episodes"])
-        codec.write_snapshot_atomic(replay_snapshot_path(path), {"replay": self.replay.state_dict(),
-                                                                 **self.scoring.state_dict()})
+        write_replay_snapshot(replay_snapshot_path(path), {"replay": self.replay.state_dict(),
+                                                           **self.scoring.state_dict()})
         return self.run_dir.save_checkpoint(self.counters["episodes"], self.state_dict())
 
     def restore(self, checkpoint: Path) -> None:
-        """Load a checkpoint and its replay snapshot (validated before anything changes)."""
+        """Load a checkpoint and its replay snapshot, each checked against its digest file and validated before
+        anything changes (CheckpointError / codec.CodecError naming the file otherwise)."""
         state = load_checkpoint(checkpoint)
-        snapshot = codec.read_snapshot(replay_snapshot_path(checkpoint), limits=codec.SNAPSHOT_LIMITS)
+        snapshot = read_replay_snapshot(replay_snapshot_path(checkpoint))
         self.replay.load_state_dict(snapshot["replay"])
         self.scoring.load_state_dict(snapshot)
         self.load_state_dict(state)
