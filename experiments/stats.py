@@ -40,6 +40,25 @@ def bootstrap_ci(values: list[float], seed: int = 0) -> tuple[float, float, floa
     return float(x.mean()), float(lo), float(hi)
 
 
+def bootstrap_band(rows: np.ndarray, resamples: int = 2_000,
+                   seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(mean, low, high) per column of rows (float[runs, points], NaN where a run has no value): the mean over the
+    runs with a value and the percentile bootstrap 95% interval of it (runs resampled, fixed seed). Like
+    bootstrap_ci it stays within the runs' values, so a rate's band stays in [0, 1]; NaN where fewer than 2 runs have
+    a value (no band) or no run has one (no mean)."""
+    y = np.asarray(rows, dtype=np.float64)
+    finite = np.isfinite(y)
+    count = finite.sum(0)
+    mean = np.where(count > 0, np.where(finite, y, 0.0).sum(0) / np.maximum(count, 1), np.nan)
+    idx = np.random.default_rng(seed).integers(0, y.shape[0], (resamples, y.shape[0]))
+    drawn, got = np.where(finite, y, 0.0)[idx].sum(1), finite[idx].sum(1)  # [resamples, points]
+    means = np.where(got > 0, drawn / np.maximum(got, 1), np.nan)
+    with np.errstate(all="ignore"):
+        lo, hi = np.nanpercentile(np.where(np.isnan(means).all(0), 0.0, means), [2.5, 97.5], axis=0)
+    several = count > 1
+    return mean, np.where(several, lo, np.nan), np.where(several, hi, np.nan)
+
+
 def kaplan_meier(times: list[float | None]) -> tuple[float | None, int, bool]:
     """Kaplan-Meier median of a time to threshold, how many runs reached it, and whether that median is only a lower
     bound. times: one per run, None = not reached within the run's budget (right-censored there; every run of a table

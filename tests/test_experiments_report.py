@@ -242,3 +242,37 @@ def test_the_detectable_difference_of_a_holm_corrected_test_is_at_the_familys_al
     primary = curriculum_tests([{**r, "held_out_success": 0.5, "episodes_to_90": None} for r in runs
                                 if r["arm"] in ("maddpg", "cmcl")]).splitlines()[2]
     assert primary.endswith(f"| primary | {detectable(by_arm['cmcl'], by_arm['maddpg'], 0.05):.3f} (α 0.05) |")
+
+
+class Axes:
+    """Records what a figure function draws: the lines and the bands."""
+
+    def __init__(self):
+        self.lines, self.bands = [], []
+
+    def plot(self, x, y, **_):
+        self.lines.append(np.asarray(y))
+
+    def fill_between(self, x, lo, hi, **_):
+        self.bands.append((np.asarray(lo), np.asarray(hi)))
+
+
+def test_the_figures_bands_of_a_rate_stay_in_the_unit_interval():
+    """A rate's band over seeds is a bootstrap band, inside [0, 1], where a t band leaves it (coverage near 1 with one
+    slow seed); a reward keeps its t band; the sampling figure's ESS band likewise stays within [0, 1]."""
+    from experiments.curriculum_figure import sampling_band
+    from experiments.figures import band
+
+    curves = [[0.2, 0.9, 1.0, 1.0], [0.1, 0.95, 1.0, 0.99], [0.0, 0.1, 0.5, 0.98], [0.3, 0.97, 1.0, 1.0]]
+    ax = Axes()
+    band(ax, curves, "red", "CMCL", rate=True)
+    [(lo, hi)] = ax.bands
+    assert np.all(lo >= 0) and np.all(hi <= 1) and np.all(lo <= ax.lines[0]) and np.all(ax.lines[0] <= hi)
+    band(ax, curves, "red", "CMCL")  # not a rate: the t band, which here leaves [0, 1]
+    assert ax.bands[1][1].max() > 1 or ax.bands[1][0].min() < 0
+    ess = [np.array([np.nan, 0.5, 0.99, 1.0]), np.array([0.2, 0.6, 0.4, 1.0]), np.array([np.nan, 0.55, 0.98, 1.0])]
+    ax = Axes()
+    sampling_band(ax, np.arange(4.0), ess, "red")
+    [(lo, hi)] = ax.bands
+    assert np.isnan(lo[0]) and np.isclose(ax.lines[0][0], 0.2)  # one run has a value: its mean, no band
+    assert np.all(lo[1:] >= 0) and np.all(hi[1:] <= 1) and np.isclose(lo[3], 1.0) and np.isclose(hi[3], 1.0)
