@@ -1,6 +1,6 @@
 """The curriculum grids' figure: what each arm learned and how it sampled, over training, from the runs' summaries.
 
-Three panels per grid (x: episodes), each a mean over an arm's seeds with a 95% t band:
+Three panels per grid (x: episodes), each a mean over an arm's seeds with a bootstrap 95% band:
 (a) the training coverage (final-step landmark cover rate, 100-episode windows); on predator-prey the predators' win
     (share of episodes with a capture);
 (b) the ESS of the sampling distribution as a fraction of the buffer (1 = uniform);
@@ -16,10 +16,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from experiments.figures import band, save
 from experiments.labels import ARM_COLOUR, ARM_LABEL, ARM_ORDER
+from experiments.stats import bootstrap_band
 
 SAMPLING_STEP = 200  # episodes between the common x points the runs' progress rows are interpolated onto
 LEAST_BUFFER_SHARE = 0.005  # below it the sampled / buffer ratio of a progress row is not drawn (0 / 0 early on)
@@ -27,20 +27,12 @@ LEAST_RATIO = 1e-3  # ratios below it (no reward row sampled at all) are drawn a
 
 
 def sampling_band(ax: Any, x: np.ndarray, rows: list[np.ndarray], colour: str) -> None:
-    """Mean over runs of rows (float64[x.size] each, NaN where undefined) with its 95% t band where two or more
-    runs have a value."""
-    y = np.array(rows)
-    count = np.isfinite(y).sum(0)
-    total = np.where(np.isfinite(y), y, 0.0).sum(0)
-    mean = np.where(count > 0, total / np.maximum(count, 1), np.nan)
+    """Mean over runs of rows (float64[x.size] each, NaN where undefined) with its bootstrap 95% band where two or
+    more runs have a value (within the runs' values: an ESS band stays in [0, 1], a ratio's above 0)."""
+    mean, lo, hi = bootstrap_band(np.array(rows))
     ax.plot(x, mean, color=colour)
-    several = count > 1
-    if several.any():
-        deviation = np.where(np.isfinite(y), y - mean, 0.0)
-        spread = np.sqrt((deviation ** 2).sum(0) / np.maximum(count - 1, 1))
-        half = stats.t.ppf(0.975, np.maximum(count - 1, 1)) * spread / np.sqrt(np.maximum(count, 1))
-        half = np.where(several, half, np.nan)
-        ax.fill_between(x, mean - half, mean + half, color=colour, alpha=0.2, linewidth=0)
+    if np.isfinite(lo).any():
+        ax.fill_between(x, lo, hi, color=colour, alpha=0.2, linewidth=0)
 
 
 def on_grid(run: dict[str, Any], x: np.ndarray, key: str) -> np.ndarray:
@@ -98,7 +90,7 @@ def curriculum_figure(runs: list[dict[str, Any]], task: str, path: Path,
         rs = [r for r in runs if r.get("arm") == arm and r.get("sampling_curve")]
         if not rs:
             continue
-        band(axes[0], [r["curves"][curve] for r in rs], ARM_COLOUR[arm], ARM_LABEL[arm])
+        band(axes[0], [r["curves"][curve] for r in rs], ARM_COLOUR[arm], ARM_LABEL[arm], rate=True)
         sampling_band(axes[1], x, [on_grid(r, x, "ess") for r in rs], ARM_COLOUR[arm])
         sampling_band(axes[2], x, [reward_row_ratio(r, x) for r in rs], ARM_COLOUR[arm])
     no_exclusion = lambda_half_lines(runs, arms, budget)

@@ -13,8 +13,9 @@ import numpy as np
 from experiments.grids import CURRICULUM_ARMS
 from experiments.labels import ARM_LABEL
 from experiments.provenance import cell_versions
-from experiments.stats import TIMES, difference, fmt, fmt_time, holm, logrank_p, spread
+from experiments.stats import TIMES, detectable, difference, fmt, fmt_time, holm, logrank_p, spread
 
+ALPHA = 0.05  # the level of the protocol's tests: the primary's, and the Holm family's
 STALL = (0.65, 0.85)  # final MA coverage of a run stuck at about three landmarks of four (issue 21)
 
 
@@ -144,7 +145,10 @@ def setting_table(runs: list[dict[str, Any]], arms: tuple[str, ...]) -> str:
 def curriculum_tests(runs: list[dict[str, Any]], comparisons: list[tuple[str, str, str]] | None = None) -> str:
     """The protocol's tests: the primary comparison unadjusted, every other one Holm-corrected; times to MA 0.9 by
     KM medians and a log-rank test. comparisons: (arm, arm, field) to test instead of the task's protocol, all
-    Holm-corrected together (no primary)."""
+    Holm-corrected together (no primary). Each difference of means also gets the smallest difference its test detects
+    with 80% power at the α it is judged at: ALPHA for the primary; for the Holm-corrected ones the family's ALPHA / m,
+    the level of Holm's first step (a later step's level depends on the p-values themselves; a difference this large
+    is detected with 80% power whatever the other tests show)."""
     primary = comparisons is None
     comparisons = task_measures(runs).comparisons() if comparisons is None else comparisons
     by_arm = {arm: [r for r in runs if r.get("arm") == arm] for pair in comparisons for arm in pair[:2]}
@@ -167,13 +171,17 @@ def curriculum_tests(runs: list[dict[str, Any]], comparisons: list[tuple[str, st
         rows.append((a, b, key, code, text, p))
         pvalues.append(p)
     # Holm over the whole pre-registered family: a test without its runs yet counts as p = 1 (conservative)
-    tested = pvalues[1:] if primary else pvalues
-    adjusted = [None] * primary + holm([1.0 if p is None else p for p in tested])
-    lines = ["| comparison | measure | seeds | code | difference [bootstrap 95%] | p | p (Holm) |",
-             "| --- " * 7 + "|"]
+    tested = [1.0 if p is None else p for p in (pvalues[1:] if primary else pvalues)]
+    adjusted = [None] * primary + holm(tested)
+    levels = [ALPHA] * primary + [ALPHA / len(tested)] * len(tested)
+    lines = ["| comparison | measure | seeds | code | difference [bootstrap 95%] | p | p (Holm) | detectable with 80% "
+             "power (α) |", "| --- " * 8 + "|"]
     for i, (a, b, key, code, text, p) in enumerate(rows):
         n = f"{len(by_arm[a])} vs {len(by_arm[b])}"
         adj = "primary" if primary and i == 0 else "" if p is None else f"{adjusted[i]:.3f}"
+        mde = "" if p is None else "—" if key in TIMES else (
+            f"{detectable([r[key] for r in by_arm[a]], [r[key] for r in by_arm[b]], levels[i]):.3f} "
+            f"(α {levels[i]:.2g})")
         lines.append(f"| {ARM_LABEL[a]} − {ARM_LABEL[b]} | {key} | {n} | {code} | {text} | "
-                     f"{'' if p is None else f'{p:.3f}'} | {adj} |")
+                     f"{'' if p is None else f'{p:.3f}'} | {adj} | {mde} |")
     return "\n".join(lines)

@@ -12,19 +12,24 @@ from scipy import stats
 
 from experiments.labels import COLOUR, LABEL, ORDER
 from experiments.measures import WINDOW
-from experiments.stats import mean_ci
+from experiments.stats import bootstrap_band, mean_ci
 
 
-def band(ax: Any, curves: list[list[float]], colour: str, label: str) -> None:
-    """Mean curve over seeds with its 95% t band; x in episodes (window ends)."""
+def band(ax: Any, curves: list[list[float]], colour: str, label: str, rate: bool = False) -> None:
+    """Mean curve over seeds with its 95% band: for a rate (coverage, success, win: rate=True) a bootstrap band, which
+    stays in [0, 1], else a t band; x in episodes (window ends)."""
     n = min(len(c) for c in curves)
     y = np.array([c[:n] for c in curves], dtype=np.float64)
     x = (np.arange(n) + 1) * WINDOW
     m = y.mean(0)
     ax.plot(x, m, color=colour, label=f"{label} ({len(curves)} seeds)")
     if len(curves) > 1:
-        h = stats.t.ppf(0.975, len(curves) - 1) * y.std(0, ddof=1) / np.sqrt(len(curves))
-        ax.fill_between(x, m - h, m + h, color=colour, alpha=0.2, linewidth=0)
+        if rate:
+            _, lo, hi = bootstrap_band(y)
+        else:
+            h = stats.t.ppf(0.975, len(curves) - 1) * y.std(0, ddof=1) / np.sqrt(len(curves))
+            lo, hi = m - h, m + h
+        ax.fill_between(x, lo, hi, color=colour, alpha=0.2, linewidth=0)
 
 
 def budget(runs: list[dict[str, Any]]) -> str:
@@ -47,7 +52,7 @@ def figures(runs: list[dict[str, Any]], out: Path) -> list[Path]:
         for a, rs in by_alg.items():
             if rs:
                 band(axes[0], [r["curves"]["reward_agent"] for r in rs], COLOUR[a], LABEL[a])
-                band(axes[1], [r["curves"]["coverage"] for r in rs], COLOUR[a], LABEL[a])
+                band(axes[1], [r["curves"]["coverage"] for r in rs], COLOUR[a], LABEL[a], rate=True)
         axes[0].set(xlabel="episode", ylabel="team return per episode (100-episode windows)",
                     title="(a) average reward")
         axes[1].set(xlabel="episode", ylabel="final-step landmark cover rate", title="(b) landmark cover rate",
@@ -70,7 +75,7 @@ def figures(runs: list[dict[str, Any]], out: Path) -> list[Path]:
         fig, ax = plt.subplots(figsize=(6, 4))
         for a, rs in by_alg.items():
             if rs:
-                band(ax, [r["curves"]["success"] for r in rs], COLOUR[a], LABEL[a])
+                band(ax, [r["curves"]["success"] for r in rs], COLOUR[a], LABEL[a], rate=True)
         ax.set(xlabel="episode", ylabel="success rate (all landmarks, distinct agents)", ylim=(0, 1.02),
                title=f"Success rate, mean and 95% CI over seeds\n{budget(spread)}")
         ax.legend(loc="upper left")
@@ -111,7 +116,7 @@ def figures(runs: list[dict[str, Any]], out: Path) -> list[Path]:
             rs = [r for r in duel if r["prey_algorithm"] == prey]
             if rs:
                 band(ax, [r["curves"]["predator_win"] for r in rs], COLOUR[prey],
-                     f"CMCL predators vs {LABEL[prey]} prey")
+                     f"CMCL predators vs {LABEL[prey]} prey", rate=True)
         ax.axhline(0.85, color="grey", linestyle=":", label="paper: > 0.85 vs PER-MADDPG")
         ax.set(xlabel="episode", ylabel="predator win rate (>= 1 capture per round)", ylim=(0, 1.02),
                title=f"Win rate of CMCL predators (Fig. 13 form)\n{budget(duel)}")
@@ -132,7 +137,7 @@ def ablation_figure(ablations: list[dict[str, Any]], reference: list[dict[str, A
     fig, axes = plt.subplots(1, len(budgets), figsize=(6 * len(budgets), 4.2), squeeze=False)
     for ax, budget_of in zip(axes[0], budgets, strict=True):
         n = budget_of // WINDOW
-        band(ax, [r["curves"]["coverage"][:n] for r in reference], "black", "reference")
+        band(ax, [r["curves"]["coverage"][:n] for r in reference], "black", "reference", rate=True)
         colours = iter(plt.get_cmap("tab10").colors)
         for name, rs in groups.items():
             if rs[0]["budget"] != budget_of:
@@ -143,7 +148,7 @@ def ablation_figure(ablations: list[dict[str, Any]], reference: list[dict[str, A
                 ax.plot((np.arange(m.size) + 1) * WINDOW, m, color=next(colours), linewidth=1,
                         label=f"{name} ({len(rs)} seeds)")
             else:
-                band(ax, curves, next(colours), name)
+                band(ax, curves, next(colours), name, rate=True)
         ax.set(xlabel="episode", ylabel="final-step landmark cover rate (100-episode windows)", ylim=(0, 1.02),
                title=f"({'a' if budget_of == full else 'b'}) first {budget_of:,} episodes")
         ax.legend(loc="upper left", fontsize=7)

@@ -40,25 +40,56 @@ def bootstrap_ci(values: list[float], seed: int = 0) -> tuple[float, float, floa
     return float(x.mean()), float(lo), float(hi)
 
 
-def km_median(times: list[float | None]) -> tuple[float | None, int]:
-    """Kaplan-Meier median of a time to threshold, and how many runs reached it. times: one per run, None = not
-    reached within the run's budget (right-censored there; every run of a table has the same budget, so every
-    censoring comes after every event). Median None when the survival curve never falls to 0.5."""
+def bootstrap_band(rows: np.ndarray, resamples: int = 2_000,
+                   seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(mean, low, high) per column of rows (float[runs, points], NaN where a run has no value): the mean over the
+    runs with a value and the percentile bootstrap 95% interval of it (runs resampled, fixed seed). Like
+    bootstrap_ci it stays within the runs' values, so a rate's band stays in [0, 1]; NaN where fewer than 2 runs have
+    a value (no band) or no run has one (no mean)."""
+    y = np.asarray(rows, dtype=np.float64)
+    finite = np.isfinite(y)
+    count = finite.sum(0)
+    mean = np.where(count > 0, np.where(finite, y, 0.0).sum(0) / np.maximum(count, 1), np.nan)
+    idx = np.random.default_rng(seed).integers(0, y.shape[0], (resamples, y.shape[0]))
+    drawn, got = np.where(finite, y, 0.0)[idx].sum(1), finite[idx].sum(1)  # [resamples, points]
+    means = np.where(got > 0, drawn / np.maximum(got, 1), np.nan)
+    with np.errstate(all="ignore"):
+        lo, hi = np.nanpercentile(np.where(np.isnan(means).all(0), 0.0, means), [2.5, 97.5], axis=0)
+    several = count > 1
+    return mean, np.where(several, lo, np.nan), np.where(several, hi, np.nan)
+
+
+def kaplan_meier(times: list[float | None]) -> tuple[float | None, int, bool]:
+    """Kaplan-Meier median of a time to threshold, how many runs reached it, and whether that median is only a lower
+    bound. times: one per run, None = not reached within the run's budget (right-censored there; every run of a table
+    has the same budget, so every censoring comes after every event). Median None when the survival curve never falls
+    to 0.5; a lower bound when it falls to exactly 0.5 at the last event (e.g. the fifth of 10 runs) and the rest are
+    censored: the median is then that event's time or any later one."""
     events = sorted(t for t in times if t is not None)
     at_risk, surv = len(times), 1.0
-    for t in events:  # product-limit estimate: one event at a time, nobody censored before the budget
+    for i, t in enumerate(events):  # product-limit estimate: one event at a time, nobody censored before the budget
         surv *= 1 - 1 / at_risk
         at_risk -= 1
         if surv <= 0.5 + 1e-12:
-            return float(t), len(events)
-    return None, len(events)
+            return float(t), len(events), i == len(events) - 1 and at_risk > 0 and surv >= 0.5 - 1e-12
+    return None, len(events), False
+
+
+def km_median(times: list[float | None]) -> tuple[float | None, int]:
+    """Kaplan-Meier median of a time to threshold and how many runs reached it (kaplan_meier without the bound)."""
+    return kaplan_meier(times)[:2]
+
+
+def median_text(times: list[float | None], digits: int = 0, missing: str = "not reached") -> str:
+    """The Kaplan-Meier median as printed: 'M', '≥ M' when it is only a lower bound, `missing` when not reached."""
+    med, _, lower = kaplan_meier(times)
+    return missing if med is None else f"{'≥ ' if lower else ''}{med:.{digits}f}"
 
 
 def fmt_time(values: list[float | None], digits: int = 0) -> str:
-    """'KM median M (k/n reached)' of a censored time to threshold."""
-    med, k = km_median(values)
-    head = "not reached" if med is None else f"KM median {med:.{digits}f}"
-    return f"{head} ({k}/{len(values)} reached)"
+    """'KM median M (k/n reached)' of a censored time to threshold ('KM median ≥ M' for a lower bound)."""
+    text, k = median_text(values, digits, missing=""), kaplan_meier(values)[1]
+    return f"{f'KM median {text}' if text else 'not reached'} ({k}/{len(values)} reached)"
 
 
 def logrank_p(a: list[float | None], b: list[float | None], budget: float) -> float:
@@ -81,6 +112,16 @@ def holm(pvalues: list[float]) -> list[float]:
         running = max(running, min(1.0, (p.size - rank) * p[i]))
         adjusted[i] = running
     return adjusted.tolist()
+
+
+def detectable(a: list[float], b: list[float], alpha: float = 0.05, power: float = 0.8) -> float:
+    """The smallest true difference of means that Welch's two-sided test at level `alpha` detects with probability
+    `power`, at the standard deviations and seeds observed: (t[1 − α/2] + t[power]) · standard error, at Welch's
+    degrees of freedom."""
+    x, y = np.asarray(a, float), np.asarray(b, float)
+    va, vb = x.var(ddof=1) / x.size, y.var(ddof=1) / y.size
+    dof = (va + vb) ** 2 / (va ** 2 / (x.size - 1) + vb ** 2 / (y.size - 1)) if va + vb > 0 else x.size + y.size - 2
+    return float((stats.t.ppf(1 - alpha / 2, dof) + stats.t.ppf(power, dof)) * np.sqrt(va + vb))
 
 
 def fmt(values: list[float | None], digits: int = 3, key: str = "") -> str:

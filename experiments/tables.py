@@ -10,7 +10,7 @@ import numpy as np
 from scipy import stats
 
 from experiments.labels import LABEL, ORDER
-from experiments.stats import fmt, km_median, logrank_p, paired, spread, welch
+from experiments.stats import fmt, logrank_p, median_text, paired, spread, welch
 
 SPREAD_COLUMNS = [("held-out coverage", "held_out_coverage", 3), ("held-out success", "held_out_success", 3),
                   ("episodes to MA 0.5", "episodes_to_50", 0), ("episodes to MA 0.9", "episodes_to_90", 0),
@@ -63,8 +63,7 @@ def tests_table(runs: list[dict[str, Any]]) -> str:
             cells = [welch([r[k] for r in cmcl], [r[k] for r in rs], d) for _, k, d in keys]
             budget = cmcl[0]["budget"]
             a, b = [r["episodes_to_90"] for r in cmcl], [r["episodes_to_90"] for r in rs]
-            ma, mb = km_median(a)[0], km_median(b)[0]
-            cells.append(f"{'—' if ma is None else f'{ma:.0f}'} vs {'—' if mb is None else f'{mb:.0f}'}, "
+            cells.append(f"{median_text(a, missing='—')} vs {median_text(b, missing='—')}, "
                          f"p = {logrank_p(a, b, budget):.3f}")
             lines.append(f"| {LABEL[base]} | " + " | ".join(cells) + " |")
     return "\n".join(lines)

@@ -6,7 +6,7 @@ import pytest
 from scipy import stats
 
 from experiments.curriculum_tables import SETTING_TABLES, curriculum_table, curriculum_tests, setting_table
-from experiments.stats import bootstrap_ci, fmt, holm, km_median, logrank_p, mean_ci, paired
+from experiments.stats import bootstrap_ci, detectable, fmt, holm, km_median, logrank_p, mean_ci, paired
 from experiments.tables import ablation_table
 
 
@@ -109,8 +109,8 @@ def test_curriculum_tests_put_the_primary_comparison_first_and_holm_correct_the_
                               ("cmcl_anti", 0.7)) for s in range(5)]
     lines = curriculum_tests(runs).splitlines()[2:]
     assert lines[0].startswith("| CMCL − MADDPG | auc_coverage | 5 vs 5 | unrecorded | +0.")
-    assert lines[0].endswith("| primary |")
-    assert len(lines) == 9 and all(line.split(" | ")[-1].strip(" |") for line in lines[1:])
+    assert "| primary | 0." in lines[0]
+    assert len(lines) == 9 and all(line.split(" | ")[-2] for line in lines[1:])
 
 
 def test_predator_prey_curriculum_tables_test_the_win_curve_and_count_no_stalls():
@@ -125,7 +125,7 @@ def test_predator_prey_curriculum_tables_test_the_win_curve_and_count_no_stalls(
                               ("cmcl_anti", 0.6)) for s in range(4)]
     lines = curriculum_tests(runs).splitlines()[2:]
     assert lines[0].startswith("| CMCL − MADDPG | auc_predator_win | 4 vs 4 | unrecorded | -0.")
-    assert lines[0].endswith("| primary |")
+    assert "| primary | 0." in lines[0]
     assert [line.split(" | ")[1] for line in lines[-2:]] == ["win_vs_random_prey", "episodes_to_win_90"]
     assert "KM median" in lines[-1] and "(3/4 reached)" in lines[-1]
     table = curriculum_table(runs).splitlines()
@@ -154,7 +154,7 @@ def test_the_stride_tables_holm_correct_every_test_and_measure_the_curriculum_wh
     tests = curriculum_tests(runs, comparisons).splitlines()[2:]
     assert [line.split(" | ")[0] for line in tests] == ["| CMCL, λ stride ×2 − CMCL", "| CMCL, λ stride ×½ − CMCL",
                                                         "| CMCL, λ stride ×2 − MADDPG"]
-    assert all(float(line.split(" | ")[-1].strip(" |")) >= float(line.split(" | ")[-2]) for line in tests)
+    assert all(float(line.split(" | ")[-2]) >= float(line.split(" | ")[-3]) for line in tests)
     table = {line.split(" | ")[0]: line.split(" | ") for line in setting_table(runs, arms).splitlines()[2:]}
     assert list(table) == ["| MADDPG", "| CMCL, λ stride ×2", "| CMCL", "| CMCL, λ stride ×½"]
     assert table["| CMCL"][8:10] == ["300", "0.40"]  # λ = 0.2, 0.3, 0.4 below 0.5: the rows up to episode 300
@@ -208,3 +208,71 @@ def test_the_older_time_to_solve_log_reads_as_summaries_and_counts_as_finished(t
     assert "held_out" not in run and store.finished() == {line["id"]}
     store.write({**run, "held_out_coverage": 0.5})  # a summary of the same id wins over the log's line
     assert [r["held_out_coverage"] for r in store.load()] == [0.5]
+
+
+def test_a_median_at_the_censoring_edge_is_labelled_a_lower_bound():
+    """5 of 10 runs reach the threshold: the survival curve falls to exactly 0.5 at the fifth event and the other
+    runs are censored at the budget, so the median is that time or any later one."""
+    times = [100, 200, 300, 400, 500] + [None] * 5
+    assert km_median(times) == (500.0, 5)
+    assert fmt(times, 0, "episodes_to_90") == "KM median ≥ 500 (5/10 reached)"
+    assert fmt([100, 200, 300, 400, 500, 600] + [None] * 4, 0, "episodes_to_90") == "KM median 500 (6/10 reached)"
+    assert fmt([100, 200, 300, 400, 500] + [None] * 4, 0, "episodes_to_90") == "KM median 500 (5/9 reached)"
+    assert fmt([100, 200, None], 0, "episodes_to_90") == "KM median 200 (2/3 reached)"
+    assert fmt([100, None, None, None], 0, "episodes_to_90") == "not reached (1/4 reached)"
+
+
+def test_the_detectable_difference_of_a_holm_corrected_test_is_at_the_familys_alpha():
+    """The primary test is judged at α = 0.05; each of m Holm-corrected tests at α / m (Holm's first step), so its
+    detectable difference is larger than at 0.05."""
+    rng = np.random.default_rng(3)
+    arms, comparisons = SETTING_TABLES["curriculum_stride"]
+    runs = [{"arm": arm, "seed": s, "budget": 1000, "auc_coverage": base + rng.normal(0, 0.1)}
+            for arm, base in (("maddpg", 0.6), ("cmcl", 0.4), ("cmcl_stride_x2", 0.45), ("cmcl_stride_half", 0.3))
+            for s in range(10)]
+    by_arm = {arm: [r["auc_coverage"] for r in runs if r["arm"] == arm] for arm in arms}
+    for line, (a, b, _) in zip(curriculum_tests(runs, comparisons).splitlines()[2:], comparisons, strict=True):
+        cell = line.split(" | ")[-1].strip(" |")
+        assert cell == f"{detectable(by_arm[a], by_arm[b], 0.05 / 3):.3f} (α 0.017)"
+        assert float(cell.split()[0]) > detectable(by_arm[a], by_arm[b], 0.05)
+    x, y = by_arm["cmcl_stride_x2"], by_arm["cmcl"]  # the formula: (t[1 − α/2] + t[0.8]) · SE at Welch's dof
+    va, vb = np.var(x, ddof=1) / 10, np.var(y, ddof=1) / 10
+    dof = (va + vb) ** 2 / (va ** 2 / 9 + vb ** 2 / 9)
+    assert detectable(x, y, 0.01) == pytest.approx((stats.t.ppf(0.995, dof) + stats.t.ppf(0.8, dof)) * np.sqrt(va + vb))
+    primary = curriculum_tests([{**r, "held_out_success": 0.5, "episodes_to_90": None} for r in runs
+                                if r["arm"] in ("maddpg", "cmcl")]).splitlines()[2]
+    assert primary.endswith(f"| primary | {detectable(by_arm['cmcl'], by_arm['maddpg'], 0.05):.3f} (α 0.05) |")
+
+
+class Axes:
+    """Records what a figure function draws: the lines and the bands."""
+
+    def __init__(self):
+        self.lines, self.bands = [], []
+
+    def plot(self, x, y, **_):
+        self.lines.append(np.asarray(y))
+
+    def fill_between(self, x, lo, hi, **_):
+        self.bands.append((np.asarray(lo), np.asarray(hi)))
+
+
+def test_the_figures_bands_of_a_rate_stay_in_the_unit_interval():
+    """A rate's band over seeds is a bootstrap band, inside [0, 1], where a t band leaves it (coverage near 1 with one
+    slow seed); a reward keeps its t band; the sampling figure's ESS band likewise stays within [0, 1]."""
+    from experiments.curriculum_figure import sampling_band
+    from experiments.figures import band
+
+    curves = [[0.2, 0.9, 1.0, 1.0], [0.1, 0.95, 1.0, 0.99], [0.0, 0.1, 0.5, 0.98], [0.3, 0.97, 1.0, 1.0]]
+    ax = Axes()
+    band(ax, curves, "red", "CMCL", rate=True)
+    [(lo, hi)] = ax.bands
+    assert np.all(lo >= 0) and np.all(hi <= 1) and np.all(lo <= ax.lines[0]) and np.all(ax.lines[0] <= hi)
+    band(ax, curves, "red", "CMCL")  # not a rate: the t band, which here leaves [0, 1]
+    assert ax.bands[1][1].max() > 1 or ax.bands[1][0].min() < 0
+    ess = [np.array([np.nan, 0.5, 0.99, 1.0]), np.array([0.2, 0.6, 0.4, 1.0]), np.array([np.nan, 0.55, 0.98, 1.0])]
+    ax = Axes()
+    sampling_band(ax, np.arange(4.0), ess, "red")
+    [(lo, hi)] = ax.bands
+    assert np.isnan(lo[0]) and np.isclose(ax.lines[0][0], 0.2)  # one run has a value: its mean, no band
+    assert np.all(lo[1:] >= 0) and np.all(hi[1:] <= 1) and np.isclose(lo[3], 1.0) and np.isclose(hi[3], 1.0)
