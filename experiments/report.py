@@ -12,7 +12,8 @@ the text between them (a block whose markers the page lacks is only printed):
   curriculum_stride and curriculum_eta grids beside the curriculum_hard grid's MADDPG and CMCL runs; "no runs yet"
   while a curriculum grid has no summary; the stalls blocks from `python -m experiments stalls FOLDER`;
 * timetosolve: the schedule and algorithms grids (bench/results/time_to_solve), printed only;
-* ownenvs: the own_envs grid (bench/results/own_envs), each environment against the random policy.
+* ownenvs: the own_envs grid (bench/results/own_envs), each environment against the random policy;
+* screen, screenselect: the screen of sampling rules (bench/results/screen, issue 36) and its selection rule.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from experiments.curriculum_tables import (
 from experiments.grids import GRIDS
 from experiments.labels import ARM_LABEL
 from experiments.own_envs import own_env_table
+from experiments.screen_table import screen_selection, screen_table
 from experiments.stalls import early_learner_table, load_stalls, stall_table
 from experiments.store import ResultsStore
 from experiments.tables import (
@@ -87,6 +89,9 @@ def blocks(results: Path | None = None) -> dict[str, str]:
         out["timetosolve"] = solve_table(solve)
     own = ResultsStore(where["own_envs"]).load()
     out["ownenvs"] = own_env_table(own) if own else NO_RUNS
+    screen = ResultsStore(where["screen"]).load()
+    out["screen"] = screen_table(screen) if screen else NO_RUNS
+    out["screenselect"] = screen_selection(screen)
     return out
 
 
