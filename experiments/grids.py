@@ -17,6 +17,8 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
   prey MADDPG (the paper's Fig. 12 at the issue-21 defaults);
 * ``screen`` (issue 36): candidate sampling rules of the registry (cmcl.algorithms) on the harder task, seeds
   100-104 (SCREEN_ARMS), MADDPG and PER-MADDPG beside them for reference;
+* ``make_run`` (issue 35): the exact `make run` (MAKE_RUN), one run per seed; run it with --jobs 1 on an idle
+  machine;
 * ``schedule``: time to solve navigation with MADDPG inline, maddpg.update_every x maddpg.batch_size, each run
   stopped once its 100-episode moving-average coverage reaches 0.95 or after 900 s of training;
 * ``algorithms``: time to solve with each algorithm, inline and on the embedded service, same stops;
@@ -136,6 +138,10 @@ SCALE_CELLS: dict[str, ScaleCell] = {
     "n16_entity_long": ScaleCell("spread_n16.toml", ("run.init_from=", NO_CAP), budget=9_808),
 }
 
+# `make run` measured, not remembered (issue 35): the Makefile's run target, one run per seed, one at a time, on an
+# otherwise idle machine: the service, configs/spread_cmcl.toml, stop at a 100-episode moving-average coverage of 0.9 or
+# after 300 s of training (the grid's runner adds --quiet and --metrics-port 0, and its own seed and run folder)
+MAKE_RUN = {"config": "spread_cmcl.toml", "stop_coverage": 0.9, "max_seconds": 300.0}
 UPDATE_EVERY, BATCHES = (1, 4, 16, 64), (128, 512)  # the schedule grid's maddpg.update_every x maddpg.batch_size
 SOLVE_STOP_COVERAGE, SOLVE_MAX_SECONDS = 0.95, 900.0  # the time-to-solve grids' stops (moving average; seconds)
 
@@ -246,6 +252,11 @@ def solve_runs(name: str, seed: int, budget: int, algorithms: list[str]) -> list
             for mode in ("inline", "service") for a in reversed(algorithms)]
 
 
+def make_run_runs(seed: int, budget: int) -> list[Run]:
+    """The make_run grid: `make run`'s command (MAKE_RUN) at `seed`, id "make_run_s<seed>"."""
+    return [Run(f"make_run_s{seed}", "make_run", "spread", "cmcl", None, seed, budget, mode="service", **MAKE_RUN)]
+
+
 def scale_runs(seed: int, budget: int) -> list[Run]:
     """The scale grid: every cell of SCALE_CELLS with MADDPG at its budget (else the grid's), id
     "scale_<cell>_s<seed>"."""
@@ -267,7 +278,7 @@ GRIDS = {  # name -> results folder (its summaries/ and runs/)
     "ablations": RESULTS / "reproduce", "curriculum": RESULTS / "curriculum",
     "curriculum_hard": RESULTS / "curriculum_hard", "curriculum_tag": RESULTS / "curriculum_tag",
     "curriculum_stride": RESULTS / "curriculum_stride", "curriculum_eta": RESULTS / "curriculum_eta",
-    "screen": RESULTS / "screen",
+    "screen": RESULTS / "screen", "make_run": RESULTS / "make_run",
     "schedule": RESULTS / "time_to_solve",
     "algorithms": RESULTS / "time_to_solve", "own_envs": RESULTS / "own_envs", "scale": RESULTS / "scale",
 }
@@ -287,6 +298,8 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str] = PAPER_ALGOR
                 runs += setting_runs(name, seed, budget)
             elif name == "screen":
                 runs += screen_runs(seed, budget)
+            elif name == "make_run":
+                runs += make_run_runs(seed, budget)
             elif name.startswith("curriculum"):
                 runs += curriculum_runs(name, seed, budget)
             elif name == "ablations":

@@ -13,7 +13,9 @@ the text between them (a block whose markers the page lacks is only printed):
   while a curriculum grid has no summary; the stalls blocks from `python -m experiments stalls FOLDER`;
 * timetosolve: the schedule and algorithms grids (bench/results/time_to_solve), printed only;
 * ownenvs: the own_envs grid (bench/results/own_envs), each environment against the random policy;
-* screen, screenselect: the screen of sampling rules (bench/results/screen, issue 36) and its selection rule.
+* screen, screenselect: the screen of sampling rules (bench/results/screen, issue 36) and its selection rule;
+* makerun: `make run` measured per seed (bench/results/make_run), the block of README.md
+  (`python -m experiments report --update README.md`).
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from experiments.curriculum_tables import (
 )
 from experiments.grids import GRIDS
 from experiments.labels import ARM_LABEL
+from experiments.make_run_table import make_run_table
 from experiments.own_envs import own_env_table
 from experiments.screen_table import screen_selection, screen_table
 from experiments.stalls import early_learner_table, load_stalls, stall_table
@@ -92,6 +95,7 @@ def blocks(results: Path | None = None) -> dict[str, str]:
     screen = ResultsStore(where["screen"]).load()
     out["screen"] = screen_table(screen) if screen else NO_RUNS
     out["screenselect"] = screen_selection(screen)
+    out["makerun"] = make_run_table(ResultsStore(where["make_run"]).load())  # README.md's block
     return out
 
 

@@ -3,6 +3,7 @@ the reading of a run's first episodes, the same-budget reference that a shorter 
 compared with."""
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -125,7 +126,7 @@ def test_a_summary_starts_with_the_fields_the_committed_summaries_have(finished_
 
 def test_every_grid_has_a_results_folder_and_the_time_to_solve_grids_stop_early():
     assert set(GRIDS) == {"spread", "tag", "winrate", "ablations", "curriculum", "curriculum_hard", "curriculum_tag",
-                          "curriculum_stride", "curriculum_eta", "screen",
+                          "curriculum_stride", "curriculum_eta", "screen", "make_run",
                           "schedule", "algorithms", "own_envs", "scale"}
     schedule = grid(["schedule"], [0])
     assert len(schedule) == 8 and all(r.stop_coverage == 0.95 and r.max_seconds == 900 for r in schedule)
@@ -216,3 +217,19 @@ def test_the_screen_runs_each_candidate_rule_on_the_harder_task_with_one_overrid
     for r in runs:
         assert r.algorithm in REGISTRY and f"teams.agent.algorithm={r.algorithm}" in r.sets
         assert len(r.sets) <= 3  # the log cadence, the rule and at most one more override
+
+
+def test_the_make_run_grid_runs_the_makefiles_command():
+    """The grid's run is `make run`'s: the service, spread_cmcl.toml, stop at MA 0.9 or after 300 s."""
+    import re
+
+    from experiments.grids import ROOT
+    from experiments.runner import command
+
+    recipe = re.search(r"^run: install\n((?:\t.*\n)+)", (ROOT / "Makefile").read_text(), re.M).group(1)
+    run = grid(["make_run"], [3])[0]
+    cmd = " ".join(command(run, Path("/nonexistent/run")))
+    assert "services.launch" in cmd and "configs/spread_cmcl.toml" in cmd and "--runner service" in recipe
+    for flag in ("run.stop_coverage=0.9", "run.max_seconds=300", "--config configs/spread_cmcl.toml"):
+        assert flag in recipe
+    assert "run.stop_coverage=0.9" in cmd and "run.max_seconds=300.0" in cmd and "run.seed=3" in cmd

@@ -1,0 +1,39 @@
+"""`make run` measured (issue 35): the README's table of the make_run grid's summaries, one row per seed, and the
+tally under it. Every number the README gives of `make run` comes from here (tests/test_make_run_table.py checks
+the README's block against the committed summaries).
+
+Seconds are the run's training clock when its 100-episode moving-average coverage first reached 0.9 (the run stops
+there); a run that did not get there in its 300 s is censored at 300 s; the median is Kaplan-Meier over seeds.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from experiments.provenance import code_version
+from experiments.stats import kaplan_meier, median_text
+
+
+def make_run_table(runs: list[dict[str, Any]]) -> str:
+    """Per seed: reached MA 0.9 or not, seconds and episodes to it, held-out coverage and success at the end, the
+    training seconds, the mean load over the run, the code; then the tally over seeds."""
+    runs = sorted(runs, key=lambda r: r["seed"])
+    if not runs:
+        return "not measured yet"
+    lines = ["| seed | reached MA 0.9 | seconds to MA 0.9 | episodes to MA 0.9 | held-out coverage | "
+             "held-out success | training s | load (1-min mean) | code |", "| --- " * 9 + "|"]
+    for r in runs:
+        reached = r.get("seconds_to_90") is not None
+        load = (r.get("provenance") or {}).get("load_mean")
+        lines.append(f"| {r['seed']} | {'yes' if reached else 'no'} | "
+                     f"{r['seconds_to_90']:.0f} | {r['episodes_to_90']:,} | " if reached else
+                     f"| {r['seed']} | no | — | — | ")
+        lines[-1] += (f"{r['held_out_coverage']:.3f} | {r['held_out_success']:.3f} | {r['wall_s']:.0f} | "
+                      f"{'—' if load is None else f'{load:.2f}'} | {code_version(r)} |")
+    seconds = [r.get("seconds_to_90") for r in runs]
+    reached = sum(s is not None for s in seconds)
+    lines.append("")
+    lines.append(f"{reached} of {len(runs)} seeds reached MA 0.9 within the 300-second budget; Kaplan–Meier median "
+                 f"time to MA 0.9: {median_text(seconds, missing='not reached')}"
+                 + ("" if kaplan_meier(seconds)[0] is None else " s") + ".")
+    return "\n".join(lines)
