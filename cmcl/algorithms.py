@@ -47,7 +47,8 @@ class AlgorithmSpec:
     sampler class (built with a SamplerArgs). sampling: its name in the metrics ("sampling.modes"). default_alpha:
     α_s when no config sets one (A8). importance_weights: IS weights on the critic when `is_correction` is unset
     (A9). needs: the scores it needs, given the team's config (`team` has eta and acl_variant). uses_eta: η
-    enters its priority. paper: one of the paper's four compared algorithms (ALGORITHM.md §5)."""
+    enters its priority. paper: one of the paper's four compared algorithms (ALGORITHM.md §5). early_note: what is
+    normal while λ < 0.5, for the progress line ("" = nothing to say)."""
 
     name: str
     summary: str
@@ -58,6 +59,10 @@ class AlgorithmSpec:
     needs: Callable[[Any], Needs] = lambda team: Needs()
     uses_eta: bool = False
     paper: bool = False
+    early_note: str = ""
+
+
+KP_EXCLUDES = "normal while λ < 0.5: KP excludes the hardest rows, cov may wait"
 
 
 def _acl_needs(team: Any) -> Needs:
@@ -71,9 +76,10 @@ REGISTRY: dict[str, AlgorithmSpec] = {s.name: s for s in (
     AlgorithmSpec("per", "PER-MADDPG: p = |δ| + ε (Schaul et al.)", PrioritizedSampling, "per", 0.6, True,
                   lambda team: Needs(learner_scores=("td_abs",)), paper=True),
     AlgorithmSpec("acl", "the K-fold priority KP(ĉ, λ) alone", CurriculumSampling, "acl", needs=_acl_needs,
-                  paper=True),
+                  paper=True, early_note=KP_EXCLUDES),
     AlgorithmSpec("cmcl", "CI = KP(ĉ, λ) + η·CP(ρ̂): the paper's method", CurriculumSampling, "cmcl",
-                  needs=lambda team: Needs(teachers=True, icm=team.eta > 0), uses_eta=True, paper=True),
+                  needs=lambda team: Needs(teachers=True, icm=team.eta > 0), uses_eta=True, paper=True,
+                  early_note=KP_EXCLUDES),
     AlgorithmSpec("relo", "ReLo: p = max(0, δ² − δ_target²) + ε (Sujit et al.)", ReducibleLossSampling, "relo", 0.6,
                   True, lambda team: Needs(learner_scores=("td_abs", "target_td_abs"))),
     AlgorithmSpec("rho", "reducible held-out loss: rank(δ² − ē), ē the teachers' held-out error (RHO-LOSS)",
@@ -105,3 +111,8 @@ def build_sampler(algorithm: str, args: SamplerArgs):
 def sampling_name(algorithm: str) -> str:
     """The metrics' name of `algorithm`'s sampling distribution ("uniform", "per", "acl", ...), without building it."""
     return spec_of(algorithm).sampling
+
+
+def early_notes(algorithms) -> list[str]:
+    """The distinct `early_note`s of the given algorithms, for the progress line while λ < 0.5."""
+    return list(dict.fromkeys(spec_of(a).early_note for a in algorithms if spec_of(a).early_note))

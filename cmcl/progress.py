@@ -104,13 +104,29 @@ def row_sampling_parts(row: dict[str, Any]) -> list[str]:
                           [m == "uniform" for m in modes][:len(ess)])
 
 
+def time_left(episodes: int, target: int, elapsed_s: float, max_seconds: float = 0.0) -> str:
+    """How long the run has left, in seconds: the wall-clock budget's rest ("left ≤ 183s (budget)") when it ends
+    first, else the episode budget's rest at the rate so far ("left ~240s"); "" before the first episode."""
+    by_episodes = elapsed_s / episodes * max(target - episodes, 0) if episodes > 0 and elapsed_s > 0 else None
+    by_budget = max(max_seconds - elapsed_s, 0.0) if max_seconds > 0 else None
+    if by_budget is not None and (by_episodes is None or by_budget <= by_episodes):
+        return f"left ≤ {by_budget:.0f}s (budget)"
+    return "" if by_episodes is None else f"left ~{by_episodes:.0f}s"
+
+
 def progress_line(episodes: int, target: int, env_steps: int, updates: int, window: dict[str, Any], lam: float,
-                  rates: dict[str, float], elapsed_s: float, extra: Sequence[str] = ()) -> str:
+                  rates: dict[str, float], elapsed_s: float, extra: Sequence[str] = (), max_seconds: float = 0.0,
+                  notes: Sequence[str] = ()) -> str:
     """One terminal line: counters, window means (see `window_summary`), λ, update and env-step rates, `extra`
-    parts (the service adds buffer size, score age and weight lag), elapsed seconds."""
+    parts (the service adds buffer size, score age and weight lag), elapsed seconds, the time left
+    (`time_left`, with the run's wall-clock budget `max_seconds`, 0 = none) and `notes`: what is normal at this point
+    of the run (the sampling rules' `early_note` while λ < 0.5, cmcl.algorithms)."""
     parts = [f"ep {episodes}/{target}", f"steps {env_steps}", f"upd {updates}"]
     parts += [f"{label} {window[key]:.2f}" for key, label in WINDOW_KEYS if window.get(key) is not None]
     parts += [f"R[{t}] {v:.1f}" for t, v in window.get("reward", {}).items()]
     parts += [f"λ {lam:.4f}", f"{rates.get('updates_per_s', 0.0):.0f} upd/s",
               f"{rates.get('env_steps_per_s', 0.0):.0f} st/s", *extra, f"{elapsed_s:.0f}s"]
+    left = time_left(episodes, target, elapsed_s, max_seconds)
+    parts += [left] if left else []
+    parts += list(notes) if lam < 0.5 else []
     return " | ".join(parts)

@@ -62,9 +62,12 @@ def sampling_row(report: Report | None, modes: list[str]) -> dict[str, Any]:
 class ProgressView:
     """Env steps and updates per second between refreshes (at least 0.5 s apart), and the progress line."""
 
-    def __init__(self, episodes_target: int, started: float, status: ReplayStatus, sampling_modes: list[str]) -> None:
-        """sampling_modes: each agent's sampling distribution's name (cmcl.replay.sampling.sampling_name)."""
+    def __init__(self, episodes_target: int, started: float, status: ReplayStatus, sampling_modes: list[str],
+                 max_seconds: float = 0.0, notes: list[str] | None = None) -> None:
+        """sampling_modes: each agent's sampling distribution's name (cmcl.algorithms.sampling_name); max_seconds:
+        the run's wall-clock budget (0 = none); notes: what is normal while λ < 0.5 (cmcl.algorithms.early_notes)."""
         self.episodes_target, self.started, self.sampling_modes = episodes_target, started, list(sampling_modes)
+        self.max_seconds, self.notes = float(max_seconds), list(notes or [])
         self.rates = {"env_steps_per_s": 0.0, "updates_per_s": 0.0}
         self.mark = (started, status.env_steps, status.updates)  # (time, env steps, updates) of the last refresh
 
@@ -80,7 +83,7 @@ class ProgressView:
         """One terminal line: env steps, episodes, coverage / win, reward, λ, rates, buffer, score age, lag."""
         return progress_line(status.episodes, self.episodes_target, status.env_steps, status.updates,
                              window_summary(window), status.lam, self.rates, time.perf_counter() - self.started,
-                             replay_parts(status, report, lags))
+                             replay_parts(status, report, lags), self.max_seconds, self.notes)
 
     def row(self, status: ReplayStatus, report: Report | None) -> dict[str, Any]:
         """The progress row of metrics.jsonl: counters, rates, elapsed seconds and the sampling entries

@@ -20,7 +20,7 @@ from typing import Any
 
 import ray
 
-from cmcl.algorithms import sampling_name
+from cmcl.algorithms import early_notes, sampling_name
 from cmcl.config import Config
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
@@ -83,8 +83,10 @@ class Supervisor:
         self.learning_progress = LearningProgress.from_run_config(config.run)
         self.last_replay_report: Report | None = None
         self.started = time.perf_counter()
+        algorithms = layout_of(config).algorithms
         self.view = ProgressView(config.run.episodes, self.started, self.status,
-                                 [sampling_name(a) for a in layout_of(config).algorithms])
+                                 [sampling_name(a) for a in algorithms], config.run.max_seconds,
+                                 early_notes(algorithms))
         self._first_reports()
 
     def _first_reports(self) -> None:

@@ -24,3 +24,17 @@ def test_off_or_without_coverage_never_stops():
     assert not solved(rows(1.0, 1.0, 1.0, 1.0), SimpleNamespace(stop_coverage=0.0, smoothing_window=4))
     assert not solved([{"predator_win": 1.0}] * 4, RUN)
     assert window_mean([], "coverage") is None and window_mean(rows(0.5, 1.0), "coverage") == 0.75
+
+
+def test_the_line_says_the_time_left_and_what_is_normal_while_lambda_is_low():
+    from cmcl.algorithms import early_notes
+    from cmcl.progress import progress_line, time_left
+
+    assert time_left(1_000, 20_000, 50.0, 300.0) == "left ≤ 250s (budget)"  # the budget ends first
+    assert time_left(10_000, 20_000, 100.0, 300.0) == "left ~100s"  # the episodes end first, at 100 episodes/s
+    assert time_left(0, 20_000, 0.0) == "" and time_left(10, 20, 5.0) == "left ~5s"
+    notes = early_notes(["cmcl", "cmcl", "maddpg"])
+    assert len(notes) == 1 and "λ < 0.5" in notes[0] and early_notes(["maddpg", "per", "relo"]) == []
+    early = progress_line(1_000, 20_000, 25_000, 100, {}, 0.2, {}, 50.0, max_seconds=300.0, notes=notes)
+    late = progress_line(1_000, 20_000, 25_000, 100, {}, 0.6, {}, 50.0, max_seconds=300.0, notes=notes)
+    assert early.endswith(f"50s | left ≤ 250s (budget) | {notes[0]}") and late.endswith("left ≤ 250s (budget)")
