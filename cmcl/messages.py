@@ -110,8 +110,8 @@ class LearnerFeedback:
 @dataclass(frozen=True)
 class TeacherWork:
     """Replay -> teacher actor hosting `folds`: fit rows [steps, B, F, S, ...] of slots fit_slots int64[steps, B, F, S]
-    (fit[:, :, i] all from fold folds[i]; B = 1, one batch shared by the agents) and the rows to score (of other
-    folds), at learner update `updates`."""
+    (fit[:, :, i] all from fold folds[i]; B = 1, one batch shared by the agents, or A_t under teachers.fit_batch =
+    "per_agent") and the rows to score (of other folds), at learner update `updates`."""
 
     folds: tuple[int, ...]
     fit: dict[str, np.ndarray]

@@ -205,14 +205,16 @@ class ReplayServer:
 
     # ------------------------------------------------------------------ replay -> teachers / ICM
     def teacher_work(self, folds: list[int], steps: int) -> tuple[TeacherWork | None, ReplayStatus]:
-        """For the teacher actor hosting `folds`: fit rows [steps, 1, F, S] drawn from each fold only, and the
+        """For the teacher actor hosting `folds`: fit rows [steps, B, F, S] drawn from each fold only (B = 1, or one
+        batch per teacher agent under teachers.fit_batch = "per_agent"), and the
         rows (of other folds) whose score from these teachers is oldest, to score."""
         cfg = self.config
         folds = [int(f) for f in folds]
         steps = min(int(steps), self.pacing.teacher_steps_allowed(folds))
         if steps < 1 or (self.replay.storage.fold_counts()[folds] == 0).any():
             return None, self.status()
-        fit = buffer_steps.fold_batch_slots(self.replay, folds, cfg.teachers.batch_size, self.rng, steps=steps)
+        draws = buffer_steps.teacher_fit_draws(cfg.teachers.fit_batch, self.layout.teacher_agents)
+        fit = buffer_steps.fold_batch_slots(self.replay, folds, cfg.teachers.batch_size, self.rng, draws, steps)
         score = self.scoring.rows_to_score(self.replay, cfg.service.score_rows_per_call, folds=folds)
         self._event("teacher_steps", steps, folds)
         return TeacherWork(tuple(folds), buffer_steps.rows_at(self.replay, fit), fit,

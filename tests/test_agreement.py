@@ -134,3 +134,17 @@ def test_learner_batch_feedback_and_update_agree(algorithm, transform):
         slots = np.unique(batch.slots[0, agent])
         np.testing.assert_allclose(server.replay.probabilities(agent, slots), loop.replay.probabilities(agent, slots),
                                    rtol=1e-6)
+
+
+def test_per_agent_teacher_fit_batches_are_drawn_on_the_service_as_inline():
+    """teachers.fit_batch = "per_agent" is honoured by both runners: one fit batch per teacher agent per fold."""
+    cfg = in_process_config("cmcl", teachers={"fit_batch": "per_agent"})
+    server, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
+    for _ in range(3):
+        server.insert(worker.rollout(None)[0])
+    work, _ = server.teacher_work([0], 1)
+    a_t = len(server.layout.teacher_agents)
+    assert a_t > 1 and work.fit_slots.shape[:3] == (1, a_t, 1)
+    teacher = TeacherWorker(cfg, [0], 0)
+    scores, _ = teacher.step(work, Learner(cfg, 0).publish())
+    assert scores is not None and np.isfinite(scores.errors).all()

@@ -160,7 +160,7 @@ class InlineLoop:
         if self.teachers is None or (self.replay.storage.fold_counts() == 0).any():
             return None
         t = self.config.teachers
-        draws = 1 if t.fit_batch == "shared" else len(self.layout.teacher_agents)
+        draws = buffer_steps.teacher_fit_draws(t.fit_batch, self.layout.teacher_agents)
         slots = buffer_steps.fold_batch_slots(self.replay, range(t.num_folds), t.batch_size, self.rng["teacher"], draws)
         return network_steps.fit_teachers(self.teachers, buffer_steps.rows_at(self.replay, slots),
                                           self.layout.teacher_agents, self.maddpg)

@@ -85,6 +85,12 @@ def fold_draw_indices(fold: np.ndarray, folds: Sequence[int], batch_size: int, r
     return order[starts[None, None, :, None] + np.minimum((u * have).astype(np.int64), have - 1)]
 
 
+def teacher_fit_draws(fit_batch: str, teacher_agents: np.ndarray) -> int:
+    """Fit batches per fold and step (`teachers.fit_batch`): 1 ("shared": one batch for all the fold's agents) or
+    A_t ("per_agent": one per teacher agent), as both runners draw them."""
+    return 1 if fit_batch == "shared" else len(teacher_agents)
+
+
 def fold_batch_slots(replay: ReplayBuffer, folds: Sequence[int], batch_size: int, rng: np.random.Generator,
                      draws: int = 1, steps: int = 1) -> np.ndarray:
     """Teacher fit slots, drawn uniformly from each fold only (eq. 9, §3.2): int64[steps, draws, F, S] with
