@@ -4,8 +4,8 @@ Where it sits: replay -> teachers -> scores back to replay (ALGORITHM.md §3.2, 
 around `cmcl.learners.network_steps.fit_teachers` / `teacher_errors`, the same functions the inline loop calls.
 Teacher k never sees rows outside fold k when fitting; its errors count only for rows outside fold k (the replay
 server's `DifficultyTable`). Regression targets come from the learner's published target actor and target critic (never
-from a teacher). One fit batch per step is shared by all of this fold's agents (`teachers.fit_batch="shared"`), or one per agent
-("per_agent"), as the replay server draws them.
+from a teacher). One fit batch per step is shared by all of this fold's agents (`teachers.fit_batch="shared"`), or
+one per agent ("per_agent"), as the replay server draws them.
 """
 
 from __future__ import annotations
