@@ -13,6 +13,7 @@ critic. Adding a rule is its sampler's file under cmcl/replay/rules/, its test, 
   relo    max(0, δ² − δ_target²)                           (ReLo; learner only)
   rho     rank(δ² − ē): the learner's loss minus the teachers' held-out error (RHO-LOSS; teachers)
   lp      rank |Δē| of the held-out error, mixed with staleness (learning progress, PLR; teachers)
+  laber   ∝ |δ| computed fresh on m·B uniform candidates (LaBER; learner only)
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
+from cmcl.replay.rules.laber import CANDIDATES, LargeBatchSampling
 from cmcl.replay.rules.progress import HeldOutProgressSampling
 from cmcl.replay.rules.reducible import HeldOutReducibleSampling
 from cmcl.replay.rules.relo import ReducibleLossSampling
@@ -48,7 +50,7 @@ class AlgorithmSpec:
     α_s when no config sets one (A8). importance_weights: IS weights on the critic when `is_correction` is unset
     (A9). needs: the scores it needs, given the team's config (`team` has eta and acl_variant). uses_eta: η
     enters its priority. paper: one of the paper's four compared algorithms (ALGORITHM.md §5). early_note: what is
-    normal while λ < 0.5, for the progress line ("" = nothing to say)."""
+    normal while λ < 0.5, for the progress line ("" = nothing to say). candidates: m of LaBER (1 for the others)."""
 
     name: str
     summary: str
@@ -60,6 +62,7 @@ class AlgorithmSpec:
     uses_eta: bool = False
     paper: bool = False
     early_note: str = ""
+    candidates: int = 1  # m: the learner picks each minibatch among m·B candidate rows (LaBER); 1 = it takes them
 
 
 KP_EXCLUDES = "normal while λ < 0.5: KP excludes the hardest rows, cov may wait"
@@ -86,6 +89,8 @@ REGISTRY: dict[str, AlgorithmSpec] = {s.name: s for s in (
                   HeldOutReducibleSampling, "rho", needs=lambda team: Needs(teachers=True, learner_scores=("td_abs",))),
     AlgorithmSpec("lp", "held-out learning progress: rank |Δē| mixed with staleness (PLR)", HeldOutProgressSampling,
                   "lp", needs=lambda team: Needs(teachers=True)),
+    AlgorithmSpec("laber", "LaBER: each minibatch picked ∝ fresh |δ| among 4·B uniform candidates (Lahire et al.)",
+                  LargeBatchSampling, "laber", 1.0, True, candidates=CANDIDATES),
 )}
 ALGORITHMS: tuple[str, ...] = tuple(REGISTRY)
 PAPER_ALGORITHMS: tuple[str, ...] = tuple(name for name, spec in REGISTRY.items() if spec.paper)

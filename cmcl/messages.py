@@ -81,6 +81,8 @@ class LearnerBatch:
     is_weights: np.ndarray
     slots: np.ndarray
     generations: np.ndarray
+    # LaBER: S = m·B candidates per owner, and one uniform number per row to pick, float64[n, N, B] (else None)
+    select_u: np.ndarray | None = None
 
     @property
     def count(self) -> int:

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from cmcl.algorithms import REGISTRY
 from cmcl.config import Config, ConfigError
 from cmcl.envs.entities import EntityLayout, entity_layout
 from cmcl.replay.buffer import ReplayBuffer
@@ -51,6 +52,10 @@ class AgentLayout:
     floor: tuple[float, ...] = ()
     # the learner's per-row losses some agent's rule asks back ("td_abs", "target_td_abs"; cmcl.algorithms.Needs)
     learner_scores: tuple[str, ...] = ()
+    # LaBER: each learner minibatch is drawn as `candidates` × batch rows, and the agents marked in `select` pick
+    # theirs among them by fresh |δ| (cmcl.replay.rules.laber); the others take their first batch-size draws
+    candidates: int = 1
+    select: tuple[bool, ...] = ()
     # float32[N, act_dim]: 1 where the agent has that action entry, 0 on padding (agents whose action sizes differ,
     # env.factory); None when every agent uses every entry (the built-in tasks)
     act_mask: np.ndarray | None = None
@@ -118,7 +123,7 @@ def agent_layout(config: Config, env) -> AgentLayout:
                           f"{members} (by agent-id prefix or env.team_of); give every one a [teams.<name>] table")
     algorithms, eta, isw, source, alpha, floor = [""] * n, [0.0] * n, [False] * n, ["difficulty"] * n, [1.0] * n, \
         [0.0] * n
-    teacher, icm, learner_scores = [], [], set()
+    teacher, icm, learner_scores, select = [], [], set(), [False] * n
     for team, members in env.teams.items():
         spec = config.teams[team]
         needs = spec.needs
@@ -134,6 +139,7 @@ def agent_layout(config: Config, env) -> AgentLayout:
             if needs.icm:
                 icm.append(agent)
             learner_scores.update(needs.learner_scores)
+            select[agent] = REGISTRY[spec.algorithm].candidates > 1
     act_dim = DISCRETE_ACT_DIM if config.maddpg.discrete else env.act_dim
     discrete = config.maddpg.discrete or bool(getattr(env, "discrete", False))
     mask = getattr(env, "act_mask", None)
@@ -142,7 +148,8 @@ def agent_layout(config: Config, env) -> AgentLayout:
                        eta=tuple(eta),
                        alpha=tuple(alpha),
                        importance_weights=tuple(isw), difficulty_source=tuple(source), floor=tuple(floor),
-                       learner_scores=tuple(sorted(learner_scores)),
+                       learner_scores=tuple(sorted(learner_scores)), select=tuple(select),
+                       candidates=max((REGISTRY[config.teams[t].algorithm].candidates for t in env.teams), default=1),
                        teacher_agents=np.asarray(sorted(teacher), dtype=np.int64),
                        icm_agents=np.asarray(sorted(icm), dtype=np.int64),
                        act_mask=None if mask is None or mask.all() else mask.copy(), discrete=discrete,

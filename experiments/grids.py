@@ -79,6 +79,8 @@ SCREEN_ARMS: dict[str, list[str]] = {
     "per_floor": ["teams.agent.algorithm=per", "teams.agent.uniform_floor=0.2"],
     "cmcl_lam05": ["teams.agent.algorithm=cmcl", "curriculum.lam0=0.5"],  # no exclusion phase (λ ≥ 0.5 from the start)
     "cmcl_floor": ["teams.agent.algorithm=cmcl", "teams.agent.uniform_floor=0.2"],
+    # added to the protocol on 2026-12-05 at 00:10 UTC, before any of its runs (docs/RESULTS.md)
+    "laber": ["teams.agent.algorithm=laber"],
 }
 SCREEN_REFERENCES = ("maddpg", "per")  # run beside the candidates, never selected
 SCREEN_SEEDS = (100, 101, 102, 103, 104)

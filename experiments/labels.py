@@ -7,7 +7,7 @@ ARM_LABEL = {**LABEL, "cmcl_permuted": "CMCL, permuted control", "cmcl_anti": "C
              "cmcl_stride_x2": "CMCL, λ stride ×2", "cmcl_stride_half": "CMCL, λ stride ×½",
              "cmcl_eta1": "CMCL, η = 1", "relo": "ReLo", "rho": "reducible held-out loss",
              "lp": "held-out learning progress", "per_floor": "PER-MADDPG, floor 0.2",
-             "cmcl_lam05": "CMCL, λ₀ = 0.5", "cmcl_floor": "CMCL, floor 0.2"}
+             "cmcl_lam05": "CMCL, λ₀ = 0.5", "cmcl_floor": "CMCL, floor 0.2", "laber": "LaBER"}
 ARM_COLOUR = {**COLOUR, "cmcl_permuted": "tab:purple", "cmcl_anti": "tab:brown",
               "cmcl_stride_x2": "tab:pink", "cmcl_stride_half": "tab:olive",
               "cmcl_eta1": "tab:cyan"}

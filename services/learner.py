@@ -53,19 +53,20 @@ class Learner:
         if batch is None:
             return None, self.report()
         use_weights = any(self.layout.importance_weights)
-        td = np.empty(batch.slots.shape, np.float32)
-        target = np.empty(batch.slots.shape, np.float32) if self.maddpg.target_scores else None
+        picked = []  # the slots and generations each minibatch trained on (LaBER picks them among candidates)
         stats: dict[str, Any] = {}
         for i in range(batch.count):
-            stats = network_steps.learner_update(self.maddpg, batch.minibatch(i, use_weights))
-            td[i] = stats["td_abs"]
-            if target is not None:
-                target[i] = stats["target_td_abs"]
+            minibatch, slots, generations = network_steps.choose_minibatch(self.maddpg, batch, i, use_weights,
+                                                                           self.layout.select)
+            stats = network_steps.learner_update(self.maddpg, minibatch)
+            picked.append((slots, generations, stats["td_abs"], stats.get("target_td_abs")))
+        slots, generations = np.stack([p[0] for p in picked]), np.stack([p[1] for p in picked])
+        td = np.stack([p[2] for p in picked]).astype(np.float32)
+        target = np.stack([p[3] for p in picked]).astype(np.float32) if self.maddpg.target_scores else None
         self.version += 1
         self.losses = {f"agent_{a}": {"critic": float(stats["critic_loss"][a]), "actor": float(stats["actor_loss"][a])}
                        for a in range(self.layout.num_agents)}
-        return LearnerFeedback(batch.slots, batch.generations, td, self.losses, self.incarnation,
-                               target), self.report()
+        return LearnerFeedback(slots, generations, td, self.losses, self.incarnation, target), self.report()
 
     def publish(self) -> dict[str, Any]:
         """The current weights with their version (the supervisor puts this in the object store)."""

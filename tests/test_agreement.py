@@ -15,7 +15,7 @@ import torch
 
 from cmcl.algorithms import ALGORITHMS, REGISTRY
 from cmcl.config import TeamConfig, config_from_dict
-from cmcl.learners.network_steps import learner_update
+from cmcl.learners.network_steps import choose_minibatch, learner_update
 from cmcl.loop import InlineLoop
 from cmcl.messages import LearnerFeedback
 from cmcl.replay import buffer_steps
@@ -105,15 +105,23 @@ def test_learner_batch_feedback_and_update_agree(algorithm, transform):
     batch, _ = server.sample(1)
     beta = beta_is(loop.config, server.counters["inserts"])
     betas = [beta if w else 0.0 for w in loop.layout.importance_weights]
-    inline = buffer_steps.sample_owner_batches(loop.replay, 1, loop.config.maddpg.batch_size, rngs, betas)
+    inline = buffer_steps.sample_owner_batches(loop.replay, 1, loop.config.maddpg.batch_size, rngs, betas,
+                                               loop.layout.candidates)
     np.testing.assert_array_equal(batch.slots, inline.slots)
+    assert (batch.select_u is None) == (inline.select_u is None) == (loop.layout.candidates == 1)
+    if batch.select_u is not None:  # LaBER: m·B candidates, and the same numbers to pick with
+        assert batch.slots.shape[-1] == loop.layout.candidates * loop.config.maddpg.batch_size
+        np.testing.assert_array_equal(batch.select_u, inline.select_u)
     np.testing.assert_array_equal(batch.is_weights, inline.is_weights)
     for key in ("obs", "act", "rew", "next_obs", "done"):
         np.testing.assert_array_equal(batch.rows[key], inline.rows[key])
     learner = Learner(cfg, 0)
     learner.maddpg.load_state_dict(copy.deepcopy(loop.maddpg.state_dict()))
     feedback, _ = learner.update(batch)
-    inline_stats = learner_update(loop.maddpg, inline.minibatch(0, any(loop.layout.importance_weights)))
+    minibatch, slots, generations = choose_minibatch(loop.maddpg, inline, 0, any(loop.layout.importance_weights),
+                                                     loop.layout.select)
+    np.testing.assert_array_equal(feedback.slots[0], slots)  # the rows trained on, picked alike
+    inline_stats = learner_update(loop.maddpg, minibatch)
     np.testing.assert_allclose(feedback.td_abs[0], inline_stats["td_abs"], rtol=1e-6)
     target = inline_stats.get("target_td_abs")
     assert (feedback.target_td_abs is None) == (target is None) == ("target_td_abs" not in loop.layout.learner_scores)
@@ -123,7 +131,7 @@ def test_learner_batch_feedback_and_update_agree(algorithm, transform):
         torch.testing.assert_close(learner.maddpg.state_dict()["critic"][name], value)
     server.learner_result(feedback)
     buffer_steps.apply_learner_feedback(loop.replay, loop.layout, LearnerFeedback(
-        inline.slots, inline.generations, inline_stats["td_abs"][None],
+        slots[None], generations[None], inline_stats["td_abs"][None],
         target_td_abs=None if target is None else target[None]))
     if loop.replay.recomputes:  # both sides rebuild at the same λ, the permuted control from the same state (the
         # server recomputed once more, before it sampled)
@@ -131,7 +139,7 @@ def test_learner_batch_feedback_and_update_agree(algorithm, transform):
         loop.replay.recompute_priorities(0.4)
         server.replay.recompute_priorities(0.4)
     for agent in range(loop.layout.num_agents):
-        slots = np.unique(batch.slots[0, agent])
+        slots = np.unique(feedback.slots[0, agent])
         np.testing.assert_allclose(server.replay.probabilities(agent, slots), loop.replay.probabilities(agent, slots),
                                    rtol=1e-6)
 

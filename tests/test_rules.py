@@ -164,3 +164,45 @@ def test_registry_specs_are_complete():
     for name, spec in REGISTRY.items():
         assert spec.name == name and spec.summary and spec.default_alpha >= 0
         assert isinstance(spec.needs(TeamConfig(algorithm=name)).learner_scores, tuple)
+
+
+def test_laber_picks_candidates_in_proportion_to_their_priority_with_mean_over_p_weights():
+    from cmcl.replay.rules.laber import select_candidates
+
+    p = np.array([[1.0, 2.0, 3.0, 4.0], [4.0, 4.0, 1.0, 1.0]])
+    u = np.random.default_rng(0).random((2, 100_000))
+    idx, w = select_candidates(p, u)
+    freq = np.stack([np.bincount(row, minlength=4) for row in idx]) / u.shape[1]
+    assert np.abs(freq - p / p.sum(1, keepdims=True)).max() < 0.01
+    assert np.allclose(w, p.mean(1, keepdims=True) / np.take_along_axis(p, idx, 1))
+    with pytest.raises(ValueError, match="candidate priorities"):
+        select_candidates(np.zeros((1, 3)), u[:1, :2])
+
+
+def test_laber_minibatch_is_picked_by_the_current_critic_and_other_agents_take_their_first_draws():
+    import torch
+
+    from cmcl.learners.maddpg import MADDPG
+    from cmcl.learners.network_steps import choose_minibatch
+    from cmcl.messages import LearnerBatch
+
+    torch.manual_seed(0)
+    n, m, b, od, ad = 2, 4, 8, 3, 2
+    rng = np.random.default_rng(1)
+    s = m * b
+    rows = {"obs": rng.normal(size=(1, n, s, n, od)).astype(np.float32),
+            "act": rng.uniform(-1, 1, (1, n, s, n, ad)).astype(np.float32),
+            "rew": rng.normal(size=(1, n, s, n)).astype(np.float32),
+            "next_obs": rng.normal(size=(1, n, s, n, od)).astype(np.float32),
+            "done": np.zeros((1, n, s, n), np.float32)}
+    slots = np.arange(n * s).reshape(1, n, s)
+    batch = LearnerBatch(rows, np.ones((1, n, s), np.float32), slots, slots + 1000, rng.random((1, n, b)))
+    maddpg = MADDPG(n, od, ad, hidden=16, seed=0)
+    picked, chosen, gens = choose_minibatch(maddpg, batch, 0, True, [True, False])
+    td = maddpg.td_abs(batch.minibatch(0, True)).astype(np.float64) + EPS_P
+    cdf = np.cumsum(td[0]) / td[0].sum()
+    expected = np.minimum(np.searchsorted(cdf, batch.select_u[0, 0], side="right"), s - 1)
+    assert np.array_equal(chosen[0], slots[0, 0, expected]) and np.array_equal(gens, chosen + 1000)
+    assert np.array_equal(chosen[1], slots[0, 1, :b])  # the agent of another rule: its first B draws, weights kept
+    assert picked["obs"].shape == (n, b, n, od) and np.all(picked["is_weights"][1] == 1.0)
+    assert np.allclose(picked["is_weights"][0], td[0].mean() / td[0][expected], rtol=1e-5)

@@ -5,7 +5,7 @@ from experiments.grids import SCREEN_ARMS, SCREEN_SEEDS
 from experiments.screen_table import manipulation_ratio, screen_selection, screen_table
 
 AREA = {"maddpg": 0.6, "per": 0.65, "relo": 0.72, "rho": 0.80, "lp": 0.70, "per_floor": 0.66, "cmcl_lam05": 0.5,
-        "cmcl_floor": 0.4}
+        "cmcl_floor": 0.4, "laber": 0.69}
 
 
 def run(arm, seed, sampled=0.2, buffer=0.1, commit="a" * 40):
@@ -34,6 +34,7 @@ def test_selection_takes_the_two_best_areas_among_the_rules_that_acted():
 
 def test_no_selection_from_an_incomplete_screen_or_mixed_code():
     runs = [run(arm, s) for arm in SCREEN_ARMS for s in SCREEN_SEEDS]
-    assert screen_selection(runs[:-1]).startswith("Screen incomplete: 39 of 40 runs")
+    total = len(SCREEN_ARMS) * len(SCREEN_SEEDS)
+    assert screen_selection(runs[:-1]).startswith(f"Screen incomplete: {total - 1} of {total} runs")
     runs[0] = run(runs[0]["arm"], runs[0]["seed"], commit="b" * 40)
     assert screen_selection(runs).startswith("Screen runs ran different code (mixed: ")

@@ -322,6 +322,16 @@ class MADDPG(MADDPGCheckpoint):
         }
 
     @torch.no_grad()
+    def td_abs(self, batch: Mapping[str, ArrayLike]) -> np.ndarray:
+        """|y − Q_v(s, a)| of every row of a per-owner batch under the current critic, nothing updated ->
+        float32[N, S] (0 where the owner is absent). LaBER scores its candidates with it."""
+        obs, act, rew, next_obs, done, _, presence = self._unpack(batch)
+        count = None if presence is None else presence.count
+        delta = self._td_targets_t(rew, next_obs, done, None, count) - self._q(self.critic, joint_input(obs, act),
+                                                                             None, count)
+        return (delta if presence is None else delta * presence.own).abs().numpy()
+
+    @torch.no_grad()
     def critic_loss(self, batch: Mapping[str, ArrayLike]) -> np.ndarray:
         """Per-agent (weighted) critic MSE on a per-owner batch without updating anything -> float32[N]."""
         obs, act, rew, next_obs, done, w, presence = self._unpack(batch)

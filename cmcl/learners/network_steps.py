@@ -4,6 +4,7 @@ Where it sits: one implementation, two runners. `cmcl.loop` calls these on its o
 teacher and ICM actors call the same functions on theirs (`services/learner.py`, `teachers.py`, `icm.py`). The
 replay side (what is drawn, what is written back) is `cmcl.replay.buffer_steps`.
 
+  learner minibatch .. choose_minibatch    the batch's own, or LaBER's pick among m·B candidates by fresh |δ|
   learner update ..... learner_update      minibatch [N, S, ...] -> MADDPG step (eqs. 4–6), |δ| [N, S]
   teacher fit ........ fit_teachers        rows [steps, B, F, S, ...] -> Adam steps of the fold teachers (eq. 9)
   teacher scores ..... teacher_errors      rows [M, ...] -> e [M, A_t, K'] (eq. 10)
@@ -13,6 +14,7 @@ replay side (what is drawn, what is written back) is `cmcl.replay.buffer_steps`.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -22,6 +24,9 @@ from cmcl.learners.icm import ICM
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.nets import joint_input
 from cmcl.learners.teachers import TeacherEnsemble
+from cmcl.messages import LearnerBatch
+from cmcl.replay.priority import EPS_P
+from cmcl.replay.rules.laber import select_candidates
 
 
 def agent_major(rows: dict[str, np.ndarray], agents: np.ndarray, key: str) -> np.ndarray:
@@ -44,6 +49,29 @@ def learner_update(maddpg: MADDPG, minibatch: dict[str, np.ndarray], icm: ICM | 
         minibatch = {**minibatch, "rew": minibatch["rew"].copy()}
         minibatch["rew"][a, :, a] += intrinsic_reward_coef * rho
     return maddpg.update(minibatch)
+
+
+def choose_minibatch(maddpg: MADDPG, batch: LearnerBatch, i: int, importance_weights: bool, select: Sequence[bool]
+                     ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+    """The i-th minibatch of `batch` as `learner_update` takes it, with its slots and generations int64[N, B].
+
+    Without candidates (`batch.select_u` None) it is the batch's own. With LaBER's m·B candidates per owner, the
+    agents marked in `select` pick B of them ∝ the current critic's |δ| + ε (one no-grad pass,
+    `cmcl.replay.rules.laber.select_candidates`), their critic weighted by LaBER-mean's weights; the others take
+    their first B draws (i.i.d. from their own sampler) with their own IS weights."""
+    mb = batch.minibatch(i, importance_weights)
+    slots, generations = batch.slots[i], batch.generations[i]
+    if batch.select_u is None:
+        return mb, slots, generations
+    u = batch.select_u[i]  # [N, B]
+    n, b = u.shape
+    idx, weights = select_candidates(maddpg.td_abs(mb).astype(np.float64) + EPS_P, u)
+    picking = np.asarray(select, dtype=bool)
+    idx[~picking] = np.arange(b)
+    picked = {k: np.take_along_axis(v, idx.reshape(n, b, *([1] * (v.ndim - 2))), axis=1) for k, v in mb.items()}
+    if "is_weights" in picked:
+        picked["is_weights"] = np.where(picking[:, None], weights, picked["is_weights"]).astype(np.float32)
+    return picked, np.take_along_axis(slots, idx, axis=1), np.take_along_axis(generations, idx, axis=1)
 
 
 def teacher_fit_batch(fit: dict[str, np.ndarray], agents: np.ndarray, targets: MADDPG

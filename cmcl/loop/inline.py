@@ -78,6 +78,9 @@ class InlineLoop:
         self.scoring = ScoringState.for_layout(self.layout, config.replay.capacity, config.teachers.num_folds)
         self.schedule = build_schedule(config)
         self.prioritized = self.replay.recomputes  # some agent's sampler rebuilds its priorities each update
+        # LaBER: the reward-bearing share of the rows its agents picked since the last progress row
+        self.agents = np.arange(self.layout.num_agents)
+        self.picked_rewarded, self.picked_count = np.zeros(self.layout.num_agents), 0
         self.pacing = pacing_from_config(config)  # what is due: updates per env step, fit steps per update
         self.learning_progress = LearningProgress.from_run_config(config.run)  # run.stop_progress
         self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "rounds": 0}
@@ -196,11 +199,17 @@ class InlineLoop:
         cfg, layout = self.config, self.layout
         beta = beta_is(cfg, self.counters["env_steps"])
         betas = [beta if isw else 0.0 for isw in layout.importance_weights]
-        batch = buffer_steps.sample_owner_batches(self.replay, 1, cfg.maddpg.batch_size, self.sampler_rngs, betas)
-        stats = network_steps.learner_update(self.maddpg, batch.minibatch(0, any(layout.importance_weights)), self.icm,
-                                     layout.icm_agents, cfg.icm.intrinsic_reward_coef)
+        batch = buffer_steps.sample_owner_batches(self.replay, 1, cfg.maddpg.batch_size, self.sampler_rngs, betas,
+                                                  layout.candidates)
+        minibatch, slots, generations = network_steps.choose_minibatch(
+            self.maddpg, batch, 0, any(layout.importance_weights), layout.select)
+        if batch.select_u is not None:  # the picked rows' reward-bearing share, per agent (the sampling's effect)
+            self.picked_rewarded += (minibatch["rew"][self.agents, :, self.agents] > 0).mean(1)
+            self.picked_count += 1
+        stats = network_steps.learner_update(self.maddpg, minibatch, self.icm, layout.icm_agents,
+                                             cfg.icm.intrinsic_reward_coef)
         target = stats.get("target_td_abs")
-        feedback = LearnerFeedback(batch.slots, batch.generations, np.asarray(stats["td_abs"])[None],
+        feedback = LearnerFeedback(slots[None], generations[None], np.asarray(stats["td_abs"])[None],
                                    target_td_abs=None if target is None else np.asarray(target)[None])
         buffer_steps.apply_learner_feedback(self.replay, layout, feedback)
         return stats
@@ -224,6 +233,14 @@ class InlineLoop:
                                **self.last_stats}
         if self.replay.size:  # "sampling" for every agent; "priority" / "curriculum" for ACL / CMCL agents
             row.update(buffer_diagnostics(self.replay, self.schedule.lam, self.maddpg.updates))
+            if self.picked_count and "reward_rows_sampled" in row.get("sampling", {}):
+                # LaBER picks in the learner: its agents' sampled share is the one measured in the picked minibatches
+                measured = self.picked_rewarded / self.picked_count
+                row["sampling"]["reward_rows_sampled"] = [round(float(measured[a]), 4) if pick else value
+                                                          for a, (pick, value) in enumerate(zip(
+                                                              self.layout.select,
+                                                              row["sampling"]["reward_rows_sampled"], strict=True))]
+                self.picked_rewarded, self.picked_count = np.zeros(self.layout.num_agents), 0
         return row
 
     def format_progress(self, row: dict[str, Any]) -> str:

@@ -35,17 +35,24 @@ def score_rows(replay: ReplayBuffer, slots: np.ndarray) -> Rows:
 
 
 def sample_owner_batches(replay: ReplayBuffer, count: int, batch_size: int, rngs: Sequence[np.random.Generator],
-                         betas: Sequence[float]) -> LearnerBatch:
+                         betas: Sequence[float], candidates: int = 1) -> LearnerBatch:
     """`count` learner minibatches: every agent v draws its own S slots from its own P_v (eq. 20) per minibatch.
 
-    betas: IS exponent per agent (0: weights of 1). Returns a LearnerBatch of [count, N, S] arrays, with the
-    agents' presence when the buffer holds rows carried from fewer agents (run.carry_replay).
+    betas: IS exponent per agent (0: weights of 1). candidates: m > 1 (LaBER) draws S = m·batch_size candidates
+    per owner, then one uniform number per row to pick from each agent's own generator (`LearnerBatch.select_u`).
+    Returns a LearnerBatch of [count, N, S] arrays, with the agents' presence when the buffer holds rows carried
+    from fewer agents (run.carry_replay).
     """
-    draws = [replay.sample_all(batch_size, list(rngs), beta=list(betas)) for _ in range(count)]
+    draws, picks = [], []
+    for _ in range(count):
+        draws.append(replay.sample_all(batch_size * candidates, list(rngs), beta=list(betas)))
+        if candidates > 1:
+            picks.append(np.stack([rng.random(batch_size) for rng in rngs]))
     slots = np.stack([d[0] for d in draws])  # [n, N, S]
     keys = (*ROW_KEYS, PRESENT_KEY) if replay.storage.absent_rows else ROW_KEYS
     return LearnerBatch(rows_at(replay, slots, keys), np.stack([d[1] for d in draws]), slots,
-                        replay.generations(slots.reshape(-1)).reshape(slots.shape))
+                        replay.generations(slots.reshape(-1)).reshape(slots.shape),
+                        np.stack(picks) if picks else None)
 
 
 def apply_learner_feedback(replay: ReplayBuffer, layout: Any, feedback: LearnerFeedback) -> tuple[int, bool]:
