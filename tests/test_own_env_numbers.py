@@ -6,11 +6,65 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from cmcl.envs.factory import EnvFactoryError, load_factory
+from cmcl.envs.parallel_vector import CHECK_EVERY, ObservationError, VectorParallelEnv
 
 ROOT = Path(__file__).resolve().parents[1]
+PROBE = "tests.probe_env:parallel_env"
+
+
+def probe(num_envs=1, episode_length=50, **kwargs):
+    return VectorParallelEnv(load_factory(PROBE, kwargs), num_envs, episode_length, seed=0, auto_reset=True,
+                             success_key="hit", coverage_key="hit", factory="probe")
+
+
+def play(env, steps):
+    """`steps` zero-action steps; the info["episode"] parts of the steps in which worlds ended."""
+    parts = []
+    for _ in range(steps):
+        _, _, ended, info = env.step(np.zeros((env.num_envs, env.num_agents, env.act_dim), np.float32))
+        if ended.any():
+            parts.append(info["episode"])
+    return parts
+
+# ----- item 7: observations checked against their declared space -------------------------------------------------
+@pytest.mark.parametrize("fault, says", [
+    ("short", r"has shape \(1,\) \(1 values\) but its space .* has shape \(2,\)"),
+    ("long", r"has shape \(3,\) \(3 values\)"),
+    ("wide", r"entry 0 = 60 lies outside its space's bounds \[-1, 1\]"),
+    ("nan", r"entry 1 is nan \(observations must be finite\)"),
+    ("text", r"has dtype <U1, which does not cast to its space's float32"),
+])
+@pytest.mark.parametrize("fault_at, where", [(0, "reset"), (3, "step 3 of an episode")])
+def test_an_observation_that_does_not_fit_its_space_is_refused_naming_agent_step_and_field(fault, says, fault_at,
+                                                                                           where):
+    with pytest.raises(ObservationError, match=rf"^probe: the observation of agent 'agent_0' at {where} \(world 0\) "
+                                               rf"{says}") as err:
+        env = probe(fault=fault, fault_at=fault_at)
+        play(env, 3)
+    assert "\n" not in str(err.value)
+
+
+def test_a_short_observation_is_never_broadcast_even_on_an_unchecked_step():
+    # after the first episode only one step in CHECK_EVERY gets the full check; the size is checked at every step
+    env = probe(episode_length=CHECK_EVERY + 10, max_cycles=CHECK_EVERY + 10, fault="short", fault_at=3)
+    play(env, 2)  # still the first episode, unaffected steps
+    env._first_episode[:] = False  # as after a first episode: step 3 is not a sampled one
+    with pytest.raises(ObservationError, match="step 3 of an episode"):
+        play(env, 1)
+    wide = probe(episode_length=CHECK_EVERY + 10, max_cycles=CHECK_EVERY + 10, fault="wide", fault_at=3)
+    wide._first_episode[:] = False
+    play(wide, 3)  # out-of-bounds values on an unsampled step pass: the full check is sampled, not in the hot path
+
+
+def test_mpe2_observations_pass_the_full_check_at_every_step():
+    env = VectorParallelEnv(load_factory("mpe2.simple_speaker_listener_v4:parallel_env",
+                                         {"continuous_actions": True, "max_cycles": 25}), 2, 25, seed=0)
+    env._first_episode[:] = True
+    play(env, 25)  # the first episode of each world is checked in full
 
 
 # ----- item 11: an AEC environment -----------------------------------------------------------------------------------
@@ -27,6 +81,8 @@ def run_cli(*args):
 
 @pytest.mark.parametrize("sets, says", [
     (["env.factory=mpe2.simple_spread_v3:env"], "returned an AEC environment"),
+    ([f"env.factory={PROBE}", 'env.factory_kwargs={fault="wide", fault_at=3}'],
+     "the observation of agent 'agent_0' at step 3 of an episode (world 0) entry 0 = 60 lies outside"),
 ])
 def test_the_command_line_says_what_does_not_fit_in_one_line_and_exits_2(sets, says, tmp_path):
     args = [a for s in [*sets, "run.episodes=2", f"run.dir={tmp_path / 'run'}"] for a in ("--set", s)]
