@@ -30,6 +30,25 @@ def play(env, steps):
             parts.append(info["episode"])
     return parts
 
+# ----- item 6: agents that left count with their final state ----------------------------------------------------
+def test_success_and_coverage_count_agents_that_left_early_with_their_final_state():
+    # 10 agents leave one per step; agents 0-6 succeed, 7-9 do not: true success 0.7. Before the fix only agent_9,
+    # present at the last step, was counted (0.0).
+    env = probe(2, agents=10, leave_at=range(1, 11), succeed=range(7), max_cycles=20)
+    (ep,) = play(env, 10)
+    np.testing.assert_allclose(ep["success"], [0.7, 0.7])
+    np.testing.assert_allclose(ep["coverage"], [0.7, 0.7])
+    np.testing.assert_array_equal(ep["length"], [10, 10])
+    (again,) = play(env, 10)  # a new episode forgets the last one's values
+    np.testing.assert_allclose(again["success"], [0.7, 0.7])
+
+
+def test_the_last_agent_to_leave_does_not_speak_for_those_that_left_before():
+    env = probe(1, agents=3, leave_at=(1, 2, 3), succeed=(2,))  # only the last one succeeds: 1/3, not 1
+    (ep,) = play(env, 3)
+    np.testing.assert_allclose(ep["success"], [1 / 3])
+
+
 # ----- item 7: observations checked against their declared space -------------------------------------------------
 @pytest.mark.parametrize("fault, says", [
     ("short", r"has shape \(1,\) \(1 values\) but its space .* has shape \(2,\)"),

@@ -14,8 +14,9 @@ info: "final_obs" [B, N, od] (next_obs of this step), "episode_mask" bool[B] (wo
 "terminated" bool[B, N] per agent: the agent terminated in this step (its env flag, without truncation), or had
 left its world before this step (an absorbing state: it earns nothing more); no bootstrapping for that agent's
 critic there (`done` of eq. 5 per agent). "episode" over the M ended worlds: return float64[M, N], length
-int64[M], and success / coverage float64[M] (the mean over agents of the info key named by `success_key` /
-`coverage_key` at the last step).
+int64[M], and success / coverage float64[M]: the mean, over the agents that reported the info key named by
+`success_key` / `coverage_key` during the episode, of each one's last value (an agent that left early counts with
+the value it had when it left; an agent that never reported it is not counted; 0 when none did).
 
 Observations are checked against the agent's declared Box (`check_observation`): the size at every reset and step
 (a wrong-sized observation is never broadcast), and the shape, the dtype (castable to the space's, "same_kind"),
@@ -97,6 +98,7 @@ class VectorParallelEnv:
         self._t = np.zeros(b, np.int64)
         self._returns = np.zeros((b, n))
         self._over = np.zeros(b, bool)  # episode ended and not restarted (auto_reset=False)
+        self._stat_last = {key: np.full((b, n), np.nan) for key, info_key in self.stat_keys.items() if info_key}
         self._world_steps = np.zeros(b, np.int64)  # steps since construction, per world (sampled obs checks)
         self._first_episode = np.ones(b, bool)  # every step of a world's first episode is checked in full
         self.reset()
@@ -118,6 +120,14 @@ class VectorParallelEnv:
                                            f"{problem}")
                 out[world, i, : self.obs_dims[i]] = value.ravel()
 
+    def _record_stats(self, world: int, infos: Mapping[str, Any]) -> None:
+        """Keep each reporting agent's latest success / coverage info value (its final state if it leaves)."""
+        for key, last in self._stat_last.items():
+            info_key = self.stat_keys[key]
+            for agent, info in infos.items():
+                if agent in self._index and isinstance(info, Mapping) and info_key in info:
+                    last[world, self._index[agent]] = float(info[info_key])
+
     def _env_action(self, i: int, action: np.ndarray) -> np.ndarray | int:
         """Policy action float32[ad] of agent i -> its Box action (bounds, shape) from [-1, 1], or its Discrete
         action (int: start + argmax of its first n entries)."""
@@ -128,9 +138,12 @@ class VectorParallelEnv:
         return (spec.act_low + (a + 1.0) * 0.5 * (spec.act_high - spec.act_low)).reshape(spec.act_shape)
 
     def _reset_world(self, world: int) -> None:
-        observations, _ = self.envs[world].reset(seed=int(self._rng.integers(SEED_RANGE)))
+        observations, infos = self.envs[world].reset(seed=int(self._rng.integers(SEED_RANGE)))
         self._t[world], self._returns[world], self._over[world] = 0, 0.0, False
         self._write_obs(self._obs, world, observations, full=True)
+        for last in self._stat_last.values():
+            last[world] = np.nan
+        self._record_stats(world, infos)
 
     # ----- public API ------------------------------------------------------------------------------
     def reset(self, seed: int | np.random.Generator | None = None) -> np.ndarray:
@@ -155,7 +168,7 @@ class VectorParallelEnv:
         rewards = np.zeros((self.num_envs, self.num_agents), np.float32)
         ended, terminated = np.zeros(self.num_envs, bool), np.zeros((self.num_envs, self.num_agents), bool)
         final = np.zeros_like(self._obs)
-        stats: dict[str, list[float]] = {key: [] for key, info_key in self.stat_keys.items() if info_key}
+        stats: dict[str, list[float]] = {key: [] for key in self._stat_last}
         for world, env in enumerate(self.envs):
             if self._over[world]:
                 continue
@@ -166,6 +179,7 @@ class VectorParallelEnv:
             self._world_steps[world] += 1
             full = self._first_episode[world] or self._world_steps[world] % CHECK_EVERY == 0
             self._write_obs(final, world, observations, full=bool(full))
+            self._record_stats(world, infos)
             for agent, r in rew.items():
                 rewards[world, self._index[agent]] = r
             terminated[world] = [agent not in live or (term.get(agent, False) and not trunc.get(agent, False))
@@ -175,9 +189,9 @@ class VectorParallelEnv:
                 ended[world] = True
                 self._first_episode[world] = False
                 for key, values in stats.items():
-                    found = [float(info[self.stat_keys[key]]) for info in infos.values()
-                             if self.stat_keys[key] in info]
-                    values.append(float(np.mean(found)) if found else 0.0)
+                    found = self._stat_last[key][world]
+                    found = found[~np.isnan(found)]
+                    values.append(float(found.mean()) if found.size else 0.0)
         self._returns += rewards
         idx = np.flatnonzero(ended)
         episode: dict[str, np.ndarray] = {"return": self._returns[idx].copy(), "length": self._t[idx].copy()}
