@@ -9,8 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cmcl.config import load_config
 from cmcl.envs.factory import EnvFactoryError, load_factory
 from cmcl.envs.parallel_vector import CHECK_EVERY, ObservationError, VectorParallelEnv
+from cmcl.loop.inline import InlineLoop
+from tests.test_own_env import TINY
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBE = "tests.probe_env:parallel_env"
@@ -29,6 +32,7 @@ def play(env, steps):
         if ended.any():
             parts.append(info["episode"])
     return parts
+
 
 # ----- item 6: agents that left count with their final state ----------------------------------------------------
 def test_success_and_coverage_count_agents_that_left_early_with_their_final_state():
@@ -84,6 +88,39 @@ def test_mpe2_observations_pass_the_full_check_at_every_step():
                                          {"continuous_actions": True, "max_cycles": 25}), 2, 25, seed=0)
     env._first_episode[:] = True
     play(env, 25)  # the first episode of each world is checked in full
+
+
+# ----- item 8: λ follows the steps taken ---------------------------------------------------------------------------
+def lambdas(max_cycles):
+    cfg = load_config(None, [f"env.factory={PROBE}", f"env.factory_kwargs={{max_cycles={max_cycles}}}",
+                             "env.episode_length=10", *TINY, "run.episodes=40", "run.smoothing_window=4"])
+    loop = InlineLoop(cfg, None, progress=None)
+    rows = []
+    while loop.counters["episodes"] < cfg.run.episodes:
+        rows += loop.env_step()
+    return [row["lambda"] for row in rows], loop.schedule.lam
+
+
+def test_lambda_reaches_its_maximum_on_schedule_when_episodes_are_shorter_than_episode_length():
+    short, short_end = lambdas(5)  # every episode ends after 5 of the 10 budgeted steps
+    full, full_end = lambdas(10)
+    assert full_end == 1.0 and short_end == 1.0, "before: 0.568 (200 of the 400 budgeted steps taken)"
+    assert short == full, "λ per episode does not depend on how long the episodes were"
+    assert 0.1 < short[len(short) // 4] < 1.0 and short[-1] == 1.0
+
+
+def test_the_replay_server_counts_whole_episodes_on_the_budget_clock():
+    from services.replay_server import ReplayServer
+    from services.rollout import RolloutWorker
+    from tests.tiny import make_tiny_config
+
+    cfg = make_tiny_config("cmcl", service=True, sections={
+        "env": {"factory": PROBE, "factory_kwargs": {"max_cycles": 5}, "episode_length": 10}}).to_dict()
+    replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
+    for _ in range(3):
+        replay.insert(worker.rollout(None)[0])
+    assert replay.counters["inserts"] == 3 * 4 * 5  # the rows played
+    assert replay.schedule.env_steps == 3 * 4 * 10  # before: 60, the rows; now every episode counts 10 steps
 
 
 # ----- item 11: an AEC environment -----------------------------------------------------------------------------------
