@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from typing import Literal, get_args
 
 from cmcl.config import Config, ConfigError, load_config
+from cmcl.envs.factory import EnvFactoryError
 from cmcl.io.rundir import MetricsError, RunDirectory
 from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
 from cmcl.io.verified import CheckpointError
@@ -132,6 +133,7 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
             lock.release()
             raise
     config = load_config(request.config_file, overrides)
+    check_environment(config)
     check_warm_start(config)
     from cmcl.carried_replay import check_carry_source  # numpy only: no torch, no Ray
 
@@ -169,6 +171,16 @@ def resumed_config(run_dir: RunDirectory, overrides: tuple[str, ...], request: R
     return config
 
 
+def check_environment(config: Config) -> None:
+    """Build one world of `env.factory` (load, spaces, teams, the observations of a reset) before the new run's
+    directory exists: EnvFactoryError naming what does not fit, so that a fixed command can reuse the run.dir."""
+    if not config.env.factory:
+        return
+    from cmcl.system import make_batched_env  # numpy and the user's env only: no torch, no Ray
+
+    make_batched_env(config, num_envs=1, seed=0).close()
+
+
 def check_warm_start(config: Config) -> None:
     """Refuse a run.init_from whose policy this config cannot load (no run, no policy, other network shapes) with a
     ConfigError naming the field and the value, before the new run's directory exists."""
@@ -186,15 +198,21 @@ def check_warm_start(config: Config) -> None:
 
 def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, RunLock], int]) -> int:
     """Open the run (`open_run`) and call `train(config, run_dir, lock)` while holding its lock; returns its exit
-    code, or 2 after printing the error when the run cannot be opened (nothing in the directory changed then)."""
+    code, or 2 after printing the error when the run cannot be opened (nothing in the directory changed then) or
+    when the user's environment (`env.factory`) cannot be used (EnvFactoryError: an AEC env, an unsupported space,
+    an observation that does not fit its space, ...)."""
     try:
         config, run_dir, lock = open_run(request)
-    except (CheckpointError, ConfigError, FileExistsError, FileNotFoundError, MetricsError, RunDirectoryInUse,
-            RunRequestError) as err:
+    except (CheckpointError, ConfigError, EnvFactoryError, FileExistsError, FileNotFoundError, MetricsError,
+            RunDirectoryInUse, RunRequestError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     with lock:
-        return train(config, run_dir, lock)
+        try:
+            return train(config, run_dir, lock)
+        except EnvFactoryError as err:  # the user's environment, built or stepped: one line, no traceback
+            print(f"error: {err}", file=sys.stderr)
+            return 2
 
 
 def add_run_flags(parser: argparse.ArgumentParser, *, new_run: bool = True) -> None:

@@ -35,6 +35,7 @@ from cmcl.messages import (
     check_teacher_scores,
 )
 from cmcl.replay import buffer_steps
+from cmcl.replay.curriculum import unplayed_steps
 from cmcl.replay.dedupe import InsertLedger
 from cmcl.replay.pacing import pacing_from_config
 from cmcl.replay.scoring import ScoringState
@@ -155,7 +156,8 @@ class ReplayServer:
         self.counters["episodes"] += chunk.worlds
         self.counters["chunks"] += 1
         self.pacing.record_insert(n)
-        self.schedule.advance(n)
+        # whole episodes: λ's clock counts each one as env.episode_length steps, however long it was
+        self.schedule.advance(n + unplayed_steps(np.bincount(chunk.env_index), self.config.env.episode_length))
         self.dirty = True
 
     # ------------------------------------------------------------------ replay -> learner

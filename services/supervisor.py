@@ -22,6 +22,7 @@ import ray
 
 from cmcl.algorithms import early_notes, sampling_name
 from cmcl.config import Config
+from cmcl.envs.factory import EnvFactoryError
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
 from cmcl.learning_progress import LearningProgress
@@ -158,6 +159,8 @@ class Supervisor:
                 value = ray.get(ref)
             except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError,
                     ray.exceptions.ObjectLostError) as err:
+                if isinstance(getattr(err, "cause", None), EnvFactoryError):  # the user's env (an observation that
+                    raise err.cause from None  # does not fit its space): a retry meets it again; the CLI says it
                 self._failed(kind, index, err)
                 continue
             self._apply(kind, index, value, number)

@@ -79,8 +79,8 @@ class EnvConfig:
                                                 factory=dict)
     team_of: dict[str, str] = documented(meaning="agent id -> team, for env.factory; default: the id's prefix "
                                          "(adversary_0 -> adversary)", factory=dict)
-    success_key: str = documented("", "the env's per-agent `info` key read as episode success at its last step "
-                                  "('': none)")
+    success_key: str = documented("", "the env's per-agent `info` key read as episode success: the mean over agents "
+                                  "of each one's last value, an agent that left early counting with its own ('': none)")
     coverage_key: str = documented("", "likewise for coverage in [0, 1] (what run.stop_coverage watches)")
 
     def __post_init__(self) -> None:

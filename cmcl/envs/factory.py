@@ -54,12 +54,14 @@ class AgentSpec:
 
 
 def load_factory(path: str, kwargs: Mapping[str, Any] | None = None) -> Callable[[], Any]:
-    """'package.module:callable' -> a function of no arguments that builds one environment (`callable(**kwargs)`)."""
+    """'package.module:callable' -> a function of no arguments that builds one environment (`callable(**kwargs)`);
+    EnvFactoryError when it returns an AEC environment (naming the module's `parallel_env` when it has one)."""
     module_name, _, attr = path.partition(":")
     try:
-        target: Any = importlib.import_module(module_name)
+        module = importlib.import_module(module_name)
     except ImportError as err:
         raise EnvFactoryError(f"env.factory {path!r}: cannot import module {module_name!r} ({err})") from None
+    target: Any = module
     for part in attr.split("."):
         if not hasattr(target, part):
             raise EnvFactoryError(f"env.factory {path!r}: module {module_name!r} has no attribute {attr!r}")
@@ -67,7 +69,24 @@ def load_factory(path: str, kwargs: Mapping[str, Any] | None = None) -> Callable
     if not callable(target):
         raise EnvFactoryError(f"env.factory {path!r}: {attr!r} is not callable")
     args = dict(kwargs or {})
-    return lambda: target(**args)
+
+    def build() -> Any:
+        env = target(**args)
+        if is_aec(env):  # it would pass `describe` (same attribute names) and fail at reset() with a bare TypeError
+            hint = (f"; use {module_name + ':parallel_env'!r}" if hasattr(module, "parallel_env") else
+                    "; wrap it with pettingzoo.utils.conversions.aec_to_parallel")
+            raise EnvFactoryError(f"env.factory {path!r} returned an AEC environment ({type(env).__name__}), which "
+                                  f"steps one agent at a time; cmcl needs a PettingZoo ParallelEnv{hint}")
+        return env
+
+    return build
+
+
+def is_aec(env: Any) -> bool:
+    """True for a PettingZoo AECEnv (or its wrappers): one agent acts per `step`, `reset` returns None."""
+    from pettingzoo.utils.env import AECEnv
+
+    return isinstance(env, AECEnv) or (hasattr(env, "agent_selection") and hasattr(env, "last"))
 
 
 def describe(env: Any, team_of: Mapping[str, str] | None = None, *, factory: str = "env.factory") -> list[AgentSpec]:

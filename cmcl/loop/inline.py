@@ -38,6 +38,7 @@ from cmcl.learning_progress import LearningProgress
 from cmcl.messages import LearnerFeedback, Rows
 from cmcl.progress import episode_rows, finished_episodes, progress_line, row_sampling_parts, solved, window_summary
 from cmcl.replay import buffer_steps
+from cmcl.replay.curriculum import unplayed_steps
 from cmcl.replay.pacing import pacing_from_config
 from cmcl.replay.scoring import ScoringState
 from cmcl.system import (
@@ -106,6 +107,8 @@ class InlineLoop:
         self.episodes.advance(info["episode_mask"])
         self.obs = next_obs
         self._run_due_updates(b)
+        if "length" in info["episode"]:  # env.factory worlds: λ's clock counts every episode as episode_length steps
+            self.schedule.advance(unplayed_steps(info["episode"]["length"], cfg.env.episode_length))
         rows = self._episode_rows(info) if info["episode_mask"].any() else []
         if rows:
             self.counters["rounds"] += 1

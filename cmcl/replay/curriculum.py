@@ -7,7 +7,12 @@ in the service) owns one `CurriculumSchedule`, calls `advance(n)` as steps arriv
     linear:          λ_t = min(λ_max, λ_0 + Δλ · t_learn)
     multiplicative:  λ_t = min(λ_max, λ_0 · (1 + κ)^t_learn)       (CHER-style alternative)
 
-with t_learn = max(0, env_steps − warmup_steps), all counted in environment steps (transitions).
+with t_learn = max(0, env_steps − warmup_steps), all counted in environment steps (transitions) on the budget's
+clock: an episode counts `env.episode_length` steps however long it was, since the run's budget (and the default
+stride's ramp) is run.episodes × episode_length. The step counters add, when an episode ends early, the steps it did
+not take (`unplayed_steps`); otherwise λ lags on environments with shorter episodes (mpe2 simple_push, 25-step
+episodes under a 30-step episode_length, 200 episodes: the default stride reached λ_max at episode 121 instead of
+101, a stride set to reach it at the budget's end stopped at 0.84). Fixed-length episodes add 0.
 """
 
 from __future__ import annotations
@@ -15,7 +20,15 @@ from __future__ import annotations
 import math
 import numbers
 
+import numpy as np
+
 KINDS = ("linear", "multiplicative")
+
+
+def unplayed_steps(lengths: np.ndarray, episode_length: int) -> int:
+    """Σ (episode_length − length) over ended episodes of `lengths` int[M]: the budgeted steps they did not take,
+    which the schedule's clock counts when they end (0 for episodes of episode_length steps)."""
+    return int(np.maximum(0, int(episode_length) - np.asarray(lengths, np.int64)).sum())
 
 
 def ramp_steps(total_env_steps: int) -> int:
@@ -43,7 +56,8 @@ class CurriculumSchedule:
         lam0: initial λ_0 (0 < λ_0 <= λ_max).
         lam_max: cap λ_max (<= 1, the largest λ for which KP is defined).
         stride: Δλ per post-warm-up env step (linear kind), >= 0.
-        warmup_steps: env steps before λ starts to move (§5: 3840 = batch 128 × 30-step episodes).
+        warmup_steps: env steps (on the same clock) before λ starts to move (§5: 3840 = batch 128 × 30-step
+            episodes).
         kind: "linear" (default) or "multiplicative".
         growth: κ per post-warm-up env step (multiplicative kind), >= 0. Default reaches 1.0 from 0.1 after
             300 000 steps, like the default linear stride.
