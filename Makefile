@@ -103,6 +103,7 @@ BENCHMARL_VENV := .venv-benchmarl
 PEER_ALGORITHM ?= mappo
 PEER_SECONDS ?= 300
 PEER_SEED ?= 0
+PEER_ARGS ?=
 peer-benchmarl:
 	test -x $(BENCHMARL_VENV)/bin/python || $(PYTHON) -m venv $(BENCHMARL_VENV)
 	$(BENCHMARL_VENV)/bin/python -m pip install --quiet $(TORCH)
@@ -112,7 +113,7 @@ peer-benchmarl:
 		"pyvers>=0.2,<0.3" tqdm hydra-core "av<14"
 	OMP_NUM_THREADS=1 nice -n 10 $(BENCHMARL_VENV)/bin/python bench/peer_benchmarl.py --algorithm $(PEER_ALGORITHM) \
 		--seconds $(PEER_SECONDS) --seed $(PEER_SEED) \
-		--out bench/results/peer_benchmarl/$(PEER_ALGORITHM)_seed$(PEER_SEED).json
+		--out bench/results/peer_benchmarl/$(PEER_ALGORITHM)_seed$(PEER_SEED).json $(PEER_ARGS)
 
 clean:
 	rm -rf $(VENV) .pytest_cache

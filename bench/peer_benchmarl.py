@@ -170,11 +170,11 @@ class Track(Callback):
         self.ends.extend([t] * int(idx.numel()))
         state["frames"] += int(flat.numel())
         state["batches"] += 1
-        ma = float(np.mean(cov[-MA_WINDOW:])) if cov else float("nan")
+        ma = float(np.mean(cov[-MA_WINDOW:])) if cov else None  # None (JSON null) until an episode ends
         self.curve.append({"seconds": round(t, 2), "episodes": len(cov), "env_steps": state["frames"],
                            "ma100_coverage": ma})
         print(f"t={t:7.1f}s batch={state['batches']} episodes={len(cov)} env_steps={state['frames']} "
-              f"ma100_coverage={ma:.3f}", flush=True)
+              f"ma100_coverage={'-' if ma is None else f'{ma:.3f}'}", flush=True)
         if t >= self.budget:
             raise BudgetReached
 
