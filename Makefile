@@ -14,7 +14,7 @@ TEST_ARGS ?=
 # Appended to a training command: its exit status after a graceful stop (130 Ctrl-C, 143 SIGTERM) is not an error.
 STOPPED_IS_OK := || { status=$$?; [ $$status -eq 130 ] || [ $$status -eq 143 ] || exit $$status; }
 
-.PHONY: install system-deps run resume demo test test-deploy lint bench peer clean
+.PHONY: install system-deps run resume demo test test-deploy lint bench peer peer-benchmarl clean
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -93,6 +93,27 @@ peer:
 	$(PEER)/bin/python -m pip install --quiet lazy-loader importlib_metadata orjson pyvers huggingface_hub \
 		safetensors tokenizers typer
 	OMP_NUM_THREADS=1 $(PEER)/bin/python bench/peer_agilerl.py --seed 0 --out bench/results/peer_agilerl/agilerl_seed0.json
+
+# The BenchMARL peer (issue 39): BenchMARL 1.5.2 MAPPO / MADDPG on our sparse navigation through TorchRL's
+# PettingZooWrapper, in its own venv; --no-deps throughout (benchmarl -> torchrl -> torch would replace the CPU
+# torch). torchvision (a declared BenchMARL dependency, never imported by BenchMARL's code) is left out: PyPI's
+# torchvision 0.28.0 wheel links libtorch_cuda.so and fails to import next to the CPU torch ("operator
+# torchvision::nms does not exist"). See bench/peer_benchmarl.py and docs/PERFORMANCE.md "BenchMARL peer (set-up)".
+BENCHMARL_VENV := .venv-benchmarl
+PEER_ALGORITHM ?= mappo
+PEER_SECONDS ?= 300
+PEER_SEED ?= 0
+PEER_ARGS ?=
+peer-benchmarl:
+	test -x $(BENCHMARL_VENV)/bin/python || $(PYTHON) -m venv $(BENCHMARL_VENV)
+	$(BENCHMARL_VENV)/bin/python -m pip install --quiet $(TORCH)
+	$(BENCHMARL_VENV)/bin/python -m pip install --quiet -e .
+	$(BENCHMARL_VENV)/bin/python -m pip install --quiet --no-deps benchmarl==1.5.2 torchrl==0.11.1 tensordict==0.11.0
+	$(BENCHMARL_VENV)/bin/python -m pip install --quiet cloudpickle packaging importlib_metadata orjson \
+		"pyvers>=0.2,<0.3" tqdm hydra-core "av<14"
+	OMP_NUM_THREADS=1 nice -n 10 $(BENCHMARL_VENV)/bin/python bench/peer_benchmarl.py --algorithm $(PEER_ALGORITHM) \
+		--seconds $(PEER_SECONDS) --seed $(PEER_SEED) \
+		--out bench/results/peer_benchmarl/$(PEER_ALGORITHM)_seed$(PEER_SEED).json $(PEER_ARGS)
 
 clean:
 	rm -rf $(VENV) .pytest_cache
