@@ -168,6 +168,7 @@ class EntityCritic(nn.Module):
 
     :meth:`q_agent`: obs float32[G, R, N, obs_dim], act float32[G, R, N, act_dim], agent int64[G, R]
     -> Q float32[G, R], the Q of agent agent[g, r] on row r.
+    :meth:`q_own_action`: MADDPG's actor step, per-owner rows with the owner's own action replaced (G = 1).
     :meth:`forward` is StackedMLP's critic signature on the joint input (nets.joint_input, [..., N·obs_dim +
     N·act_dim]), for G = 1: shared rows [M, in] -> [A, M, 1] (A = len(members), default N); per-owner rows
     [N', S, in] -> [N', S, 1], owner v's rows scored by agent members[v] (default v).
@@ -194,9 +195,45 @@ class EntityCritic(nn.Module):
         self.register_buffer("_needs", torch.as_tensor(layout.needs_agents), persistent=False)  # [N, E]
         shown = torch.as_tensor(layout.entity_agent)
         self.register_buffer("_shown", torch.where(shown < 0, n, shown), persistent=False)  # [N, E]; n = none
+        self._sees_itself = bool((shown == torch.arange(n).unsqueeze(1)).any())  # a slot of agent i showing i
 
     def q_agent(self, obs: torch.Tensor, act: torch.Tensor, agent: torch.Tensor,
                 count: torch.Tensor | None = None) -> torch.Tensor:
+        g, r = obs.shape[:2]
+        return self.value(self.encoder(*self._views(obs, act, agent, count))).view(g, r)
+
+    def q_own_action(self, obs: torch.Tensor, act: torch.Tensor, own_act: torch.Tensor,
+                     count: torch.Tensor | None = None) -> torch.Tensor:
+        """MADDPG's actor step (eq. 4) on per-owner rows, owner v scored by agent v with its own action replaced:
+        obs float32[N, S, N, obs_dim], act float32[N, S, N, act_dim] (the buffer's), own_act float32[N, S, act_dim]
+        (count int64[N, S] or None) -> Q float32[N, S], the same numbers as :meth:`forward` on the joint input with
+        act[v, :, v] replaced by own_act[v].
+
+        Agent v's entity slots show only the other agents (``_sees_itself`` False for every built-in layout), so
+        own_act enters Q_v through the own features alone: the entity slots are built from the buffer's actions,
+        and the backward pass to own_act skips the entity embeddings (the costly [S, E, H] part), whose gradient
+        with respect to own_act is exactly 0 on the joint path.
+        """
+        n, s = obs.shape[:2]
+        if n != self.num_agents:
+            raise ValueError(f"q_own_action takes one owner per agent [N={self.num_agents}, S, ...], got {n}")
+        rows = (1, n * s)
+        agent = torch.arange(n).repeat_interleave(s).view(rows)
+        count = None if count is None else count.reshape(rows)
+        if self._sees_itself:  # a layout whose slots show the agent itself: the joint path
+            own = torch.eye(n, dtype=torch.bool).view(n, 1, n, 1)
+            act = torch.where(own, own_act.unsqueeze(2), act)
+            return self.q_agent(obs.reshape(*rows, *obs.shape[2:]), act.reshape(*rows, *act.shape[2:]), agent,
+                                count).view(n, s)
+        own, ents, mask = self._views(obs.reshape(*rows, *obs.shape[2:]), act.reshape(*rows, *act.shape[2:]),
+                                      agent, count)
+        own = torch.cat([own[..., :-self.act_dim], own_act.reshape(*rows, self.act_dim)], -1)
+        return self.value(self.encoder(own, ents, mask)).view(n, s)
+
+    def _views(self, obs: torch.Tensor, act: torch.Tensor, agent: torch.Tensor, count: torch.Tensor | None
+               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The encoder's inputs of q_agent: own float32[G, R, S + A], entities float32[G, R, E, F + S + A], mask
+        bool[G, R, E]."""
         g, r, n, od = obs.shape
         rows = g * r
         ag = agent.reshape(rows)
@@ -210,8 +247,7 @@ class EntityCritic(nn.Module):
         mask = self._mask[ag]
         if count is not None:
             mask = entities_present(mask, self._needs[ag], count.reshape(rows))
-        z = self.encoder(known[at, ag].view(g, r, -1), ents.view(g, r, *ents.shape[1:]), mask.view(g, r, -1))
-        return self.value(z).view(g, r)
+        return known[at, ag].view(g, r, -1), ents.view(g, r, *ents.shape[1:]), mask.view(g, r, -1)
 
     def forward(self, x: torch.Tensor, members: torch.Tensor | None = None,
                 count: torch.Tensor | None = None) -> torch.Tensor:

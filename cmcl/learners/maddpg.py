@@ -271,8 +271,12 @@ class MADDPG(MADDPGCheckpoint):
         own_obs = obs[self._agents, :, self._agents]  # [N, S, obs_dim]
         count = None if presence is None else presence.count
         pi, raw = self._policy(self.actor, own_obs, True, count)  # [N, S, act_dim]
-        joint_act = torch.where(self._own_mask, pi.unsqueeze(2), act)  # [N, S, N, act_dim]
-        loss = -row_mean(self._q(self.critic, joint_input(obs, joint_act), None, count), None, presence)  # [N]
+        if self.networks == "entity":  # the buffer's actions fill the entity slots; pi_v enters Q_v as its own
+            q = self.critic.q_own_action(obs, act, pi, count)  # [N, S], as the joint path below, fewer backward ops
+        else:
+            joint_act = torch.where(self._own_mask, pi.unsqueeze(2), act)  # [N, S, N, act_dim]
+            q = self._q(self.critic, joint_input(obs, joint_act), None, count)
+        loss = -row_mean(q, None, presence)  # [N]
         if self.discrete:
             l2 = raw.pow(2).mean((1, 2)) if presence is None else row_mean(raw.pow(2).mean(2), None, presence)
             loss = loss + self.logit_l2 * l2
