@@ -235,3 +235,31 @@ def test_the_fused_pools_give_the_reference_encoders_numbers(pool):
             grads.append([p.grad.clone() for p in encoder.parameters()])
         for a, b in zip(*grads, strict=True):
             torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)
+
+
+def test_nearest_entities_is_an_opt_in_that_keeps_the_closest_of_each_kind():
+    """k >= E: every entity is kept (the same actions within float tolerance, the entities reordered); k = 1:
+    only the nearest landmark and the nearest other agent reach the action, moving a farther one changes nothing."""
+    n = 4
+    layout = spread_layout(n)
+    gen = torch.Generator().manual_seed(0)
+    full = EntityActor(layout, 2, 16, gen, out_act=torch.nn.Tanh)
+    pos, vel, lm = world(n, seed=6)
+    obs = spread_obs(pos, vel, lm).transpose(0, 1)  # [N, M, obs_dim]
+    all_kept = EntityActor(layout, 2, 16, gen, out_act=torch.nn.Tanh, nearest=2 * n)
+    all_kept.load_state_dict(full.state_dict())
+    torch.testing.assert_close(all_kept(obs), full(obs), atol=1e-6, rtol=1e-5)
+    one = EntityActor(layout, 2, 16, gen, out_act=torch.nn.Tanh, nearest=1)
+    one.load_state_dict(full.state_dict())
+    rel = lm[:, None] - pos[:, :, None]  # [M, N, L, 2]: landmark l seen from agent i
+    far = np.linalg.norm(rel, axis=-1).argmax(-1)[:, 0]  # agent 0's farthest landmark in each row
+    moved = lm.copy()
+    moved[np.arange(len(lm)), far] += 0.5 * rel[np.arange(len(lm)), 0, far]  # farther still, along its direction
+    moved_obs = spread_obs(pos, vel, moved).transpose(0, 1)
+    torch.testing.assert_close(one(moved_obs)[0], one(obs)[0])
+    assert not torch.allclose(full(moved_obs)[0], full(obs)[0], atol=1e-5)
+    _, critic = nets(n)
+    near_critic = EntityCritic(layout, 2, 32, gen, nearest=2 * n)
+    near_critic.load_state_dict(critic.state_dict())
+    x = joint_input(spread_obs(pos, vel, lm), torch.rand(6, n, 2, generator=gen))
+    torch.testing.assert_close(near_critic(x), critic(x), atol=1e-6, rtol=1e-5)

@@ -39,7 +39,7 @@ from torch import nn
 from cmcl.envs.entities import ABSENT, EntityLayout, entities_present
 from cmcl.learners.nets import StackedLinear, StackedMLP
 
-__all__ = ["POOLS", "EntityActor", "EntityCritic", "EntityEncoder", "EntityFeatures"]
+__all__ = ["POOLS", "EntityActor", "EntityCritic", "EntityEncoder", "EntityFeatures", "nearest_entities"]
 
 # the encoder's pooling over entities (maddpg.entity_pool); "relational" is "attention" after one round of
 # self-attention among the entities (EntityEncoder)
@@ -53,6 +53,23 @@ def masked_softmax(logits: torch.Tensor, mask: torch.Tensor | None) -> torch.Ten
     if mask is not None:
         logits = logits.masked_fill(~mask, float("-inf"))
     return torch.softmax(logits, -1).nan_to_num(0.0)
+
+
+def nearest_entities(entities: torch.Tensor, mask: torch.Tensor, k: int, types: slice
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The k nearest present entities of each kind (an opt-in, ``nearest`` of the entity actor and critic; 0, the
+    default, keeps them all): entities float32[..., E, F], whose first two features are the entity's position
+    relative to the agent (every built-in layout, cmcl.envs.entities) and `types` the columns of the type one-hot,
+    mask bool[..., E] -> float32[..., T·k', F], bool[..., T·k'] (k' = min(k, E); a kind with fewer than k' present
+    entities fills its picks with absent ones). Closest first within a kind; ties go to the lower slot."""
+    e = entities.shape[-2]
+    kinds = entities[..., types].detach() > 0.5  # [..., E, T]
+    dist = entities[..., :2].detach().square().sum(-1).masked_fill(~mask, float("inf"))  # [..., E]
+    dist = dist.unsqueeze(-2).masked_fill(~kinds.transpose(-1, -2), float("inf"))  # [..., T, E]
+    value, index = dist.topk(min(int(k), e), -1, largest=False)  # [..., T, k']
+    index = index.flatten(-2)
+    picked = entities.gather(-2, index.unsqueeze(-1).expand(*index.shape, entities.shape[-1]))
+    return picked, value.flatten(-2).isfinite()
 
 
 class EntityEncoder(nn.Module):
@@ -131,9 +148,10 @@ class EntityActor(nn.Module):
     """
 
     def __init__(self, layout: EntityLayout, act_dim: int, hidden: int, generator: torch.Generator,
-                 out_act: type[nn.Module] | None = None, pool: str = "attention"):
+                 out_act: type[nn.Module] | None = None, pool: str = "attention", nearest: int = 0):
         super().__init__()
         self.layout, self.num_agents, self.act_dim = layout, layout.num_agents, int(act_dim)
+        self.nearest, self._type_cols = int(nearest), _type_columns(layout)
         self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim, hidden, generator, pool)
         self.head = StackedMLP(1, self.encoder.out_dim, (hidden,), act_dim, out_act=out_act, generator=generator)
 
@@ -145,6 +163,8 @@ class EntityActor(nn.Module):
         own, ents, mask = self.layout.split(x.transpose(0, 1))  # [B, N, S], [B, N, E, F], [B, N, E]
         if count is not None:
             mask = self.layout.present_mask(count.transpose(0, 1))
+        if self.nearest:
+            ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         z = self.encoder(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
         return self.head(z).view(x.shape[1], self.num_agents, self.act_dim).transpose(0, 1)
 
@@ -180,9 +200,10 @@ class EntityCritic(nn.Module):
     """
 
     def __init__(self, layout: EntityLayout, act_dim: int, hidden: int, generator: torch.Generator,
-                 groups: int = 1, pool: str = "attention"):
+                 groups: int = 1, pool: str = "attention", nearest: int = 0):
         super().__init__()
         self.layout, self.num_agents, self.act_dim, self.groups = layout, layout.num_agents, int(act_dim), int(groups)
+        self.nearest, self._type_cols = int(nearest), _type_columns(layout)
         self.obs_dim = layout.obs_dim
         own_in = layout.own_dim + act_dim
         self.encoder = EntityEncoder(groups, own_in, layout.entity_dim + own_in, hidden, generator, pool)
@@ -250,6 +271,8 @@ class EntityCritic(nn.Module):
         mask = self._mask[ag]
         if count is not None:
             mask = entities_present(mask, self._needs[ag], count.reshape(rows))
+        if self.nearest:
+            ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         return known[at, ag].view(g, r, -1), ents.view(g, r, *ents.shape[1:]), mask.view(g, r, -1)
 
     def forward(self, x: torch.Tensor, members: torch.Tensor | None = None,
@@ -279,3 +302,9 @@ class EntityCritic(nn.Module):
         obs = x[..., :split].unflatten(-1, (n, self.obs_dim))
         act = x[..., split:].unflatten(-1, (n, self.act_dim))
         return self.q_agent(obs, act, agent, count)
+
+
+def _type_columns(layout: EntityLayout) -> slice:
+    """The columns of the type one-hot in an entity row (after the P raw features), for nearest_entities."""
+    raw = layout.entity_index.shape[2]
+    return slice(raw, raw + len(layout.type_names))
