@@ -3,9 +3,10 @@
 One `MADDPG.update` on a per-owner minibatch [N, S, N, ...] of random rows (S = 128 by default), per-agent
 (`maddpg.networks = "per_agent"`) and entity networks (`"entity"`, cmcl.learners.entity_nets) built side by side in
 this process and timed in interleaved rounds (the machine is shared: absolute times are noisy, the ratio is the
-measure). Printed: median ms per update of each and ``ratio: X`` = entity / per-agent. ``--nearest K`` adds the
-entity networks that read only the K nearest entities of each kind (an opt-in, off by default). ``--profile``
-also prints where an update spends its time (torch.profiler, by phase and by op).
+measure). Printed: median ms per update of each, ``ratio: X`` = entity / per-agent, and the same ratio of the
+entity learner as it ran before issue 38 (`before_issue_38`: the same weights and numbers, the old actor step).
+``--nearest K`` adds the entity networks that read only the K nearest entities of each kind (an opt-in, off by
+default). ``--profile`` also prints where an update spends its time (torch.profiler, by phase and by op).
 
 Run: .venv/bin/python bench/entity_cost.py [--agents 8] [--batch 128] [--nearest 3] [--profile]
 The whole inline update (sampling included) at N = 4, 8, 16: bench/scale.py --algorithm maddpg.
@@ -25,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from cmcl.envs.entities import spread_layout  # noqa: E402
 from cmcl.learners.maddpg import MADDPG  # noqa: E402
+from cmcl.learners.nets import joint_input  # noqa: E402
 
 PHASES = ("_critic_step", "_td_targets_t", "_actor_step")  # MADDPG methods timed as profiler phases
 
@@ -33,11 +35,26 @@ def learners(n: int, nearest: int) -> dict[str, MADDPG]:
     """Navigation's learners for N agents: per-agent, entity (and entity with the K nearest entities)."""
     layout = spread_layout(n)
     cells = {"per_agent": MADDPG(n, layout.obs_dim, 2, seed=0),
-             "entity": MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity", entity_layout=layout)}
+             "entity": MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity", entity_layout=layout),
+             "entity_before": before_issue_38(MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity",
+                                                     entity_layout=layout))}
     if nearest:
         cells[f"entity_nearest{nearest}"] = MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity",
                                                    entity_layout=layout, entity_nearest=nearest)
     return cells
+
+
+def before_issue_38(m: MADDPG) -> MADDPG:
+    """The entity learner as it ran before issue 38: the actor step's Q on the joint input (pi written into the
+    joint action, the backward pass through every entity slot); the same numbers (tests/test_entity_nets.py)."""
+    own_mask = torch.eye(m.num_agents, dtype=torch.bool).view(m.num_agents, 1, m.num_agents, 1)
+
+    def joint_q(obs, act, own_act, count=None):
+        joint = torch.where(own_mask, own_act.unsqueeze(2), act)
+        return m._q(m.critic, joint_input(obs, joint), None, count)
+
+    m.critic.q_own_action = joint_q
+    return m
 
 
 def batch(n: int, s: int, obs_dim: int) -> dict[str, torch.Tensor]:

@@ -199,44 +199,6 @@ def test_q_own_action_gives_the_joint_paths_values_and_gradients(pool, task):
         torch.testing.assert_close(own_b.grad, own_a.grad, atol=1e-6, rtol=1e-6)
 
 
-def reference_encoder(encoder, own, ents, mask):
-    """The encoder as first written (einsum attention, a separate masked mean), to check the fused pools against."""
-    g, r, e, f = ents.shape
-    s = encoder.own(own).relu()
-    h = encoder.entity(ents.reshape(g, r * e, f)).relu().view(g, r, e, encoder.hidden)
-    everyone = bool(mask.all())
-    if encoder.pool == "relational":
-        h = encoder.relate(h, mask, everyone)
-    weight = mask.to(h.dtype)
-    mean = (h * weight.unsqueeze(-1)).sum(-2) / weight.sum(-1, keepdim=True).clamp(min=1.0)
-    if encoder.pool == "mean":
-        return torch.cat([s, mean], -1)
-    q = encoder.query(s) / encoder.hidden ** 0.5
-    logits = torch.einsum("greh,grh->gre", h, q).masked_fill(~mask, float("-inf"))
-    alpha = torch.softmax(logits, -1).nan_to_num(0.0)
-    return torch.cat([s, torch.einsum("gre,greh->grh", alpha, h), mean], -1)
-
-
-@pytest.mark.parametrize("pool", POOLS)
-def test_the_fused_pools_give_the_reference_encoders_numbers(pool):
-    gen = torch.Generator().manual_seed(3)
-    encoder = EntityEncoder(2, 4, 5, 16, gen, pool=pool)
-    own, ents = torch.randn(2, 40, 4, generator=gen), torch.randn(2, 40, 7, 5, generator=gen)
-    some = torch.rand(2, 40, 7, generator=gen) < 0.6
-    some[0, 0] = False  # a row with nothing present
-    for mask in (torch.ones(2, 40, 7, dtype=torch.bool), some):
-        with torch.no_grad():
-            torch.testing.assert_close(encoder(own, ents, mask), reference_encoder(encoder, own, ents, mask),
-                                       atol=1e-6, rtol=1e-5)
-        grads = []
-        for forward in (encoder, lambda *x: reference_encoder(encoder, *x)):
-            encoder.zero_grad()
-            forward(own, ents, mask).square().sum().backward()
-            grads.append([p.grad.clone() for p in encoder.parameters()])
-        for a, b in zip(*grads, strict=True):
-            torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)
-
-
 def test_nearest_entities_is_an_opt_in_that_keeps_the_closest_of_each_kind():
     """k >= E: every entity is kept (the same actions within float tolerance, the entities reordered); k = 1:
     only the nearest landmark and the nearest other agent reach the action, moving a farther one changes nothing."""

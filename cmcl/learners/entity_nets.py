@@ -117,27 +117,24 @@ class EntityEncoder(nn.Module):
 
     def forward(self, own: torch.Tensor, entities: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         g, r, e, f = entities.shape
-        hid = self.hidden
         s = self.own(own).relu_()  # [G, R, H] (in place: torch.relu on a fresh tensor runs ~5x slower here)
         if e == 0:
-            return torch.cat([s, *[torch.zeros_like(s)] * (self.out_dim // hid - 1)], -1)
-        h = self.entity(entities.reshape(g, r * e, f)).relu_().view(g, r, e, hid)  # [G, R, E, H]
+            return torch.cat([s, *[torch.zeros_like(s)] * (self.out_dim // self.hidden - 1)], -1)
+        h = self.entity(entities.reshape(g, r * e, f)).relu_().view(g, r, e, self.hidden)  # [G, R, E, H]
         everyone = bool(mask.all())
         if self.pool == "relational":
             h = self.relate(h, mask, everyone)
-        rows = h.view(g * r, e, hid)
-        present = None if everyone else mask.reshape(g * r, 1, e)
-        if everyone:  # the mean pool as weights over the entities, [GR, 1, E]
-            mean_w = h.new_full((g * r, 1, e), 1.0 / e)
+        if everyone:
+            mean = h.mean(-2)
         else:
-            weight = present.to(h.dtype)
-            mean_w = weight / weight.sum(-1, keepdim=True).clamp(min=1.0)
+            weight = mask.to(h.dtype)
+            mean = (h * weight.unsqueeze(-1)).sum(-2) / weight.sum(-1, keepdim=True).clamp(min=1.0)
         if self.pool == "mean":
-            return torch.cat([s, torch.bmm(mean_w, rows).view(g, r, hid)], -1)
-        q = (self.query(s) / math.sqrt(hid)).view(g * r, 1, hid)
-        alpha = masked_softmax(torch.bmm(q, rows.transpose(1, 2)), present)  # [GR, 1, E]
-        pools = torch.bmm(torch.cat([alpha, mean_w], 1), rows)  # [GR, 2, H]: attention and mean pool in one pass
-        return torch.cat([s, pools.view(g, r, 2 * hid)], -1)
+            return torch.cat([s, mean], -1)
+        q = self.query(s) / math.sqrt(self.hidden)  # [G, R, H]
+        alpha = masked_softmax(torch.einsum("greh,grh->gre", h, q), None if everyone else mask)  # [G, R, E]
+        pooled = torch.einsum("gre,greh->grh", alpha, h)  # [G, R, H]
+        return torch.cat([s, pooled, mean], -1)
 
 
 class EntityActor(nn.Module):
