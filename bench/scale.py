@@ -14,7 +14,7 @@ final moving-average coverage and success, episodes to MA 0.5 / 0.9 and wall sec
 `--out` (default bench/results/scale/); a rerun skips finished runs and resumes an interrupted one from its
 latest checkpoint (every 2,000 episodes; its clock goes on from there).
 
-Run: .venv/bin/python bench/scale.py [--algorithm cmcl] [--agents 4 8 16]
+Run: .venv/bin/python bench/scale.py [--algorithm cmcl] [--agents 4 8 16] [--before-issue-38]
      .venv/bin/python bench/scale.py --learn 20000 --agents 8 --seeds 0 1 2
 """
 
@@ -61,10 +61,18 @@ def parameter_counts(loop: InlineLoop) -> tuple[int, int]:
     return learner, sum(p.numel() for m in modules for p in m.parameters())
 
 
-def update_cost(algorithm: str, agents: list[int], rounds: int, updates: int, networks: list[str]) -> None:
+def update_cost(algorithm: str, agents: list[int], rounds: int, updates: int, networks: list[str],
+                before: bool = False) -> None:
     """Median ms per inline update for every (N, network kind) cell, interleaved, and the ratio to the first
-    cell (the smallest N with the first kind)."""
+    cell (the smallest N with the first kind); `before`: also the entity learner as it ran before issue 38
+    (bench.entity_cost.before_issue_38: the same numbers, the old actor step), as kind "entity_before"."""
     cells = {(n, kind): filled_loop(algorithm, overrides(n, kind)) for n in agents for kind in networks}
+    if before:
+        from bench.entity_cost import before_issue_38
+
+        for n in agents:
+            cells[(n, "entity_before")] = loop = filled_loop(algorithm, overrides(n, "entity"))
+            before_issue_38(loop.maddpg)
     seconds: dict[tuple[int, str], list[float]] = {cell: [] for cell in cells}
     for _ in range(rounds):
         for cell, loop in cells.items():
@@ -130,11 +138,13 @@ def main() -> None:
     parser.add_argument("--networks", nargs="+", default=list(NETWORKS), choices=list(NETWORKS),
                         help="network kinds (NETWORKS; with --learn, two processes can split them)")
     parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "scale"))
+    parser.add_argument("--before-issue-38", action="store_true",
+                        help="cost: also time the entity learner as it ran before issue 38 (bench/entity_cost.py)")
     args = parser.parse_args()
     if args.learn:
         learn(args.algorithm, args.agents, args.seeds, args.learn, Path(args.out), args.networks)
     else:
-        update_cost(args.algorithm, args.agents, args.rounds, args.updates, args.networks)
+        update_cost(args.algorithm, args.agents, args.rounds, args.updates, args.networks, args.before_issue_38)
 
 
 if __name__ == "__main__":

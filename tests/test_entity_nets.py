@@ -169,3 +169,59 @@ def test_the_relational_round_lets_one_entity_see_another_and_keeps_absent_ones_
     mask[..., 1] = False
     torch.testing.assert_close(encoder.relate(embed(moved), mask, False)[..., 0, :],
                                encoder.relate(embed(ents), mask, False)[..., 0, :])
+
+
+def joint_path_q(critic, obs, act, own_act, count=None):
+    """The actor step's Q before q_own_action: own_act written into the joint action, the full joint input."""
+    n = obs.shape[0]
+    joint = torch.where(torch.eye(n, dtype=torch.bool).view(n, 1, n, 1), own_act.unsqueeze(2), act)
+    return critic(joint_input(obs, joint), count=count)[..., 0]
+
+
+@pytest.mark.parametrize("pool", POOLS)
+@pytest.mark.parametrize("task", ["spread", "tag"])
+def test_q_own_action_gives_the_joint_paths_values_and_gradients(pool, task):
+    """The actor step's shortcut (entity slots from the buffer's actions) against the joint path: the same Q and
+    the same gradient with respect to the own actions, with and without absent agents."""
+    layout = spread_layout(4) if task == "spread" else tag_layout(TagParams())
+    n, s = layout.num_agents, 9
+    gen = torch.Generator().manual_seed(1)
+    critic = EntityCritic(layout, 2, 16, gen, pool=pool)
+    obs, act = torch.randn(n, s, n, layout.obs_dim, generator=gen), torch.rand(n, s, n, 2, generator=gen) * 2 - 1
+    for count in (None, torch.randint(1, n + 1, (n, s), generator=gen) if task == "spread" else None):
+        own_a = (torch.rand(n, s, 2, generator=gen) * 2 - 1).requires_grad_()
+        own_b = own_a.detach().clone().requires_grad_()
+        q_joint = joint_path_q(critic, obs, act, own_a, count)
+        q_own = critic.q_own_action(obs, act, own_b, count)
+        torch.testing.assert_close(q_own, q_joint, atol=1e-6, rtol=1e-6)
+        q_joint.sum().backward()
+        q_own.sum().backward()
+        torch.testing.assert_close(own_b.grad, own_a.grad, atol=1e-6, rtol=1e-6)
+
+
+def test_nearest_entities_is_an_opt_in_that_keeps_the_closest_of_each_kind():
+    """k >= E: every entity is kept (the same actions within float tolerance, the entities reordered); k = 1:
+    only the nearest landmark and the nearest other agent reach the action, moving a farther one changes nothing."""
+    n = 4
+    layout = spread_layout(n)
+    gen = torch.Generator().manual_seed(0)
+    full = EntityActor(layout, 2, 16, gen, out_act=torch.nn.Tanh)
+    pos, vel, lm = world(n, seed=6)
+    obs = spread_obs(pos, vel, lm).transpose(0, 1)  # [N, M, obs_dim]
+    all_kept = EntityActor(layout, 2, 16, gen, out_act=torch.nn.Tanh, nearest=2 * n)
+    all_kept.load_state_dict(full.state_dict())
+    torch.testing.assert_close(all_kept(obs), full(obs), atol=1e-6, rtol=1e-5)
+    one = EntityActor(layout, 2, 16, gen, out_act=torch.nn.Tanh, nearest=1)
+    one.load_state_dict(full.state_dict())
+    rel = lm[:, None] - pos[:, :, None]  # [M, N, L, 2]: landmark l seen from agent i
+    far = np.linalg.norm(rel, axis=-1).argmax(-1)[:, 0]  # agent 0's farthest landmark in each row
+    moved = lm.copy()
+    moved[np.arange(len(lm)), far] += 0.5 * rel[np.arange(len(lm)), 0, far]  # farther still, along its direction
+    moved_obs = spread_obs(pos, vel, moved).transpose(0, 1)
+    torch.testing.assert_close(one(moved_obs)[0], one(obs)[0])
+    assert not torch.allclose(full(moved_obs)[0], full(obs)[0], atol=1e-5)
+    _, critic = nets(n)
+    near_critic = EntityCritic(layout, 2, 32, gen, nearest=2 * n)
+    near_critic.load_state_dict(critic.state_dict())
+    x = joint_input(spread_obs(pos, vel, lm), torch.rand(6, n, 2, generator=gen))
+    torch.testing.assert_close(near_critic(x), critic(x), atol=1e-6, rtol=1e-5)

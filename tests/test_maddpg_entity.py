@@ -86,3 +86,12 @@ def test_discrete_entity_actors_update():
     assert np.isfinite(out["critic_loss"]).all() and np.isfinite(out["actor_loss"]).all()
     probs = m.act(rows["obs"][:6], 0.0)
     np.testing.assert_allclose(probs.sum(-1), 1.0, atol=1e-5)
+
+
+def test_nearest_entities_are_an_opt_in_of_the_entity_learner():
+    m = entity_maddpg(entity_nearest=2)
+    assert m.actor.nearest == m.critic.nearest == 2 and entity_maddpg().actor.nearest == 0
+    out = m.update(owner_batch(joint_rows(od=OD, n=N), n=N))
+    assert np.isfinite(out["critic_loss"]).all() and np.isfinite(out["actor_loss"]).all()
+    with pytest.raises(ValueError, match="nearest entities need entity networks"):
+        MADDPG(N, OD, 2, entity_nearest=2)

@@ -39,7 +39,7 @@ from torch import nn
 from cmcl.envs.entities import ABSENT, EntityLayout, entities_present
 from cmcl.learners.nets import StackedLinear, StackedMLP
 
-__all__ = ["POOLS", "EntityActor", "EntityCritic", "EntityEncoder", "EntityFeatures"]
+__all__ = ["POOLS", "EntityActor", "EntityCritic", "EntityEncoder", "EntityFeatures", "nearest_entities"]
 
 # the encoder's pooling over entities (maddpg.entity_pool); "relational" is "attention" after one round of
 # self-attention among the entities (EntityEncoder)
@@ -53,6 +53,23 @@ def masked_softmax(logits: torch.Tensor, mask: torch.Tensor | None) -> torch.Ten
     if mask is not None:
         logits = logits.masked_fill(~mask, float("-inf"))
     return torch.softmax(logits, -1).nan_to_num(0.0)
+
+
+def nearest_entities(entities: torch.Tensor, mask: torch.Tensor, k: int, types: slice
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The k nearest present entities of each kind (an opt-in, ``nearest`` of the entity actor and critic; 0, the
+    default, keeps them all): entities float32[..., E, F], whose first two features are the entity's position
+    relative to the agent (every built-in layout, cmcl.envs.entities) and `types` the columns of the type one-hot,
+    mask bool[..., E] -> float32[..., T·k', F], bool[..., T·k'] (k' = min(k, E); a kind with fewer than k' present
+    entities fills its picks with absent ones). Closest first within a kind; ties go to the lower slot."""
+    e = entities.shape[-2]
+    kinds = entities[..., types].detach() > 0.5  # [..., E, T]
+    dist = entities[..., :2].detach().square().sum(-1).masked_fill(~mask, float("inf"))  # [..., E]
+    dist = dist.unsqueeze(-2).masked_fill(~kinds.transpose(-1, -2), float("inf"))  # [..., T, E]
+    value, index = dist.topk(min(int(k), e), -1, largest=False)  # [..., T, k']
+    index = index.flatten(-2)
+    picked = entities.gather(-2, index.unsqueeze(-1).expand(*index.shape, entities.shape[-1]))
+    return picked, value.flatten(-2).isfinite()
 
 
 class EntityEncoder(nn.Module):
@@ -128,9 +145,10 @@ class EntityActor(nn.Module):
     """
 
     def __init__(self, layout: EntityLayout, act_dim: int, hidden: int, generator: torch.Generator,
-                 out_act: type[nn.Module] | None = None, pool: str = "attention"):
+                 out_act: type[nn.Module] | None = None, pool: str = "attention", nearest: int = 0):
         super().__init__()
         self.layout, self.num_agents, self.act_dim = layout, layout.num_agents, int(act_dim)
+        self.nearest, self._type_cols = int(nearest), _type_columns(layout)
         self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim, hidden, generator, pool)
         self.head = StackedMLP(1, self.encoder.out_dim, (hidden,), act_dim, out_act=out_act, generator=generator)
 
@@ -142,6 +160,8 @@ class EntityActor(nn.Module):
         own, ents, mask = self.layout.split(x.transpose(0, 1))  # [B, N, S], [B, N, E, F], [B, N, E]
         if count is not None:
             mask = self.layout.present_mask(count.transpose(0, 1))
+        if self.nearest:
+            ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         z = self.encoder(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
         return self.head(z).view(x.shape[1], self.num_agents, self.act_dim).transpose(0, 1)
 
@@ -168,6 +188,7 @@ class EntityCritic(nn.Module):
 
     :meth:`q_agent`: obs float32[G, R, N, obs_dim], act float32[G, R, N, act_dim], agent int64[G, R]
     -> Q float32[G, R], the Q of agent agent[g, r] on row r.
+    :meth:`q_own_action`: MADDPG's actor step, per-owner rows with the owner's own action replaced (G = 1).
     :meth:`forward` is StackedMLP's critic signature on the joint input (nets.joint_input, [..., N·obs_dim +
     N·act_dim]), for G = 1: shared rows [M, in] -> [A, M, 1] (A = len(members), default N); per-owner rows
     [N', S, in] -> [N', S, 1], owner v's rows scored by agent members[v] (default v).
@@ -176,9 +197,10 @@ class EntityCritic(nn.Module):
     """
 
     def __init__(self, layout: EntityLayout, act_dim: int, hidden: int, generator: torch.Generator,
-                 groups: int = 1, pool: str = "attention"):
+                 groups: int = 1, pool: str = "attention", nearest: int = 0):
         super().__init__()
         self.layout, self.num_agents, self.act_dim, self.groups = layout, layout.num_agents, int(act_dim), int(groups)
+        self.nearest, self._type_cols = int(nearest), _type_columns(layout)
         self.obs_dim = layout.obs_dim
         own_in = layout.own_dim + act_dim
         self.encoder = EntityEncoder(groups, own_in, layout.entity_dim + own_in, hidden, generator, pool)
@@ -194,9 +216,45 @@ class EntityCritic(nn.Module):
         self.register_buffer("_needs", torch.as_tensor(layout.needs_agents), persistent=False)  # [N, E]
         shown = torch.as_tensor(layout.entity_agent)
         self.register_buffer("_shown", torch.where(shown < 0, n, shown), persistent=False)  # [N, E]; n = none
+        self._sees_itself = bool((shown == torch.arange(n).unsqueeze(1)).any())  # a slot of agent i showing i
 
     def q_agent(self, obs: torch.Tensor, act: torch.Tensor, agent: torch.Tensor,
                 count: torch.Tensor | None = None) -> torch.Tensor:
+        g, r = obs.shape[:2]
+        return self.value(self.encoder(*self._views(obs, act, agent, count))).view(g, r)
+
+    def q_own_action(self, obs: torch.Tensor, act: torch.Tensor, own_act: torch.Tensor,
+                     count: torch.Tensor | None = None) -> torch.Tensor:
+        """MADDPG's actor step (eq. 4) on per-owner rows, owner v scored by agent v with its own action replaced:
+        obs float32[N, S, N, obs_dim], act float32[N, S, N, act_dim] (the buffer's), own_act float32[N, S, act_dim]
+        (count int64[N, S] or None) -> Q float32[N, S], the same numbers as :meth:`forward` on the joint input with
+        act[v, :, v] replaced by own_act[v].
+
+        Agent v's entity slots show only the other agents (``_sees_itself`` False for every built-in layout), so
+        own_act enters Q_v through the own features alone: the entity slots are built from the buffer's actions,
+        and the backward pass to own_act skips the entity embeddings (the costly [S, E, H] part), whose gradient
+        with respect to own_act is exactly 0 on the joint path.
+        """
+        n, s = obs.shape[:2]
+        if n != self.num_agents:
+            raise ValueError(f"q_own_action takes one owner per agent [N={self.num_agents}, S, ...], got {n}")
+        rows = (1, n * s)
+        agent = torch.arange(n).repeat_interleave(s).view(rows)
+        count = None if count is None else count.reshape(rows)
+        if self._sees_itself:  # a layout whose slots show the agent itself: the joint path
+            own = torch.eye(n, dtype=torch.bool).view(n, 1, n, 1)
+            act = torch.where(own, own_act.unsqueeze(2), act)
+            return self.q_agent(obs.reshape(*rows, *obs.shape[2:]), act.reshape(*rows, *act.shape[2:]), agent,
+                                count).view(n, s)
+        own, ents, mask = self._views(obs.reshape(*rows, *obs.shape[2:]), act.reshape(*rows, *act.shape[2:]),
+                                      agent, count)
+        own = torch.cat([own[..., :-self.act_dim], own_act.reshape(*rows, self.act_dim)], -1)
+        return self.value(self.encoder(own, ents, mask)).view(n, s)
+
+    def _views(self, obs: torch.Tensor, act: torch.Tensor, agent: torch.Tensor, count: torch.Tensor | None
+               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The encoder's inputs of q_agent: own float32[G, R, S + A], entities float32[G, R, E, F + S + A], mask
+        bool[G, R, E]."""
         g, r, n, od = obs.shape
         rows = g * r
         ag = agent.reshape(rows)
@@ -210,8 +268,9 @@ class EntityCritic(nn.Module):
         mask = self._mask[ag]
         if count is not None:
             mask = entities_present(mask, self._needs[ag], count.reshape(rows))
-        z = self.encoder(known[at, ag].view(g, r, -1), ents.view(g, r, *ents.shape[1:]), mask.view(g, r, -1))
-        return self.value(z).view(g, r)
+        if self.nearest:
+            ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
+        return known[at, ag].view(g, r, -1), ents.view(g, r, *ents.shape[1:]), mask.view(g, r, -1)
 
     def forward(self, x: torch.Tensor, members: torch.Tensor | None = None,
                 count: torch.Tensor | None = None) -> torch.Tensor:
@@ -240,3 +299,9 @@ class EntityCritic(nn.Module):
         obs = x[..., :split].unflatten(-1, (n, self.obs_dim))
         act = x[..., split:].unflatten(-1, (n, self.act_dim))
         return self.q_agent(obs, act, agent, count)
+
+
+def _type_columns(layout: EntityLayout) -> slice:
+    """The columns of the type one-hot in an entity row (after the P raw features), for nearest_entities."""
+    raw = layout.entity_index.shape[2]
+    return slice(raw, raw + len(layout.type_names))

@@ -56,6 +56,9 @@ class MADDPG(MADDPGCheckpoint):
             per-agent grad norms report its norm for every agent.
         entity_layout: how the flat observation splits into entities (cmcl.envs.entities); needed by "entity".
         entity_pool: the entity encoder's pooling, "attention" or "mean" (cmcl.learners.entity_nets).
+        entity_nearest: k > 0: the entity actor and critic read only the k nearest entities of each kind
+            (entity_nets.nearest_entities; cheaper, another model); 0 (default): every entity. An opt-in of the
+            learner alone: not a config setting, and the numpy twin of the actor (cmcl.learners.policy) ignores it.
         act_mask: float32[N, act_dim], 1 on the action entries each agent has and 0 on zero padding (agents whose
             action sizes differ); every actor output is multiplied by it, so the critics only ever see zeros there.
             None: every entry is used.
@@ -82,6 +85,7 @@ class MADDPG(MADDPGCheckpoint):
         entity_layout: EntityLayout | None = None,
         entity_pool: str = "attention",
         target_scores: bool = False,
+        entity_nearest: int = 0,
     ):
         self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
         # also return |y − Q_target(s, a)| per sampled row (ReLo's target loss; cmcl.algorithms Needs.learner_scores)
@@ -95,7 +99,7 @@ class MADDPG(MADDPGCheckpoint):
         self.networks = network_kind(networks, share_parameters)
         self.share_parameters = self.networks == "shared"
         self.actor, self.critic = build_networks(self.networks, n, obs_dim, act_dim, widths, discrete, gen,
-                                                 entity_layout, entity_pool)
+                                                 entity_layout, entity_pool, entity_nearest)
         self.target_actor = copy.deepcopy(self.actor).requires_grad_(False)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
         self.actor_opt = make_adam(self.actor.parameters(), actor_lr)
@@ -271,8 +275,12 @@ class MADDPG(MADDPGCheckpoint):
         own_obs = obs[self._agents, :, self._agents]  # [N, S, obs_dim]
         count = None if presence is None else presence.count
         pi, raw = self._policy(self.actor, own_obs, True, count)  # [N, S, act_dim]
-        joint_act = torch.where(self._own_mask, pi.unsqueeze(2), act)  # [N, S, N, act_dim]
-        loss = -row_mean(self._q(self.critic, joint_input(obs, joint_act), None, count), None, presence)  # [N]
+        if self.networks == "entity":  # the buffer's actions fill the entity slots; pi_v enters Q_v as its own
+            q = self.critic.q_own_action(obs, act, pi, count)  # [N, S], as the joint path below, fewer backward ops
+        else:
+            joint_act = torch.where(self._own_mask, pi.unsqueeze(2), act)  # [N, S, N, act_dim]
+            q = self._q(self.critic, joint_input(obs, joint_act), None, count)
+        loss = -row_mean(q, None, presence)  # [N]
         if self.discrete:
             l2 = raw.pow(2).mean((1, 2)) if presence is None else row_mean(raw.pow(2).mean(2), None, presence)
             loss = loss + self.logit_l2 * l2
