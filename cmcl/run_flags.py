@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal, get_args
 
-from cmcl.config import Config, ConfigError, load_config
+from cmcl.config import Config, ConfigError, config_from_dict, load_data
 from cmcl.io.rundir import MetricsError, RunDirectory
 from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
 from cmcl.io.verified import CheckpointError
@@ -127,11 +127,12 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
                 raise ResumeMismatch(f"{request.resume_dir} was written by the {' and '.join(sorted(written_by))} "
                                      f"runner; resume it with {resume_command(request.resume_dir)}")
             run_dir.check_no_unverifiable_checkpoint()
-            return resumed_config(run_dir, overrides, request), run_dir, lock
+            return checked(resumed_config(run_dir, overrides, request), request), run_dir, lock
         except BaseException:
             lock.release()
             raise
-    config = load_config(request.config_file, overrides)
+    data = load_data(request.config_file, overrides)
+    config = checked(config_from_dict(data), request, teams_given="teams" in data)
     check_warm_start(config)
     from cmcl.carried_replay import check_carry_source  # numpy only: no torch, no Ray
 
@@ -142,6 +143,17 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
     except BaseException:
         lock.release()
         raise
+
+
+def checked(config: Config, request: RunRequest, teams_given: bool = True) -> Config:
+    """`config` after `cmcl.preflight.preflight`: the environment built and stepped once, the teams matched (the env's
+    own, with default settings, when `teams_given` is false and they differ from the default team), the memory of
+    the worlds (of every rollout worker on the service) and the replay checked, unless the run joins a cluster
+    (--address: its nodes' memory is not this machine's). Raises ConfigError."""
+    from cmcl.preflight import preflight  # numpy and the env package: no torch, no Ray
+
+    workers = config.service.rollout_workers if request.runner == "service" else 1
+    return preflight(config, teams_given=teams_given, worker_processes=workers, check_memory=not request.address)
 
 
 def resumed_config(run_dir: RunDirectory, overrides: tuple[str, ...], request: RunRequest) -> Config:
