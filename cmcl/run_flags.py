@@ -198,15 +198,24 @@ def check_warm_start(config: Config) -> None:
 
 def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, RunLock], int]) -> int:
     """Open the run (`open_run`) and call `train(config, run_dir, lock)` while holding its lock; returns its exit
-    code, or 2 after printing the error when the run cannot be opened (nothing in the directory changed then)."""
+    code, or 2 after printing the error when the run cannot be opened (nothing in the directory changed then). A new
+    run that fails (an error exit or an exception, not a stop by signal) before its first episode is removed again,
+    its directory too when this command made it (`RunDirectory.discard_failed_start`)."""
     try:
         config, run_dir, lock = open_run(request)
     except (CheckpointError, ConfigError, FileExistsError, FileNotFoundError, MetricsError, RunDirectoryInUse,
             RunRequestError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    code = 1
     with lock:
-        return train(config, run_dir, lock)
+        try:
+            code = train(config, run_dir, lock)
+            return code
+        finally:  # a new run that failed before its first episode leaves nothing that blocks the retry
+            if code not in (0, 130, 143) and not request.resume_dir and run_dir.never_trained():
+                run_dir.discard_failed_start()
+                lock.discard()
 
 
 def add_run_flags(parser: argparse.ArgumentParser, *, new_run: bool = True) -> None:

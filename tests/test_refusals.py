@@ -43,9 +43,11 @@ def assert_one_line_refusal(done: subprocess.CompletedProcess, *named: str) -> N
     ("step", "its first step (every agent's middle action) raised ZeroDivisionError: division by zero"),
     ("bogus", "raised TypeError: Teams.__init__() got an unexpected keyword argument 'bogus'"),
 ])
-def test_an_error_of_the_users_environment_is_one_line_naming_env_factory(fail_in, named, tmp_path):
+@pytest.mark.parametrize("runner", ["inline", "service"])
+def test_an_error_of_the_users_environment_is_one_line_naming_env_factory(runner, fail_in, named, tmp_path):
+    """On the service the launcher builds the env before Ray starts: one line, not one traceback per actor."""
     kwargs = "env.factory_kwargs={bogus=1}" if fail_in == "bogus" else f'env.factory_kwargs={{fail_in="{fail_in}"}}'
-    done = run_cli("train", "--runner", "inline", "--set", TEAMS_ENV, "--set", kwargs, "--set",
+    done = run_cli("train", "--runner", runner, "--set", TEAMS_ENV, "--set", kwargs, "--set",
                    f"run.dir={tmp_path / 'run'}", *QUICK)
     assert_one_line_refusal(done, "env.factory 'tests.team_env:parallel_env'", named)
     assert not (tmp_path / "run").exists()
@@ -77,8 +79,9 @@ def test_teams_that_are_not_the_environments_are_one_line(tmp_path):
     ("env.num_envs=100000000", "env.num_envs = 100000000 needs about "),
     ("replay.capacity=1000000000000", "replay.capacity = 1000000000000 needs about "),
 ])
-def test_sizes_that_do_not_fit_in_memory_are_refused_before_allocating(setting, named, tmp_path):
-    done = run_cli("train", "--runner", "inline", "--set", setting, "--set", f"run.dir={tmp_path / 'run'}", *QUICK)
+@pytest.mark.parametrize("runner", ["inline", "service"])
+def test_sizes_that_do_not_fit_in_memory_are_refused_before_allocating(runner, setting, named, tmp_path):
+    done = run_cli("train", "--runner", runner, "--set", setting, "--set", f"run.dir={tmp_path / 'run'}", *QUICK)
     assert_one_line_refusal(done, named, "this machine has available")
     assert not (tmp_path / "run").exists()
 
@@ -93,3 +96,64 @@ def test_a_config_file_that_is_not_toml_text_is_named(kind, tmp_path):
     done = run_cli("train", "--runner", "inline", "--config", str(path), *QUICK)
     assert_one_line_refusal(done, f"config file {str(path)!r}",
                             "not UTF-8 text (byte 0x8f at offset 0)" if kind == "binary" else "is a directory")
+
+
+def test_a_start_that_fails_before_its_first_episode_leaves_nothing(tmp_path, capsys):
+    """Whatever ends a new run before its first episode (an error exit, an exception), its config.toml, run.lock,
+    empty checkpoints/ and the directory the command made are removed; a directory that existed is kept."""
+    from cmcl.run_flags import RunRequest, train_in_run
+
+    def fails(config, run_dir, lock):
+        assert run_dir.config_path.is_file() and run_dir.checkpoints.is_dir()
+        (run_dir.checkpoints / "service").mkdir()
+        return 2
+
+    def raises(config, run_dir, lock):
+        raise RuntimeError("an actor died")
+
+    run_dir = tmp_path / "new" / "run"
+    assert train_in_run(RunRequest(runner="inline", overrides=(f"run.dir={run_dir}",)), fails) == 2
+    assert not run_dir.exists()
+    with pytest.raises(RuntimeError, match="an actor died"):
+        train_in_run(RunRequest(runner="inline", overrides=(f"run.dir={run_dir}",)), raises)
+    assert not run_dir.exists()
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    assert train_in_run(RunRequest(runner="inline", overrides=(f"run.dir={kept}",)), fails) == 2
+    assert kept.is_dir() and list(kept.iterdir()) == []
+
+
+def test_what_a_failed_start_left_does_not_block_the_retry_and_resume_names_the_command_that_works(tmp_path):
+    """The leftovers of a failed start (of the code before: config.toml, run.lock, an empty checkpoints/) are not a
+    run: `train` takes the directory (before: "already holds a run; pass --resume DIR", a flag train does not
+    have), and `resume` prints the train command (before: "cannot tell which runner wrote")."""
+    from cmcl.config import dump_toml, load_config
+
+    run_dir = tmp_path / "run"
+    (run_dir / "checkpoints").mkdir(parents=True)
+    (run_dir / "run.lock").write_text("{}")
+    (run_dir / "config.toml").write_text(dump_toml(load_config(None, [f"run.dir={run_dir}"])))
+    resumed = run_cli("resume", str(run_dir))
+    assert_one_line_refusal(resumed, f"cannot tell which runner wrote {str(run_dir)!r}: it never trained",
+                            f"-m cmcl train --config {run_dir / 'config.toml'}")
+    done = run_cli("train", "--runner", "inline", "--set", f"run.dir={run_dir}", "--set", "env.num_envs=2", *QUICK)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert (run_dir / "summary.json").is_file()
+    again = run_cli("train", "--runner", "inline", "--set", f"run.dir={run_dir}", *QUICK)
+    assert_one_line_refusal(again, f"run.dir {str(run_dir)!r} already holds a run: continue it with ",
+                            f"-m cmcl resume {run_dir}, start over with --overwrite")
+
+
+def test_a_cluster_that_does_not_answer_is_one_line_within_seconds(tmp_path):
+    """--address of no cluster (a closed port): refused within the probe's timeout (Ray's own join retried for
+    150 s and more, with only its warnings), before the run directory is made."""
+    import socket
+
+    with socket.socket() as probe:  # a port nothing listens on
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    done = run_cli("train", "--address", f"127.0.0.1:{port}", "--set", f"run.dir={tmp_path / 'run'}", *QUICK,
+                   timeout=60)
+    assert_one_line_refusal(done, f"cannot join the Ray cluster at --address 127.0.0.1:{port}: no Ray cluster "
+                                  "answered at ", "s (Timed out while waiting for GCS")
+    assert not (tmp_path / "run").exists()

@@ -34,6 +34,9 @@ from cmcl.io.verified import CheckpointError, VerifiedFile, read_checked, write_
 from cmcl.provenance import provenance
 
 CHECKPOINT_GLOB = "ckpt_*.pt"
+# what a start that failed before its first episode leaves at the top of its run directory (with a `checkpoints/`
+# tree holding no data): nothing a retry must keep (`RunDirectory.never_trained`)
+START_LEFTOVERS = ("config.toml", "run.lock", "ray_shutdown.log")
 SERVICE_ROLES = ("learner", "icm")  # roles whose checkpoint is one VerifiedFile at checkpoints/service/<role>.pt
 
 
@@ -91,16 +94,46 @@ class RunDirectory:
     def create(cls, path: str | Path, config: Config, *, overwrite: bool = False) -> RunDirectory:
         """Make the folder and write the resolved config. Refuses a folder that already holds a run."""
         run = cls(path)
-        if run.config_path.exists() and not overwrite:
+        if run.config_path.exists() and not overwrite and not run.never_trained():
+            from cmcl.run_flags import resume_command
+
             raise FileExistsError(
-                f"run.dir {str(run.path)!r} already holds a run; pass --resume {run.path} to continue it "
-                f"or choose another run.dir")
+                f"run.dir {str(run.path)!r} already holds a run: continue it with {resume_command(run.path)}, start "
+                "over with --overwrite, or choose another run.dir")
         if overwrite:  # start over: no old metrics, and no old checkpoint a role could restore itself from
             shutil.rmtree(run.checkpoints, ignore_errors=True)
             run.metrics_path.unlink(missing_ok=True)
         run.checkpoints.mkdir(parents=True, exist_ok=True)
         atomic_write_bytes(run.config_path, dump_toml(config).encode())
         return run
+
+    def never_trained(self) -> bool:
+        """Whether this folder holds only what a start that failed before its first episode leaves: at its top no
+        file but START_LEFTOVERS, and under checkpoints/ no file with any data (no metrics row, no summary, no
+        checkpoint, no replay). Such a folder holds nothing to resume; a new run may take it."""
+        if not self.path.is_dir():
+            return False
+        for entry in self.path.iterdir():
+            if entry == self.checkpoints and entry.is_dir() and not entry.is_symlink():
+                if any(p.is_symlink() or (p.is_file() and p.stat().st_size) or not (p.is_file() or p.is_dir())
+                       for p in entry.rglob("*")):
+                    return False
+            elif entry.name not in START_LEFTOVERS or not entry.is_file():
+                return False
+        return True
+
+    def discard_failed_start(self) -> None:
+        """Remove what a start that failed before its first episode left (only when `never_trained`; run.lock is the
+        lock holder's to remove): a retry then meets no run in the way, and `resume` no half-made run."""
+        if not self.never_trained():
+            return
+        for name in START_LEFTOVERS:
+            if name != "run.lock":
+                (self.path / name).unlink(missing_ok=True)
+        if self.checkpoints.is_dir():
+            for p in sorted(self.checkpoints.rglob("*"), key=lambda p: len(p.parts), reverse=True):
+                p.unlink() if p.is_file() else p.rmdir()
+            self.checkpoints.rmdir()
 
     @classmethod
     def open(cls, path: str | Path) -> RunDirectory:

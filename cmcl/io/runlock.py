@@ -9,6 +9,7 @@ reaper, `services.reaper`) holds it too, so a new writer waits until the old run
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import json
 import os
@@ -29,8 +30,8 @@ class RunLock:
     """The held lock of one run directory. `acquire` takes it or raises `RunDirectoryInUse`; `release` (or the
     process's exit) gives it back. `fd` is the open descriptor, for a child that must hold the lock as well."""
 
-    def __init__(self, path: Path, fd: int):
-        self.path, self.fd = path, fd
+    def __init__(self, path: Path, fd: int, made_dir: bool = False):
+        self.path, self.fd, self.made_dir = path, fd, made_dir
 
     @classmethod
     def acquire(cls, run_dir: str | Path, command: str | None = None) -> RunLock:
@@ -38,6 +39,7 @@ class RunLock:
 
         command: what to name this holder by in a refusal (default: this process's argv)."""
         directory = Path(run_dir)
+        made_dir = not directory.exists()
         directory.mkdir(parents=True, exist_ok=True)
         path = directory / LOCK_NAME
         fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
@@ -59,7 +61,7 @@ class RunLock:
                   "command": command or holder_command()}
         os.ftruncate(fd, 0)
         os.pwrite(fd, json.dumps(holder).encode(), 0)
-        return cls(path, fd)
+        return cls(path, fd, made_dir)
 
     def release(self) -> None:
         """Give the lock back (idempotent)."""
@@ -67,6 +69,16 @@ class RunLock:
             fcntl.flock(self.fd, fcntl.LOCK_UN)
             os.close(self.fd)
             self.fd = -1
+
+    def discard(self) -> None:
+        """Remove the lock file while still holding it, then release it; remove the run directory too when
+        `acquire` made it and it is now empty (a start that failed leaves no trace)."""
+        if self.fd >= 0:
+            self.path.unlink(missing_ok=True)
+            self.release()
+            if self.made_dir:
+                with contextlib.suppress(OSError):
+                    self.path.parent.rmdir()
 
     def __enter__(self) -> RunLock:
         return self
