@@ -12,6 +12,7 @@ The service runner runs the same checks in the launcher before Ray starts (`test
 
 from __future__ import annotations
 
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -157,3 +158,70 @@ def test_a_cluster_that_does_not_answer_is_one_line_within_seconds(tmp_path):
     assert_one_line_refusal(done, f"cannot join the Ray cluster at --address 127.0.0.1:{port}: no Ray cluster "
                                   "answered at ", "s (Timed out while waiting for GCS")
     assert not (tmp_path / "run").exists()
+
+
+def trained_run(tiny_config, path: Path, episodes: int = 4, every: int = 4):
+    """A tiny inline run in `path`, trained in this process, checkpointed every `every` episodes."""
+    from cmcl.io.rundir import RunDirectory
+    from cmcl.loop import InlineLoop
+
+    config = tiny_config("maddpg", dir=str(path), episodes=episodes, checkpoint_every=every, log_every=every)
+    run_dir = RunDirectory.create(path, config)
+    InlineLoop(config, run_dir, progress=None).run()
+    return run_dir
+
+
+def test_evaluate_refuses_episodes_that_do_not_fit_and_a_file_that_is_not_a_policy(tmp_path, tiny_config):
+    """--episodes 10⁸ (one world each: 26.8 GiB asked of numpy, a traceback) and --checkpoint at a verified file
+    that is no policy (the run's replay snapshot: torch's UnpicklingError, a traceback) are one line each."""
+    run_dir = trained_run(tiny_config, tmp_path / "run")
+    done = run_cli("evaluate", str(run_dir.path), "--episodes", "100000000", "--no-gif")
+    assert_one_line_refusal(done, "--episodes = 100000000 needs about ", "this machine has available")
+    snapshot = run_dir.checkpoints / "replay_00000004.msgpack"
+    done = run_cli("evaluate", str(run_dir.path), "--checkpoint", str(snapshot), "--episodes", "4", "--no-gif")
+    assert_one_line_refusal(done, f"--checkpoint {snapshot} is not a policy checkpoint of this run "
+                                  "(UnpicklingError: Weights only load failed)")
+
+
+def test_a_metrics_file_that_is_a_directory_is_named_by_every_command(tmp_path, tiny_config):
+    run_dir = trained_run(tiny_config, tmp_path / "run")
+    run_dir.metrics_path.unlink()
+    run_dir.metrics_path.mkdir()
+    named = f"{run_dir.metrics_path} is a directory, not the run's metrics file; move it away"
+    assert_one_line_refusal(run_cli("evaluate", str(run_dir.path), "--episodes", "4", "--no-gif"), named)
+    assert_one_line_refusal(run_cli("resume", str(run_dir.path), "--more-episodes", "2", "--quiet"), named)
+    assert_one_line_refusal(run_cli("train", "--runner", "inline", "--config", str(run_dir.config_path),
+                                    "--overwrite", *QUICK), named)
+    assert run_dir.metrics_path.is_dir() and (run_dir.checkpoints / "ckpt_00000004.pt").is_file()
+
+
+def test_evaluate_of_a_read_only_run_directory_only_reads_it(tmp_path, tiny_config):
+    """The run directory mounted read-only (a private mount namespace): the evaluation is printed, and the GIF and
+    the learning curve are said not written (before: an OSError traceback from writing learning_curve.png)."""
+    import shutil
+
+    run_dir = trained_run(tiny_config, tmp_path / "run")
+    if shutil.which("unshare") is None or subprocess.run(["unshare", "-m", "true"]).returncode != 0:
+        pytest.skip("no private mount namespace here (unshare -m)")
+    path = shlex.quote(str(run_dir.path))
+    done = subprocess.run(["unshare", "-m", "sh", "-c", f"mount --bind {path} {path} && mount -o remount,bind,ro "
+                           f"{path} {path} && exec {shlex.quote(sys.executable)} -m cmcl evaluate {path} --episodes 4"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stdout + done.stderr
+    assert f"gif: not written, {run_dir.path} is read-only (pass --gif PATH to write it elsewhere)" in done.stdout
+    assert f"learning curve: not written, {run_dir.path} is read-only" in done.stdout
+    assert not (run_dir.path / "learning_curve.png").exists() and not (run_dir.path / "eval.gif").exists()
+
+
+def test_evaluate_says_when_it_falls_back_to_an_older_checkpoint(tmp_path, tiny_config):
+    """The newest checkpoint bit-flipped: evaluate takes the one before, and says so, naming the refused file."""
+    run_dir = trained_run(tiny_config, tmp_path / "run", episodes=8, every=4)
+    newest = run_dir.checkpoints / "ckpt_00000008.pt"
+    data = bytearray(newest.read_bytes())
+    data[100] ^= 0x01
+    newest.write_bytes(bytes(data))
+    done = run_cli("evaluate", str(run_dir.path), "--episodes", "4", "--no-gif")
+    assert done.returncode == 0, done.stderr
+    notes = [line for line in done.stderr.splitlines() if line.startswith("note: ")]
+    assert notes == [f"note: evaluating {run_dir.checkpoints / 'ckpt_00000004.pt'}, an older checkpoint: refused "
+                     f"{newest}: SHA-256 differs from its checksum (corrupted)"], done.stderr

@@ -89,6 +89,7 @@ class RunDirectory:
         self.metrics_path = self.path / "metrics.jsonl"
         self.config_path = self.path / "config.toml"
         self._tail_checked = self._torn_said = False  # metrics.jsonl: torn last line set aside / said (`rows`)
+        self.refused_policies: list[str] = []  # what the last `newest_policy` refused on its way ("file: reason")
 
     @classmethod
     def create(cls, path: str | Path, config: Config, *, overwrite: bool = False) -> RunDirectory:
@@ -100,6 +101,7 @@ class RunDirectory:
             raise FileExistsError(
                 f"run.dir {str(run.path)!r} already holds a run: continue it with {resume_command(run.path)}, start "
                 "over with --overwrite, or choose another run.dir")
+        run.check_metrics_file()
         if overwrite:  # start over: no old metrics, and no old checkpoint a role could restore itself from
             shutil.rmtree(run.checkpoints, ignore_errors=True)
             run.metrics_path.unlink(missing_ok=True)
@@ -188,6 +190,7 @@ class RunDirectory:
         after it raises MetricsError naming the file and the line."""
         if not self.metrics_path.exists():
             return
+        self.check_metrics_file()
         bad: tuple[int, str] | None = None  # a line that did not parse, until it proves not to be the last
         with self.metrics_path.open("rb") as handle:
             for number, line in enumerate(handle, 1):
@@ -204,6 +207,12 @@ class RunDirectory:
         if bad is not None and not self._torn_said:
             self._torn_said = True
             print(f"metrics: ignored the torn last line of {self.metrics_path} (line {bad[0]})", file=sys.stderr)
+
+    def check_metrics_file(self) -> None:
+        """MetricsError naming metrics.jsonl when something other than a file (a directory, ...) has its name."""
+        if self.metrics_path.exists() and not self.metrics_path.is_file():
+            kind = "a directory" if self.metrics_path.is_dir() else "not a regular file"
+            raise MetricsError(f"{self.metrics_path} is {kind}, not the run's metrics file; move it away")
 
     def truncate_rows_after(self, episodes: int) -> None:
         """On resume: drop rows logged after the checkpoint (row["episodes"] > episodes), atomically."""
@@ -289,18 +298,22 @@ class RunDirectory:
 
         Inline: the newest `ckpt_*.pt` whose manifest digest matches (a refused one is skipped for the one
         before it). Service: the learner's newest generation that matches its manifest (else the previous one).
+        Every file refused on the way is in `refused_policies` afterwards ("file: reason").
         """
         import torch
 
         found: list[PolicyCheckpoint] = []
+        self.refused_policies = []
         for path in reversed(self.inline_checkpoints().values()):
             try:
                 found.append(PolicyCheckpoint(path, "inline", load_checkpoint(path), path.stat().st_mtime))
                 break
-            except (CheckpointError, OSError, RuntimeError):
+            except (CheckpointError, OSError, RuntimeError) as err:
+                self.refused_policies.append(str(err) if str(path) in str(err) else f"{path}: {err}")
                 continue
         learner = VerifiedFile(self.service_dir / "learner.pt")
         loaded = learner.load()
+        self.refused_policies += loaded.refused
         if loaded.payload is not None and loaded.generation is not None:
             path = learner.file_of(loaded.generation)
             try:
