@@ -12,6 +12,8 @@ the env package only (no torch, no Ray).
 from __future__ import annotations
 
 import dataclasses
+import errno
+import socket
 import tracemalloc
 from collections.abc import Callable
 from pathlib import Path
@@ -93,6 +95,23 @@ def _close(env: Any) -> None:
             close()
         except Exception:  # noqa: BLE001, S110 - a failing close of a probe env changes nothing
             pass
+
+
+def check_port_free(host: str, port: int, key: str) -> None:
+    """ConfigError naming `key` when TCP `port` on `host` cannot be bound now (in use, or a host not of this
+    machine); port 0 (any free port) always passes."""
+    if port == 0:
+        return
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the HTTP server binds it
+        try:
+            probe.bind((host, port))
+        except OSError as err:
+            if err.errno == errno.EADDRINUSE:
+                raise ConfigError(f"{key} = {port} is in use on {host}: pass --metrics-port 0 for a free port, or "
+                                  "another port") from None
+            raise ConfigError(f"service.metrics_host = {host!r} cannot serve {key} = {port} here "
+                              f"({err.strerror or err}): pass --metrics-host with an address of this machine") from None
 
 
 # ----- memory ---------------------------------------------------------------------------------------------------
@@ -204,4 +223,4 @@ def check_worlds_fit(config: Config, worlds: int, flag: str) -> None:
     refuse_unless_fits({flag: (worlds, per_world * worlds, f"{worlds} worlds ({size(per_world)} each)")}, available)
 
 
-__all__ = ["available_memory", "check_memory_fits", "check_worlds_fit", "preflight"]
+__all__ = ["available_memory", "check_memory_fits", "check_port_free", "check_worlds_fit", "preflight"]

@@ -26,7 +26,8 @@ from cmcl.io.verified import CheckpointError
 
 Runner = Literal["inline", "service"]
 RUNNERS: tuple[str, ...] = get_args(Runner)
-SERVICE_ONLY_FLAGS = {"address": "--address", "num_cpus": "--num-cpus", "ray_metrics_port": "--ray-metrics-port"}
+SERVICE_ONLY_FLAGS = {"address": "--address", "num_cpus": "--num-cpus", "ray_metrics_port": "--ray-metrics-port",
+                      "metrics_port": "--metrics-port", "metrics_host": "--metrics-host"}  # the inline runner serves no metrics
 
 
 class RunRequestError(ValueError):
@@ -80,7 +81,8 @@ class RunRequest:
             for field, flag in SERVICE_ONLY_FLAGS.items():
                 if getattr(self, field) is not None:
                     raise RunRequestError(f"{flag} {getattr(self, field)} is a flag of the service runner; the inline "
-                                          "runner trains in this process (use --runner service)")
+                                          "runner trains in this process, without Ray or a metrics endpoint (use "
+                                          "--runner service)")
 
     def config_overrides(self) -> tuple[str, ...]:
         """The `--set` overrides followed by those the metrics flags stand for."""
@@ -149,10 +151,14 @@ def checked(config: Config, request: RunRequest, teams_given: bool = True) -> Co
     """`config` after `cmcl.preflight.preflight`: the environment built and stepped once, the teams matched (the env's
     own, with default settings, when `teams_given` is false and they differ from the default team), the memory of
     the worlds (of every rollout worker on the service) and the replay checked, unless the run joins a cluster
-    (--address: its nodes' memory is not this machine's). Raises ConfigError."""
-    from cmcl.preflight import preflight  # numpy and the env package: no torch, no Ray
+    (--address: its nodes' memory is not this machine's); on the service, service.metrics_port free. Raises
+    ConfigError."""
+    from cmcl.preflight import check_port_free, preflight  # numpy and the env package: no torch, no Ray
 
-    workers = config.service.rollout_workers if request.runner == "service" else 1
+    service = request.runner == "service"
+    if service:  # the launcher serves it once Ray has started: a port in use is named before
+        check_port_free(config.service.metrics_host, config.service.metrics_port, "service.metrics_port")
+    workers = config.service.rollout_workers if service else 1
     return preflight(config, teams_given=teams_given, worker_processes=workers, check_memory=not request.address)
 
 
@@ -232,10 +238,10 @@ def add_run_flags(parser: argparse.ArgumentParser, *, new_run: bool = True) -> N
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
     parser.add_argument("--no-eval", action="store_true",
                         help="skip the held-out evaluation, the GIF and the learning curve at the end")
-    parser.add_argument("--metrics-port", type=int, default=None,
-                        help="Prometheus port of the service (default service.metrics_port; 0 picks a free one)")
-    parser.add_argument("--metrics-host", default=None, help="bind address of the metrics (default 127.0.0.1)")
     service = parser.add_argument_group("service runner only")
+    service.add_argument("--metrics-port", type=int, default=None,
+                         help="Prometheus port of the service (default service.metrics_port; 0 picks a free one)")
+    service.add_argument("--metrics-host", default=None, help="bind address of the metrics (default 127.0.0.1)")
     service.add_argument("--address", default=None,
                          help="Ray cluster to join ('auto' after `ray start --head`); default: embedded Ray")
     service.add_argument("--num-cpus", type=int, default=None,

@@ -150,7 +150,12 @@ def run_service(config: Config, run_dir: RunDirectory, *, resume: bool = False, 
     from services.supervisor import Supervisor
 
     metrics = ServiceMetrics(seed=config.run.seed)
-    port = metrics.serve(config.service.metrics_port, config.service.metrics_host)
+    host, port = config.service.metrics_host, config.service.metrics_port
+    try:
+        port = metrics.serve(port, host)
+    except OSError as err:  # taken since the check before Ray (cmcl.preflight.check_port_free)
+        raise OSError(f"service.metrics_port = {port} cannot be bound on {host} ({err.strerror or err}): pass "
+                      "--metrics-port 0 for a free port, or another port") from None
     try:
         if progress is not None:
             progress(f"metrics: http://{config.service.metrics_host}:{port}/metrics   run directory: {run_dir.path}")

@@ -225,3 +225,23 @@ def test_evaluate_says_when_it_falls_back_to_an_older_checkpoint(tmp_path, tiny_
     notes = [line for line in done.stderr.splitlines() if line.startswith("note: ")]
     assert notes == [f"note: evaluating {run_dir.checkpoints / 'ckpt_00000004.pt'}, an older checkpoint: refused "
                      f"{newest}: SHA-256 differs from its checksum (corrupted)"], done.stderr
+
+
+def test_a_busy_metrics_port_is_named_before_ray_starts_and_the_inline_runner_refuses_metrics_flags(tmp_path):
+    """The service's metrics port in use: one line naming service.metrics_port and the port, before Ray and before
+    the run directory (before: "[Errno 98] Address already in use" after Ray's start, the run directory left). The
+    inline runner serves no metrics: --metrics-port / --metrics-host are refused (before: accepted and ignored)."""
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        done = run_cli("train", "--metrics-port", str(port), "--set", f"run.dir={tmp_path / 'run'}", *QUICK)
+    assert_one_line_refusal(done, f"service.metrics_port = {port} is in use on 127.0.0.1: pass --metrics-port 0")
+    assert not (tmp_path / "run").exists()
+    for flag, value in (("--metrics-port", "9100"), ("--metrics-host", "0.0.0.0")):
+        done = run_cli("train", "--runner", "inline", flag, value, "--set", f"run.dir={tmp_path / 'run'}", *QUICK)
+        assert_one_line_refusal(done, f"{flag} {value} is a flag of the service runner",
+                                "without Ray or a metrics endpoint")
+    assert not (tmp_path / "run").exists()
