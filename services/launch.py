@@ -95,8 +95,12 @@ def start_ray(address: str | None, num_cpus: int | None, metrics_export_port: in
                                   f"`ray start --head`, or omit --address for an embedded Ray") from None
         return
     signal.pthread_sigmask(signal.SIG_BLOCK, set(STOP_SIGNALS))
-    ray.init(address="local", num_cpus=os.cpu_count() if num_cpus is None else num_cpus, include_dashboard=False,
-             log_to_driver=False, _metrics_export_port=metrics_export_port)
+    try:
+        ray.init(address="local", num_cpus=os.cpu_count() if num_cpus is None else num_cpus, include_dashboard=False,
+                 log_to_driver=False, _metrics_export_port=metrics_export_port)
+    except Exception as err:  # noqa: BLE001 - Ray raises bare Exception (e.g. "timed out during startup")
+        raise ConnectionError(f"the embedded Ray did not start: {str(err).strip().splitlines()[0]} (its logs: "
+                              "/tmp/ray/session_latest/logs)") from None
 
 
 def stop_ray() -> None:

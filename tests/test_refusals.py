@@ -245,3 +245,18 @@ def test_a_busy_metrics_port_is_named_before_ray_starts_and_the_inline_runner_re
         assert_one_line_refusal(done, f"{flag} {value} is a flag of the service runner",
                                 "without Ray or a metrics endpoint")
     assert not (tmp_path / "run").exists()
+
+
+def test_training_that_diverges_ends_with_one_line_and_a_summary(tmp_path):
+    """maddpg.critic_lr = 1e30: the weights go NaN at the first update; the inline run ends with exit 2, one line
+    naming the learning rates, and summary.json ended = "diverged" (before: "actions must be finite" from the env,
+    a traceback, no summary)."""
+    import json
+
+    run_dir = tmp_path / "run"
+    done = run_cli("train", "--runner", "inline", "--set", "maddpg.critic_lr=1e30", "--set", f"run.dir={run_dir}",
+                   "--set", "run.episodes=40", "--set", "maddpg.warmup=64", "--set", "maddpg.batch_size=16",
+                   "--set", "env.num_envs=2", "--set", "replay.capacity=600", "--set", "maddpg.hidden=32",
+                   "--quiet", "--no-eval")
+    assert_one_line_refusal(done, "training diverged at episode ", "maddpg.critic_lr = 1e+30")
+    assert json.loads((run_dir / "summary.json").read_text())["ended"] == "diverged"

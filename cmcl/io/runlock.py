@@ -54,6 +54,8 @@ class RunLock:
                     time.sleep(0.1)
                     continue
                 holder = _describe(path)
+                if not _holder_alive(path):  # the named holder is gone; say which live process holds its lock
+                    holder = _inheritors(path, holder)
                 os.close(fd)
                 raise RunDirectoryInUse(f"run directory {str(directory)!r} is in use by {holder}; wait for that run "
                                         f"to end or stop it (Ctrl-C), or choose another run.dir") from None
@@ -117,3 +119,25 @@ def _describe(path: Path) -> str:
         return (f"pid {holder['pid']} on {holder['host']} ({holder['command']}, since {holder['since']})")
     except (OSError, ValueError, KeyError, TypeError):
         return f"another process (holder unknown: {path} unreadable)"
+
+
+def _inheritors(path: Path, named: str) -> str:
+    """Who holds the lock of `path` when the holder the file names has died: the live processes with the lock file
+    open (found in /proc/*/fd: a child that inherited the descriptor, e.g. the Ray reaper), named with their
+    command lines, and the dead holder they inherited it from."""
+    target, found = os.path.realpath(path), []
+    for entry in Path("/proc").iterdir() if Path("/proc").is_dir() else ():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            if any(os.path.realpath(fd) == target for fd in (entry / "fd").iterdir()):
+                command = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace").strip()
+                found.append(f"pid {entry.name} ({command[:120] or '?'})")
+        except OSError:
+            continue
+    if not found:
+        return f"a process this one cannot see (the lock's named holder, {named}, has ended)"
+    return (f"{', '.join(found)}, which still hold{'s' if len(found) == 1 else ''} its lock: the run that took it, "
+            f"{named}, has ended; wait for {'it' if len(found) == 1 else 'them'} to exit, or end "
+            f"{'it' if len(found) == 1 else 'them'}")
+
