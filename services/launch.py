@@ -28,6 +28,7 @@ from cmcl.config import Config
 from cmcl.io.durable import ReplayStore
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunLock
+from cmcl.progress import TrainingDiverged
 from cmcl.run_flags import RunRequest, alias_parser, resume_command, run_alias, train_in_run
 from cmcl.stopping import STOP_SIGNALS, StopSignals, exit_without_teardown
 
@@ -238,6 +239,10 @@ def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: Ru
             summary = run_service(config, run_dir, resume=bool(request.resume_dir),
                                   progress=None if request.quiet else print, stop=lambda: stop.requested)
         except (InfeasibleResources, OSError) as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
+        except TrainingDiverged as err:  # every role's last checkpoint before it stays the run's newest
+            run_dir.write_summary({"runner": "service", "ended": "diverged"})
             print(f"error: {err}", file=sys.stderr)
             return 2
         finally:

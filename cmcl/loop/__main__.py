@@ -62,7 +62,8 @@ def run_inline(request: RunRequest) -> int:
 def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
     """Build the loop, restore it when resuming, train until done or stopped; the run directory is locked."""
     from cmcl.learners.warm_start import warm_start_from_config
-    from cmcl.loop.inline import InlineLoop, TrainingDiverged
+    from cmcl.loop.inline import InlineLoop
+    from cmcl.progress import TrainingDiverged
 
     loop = InlineLoop(config, run_dir, progress=None if request.quiet else print)
     if request.resume_dir:

@@ -35,7 +35,15 @@ from cmcl.io.rundir import (
 from cmcl.learners import network_steps
 from cmcl.learning_progress import LearningProgress
 from cmcl.messages import LearnerFeedback, Rows
-from cmcl.progress import episode_rows, finished_episodes, progress_line, row_sampling_parts, solved, window_summary
+from cmcl.progress import (
+    TrainingDiverged,
+    episode_rows,
+    finished_episodes,
+    progress_line,
+    row_sampling_parts,
+    solved,
+    window_summary,
+)
 from cmcl.replay import buffer_steps
 from cmcl.replay.pacing import pacing_from_config
 from cmcl.replay.scoring import ScoringState
@@ -55,18 +63,6 @@ RESCORE_CHUNK = 2048  # rows per scoring pass (bounds memory of the A×K teacher
 RNG_NAMES = ("env", "noise", "teacher", "icm")  # the loop's generators, checkpointed by name
 SAMPLER_SEED = 4  # seed stream of the learner's per-agent sampling generators (`sampler_rngs`), spawned from it
 TORCH_SEEDS = slice(5, 8)  # seed streams of MADDPG, the teachers and the ICM
-
-
-class TrainingDiverged(RuntimeError):
-    """The actors' actions are no longer finite: the networks' weights diverged (NaN / inf). The message names the
-    episode, the updates and the learning rates; nothing of the diverged state is checkpointed."""
-
-    def __init__(self, config: Config, counters: dict[str, int]):
-        m = config.maddpg
-        super().__init__(f"training diverged at episode {counters['episodes']}, after {counters['updates']} learner "
-                         f"updates: the actors' actions are NaN or infinite (their weights are); maddpg.actor_lr = "
-                         f"{m.actor_lr:g}, maddpg.critic_lr = {m.critic_lr:g}, maddpg.grad_clip = {m.grad_clip:g}: "
-                         "lower the learning rates")
 
 
 class InlineLoop:
@@ -108,7 +104,7 @@ class InlineLoop:
         cfg, b = self.config, self.env.num_envs
         actions = self.maddpg.act(self.obs, cfg.maddpg.exploration_std, rng=self.rng["noise"])  # [B, N, act]
         if not np.isfinite(actions).all():
-            raise TrainingDiverged(self.config, self.counters)
+            raise TrainingDiverged(self.config, self.counters["episodes"], self.counters["updates"])
         next_obs, rew, _, info = self.env.step(to_env_actions(actions, cfg.maddpg.discrete))
         slots = self.replay.add(self.obs, actions, rew, info["final_obs"], info["terminated"].astype(np.float32),
                                 self.episodes.ids, policy_version=self.maddpg.updates)
