@@ -19,10 +19,19 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import shlex
 import sys
 
 from cmcl.io.rundir import RunDirectory
-from cmcl.run_flags import RUNNERS, RunRequest, RunRequestError, add_evaluate_flags, add_run_flags, request_from
+from cmcl.run_flags import (
+    RUNNERS,
+    RunRequest,
+    RunRequestError,
+    add_evaluate_flags,
+    add_run_flags,
+    python_command,
+    request_from,
+)
 from cmcl.stopping import exit_without_teardown
 
 DEFAULT_RUNNER = "service"
@@ -81,6 +90,11 @@ def runner_of(run_dir: RunDirectory) -> str:
         return summary["runner"]
     if run_dir.service_dir.is_dir():
         return "service"
+    if run_dir.never_trained():  # a start that failed before its first episode (e.g. of older code) left it
+        config = shlex.quote(str(run_dir.config_path))
+        raise RunRequestError(f"cannot tell which runner wrote {str(run_dir.path)!r}: it never trained (only the "
+                              f"config of a start that failed); start it with {python_command()} -m cmcl train "
+                              f"--config {config}, or pass --runner {' or --runner '.join(RUNNERS)}")
     raise RunRequestError(f"cannot tell which runner wrote {str(run_dir.path)!r} (no checkpoint, no summary.json); "
                           f"pass --runner {' or --runner '.join(RUNNERS)}")
 

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import pickle
 import sys
+import tempfile
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -163,13 +165,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 def evaluate_run(args: argparse.Namespace) -> int:
     """Evaluate the newest verified (or a given) checkpoint of a run, write a GIF and the learning curve; `args` as
-    `cmcl.run_flags.add_evaluate_flags` defines them. Exit codes: 0 done, 2 bad arguments or no run / policy."""
+    `cmcl.run_flags.add_evaluate_flags` defines them. Exit codes: 0 done, 2 bad arguments or no run / policy. A run
+    directory this process cannot write to is only read: the GIF (unless --gif names another place) and the learning
+    curve are then not written, said in one line each."""
+    from cmcl.preflight import check_worlds_fit
+
     if args.episodes < 1:
         print(f"error: --episodes must be >= 1, got {args.episodes}", file=sys.stderr)
         return 2
     try:
         run = RunDirectory.open(args.run_dir)
         config = run.config()
+        check_worlds_fit(config, args.episodes, "--episodes")
         checkpoint: PolicyCheckpoint | Path | None = None
         if args.checkpoint:
             checkpoint = Path(args.checkpoint)
@@ -180,24 +187,47 @@ def evaluate_run(args: argparse.Namespace) -> int:
             if checkpoint is None:
                 raise FileNotFoundError(f"no checkpoint that passes its checks in {args.run_dir} (pass --checkpoint "
                                         "or --random)")
+            if run.refused_policies:
+                print(f"note: evaluating {checkpoint.path}, an older checkpoint: refused "
+                      f"{'; '.join(run.refused_policies)}", file=sys.stderr)
         maddpg = None if args.random or checkpoint is None else load_policy(config, checkpoint)
         episode_rows = sum(1 for _ in run.rows("episode"))  # a corrupt metrics file is refused before any work
     except (FileNotFoundError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
+        return 2
+    except (pickle.UnpicklingError, RuntimeError, KeyError, EOFError) as err:  # a verified file, not a policy
+        why = f"{type(err).__name__}: {str(err).strip().split('. ')[0]}" if str(err).strip() else type(err).__name__
+        print(f"error: --checkpoint {args.checkpoint} is not a policy checkpoint of this run ({why})", file=sys.stderr)
         return 2
     result = evaluate_policy(config, maddpg, args.episodes, args.seed)
     result["checkpoint"] = None if maddpg is None else str(getattr(checkpoint, "path", checkpoint))
     print(json.dumps(result, indent=2))
     if "misses" in result:
         print("\n".join(MissAnatomy(**result["misses"]).lines()), file=sys.stderr)  # stdout stays JSON
+    writable = _writable(run.path)
     if not args.no_gif:
-        print(gif_line(config, maddpg, args.gif or run.path / ("eval_random.gif" if args.random else "eval.gif"),
-                       args.seed))
+        if args.gif or writable:
+            print(gif_line(config, maddpg, args.gif or run.path / ("eval_random.gif" if args.random else "eval.gif"),
+                           args.seed))
+        else:
+            print(f"gif: not written, {run.path} is read-only (pass --gif PATH to write it elsewhere)")
     from cmcl.io.plots import plot_learning_curves
 
     if episode_rows:
-        print(f"learning curve: {plot_learning_curves([run.path], run.path / 'learning_curve.png')}")
+        if writable:
+            print(f"learning curve: {plot_learning_curves([run.path], run.path / 'learning_curve.png')}")
+        else:
+            print(f"learning curve: not written, {run.path} is read-only")
     return 0
+
+
+def _writable(directory: Path) -> bool:
+    """Whether this process can create a file in `directory` (tried: a read-only mount, permissions)."""
+    try:
+        with tempfile.TemporaryFile(dir=directory):
+            return True
+    except OSError:
+        return False
 
 
 if __name__ == "__main__":

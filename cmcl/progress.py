@@ -130,3 +130,17 @@ def progress_line(episodes: int, target: int, env_steps: int, updates: int, wind
     parts += [left] if left else []
     parts += list(notes) if lam < 0.5 else []
     return " | ".join(parts)
+
+
+class TrainingDiverged(RuntimeError):
+    """The networks' weights are no longer finite (the actors' actions, or the learner's losses, are NaN / inf): the
+    run ends with this one line, naming the episode, the updates and the learning rates; nothing of the diverged
+    state is checkpointed (raised by the inline loop and by the service's supervisor)."""
+
+    def __init__(self, config: Any, episodes: int, updates: int, what: str = "the actors' actions"):
+        m = config.maddpg
+        super().__init__(f"training diverged at episode {episodes}, after {updates} learner updates: {what} are NaN "
+                         f"or infinite (the networks' weights are); maddpg.actor_lr = {m.actor_lr:g}, "
+                         f"maddpg.critic_lr = {m.critic_lr:g}, maddpg.grad_clip = {m.grad_clip:g}: lower the "
+                         "learning rates")
+

@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal, get_args
 
-from cmcl.config import Config, ConfigError, load_config
+from cmcl.config import Config, ConfigError, config_from_dict, load_data
 from cmcl.envs.factory import EnvFactoryError
 from cmcl.io.rundir import MetricsError, RunDirectory
 from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
@@ -27,7 +27,9 @@ from cmcl.io.verified import CheckpointError
 
 Runner = Literal["inline", "service"]
 RUNNERS: tuple[str, ...] = get_args(Runner)
-SERVICE_ONLY_FLAGS = {"address": "--address", "num_cpus": "--num-cpus", "ray_metrics_port": "--ray-metrics-port"}
+# the inline runner serves no metrics and starts no Ray: these flags are the service's only
+SERVICE_ONLY_FLAGS = {"address": "--address", "num_cpus": "--num-cpus", "ray_metrics_port": "--ray-metrics-port",
+                      "metrics_port": "--metrics-port", "metrics_host": "--metrics-host"}
 
 
 class RunRequestError(ValueError):
@@ -81,7 +83,8 @@ class RunRequest:
             for field, flag in SERVICE_ONLY_FLAGS.items():
                 if getattr(self, field) is not None:
                     raise RunRequestError(f"{flag} {getattr(self, field)} is a flag of the service runner; the inline "
-                                          "runner trains in this process (use --runner service)")
+                                          "runner trains in this process, without Ray or a metrics endpoint (use "
+                                          "--runner service)")
 
     def config_overrides(self) -> tuple[str, ...]:
         """The `--set` overrides followed by those the metrics flags stand for."""
@@ -128,12 +131,12 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
                 raise ResumeMismatch(f"{request.resume_dir} was written by the {' and '.join(sorted(written_by))} "
                                      f"runner; resume it with {resume_command(request.resume_dir)}")
             run_dir.check_no_unverifiable_checkpoint()
-            return resumed_config(run_dir, overrides, request), run_dir, lock
+            return checked(resumed_config(run_dir, overrides, request), request), run_dir, lock
         except BaseException:
             lock.release()
             raise
-    config = load_config(request.config_file, overrides)
-    check_environment(config)
+    data = load_data(request.config_file, overrides)
+    config = checked(config_from_dict(data), request, teams_given="teams" in data)  # the env built once (AEC, ...)
     check_warm_start(config)
     from cmcl.carried_replay import check_carry_source  # numpy only: no torch, no Ray
 
@@ -144,6 +147,21 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
     except BaseException:
         lock.release()
         raise
+
+
+def checked(config: Config, request: RunRequest, teams_given: bool = True) -> Config:
+    """`config` after `cmcl.preflight.preflight`: the environment built and stepped once, the teams matched (the env's
+    own, with default settings, when `teams_given` is false and they differ from the default team), the memory of
+    the worlds (of every rollout worker on the service) and the replay checked, unless the run joins a cluster
+    (--address: its nodes' memory is not this machine's); on the service, service.metrics_port free. Raises
+    ConfigError."""
+    from cmcl.preflight import check_port_free, preflight  # numpy and the env package: no torch, no Ray
+
+    service = request.runner == "service"
+    if service:  # the launcher serves it once Ray has started: a port in use is named before
+        check_port_free(config.service.metrics_host, config.service.metrics_port, "service.metrics_port")
+    workers = config.service.rollout_workers if service else 1
+    return preflight(config, teams_given=teams_given, worker_processes=workers, check_memory=not request.address)
 
 
 def resumed_config(run_dir: RunDirectory, overrides: tuple[str, ...], request: RunRequest) -> Config:
@@ -171,16 +189,6 @@ def resumed_config(run_dir: RunDirectory, overrides: tuple[str, ...], request: R
     return config
 
 
-def check_environment(config: Config) -> None:
-    """Build one world of `env.factory` (load, spaces, teams, the observations of a reset) before the new run's
-    directory exists: EnvFactoryError naming what does not fit, so that a fixed command can reuse the run.dir."""
-    if not config.env.factory:
-        return
-    from cmcl.system import make_batched_env  # numpy and the user's env only: no torch, no Ray
-
-    make_batched_env(config, num_envs=1, seed=0).close()
-
-
 def check_warm_start(config: Config) -> None:
     """Refuse a run.init_from whose policy this config cannot load (no run, no policy, other network shapes) with a
     ConfigError naming the field and the value, before the new run's directory exists."""
@@ -200,19 +208,28 @@ def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, Run
     """Open the run (`open_run`) and call `train(config, run_dir, lock)` while holding its lock; returns its exit
     code, or 2 after printing the error when the run cannot be opened (nothing in the directory changed then) or
     when the user's environment (`env.factory`) cannot be used (EnvFactoryError: an AEC env, an unsupported space,
-    an observation that does not fit its space, ...)."""
+    an observation that does not fit its space, ...). A new run that fails (an error exit or an exception, not a
+    stop by signal) before its first episode is removed again, its directory too when this command made it
+    (`RunDirectory.discard_failed_start`)."""
     try:
         config, run_dir, lock = open_run(request)
     except (CheckpointError, ConfigError, EnvFactoryError, FileExistsError, FileNotFoundError, MetricsError,
             RunDirectoryInUse, RunRequestError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    code = 1
     with lock:
         try:
-            return train(config, run_dir, lock)
+            code = train(config, run_dir, lock)
+            return code
         except EnvFactoryError as err:  # the user's environment, built or stepped: one line, no traceback
             print(f"error: {err}", file=sys.stderr)
-            return 2
+            code = 2
+            return code
+        finally:  # a new run that failed before its first episode leaves nothing that blocks the retry
+            if code not in (0, 130, 143) and not request.resume_dir and run_dir.never_trained():
+                run_dir.discard_failed_start()
+                lock.discard()
 
 
 def add_run_flags(parser: argparse.ArgumentParser, *, new_run: bool = True) -> None:
@@ -229,10 +246,10 @@ def add_run_flags(parser: argparse.ArgumentParser, *, new_run: bool = True) -> N
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
     parser.add_argument("--no-eval", action="store_true",
                         help="skip the held-out evaluation, the GIF and the learning curve at the end")
-    parser.add_argument("--metrics-port", type=int, default=None,
-                        help="Prometheus port of the service (default service.metrics_port; 0 picks a free one)")
-    parser.add_argument("--metrics-host", default=None, help="bind address of the metrics (default 127.0.0.1)")
     service = parser.add_argument_group("service runner only")
+    service.add_argument("--metrics-port", type=int, default=None,
+                         help="Prometheus port of the service (default service.metrics_port; 0 picks a free one)")
+    service.add_argument("--metrics-host", default=None, help="bind address of the metrics (default 127.0.0.1)")
     service.add_argument("--address", default=None,
                          help="Ray cluster to join ('auto' after `ray start --head`); default: embedded Ray")
     service.add_argument("--num-cpus", type=int, default=None,

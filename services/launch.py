@@ -19,6 +19,7 @@ import contextlib
 import os
 import signal
 import sys
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -27,6 +28,7 @@ from cmcl.config import Config
 from cmcl.io.durable import ReplayStore
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunLock
+from cmcl.progress import TrainingDiverged
 from cmcl.run_flags import RunRequest, alias_parser, resume_command, run_alias, train_in_run
 from cmcl.stopping import STOP_SIGNALS, StopSignals, exit_without_teardown
 
@@ -38,6 +40,40 @@ def build_parser() -> argparse.ArgumentParser:
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return build_parser().parse_args(argv)
+
+
+JOIN_TIMEOUT_S = 5.0  # per connection attempt of the probe below (Ray's GCS client makes up to three)
+UNREACHABLE = ("Timed out", "Failed to connect", "UNAVAILABLE", "status: 404")  # the probe's errors that mean "no GCS"
+
+
+def check_cluster_reachable(address: str, timeout_s: float = JOIN_TIMEOUT_S) -> None:
+    """Raise ConnectionError (one line, naming --address) when no Ray cluster answers at `address` within about
+    3 × `timeout_s`: Ray's own join retries for minutes with only warnings. "auto" is the cluster `ray start`
+    recorded on this machine (or RAY_ADDRESS). The probe is a standalone GCS client, its C++ warnings kept off the
+    terminal; any answer other than "nothing there" (e.g. an auth refusal) is left to ray.init to report. A Ray
+    Client address (ray://) is not probed."""
+    from ray._private.services import canonicalize_bootstrap_address  # Ray's own reading of "auto" and host:port
+    from ray._raylet import InnerGcsClient
+
+    hint = "start one with `ray start --head`, or omit --address for an embedded Ray"
+    if address.startswith("ray://"):
+        return
+    try:
+        target = canonicalize_bootstrap_address(address)
+    except (ConnectionError, ValueError, OSError) as err:
+        raise ConnectionError(f"cannot join the Ray cluster at --address {address}: {str(err).rstrip('.')}; "
+                              f"{hint}") from None
+    if target is None:
+        raise ConnectionError(f"cannot join the Ray cluster at --address {address}: no cluster found; {hint}")
+    started = time.monotonic()
+    try:
+        with stderr_to(Path(os.devnull)):
+            InnerGcsClient.standalone(target, None, int(timeout_s * 1000))
+    except Exception as err:  # noqa: BLE001 - Ray's RpcError has no public class
+        if any(text in str(err) for text in UNREACHABLE):
+            raise ConnectionError(f"cannot join the Ray cluster at --address {address}: no Ray cluster answered at "
+                                  f"{target} within {time.monotonic() - started:.0f} s ({str(err).rstrip('.')}); "
+                                  f"{hint}") from None
 
 
 def start_ray(address: str | None, num_cpus: int | None, metrics_export_port: int | None = None) -> None:
@@ -60,8 +96,12 @@ def start_ray(address: str | None, num_cpus: int | None, metrics_export_port: in
                                   f"`ray start --head`, or omit --address for an embedded Ray") from None
         return
     signal.pthread_sigmask(signal.SIG_BLOCK, set(STOP_SIGNALS))
-    ray.init(address="local", num_cpus=os.cpu_count() if num_cpus is None else num_cpus, include_dashboard=False,
-             log_to_driver=False, _metrics_export_port=metrics_export_port)
+    try:
+        ray.init(address="local", num_cpus=os.cpu_count() if num_cpus is None else num_cpus, include_dashboard=False,
+                 log_to_driver=False, _metrics_export_port=metrics_export_port)
+    except Exception as err:  # noqa: BLE001 - Ray raises bare Exception (e.g. "timed out during startup")
+        raise ConnectionError(f"the embedded Ray did not start: {str(err).strip().splitlines()[0]} (its logs: "
+                              "/tmp/ray/session_latest/logs)") from None
 
 
 def stop_ray() -> None:
@@ -115,7 +155,12 @@ def run_service(config: Config, run_dir: RunDirectory, *, resume: bool = False, 
     from services.supervisor import Supervisor
 
     metrics = ServiceMetrics(seed=config.run.seed)
-    port = metrics.serve(config.service.metrics_port, config.service.metrics_host)
+    host, port = config.service.metrics_host, config.service.metrics_port
+    try:
+        port = metrics.serve(port, host)
+    except OSError as err:  # taken since the check before Ray (cmcl.preflight.check_port_free)
+        raise OSError(f"service.metrics_port = {port} cannot be bound on {host} ({err.strerror or err}): pass "
+                      "--metrics-port 0 for a free port, or another port") from None
     try:
         if progress is not None:
             progress(f"metrics: http://{config.service.metrics_host}:{port}/metrics   run directory: {run_dir.path}")
@@ -149,6 +194,12 @@ def main(argv: list[str] | None = None) -> int:
 def run_launch(request: RunRequest) -> int:
     """Train, or resume, one service run. Exit codes: 0 done, 2 bad config / arguments / cluster / resources / run
     directory in use, 130 / 143 stopped by SIGINT / SIGTERM (every role checkpointed first)."""
+    if request.address:  # before the run directory is made and before Ray: an absent cluster is one line, at once
+        try:
+            check_cluster_reachable(request.address)
+        except ConnectionError as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
     return train_in_run(request, lambda config, run_dir, lock: _launch(request, config, run_dir, lock))
 
 
@@ -188,6 +239,10 @@ def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: Ru
             summary = run_service(config, run_dir, resume=bool(request.resume_dir),
                                   progress=None if request.quiet else print, stop=lambda: stop.requested)
         except (InfeasibleResources, OSError) as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
+        except TrainingDiverged as err:  # every role's last checkpoint before it stays the run's newest
+            run_dir.write_summary({"runner": "service", "ended": "diverged"})
             print(f"error: {err}", file=sys.stderr)
             return 2
         finally:

@@ -18,6 +18,7 @@ from collections import Counter, deque
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import ray
 
 from cmcl.algorithms import early_notes, sampling_name
@@ -27,7 +28,7 @@ from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
 from cmcl.learning_progress import LearningProgress
 from cmcl.messages import ReplayStatus
-from cmcl.progress import episode_rows, solved, window_summary
+from cmcl.progress import TrainingDiverged, episode_rows, solved, window_summary
 from cmcl.system import layout_of
 from services.call_budget import calls_to_issue
 from services.health import (
@@ -189,6 +190,9 @@ class Supervisor:
         if value.weight_version is not None:
             self.lags[value.source] = max(0, self.version - int(value.weight_version))
         if value.role == "learner" and value.learner.losses:
+            losses = [loss for kinds in value.learner.losses.values() for loss in kinds.values()]
+            if not np.isfinite(losses).all():  # the learner's weights diverged: the run ends (services/launch.py)
+                raise TrainingDiverged(self.config, self.status.episodes, self.status.updates, "the learner's losses")
             critic = [kinds["critic"] for kinds in value.learner.losses.values()]
             self.learning_progress.record(self.status.episodes, sum(critic) / len(critic))
         if value.role == "learner" and value.learner.weight_version != self.version:

@@ -117,3 +117,25 @@ def test_a_torn_last_metrics_line_is_ignored_and_set_aside_and_a_corrupt_one_bef
     assert evaluate([str(run.path), "--random", "--episodes", "1", "--no-gif"]) == 2, "refused before any work"
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"{run.metrics_path} line 2: not a JSON object" in err, err
+
+
+def test_a_lock_held_by_a_child_of_a_dead_holder_names_the_live_process(tmp_path, monkeypatch):
+    """The holder the lock file names has died, but a child that inherited its descriptor (the launcher's Ray
+    reaper) still holds the lock: the refusal names that live process, not only the dead pid (issue 37 item 15)."""
+    from cmcl.io import runlock
+
+    monkeypatch.setattr(runlock, "DEAD_HOLDER_WAIT_S", 0.2)
+    script = ("import subprocess, sys; from cmcl.io.runlock import RunLock; lock = RunLock.acquire(sys.argv[1]); "
+              "child = subprocess.Popen(['sleep', '60'], pass_fds=(lock.fd,), stdout=subprocess.DEVNULL, "
+              "stderr=subprocess.DEVNULL); print(child.pid, flush=True)")
+    parent = subprocess.run([sys.executable, "-c", script, str(tmp_path / "run")], capture_output=True, text=True,
+                            timeout=60, check=True)
+    child = int(parent.stdout.split()[0])
+    try:
+        with pytest.raises(RunDirectoryInUse) as refused:
+            RunLock.acquire(tmp_path / "run")
+        message = str(refused.value)
+        assert f"in use by pid {child} (sleep 60), which still holds its lock" in message, message
+        assert "has ended; wait for it to exit, or end it" in message, message
+    finally:
+        os.kill(child, signal.SIGKILL)

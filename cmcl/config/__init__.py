@@ -19,7 +19,7 @@ from cmcl.config import sections
 from cmcl.config.env import EnvConfig
 from cmcl.config.experiment import Config, preset
 from cmcl.config.sections import *  # noqa: F403 (the section dataclasses, ConfigError, ALGORITHMS, TASKS, TASK_TEAMS)
-from cmcl.config.toml_io import apply_overrides, config_from_dict, dump_toml, load_config, parse_override
+from cmcl.config.toml_io import apply_overrides, config_from_dict, dump_toml, load_config, load_data, parse_override
 
 __all__ = [*sections.__all__, "Config", "EnvConfig", "apply_overrides", "config_from_dict", "dump_toml", "load_config",
-           "parse_override", "preset"]
+           "load_data", "parse_override", "preset"]

@@ -178,16 +178,30 @@ def _deep_copy(data: Mapping[str, Any]) -> dict[str, Any]:
 
 def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -> Config:
     """Load a TOML file (or the defaults when `path` is None) and apply `--set` overrides."""
+    return config_from_dict(load_data(path, overrides))
+
+
+def load_data(path: str | Path | None = None, overrides: Iterable[str] = ()) -> dict[str, Any]:
+    """The nested mapping `load_config` builds its Config from: the TOML file's tables (none when `path` is None)
+    with the `--set` overrides applied. ConfigError naming the file when it is missing, a directory, not UTF-8
+    text or not TOML."""
     data: dict[str, Any] = {}
     if path is not None:
         path = Path(path)
+        if path.is_dir():
+            raise ConfigError(f"config file {str(path)!r} is a directory, not a TOML file")
         if not path.is_file():
             raise ConfigError(f"config file {str(path)!r} does not exist")
         try:
-            data = tomllib.loads(path.read_text())
+            data = tomllib.loads(path.read_bytes().decode("utf-8"))
+        except UnicodeDecodeError as err:
+            raise ConfigError(f"config file {str(path)!r} is not a TOML file: not UTF-8 text (byte "
+                              f"{err.object[err.start]:#04x} at offset {err.start})") from None
         except tomllib.TOMLDecodeError as err:
             raise ConfigError(f"config file {str(path)!r} is not valid TOML: {err}") from None
-    return config_from_dict(apply_overrides(data, overrides))
+        except OSError as err:
+            raise ConfigError(f"config file {str(path)!r} cannot be read: {err.strerror}") from None
+    return apply_overrides(data, overrides)
 
 
 def dump_toml(config: Config) -> str:

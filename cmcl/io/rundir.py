@@ -34,6 +34,9 @@ from cmcl.io.verified import CheckpointError, VerifiedFile, read_checked, write_
 from cmcl.provenance import provenance
 
 CHECKPOINT_GLOB = "ckpt_*.pt"
+# what a start that failed before its first episode leaves at the top of its run directory (with a `checkpoints/`
+# tree holding no data): nothing a retry must keep (`RunDirectory.never_trained`)
+START_LEFTOVERS = ("config.toml", "run.lock", "ray_shutdown.log")
 SERVICE_ROLES = ("learner", "icm")  # roles whose checkpoint is one VerifiedFile at checkpoints/service/<role>.pt
 
 
@@ -86,21 +89,53 @@ class RunDirectory:
         self.metrics_path = self.path / "metrics.jsonl"
         self.config_path = self.path / "config.toml"
         self._tail_checked = self._torn_said = False  # metrics.jsonl: torn last line set aside / said (`rows`)
+        self.refused_policies: list[str] = []  # what the last `newest_policy` refused on its way ("file: reason")
 
     @classmethod
     def create(cls, path: str | Path, config: Config, *, overwrite: bool = False) -> RunDirectory:
         """Make the folder and write the resolved config. Refuses a folder that already holds a run."""
         run = cls(path)
-        if run.config_path.exists() and not overwrite:
+        if run.config_path.exists() and not overwrite and not run.never_trained():
+            from cmcl.run_flags import resume_command
+
             raise FileExistsError(
-                f"run.dir {str(run.path)!r} already holds a run; pass --resume {run.path} to continue it "
-                f"or choose another run.dir")
+                f"run.dir {str(run.path)!r} already holds a run: continue it with {resume_command(run.path)}, start "
+                "over with --overwrite, or choose another run.dir")
+        run.check_metrics_file()
         if overwrite:  # start over: no old metrics, and no old checkpoint a role could restore itself from
             shutil.rmtree(run.checkpoints, ignore_errors=True)
             run.metrics_path.unlink(missing_ok=True)
         run.checkpoints.mkdir(parents=True, exist_ok=True)
         atomic_write_bytes(run.config_path, dump_toml(config).encode())
         return run
+
+    def never_trained(self) -> bool:
+        """Whether this folder holds only what a start that failed before its first episode leaves: at its top no
+        file but START_LEFTOVERS, and under checkpoints/ no file with any data (no metrics row, no summary, no
+        checkpoint, no replay). Such a folder holds nothing to resume; a new run may take it."""
+        if not self.path.is_dir():
+            return False
+        for entry in self.path.iterdir():
+            if entry == self.checkpoints and entry.is_dir() and not entry.is_symlink():
+                if any(p.is_symlink() or (p.is_file() and p.stat().st_size) or not (p.is_file() or p.is_dir())
+                       for p in entry.rglob("*")):
+                    return False
+            elif entry.name not in START_LEFTOVERS or not entry.is_file():
+                return False
+        return True
+
+    def discard_failed_start(self) -> None:
+        """Remove what a start that failed before its first episode left (only when `never_trained`; run.lock is the
+        lock holder's to remove): a retry then meets no run in the way, and `resume` no half-made run."""
+        if not self.never_trained():
+            return
+        for name in START_LEFTOVERS:
+            if name != "run.lock":
+                (self.path / name).unlink(missing_ok=True)
+        if self.checkpoints.is_dir():
+            for p in sorted(self.checkpoints.rglob("*"), key=lambda p: len(p.parts), reverse=True):
+                p.unlink() if p.is_file() else p.rmdir()
+            self.checkpoints.rmdir()
 
     @classmethod
     def open(cls, path: str | Path) -> RunDirectory:
@@ -155,6 +190,7 @@ class RunDirectory:
         after it raises MetricsError naming the file and the line."""
         if not self.metrics_path.exists():
             return
+        self.check_metrics_file()
         bad: tuple[int, str] | None = None  # a line that did not parse, until it proves not to be the last
         with self.metrics_path.open("rb") as handle:
             for number, line in enumerate(handle, 1):
@@ -171,6 +207,12 @@ class RunDirectory:
         if bad is not None and not self._torn_said:
             self._torn_said = True
             print(f"metrics: ignored the torn last line of {self.metrics_path} (line {bad[0]})", file=sys.stderr)
+
+    def check_metrics_file(self) -> None:
+        """MetricsError naming metrics.jsonl when something other than a file (a directory, ...) has its name."""
+        if self.metrics_path.exists() and not self.metrics_path.is_file():
+            kind = "a directory" if self.metrics_path.is_dir() else "not a regular file"
+            raise MetricsError(f"{self.metrics_path} is {kind}, not the run's metrics file; move it away")
 
     def truncate_rows_after(self, episodes: int) -> None:
         """On resume: drop rows logged after the checkpoint (row["episodes"] > episodes), atomically."""
@@ -256,18 +298,22 @@ class RunDirectory:
 
         Inline: the newest `ckpt_*.pt` whose manifest digest matches (a refused one is skipped for the one
         before it). Service: the learner's newest generation that matches its manifest (else the previous one).
+        Every file refused on the way is in `refused_policies` afterwards ("file: reason").
         """
         import torch
 
         found: list[PolicyCheckpoint] = []
+        self.refused_policies = []
         for path in reversed(self.inline_checkpoints().values()):
             try:
                 found.append(PolicyCheckpoint(path, "inline", load_checkpoint(path), path.stat().st_mtime))
                 break
-            except (CheckpointError, OSError, RuntimeError):
+            except (CheckpointError, OSError, RuntimeError) as err:
+                self.refused_policies.append(str(err) if str(path) in str(err) else f"{path}: {err}")
                 continue
         learner = VerifiedFile(self.service_dir / "learner.pt")
         loaded = learner.load()
+        self.refused_policies += loaded.refused
         if loaded.payload is not None and loaded.generation is not None:
             path = learner.file_of(loaded.generation)
             try:

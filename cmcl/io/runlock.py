@@ -9,6 +9,7 @@ reaper, `services.reaper`) holds it too, so a new writer waits until the old run
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import json
 import os
@@ -29,8 +30,8 @@ class RunLock:
     """The held lock of one run directory. `acquire` takes it or raises `RunDirectoryInUse`; `release` (or the
     process's exit) gives it back. `fd` is the open descriptor, for a child that must hold the lock as well."""
 
-    def __init__(self, path: Path, fd: int):
-        self.path, self.fd = path, fd
+    def __init__(self, path: Path, fd: int, made_dir: bool = False):
+        self.path, self.fd, self.made_dir = path, fd, made_dir
 
     @classmethod
     def acquire(cls, run_dir: str | Path, command: str | None = None) -> RunLock:
@@ -38,6 +39,7 @@ class RunLock:
 
         command: what to name this holder by in a refusal (default: this process's argv)."""
         directory = Path(run_dir)
+        made_dir = not directory.exists()
         directory.mkdir(parents=True, exist_ok=True)
         path = directory / LOCK_NAME
         fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
@@ -52,6 +54,8 @@ class RunLock:
                     time.sleep(0.1)
                     continue
                 holder = _describe(path)
+                if not _holder_alive(path):  # the named holder is gone; say which live process holds its lock
+                    holder = _inheritors(path, holder)
                 os.close(fd)
                 raise RunDirectoryInUse(f"run directory {str(directory)!r} is in use by {holder}; wait for that run "
                                         f"to end or stop it (Ctrl-C), or choose another run.dir") from None
@@ -59,7 +63,7 @@ class RunLock:
                   "command": command or holder_command()}
         os.ftruncate(fd, 0)
         os.pwrite(fd, json.dumps(holder).encode(), 0)
-        return cls(path, fd)
+        return cls(path, fd, made_dir)
 
     def release(self) -> None:
         """Give the lock back (idempotent)."""
@@ -67,6 +71,16 @@ class RunLock:
             fcntl.flock(self.fd, fcntl.LOCK_UN)
             os.close(self.fd)
             self.fd = -1
+
+    def discard(self) -> None:
+        """Remove the lock file while still holding it, then release it; remove the run directory too when
+        `acquire` made it and it is now empty (a start that failed leaves no trace)."""
+        if self.fd >= 0:
+            self.path.unlink(missing_ok=True)
+            self.release()
+            if self.made_dir:
+                with contextlib.suppress(OSError):
+                    self.path.parent.rmdir()
 
     def __enter__(self) -> RunLock:
         return self
@@ -105,3 +119,25 @@ def _describe(path: Path) -> str:
         return (f"pid {holder['pid']} on {holder['host']} ({holder['command']}, since {holder['since']})")
     except (OSError, ValueError, KeyError, TypeError):
         return f"another process (holder unknown: {path} unreadable)"
+
+
+def _inheritors(path: Path, named: str) -> str:
+    """Who holds the lock of `path` when the holder the file names has died: the live processes with the lock file
+    open (found in /proc/*/fd: a child that inherited the descriptor, e.g. the Ray reaper), named with their
+    command lines, and the dead holder they inherited it from."""
+    target, found = os.path.realpath(path), []
+    for entry in Path("/proc").iterdir() if Path("/proc").is_dir() else ():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            if any(os.path.realpath(fd) == target for fd in (entry / "fd").iterdir()):
+                command = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace").strip()
+                found.append(f"pid {entry.name} ({command[:120] or '?'})")
+        except OSError:
+            continue
+    if not found:
+        return f"a process this one cannot see (the lock's named holder, {named}, has ended)"
+    return (f"{', '.join(found)}, which still hold{'s' if len(found) == 1 else ''} its lock: the run that took it, "
+            f"{named}, has ended; wait for {'it' if len(found) == 1 else 'them'} to exit, or end "
+            f"{'it' if len(found) == 1 else 'them'}")
+

@@ -54,8 +54,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def run_inline(request: RunRequest) -> int:
     """Train, or resume, one inline run; write the learning curve at the end (unless `no_eval`). Exit codes: 0 done,
-    2 bad config / arguments / run directory in use / nothing to resume, 130 / 143 stopped by SIGINT / SIGTERM
-    (after a checkpoint)."""
+    2 bad config / arguments / run directory in use / nothing to resume / training diverged, 130 / 143 stopped by
+    SIGINT / SIGTERM (after a checkpoint)."""
     return train_in_run(request, lambda config, run_dir, _lock: _train(request, config, run_dir))
 
 
@@ -63,6 +63,7 @@ def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
     """Build the loop, restore it when resuming, train until done or stopped; the run directory is locked."""
     from cmcl.learners.warm_start import warm_start_from_config
     from cmcl.loop.inline import InlineLoop
+    from cmcl.progress import TrainingDiverged
 
     loop = InlineLoop(config, run_dir, progress=None if request.quiet else print)
     if request.resume_dir:
@@ -86,7 +87,13 @@ def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
             print(f"replay: starts with the {loop.replay.size} rows of {config.run.init_from} "
                   f"({loop.replay.storage.absent_rows} of them with absent agents)")
     with StopSignals(notice=print) as stop:
-        row = loop.run(stop=lambda: stop.requested)
+        try:
+            row = loop.run(stop=lambda: stop.requested)
+        except TrainingDiverged as err:  # the last checkpoint before it stays the run's newest
+            run_dir.write_summary({"runner": "inline", "ended": "diverged", **loop.counters,
+                                   "elapsed_s": loop.elapsed_s})
+            print(f"error: {err}", file=sys.stderr)
+            return 2
         stop.training_over()
         ended = stop.name or ("solved" if solved(loop.window, config.run) else
                               "plateau" if loop.learning_progress.plateaued else "budget")

@@ -36,7 +36,15 @@ from cmcl.io.rundir import (
 from cmcl.learners import network_steps
 from cmcl.learning_progress import LearningProgress
 from cmcl.messages import LearnerFeedback, Rows
-from cmcl.progress import episode_rows, finished_episodes, progress_line, row_sampling_parts, solved, window_summary
+from cmcl.progress import (
+    TrainingDiverged,
+    episode_rows,
+    finished_episodes,
+    progress_line,
+    row_sampling_parts,
+    solved,
+    window_summary,
+)
 from cmcl.replay import buffer_steps
 from cmcl.replay.curriculum import unplayed_steps
 from cmcl.replay.pacing import pacing_from_config
@@ -100,6 +108,8 @@ class InlineLoop:
         """
         cfg, b = self.config, self.env.num_envs
         actions = self.maddpg.act(self.obs, cfg.maddpg.exploration_std, rng=self.rng["noise"])  # [B, N, act]
+        if not np.isfinite(actions).all():
+            raise TrainingDiverged(self.config, self.counters["episodes"], self.counters["updates"])
         next_obs, rew, _, info = self.env.step(to_env_actions(actions, cfg.maddpg.discrete))
         slots = self.replay.add(self.obs, actions, rew, info["final_obs"], info["terminated"].astype(np.float32),
                                 self.episodes.ids, policy_version=self.maddpg.updates)
