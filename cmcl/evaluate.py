@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import pickle
 import sys
 import tempfile
 from dataclasses import asdict
@@ -195,7 +194,7 @@ def evaluate_run(args: argparse.Namespace) -> int:
     except (FileNotFoundError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    except (pickle.UnpicklingError, RuntimeError, KeyError, EOFError) as err:  # a verified file, not a policy
+    except Exception as err:  # noqa: BLE001 - a verified file, not a policy: torch.load's UnpicklingError, KeyError, ...
         why = f"{type(err).__name__}: {str(err).strip().split('. ')[0]}" if str(err).strip() else type(err).__name__
         print(f"error: --checkpoint {args.checkpoint} is not a policy checkpoint of this run ({why})", file=sys.stderr)
         return 2

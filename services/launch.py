@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from cmcl.config import Config
+from cmcl.envs.factory import EnvFactoryError
 from cmcl.io.durable import ReplayStore
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunLock
@@ -244,6 +245,11 @@ def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: Ru
         except TrainingDiverged as err:  # every role's last checkpoint before it stays the run's newest
             run_dir.write_summary({"runner": "service", "ended": "diverged"})
             print(f"error: {err}", file=sys.stderr)
+            return 2
+        except EnvFactoryError as err:  # the user's environment raised or misfit: every role checkpointed first
+            run_dir.write_summary({"runner": "service", "ended": "env_error"})
+            print(f"error: {err}; the run is kept (every role checkpointed); resume with: "
+                  f"{resume_command(run_dir.path)}", file=sys.stderr)
             return 2
         finally:
             stop.training_over()

@@ -63,6 +63,7 @@ class Supervisor:
         self.config, self.run_dir, self.roles, self.metrics, self.progress = config, run_dir, roles, metrics, progress
         self.stop = stop
         self.stopped = False  # the run ended because `stop` said so
+        self.env_error: EnvFactoryError | None = None  # the user's environment raised: the run ends, kept
         self.checkpoint_seconds: list[float] = []  # wall seconds of each checkpoint (drain + every role's save)
         self.paths = run_dir.service_paths()
         self.pending: dict[Any, tuple[str, int, int]] = {}  # ref -> (kind, actor index, submission number)
@@ -161,7 +162,9 @@ class Supervisor:
             except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError,
                     ray.exceptions.ObjectLostError) as err:
                 if isinstance(getattr(err, "cause", None), EnvFactoryError):  # the user's env (an observation that
-                    raise err.cause from None  # does not fit its space): a retry meets it again; the CLI says it
+                    if self.env_error is None:  # does not fit its space, a crash): a retry meets it again; the run
+                        raise err.cause from None  # is checkpointed, then the CLI says it in one line (item 5)
+                    continue  # another worker's, while the run is being kept: said once
                 self._failed(kind, index, err)
                 continue
             self._apply(kind, index, value, number)
@@ -311,39 +314,44 @@ class Supervisor:
         cfg = self.config
         last_report = last_ckpt = time.perf_counter()
         report_ref = None
-        while True:
-            if self.stop is not None and self.stop():
-                self.stopped = True
-                break
-            if cfg.run.max_seconds and time.perf_counter() - self.started > cfg.run.max_seconds:
-                break
-            if solved(self.window, cfg.run):
-                self.solved = True
-                break
-            if self.learning_progress.plateaued:  # run.stop_progress
-                break
-            collecting = self.status.episodes < cfg.run.episodes
-            if not collecting and self._caught_up() and self._caught_up(fresh=True):
-                break  # episode target reached; the learner, every teacher and the ICM have caught up
-            self._issue(rollouts=collecting)
-            self._collect(timeout=0.5)
-            self._kill_hung()
-            now = time.perf_counter()
-            if now - last_report >= REPORT_EVERY_S and report_ref is None:
-                report_ref = self.roles.replay.report.remote()
-                self._track(report_ref, "replay_report")
-            if report_ref is not None and report_ref not in self.pending:
-                report_ref, last_report = None, now
-                self.view.refresh(self.status)
-                self.metrics.update_rates()
-                if self.progress is not None:
-                    self.progress(self.progress_line())
-                self.run_dir.log(self.view.row(self.status, self.last_replay_report))
-            if now - last_ckpt >= cfg.service.checkpoint_every_s:
-                self.checkpoint()
-                last_ckpt = time.perf_counter()
+        try:
+            while True:
+                if self.stop is not None and self.stop():
+                    self.stopped = True
+                    break
+                if cfg.run.max_seconds and time.perf_counter() - self.started > cfg.run.max_seconds:
+                    break
+                if solved(self.window, cfg.run):
+                    self.solved = True
+                    break
+                if self.learning_progress.plateaued:  # run.stop_progress
+                    break
+                collecting = self.status.episodes < cfg.run.episodes
+                if not collecting and self._caught_up() and self._caught_up(fresh=True):
+                    break  # episode target reached; the learner, every teacher and the ICM have caught up
+                self._issue(rollouts=collecting)
+                self._collect(timeout=0.5)
+                self._kill_hung()
+                now = time.perf_counter()
+                if now - last_report >= REPORT_EVERY_S and report_ref is None:
+                    report_ref = self.roles.replay.report.remote()
+                    self._track(report_ref, "replay_report")
+                if report_ref is not None and report_ref not in self.pending:
+                    report_ref, last_report = None, now
+                    self.view.refresh(self.status)
+                    self.metrics.update_rates()
+                    if self.progress is not None:
+                        self.progress(self.progress_line())
+                    self.run_dir.log(self.view.row(self.status, self.last_replay_report))
+                if now - last_ckpt >= cfg.service.checkpoint_every_s:
+                    self.checkpoint()
+                    last_ckpt = time.perf_counter()
+        except EnvFactoryError as err:  # the user's environment raised: keep the run (final cut, checkpoint), then
+            self.env_error = err  # the CLI says it in one line
         self.final_cut()
         self.checkpoint()
+        if self.env_error is not None:
+            raise self.env_error
         self.view.refresh(self.status)
         self.run_dir.log(self.view.row(self.status, self.last_replay_report))  # the rows end at the final cut
         if self.progress is not None:

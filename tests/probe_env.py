@@ -5,6 +5,8 @@ success, observations that do not fit their declared Box, episodes shorter than 
 `max_cycles`); `succeed`: the agents whose info says {"hit": 1.0} (the others 0.0) at every step; `fault` at step
 `fault_at` (0 = the reset) for agent_0: "short" shape (1,) for the declared (2,), "long" (3,), "wide" int64 values
 ±60 for Box(-1, 1), "nan", "text" (a string array); observations are otherwise (t / max_cycles, -t / max_cycles).
+`crash_after`: the number of episodes this copy plays whole; at step `fault_at` of the next one its step raises
+RuntimeError("probe crash") (0 = never; issue 37 item 5).
 """
 
 import numpy as np
@@ -15,11 +17,13 @@ from pettingzoo import ParallelEnv
 class Probe(ParallelEnv):
     metadata = {"name": "probe_v0"}
 
-    def __init__(self, agents=2, leave_at=(), succeed=(), max_cycles=5, fault="", fault_at=0, render_mode=None):
+    def __init__(self, agents=2, leave_at=(), succeed=(), max_cycles=5, fault="", fault_at=0, crash_after=0,
+                 render_mode=None):
         self.possible_agents = [f"agent_{i}" for i in range(agents)]
         self.leave_at = {f"agent_{i}": int(t) for i, t in enumerate(leave_at)}
         self.succeed = {f"agent_{i}" for i in succeed}
         self.max_cycles, self.fault, self.fault_at = max_cycles, fault, fault_at
+        self.crash_after, self.episodes = int(crash_after), -1  # resets so far, minus the first
 
     def observation_space(self, agent):
         return Box(-1.0, 1.0, (2,), np.float32)
@@ -35,11 +39,13 @@ class Probe(ParallelEnv):
         return np.array([self.t, -self.t], np.float32) / self.max_cycles
 
     def reset(self, seed=None, options=None):
-        self.t, self.agents = 0, list(self.possible_agents)
+        self.t, self.agents, self.episodes = 0, list(self.possible_agents), self.episodes + 1
         return {a: self._obs(a) for a in self.agents}, {a: {} for a in self.agents}
 
     def step(self, actions):
         self.t += 1
+        if self.crash_after and self.episodes >= self.crash_after and self.t >= self.fault_at:
+            raise RuntimeError("probe crash")
         rew = {a: 0.0 for a in self.agents}
         term = {a: self.t >= self.leave_at.get(a, self.max_cycles + 1) for a in self.agents}
         trunc = {a: self.t >= self.max_cycles and not term[a] for a in self.agents}

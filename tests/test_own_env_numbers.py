@@ -2,6 +2,7 @@
 success and coverage when agents leave early, observations that do not fit their declared space, λ's schedule on
 episodes shorter than env.episode_length, and an AEC env given as the factory. tests/probe_env.py is the probe."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -146,3 +147,29 @@ def test_the_command_line_says_what_does_not_fit_in_one_line_and_exits_2(sets, s
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: env.factory") and says in lines[0], done.stderr
+
+
+# ----- item 5: a crash inside the user's environment keeps the run ---------------------------------------------------
+@pytest.mark.parametrize("runner", ["inline", "service"])
+def test_a_crash_inside_the_environment_keeps_the_run_and_resume_goes_on(runner, tmp_path):
+    """The env raises at step 2 of its third episode: the run checkpoints, writes its summary (ended env_error),
+    says in one line what raised where and how to resume, exit 2; resuming without the fault trains to the end."""
+    run = tmp_path / "run"
+    sets = [f"env.factory={PROBE}", 'env.factory_kwargs={crash_after=2, fault_at=2}', "env.num_envs=2",
+            "run.episodes=12", f"run.dir={run}", "maddpg.warmup=8", "maddpg.batch_size=4", "replay.capacity=64",
+            "teams.agent.algorithm=maddpg"]
+    extra = ["--num-cpus", "2", "--metrics-port", "0"] if runner == "service" else []
+    done = subprocess.run([sys.executable, "-m", "cmcl", "train", "--runner", runner, "--no-eval", "--quiet",
+                           *[a for s in sets for a in ("--set", s)], *extra], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 2, done.stderr
+    said = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert len(said) == 1 and "RuntimeError: probe crash (at probe_env.py" in said[0], done.stderr
+    assert "step 2 of world" in said[0] and "agent_0, agent_1" in said[0] and "resume with" in said[0]
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["ended"] == "env_error"
+    again = subprocess.run([sys.executable, "-m", "cmcl", "resume", str(run), "--no-eval", "--quiet",
+                            "--set", "env.factory_kwargs={}", *extra], cwd=ROOT, capture_output=True, text=True,
+                           timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert json.loads((run / "summary.json").read_text())["ended"] == "budget"

@@ -26,6 +26,23 @@ class EnvFactoryError(ValueError):
     """`env.factory` cannot be loaded, or the environment it builds is not supported."""
 
 
+class EnvCrashed(EnvFactoryError):
+    """The user's environment raised while it was reset or stepped during training (issue 37 item 5): the runners
+    checkpoint, write the summary and exit with this one line; `resume` goes on from the checkpoint."""
+
+
+def crash_text(factory: str, what: str, err: BaseException) -> str:
+    """'env.factory 'pkg:fn': <what> raised KeyError: 'x' (at env.py line 12, in step)': the error and the user's
+    line it came from (the innermost frame of its traceback)."""
+    frame, tb = None, err.__traceback__
+    while tb is not None:
+        frame, tb = tb, tb.tb_next
+    where = "" if frame is None else \
+        f" (at {frame.tb_frame.f_code.co_filename.rsplit('/', 1)[-1]} line {frame.tb_lineno}, in " \
+        f"{frame.tb_frame.f_code.co_name})"
+    return f"env.factory {factory!r}: {what} raised {type(err).__name__}: {err}{where}"
+
+
 @dataclass(frozen=True)
 class AgentSpec:
     """One agent as the learner sees it: its id, team, flat observation width and flat action bounds.

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.envs.factory import AgentSpec, EnvFactoryError, describe, teams_of
+from cmcl.envs.factory import AgentSpec, EnvCrashed, EnvFactoryError, crash_text, describe, teams_of
 
 SEED_RANGE = 2**31 - 1  # env.reset(seed=...) draws from [0, SEED_RANGE)
 CHECK_EVERY = 64  # after its first episode, a world's observations get the full check at one step in this many
@@ -75,6 +75,7 @@ class VectorParallelEnv:
                  team_of: Mapping[str, str] | None = None, success_key: str = "", coverage_key: str = "",
                  factory: str = "env.factory"):
         self.envs = [make() for _ in range(int(num_envs))]
+        self.factory = factory  # named in the errors of the user's environment
         self.specs: list[AgentSpec] = describe(self.envs[0], team_of, factory=factory)
         self.agent_ids = [s.agent_id for s in self.specs]
         self._index = {agent: i for i, agent in enumerate(self.agent_ids)}
@@ -138,7 +139,12 @@ class VectorParallelEnv:
         return (spec.act_low + (a + 1.0) * 0.5 * (spec.act_high - spec.act_low)).reshape(spec.act_shape)
 
     def _reset_world(self, world: int) -> None:
-        observations, infos = self.envs[world].reset(seed=int(self._rng.integers(SEED_RANGE)))
+        try:
+            observations, infos = self.envs[world].reset(seed=int(self._rng.integers(SEED_RANGE)))
+        except EnvFactoryError:
+            raise
+        except Exception as err:  # noqa: BLE001 - the user's code: whatever it raises ends the run, kept (item 5)
+            raise EnvCrashed(crash_text(self.factory, f"reset of world {world}", err)) from err
         self._t[world], self._returns[world], self._over[world] = 0, 0.0, False
         self._write_obs(self._obs, world, observations, full=True)
         for last in self._stat_last.values():
@@ -173,8 +179,12 @@ class VectorParallelEnv:
             if self._over[world]:
                 continue
             live = list(env.agents)
-            observations, rew, term, trunc, infos = env.step(
-                {agent: self._env_action(self._index[agent], a[world, self._index[agent]]) for agent in live})
+            try:
+                observations, rew, term, trunc, infos = env.step(
+                    {agent: self._env_action(self._index[agent], a[world, self._index[agent]]) for agent in live})
+            except Exception as err:  # noqa: BLE001 - the user's code: whatever it raises ends the run, kept
+                raise EnvCrashed(crash_text(self.factory, f"step {self._t[world] + 1} of world {world} (agents "
+                                            f"{', '.join(live)})", err)) from err
             self._t[world] += 1
             self._world_steps[world] += 1
             full = self._first_episode[world] or self._world_steps[world] % CHECK_EVERY == 0

@@ -61,6 +61,7 @@ def run_inline(request: RunRequest) -> int:
 
 def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
     """Build the loop, restore it when resuming, train until done or stopped; the run directory is locked."""
+    from cmcl.envs.factory import EnvFactoryError
     from cmcl.learners.warm_start import warm_start_from_config
     from cmcl.loop.inline import InlineLoop
     from cmcl.progress import TrainingDiverged
@@ -93,6 +94,13 @@ def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
             run_dir.write_summary({"runner": "inline", "ended": "diverged", **loop.counters,
                                    "elapsed_s": loop.elapsed_s})
             print(f"error: {err}", file=sys.stderr)
+            return 2
+        except EnvFactoryError as err:  # the user's environment raised or misfit: keep the run, then one line
+            checkpoint = loop.save_checkpoint()
+            run_dir.write_summary({"runner": "inline", "ended": "env_error", **loop.counters,
+                                   "elapsed_s": loop.elapsed_s})
+            print(f"error: {err}; the run is kept at episode {loop.counters['episodes']} ({checkpoint}); resume "
+                  f"with: {resume_command(run_dir.path)}", file=sys.stderr)
             return 2
         stop.training_over()
         ended = stop.name or ("solved" if solved(loop.window, config.run) else
