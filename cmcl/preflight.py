@@ -54,7 +54,7 @@ def preflight(config: Config, *, teams_given: bool = True, worker_processes: int
 def built_env(config: Config) -> Any:
     """One world of `config`'s environment, built (and, for an env.factory, reset and stepped once with the middle
     action); any error of the user's code becomes a ConfigError naming env.factory and what raised."""
-    from cmcl.envs.factory import EnvFactoryError
+    from cmcl.envs.factory import EnvCrashed, EnvFactoryError
     from cmcl.system import make_batched_env
 
     factory = config.env.factory
@@ -70,6 +70,7 @@ def built_env(config: Config) -> Any:
     try:
         env.step(np.zeros((1, env.num_agents, env.act_dim), np.float32))
     except Exception as err:  # noqa: BLE001
+        err = err.__cause__ if isinstance(err, EnvCrashed) and err.__cause__ is not None else err  # the user's own
         _close(env)
         raise ConfigError(f"env.factory {factory!r}: its first step (every agent's middle action) raised "
                           f"{_described(err)}") from None

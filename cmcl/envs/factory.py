@@ -32,15 +32,15 @@ class EnvCrashed(EnvFactoryError):
 
 
 def crash_text(factory: str, what: str, err: BaseException) -> str:
-    """'env.factory 'pkg:fn': <what> raised KeyError: 'x' (at env.py line 12, in step)': the error and the user's
-    line it came from (the innermost frame of its traceback)."""
+    """'<factory>: <what> raised KeyError: 'x' (at env.py line 12, in step)': the error and the user's line it
+    came from (the innermost frame of its traceback); factory is its description ("env.factory 'pkg:fn'")."""
     frame, tb = None, err.__traceback__
     while tb is not None:
         frame, tb = tb, tb.tb_next
     where = "" if frame is None else \
         f" (at {frame.tb_frame.f_code.co_filename.rsplit('/', 1)[-1]} line {frame.tb_lineno}, in " \
         f"{frame.tb_frame.f_code.co_name})"
-    return f"env.factory {factory!r}: {what} raised {type(err).__name__}: {err}{where}"
+    return f"{factory}: {what} raised {type(err).__name__}: {err}{where}"
 
 
 @dataclass(frozen=True)
