@@ -59,8 +59,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from benchmarl.environments.pettingzoo.common import PettingZooClass  # noqa: E402
 from benchmarl.experiment.callback import Callback  # noqa: E402
-from peer_envs import ENVS  # noqa: E402
-from pettingzoo.utils.wrappers import BaseParallelWrapper  # noqa: E402
+from peer_envs import ENVS, ForwardingWrapper  # noqa: E402
 from torchrl.envs.libs.pettingzoo import PettingZooWrapper  # noqa: E402
 
 from cmcl.provenance import provenance  # noqa: E402
@@ -70,32 +69,10 @@ MA_WINDOW = 100
 MA_TARGET = 0.9
 
 
-class CoverageInfo(BaseParallelWrapper):
+class CoverageInfo(ForwardingWrapper):
     """Per-agent infos = {final_coverage, final_success}: the final step's info["episode"] values, else 0.0."""
 
     INFO = {"final_coverage": 0.0, "final_success": 0.0}
-
-    @property
-    def possible_agents(self):
-        return self.env.possible_agents
-
-    @property
-    def agents(self):
-        return self.env.agents
-
-    @property
-    def metadata(self):
-        return self.env.metadata
-
-    @property
-    def render_mode(self):
-        return self.env.render_mode
-
-    def observation_space(self, agent):
-        return self.env.observation_space(agent)
-
-    def action_space(self, agent):
-        return self.env.action_space(agent)
 
     def reset(self, seed=None, options=None):
         obs, infos = self.env.reset(seed=seed, options=options)

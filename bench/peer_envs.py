@@ -117,18 +117,10 @@ def random_policy(env_spec: PeerEnv, seed: int) -> Policy:
     return act
 
 
-class EpisodeSummaryCarrier(BaseParallelWrapper):
-    """Copies the last finished episode's final-step coverage/success into the next reset's infos.
+class ForwardingWrapper(BaseParallelWrapper):
+    """A ParallelEnv wrapper whose agents, spaces, metadata and render mode are the wrapped env's (explicit
+    forwards: ParallelEnv's class attributes would otherwise shadow __getattr__)."""
 
-    AgileRL's async vec env auto-resets in the worker and returns the reset's infos in place of the final
-    step's, so our info["episode"] never reaches the training loop. Nothing else is changed.
-    """
-
-    def __init__(self, env):
-        super().__init__(env)
-        self._last: dict[str, float] | None = None
-
-    # explicit forwards (ParallelEnv class attributes would otherwise shadow __getattr__)
     @property
     def possible_agents(self):
         return self.env.possible_agents
@@ -150,6 +142,18 @@ class EpisodeSummaryCarrier(BaseParallelWrapper):
 
     def action_space(self, agent):
         return self.env.action_space(agent)
+
+
+class EpisodeSummaryCarrier(ForwardingWrapper):
+    """Copies the last finished episode's final-step coverage/success into the next reset's infos.
+
+    AgileRL's async vec env auto-resets in the worker and returns the reset's infos in place of the final
+    step's, so our info["episode"] never reaches the training loop. Nothing else is changed.
+    """
+
+    def __init__(self, env):
+        super().__init__(env)
+        self._last: dict[str, float] | None = None
 
     def step(self, actions):
         obs, rew, terms, truncs, infos = self.env.step(actions)
