@@ -97,7 +97,9 @@ def _final_weights(loop: InlineLoop) -> dict[str, torch.Tensor]:
     return {k: v.clone() for k, v in loop.maddpg.actor.state_dict().items()}
 
 
-@pytest.mark.parametrize("older", [False, True], ids=["checkpoint", "checkpoint_before_the_pacing_was_saved"])
+# the older checkpoint layout is slow (the suite's budget)
+@pytest.mark.parametrize("older", [False, pytest.param(True, marks=pytest.mark.slow)],
+                         ids=["checkpoint", "checkpoint_before_the_pacing_was_saved"])
 def test_resume_continues_exactly_where_the_run_stopped(older, tmp_path, tiny_config):
     # an explicit λ stride: the default one depends on run.episodes, which differs between the two runs
     straight = tiny_config("cmcl", dir=str(tmp_path / "straight"), episodes=12, checkpoint_every=4)

@@ -66,6 +66,7 @@ def head(tmp_path):
             proc.wait()
 
 
+@pytest.mark.slow  # out of the default run (the suite's 10-minute budget): starts a cluster of its own
 def test_ray_job_submit_runs_the_launch_on_a_token_auth_cluster(head, tmp_path):
     address, env = head
     run_dir = tmp_path / "job-run"
