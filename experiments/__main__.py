@@ -27,6 +27,7 @@ from experiments.grids import (
     GRIDS,
     ROOT,
     SCALE_CELLS,
+    SCREEN_ARMS,
     Run,
     grid,
     prefix_reference_runs,
@@ -41,12 +42,17 @@ def shown(path: Path) -> str:
     return str(path.relative_to(ROOT) if path.is_relative_to(ROOT) else path)
 
 
+def has_arms(run: Run) -> bool:
+    """Whether `run` belongs to a grid whose runs --arms selects: a curriculum grid's or the screen's."""
+    return (run.grid == "screen" and run.arm in SCREEN_ARMS) or (run.grid != "scale" and run.arm in CURRICULUM_ARMS)
+
+
 def selected_runs(args: argparse.Namespace) -> list[Run]:
-    """The runs of `args.grids` that the filters keep (--arms filters only the curriculum arms, --cells only the
-    scale grid's cells), with the prefix references the kept ablations need."""
+    """The runs of `args.grids` that the filters keep (--arms filters only the curriculum grids' and the screen's
+    arms, --cells only the scale grid's cells), with the prefix references the kept ablations need."""
     runs = [r for r in grid(args.grids, args.seeds, args.algorithms, args.episodes)
             if (r.ablation is None or r.ablation in args.ablations)
-            and (r.arm not in CURRICULUM_ARMS or r.arm in args.arms or r.grid == "screen")
+            and (args.arms is None or r.arm in args.arms or not has_arms(r))
             and (r.arm not in SCALE_CELLS or r.arm in args.cells) and r.mode in args.modes]
     return runs + prefix_reference_runs(runs, args.episodes)
 
@@ -106,8 +112,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
     p.add_argument("--jobs", type=int, default=1, help="runs trained at once (one core each)")
     p.add_argument("--out", type=Path, default=None, help="results folder (default: the grid's, bench/results/...)")
-    p.add_argument("--arms", nargs="+", choices=list(CURRICULUM_ARMS), default=list(CURRICULUM_ARMS),
-                   help="curriculum grids: only these arms")
+    p.add_argument("--arms", nargs="+", choices=list(dict.fromkeys([*CURRICULUM_ARMS, *SCREEN_ARMS])), default=None,
+                   help="curriculum grids and the screen: only these arms (default: all)")
     p.add_argument("--cells", nargs="+", choices=list(SCALE_CELLS), default=list(SCALE_CELLS),
                    help="scale grid: only these cells")
     p.add_argument("--ablations", nargs="+", choices=list(ABLATIONS), default=list(ABLATIONS),

@@ -190,6 +190,10 @@ def test_the_command_line_filters_curriculum_arms_with_arms_and_scale_cells_with
         build_parser().parse_args(["run", "scale", "--cells", "n32_entity"])
     some = selected_runs(build_parser().parse_args(["run", "curriculum", "--seeds", "0", "--arms", "cmcl"]))
     assert [r.id for r in some] == ["curriculum_cmcl_s0"]
+    # the screen's arms, as a later commit's worktree runs an arm added to the protocol (laber)
+    screen = selected_runs(build_parser().parse_args(["run", "screen", "--seeds", "100", "101", "--arms", "laber"]))
+    assert [r.id for r in screen] == ["screen_laber_s100", "screen_laber_s101"]
+    assert len(selected_runs(build_parser().parse_args(["run", "screen", "--seeds", "100"]))) == 9
 
 
 def test_an_agent_count_curriculum_run_is_trained_by_the_stages_command(tmp_path):
