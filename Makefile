@@ -14,7 +14,7 @@ TEST_ARGS ?=
 # Appended to a training command: its exit status after a graceful stop (130 Ctrl-C, 143 SIGTERM) is not an error.
 STOPPED_IS_OK := || { status=$$?; [ $$status -eq 130 ] || [ $$status -eq 143 ] || exit $$status; }
 
-.PHONY: install system-deps run resume demo test test-deploy lint bench peer peer-benchmarl clean
+.PHONY: install system-deps run resume demo test test-extended test-deploy lint bench peer peer-benchmarl clean
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -51,6 +51,11 @@ system-deps:
 
 test: install system-deps
 	$(BIN)/python -m pytest $(TEST_ARGS)
+
+# The cases kept out of `make test` for its 10-minute budget (marker `extended`: more runners, faults and
+# environments of paths the default run covers once). The hours-long learning runs stay under `-m slow`.
+test-extended: install system-deps
+	$(BIN)/python -m pytest -m extended $(TEST_ARGS)
 
 # docker-compose.yml run for real with podman (tests/test_compose_live.py, marker `deploy`): base images from the
 # Debian mirror, the wheelhouse, the images, then the stack up, checked and down. Podman settings: deploy/README.md.

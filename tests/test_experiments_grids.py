@@ -147,7 +147,8 @@ def test_every_grid_has_a_results_folder_and_the_time_to_solve_grids_stop_early(
         grid(["nope"], [0])
 
 
-@pytest.mark.slow  # out of the default run (the suite's 10-minute budget): trains a real own-env run
+# out of the default run (its 10-minute budget): trains a real own-env run
+@pytest.mark.extended
 def test_an_own_env_run_trains_from_its_settings_and_is_measured_per_team_against_random(tmp_path):
     """The own_envs grid's simple_tag run: no config file, the env's settings; held-out return per team, the random
     policy's on the same worlds and each team against random opponents; its rows in the table."""

@@ -50,7 +50,8 @@ def wait_for(condition, seconds: float, what: str):
     raise AssertionError(f"timed out after {seconds} s waiting for {what}")
 
 
-@pytest.mark.slow  # out of the default run (the suite's 10-minute budget): trains runs in a child process
+# out of the default run (its 10-minute budget): trains runs in a child process
+@pytest.mark.extended
 def test_a_killed_runner_kills_its_child_and_a_rerun_resumes_it_and_skips_finished_runs(tmp_path):
     store = ResultsStore(tmp_path)
     interrupted = Run("spread_maddpg_s3", "spread", "spread", "maddpg", None, 3, 200, sets=TINY)

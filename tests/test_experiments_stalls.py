@@ -13,7 +13,9 @@ from tests.test_loop import INLINE_SECTIONS
 from tests.tiny import make_tiny_config
 
 
-@pytest.mark.slow  # out of the default run (the suite's 10-minute budget): trains a run; the record of an unfinished one stays in the default run
+# out of the default run (its 10-minute budget): trains a run; the record of an unfinished one stays in the default
+# run
+@pytest.mark.extended
 def test_a_finished_run_gets_a_record_and_an_unfinished_one_none(tmp_path):
     folder = tmp_path / "grid"
     config = make_tiny_config("cmcl", sections=INLINE_SECTIONS, dir=str(folder / "runs" / "curriculum_cmcl_s0"),

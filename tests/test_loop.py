@@ -97,8 +97,8 @@ def _final_weights(loop: InlineLoop) -> dict[str, torch.Tensor]:
     return {k: v.clone() for k, v in loop.maddpg.actor.state_dict().items()}
 
 
-# the older checkpoint layout is slow (the suite's budget)
-@pytest.mark.parametrize("older", [False, pytest.param(True, marks=pytest.mark.slow)],
+# the older checkpoint layout is extended (out of the default run's budget)
+@pytest.mark.parametrize("older", [False, pytest.param(True, marks=pytest.mark.extended)],
                          ids=["checkpoint", "checkpoint_before_the_pacing_was_saved"])
 def test_resume_continues_exactly_where_the_run_stopped(older, tmp_path, tiny_config):
     # an explicit λ stride: the default one depends on run.episodes, which differs between the two runs

@@ -150,8 +150,8 @@ def test_the_command_line_says_what_does_not_fit_in_one_line_and_exits_2(sets, s
 
 
 # ----- item 5: a crash inside the user's environment keeps the run ---------------------------------------------------
-# the service case is slow (the suite's budget); the inline case stays in the default run
-@pytest.mark.parametrize("runner", ["inline", pytest.param("service", marks=pytest.mark.slow)])
+# the service case is extended (out of the default run's budget); the inline case stays in the default run
+@pytest.mark.parametrize("runner", ["inline", pytest.param("service", marks=pytest.mark.extended)])
 def test_a_crash_inside_the_environment_keeps_the_run_and_resume_goes_on(runner, tmp_path):
     """The env raises at step 2 of its third episode: the run checkpoints, writes its summary (ended env_error),
     says in one line what raised where and how to resume, exit 2; resuming without the fault trains to the end."""

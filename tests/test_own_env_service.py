@@ -15,15 +15,16 @@ pytestmark = pytest.mark.ray
 
 @pytest.mark.parametrize("factory,extra", [
     ("cmcl.envs.examples.reach:parallel_env", ["env.success_key=reached"]),
-    ("mpe2.simple_speaker_listener_v4:parallel_env", ["env.factory_kwargs={continuous_actions=true, max_cycles=25}",
-                                                      "teams.speaker.algorithm=cmcl",
-                                                      "teams.listener.algorithm=maddpg"]),
-    # slow (the suite's budget): discrete actions and a physics env outside MPE, both covered inline in the default run
+    # extended (the default run's budget): two teams, one of them CMCL, on the service; the reach env above stays
+    pytest.param("mpe2.simple_speaker_listener_v4:parallel_env",
+                 ["env.factory_kwargs={continuous_actions=true, max_cycles=25}", "teams.speaker.algorithm=cmcl",
+                  "teams.listener.algorithm=maddpg"], marks=pytest.mark.extended),
+    # extended (the default run's budget): discrete actions and a physics env outside MPE, covered inline by default
     pytest.param("mpe2.simple_spread_v3:parallel_env", ["env.factory_kwargs={continuous_actions=false, max_cycles=25}"],
-                 marks=pytest.mark.slow),
+                 marks=pytest.mark.extended),
     pytest.param("gymnasium_robotics:mamujoco_v1.parallel_env",
                  ['env.factory_kwargs={scenario="HalfCheetah", agent_conf="2x3", max_episode_steps=25}',
-                  "env.episode_length=25"], marks=pytest.mark.slow)])
+                  "env.episode_length=25"], marks=pytest.mark.extended)])
 def test_a_factory_environment_trains_through_the_service(factory, extra, tmp_path, ray_cluster):
     config = load_config(None, [f"env.factory={factory}", *tiny_overrides(service=True), *extra, "run.episodes=24",
                                 f"run.dir={tmp_path}"])

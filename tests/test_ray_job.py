@@ -66,7 +66,8 @@ def head(tmp_path):
             proc.wait()
 
 
-@pytest.mark.slow  # out of the default run (the suite's 10-minute budget): starts a cluster of its own
+# out of the default run (its 10-minute budget): starts a cluster of its own
+@pytest.mark.extended
 def test_ray_job_submit_runs_the_launch_on_a_token_auth_cluster(head, tmp_path):
     address, env = head
     run_dir = tmp_path / "job-run"

@@ -248,8 +248,8 @@ def test_a_busy_metrics_port_is_named_before_ray_starts_and_the_inline_runner_re
     assert not (tmp_path / "run").exists()
 
 
-# the service case is slow (the suite's budget); the inline case stays in the default run
-@pytest.mark.parametrize("runner", ["inline", pytest.param("service", marks=pytest.mark.slow)])
+# the service case is extended (out of the default run's budget); the inline case stays in the default run
+@pytest.mark.parametrize("runner", ["inline", pytest.param("service", marks=pytest.mark.extended)])
 def test_training_that_diverges_ends_with_one_line_and_a_summary(runner, tmp_path):
     """maddpg.critic_lr = 1e30: the weights go NaN at the first updates; the run ends with exit 2, one line naming
     the learning rates, and summary.json ended = "diverged". Before: inline, "actions must be finite" from the env,

@@ -77,7 +77,8 @@ def test_a_replay_server_killed_mid_insert_loses_no_acknowledged_transition(tmp_
     kill_all(ray, roles)
 
 
-@pytest.mark.slow  # out of the default run (the suite's 10-minute budget): a worker killed three times stays in the default run
+# out of the default run (its 10-minute budget): a worker killed three times stays in the default run
+@pytest.mark.extended
 def test_a_hung_rollout_worker_is_killed_and_restarted(tmp_path, ray_cluster):
     ray = ray_cluster
     config = tiny_service("maddpg", tmp_path / "hung", {"call_timeout_s": 3.0}, episodes=24)  # a hang found in 3 s
@@ -133,8 +134,8 @@ def arm_after_first(supervisor, kind, arm_call):
     return armed
 
 
-@pytest.mark.parametrize("role", ["learner", pytest.param("teacher", marks=pytest.mark.slow),  # slow: the
-                                  pytest.param("icm", marks=pytest.mark.slow)])  # suite's budget; same restart path
+@pytest.mark.parametrize("role", ["learner", pytest.param("teacher", marks=pytest.mark.extended),
+                                  pytest.param("icm", marks=pytest.mark.extended)])  # extended: one restart path
 def test_a_learner_teacher_or_icm_killed_mid_step_is_restarted_and_training_goes_on(role, tmp_path, ray_cluster):
     ray = ray_cluster
     config = tiny_service("cmcl", tmp_path / f"kill-{role}", episodes=48)
@@ -164,7 +165,8 @@ def test_a_learner_teacher_or_icm_killed_mid_step_is_restarted_and_training_goes
     kill_all(ray, roles)
 
 
-@pytest.mark.slow  # out of the default run (the suite's 10-minute budget): the kill mid insert stays in the default run
+# out of the default run (its 10-minute budget): the kill mid insert stays in the default run
+@pytest.mark.extended
 def test_a_replay_server_killed_mid_snapshot_keeps_the_previous_one(tmp_path, ray_cluster):
     ray = ray_cluster
     config = tiny_service("acl", tmp_path / "snapshot-kill", {"checkpoint_every_s": 1.0},  # snapshots during the run
@@ -221,7 +223,8 @@ def test_a_rollout_worker_killed_three_times_with_sigkill_loses_nothing_acknowle
     kill_all(ray, roles)
 
 
-@pytest.mark.slow  # out of the default run (the suite's 10-minute budget): a second Ray node
+# out of the default run (its 10-minute budget): a second Ray node
+@pytest.mark.extended
 def test_the_loss_of_the_worker_node_is_survived(tmp_path):
     """A 2-node `ray.cluster_utils.Cluster` (its own process: tests/node_loss_scenario.py) loses the node running
     the rollout worker; the worker restarts on the replacement node and the run ends at its exact target."""
@@ -237,7 +240,8 @@ def test_the_loss_of_the_worker_node_is_survived(tmp_path):
     assert result["recovered_after_s"] > 0
 
 
-@pytest.mark.slow  # out of the default run (the suite's 10-minute budget): the kill mid insert stays in the default run
+# out of the default run (its 10-minute budget): the kill mid insert stays in the default run
+@pytest.mark.extended
 def test_the_final_cut_right_after_the_replay_server_is_killed_waits_for_its_restart(tmp_path, ray_cluster):
     """The supervisor's own calls to the replay server (status, the final report) are read-only: a call that reaches
     the server's dead process before Ray has noticed the death (ActorUnavailableError) is retried on the restarted

@@ -38,9 +38,11 @@ def value(parsed, name, **labels):
     return sum(v for (n, ls), v in parsed.items() if n == name and set(labels.items()) <= set(ls))
 
 
-# per and acl are slow (the suite's budget): maddpg and cmcl cover the learner-only and the scored paths
-@pytest.mark.parametrize("algorithm", ["maddpg", pytest.param("per", marks=pytest.mark.slow),
-                                       pytest.param("acl", marks=pytest.mark.slow), "cmcl"])
+# per, acl and cmcl are extended (out of the default run's budget): maddpg stays, and the default run trains CMCL
+# on the service end to end in tests/test_user_path.py (make run) and tests/test_own_env_service.py
+@pytest.mark.parametrize("algorithm", ["maddpg", pytest.param("per", marks=pytest.mark.extended),
+                                       pytest.param("acl", marks=pytest.mark.extended),
+                                       pytest.param("cmcl", marks=pytest.mark.extended)])
 def test_each_preset_runs_end_to_end(algorithm, tmp_path, ray_cluster):
     # cmcl runs the automatic choice (one stacked actor on 2 CPUs); acl runs K = 3 actors
     actors = {"service": {"teacher_actors": 3}} if algorithm == "acl" else {}
@@ -116,7 +118,9 @@ def test_resume_continues_counters(tmp_path, ray_cluster):
     assert episodes == list(range(1, second["episodes"] + 1))
 
 
-@pytest.mark.slow  # out of the default run (the suite's 10-minute budget): tests/test_service_faults.py kills a worker three times in the default run
+# out of the default run (its 10-minute budget): tests/test_service_faults.py kills a worker three times in the
+# default run
+@pytest.mark.extended
 def test_a_killed_rollout_worker_is_replaced_and_training_goes_on(tmp_path, ray_cluster):
     """Rollout worker 0 is killed (ray.kill, restartable) in the middle of a rollout call: the supervisor sees that
     call fail, Ray restarts the worker (a new incarnation) and training goes on to the episode target.

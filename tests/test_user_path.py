@@ -208,7 +208,9 @@ def test_make_run_ends_with_the_held_out_evaluation_and_a_gif_and_evaluate_finds
     assert not alive(resumed.seen), f"processes left behind: {alive(resumed.seen)}"
 
 
-@pytest.mark.slow  # out of the default run (the suite's 10-minute budget): the inline Ctrl-C test and `make resume` in the make-run test stay in the default run
+# out of the default run (its 10-minute budget): the inline Ctrl-C test and `make resume` in the make-run test stay in
+# the default run
+@pytest.mark.extended
 def test_make_run_stopped_by_ctrl_c_a_second_launcher_refused_and_the_printed_command_resumes_the_policy(tmp_path):
     run_dir = tmp_path / "run"
     first = Launched(["make", "-s", "run", f"RUN_ARGS=--set run.dir={run_dir} --set run.max_seconds=120 "
@@ -233,7 +235,9 @@ def test_make_run_stopped_by_ctrl_c_a_second_launcher_refused_and_the_printed_co
     assert learner_version(run_dir) > version
 
 
-@pytest.mark.slow  # out of the default run (the suite's 10-minute budget): the service's stop and resume stay in the default run by the inline Ctrl-C test and tests/test_service_ray.py
+# out of the default run (its 10-minute budget): the service's stop and resume stay in the default run by the inline
+# Ctrl-C test and tests/test_service_ray.py
+@pytest.mark.extended
 def test_sigkill_of_the_launcher_leaves_no_ray_process_and_resume_goes_on_from_the_last_checkpoint(tmp_path):
     run_dir = tmp_path / "run"
     first = launch(run_dir, "--set", "service.checkpoint_every_s=2")
