@@ -149,7 +149,8 @@ class Test:
     why it was not tested; difference: mean(a) − mean(b) (None for a time to threshold or a test not run); p: the
     test's p-value (None when not run); adjusted: Holm's p (None for the primary comparison or a test not run);
     primary: the protocol's named comparison; level: the α it is judged at; detectable: the smallest difference of
-    means its test detects with 80% power at that level (None for a time or a test not run)."""
+    means its test detects with 80% power at that level (None for a time or a test not run); mixed: not run because
+    its runs ran different code (a test not run otherwise lacks its runs)."""
 
     a: str
     b: str
@@ -163,6 +164,7 @@ class Test:
     primary: bool
     level: float
     detectable: float | None
+    mixed: bool
 
     @property
     def testable(self) -> bool:
@@ -186,27 +188,27 @@ def curriculum_test_rows(runs: list[dict[str, Any]],
         code, testable = cell_versions(ra + rb)
         if len(ra) < 2 or len(rb) < 2 or not testable:
             rows.append((a, b, key, code, "n/a (fewer than 2 runs)" if testable else "not tested: code versions mixed",
-                         None, None))
+                         None, None, not testable))
             continue
         if key in TIMES:
             ta, tb = [r[key] for r in ra], [r[key] for r in rb]
             rows.append((a, b, key, code, f"{fmt_time(ta)} vs {fmt_time(tb)}", None,
-                         logrank_p(ta, tb, ra[0]["budget"])))
+                         logrank_p(ta, tb, ra[0]["budget"]), False))
         else:
             d, lo, hi, p = difference([r[key] for r in ra], [r[key] for r in rb])
-            rows.append((a, b, key, code, f"{d:+.3f} [{lo:+.3f}, {hi:+.3f}]", d, p))
-    pvalues = [row[-1] for row in rows]
+            rows.append((a, b, key, code, f"{d:+.3f} [{lo:+.3f}, {hi:+.3f}]", d, p, False))
+    pvalues = [row[-2] for row in rows]
     # Holm over the whole pre-registered family: a test without its runs yet counts as p = 1 (conservative)
     tested = [1.0 if p is None else p for p in (pvalues[1:] if primary else pvalues)]
     adjusted = [None] * primary + holm(tested)
     levels = [ALPHA] * primary + [ALPHA / len(tested)] * len(tested)
     out = []
-    for i, (a, b, key, code, text, d, p) in enumerate(rows):
+    for i, (a, b, key, code, text, d, p, mixed) in enumerate(rows):
         mde = None if p is None or key in TIMES else detectable([r[key] for r in by_arm[a]],
                                                                 [r[key] for r in by_arm[b]], levels[i])
         out.append(Test(a, b, key, (len(by_arm[a]), len(by_arm[b])), code, text, d, p,
                         None if p is None or (primary and i == 0) else adjusted[i], primary and i == 0, levels[i],
-                        mde))
+                        mde, mixed))
     return out
 
 
