@@ -3,7 +3,7 @@
     python -m experiments run GRID [GRID ...] [--seeds 0 1 2 3 4] [--jobs 2] [--out DIR]
             [--arms ...] [--cells ...] [--ablations ...] [--algorithms ...] [--modes inline service] [--episodes 20000]
             [--allow-dirty]
-    python -m experiments report [--update docs/RESULTS.md] [--results bench/results]
+    python -m experiments report [--update docs/RESULTS.md | README.md | docs/LEARNING.md] [--results bench/results]
     python -m experiments figures [--results bench/results]
     python -m experiments stalls FOLDER [FOLDER ...]      (e.g. bench/results/curriculum: its runs/ directories)
 

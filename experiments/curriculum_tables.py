@@ -142,7 +142,37 @@ def setting_table(runs: list[dict[str, Any]], arms: tuple[str, ...]) -> str:
     return "\n".join(lines)
 
 
-def curriculum_tests(runs: list[dict[str, Any]], comparisons: list[tuple[str, str, str]] | None = None) -> str:
+@dataclass(frozen=True)
+class Test:
+    """One row of a curriculum grid's tests. a, b: the arms (a − b); key: the measure; seeds: (runs of a, runs of b);
+    code: the code versions of its runs (experiments.provenance.cell_versions); text: the difference as printed, or
+    why it was not tested; difference: mean(a) − mean(b) (None for a time to threshold or a test not run); p: the
+    test's p-value (None when not run); adjusted: Holm's p (None for the primary comparison or a test not run);
+    primary: the protocol's named comparison; level: the α it is judged at; detectable: the smallest difference of
+    means its test detects with 80% power at that level (None for a time or a test not run); mixed: not run because
+    its runs ran different code (a test not run otherwise lacks its runs)."""
+
+    a: str
+    b: str
+    key: str
+    seeds: tuple[int, int]
+    code: str
+    text: str
+    difference: float | None
+    p: float | None
+    adjusted: float | None
+    primary: bool
+    level: float
+    detectable: float | None
+    mixed: bool
+
+    @property
+    def testable(self) -> bool:
+        return self.p is not None
+
+
+def curriculum_test_rows(runs: list[dict[str, Any]],
+                         comparisons: list[tuple[str, str, str]] | None = None) -> list[Test]:
     """The protocol's tests: the primary comparison unadjusted, every other one Holm-corrected; times to MA 0.9 by
     KM medians and a log-rank test. comparisons: (arm, arm, field) to test instead of the task's protocol, all
     Holm-corrected together (no primary). Each difference of means also gets the smallest difference its test detects
@@ -152,36 +182,43 @@ def curriculum_tests(runs: list[dict[str, Any]], comparisons: list[tuple[str, st
     primary = comparisons is None
     comparisons = task_measures(runs).comparisons() if comparisons is None else comparisons
     by_arm = {arm: [r for r in runs if r.get("arm") == arm] for pair in comparisons for arm in pair[:2]}
-    rows, pvalues = [], []
+    rows = []
     for a, b, key in comparisons:
         ra, rb = by_arm[a], by_arm[b]
         code, testable = cell_versions(ra + rb)
         if len(ra) < 2 or len(rb) < 2 or not testable:
             rows.append((a, b, key, code, "n/a (fewer than 2 runs)" if testable else "not tested: code versions mixed",
-                         None))
-            pvalues.append(None)
+                         None, None, not testable))
             continue
         if key in TIMES:
             ta, tb = [r[key] for r in ra], [r[key] for r in rb]
-            p = logrank_p(ta, tb, ra[0]["budget"])
-            text = f"{fmt_time(ta)} vs {fmt_time(tb)}"
+            rows.append((a, b, key, code, f"{fmt_time(ta)} vs {fmt_time(tb)}", None,
+                         logrank_p(ta, tb, ra[0]["budget"]), False))
         else:
             d, lo, hi, p = difference([r[key] for r in ra], [r[key] for r in rb])
-            text = f"{d:+.3f} [{lo:+.3f}, {hi:+.3f}]"
-        rows.append((a, b, key, code, text, p))
-        pvalues.append(p)
+            rows.append((a, b, key, code, f"{d:+.3f} [{lo:+.3f}, {hi:+.3f}]", d, p, False))
+    pvalues = [row[-2] for row in rows]
     # Holm over the whole pre-registered family: a test without its runs yet counts as p = 1 (conservative)
     tested = [1.0 if p is None else p for p in (pvalues[1:] if primary else pvalues)]
     adjusted = [None] * primary + holm(tested)
     levels = [ALPHA] * primary + [ALPHA / len(tested)] * len(tested)
+    out = []
+    for i, (a, b, key, code, text, d, p, mixed) in enumerate(rows):
+        mde = None if p is None or key in TIMES else detectable([r[key] for r in by_arm[a]],
+                                                                [r[key] for r in by_arm[b]], levels[i])
+        out.append(Test(a, b, key, (len(by_arm[a]), len(by_arm[b])), code, text, d, p,
+                        None if p is None or (primary and i == 0) else adjusted[i], primary and i == 0, levels[i],
+                        mde, mixed))
+    return out
+
+
+def curriculum_tests(runs: list[dict[str, Any]], comparisons: list[tuple[str, str, str]] | None = None) -> str:
+    """The protocol's tests (curriculum_test_rows) as a markdown table."""
     lines = ["| comparison | measure | seeds | code | difference [bootstrap 95%] | p | p (Holm) | detectable with 80% "
              "power (α) |", "| --- " * 8 + "|"]
-    for i, (a, b, key, code, text, p) in enumerate(rows):
-        n = f"{len(by_arm[a])} vs {len(by_arm[b])}"
-        adj = "primary" if primary and i == 0 else "" if p is None else f"{adjusted[i]:.3f}"
-        mde = "" if p is None else "—" if key in TIMES else (
-            f"{detectable([r[key] for r in by_arm[a]], [r[key] for r in by_arm[b]], levels[i]):.3f} "
-            f"(α {levels[i]:.2g})")
-        lines.append(f"| {ARM_LABEL[a]} − {ARM_LABEL[b]} | {key} | {n} | {code} | {text} | "
-                     f"{'' if p is None else f'{p:.3f}'} | {adj} | {mde} |")
+    for t in curriculum_test_rows(runs, comparisons):
+        adj = "primary" if t.primary else "" if t.p is None else f"{t.adjusted:.3f}"
+        mde = "" if t.p is None else "—" if t.detectable is None else f"{t.detectable:.3f} (α {t.level:.2g})"
+        lines.append(f"| {ARM_LABEL[t.a]} − {ARM_LABEL[t.b]} | {t.key} | {t.seeds[0]} vs {t.seeds[1]} | {t.code} | "
+                     f"{t.text} | {'' if t.p is None else f'{t.p:.3f}'} | {adj} | {mde} |")
     return "\n".join(lines)

@@ -15,7 +15,14 @@ the text between them (a block whose markers the page lacks is only printed):
 * ownenvs: the own_envs grid (bench/results/own_envs), each environment against the random policy;
 * screen, screenselect: the screen of sampling rules (bench/results/screen, issue 36) and its selection rule;
 * makerun: `make run` measured per seed (bench/results/make_run), the block of README.md
-  (`python -m experiments report --update README.md`).
+  (`python -m experiments report --update README.md`);
+* the numbers README.md and docs/LEARNING.md quote from the grids (experiments.quoted): headline, lambdawait (README.md;
+  headline in docs/LEARNING.md too), tts, schedule, ttstag, learningcurriculum, learningspread, learningtag,
+  learningablations, refactoring (docs/LEARNING.md; `python -m experiments report --update docs/LEARNING.md`).
+
+A block name means one text wherever it stands (headline stands in README.md and docs/LEARNING.md), and no two
+texts share a name: `update` writes every block whose markers a page has and leaves the rest of the page alone, so any
+page can be updated with all of them.
 """
 
 from __future__ import annotations
@@ -30,10 +37,11 @@ from experiments.curriculum_tables import (
     curriculum_tests,
     setting_table,
 )
-from experiments.grids import GRIDS
+from experiments.grids import GRIDS, RESULTS
 from experiments.labels import ARM_LABEL
 from experiments.make_run_table import make_run_table
 from experiments.own_envs import own_env_table
+from experiments.quoted import NO_RUNS, quoted_blocks
 from experiments.screen_table import screen_selection, screen_table
 from experiments.stalls import early_learner_table, load_stalls, stall_table
 from experiments.store import ResultsStore
@@ -47,7 +55,6 @@ from experiments.tables import (
     tests_table,
 )
 
-NO_RUNS = "no runs yet"
 CURRICULUM_BLOCKS = {"curriculum": ("curriculum", "curriculumtests", "curriculumstalls", "curriculumearly"),
                      "curriculum_hard": ("curriculumhard", "curriculumhardtests", "curriculumhardstalls",
                                          "curriculumhardearly"),
@@ -96,7 +103,9 @@ def blocks(results: Path | None = None) -> dict[str, str]:
     out["screen"] = screen_table(screen) if screen else NO_RUNS
     out["screenselect"] = screen_selection(screen)
     out["makerun"] = make_run_table(ResultsStore(where["make_run"]).load())  # README.md's block
-    return out
+    quoted = quoted_blocks(where, RESULTS if results is None else results)  # README.md's and LEARNING.md's
+    assert not quoted.keys() & out.keys(), f"two texts named {sorted(quoted.keys() & out.keys())}"
+    return {**out, **quoted}
 
 
 def setting_runs(where: dict[str, Path], grid_name: str) -> list[dict[str, Any]]:

@@ -143,19 +143,41 @@ def fmt(values: list[float | None], digits: int = 3, key: str = "") -> str:
     return text + (f", {never}/{len(values)} never" if never else "")
 
 
-def welch(a: list[float], b: list[float], digits: int = 3) -> str:
-    """'Δ = mean(a) − mean(b) [95% CI], p' by Welch's unequal-variance t-test (two-sided)."""
+def welch_test(a: list[float], b: list[float]) -> tuple[float, float, float] | None:
+    """(mean(a) − mean(b), half-width of its 95% Welch interval, two-sided p) by Welch's unequal-variance t-test;
+    None for fewer than 2 values in either sample; half-width and p nan when neither sample has any spread."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     if a.size < 2 or b.size < 2:
-        return "n/a"
+        return None
     va, vb = a.var(ddof=1) / a.size, b.var(ddof=1) / b.size
-    diff, se = a.mean() - b.mean(), np.sqrt(va + vb)
+    diff, se = float(a.mean() - b.mean()), np.sqrt(va + vb)
     if se == 0:
-        return f"{diff:+.{digits}f} (no spread)"
+        return diff, float("nan"), float("nan")
     dof = (va + vb) ** 2 / (va ** 2 / (a.size - 1) + vb ** 2 / (b.size - 1))
-    half = stats.t.ppf(0.975, dof) * se
-    p = stats.ttest_ind(a, b, equal_var=False).pvalue
+    return diff, float(stats.t.ppf(0.975, dof) * se), float(stats.ttest_ind(a, b, equal_var=False).pvalue)
+
+
+def welch(a: list[float], b: list[float], digits: int = 3) -> str:
+    """'Δ = mean(a) − mean(b) [95% CI], p' by Welch's unequal-variance t-test (two-sided)."""
+    test = welch_test(a, b)
+    if test is None:
+        return "n/a"
+    diff, half, p = test
+    if np.isnan(half):
+        return f"{diff:+.{digits}f} (no spread)"
     return f"{diff:+.{digits}f} [{diff - half:+.{digits}f}, {diff + half:+.{digits}f}], p = {p:.3f}"
+
+
+def paired_test(variant: dict[int, float], reference: dict[int, float]) -> tuple[float, float, float, int]:
+    """(mean of variant − reference over the seeds both have, half-width of its 95% t interval, two-sided paired p,
+    number of seeds); half-width and p nan for fewer than 2 seeds, p nan when every difference is the same."""
+    seeds = sorted(set(variant) & set(reference))
+    d = np.asarray([variant[s] - reference[s] for s in seeds], dtype=np.float64)
+    if d.size < 2:
+        return float(d.mean()) if d.size else float("nan"), float("nan"), float("nan"), int(d.size)
+    m, h = mean_ci(list(d))
+    p = float("nan") if np.all(d == d[0]) else float(stats.ttest_1samp(d, 0.0).pvalue)
+    return m, h, p, int(d.size)
 
 
 def paired(variant: dict[int, float], reference: dict[int, float], digits: int = 3) -> str:
@@ -163,15 +185,12 @@ def paired(variant: dict[int, float], reference: dict[int, float], digits: int =
 
     variant, reference: {seed: value}. Inline runs are deterministic for a seed, so a variant and the reference of
     the same seed share their initial weights and worlds until the changed setting first acts."""
-    seeds = sorted(set(variant) & set(reference))
-    d = np.asarray([variant[s] - reference[s] for s in seeds], dtype=np.float64)
-    if d.size < 2:
-        return f"n/a ({d.size} paired seed{'s' if d.size != 1 else ''})"
-    m, h = mean_ci(list(d))
-    if np.all(d == d[0]):
-        return f"{m:+.{digits}f} (no spread, n = {d.size})"
-    p = stats.ttest_1samp(d, 0.0).pvalue
-    return f"{m:+.{digits}f} [{m - h:+.{digits}f}, {m + h:+.{digits}f}], p = {p:.3f}, n = {d.size}"
+    m, h, p, n = paired_test(variant, reference)
+    if n < 2:
+        return f"n/a ({n} paired seed{'s' if n != 1 else ''})"
+    if np.isnan(p):
+        return f"{m:+.{digits}f} (no spread, n = {n})"
+    return f"{m:+.{digits}f} [{m - h:+.{digits}f}, {m + h:+.{digits}f}], p = {p:.3f}, n = {n}"
 
 
 def difference(a: list[float], b: list[float], seed: int = 0) -> tuple[float, float, float, float]:

@@ -12,6 +12,14 @@ from scipy import stats
 from experiments.labels import LABEL, ORDER
 from experiments.stats import fmt, logrank_p, median_text, paired, spread, welch
 
+BASELINES = ("maddpg", "per", "acl")  # what CMCL is tested against in the paper's grids
+# the measures of CMCL − each baseline: navigation (tests_table), predator-prey against MADDPG prey (tag_tests_table)
+SPREAD_TESTS = [("mean reward", "mean_reward", 1), ("area under coverage", "auc_coverage", 3),
+                ("held-out success", "held_out_success", 3)]
+TAG_TESTS = [("mean predator reward", "mean_reward_predator", 1), ("win vs trained prey", "win_vs_trained_prey", 3),
+             ("win vs random prey", "win_vs_random_prey", 3)]
+FIG13_WIN = 0.85  # the paper's Fig. 13: CMCL predators win above this against PER-MADDPG prey
+
 SPREAD_COLUMNS = [("held-out coverage", "held_out_coverage", 3), ("held-out success", "held_out_success", 3),
                   ("episodes to MA 0.5", "episodes_to_50", 0), ("episodes to MA 0.9", "episodes_to_90", 0),
                   ("area under coverage", "auc_coverage", 3), ("final MA success", "final_ma_success", 3),
@@ -52,12 +60,11 @@ def tests_table(runs: list[dict[str, Any]]) -> str:
     """CMCL minus each baseline, per measure, by Welch's t-test; episodes to MA 0.9 (censored) by a log-rank test
     over every run, the ones that never got there included. p-values as computed (9 tests: see the text for the
     multiplicity)."""
-    keys = [("mean reward", "mean_reward", 1), ("area under coverage", "auc_coverage", 3),
-            ("held-out success", "held_out_success", 3)]
+    keys = SPREAD_TESTS
     cmcl = [r for r in runs if r["algorithm"] == "cmcl"]
     lines = ["| CMCL minus | " + " | ".join(k[0] for k in keys) + " | episodes to MA 0.9 (KM medians, log-rank) |",
              "| --- " * (len(keys) + 2) + "|"]
-    for base in ("maddpg", "per", "acl"):
+    for base in BASELINES:
         rs = [r for r in runs if r["algorithm"] == base]
         if rs and cmcl:
             cells = [welch([r[k] for r in cmcl], [r[k] for r in rs], d) for _, k, d in keys]
@@ -117,58 +124,84 @@ def tag_table(runs: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def predators_vs_maddpg_prey(runs: list[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
+    """algorithm -> the runs of its predators against MADDPG prey (the tag grid's cells of the paper's Fig. 12)."""
+    return {a: [r for r in runs if r["algorithm"] == a and r["prey_algorithm"] == "maddpg"] for a in ORDER}
+
+
+def against_threshold(wins: list[float]) -> tuple[float, float]:
+    """(mean − FIG13_WIN, two-sided p of a one-sample t-test of the mean against FIG13_WIN); p nan for one run."""
+    p = float(stats.ttest_1samp(wins, FIG13_WIN).pvalue) if len(wins) > 1 else float("nan")
+    return float(np.mean(wins) - FIG13_WIN), p
+
+
 def tag_tests_table(runs: list[dict[str, Any]]) -> str:
     """The tests behind the predator-prey verdicts. Fig. 12: CMCL predators minus each baseline's predators (all
     against MADDPG prey), Welch. Fig. 13: CMCL predators' held-out win rate against ACL and PER-MADDPG prey, with a
     one-sample t-test of the mean against the paper's 0.85."""
-    vs_maddpg = {a: [r for r in runs if r["algorithm"] == a and r["prey_algorithm"] == "maddpg"] for a in ORDER}
-    keys = [("mean predator reward", "mean_reward_predator", 1), ("win vs trained prey", "win_vs_trained_prey", 3),
-            ("win vs random prey", "win_vs_random_prey", 3)]
-    lines = ["| CMCL predators minus (prey: MADDPG) | " + " | ".join(k[0] for k in keys) + " |",
-             "| --- " * (len(keys) + 1) + "|"]
-    for base in ("maddpg", "per", "acl"):
+    vs_maddpg = predators_vs_maddpg_prey(runs)
+    lines = ["| CMCL predators minus (prey: MADDPG) | " + " | ".join(k[0] for k in TAG_TESTS) + " |",
+             "| --- " * (len(TAG_TESTS) + 1) + "|"]
+    for base in BASELINES:
         if vs_maddpg["cmcl"] and vs_maddpg[base]:
             lines.append(f"| {LABEL[base]} predators | " + " | ".join(
-                welch([r[k] for r in vs_maddpg["cmcl"]], [r[k] for r in vs_maddpg[base]], d) for _, k, d in keys)
+                welch([r[k] for r in vs_maddpg["cmcl"]], [r[k] for r in vs_maddpg[base]], d) for _, k, d in TAG_TESTS)
                 + " |")
     lines += ["", "| CMCL predators against | seeds | held-out win rate | t-test of the mean against 0.85 |",
               "| --- | --- | --- | --- |"]
     for prey in ("acl", "per"):
         wins = [r["win_vs_trained_prey"] for r in runs if r["algorithm"] == "cmcl" and r["prey_algorithm"] == prey]
         if wins:
-            test = (f"mean − 0.85 = {np.mean(wins) - 0.85:+.3f}, p = {stats.ttest_1samp(wins, 0.85).pvalue:.3f}"
-                    if len(wins) > 1 else "n/a")
+            above, p = against_threshold(wins)
+            test = f"mean − 0.85 = {above:+.3f}, p = {p:.3f}" if len(wins) > 1 else "n/a"
             lines.append(f"| {LABEL[prey]} prey | {len(wins)} | {fmt(wins, 3, 'win_vs_trained_prey')} | {test} |")
+    return "\n".join(lines)
+
+
+def solve_cells(runs: list[dict[str, Any]]) -> str:
+    """The cells of one time-to-solve row from its seeds on: 'mean (min..max)' over the runs (sorted by seed)."""
+    rs = sorted(runs, key=lambda r: r["seed"])
+    return (f"{','.join(str(r['seed']) for r in rs)} | {spread([r['episodes_to_90'] for r in rs])} | "
+            f"{spread([r['seconds_to_90'] for r in rs])} | {spread([r['episodes_to_50'] for r in rs])} | "
+            f"{spread([r['held_out_coverage'] for r in rs], '{:.3f}')} | "
+            + " | ".join(spread([r[f"held_out_{k}"] for r in rs], "{:.2f}") for k in ("success", "collisions",
+                                                                                      "wall_hits")))
+
+
+SOLVE_HEADER = ("seeds | episodes to MA 0.9 | seconds to MA 0.9 | episodes to MA 0.5 | held-out coverage | held-out "
+                "success | collisions | wall hits |")  # the columns of solve_cells
+
+
+def solve_groups(runs: list[dict[str, Any]], fields: tuple[str, ...]) -> dict[tuple, list[dict[str, Any]]]:
+    """The navigation runs of a time-to-solve grid grouped by `fields` (mode inline when a run names none)."""
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    for r in (r for r in runs if r.get("task", "spread") == "spread"):
+        groups.setdefault(tuple(r.get(f, "inline") if f == "mode" else r[f] for f in fields), []).append(r)
+    return groups
+
+
+def solve_tag_table(runs: list[dict[str, Any]]) -> str:
+    """The predator-prey runs of the older time-to-solve log: one row per predators' algorithm, 'mean (min..max)'."""
+    tag = sorted((r for r in runs if r.get("task") == "tag"), key=lambda r: (r["algorithm"], r["seed"]))
+    lines = ["| predators | seeds | win vs trained MADDPG prey | win vs random prey | random vs random | "
+             "training MA win at the end | seconds |", "| --- " * 7 + "|"]
+    for algorithm in sorted({r["algorithm"] for r in tag}):
+        rs = [r for r in tag if r["algorithm"] == algorithm]
+        lines.append(f"| {algorithm} | {','.join(str(r['seed']) for r in rs)} | "
+                     + " | ".join(spread([r.get(k) for r in rs], "{:.3f}") for k in
+                                  ("win_vs_trained_prey", "win_vs_random_prey", "random_vs_random",
+                                   "final_ma_predator_win"))
+                     + f" | {spread([r['wall_s'] for r in rs])} |")
     return "\n".join(lines)
 
 
 def solve_table(runs: list[dict[str, Any]]) -> str:
     """The time-to-solve grids (schedule, algorithms): one row per (grid, mode, algorithm, update_every, batch),
     'mean (min..max)' over its seeds; then predator-prey rows of the older log, if any."""
-    groups: dict[tuple, list[dict[str, Any]]] = {}
-    for r in (r for r in runs if r.get("task", "spread") == "spread"):
-        groups.setdefault((r["grid"], r.get("mode", "inline"), r["algorithm"], r["update_every"], r["batch_size"]),
-                          []).append(r)
-    lines = ["| grid | mode | algorithm | update_every | batch | seeds | episodes to MA 0.9 | seconds to MA 0.9 | "
-             "episodes to MA 0.5 | held-out coverage | held-out success | collisions | wall hits |",
-             "| --- " * 13 + "|"]
+    groups = solve_groups(runs, ("grid", "mode", "algorithm", "update_every", "batch_size"))
+    lines = ["| grid | mode | algorithm | update_every | batch | " + SOLVE_HEADER, "| --- " * 13 + "|"]
     for key in sorted(groups):
-        rs = sorted(groups[key], key=lambda r: r["seed"])
-        lines.append(
-            f"| {key[0]} | {key[1]} | {key[2]} | {key[3]} | {key[4]} | {','.join(str(r['seed']) for r in rs)} | "
-            f"{spread([r['episodes_to_90'] for r in rs])} | {spread([r['seconds_to_90'] for r in rs])} | "
-            f"{spread([r['episodes_to_50'] for r in rs])} | {spread([r['held_out_coverage'] for r in rs], '{:.3f}')} | "
-            + " | ".join(spread([r[f"held_out_{k}"] for r in rs], "{:.2f}") for k in ("success", "collisions",
-                                                                                        "wall_hits")) + " |")
-    tag = sorted((r for r in runs if r.get("task") == "tag"), key=lambda r: (r["algorithm"], r["seed"]))
-    if tag:
-        lines += ["", "| predators | seeds | win vs trained MADDPG prey | win vs random prey | random vs random | "
-                  "training MA win at the end | seconds |", "| --- " * 7 + "|"]
-        for algorithm in sorted({r["algorithm"] for r in tag}):
-            rs = [r for r in tag if r["algorithm"] == algorithm]
-            lines.append(f"| {algorithm} | {','.join(str(r['seed']) for r in rs)} | "
-                         + " | ".join(spread([r.get(k) for r in rs], "{:.3f}") for k in
-                                      ("win_vs_trained_prey", "win_vs_random_prey", "random_vs_random",
-                                       "final_ma_predator_win"))
-                         + f" | {spread([r['wall_s'] for r in rs])} |")
+        lines.append("| " + " | ".join(str(k) for k in key) + f" | {solve_cells(groups[key])} |")
+    if any(r.get("task") == "tag" for r in runs):
+        lines += ["", solve_tag_table(runs)]
     return "\n".join(lines)
