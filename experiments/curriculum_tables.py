@@ -214,9 +214,14 @@ def curriculum_test_rows(runs: list[dict[str, Any]],
 
 def curriculum_tests(runs: list[dict[str, Any]], comparisons: list[tuple[str, str, str]] | None = None) -> str:
     """The protocol's tests (curriculum_test_rows) as a markdown table."""
+    return format_tests(curriculum_test_rows(runs, comparisons))
+
+
+def format_tests(tests: list[Test]) -> str:
+    """Rows of curriculum_test_rows as a markdown table."""
     lines = ["| comparison | measure | seeds | code | difference [bootstrap 95%] | p | p (Holm) | detectable with 80% "
              "power (α) |", "| --- " * 8 + "|"]
-    for t in curriculum_test_rows(runs, comparisons):
+    for t in tests:
         adj = "primary" if t.primary else "" if t.p is None else f"{t.adjusted:.3f}"
         mde = "" if t.p is None else "—" if t.detectable is None else f"{t.detectable:.3f} (α {t.level:.2g})"
         lines.append(f"| {ARM_LABEL[t.a]} − {ARM_LABEL[t.b]} | {t.key} | {t.seeds[0]} vs {t.seeds[1]} | {t.code} | "

@@ -9,6 +9,7 @@ mean ratio over its seeds is >= 1 "acted".
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -43,13 +44,14 @@ def acted(rs: list[dict[str, Any]]) -> bool | None:
     return None if not ratios else float(np.mean(ratios)) >= 1.0
 
 
-def screen_table(runs: list[dict[str, Any]]) -> str:
-    """Per arm: role, seeds, code, area under the training coverage curve, held-out coverage and success, episodes
-    to MA 0.9, ESS in the first quarter, the manipulation ratio and its verdict."""
+def arm_table(runs: list[dict[str, Any]], roles: dict[str, str]) -> str:
+    """Per arm of `roles` (arm -> its role in the grid, in table order): role, seeds, code, area under the training
+    coverage curve, held-out coverage and success, episodes to MA 0.9, ESS in the first quarter, the manipulation
+    ratio and its verdict."""
     lines = ["| arm | role | seeds | code | area under coverage | held-out coverage | held-out success | "
              "episodes to MA 0.9 | ESS, first quarter | reward rows sampled / buffer, first quarter | "
              "manipulation check |", "| --- " * 11 + "|"]
-    for arm in SCREEN_ARMS:
+    for arm, role in roles.items():
         rs = arm_runs(runs, arm)
         if not rs:
             continue
@@ -57,24 +59,56 @@ def screen_table(runs: list[dict[str, Any]]) -> str:
         check = "—" if arm == "maddpg" else "no data" if acted(rs) is None else \
             "acted" if acted(rs) else "did not act"
         ess = [r["ess_first_quarter"] for r in rs if r.get("ess_first_quarter") is not None]
-        lines.append(f"| {ARM_LABEL[arm]} | {'reference' if arm in SCREEN_REFERENCES else 'candidate'} | "
-                     f"{len(rs)} | {cell_versions(rs)[0]} | " + " | ".join(
+        lines.append(f"| {ARM_LABEL[arm]} | {role} | {len(rs)} | {cell_versions(rs)[0]} | " + " | ".join(
                          fmt([r[k] for r in rs], d, k) for k, d in (("auc_coverage", 3), ("held_out_coverage", 3),
                                                                     ("held_out_success", 3), ("episodes_to_90", 0)))
                      + f" | {np.mean(ess):.2f} | " + (f"{np.mean(ratios):.2f}" if ratios else "—") + f" | {check} |")
     return "\n".join(lines)
 
 
-def screen_selection(runs: list[dict[str, Any]]) -> str:
-    """The selection rule applied: the SELECTED candidates with the highest mean area among those that acted (ties to
-    3 decimals broken by held-out success), once every arm has its SCREEN_SEEDS and the runs ran one code version."""
+def screen_table(runs: list[dict[str, Any]]) -> str:
+    """The screen per arm (arm_table): the candidates and the references run beside them."""
+    return arm_table(runs, {arm: "reference" if arm in SCREEN_REFERENCES else "candidate" for arm in SCREEN_ARMS})
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The screen's selection rule applied to its summaries. done, expected: the screen's finished runs (its arms at
+    its seeds) and how many it has in all; code: their code version and testable whether they may be compared (one
+    version, or fingerprints that agree), both read once the screen is complete; ranked: (mean area to 3 decimals,
+    mean held-out success, arm) of the candidates that acted, best first; chosen: the SELECTED best of them, () while
+    there is no selection."""
+
+    done: int
+    expected: int
+    code: str = ""
+    testable: bool = False
+    ranked: tuple[tuple[float, float, str], ...] = ()
+    chosen: tuple[str, ...] = ()
+
+    @property
+    def missing(self) -> int:
+        return self.expected - self.done
+
+    def reason(self) -> str:
+        """Why there is no selection ("" when there is one)."""
+        if self.missing:
+            return f"Screen incomplete: {self.done} of {self.expected} runs; no selection yet."
+        if not self.testable:
+            return f"Screen runs ran different code ({self.code}); no selection."
+        return "" if self.chosen else f"No candidate acted (code {self.code}): none is selected."
+
+
+def selection(runs: list[dict[str, Any]]) -> Selection:
+    """The selection rule: the SELECTED candidates with the highest mean area among those that acted (ties to 3
+    decimals broken by held-out success), once every arm has its SCREEN_SEEDS and the runs ran one code version."""
     expected = len(SCREEN_ARMS) * len(SCREEN_SEEDS)
     done = [r for r in runs if r.get("arm") in SCREEN_ARMS and r["seed"] in SCREEN_SEEDS]
     if len(done) < expected:
-        return f"Screen incomplete: {len(done)} of {expected} runs; no selection yet."
+        return Selection(len(done), expected)
     code, testable = cell_versions(done)
     if not testable:
-        return f"Screen runs ran different code ({code}); no selection."
+        return Selection(len(done), expected, code)
     ranked = []
     for arm in SCREEN_ARMS:
         rs = arm_runs(done, arm)
@@ -83,9 +117,14 @@ def screen_selection(runs: list[dict[str, Any]]) -> str:
         ranked.append((round(float(np.mean([r["auc_coverage"] for r in rs])), 3),
                        float(np.mean([r["held_out_success"] for r in rs])), arm))
     ranked.sort(reverse=True)
-    chosen = [arm for _, _, arm in ranked[:SELECTED]]
-    if not chosen:
-        return f"No candidate acted (code {code}): none is selected."
-    return (f"Selected for the confirmation (code {code}): " + ", ".join(ARM_LABEL[a] for a in chosen)
+    return Selection(len(done), expected, code, True, tuple(ranked), tuple(arm for _, _, arm in ranked[:SELECTED]))
+
+
+def screen_selection(runs: list[dict[str, Any]]) -> str:
+    """The selection rule applied (`selection`), as the page says it."""
+    chosen = selection(runs)
+    if not chosen.chosen:
+        return chosen.reason()
+    return (f"Selected for the confirmation (code {chosen.code}): " + ", ".join(ARM_LABEL[a] for a in chosen.chosen)
             + ". Ranked by mean area among the candidates that acted: "
-            + "; ".join(f"{ARM_LABEL[a]} {area:.3f}" for area, _, a in ranked) + ".")
+            + "; ".join(f"{ARM_LABEL[a]} {area:.3f}" for area, _, a in chosen.ranked) + ".")
