@@ -2,14 +2,15 @@
 
     python -m experiments run GRID [GRID ...] [--seeds 0 1 2 3 4] [--jobs 2] [--out DIR]
             [--arms ...] [--cells ...] [--ablations ...] [--algorithms ...] [--modes inline service] [--episodes 20000]
-            [--allow-dirty]
+            [--screen DIR] [--allow-dirty]
     python -m experiments report [--update docs/RESULTS.md | README.md | docs/LEARNING.md] [--results bench/results]
     python -m experiments figures [--results bench/results]
     python -m experiments stalls FOLDER [FOLDER ...]      (e.g. bench/results/curriculum: its runs/ directories)
 
 `run` is resumable (experiments.runner): rerun the same command after a stop. Its results go to the grid's folder
-of the registry (experiments.grids.GRIDS, under bench/results/) unless --out names another. Exit code of `run`:
-0 when every run finished, 1 when some failed (each is named in the output).
+of the registry (experiments.grids.GRIDS, under bench/results/) unless --out names another. Seeds default to 0-4,
+and to 0-19 for the confirm grid alone, whose arms the screen's summaries select (--screen: their folder). Exit code
+of `run`: 0 when every run finished, 1 when some failed (each is named in the output), 2 when it refused to start.
 """
 
 from __future__ import annotations
@@ -22,16 +23,22 @@ from cmcl.algorithms import PAPER_ALGORITHMS
 from cmcl.provenance import code_state
 from experiments.grids import (
     ABLATIONS,
+    CONFIRM_SEEDS,
     CURRICULUM_ARMS,
     EPISODES,
     GRIDS,
     ROOT,
     SCALE_CELLS,
     SCREEN_ARMS,
+    SCREEN_REFERENCES,
+    ConfirmNotReady,
     Run,
     grid,
+    has_permuted_control,
     prefix_reference_runs,
+    rule_algorithm,
 )
+from experiments.labels import PERMUTED
 from experiments.report import blocks, figures, update
 from experiments.runner import run_grid
 from experiments.stalls import analyse_folder
@@ -42,15 +49,25 @@ def shown(path: Path) -> str:
     return str(path.relative_to(ROOT) if path.is_relative_to(ROOT) else path)
 
 
+SEEDS = [0, 1, 2, 3, 4]  # the seeds of a grid unless --seeds names others (the confirm grid alone: CONFIRM_SEEDS)
+# what --arms may name: the curriculum grids', the screen's and the confirmation's arms (a screen candidate's permuted
+# control is one of the latter once the screen selects it)
+ARMS = list(dict.fromkeys([*CURRICULUM_ARMS, *SCREEN_ARMS,
+                           *(f"{arm}{PERMUTED}" for arm, sets in SCREEN_ARMS.items()
+                             if arm not in SCREEN_REFERENCES and has_permuted_control(rule_algorithm(sets)))]))
+
+
 def has_arms(run: Run) -> bool:
-    """Whether `run` belongs to a grid whose runs --arms selects: a curriculum grid's or the screen's."""
-    return (run.grid == "screen" and run.arm in SCREEN_ARMS) or (run.grid != "scale" and run.arm in CURRICULUM_ARMS)
+    """Whether `run` belongs to a grid whose runs --arms selects: a curriculum grid's, the screen's or the
+    confirmation's."""
+    return run.grid in ("screen", "confirm") or (run.grid != "scale" and run.arm in CURRICULUM_ARMS)
 
 
 def selected_runs(args: argparse.Namespace) -> list[Run]:
     """The runs of `args.grids` that the filters keep (--arms filters only the curriculum grids' and the screen's
     arms, --cells only the scale grid's cells), with the prefix references the kept ablations need."""
-    runs = [r for r in grid(args.grids, args.seeds, args.algorithms, args.episodes)
+    seeds = args.seeds or (list(CONFIRM_SEEDS) if args.grids == ["confirm"] else SEEDS)
+    runs = [r for r in grid(args.grids, seeds, args.algorithms, args.episodes, args.screen)
             if (r.ablation is None or r.ablation in args.ablations)
             and (args.arms is None or r.arm in args.arms or not has_arms(r))
             and (r.arm not in SCALE_CELLS or r.arm in args.cells) and r.mode in args.modes]
@@ -58,6 +75,11 @@ def selected_runs(args: argparse.Namespace) -> list[Run]:
 
 
 def run(args: argparse.Namespace) -> int:
+    try:
+        runs = selected_runs(args)
+    except ConfirmNotReady as refused:
+        print(f"error: {refused}", file=sys.stderr)
+        return 2
     folders = {GRIDS[g] for g in args.grids}
     if args.out is None and len(folders) > 1:
         print(f"error: grids {args.grids} keep their results in different folders; run them one at a time or "
@@ -73,7 +95,6 @@ def run(args: argparse.Namespace) -> int:
         return 2
     print(f"grid code: commit {commit or 'unknown'}" + (" with uncommitted changes (--allow-dirty)" if dirty else ""),
           flush=True)
-    runs = selected_runs(args)
     failed = run_grid(runs, store, args.jobs, report=lambda line: print(line, flush=True))
     print(f"results: {shown(store.write_csv())}" + (f"; {failed} runs failed (a rerun retries them)" if failed else ""))
     return 1 if failed else 0
@@ -109,11 +130,12 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
     p = commands.add_parser("run", help="train the runs of one or more grids (resumable)")
     p.add_argument("grids", nargs="+", choices=list(GRIDS), metavar="GRID", help=f"one of {', '.join(GRIDS)}")
-    p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
+    p.add_argument("--seeds", nargs="+", type=int, default=None,
+                   help="default 0 1 2 3 4; the confirm grid alone: 0 to 19")
     p.add_argument("--jobs", type=int, default=1, help="runs trained at once (one core each)")
     p.add_argument("--out", type=Path, default=None, help="results folder (default: the grid's, bench/results/...)")
-    p.add_argument("--arms", nargs="+", choices=list(dict.fromkeys([*CURRICULUM_ARMS, *SCREEN_ARMS])), default=None,
-                   help="curriculum grids and the screen: only these arms (default: all)")
+    p.add_argument("--arms", nargs="+", choices=ARMS, default=None,
+                   help="curriculum grids, the screen and the confirmation: only these arms (default: all)")
     p.add_argument("--cells", nargs="+", choices=list(SCALE_CELLS), default=list(SCALE_CELLS),
                    help="scale grid: only these cells")
     p.add_argument("--ablations", nargs="+", choices=list(ABLATIONS), default=list(ABLATIONS),
@@ -123,6 +145,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--modes", nargs="+", choices=["inline", "service"], default=["inline", "service"],
                    help="algorithms grid: only these runners")
     p.add_argument("--episodes", type=int, default=EPISODES, help="budget of every run (the paper: 20,000)")
+    p.add_argument("--screen", type=Path, default=None,
+                   help="confirm grid: the screen's results folder that selects its arms (default: the screen's)")
     p.add_argument("--allow-dirty", action="store_true",
                    help="train even though tracked files differ from the commit (recorded in every summary)")
     p.set_defaults(handler=run)

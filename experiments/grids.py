@@ -17,6 +17,9 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
   prey MADDPG (the paper's Fig. 12 at the issue-21 defaults);
 * ``screen`` (issue 36): candidate sampling rules of the registry (cmcl.algorithms) on the harder task, seeds
   100-104 (SCREEN_ARMS), MADDPG and PER-MADDPG beside them for reference;
+* ``confirm`` (issue 36): the rules the screen's committed summaries select (experiments.screen_table.selection),
+  MADDPG, PER-MADDPG and each selected rule's permuted control, on the harder task, seeds 0-19 (`confirm_arms`); it
+  refuses to exist (ConfirmNotReady) while the screen has no selection;
 * ``make_run`` (issue 35): the exact `make run` (MAKE_RUN), one run per seed; run it with --jobs 1 on an idle
   machine;
 * ``schedule``: time to solve navigation with MADDPG inline, maddpg.update_every x maddpg.batch_size, each run
@@ -33,24 +36,32 @@ balanced arms. A run's id names its summary file, so ids never change once resul
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from cmcl.algorithms import PAPER_ALGORITHMS
+from cmcl.algorithms import PAPER_ALGORITHMS, build_sampler
+from cmcl.replay.priority import EPS_P
+from cmcl.replay.sampling import SamplerArgs
+from experiments.labels import PERMUTED
 from experiments.own_envs import OWN_ENV_LOG_EVERY, OWN_ENVS
+from experiments.store import ResultsStore
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
 EPISODES = 20_000  # the paper's budget per run
 
+# The permuted control: a rule's own priorities shuffled across the buffer's rows at every recompute (same
+# probabilities, hence the same ESS, no information about the rows; cmcl.replay.buffer). The one place naming its key.
+PERMUTED_CONTROL = "teachers.difficulty_transform=permuted"
 # arm -> (config file, --set overrides) of the curriculum grids; every other setting is the shared default
 CURRICULUM_ARMS = {
     "maddpg": ("spread_maddpg.toml", []),
     "per": ("spread_per.toml", []),
     "acl": ("spread_acl.toml", []),
     "cmcl": ("spread_cmcl.toml", []),
-    "cmcl_permuted": ("spread_cmcl.toml", ["teachers.difficulty_transform=permuted"]),
+    "cmcl_permuted": ("spread_cmcl.toml", [PERMUTED_CONTROL]),
     "cmcl_anti": ("spread_cmcl.toml", ["teachers.difficulty_transform=reversed"]),
 }
 HARD_CONFIG = "spread_hard.toml"  # the calibrated harder task (docs/RESULTS.md, "A harder task: calibration")
@@ -84,6 +95,10 @@ SCREEN_ARMS: dict[str, list[str]] = {
 }
 SCREEN_REFERENCES = ("maddpg", "per")  # run beside the candidates, never selected
 SCREEN_SEEDS = (100, 101, 102, 103, 104)
+# The confirmation of issue 36 (protocol in docs/RESULTS.md, "the confirmation's protocol"): its arms come from the
+# screen's selection (`confirm_arms`), 20 seeds per arm, MADDPG and PER-MADDPG beside the selected rules.
+CONFIRM_SEEDS = tuple(range(20))
+CONFIRM_REFERENCES = ("maddpg", "per")
 
 ABLATIONS = {  # name -> (config file, --set overrides, episode budget or None for the grid's) of CMCL variants
     "eta0": ("spread_cmcl.toml", ["teams.agent.eta=0.0"], None),
@@ -218,11 +233,58 @@ def setting_runs(name: str, seed: int, budget: int) -> list[Run]:
             for arm, sets in HARD_SETTING_GRIDS[name].items()]
 
 
-def screen_runs(seed: int, budget: int) -> list[Run]:
-    """The screen's arms (SCREEN_ARMS) on the harder task, logged as the curriculum grids are."""
-    return [Run(f"screen_{arm}_s{seed}", "screen", "spread", sets[0].split("=")[1], None, seed, budget, arm=arm,
+def rule_algorithm(sets: Sequence[str]) -> str:
+    """The sampling rule of a screen arm's overrides (the first of them: teams.agent.algorithm=<rule>)."""
+    return sets[0].split("=")[1]
+
+
+def rule_runs(name: str, arms: dict[str, list[str]], seed: int, budget: int) -> list[Run]:
+    """The screen's or the confirmation's arms (arm -> overrides) on the harder task, logged as the curriculum grids
+    are."""
+    return [Run(f"{name}_{arm}_s{seed}", name, "spread", rule_algorithm(sets), None, seed, budget, arm=arm,
                 config=HARD_CONFIG, sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *sets))
-            for arm, sets in SCREEN_ARMS.items()]
+            for arm, sets in arms.items()]
+
+
+class ConfirmNotReady(ValueError):
+    """The confirmation's arms cannot be derived: the screen has no selection yet, or a selected rule has no
+    permuted control."""
+
+
+def has_permuted_control(algorithm: str) -> bool:
+    """Whether the permuted control acts on `algorithm`'s sampling. The buffer shuffles the priorities of the samplers
+    that recompute them, and under the control a sampler recomputes exactly when it holds priorities of its own:
+    uniform replay holds none, nor does LaBER, whose minibatch the learner picks by a fresh |δ| among uniform
+    candidates (nothing there is shuffled)."""
+    args = SamplerArgs(capacity=1, alpha=1.0, backend="cdf", eps=EPS_P, algorithm=algorithm, permuted=True)
+    return bool(build_sampler(algorithm, args).recomputes)
+
+
+def confirm_arms(chosen: Sequence[str]) -> dict[str, list[str]]:
+    """The confirmation's arms (arm -> --set overrides) for the screen's chosen arms: each chosen arm with its screen
+    overrides and its permuted control "<arm>_permuted" (the same overrides and PERMUTED_CONTROL), then MADDPG and
+    PER-MADDPG. ConfirmNotReady when a chosen rule has no permuted control (`has_permuted_control`)."""
+    lacking = [arm for arm in chosen if not has_permuted_control(rule_algorithm(SCREEN_ARMS[arm]))]
+    if lacking:
+        raise ConfirmNotReady(f"the permuted control does not act on the selected {lacking} (no priorities held in "
+                              f"the buffer to shuffle); the confirmation's protocol needs one for each chosen rule")
+    arms = {}
+    for arm in chosen:
+        arms[arm], arms[f"{arm}{PERMUTED}"] = SCREEN_ARMS[arm], [*SCREEN_ARMS[arm], PERMUTED_CONTROL]
+    return arms | {arm: SCREEN_ARMS[arm] for arm in CONFIRM_REFERENCES}
+
+
+def screen_choice(screen: Path) -> tuple[str, ...]:
+    """The screen's selected arms from the summaries of the results folder `screen`; ConfirmNotReady, naming the
+    screen runs still missing, while there is no selection."""
+    from experiments.screen_table import selection  # it reads this module's SCREEN_ARMS
+
+    chosen = selection(ResultsStore(screen).load())
+    if not chosen.chosen:
+        raise ConfirmNotReady(f"the confirmation's arms are the screen's selection and there is none yet: "
+                              f"{chosen.missing} of {chosen.expected} screen runs missing in {screen}"
+                              + ("" if chosen.missing else f" ({chosen.reason()})"))
+    return chosen.chosen
 
 
 def ablation_runs(seed: int, budget: int) -> list[Run]:
@@ -280,26 +342,30 @@ GRIDS = {  # name -> results folder (its summaries/ and runs/)
     "ablations": RESULTS / "reproduce", "curriculum": RESULTS / "curriculum",
     "curriculum_hard": RESULTS / "curriculum_hard", "curriculum_tag": RESULTS / "curriculum_tag",
     "curriculum_stride": RESULTS / "curriculum_stride", "curriculum_eta": RESULTS / "curriculum_eta",
-    "screen": RESULTS / "screen", "make_run": RESULTS / "make_run",
+    "screen": RESULTS / "screen", "confirm": RESULTS / "confirm", "make_run": RESULTS / "make_run",
     "schedule": RESULTS / "time_to_solve",
     "algorithms": RESULTS / "time_to_solve", "own_envs": RESULTS / "own_envs", "scale": RESULTS / "scale",
 }
 
 
 def grid(names: list[str], seeds: list[int], algorithms: list[str] = PAPER_ALGORITHMS,
-         budget: int = EPISODES) -> list[Run]:
+         budget: int = EPISODES, screen: Path | None = None) -> list[Run]:
     """The runs of the named grids, seed outermost (every cell has seed k before any has seed k+1), duplicates
-    (same id) once."""
+    (same id) once. screen: the results folder whose screen summaries select the confirm grid's arms (default the
+    registry's); ConfirmNotReady while they select none."""
     unknown = sorted(set(names) - set(GRIDS))
     if unknown:
         raise ValueError(f"grid: unknown {unknown}; known {sorted(GRIDS)}")
+    confirm = confirm_arms(screen_choice(screen or GRIDS["screen"])) if "confirm" in names else {}
     runs = []
     for seed in seeds:
         for name in names:
             if name in HARD_SETTING_GRIDS:
                 runs += setting_runs(name, seed, budget)
             elif name == "screen":
-                runs += screen_runs(seed, budget)
+                runs += rule_runs(name, SCREEN_ARMS, seed, budget)
+            elif name == "confirm":
+                runs += rule_runs(name, confirm, seed, budget)
             elif name == "make_run":
                 runs += make_run_runs(seed, budget)
             elif name.startswith("curriculum"):

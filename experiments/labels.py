@@ -8,6 +8,9 @@ ARM_LABEL = {**LABEL, "cmcl_permuted": "CMCL, permuted control", "cmcl_anti": "C
              "cmcl_eta1": "CMCL, η = 1", "relo": "ReLo", "rho": "reducible held-out loss",
              "lp": "held-out learning progress", "per_floor": "PER-MADDPG, floor 0.2",
              "cmcl_lam05": "CMCL, λ₀ = 0.5", "cmcl_floor": "CMCL, floor 0.2", "laber": "LaBER"}
+PERMUTED = "_permuted"  # an arm's permuted control is the arm named "<arm>_permuted" (experiments.grids)
+ARM_LABEL.update({f"{arm}{PERMUTED}": f"{label}, permuted control" for arm, label in list(ARM_LABEL.items())
+                  if not arm.endswith(PERMUTED)})
 ARM_COLOUR = {**COLOUR, "cmcl_permuted": "tab:purple", "cmcl_anti": "tab:brown",
               "cmcl_stride_x2": "tab:pink", "cmcl_stride_half": "tab:olive",
               "cmcl_eta1": "tab:cyan"}
