@@ -14,6 +14,8 @@ the text between them (a block whose markers the page lacks is only printed):
 * timetosolve: the schedule and algorithms grids (bench/results/time_to_solve), printed only;
 * ownenvs: the own_envs grid (bench/results/own_envs), each environment against the random policy;
 * screen, screenselect: the screen of sampling rules (bench/results/screen, issue 36) and its selection rule;
+  confirm, confirmtests: the confirmation of the rules the screen selected (bench/results/confirm), its two Holm
+  families and the goal's verdict per rule; "no runs yet" while it has no summary;
 * makerun: `make run` measured per seed (bench/results/make_run), the block of README.md
   (`python -m experiments report --update README.md`);
 * the numbers README.md and docs/LEARNING.md quote from the grids (experiments.quoted): headline, lambdawait (README.md;
@@ -31,6 +33,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+from experiments.confirm_tables import confirm_table, confirm_tests
 from experiments.curriculum_tables import (
     SETTING_TABLES,
     curriculum_table,
@@ -42,7 +45,7 @@ from experiments.labels import ARM_LABEL
 from experiments.make_run_table import make_run_table
 from experiments.own_envs import own_env_table
 from experiments.quoted import NO_RUNS, quoted_blocks
-from experiments.screen_table import screen_selection, screen_table
+from experiments.screen_table import screen_selection, screen_table, selection
 from experiments.stalls import early_learner_table, load_stalls, stall_table
 from experiments.store import ResultsStore
 from experiments.tables import (
@@ -102,6 +105,10 @@ def blocks(results: Path | None = None) -> dict[str, str]:
     screen = ResultsStore(where["screen"]).load()
     out["screen"] = screen_table(screen) if screen else NO_RUNS
     out["screenselect"] = screen_selection(screen)
+    confirm, chosen = ResultsStore(where["confirm"]).load(), selection(screen)
+    out["confirm"], out["confirmtests"] = (NO_RUNS, NO_RUNS) if not confirm else \
+        (chosen.reason(), chosen.reason()) if not chosen.chosen else \
+        (confirm_table(confirm, chosen.chosen), confirm_tests(confirm, chosen.chosen))
     out["makerun"] = make_run_table(ResultsStore(where["make_run"]).load())  # README.md's block
     quoted = quoted_blocks(where, RESULTS if results is None else results)  # README.md's and LEARNING.md's
     assert not quoted.keys() & out.keys(), f"two texts named {sorted(quoted.keys() & out.keys())}"

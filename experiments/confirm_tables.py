@@ -1,0 +1,104 @@
+"""The confirmation of issue 36 (protocol in docs/RESULTS.md, "the confirmation's protocol"): the rules the screen
+selected, MADDPG, PER-MADDPG and each rule's permuted control on the harder task, 20 seeds per arm.
+
+Per arm (`confirm_table`): the screen's columns (experiments.screen_table.arm_table). The tests (`confirm_tests`),
+curriculum_tables' machinery in two Holm families at α = 0.05:
+
+* primary: rule − MADDPG in area under the training coverage curve, one test per chosen rule, Holm across them;
+* secondary, one family: per rule, rule − its permuted control and rule − PER-MADDPG in area, held-out success
+  rule − MADDPG, and episodes to MA 0.9 rule against MADDPG (log-rank).
+
+Each difference of means carries the smallest difference it detects with 80% power at its family's α / m. Then the
+goal's verdict per rule (`verdicts`), once every arm has its 20 seeds: "meets the goal" only if the area difference
+over MADDPG is at least GOAL, its Holm-corrected interval (the bootstrap interval at 1 − α / m, the level of Holm's
+first step in the primary family) lies above 0, and rule − permuted control is positive with a Holm p below α in the
+secondary family; otherwise "goal not met" and why.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from experiments.curriculum_tables import ALPHA, NAVIGATION, Test, curriculum_test_rows, format_tests
+from experiments.grids import CONFIRM_REFERENCES, CONFIRM_SEEDS, confirm_arms
+from experiments.labels import ARM_LABEL, PERMUTED
+from experiments.screen_table import arm_table
+from experiments.stats import difference
+
+GOAL = 0.10  # the least area under coverage a rule must gain over MADDPG (the goal written before any run)
+
+
+def confirm_roles(rules: Sequence[str]) -> dict[str, str]:
+    """arm -> its role in the confirmation ("rule", "permuted control", "reference"), in table order."""
+    return {arm: "reference" if arm in CONFIRM_REFERENCES else "permuted control" if arm.endswith(PERMUTED)
+            else "rule" for arm in confirm_arms(rules)}
+
+
+def confirm_table(runs: list[dict[str, Any]], rules: Sequence[str]) -> str:
+    """The confirmation per arm: the screen's columns, with each arm's role and code."""
+    return arm_table(runs, confirm_roles(rules))
+
+
+def families(rules: Sequence[str]) -> tuple[list[tuple[str, str, str]], list[tuple[str, str, str]]]:
+    """(primary, secondary) comparisons (arm, arm, field) of the protocol, each one Holm family."""
+    m = NAVIGATION
+    primary = [(rule, "maddpg", m.area) for rule in rules]
+    secondary = [c for rule in rules for c in ((rule, f"{rule}{PERMUTED}", m.area), (rule, "per", m.area),
+                                               (rule, "maddpg", m.held_out), (rule, "maddpg", m.time))]
+    return primary, secondary
+
+
+def complete(runs: list[dict[str, Any]], rules: Sequence[str]) -> bool:
+    """Whether every arm of the confirmation has every seed of CONFIRM_SEEDS."""
+    return all({r["seed"] for r in runs if r.get("arm") == arm} >= set(CONFIRM_SEEDS) for arm in confirm_roles(rules))
+
+
+def verdict(primary: Test, control: Test, interval: tuple[float, float] | None) -> str:
+    """The goal's verdict on a rule from its primary test, its test against its permuted control and its
+    Holm-corrected interval (None when its runs ran mixed code)."""
+    if interval is None:
+        return "goal not met: not tested, its runs ran different code (code versions mixed)"
+    reasons = []
+    if primary.difference < GOAL:
+        reasons.append(f"the area is {primary.difference:+.3f} over MADDPG's, less than {GOAL:+.2f}")
+    if interval[0] <= 0:
+        reasons.append(f"the Holm-corrected interval [{interval[0]:+.3f}, {interval[1]:+.3f}] does not lie above 0")
+    if not (control.difference > 0 and control.adjusted < ALPHA):
+        reasons.append(f"not shown above its permuted control ({control.difference:+.3f}, Holm p = "
+                       f"{control.adjusted:.3f})")
+    return "**meets the goal**" if not reasons else "goal not met: " + "; ".join(reasons)
+
+
+def verdicts(runs: list[dict[str, Any]], rules: Sequence[str], primary: list[Test], secondary: list[Test]) -> str:
+    """One row per rule: its area over MADDPG, the Holm-corrected interval, its difference from its permuted control
+    and the verdict (which waits until every arm has its seeds)."""
+    level = primary[0].level if primary else ALPHA
+    lines = [f"| rule | area − MADDPG [bootstrap 95%] | Holm-corrected interval ({100 * (1 - level):.4g}%) | "
+             "− its permuted control (Holm p) | verdict |", "| --- " * 5 + "|"]
+    ready = complete(runs, rules)
+    for rule, test in zip(rules, primary, strict=True):
+        control = next(t for t in secondary if t.a == rule and t.b == f"{rule}{PERMUTED}")
+        if not ready:
+            lines.append(f"| {ARM_LABEL[rule]} | | | | waits for {len(CONFIRM_SEEDS)} seeds per arm |")
+            continue
+        interval = None
+        if not (test.mixed or control.mixed):
+            areas = [[r[test.key] for r in runs if r.get("arm") == arm] for arm in (rule, "maddpg")]
+            interval = difference(*areas, alpha=test.level)[1:3]
+        lines.append(f"| {ARM_LABEL[rule]} | {test.text} | "
+                     + ("" if interval is None else f"[{interval[0]:+.3f}, {interval[1]:+.3f}]") + " | "
+                     + (control.text if interval is None else f"{control.difference:+.3f} ({control.adjusted:.3f})")
+                     + f" | {verdict(test, control, interval)} |")
+    return "\n".join(lines)
+
+
+def confirm_tests(runs: list[dict[str, Any]], rules: Sequence[str]) -> str:
+    """The protocol's two Holm families as tables, then the goal's verdict per rule."""
+    first, second = families(rules)
+    primary, secondary = curriculum_test_rows(runs, first), curriculum_test_rows(runs, second)
+    return (f"Primary: rule − MADDPG in area under coverage, Holm across the {len(rules)} chosen rule"
+            f"{'s' * (len(rules) != 1)} (α = {ALPHA}).\n\n{format_tests(primary)}\n\n"
+            f"Secondary, one Holm family of {len(second)} tests (α = {ALPHA}).\n\n{format_tests(secondary)}\n\n"
+            f"The goal: area at least {GOAL:.2f} above MADDPG's, the Holm-corrected interval above 0, and above the "
+            f"rule's own permuted control.\n\n{verdicts(runs, rules, primary, secondary)}")

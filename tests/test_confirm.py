@@ -1,0 +1,201 @@
+"""The confirmation of issue 36: its arms derived from the screen's summaries by the screen's selection rule, its
+refusal while the screen has no selection, the permuted control of each rule, and its tables and goal verdicts.
+
+Every summary here is synthetic (written by the helpers below, named fake_* / synthetic_*): they stand for finished
+runs' summaries, never for a component of the code."""
+
+import numpy as np
+import pytest
+
+from cmcl.algorithms import ALGORITHMS
+from experiments.__main__ import build_parser, main, selected_runs
+from experiments.confirm_tables import GOAL, confirm_table, confirm_tests, families
+from experiments.curriculum_tables import curriculum_test_rows, format_tests
+from experiments.grids import (
+    CONFIRM_SEEDS,
+    CURRICULUM_ARMS,
+    PERMUTED_CONTROL,
+    SCREEN_ARMS,
+    SCREEN_SEEDS,
+    ConfirmNotReady,
+    confirm_arms,
+    grid,
+    has_permuted_control,
+)
+from experiments.report import NO_RUNS, blocks
+from experiments.stats import holm
+from experiments.store import ResultsStore
+from tests.test_replay_storage import N, filled
+from tests.test_screen_table import run as fake_screen_summary
+
+CHOSEN = ("relo", "lp")  # what the fake screen selects: rho has the best area but does not act
+
+
+def fake_screen(folder, drop: int = 0):
+    """A results folder with the screen's summaries, all but the last `drop` of them; rho does not act."""
+    store = ResultsStore(folder)
+    runs = [fake_screen_summary(arm, s, sampled=0.01 if arm == "rho" else 0.2) for s in SCREEN_SEEDS
+            for arm in SCREEN_ARMS]
+    for summary in runs[:len(runs) - drop]:
+        store.write(summary)
+    return folder
+
+
+def synthetic_confirm(areas: dict[str, float], seeds=CONFIRM_SEEDS, commit="c" * 40, sd=0.02, seed=0):
+    """Synthetic confirmation summaries: per arm, area under coverage ~ N(areas[arm], sd) over `seeds`."""
+    rng = np.random.default_rng(seed)
+    return [{"id": f"confirm_{arm}_s{s}", "grid": "confirm", "task": "spread", "arm": arm, "seed": s,
+             "budget": 20_000, "auc_coverage": float(np.clip(base + rng.normal(0, sd), 0, 1)),
+             "held_out_coverage": 0.95, "held_out_success": float(np.clip(0.8 + rng.normal(0, 0.05), 0, 1)),
+             "episodes_to_90": None if s % 5 == 0 else 9_000 + 100 * s, "ess_first_quarter": 0.6,
+             "sampling_curve": {"episode": [200, 5_000, 20_000], "reward_rows_sampled": [0.3, 0.3, 0.3],
+                                "reward_rows_buffer": [0.2, 0.2, 0.2]},
+             "provenance": {"commit": commit, "dirty": False, "segment_commits": [commit]}}
+            for s in seeds for arm, base in areas.items()]
+
+
+# relo meets the goal; lp gains too little; both well above their permuted controls
+AREAS = {"relo": 0.80, "relo_permuted": 0.66, "lp": 0.70, "lp_permuted": 0.64, "maddpg": 0.65, "per": 0.66}
+
+
+def test_the_confirm_grid_is_the_screens_selection_with_maddpg_per_and_each_rules_permuted_control(tmp_path):
+    screen = fake_screen(tmp_path / "screen")
+    arms = confirm_arms(CHOSEN)
+    assert list(arms) == ["relo", "relo_permuted", "lp", "lp_permuted", "maddpg", "per"]
+    for rule in CHOSEN:
+        assert arms[rule] == SCREEN_ARMS[rule] and arms[f"{rule}_permuted"] == [*SCREEN_ARMS[rule], PERMUTED_CONTROL]
+    assert CURRICULUM_ARMS["cmcl_permuted"][1] == [PERMUTED_CONTROL]  # one key for every permuted control
+    runs = grid(["confirm"], [0, 1], screen=screen)
+    assert [r.id for r in runs[:6]] == [f"confirm_{arm}_s0" for arm in arms]  # seed outermost
+    assert {r.config for r in runs} == {"spread_hard.toml"} and {r.grid for r in runs} == {"confirm"}
+    assert [r.algorithm for r in runs[:6]] == ["relo", "relo", "lp", "lp", "maddpg", "per"]
+    assert runs[1].sets == ("run.log_every=200", *SCREEN_ARMS["relo"], PERMUTED_CONTROL)
+    every = selected_runs(build_parser().parse_args(["run", "confirm", "--screen", str(screen)]))
+    assert sorted({r.seed for r in every}) == list(CONFIRM_SEEDS) == list(range(20)) and len(every) == 20 * 6
+    some = selected_runs(build_parser().parse_args(["run", "confirm", "--screen", str(screen), "--seeds", "3",
+                                                    "--arms", "lp_permuted"]))
+    assert [r.id for r in some] == ["confirm_lp_permuted_s3"]
+
+
+@pytest.mark.parametrize("drop", [45, 1])
+def test_run_confirm_refuses_in_one_line_while_the_screen_is_incomplete(tmp_path, capsys, drop):
+    screen = fake_screen(tmp_path / "screen", drop=drop)
+    assert main(["run", "confirm", "--screen", str(screen), "--out", str(tmp_path / "confirm")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{drop} of 45 screen runs missing in {screen}" in err
+    assert not (tmp_path / "confirm").exists()
+
+
+def test_a_screen_without_a_selection_is_refused_with_its_reason(tmp_path):
+    screen = fake_screen(tmp_path / "screen")
+    store = ResultsStore(screen)
+    for summary in store.load():
+        store.write({**summary, "sampling_curve": {**summary["sampling_curve"], "reward_rows_sampled": [0.0] * 4}})
+    with pytest.raises(ConfirmNotReady, match="0 of 45 screen runs missing .*No candidate acted"):
+        grid(["confirm"], [0], screen=screen)
+
+
+def priorities_shuffled(algorithm: str) -> bool:
+    """Whether, in a buffer of `algorithm`, the permuted control moves agent 0's sampling probabilities across rows
+    (same multiset): scored as every rule needs (teachers' difficulty twice, for lp's progress; the learner's
+    errors), then one recompute, as the runners do before each update."""
+    out = []
+    for transform in ("none", "permuted"):
+        rb = filled(capacity=60, episodes=2, algorithms=algorithm, difficulty_transform=transform)
+        s = rb.valid_slots()
+        for draw in (0, 1):
+            rb.update_scores("difficulty", s, rb.generations(s), np.random.default_rng(draw).exponential(1, (60, N)))
+            rb.update_scores("curiosity", s, rb.generations(s), np.random.default_rng(7).exponential(1, (60, N)))
+            rb.feedback(0, s, rb.generations(s), {"td_abs": np.random.default_rng(2).exponential(1, 60),
+                                                  "target_td_abs": np.random.default_rng(3).exponential(0.5, 60)})
+            if rb.recomputes:
+                rb.recompute_priorities(0.3)
+        out.append(rb.sampling_distribution()[:, 0])
+    assert np.allclose(np.sort(out[0]), np.sort(out[1]))
+    return not np.allclose(out[0], out[1])
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_the_permuted_control_shuffles_exactly_the_rules_said_to_have_one(algorithm):
+    """Every rule whose priorities the buffer holds (teachers' or learner's: per, relo, rho, lp, acl, cmcl) is
+    shuffled; uniform replay and LaBER (its picks by a fresh |δ| on the learner's side) are not, so a LaBER
+    selection cannot be confirmed by this protocol."""
+    assert has_permuted_control(algorithm) == priorities_shuffled(algorithm)
+    assert has_permuted_control(algorithm) == (algorithm not in ("maddpg", "laber"))
+    if algorithm == "laber":
+        with pytest.raises(ConfirmNotReady, match="does not act on the selected \\['laber'\\]"):
+            confirm_arms(["laber"])
+
+
+def table_rows(text: str, title: str) -> list[list[str]]:
+    """The cells of the table after the paragraph starting with `title`."""
+    block = text.split(title, 1)[1].split("\n\n")[1]
+    return [[c.strip() for c in line.strip("|").split("|")] for line in block.splitlines()[2:]]
+
+
+def test_the_goal_is_met_only_with_the_gain_the_corrected_interval_and_the_permuted_control():
+    runs = synthetic_confirm(AREAS)
+    text = confirm_tests(runs, CHOSEN)
+    goal = {row[0]: row for row in table_rows(text, "The goal")}
+    assert goal["ReLo"][-1] == "**meets the goal**"
+    assert goal["held-out learning progress"][-1].startswith("goal not met: the area is +0.0")
+    assert f"less than {GOAL:+.2f}" in goal["held-out learning progress"][-1]
+    # the same gain over MADDPG, but no better than its own permuted control: not met
+    same = synthetic_confirm({**AREAS, "relo_permuted": 0.80})
+    row = {r[0]: r for r in table_rows(confirm_tests(same, CHOSEN), "The goal")}["ReLo"]
+    assert row[-1].startswith("goal not met: not shown above its permuted control")
+    # a large gain with a wide spread: the Holm-corrected interval reaches 0
+    wide = synthetic_confirm({**AREAS, "relo_permuted": 0.2})
+    for r in wide:  # relo 0.70 and MADDPG 0.59 on average, each ± 0.25 by seed
+        if r["arm"] in ("relo", "maddpg"):
+            r["auc_coverage"] = (0.70 if r["arm"] == "relo" else 0.59) + (0.25 if r["seed"] % 2 else -0.25)
+    row = {r[0]: r for r in table_rows(confirm_tests(wide, CHOSEN), "The goal")}["ReLo"]
+    assert row[-1].startswith("goal not met: the Holm-corrected interval [-") and ";" not in row[-1]
+    # until every arm has its 20 seeds there is no verdict
+    early = confirm_tests(synthetic_confirm(AREAS, seeds=range(19)), CHOSEN)
+    assert all(r[-1] == "waits for 20 seeds per arm" for r in table_rows(early, "The goal"))
+
+
+def test_holm_is_applied_within_each_family_at_the_familys_alpha():
+    runs = synthetic_confirm(AREAS)
+    text = confirm_tests(runs, CHOSEN)
+    first, second = families(CHOSEN)
+    assert first == [("relo", "maddpg", "auc_coverage"), ("lp", "maddpg", "auc_coverage")]
+    assert second[:4] == [("relo", "relo_permuted", "auc_coverage"), ("relo", "per", "auc_coverage"),
+                          ("relo", "maddpg", "held_out_success"), ("relo", "maddpg", "episodes_to_90")]
+    for comparisons, m in ((first, 2), (second, 8)):
+        rows = curriculum_test_rows(runs, comparisons)
+        assert len(rows) == m and not any(t.primary for t in rows)
+        assert [t.adjusted for t in rows] == pytest.approx(holm([t.p for t in rows]))
+        assert {t.level for t in rows} == {0.05 / m}  # the detectable differences at the family's α
+        assert format_tests(rows) in text
+    assert any(0.05 < t.p < 1 for t in curriculum_test_rows(runs, second))  # not every p is 0 or 1
+    assert "Holm-corrected interval (97.5%)" in text  # 1 − 0.05 / 2 for two chosen rules
+
+
+def test_runs_of_mixed_code_are_not_tested_and_meet_no_goal():
+    runs = synthetic_confirm(AREAS)
+    for r in runs:
+        if r["arm"] == "relo_permuted" and r["seed"] < 10:
+            r["provenance"] = {"commit": "d" * 40, "dirty": False, "segment_commits": ["d" * 40]}
+    text = confirm_tests(runs, CHOSEN)
+    control = {r[0]: r for r in table_rows(text, "Secondary")}["ReLo − ReLo, permuted control"]
+    assert control[4] == "not tested: code versions mixed" and control[3].startswith("mixed: ")
+    goal = {r[0]: r for r in table_rows(text, "The goal")}
+    assert goal["ReLo"][-1].startswith("goal not met: not tested") and "meets" not in goal["ReLo"][-1]
+    assert goal["held-out learning progress"][-1].startswith("goal not met: the area")
+
+
+def test_the_report_blocks_of_the_confirmation(tmp_path):
+    fake_screen(tmp_path / "screen")
+    empty = blocks(tmp_path)
+    assert empty["confirm"] == empty["confirmtests"] == NO_RUNS
+    store = ResultsStore(tmp_path / "confirm")
+    for summary in synthetic_confirm(AREAS):
+        store.write(summary)
+    out = blocks(tmp_path)
+    assert out["confirm"] == confirm_table(store.load(), CHOSEN)
+    roles = {r[0]: r[1:4] for r in table_rows("x\n\n" + out["confirm"], "x")}
+    assert roles["ReLo"] == ["rule", "20", "ccccccc"] and roles["ReLo, permuted control"][0] == "permuted control"
+    assert roles["MADDPG"][0] == "reference" and len(roles) == 6
+    assert "**meets the goal**" in out["confirmtests"]
