@@ -12,6 +12,6 @@ its ``<!-- name:begin -->`` / ``<!-- name:end -->`` markers) and the figures.
 
 Modules: grids (the registry: which runs, which results folder), runner (subprocesses that die with the runner;
 the resume rule), measures (one run's summary), store (summaries on disk, and the older time-to-solve log),
-stats (intervals and tests), tables / curriculum_tables / screen_table / confirm_tables (markdown), figures (PNGs), report (the blocks of
-docs/RESULTS.md).
+stats (intervals and tests), tables / curriculum_tables / screen_table / confirm_tables (markdown), figures
+(PNGs), report (the blocks of docs/RESULTS.md).
 """

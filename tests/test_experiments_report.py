@@ -172,7 +172,8 @@ def test_the_report_of_the_committed_results_is_the_page_as_committed(tmp_path):
     page.write_text((ROOT / "docs" / "RESULTS.md").read_text())
     new = blocks()
     assert {"spread", "seeds", "tests", "ablations", "tag", "tagtests", "curriculum", "curriculumtests",
-            "curriculumhard", "curriculumhardtests", "timetosolve"} <= set(new)
+            "curriculumhard", "curriculumhardtests", "timetosolve", "screen", "screenselect", "confirm",
+            "confirmtests"} <= set(new)
     update(page, new)
     assert page.read_text() == (ROOT / "docs" / "RESULTS.md").read_text()
 
