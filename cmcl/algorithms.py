@@ -4,7 +4,9 @@ runners, the metrics and the experiments (issue 36). No algorithm name is compar
 An algorithm here is MADDPG with one sampling rule for its replay: the rule's sampler class (the closed protocol of
 `cmcl.replay.sampling`), the scores it needs (the K-fold teachers' difficulty, the ICM's curiosity, the learner's
 per-row losses), its default sampling exponent α_s (eq. 20) and whether importance-sampling weights correct the
-critic. Adding a rule is its sampler's file under cmcl/replay/rules/, its test, and one line in `REGISTRY`.
+critic. Adding a rule is its sampler's file under cmcl/replay/rules/, its test, and one line in `REGISTRY`. Every
+prioritised rule (`AlgorithmSpec.prioritised`: all but maddpg) also takes a team's uniform floor and its actor_batch
+("uniform": the actor trains on a uniform minibatch of its own, cmcl.replay.buffer_steps.sample_owner_batches).
 
   maddpg  uniform replay                                  (the paper's baseline)
   per     PER-MADDPG, p = |δ|                             (the paper's baseline)
@@ -63,6 +65,12 @@ class AlgorithmSpec:
     paper: bool = False
     early_note: str = ""
     candidates: int = 1  # m: the learner picks each minibatch among m·B candidate rows (LaBER); 1 = it takes them
+
+    @property
+    def prioritised(self) -> bool:
+        """Whether the rows the critic trains on are drawn other than uniformly (every rule but maddpg): LaBER's
+        candidates are uniform, its pick is not. A team's `actor_batch` = "uniform" acts on these rules only."""
+        return not (self.sampler is UniformSampling and self.candidates == 1)
 
 
 KP_EXCLUDES = "normal while λ < 0.5: KP excludes the hardest rows, cov may wait"

@@ -18,6 +18,8 @@ import numpy as np
 
 ROW_KEYS = ("obs", "act", "rew", "next_obs", "done")  # one joint transition: obs [N, od], act [N, ad], rew [N], ...
 PRESENT_KEY = "present"  # bool [N]: the agents a row holds, in learner batches of a buffer with carried rows only
+ACTOR_KEYS = ("obs", "act")  # the row columns the actor step reads (with PRESENT_KEY when the buffer has carried rows)
+ACTOR_PREFIX = "actor_"  # an actor's own rows in a learner minibatch: "actor_obs", "actor_act", "actor_present"
 
 
 class MessageError(ValueError):
@@ -71,6 +73,19 @@ class Rows:
 
 
 @dataclass(frozen=True)
+class ActorRows:
+    """Replay -> learner, inside a LearnerBatch when some team's actor_batch is "uniform": the actor's own n
+    minibatches, drawn uniformly apart from the critic's (actor prioritised replay, Saglam et al. 2023).
+    rows: obs [n, N, B, N, od], act [n, N, B, N, ad] (and present bool[n, N, B, N] with carried rows); slots int64
+    [n, N, B]; owners bool[N]: the owners whose actor takes them (the others' rows here are their critic's draws,
+    and their actor trains on whatever their critic trains on)."""
+
+    rows: dict[str, np.ndarray]
+    slots: np.ndarray
+    owners: np.ndarray
+
+
+@dataclass(frozen=True)
 class LearnerBatch:
     """Replay -> learner: n per-owner minibatches. rows: obs [n, N, S, N, od], act, rew [n, N, S, N], next_obs,
     done [n, N, S, N], and present bool[n, N, S, N] when the buffer holds rows carried from fewer agents
@@ -83,6 +98,8 @@ class LearnerBatch:
     generations: np.ndarray
     # LaBER: S = m·B candidates per owner, and one uniform number per row to pick, float64[n, N, B] (else None)
     select_u: np.ndarray | None = None
+    # actor_batch = "uniform": the actors' own uniform minibatches (their rows carry no IS weights, no feedback)
+    actor: ActorRows | None = None
 
     @property
     def count(self) -> int:

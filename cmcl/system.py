@@ -56,6 +56,9 @@ class AgentLayout:
     # theirs among them by fresh |δ| (cmcl.replay.rules.laber); the others take their first batch-size draws
     candidates: int = 1
     select: tuple[bool, ...] = ()
+    # the agents whose actor trains on a uniform minibatch of its own, drawn apart from the critic's (their team's
+    # actor_batch = "uniform" under a prioritised rule, TeamConfig.uniform_actor), length N
+    uniform_actor: tuple[bool, ...] = ()
     # float32[N, act_dim]: 1 where the agent has that action entry, 0 on padding (agents whose action sizes differ,
     # env.factory); None when every agent uses every entry (the built-in tasks)
     act_mask: np.ndarray | None = None
@@ -123,7 +126,7 @@ def agent_layout(config: Config, env) -> AgentLayout:
                           f"{members} (by agent-id prefix or env.team_of); give every one a [teams.<name>] table")
     algorithms, eta, isw, source, alpha, floor = [""] * n, [0.0] * n, [False] * n, ["difficulty"] * n, [1.0] * n, \
         [0.0] * n
-    teacher, icm, learner_scores, select = [], [], set(), [False] * n
+    teacher, icm, learner_scores, select, uniform_actor = [], [], set(), [False] * n, [False] * n
     for team, members in env.teams.items():
         spec = config.teams[team]
         needs = spec.needs
@@ -140,6 +143,7 @@ def agent_layout(config: Config, env) -> AgentLayout:
                 icm.append(agent)
             learner_scores.update(needs.learner_scores)
             select[agent] = REGISTRY[spec.algorithm].candidates > 1
+            uniform_actor[agent] = spec.uniform_actor
     act_dim = DISCRETE_ACT_DIM if config.maddpg.discrete else env.act_dim
     discrete = config.maddpg.discrete or bool(getattr(env, "discrete", False))
     mask = getattr(env, "act_mask", None)
@@ -149,6 +153,7 @@ def agent_layout(config: Config, env) -> AgentLayout:
                        alpha=tuple(alpha),
                        importance_weights=tuple(isw), difficulty_source=tuple(source), floor=tuple(floor),
                        learner_scores=tuple(sorted(learner_scores)), select=tuple(select),
+                       uniform_actor=tuple(uniform_actor),
                        candidates=max((REGISTRY[config.teams[t].algorithm].candidates for t in env.teams), default=1),
                        teacher_agents=np.asarray(sorted(teacher), dtype=np.int64),
                        icm_agents=np.asarray(sorted(icm), dtype=np.int64),

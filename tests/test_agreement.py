@@ -32,10 +32,12 @@ TEACHER_RULES = [a for a in ALGORITHMS if REGISTRY[a].needs(TeamConfig(algorithm
 CONTROLS = ("none", "permuted", "reversed")
 
 
-def twins(algorithm, transform="none"):
+def twins(algorithm, transform="none", actor_batch="rule"):
     """A replay server and an inline loop whose buffers hold the same three rollout chunks."""
     cfg = in_process_config(algorithm, service={"score_rows_per_call": 360},  # every row scored in one call
                             teachers={"difficulty_transform": transform})
+    for team in cfg["teams"].values():
+        team["actor_batch"] = actor_batch
     server, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
     loop = InlineLoop(config_from_dict(cfg), progress=None)
     for _ in range(3):
@@ -97,21 +99,27 @@ def test_difficulty_and_priorities_agree(algorithm, transform):
                                rtol=1e-5, atol=1e-9)
 
 
-@pytest.mark.parametrize("transform", ["none", "permuted"])
+@pytest.mark.parametrize(("transform", "actor_batch"), [("none", "rule"), ("permuted", "rule"), ("none", "uniform")])
 @pytest.mark.parametrize("algorithm", ALGORITHMS)
-def test_learner_batch_feedback_and_update_agree(algorithm, transform):
-    cfg, server, loop = twins(algorithm, transform)
+def test_learner_batch_feedback_and_update_agree(algorithm, transform, actor_batch):
+    cfg, server, loop = twins(algorithm, transform, actor_batch)
     rngs = [copy.deepcopy(g) for g in server.sampler_rngs]
     batch, _ = server.sample(1)
     beta = beta_is(loop.config, server.counters["inserts"])
     betas = [beta if w else 0.0 for w in loop.layout.importance_weights]
     inline = buffer_steps.sample_owner_batches(loop.replay, 1, loop.config.maddpg.batch_size, rngs, betas,
-                                               loop.layout.candidates)
+                                               loop.layout.candidates, loop.layout.uniform_actor)
     np.testing.assert_array_equal(batch.slots, inline.slots)
     assert (batch.select_u is None) == (inline.select_u is None) == (loop.layout.candidates == 1)
     if batch.select_u is not None:  # LaBER: m·B candidates, and the same numbers to pick with
         assert batch.slots.shape[-1] == loop.layout.candidates * loop.config.maddpg.batch_size
         np.testing.assert_array_equal(batch.select_u, inline.select_u)
+    uniform_actor = actor_batch == "uniform" and REGISTRY[algorithm].prioritised  # maddpg's batch is uniform already
+    assert (batch.actor is None) == (inline.actor is None) == (not uniform_actor)
+    if uniform_actor:  # the actors' own uniform rows, drawn alike
+        np.testing.assert_array_equal(batch.actor.slots, inline.actor.slots)
+        for key in ("obs", "act"):
+            np.testing.assert_array_equal(batch.actor.rows[key], inline.actor.rows[key])
     np.testing.assert_array_equal(batch.is_weights, inline.is_weights)
     for key in ("obs", "act", "rew", "next_obs", "done"):
         np.testing.assert_array_equal(batch.rows[key], inline.rows[key])
@@ -121,14 +129,17 @@ def test_learner_batch_feedback_and_update_agree(algorithm, transform):
     minibatch, slots, generations = choose_minibatch(loop.maddpg, inline, 0, any(loop.layout.importance_weights),
                                                      loop.layout.select)
     np.testing.assert_array_equal(feedback.slots[0], slots)  # the rows trained on, picked alike
+    if batch.select_u is None:  # the feedback is about the critic's rows, never the actors' own
+        np.testing.assert_array_equal(feedback.slots, batch.slots)
     inline_stats = learner_update(loop.maddpg, minibatch)
     np.testing.assert_allclose(feedback.td_abs[0], inline_stats["td_abs"], rtol=1e-6)
     target = inline_stats.get("target_td_abs")
     assert (feedback.target_td_abs is None) == (target is None) == ("target_td_abs" not in loop.layout.learner_scores)
     if target is not None:
         np.testing.assert_allclose(feedback.target_td_abs[0], target, rtol=1e-6)
-    for name, value in loop.maddpg.state_dict()["critic"].items():
-        torch.testing.assert_close(learner.maddpg.state_dict()["critic"][name], value)
+    for part in ("critic", "actor"):
+        for name, value in loop.maddpg.state_dict()[part].items():
+            torch.testing.assert_close(learner.maddpg.state_dict()[part][name], value)
     server.learner_result(feedback)
     buffer_steps.apply_learner_feedback(loop.replay, loop.layout, LearnerFeedback(
         slots[None], generations[None], inline_stats["td_abs"][None],

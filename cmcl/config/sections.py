@@ -261,6 +261,11 @@ class TeamConfig:
     uniform_floor: float = documented(
         0.0, "u, the uniform floor of a prioritised rule: P = (1 − u)·P_rule + u/|D| (issue 36); 0 = the rule alone; "
         "no effect on maddpg", rule=rule("must lie in [0, 1)", lambda v: math.isfinite(v) and 0 <= v < 1))
+    actor_batch: Literal["rule", "uniform"] = documented(
+        "rule", "the rows the actor step trains on: 'rule' = the critic's minibatch, drawn by the team's rule; "
+        "'uniform' = a minibatch of its own drawn uniformly from the buffer, apart from the critic's, without IS "
+        "weights (actor prioritised replay, Saglam et al. 2023; issue 36); accepted and without effect on maddpg, "
+        "whose critic's minibatch is already uniform")
 
     def __post_init__(self) -> None:
         check_fields(self, "team")
@@ -271,6 +276,12 @@ class TeamConfig:
         if self.alpha is not None:
             return self.alpha
         return DEFAULT_ALPHA[self.algorithm] if run_alpha is None else run_alpha
+
+    @property
+    def uniform_actor(self) -> bool:
+        """Whether this team's actor trains on a uniform minibatch of its own (actor_batch = "uniform" under a rule
+        that does not already draw the critic's uniformly)."""
+        return self.actor_batch == "uniform" and REGISTRY[self.algorithm].prioritised
 
     @property
     def needs(self):

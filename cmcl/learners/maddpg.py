@@ -31,6 +31,7 @@ from cmcl.learners.agent_presence import AgentPresence, row_mean
 from cmcl.learners.maddpg_checkpoint import MADDPGCheckpoint
 from cmcl.learners.nets import as_tensor, clip_grad_norm_per_member_, joint_input, make_adam, soft_update_
 from cmcl.learners.networks import build_networks, network_kind
+from cmcl.messages import ACTOR_PREFIX
 
 __all__ = ["MADDPG"]
 
@@ -246,6 +247,19 @@ class MADDPG(MADDPGCheckpoint):
         return (obs, act, as_tensor(batch["rew"]), as_tensor(batch["next_obs"]), done,
                 None if w is None else as_tensor(w), presence)
 
+    def _unpack_actor(self, batch: Mapping[str, ArrayLike], obs: torch.Tensor, act: torch.Tensor,
+                      presence: AgentPresence | None) -> tuple:
+        """The actor step's rows: the batch's "actor_obs", "actor_act" [N, B, N, ·] (and "actor_present") when it has
+        them (actor_batch = "uniform"), else the critic's (obs, act, presence) as given."""
+        if ACTOR_PREFIX + "obs" not in batch:
+            return obs, act, presence
+        a_obs, a_act = as_tensor(batch[ACTOR_PREFIX + "obs"]), as_tensor(batch[ACTOR_PREFIX + "act"])
+        if a_obs.dim() != 4 or a_obs.shape[0] != self.num_agents or a_obs.shape[2:] != obs.shape[2:] \
+                or a_act.shape[:2] != a_obs.shape[:2] or a_act.shape[2:] != act.shape[2:]:
+            raise ValueError(f"actor_obs / actor_act must be [N={self.num_agents}, B, N, ·] like obs / act, got "
+                             f"{tuple(a_obs.shape)} and {tuple(a_act.shape)}")
+        return a_obs, a_act, AgentPresence.of_batch(batch.get(ACTOR_PREFIX + "present"), self.num_agents)
+
     def _critic_step(self, obs, act, rew, next_obs, done, w, presence: AgentPresence | None = None
                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """One batched critic step on (y − Q_v(s, a))² (eq. 5), over the rows where owner v is present. Returns
@@ -309,14 +323,16 @@ class MADDPG(MADDPGCheckpoint):
 
         batch: obs [N, S, N, obs_dim], act [N, S, N, act_dim], rew [N, S, N] (or own [N, S]),
                next_obs [N, S, N, obs_dim], optional done [N, S] or per agent [N, S, N] (owner v reads its own
-               column), optional is_weights [N, S] (critic only).
+               column), optional is_weights [N, S] (critic only), optional actor_obs [N, B, N, obs_dim],
+               actor_act [N, B, N, act_dim] (and actor_present [N, B, N]): the actor step's own rows (actor_batch =
+               "uniform"; absent: the actor trains on the critic's rows).
         Returns numpy: critic_loss [N] (pre-step, weighted), actor_loss [N], td_abs |y - Q| [N, S] (pre-step,
         for PER), critic_grad_norm [N], actor_grad_norm [N] (pre-clip), and with `target_scores` target_td_abs
         |y − Q_target| [N, S] (pre-step, ReLo).
         """
         obs, act, rew, next_obs, done, w, presence = self._unpack(batch)
         c_loss, delta, c_norm = self._critic_step(obs, act, rew, next_obs, done, w, presence)
-        a_loss, a_norm = self._actor_step(obs, act, presence)
+        a_loss, a_norm = self._actor_step(*self._unpack_actor(batch, obs, act, presence))
         soft_update_(self.target_critic, self.critic, self.tau)
         soft_update_(self.target_actor, self.actor, self.tau)
         self.updates += 1

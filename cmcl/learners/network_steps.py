@@ -4,7 +4,8 @@ Where it sits: one implementation, two runners. `cmcl.loop` calls these on its o
 teacher and ICM actors call the same functions on theirs (`services/learner.py`, `teachers.py`, `icm.py`). The
 replay side (what is drawn, what is written back) is `cmcl.replay.buffer_steps`.
 
-  learner minibatch .. choose_minibatch    the batch's own, or LaBER's pick among m·B candidates by fresh |δ|
+  learner minibatch .. choose_minibatch    the batch's own, or LaBER's pick among m·B candidates by fresh |δ|;
+                                           with the actors' own uniform rows when actor_batch = "uniform"
   learner update ..... learner_update      minibatch [N, S, ...] -> MADDPG step (eqs. 4–6), |δ| [N, S]
   teacher fit ........ fit_teachers        rows [steps, B, F, S, ...] -> Adam steps of the fold teachers (eq. 9)
   teacher scores ..... teacher_errors      rows [M, ...] -> e [M, A_t, K'] (eq. 10)
@@ -24,7 +25,7 @@ from cmcl.learners.icm import ICM
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.nets import joint_input
 from cmcl.learners.teachers import TeacherEnsemble
-from cmcl.messages import LearnerBatch
+from cmcl.messages import ACTOR_PREFIX, LearnerBatch
 from cmcl.replay.priority import EPS_P
 from cmcl.replay.rules.laber import select_candidates
 
@@ -53,16 +54,20 @@ def learner_update(maddpg: MADDPG, minibatch: dict[str, np.ndarray], icm: ICM | 
 
 def choose_minibatch(maddpg: MADDPG, batch: LearnerBatch, i: int, importance_weights: bool, select: Sequence[bool]
                      ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
-    """The i-th minibatch of `batch` as `learner_update` takes it, with its slots and generations int64[N, B].
+    """The i-th minibatch of `batch` as `learner_update` takes it, with its slots and generations int64[N, B] (the
+    critic's rows: the ones the feedback is about).
 
     Without candidates (`batch.select_u` None) it is the batch's own. With LaBER's m·B candidates per owner, the
     agents marked in `select` pick B of them ∝ the current critic's |δ| + ε (one no-grad pass,
     `cmcl.replay.rules.laber.select_candidates`), their critic weighted by LaBER-mean's weights; the others take
-    their first B draws (i.i.d. from their own sampler) with their own IS weights."""
+    their first B draws (i.i.d. from their own sampler) with their own IS weights. With the actors' own rows
+    (`batch.actor`, actor_batch = "uniform"), the minibatch also holds "actor_obs", "actor_act" (and
+    "actor_present") [N, B, N, ·]: the uniform rows for the owners marked in `batch.actor.owners`, the critic's
+    chosen rows for the others (`with_actor_rows`)."""
     mb = batch.minibatch(i, importance_weights)
     slots, generations = batch.slots[i], batch.generations[i]
     if batch.select_u is None:
-        return mb, slots, generations
+        return with_actor_rows(mb, batch, i), slots, generations
     u = batch.select_u[i]  # [N, B]
     n, b = u.shape
     idx, weights = select_candidates(maddpg.td_abs(mb).astype(np.float64) + EPS_P, u)
@@ -71,7 +76,23 @@ def choose_minibatch(maddpg: MADDPG, batch: LearnerBatch, i: int, importance_wei
     picked = {k: np.take_along_axis(v, idx.reshape(n, b, *([1] * (v.ndim - 2))), axis=1) for k, v in mb.items()}
     if "is_weights" in picked:
         picked["is_weights"] = np.where(picking[:, None], weights, picked["is_weights"]).astype(np.float32)
-    return picked, np.take_along_axis(slots, idx, axis=1), np.take_along_axis(generations, idx, axis=1)
+    return (with_actor_rows(picked, batch, i), np.take_along_axis(slots, idx, axis=1),
+            np.take_along_axis(generations, idx, axis=1))
+
+
+def with_actor_rows(minibatch: dict[str, np.ndarray], batch: LearnerBatch, i: int) -> dict[str, np.ndarray]:
+    """The critic's minibatch [N, B, ...] plus the actors' own rows of the i-th minibatch of `batch` under the keys
+    ACTOR_PREFIX + "obs", "act" (and "present"): `batch.actor`'s rows for the owners it marks, the critic's for the
+    others; the minibatch unchanged when `batch.actor` is None."""
+    if batch.actor is None:
+        return minibatch
+    owners = np.asarray(batch.actor.owners, dtype=bool)
+    out = dict(minibatch)
+    for key, rows in batch.actor.rows.items():
+        own = rows[i]  # [N, B, ...]
+        out[ACTOR_PREFIX + key] = own if owners.all() else np.where(
+            owners.reshape(-1, *([1] * (own.ndim - 1))), own, minibatch[key])
+    return out
 
 
 def teacher_fit_batch(fit: dict[str, np.ndarray], agents: np.ndarray, targets: MADDPG

@@ -4,7 +4,8 @@ Where it sits: one implementation, two runners. `cmcl.loop` calls these function
 buffer; `services.replay_server` calls the same functions when a role asks for work or sends results. The learner
 side of each step (networks) is `cmcl.learners.network_steps`. Numpy only.
 
-  learner minibatches ...... sample_owner_batches       -> LearnerBatch [n, N, S]      (per-agent samplers, eq. 20)
+  learner minibatches ...... sample_owner_batches       -> LearnerBatch [n, N, S]      (per-agent samplers, eq. 20;
+                                                           with the actors' own uniform rows, actor_batch = "uniform")
   learner feedback ......... apply_learner_feedback      <- LearnerFeedback (per-row losses to each sampler)
   teacher fit rows ......... fold_batch_slots            -> slots [steps, B, F, S] from each fold only (eq. 9)
   ICM fit rows ............. uniform_slots               -> slots, drawn uniformly (§3.4)
@@ -18,8 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.messages import PRESENT_KEY, ROW_KEYS, LearnerBatch, LearnerFeedback, Rows
+from cmcl.messages import ACTOR_KEYS, PRESENT_KEY, ROW_KEYS, ActorRows, LearnerBatch, LearnerFeedback, Rows
 from cmcl.replay.buffer import ReplayBuffer
+from cmcl.replay.sampling import UniformSampling
+
+UNIFORM = UniformSampling()  # the actors' own minibatches are maddpg's draw: P(j) = 1/|D|
 
 
 def rows_at(replay: ReplayBuffer, slots: np.ndarray, keys: Sequence[str] = ROW_KEYS) -> dict[str, np.ndarray]:
@@ -35,24 +39,46 @@ def score_rows(replay: ReplayBuffer, slots: np.ndarray) -> Rows:
 
 
 def sample_owner_batches(replay: ReplayBuffer, count: int, batch_size: int, rngs: Sequence[np.random.Generator],
-                         betas: Sequence[float], candidates: int = 1) -> LearnerBatch:
+                         betas: Sequence[float], candidates: int = 1, uniform_actor: Sequence[bool] = ()
+                         ) -> LearnerBatch:
     """`count` learner minibatches: every agent v draws its own S slots from its own P_v (eq. 20) per minibatch.
 
     betas: IS exponent per agent (0: weights of 1). candidates: m > 1 (LaBER) draws S = m·batch_size candidates
     per owner, then one uniform number per row to pick from each agent's own generator (`LearnerBatch.select_u`).
+    uniform_actor: bool per agent (actor_batch = "uniform"): those agents then draw, after their critic's rows, a
+    minibatch of batch_size rows uniformly from their own generator for their actor (`LearnerBatch.actor`; None
+    when no agent is marked, and nothing more is drawn).
     Returns a LearnerBatch of [count, N, S] arrays, with the agents' presence when the buffer holds rows carried
     from fewer agents (run.carry_replay).
     """
-    draws, picks = [], []
+    owners = np.asarray(uniform_actor, dtype=bool) if any(uniform_actor) else None
+    draws, picks, actor = [], [], []
     for _ in range(count):
         draws.append(replay.sample_all(batch_size * candidates, list(rngs), beta=list(betas)))
         if candidates > 1:
             picks.append(np.stack([rng.random(batch_size) for rng in rngs]))
+        if owners is not None:
+            actor.append(actor_slots(replay, draws[-1][0][:, :batch_size], rngs, owners))
     slots = np.stack([d[0] for d in draws])  # [n, N, S]
-    keys = (*ROW_KEYS, PRESENT_KEY) if replay.storage.absent_rows else ROW_KEYS
-    return LearnerBatch(rows_at(replay, slots, keys), np.stack([d[1] for d in draws]), slots,
+    present = (PRESENT_KEY,) if replay.storage.absent_rows else ()
+    actor_rows = None
+    if owners is not None:
+        own = np.stack(actor)  # [n, N, B]
+        actor_rows = ActorRows(rows_at(replay, own, (*ACTOR_KEYS, *present)), own, owners)
+    return LearnerBatch(rows_at(replay, slots, (*ROW_KEYS, *present)), np.stack([d[1] for d in draws]), slots,
                         replay.generations(slots.reshape(-1)).reshape(slots.shape),
-                        np.stack(picks) if picks else None)
+                        np.stack(picks) if picks else None, actor_rows)
+
+
+def actor_slots(replay: ReplayBuffer, critic: np.ndarray, rngs: Sequence[np.random.Generator], owners: np.ndarray
+                ) -> np.ndarray:
+    """The actors' rows of one minibatch: int64[N, B], owner v's B slots drawn uniformly over the buffer from its
+    own generator where owners[v], else its critic's first B draws `critic` int64[N, B] (the learner then trains
+    that actor on whatever its critic trains on)."""
+    out = critic.copy()
+    for agent in np.flatnonzero(owners):
+        out[agent] = UNIFORM.sample(critic.shape[1], replay.size, rngs[agent], 0.0)[0]
+    return out
 
 
 def apply_learner_feedback(replay: ReplayBuffer, layout: Any, feedback: LearnerFeedback) -> tuple[int, bool]:
