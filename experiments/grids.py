@@ -276,9 +276,11 @@ def scale_runs(seed: int, budget: int) -> list[Run]:
 
 
 def own_env_runs(seed: int) -> list[Run]:
-    """The own_envs grid: every environment of OWN_ENVS on each runner, at its own budget and settings."""
+    """The own_envs grid: every environment of OWN_ENVS on each runner, at its own budget and settings (the log cadence
+    of the inline runs: the service logs on its own clock)."""
     return [Run(f"own_{name}_{mode}_s{seed}", "own_envs", "own_env", "maddpg", None, seed, env.budget, mode=mode,
-                env=name, sets=(f"env.factory={env.factory}", *env.sets, f"run.log_every={OWN_ENV_LOG_EVERY}"))
+                env=name, sets=(f"env.factory={env.factory}", *env.sets,
+                                *([f"run.log_every={OWN_ENV_LOG_EVERY}"] if mode == "inline" else [])))
             for name, env in OWN_ENVS.items() for mode in ("inline", "service")]
 
 

@@ -20,6 +20,7 @@ from typing import Any, Literal
 
 from cmcl.config.env import WORLD_KEYS, EnvConfig
 from cmcl.config.experiment import Config
+from cmcl.config.runners import RUNNER_ONLY
 from cmcl.config.sections import TASKS, PriorityConfig, TeamConfig
 from cmcl.config.toml_io import _toml_value, type_requirement
 from cmcl.field_docs import MEANING, RULE, UNIT
@@ -80,10 +81,17 @@ def _summary(cls: type) -> str:
 
 
 def _section(table: str, owner: Any) -> SectionDoc:
-    """The keys of `owner`'s fields; a field holding a table of its own (a team's `priority`) is its own section."""
-    keys = tuple(_key_doc(owner, f, f.name) for f in dataclasses.fields(owner)
-                 if not dataclasses.is_dataclass(getattr(owner, f.name)))
-    return SectionDoc(table, _summary(type(owner)), keys)
+    """The keys of `owner`'s fields; a field holding a table of its own (a team's `priority`) is its own section. A
+    key only one runner honours (cmcl.config.runners; a whole section: its summary says whose it is) says so."""
+    keys = []
+    for f in dataclasses.fields(owner):
+        if dataclasses.is_dataclass(getattr(owner, f.name)):
+            continue
+        doc, only = _key_doc(owner, f, f.name), RUNNER_ONLY.get(f"{table}.{f.name}")
+        if only is not None:
+            doc = dataclasses.replace(doc, meaning=f"{doc.meaning}. The {only.runner} runner only: {only.instead}")
+        keys.append(doc)
+    return SectionDoc(table, _summary(type(owner)), tuple(keys))
 
 
 def _env_section(env: EnvConfig) -> SectionDoc:
