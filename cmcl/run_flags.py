@@ -19,7 +19,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal, get_args
 
-from cmcl.config import Config, ConfigError, config_from_dict, load_data
+from cmcl.config import Config, ConfigError, apply_overrides, config_from_dict, load_data
+from cmcl.config.runners import check_runner_keys
 from cmcl.envs.factory import EnvFactoryError
 from cmcl.io.rundir import MetricsError, RunDirectory
 from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
@@ -117,7 +118,8 @@ def resume_command(run_dir: object) -> str:
 def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
     """The config (file, or the run's own config.toml on resume, with `config_overrides`), the run directory (new, or
     the one resumed) and its lock, taken before anything in the directory changes: a run in use is refused, naming
-    its holder, and left untouched; so is the other runner's run. Raises ConfigError, FileExistsError (a run.dir
+    its holder, and left untouched; so is the other runner's run, and a key only the other runner honours
+    (cmcl.config.runners.check_runner_keys). Raises ConfigError, FileExistsError (a run.dir
     holding a run, without `overwrite`), FileNotFoundError (no run to resume), RunDirectoryInUse, ResumeMismatch,
     CheckpointError (a resumed run holds checkpoint files that cannot be verified), MetricsError (its metrics.jsonl
     has a corrupt line before its last)."""
@@ -135,8 +137,11 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
         except BaseException:
             lock.release()
             raise
-    data = load_data(request.config_file, overrides)
-    config = checked(config_from_dict(data), request, teams_given="teams" in data)  # the env built once (AEC, ...)
+    file_data = load_data(request.config_file)
+    data = apply_overrides(file_data, overrides)
+    config = config_from_dict(data)
+    check_runner_keys(config, request.runner, file_data, overrides)  # keys only the other runner honours
+    config = checked(config, request, teams_given="teams" in data)  # the env built once (AEC, ...)
     check_warm_start(config)
     from cmcl.carried_replay import check_carry_source  # numpy only: no torch, no Ray
 
@@ -169,8 +174,10 @@ def resumed_config(run_dir: RunDirectory, overrides: tuple[str, ...], request: R
     run.episodes set to the episodes done (its last episode row's) plus those, the λ stride pinned first when it was
     derived from the old budget (curriculum.stride = 0), so that λ goes on along the schedule it had (a multiplicative
     schedule, whose growth has no setting, is refused: ConfigError). A run whose episodes are all done, resumed
-    without more, is said so on stderr (it then only evaluates)."""
+    without more, is said so on stderr (it then only evaluates). Only `overrides` are checked against the runner
+    (cmcl.config.runners: the stored config was checked when the run started)."""
     config = run_dir.config(overrides)
+    check_runner_keys(config, request.runner, overrides=overrides)
     done = max((int(row["episodes"]) for row in run_dir.rows("episode")), default=0)
     if request.more_episodes:
         if config.curriculum.kind != "linear":  # its growth per step is derived from run.episodes, with no setting

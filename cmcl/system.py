@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cmcl.algorithms import REGISTRY
-from cmcl.config import Config, ConfigError
+from cmcl.config import Config, ConfigError, PriorityConfig
 from cmcl.envs.entities import EntityLayout, entity_layout
 from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.curriculum import CurriculumSchedule, default_growth
@@ -33,6 +33,8 @@ class AgentLayout:
 
     algorithms: each agent's algorithm (a name of cmcl.algorithms.REGISTRY, its team's), length N.
     alpha: sampling exponent α_s of eq. 20 per agent, length N (its team's `effective_alpha`, A8).
+    priority: each agent's team's sampling settings ([teams.<team>.priority], cmcl.config.PriorityConfig), length N:
+    what its sampler and the teachers' errors on its rows use.
     teacher_agents / icm_agents: int64[A_t] / int64[A_c] indices of agents that need teacher / curiosity scores.
     """
 
@@ -48,8 +50,9 @@ class AgentLayout:
     difficulty_source: tuple[str, ...]
     teacher_agents: np.ndarray
     icm_agents: np.ndarray
-    # u, the uniform floor of each agent's prioritised rule (its team's `uniform_floor`), length N
+    # u, the uniform floor of each agent's prioritised rule (its team's `priority.uniform_floor`), length N
     floor: tuple[float, ...] = ()
+    priority: tuple[PriorityConfig, ...] = ()
     # the learner's per-row losses some agent's rule asks back ("td_abs", "target_td_abs"; cmcl.algorithms.Needs)
     learner_scores: tuple[str, ...] = ()
     # LaBER: each learner minibatch is drawn as `candidates` × batch rows, and the agents marked in `select` pick
@@ -68,6 +71,13 @@ class AgentLayout:
     # how each flat observation splits into entities (cmcl.envs.entities), for maddpg.networks = "entity";
     # None for an env.factory environment (no known layout)
     entities: EntityLayout | None = None
+
+    @property
+    def teacher_error_squared(self) -> list[bool]:
+        """Per teacher agent (`teacher_agents`): whether its teachers' error is squared (its team's
+        `priority.difficulty_error`), as both runners score rows (cmcl.learners.network_steps.teacher_errors)."""
+        priority = self.priority or (PriorityConfig(),) * self.num_agents
+        return [priority[a].difficulty_error == "squared" for a in self.teacher_agents]
 
     @property
     def team_of(self) -> list[str]:
@@ -124,8 +134,8 @@ def agent_layout(config: Config, env) -> AgentLayout:
         members = {team: [ids[i] for i in idx] for team, idx in env.teams.items()}
         raise ConfigError(f"teams: the config names {sorted(config.teams)}, the environment's agents form the teams "
                           f"{members} (by agent-id prefix or env.team_of); give every one a [teams.<name>] table")
-    algorithms, eta, isw, source, alpha, floor = [""] * n, [0.0] * n, [False] * n, ["difficulty"] * n, [1.0] * n, \
-        [0.0] * n
+    algorithms, eta, isw, source, alpha = [""] * n, [0.0] * n, [False] * n, ["difficulty"] * n, [1.0] * n
+    priority = [PriorityConfig()] * n
     teacher, icm, learner_scores, select, uniform_actor = [], [], set(), [False] * n, [False] * n
     for team, members in env.teams.items():
         spec = config.teams[team]
@@ -133,9 +143,9 @@ def agent_layout(config: Config, env) -> AgentLayout:
         for agent in members:
             algorithms[agent] = spec.algorithm
             eta[agent] = spec.effective_eta
-            alpha[agent] = spec.effective_alpha(config.replay.alpha)
+            alpha[agent] = spec.effective_alpha()
             isw[agent] = spec.importance_weights
-            floor[agent] = spec.uniform_floor
+            priority[agent] = spec.priority
             source[agent] = needs.difficulty_source
             if needs.teachers:
                 teacher.append(agent)
@@ -151,7 +161,8 @@ def agent_layout(config: Config, env) -> AgentLayout:
                        teams={k: list(v) for k, v in env.teams.items()}, algorithms=tuple(algorithms),
                        eta=tuple(eta),
                        alpha=tuple(alpha),
-                       importance_weights=tuple(isw), difficulty_source=tuple(source), floor=tuple(floor),
+                       importance_weights=tuple(isw), difficulty_source=tuple(source),
+                       floor=tuple(p.uniform_floor for p in priority), priority=tuple(priority),
                        learner_scores=tuple(sorted(learner_scores)), select=tuple(select),
                        uniform_actor=tuple(uniform_actor),
                        candidates=max((REGISTRY[config.teams[t].algorithm].candidates for t in env.teams), default=1),
@@ -187,17 +198,17 @@ def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
 
 
 def build_replay(config: Config, layout: AgentLayout) -> ReplayBuffer:
-    """Replay storage with one sampling distribution per agent, its team's algorithm's (IS β is passed at sample
-    time)."""
-    r = config.replay
+    """Replay storage with one sampling distribution per agent, its team's algorithm's, with its team's priority
+    settings (IS β is passed at sample time)."""
+    r, p = config.replay, layout.priority
     return ReplayBuffer(capacity=r.capacity, n_agents=layout.num_agents, obs_dim=layout.obs_dim,
                         act_dim=layout.act_dim, n_folds=config.teachers.num_folds, algorithms=list(layout.algorithms),
                         alpha=list(layout.alpha), eps=r.priority_eps, backend=r.backend, eta=list(layout.eta),
-                        difficulty_norm=config.teachers.difficulty_norm, cp_input=config.icm.cp_input,
+                        difficulty_norm=[a.difficulty_norm for a in p], cp_input=[a.cp_input for a in p],
                         difficulty_source=list(layout.difficulty_source), floor=list(layout.floor),
-                        difficulty_squared=config.teachers.difficulty_error == "squared",
+                        difficulty_squared=[a.difficulty_error == "squared" for a in p],
                         min_size=max(1, config.maddpg.warmup), lam_max=config.curriculum.lam_max,
-                        difficulty_transform=config.teachers.difficulty_transform,
+                        difficulty_transform=[a.difficulty_transform for a in p],
                         control_seed=control_seed(config.run.seed))
 
 

@@ -54,15 +54,17 @@ EPISODES = 20_000  # the paper's budget per run
 
 # The permuted control: a rule's own priorities shuffled across the buffer's rows at every recompute (same
 # probabilities, hence the same ESS, no information about the rows; cmcl.replay.buffer). The one place naming its key.
-PERMUTED_CONTROL = "teachers.difficulty_transform=permuted"
-# arm -> (config file, --set overrides) of the curriculum grids; every other setting is the shared default
+PERMUTED_CONTROL = "teams.<team>.priority.difficulty_transform=permuted"
+# arm -> (config file, --set overrides) of the curriculum grids; every other setting is the shared default. An
+# override of "teams.<team>." is the learning team's: the agents of navigation, the predators of predator-prey
+# (`team_sets`).
 CURRICULUM_ARMS = {
     "maddpg": ("spread_maddpg.toml", []),
     "per": ("spread_per.toml", []),
     "acl": ("spread_acl.toml", []),
     "cmcl": ("spread_cmcl.toml", []),
     "cmcl_permuted": ("spread_cmcl.toml", [PERMUTED_CONTROL]),
-    "cmcl_anti": ("spread_cmcl.toml", ["teachers.difficulty_transform=reversed"]),
+    "cmcl_anti": ("spread_cmcl.toml", ["teams.<team>.priority.difficulty_transform=reversed"]),
 }
 HARD_CONFIG = "spread_hard.toml"  # the calibrated harder task (docs/RESULTS.md, "A harder task: calibration")
 # grid -> {arm: --set overrides}: CMCL on the harder task with one setting changed, every other setting the
@@ -87,9 +89,9 @@ SCREEN_ARMS: dict[str, list[str]] = {
     "relo": ["teams.agent.algorithm=relo"],
     "rho": ["teams.agent.algorithm=rho"],
     "lp": ["teams.agent.algorithm=lp"],
-    "per_floor": ["teams.agent.algorithm=per", "teams.agent.uniform_floor=0.2"],
+    "per_floor": ["teams.agent.algorithm=per", "teams.agent.priority.uniform_floor=0.2"],
     "cmcl_lam05": ["teams.agent.algorithm=cmcl", "curriculum.lam0=0.5"],  # no exclusion phase (λ ≥ 0.5 from the start)
-    "cmcl_floor": ["teams.agent.algorithm=cmcl", "teams.agent.uniform_floor=0.2"],
+    "cmcl_floor": ["teams.agent.algorithm=cmcl", "teams.agent.priority.uniform_floor=0.2"],
     # added to the protocol on 2026-12-05 at 00:10 UTC, before any of its runs (docs/RESULTS.md)
     "laber": ["teams.agent.algorithm=laber"],
 }
@@ -105,8 +107,8 @@ ABLATIONS = {  # name -> (config file, --set overrides, episode budget or None f
     "eta1": ("spread_cmcl.toml", ["teams.agent.eta=1.0"], None),
     "k2": ("spread_cmcl.toml", ["teachers.num_folds=2"], None),
     # the default since 2026-12 (A1); kept so its committed 5-seed results (run at the old "max" default) stay named
-    "rank": ("spread_cmcl.toml", ["teachers.difficulty_norm=rank"], None),
-    "max": ("spread_cmcl.toml", ["teachers.difficulty_norm=max"], None),  # the pre-2026-12 normalisation
+    "rank": ("spread_cmcl.toml", ["teams.agent.priority.difficulty_norm=rank"], None),
+    "max": ("spread_cmcl.toml", ["teams.agent.priority.difficulty_norm=max"], None),  # the pre-2026-12 normalisation
     "stride_x2": ("spread_cmcl.toml", ["curriculum.stride=6e-6"], None),  # λ_max at a quarter of training
     "stride_half": ("spread_cmcl.toml", ["curriculum.stride=1.5e-6"], None),  # λ_max at the end
     "is_on": ("spread_cmcl.toml", ["teams.agent.is_correction=true"], None),
@@ -216,14 +218,19 @@ def curriculum_runs(name: str, seed: int, budget: int) -> list[Run]:
     (``curriculum_tag``)."""
     runs = []
     for arm, (config, sets) in CURRICULUM_ARMS.items():
-        algorithm, task, prey = arm.split("_")[0], "spread", None
+        algorithm, task, prey, team = arm.split("_")[0], "spread", None, "agent"
         if name == "curriculum_hard":  # the same arms on the harder task: its config, each algorithm
             config, sets = HARD_CONFIG, [f"teams.agent.algorithm={algorithm}", *sets]
         elif name == "curriculum_tag":  # the predators' config of each algorithm; its prey learn with MADDPG
-            config, task, prey = f"tag_{algorithm}.toml", "tag", "maddpg"
+            config, task, prey, team = f"tag_{algorithm}.toml", "tag", "maddpg", "predator"
         runs.append(Run(f"{name}_{arm}_s{seed}", name, task, algorithm, prey, seed, budget, arm=arm,
-                        config=config, sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *sets)))
+                        config=config, sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *team_sets(sets, team))))
     return runs
+
+
+def team_sets(sets: list[str], team: str) -> list[str]:
+    """`sets` with every "teams.<team>." override made `team`'s."""
+    return [s.replace("teams.<team>.", f"teams.{team}.", 1) if s.startswith("teams.<team>.") else s for s in sets]
 
 
 def setting_runs(name: str, seed: int, budget: int) -> list[Run]:
@@ -242,7 +249,7 @@ def rule_runs(name: str, arms: dict[str, list[str]], seed: int, budget: int) -> 
     """The screen's or the confirmation's arms (arm -> overrides) on the harder task, logged as the curriculum grids
     are."""
     return [Run(f"{name}_{arm}_s{seed}", name, "spread", rule_algorithm(sets), None, seed, budget, arm=arm,
-                config=HARD_CONFIG, sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *sets))
+                config=HARD_CONFIG, sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *team_sets(sets, "agent")))
             for arm, sets in arms.items()]
 
 
@@ -331,9 +338,11 @@ def scale_runs(seed: int, budget: int) -> list[Run]:
 
 
 def own_env_runs(seed: int) -> list[Run]:
-    """The own_envs grid: every environment of OWN_ENVS on each runner, at its own budget and settings."""
+    """The own_envs grid: every environment of OWN_ENVS on each runner, at its own budget and settings (the log cadence
+    of the inline runs: the service logs on its own clock)."""
     return [Run(f"own_{name}_{mode}_s{seed}", "own_envs", "own_env", "maddpg", None, seed, env.budget, mode=mode,
-                env=name, sets=(f"env.factory={env.factory}", *env.sets, f"run.log_every={OWN_ENV_LOG_EVERY}"))
+                env=name, sets=(f"env.factory={env.factory}", *env.sets,
+                                *([f"run.log_every={OWN_ENV_LOG_EVERY}"] if mode == "inline" else [])))
             for name, env in OWN_ENVS.items() for mode in ("inline", "service")]
 
 

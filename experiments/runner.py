@@ -3,7 +3,8 @@
 Resume rule: a run whose summary exists is skipped; a run whose folder holds a checkpoint is resumed from its
 newest one (`python -m cmcl.loop --resume`, or `python -m services.launch --resume` for a service run; its clock
 goes on from the checkpoint, so seconds stay comparable); any other run starts afresh (`--overwrite`: a folder
-without a checkpoint holds nothing worth keeping). Inline runs checkpoint every CHECKPOINT_EVERY episodes.
+without a checkpoint holds nothing worth keeping). Inline runs checkpoint every CHECKPOINT_EVERY episodes and log every
+LOG_EVERY; a service run keeps the service's own cadences (it refuses the inline runner's keys on its command line).
 
 Children die with the runner: each is started with PR_SET_PDEATHSIG = SIGKILL (Linux prctl, set in the child
 before exec), so a runner killed by any signal, SIGKILL included, leaves no orphan training that a rerun's resume
@@ -76,8 +77,9 @@ def command(run: Run, run_path: Path) -> list[str]:
         runners = RunDirectory.open(run_path).runners()
         if runners:  # a checkpoint exists (a runner refuses a folder the other runner wrote; say so loudly)
             return [sys.executable, "-m", launcher, "--resume", str(run_path), "--quiet", *service_flags]
-    sets = [f"run.seed={run.seed}", f"run.dir={run_path}", f"run.episodes={run.budget}", f"run.log_every={LOG_EVERY}",
-            f"run.checkpoint_every={CHECKPOINT_EVERY}"]
+    sets = [f"run.seed={run.seed}", f"run.dir={run_path}", f"run.episodes={run.budget}"]
+    if run.mode == "inline":  # the inline runner's cadences (the service has its own: cmcl/config/runners.py)
+        sets += [f"run.log_every={LOG_EVERY}", f"run.checkpoint_every={CHECKPOINT_EVERY}"]
     if run.prey_algorithm is not None:
         sets.append(f"teams.prey.algorithm={run.prey_algorithm}")
     if run.stop_coverage is not None:

@@ -63,9 +63,9 @@ class TeacherWorker:
         loss = network_steps.fit_teachers(self.teachers, work.fit, agents, self.targets)
         self.loss = self.loss if np.isnan(loss) else loss
         self.steps += int(work.fit["obs"].shape[0])
-        squared = self.config.teachers.difficulty_error == "squared"
         # [M, A_t, F]
-        errors = network_steps.teacher_errors(self.teachers, work.score.rows, agents, self.targets, squared)
+        errors = network_steps.teacher_errors(self.teachers, work.score.rows, agents, self.targets,
+                                              self.layout.teacher_error_squared)
         self.scores += int(errors.shape[0])
         return TeacherScores(tuple(self.folds), work.score.slots, work.score.generations, errors, work.updates,
                              self.loss, self.incarnation), self.report()

@@ -34,8 +34,8 @@ CONTROLS = ("none", "permuted", "reversed")
 
 def twins(algorithm, transform="none", actor_batch="rule"):
     """A replay server and an inline loop whose buffers hold the same three rollout chunks."""
-    cfg = in_process_config(algorithm, service={"score_rows_per_call": 360},  # every row scored in one call
-                            teachers={"difficulty_transform": transform})
+    cfg = in_process_config(algorithm, service={"score_rows_per_call": 360})  # every row scored in one call
+    cfg["teams"]["agent"]["priority"]["difficulty_transform"] = transform
     for team in cfg["teams"].values():
         team["actor_batch"] = actor_batch
     server, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)

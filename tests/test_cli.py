@@ -5,7 +5,8 @@
 - Each verb runs as a user runs it, a subprocess, on the inline runner with the tiny config; `resume` finds the
   runner from the run directory itself.
 - Bad input (an unknown verb or runner, a folder that is not a run, a service flag for the inline runner, the other
-  runner's run) exits with 2 and a message naming the value, and leaves what is stored untouched.
+  runner's run, a config key that moved) exits with 2 and a message naming the value, and leaves what is stored
+  untouched; a run stored before a key moved still resumes and evaluates.
 """
 
 from __future__ import annotations
@@ -15,11 +16,14 @@ import json
 import shlex
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
 
 from cmcl.__main__ import build_parser, main, runner_of
+from cmcl.config import config_from_dict
+from cmcl.config.toml_io import _toml_value
 from cmcl.evaluate import build_parser as evaluate_alias_parser
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import LOCK_NAME
@@ -251,3 +255,51 @@ def test_the_printed_python_is_the_one_a_user_can_type_where_it_is_printed(tmp_p
     if here.name == "python":
         monkeypatch.setenv("PATH", str(here.parent))
         assert python_command() == "python"
+
+
+def test_a_moved_key_is_refused_in_one_line_and_nothing_is_made(tmp_path, capsys):
+    run = tmp_path / "run"
+    moved = "teachers.difficulty_norm=max"
+    assert main(["train", "--runner", "inline", "--set", f"run.dir={run}", "--set", moved]) == 2
+    assert capsys.readouterr().err == ("error: teachers.difficulty_norm moved to teams.<team>.priority.difficulty_norm "
+                                       "(one per team); set that instead, got 'max'\n")
+    assert not run.exists()
+
+
+def old_layout(text: str) -> str:
+    """A config.toml as the code before [teams.<team>.priority] wrote it: the team's α and floor in its own table,
+    the other priority settings global (every team of these tests has the same)."""
+    data = tomllib.loads(text)
+    for team in data["teams"].values():
+        priority = team.pop("priority")
+        team.update({k: priority.pop(k) for k in ("alpha", "uniform_floor") if k in priority})
+        data["teachers"].update({k: priority[k] for k in ("difficulty_norm", "difficulty_transform",
+                                                          "difficulty_error")})
+        data["icm"]["cp_input"] = priority["cp_input"]
+    lines = []
+    for name, table in [*((s, t) for s, t in data.items() if s != "teams"),
+                        *((f"teams.{team}", t) for team, t in data["teams"].items())]:
+        lines += [f"[{name}]", *(f"{k} = {_toml_value(v)}" for k, v in table.items()), ""]
+    return "\n".join(lines)
+
+
+def test_a_run_written_before_the_priority_tables_resumes_and_evaluates(tmp_path, tiny_config, capsys):
+    """A run directory whose config.toml has the old keys (teams.agent.alpha, teachers.difficulty_norm, ...) resumes
+    with the values it trained with (its replay snapshot's α must match the buffer's) and evaluates; its stored
+    config.toml is left as it is."""
+    path = tmp_path / "run"
+    data = tiny_config("per", dir=str(path), episodes=4, checkpoint_every=4, log_every=4).to_dict()
+    data["teams"]["agent"]["priority"].update(alpha=0.7, uniform_floor=0.1, difficulty_norm="max")
+    config = config_from_dict(data)
+    run_dir = RunDirectory.create(path, config)
+    InlineLoop(config, run_dir, progress=None).run()
+    stored = old_layout(run_dir.config_path.read_text())
+    assert "[teams.agent.priority]" not in stored and 'difficulty_norm = "max"' in stored
+    run_dir.config_path.write_text(stored)
+    assert run_dir.config() == config
+    resumed = main(["resume", str(path), "--more-episodes", "4", "--quiet", "--no-eval"])
+    assert resumed == 0, capsys.readouterr()
+    assert "resumed from" in capsys.readouterr().out and [r["episodes"] for r in run_dir.rows("episode")][-1] == 8
+    assert main(["evaluate", str(path), "--episodes", "4", "--no-gif"]) == 0, capsys.readouterr().err
+    assert evaluation_json(capsys.readouterr().out)["policy"] == "trained"
+    assert run_dir.config_path.read_text() == stored

@@ -5,9 +5,10 @@ from pathlib import Path
 
 import pytest
 
-from cmcl.config import ConfigError, config_from_dict, dump_toml, load_config, preset
+from cmcl.config import ConfigError, config_from_dict, dump_toml, load_config, load_stored_config, preset
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+FIXTURES = Path(__file__).resolve().parent / "fixtures"
 
 
 @pytest.mark.parametrize("path", sorted(CONFIGS.glob("*.toml")), ids=lambda p: p.name)
@@ -121,3 +122,56 @@ def test_paper_presets_keep_the_papers_schedule_and_nothing_else():
                 ours[section].pop(key, None), theirs[section].pop(key, None)
         ours["run"].pop("dir"), theirs["run"].pop("dir")
         assert ours == theirs, path
+
+
+@pytest.mark.parametrize(("old", "new"), [
+    ("teachers.difficulty_norm=max", "teams.<team>.priority.difficulty_norm (one per team)"),
+    ("teachers.difficulty_transform=permuted", "teams.<team>.priority.difficulty_transform (one per team)"),
+    ("teachers.difficulty_error=abs", "teams.<team>.priority.difficulty_error (one per team)"),
+    ("icm.cp_input=raw", "teams.<team>.priority.cp_input (one per team)"),
+    ("replay.alpha=0.5", "teams.<team>.priority.alpha (one per team)"),
+    ("teams.agent.alpha=0.5", "teams.agent.priority.alpha"),
+    ("teams.agent.uniform_floor=0.2", "teams.agent.priority.uniform_floor"),
+])
+def test_a_moved_key_is_refused_naming_the_key_that_replaced_it(old, new, tmp_path):
+    """On the command line and in a file alike: one line naming the old key, its value and the new key."""
+    key, value = old.split("=")
+    expected = f"{key} moved to {new}; set that instead, got "
+    with pytest.raises(ConfigError) as err:
+        load_config(None, [old])
+    assert str(err.value).startswith(expected) and value in str(err.value) and "\n" not in str(err.value)
+    section, name = key.rsplit(".", 1)
+    path = tmp_path / "old.toml"
+    path.write_text(f"[{section}]\n{name} = {value if value[0].isdigit() else repr(value)}\n")
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    assert str(err.value).startswith(expected)
+
+
+def test_a_stored_config_from_before_the_priority_tables_is_read_with_its_keys_moved():
+    """A run directory's config.toml written before [teams.<team>.priority] (tests/fixtures): read as a stored
+    config (resume, evaluate), every old value lands in the new table of each team it applied to; the team's own α
+    wins over the global replay.alpha, as it did. Read as user input, it is refused."""
+    stored = FIXTURES / "config_before_priority.toml"
+    config = load_stored_config(stored)
+    predator, prey = config.teams["predator"].priority, config.teams["prey"].priority
+    for team in (predator, prey):
+        assert (team.difficulty_norm, team.difficulty_transform, team.difficulty_error, team.cp_input) == \
+            ("max", "reversed", "abs", "raw")
+    assert (predator.alpha, prey.alpha) == (0.8, 0.3) and (predator.uniform_floor, prey.uniform_floor) == (0.1, 0.0)
+    assert config.teams["prey"].effective_alpha() == 0.3 and config.run.dir == "runs/tag_before_priority"
+    assert load_stored_config(stored, ["teams.prey.priority.alpha=0.5"]).teams["prey"].priority.alpha == 0.5
+    with pytest.raises(ConfigError, match=r"^teachers\.difficulty_norm moved to"):
+        load_stored_config(stored, ["teachers.difficulty_norm=rank"])  # an override is the user's: the new keys
+    with pytest.raises(ConfigError, match="moved to"):
+        load_config(stored)
+    again = tomllib.loads(dump_toml(config))  # written back, it has only the new keys
+    assert "alpha" not in again["replay"] and "difficulty_norm" not in again["teachers"]
+    assert config_from_dict(again) == config and load_stored_config(stored) == config
+
+
+def test_a_stored_config_without_moved_keys_reads_as_it_is(tmp_path):
+    path = tmp_path / "config.toml"
+    config = load_config(CONFIGS / "tag_cmcl.toml", ["teams.predator.priority.difficulty_norm=max"])
+    path.write_text(dump_toml(config))
+    assert load_stored_config(path) == config

@@ -8,16 +8,17 @@ from pathlib import Path
 import pytest
 
 from cmcl.__main__ import main
-from cmcl.config import TASKS, Config, ConfigError, EnvConfig, TeamConfig, load_config
+from cmcl.config import TASKS, Config, ConfigError, EnvConfig, PriorityConfig, TeamConfig, load_config
 from cmcl.config.env import WORLD_KEYS
 from cmcl.config.reference import MARKDOWN_COMMAND, reference
 from cmcl.envs.params import SpreadParams, TagParams
 from cmcl.field_docs import MEANING
 
 ROOT = Path(__file__).resolve().parents[1]
-# every section of a run but [env] (its worlds' keys are flat), by its dataclass, and the teams' tables
+# every section of a run but [env] (its worlds' keys are flat), by its dataclass, and the teams' tables (a team's
+# [teams.<team>.priority] table its own section)
 SECTIONS = {**{f.name: type(getattr(Config(), f.name)) for f in dataclasses.fields(Config) if f.name not in
-               ("env", "teams")}, "teams": TeamConfig}
+               ("env", "teams")}, "teams": TeamConfig, "teams.priority": PriorityConfig}
 
 
 def test_config_md_is_current(capsys):
@@ -32,7 +33,8 @@ def test_every_dataclass_field_appears_with_a_meaning():
     docs = reference()
     assert list(docs) == ["env", *SECTIONS]
     for name, cls in SECTIONS.items():
-        assert [k.key for k in docs[name].keys] == [f.name for f in dataclasses.fields(cls)], name
+        assert [k.key for k in docs[name].keys] == [f.name for f in dataclasses.fields(cls)
+                                                    if not dataclasses.is_dataclass(getattr(cls(), f.name))], name
     env_fields = [f.name for f in dataclasses.fields(EnvConfig) if f.name not in TASKS]
     assert sorted(k.key for k in docs["env"].keys) == sorted([*env_fields, *WORLD_KEYS])
     for cls in [*SECTIONS.values(), EnvConfig, SpreadParams, TagParams]:
@@ -46,7 +48,9 @@ def test_every_dataclass_field_appears_with_a_meaning():
 
 @pytest.mark.parametrize(("override", "key"), [
     ("maddpg.gamma=2", "maddpg.gamma"), ("maddpg.tau=0", "maddpg.tau"), ("replay.capacity=0", "replay.capacity"),
-    ("replay.alpha=-1", "replay.alpha"), ("curriculum.lam0=0", "curriculum.lam0"),
+    ("teams.agent.priority.alpha=-1", "teams.agent.priority.alpha"), ("curriculum.lam0=0", "curriculum.lam0"),
+    ("teams.agent.priority.uniform_floor=1", "teams.agent.priority.uniform_floor"),
+    ("teams.agent.priority.cp_input=x", "teams.agent.priority.cp_input"),
     ("teachers.num_folds=1", "teachers.num_folds"), ("icm.lr=0", "icm.lr"), ("run.dir=''", "run.dir"),
     ("run.max_seconds=-1", "run.max_seconds"), ("service.metrics_port=70000", "service.metrics_port"),
     ("service.call_timeout_s=-1", "service.call_timeout_s"),
@@ -58,7 +62,8 @@ def test_every_dataclass_field_appears_with_a_meaning():
 def test_the_allowed_range_is_the_text_of_the_error(override, key):
     """A bad value's ConfigError says what the reference's "allowed" (or, for a value of the wrong type, its type's
     requirement) says, word for word."""
-    section, name = key.split(".")[0], key.split(".")[-1]
+    section = "teams.priority" if ".priority." in key else key.split(".")[0]
+    name = key.split(".")[-1]
     doc = {k.key: k for k in reference()[section].keys}[name]
     with pytest.raises(ConfigError) as err:
         load_config(None, [override])
@@ -84,4 +89,4 @@ def test_one_section_is_printed_and_an_unknown_one_is_refused_in_one_line(capsys
     captured = capsys.readouterr()
     assert captured.out == ""
     assert captured.err == ("error: unknown section 'nonsense' (known: env, maddpg, replay, curriculum, teachers, "
-                            "icm, run, service, teams)\n")
+                            "icm, run, service, teams, teams.priority)\n")

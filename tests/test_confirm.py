@@ -21,6 +21,7 @@ from experiments.grids import (
     confirm_arms,
     grid,
     has_permuted_control,
+    team_sets,
 )
 from experiments.report import NO_RUNS, blocks
 from experiments.stats import holm
@@ -69,7 +70,7 @@ def test_the_confirm_grid_is_the_screens_selection_with_maddpg_per_and_each_rule
     assert [r.id for r in runs[:6]] == [f"confirm_{arm}_s0" for arm in arms]  # seed outermost
     assert {r.config for r in runs} == {"spread_hard.toml"} and {r.grid for r in runs} == {"confirm"}
     assert [r.algorithm for r in runs[:6]] == ["relo", "relo", "lp", "lp", "maddpg", "per"]
-    assert runs[1].sets == ("run.log_every=200", *SCREEN_ARMS["relo"], PERMUTED_CONTROL)
+    assert runs[1].sets == ("run.log_every=200", *team_sets([*SCREEN_ARMS["relo"], PERMUTED_CONTROL], "agent"))
     every = selected_runs(build_parser().parse_args(["run", "confirm", "--screen", str(screen)]))
     assert sorted({r.seed for r in every}) == list(CONFIRM_SEEDS) == list(range(20)) and len(every) == 20 * 6
     some = selected_runs(build_parser().parse_args(["run", "confirm", "--screen", str(screen), "--seeds", "3",

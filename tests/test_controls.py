@@ -86,11 +86,11 @@ def test_permuted_control_resumes_exactly_through_a_snapshot():
 
 def test_defaults_rank_difficulty_and_alpha_per_algorithm():
     cfg = load_config()
-    assert cfg.teachers.difficulty_norm == "rank" and cfg.teachers.difficulty_transform == "none"
-    assert cfg.replay.alpha is None
+    priority = cfg.teams["agent"].priority
+    assert priority.difficulty_norm == "rank" and priority.difficulty_transform == "none"
+    assert priority.alpha is None
     for algorithm, alpha in (("maddpg", 1.0), ("per", 0.6), ("acl", 1.0), ("cmcl", 1.0)):
-        c = preset(algorithm)
-        assert c.teams["agent"].effective_alpha(c.replay.alpha) == alpha
+        assert preset(algorithm).teams["agent"].effective_alpha() == alpha
     tag = preset("cmcl", "tag", opponent="per")  # each team its own α
     layout = agent_layout(tag, make_batched_env(tag, num_envs=1))
     replay = build_replay(tag, layout)
@@ -98,20 +98,51 @@ def test_defaults_rank_difficulty_and_alpha_per_algorithm():
 
 
 def test_explicit_alpha_wins_and_bad_values_are_refused():
-    assert load_config(None, ["replay.alpha=0.6"]).teams["agent"].effective_alpha(0.6) == 0.6
-    cfg = load_config(None, ["replay.alpha=0.6", "teams.agent.alpha=0.8"])
-    assert cfg.teams["agent"].effective_alpha(cfg.replay.alpha) == 0.8
-    cfg = load_config(None, ["teams.agent.algorithm=per", "teams.agent.alpha=1.0"])
+    cfg = load_config(None, ["teams.agent.priority.alpha=0.8"])
+    assert cfg.teams["agent"].effective_alpha() == 0.8
+    cfg = load_config(None, ["teams.agent.algorithm=per", "teams.agent.priority.alpha=1.0"])
     layout = agent_layout(cfg, make_batched_env(cfg, num_envs=1))
     assert set(layout.alpha) == {1.0}
-    with pytest.raises(ConfigError, match=r"teams\.agent\.alpha.*-1\.0"):
-        load_config(None, ["teams.agent.alpha=-1"])
-    with pytest.raises(ConfigError, match=r"replay\.alpha.*inf"):
-        load_config(None, ["replay.alpha=inf"])
-    with pytest.raises(ConfigError, match=r"teachers\.difficulty_transform.*'shuffled'"):
-        load_config(None, ["teachers.difficulty_transform=shuffled"])
+    with pytest.raises(ConfigError, match=r"teams\.agent\.priority\.alpha.*-1\.0"):
+        load_config(None, ["teams.agent.priority.alpha=-1"])
+    with pytest.raises(ConfigError, match=r"teams\.agent\.priority\.alpha.*inf"):
+        load_config(None, ["teams.agent.priority.alpha=inf"])
+    with pytest.raises(ConfigError, match=r"teams\.agent\.priority\.difficulty_transform.*'shuffled'"):
+        load_config(None, ["teams.agent.priority.difficulty_transform=shuffled"])
     with pytest.raises(ValueError, match="difficulty_transform"):
         ReplayBuffer(capacity=10, n_agents=1, obs_dim=1, act_dim=1, difficulty_transform="bogus")
+
+
+def test_each_team_has_its_own_controls():
+    """Predators with the permuted control, prey (PER) without: only the predators' columns are shuffled, and a
+    buffer with a mix of controls resumes through a snapshot (one transform per agent in its state)."""
+    tag = load_config(None, ["env.task=tag", "teams.predator.algorithm=acl", "teams.prey.algorithm=per",
+                             "teams.predator.priority.difficulty_transform=permuted",
+                             "teams.prey.priority.difficulty_norm=max"])
+    layout = agent_layout(tag, make_batched_env(tag, num_envs=1))
+    replay = build_replay(tag, layout)
+    predators, prey = layout.teams["predator"], layout.teams["prey"]
+    assert [replay.difficulty_transform[a] for a in predators] == ["permuted"] * len(predators)
+    assert [replay.difficulty_transform[a] for a in prey] == ["none"] * len(prey)
+    assert all(replay.sampling[a].permuted for a in predators) and not any(replay.sampling[a].permuted for a in prey)
+    assert [replay.sampling[a].difficulty_norm for a in predators] == ["rank"] * len(predators)
+
+
+def test_a_mixed_control_shuffles_only_the_permuted_agents_columns():
+    rb = ReplayBuffer(capacity=CAP, n_agents=N, obs_dim=OD, act_dim=AD, algorithms="acl",
+                      difficulty_transform=["permuted", "none"], control_seed=5)
+    plain = scored_buffer("none")
+    rb.storage = plain.storage  # the same rows and scores
+    rb.recompute_priorities(0.3)
+    plain.recompute_priorities(0.3)
+    p0, p1 = plain.sampling_distribution(), rb.sampling_distribution()
+    np.testing.assert_array_equal(p1[:, 1], p0[:, 1])  # agent 1: the method
+    assert not np.array_equal(p1[:, 0], p0[:, 0])  # agent 0: shuffled ...
+    np.testing.assert_allclose(np.sort(p1[:, 0]), np.sort(p0[:, 0]), rtol=1e-12, atol=0)  # ... the same multiset
+    state = codec.decode_snapshot(codec.encode_snapshot(rb.state_dict()))
+    assert state["difficulty_transform"] == ["permuted", "none"]
+    with pytest.raises(ValueError, match="difficulty_transform"):
+        plain.load_state_dict(state)
 
 
 def test_sampling_diagnostics_count_reward_bearing_rows():

@@ -60,12 +60,13 @@ def test_curriculum_grid_interleaves_arms_by_seed_and_only_the_controls_differ()
     arms = ["maddpg", "per", "acl", "cmcl", "cmcl_permuted", "cmcl_anti"]
     assert [r.id for r in runs] == [f"curriculum_{a}_s{s}" for s in (0, 1) for a in arms]
     sets = {r.arm: r.sets for r in runs if r.seed == 0}
-    assert sets["cmcl_permuted"][1:] == ("teachers.difficulty_transform=permuted",)
-    assert sets["cmcl_anti"][1:] == ("teachers.difficulty_transform=reversed",)
+    assert sets["cmcl_permuted"][1:] == ("teams.agent.priority.difficulty_transform=permuted",)
+    assert sets["cmcl_anti"][1:] == ("teams.agent.priority.difficulty_transform=reversed",)
     assert all(len(sets[a]) == 1 for a in arms[:4])  # the shared defaults, only the log cadence set
     hard = {r.arm: r for r in grid(["curriculum_hard"], [0], [])}
     assert hard["per"].config == "spread_hard.toml" and "teams.agent.algorithm=per" in hard["per"].sets
-    assert hard["cmcl_anti"].sets[1:] == ("teams.agent.algorithm=cmcl", "teachers.difficulty_transform=reversed")
+    assert hard["cmcl_anti"].sets[1:] == ("teams.agent.algorithm=cmcl",
+                                          "teams.agent.priority.difficulty_transform=reversed")
 
 
 def test_the_predator_prey_curriculum_grid_trains_each_arm_as_predators_against_maddpg_prey():
@@ -74,7 +75,8 @@ def test_the_predator_prey_curriculum_grid_trains_each_arm_as_predators_against_
     assert all(r.task == "tag" and r.prey_algorithm == "maddpg" and r.seed == 3 for r in tag.values())
     assert tag["per"].config == "tag_per.toml" and tag["per"].sets == ("run.log_every=200",)
     assert tag["cmcl_permuted"].config == "tag_cmcl.toml"
-    assert tag["cmcl_permuted"].sets[1:] == ("teachers.difficulty_transform=permuted",)
+    # the predators' control (the old global key's only effect there: MADDPG prey sample uniformly either way)
+    assert tag["cmcl_permuted"].sets[1:] == ("teams.predator.priority.difficulty_transform=permuted",)
     assert tag["cmcl_anti"].id == "curriculum_tag_cmcl_anti_s3"
 
 

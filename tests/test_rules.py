@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from cmcl.algorithms import ALGORITHMS, PAPER_ALGORITHMS, REGISTRY, build_sampler, spec_of
-from cmcl.config import ConfigError, TeamConfig, load_config
+from cmcl.config import ConfigError, PriorityConfig, TeamConfig, load_config
 from cmcl.replay.priority import EPS_P
 from cmcl.replay.rules.progress import STALENESS
 from cmcl.replay.rules.reducible import rank01
@@ -39,7 +39,7 @@ def test_a_team_reads_what_it_needs_from_the_registry():
     assert TeamConfig(algorithm="acl", acl_variant="td_self").needs.difficulty_source == "td_abs"
     assert TeamConfig(algorithm="cmcl", eta=0.0).uses_icm is False
     with pytest.raises(ConfigError, match="uniform_floor"):
-        TeamConfig(algorithm="per", uniform_floor=1.0)
+        TeamConfig(algorithm="per", priority=PriorityConfig(uniform_floor=1.0))
 
 
 def test_no_algorithm_name_is_compared_as_a_string_outside_the_registry():

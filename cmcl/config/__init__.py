@@ -7,8 +7,8 @@ and the resolutions of ../shared/ALGORITHM.md §5 (each [R] choice is an option 
 Layout: `sections` (the section dataclasses and their range checks), `env` (the [env] section: the world
 parameters are cmcl.envs.params' SpreadParams / TagParams, under their flat TOML keys), `experiment` (`Config`, its
 derived quantities, `preset`), `toml_io` (mapping / TOML loading, `--set` overrides, type coercion, `dump_toml`),
-`reference` (every key's meaning, unit, default and range from the fields' metadata: `python -m cmcl config`,
-docs/CONFIG.md).
+`moved` (keys that moved: refused from user input, migrated in a stored run config), `reference` (every key's
+meaning, unit, default and range from the fields' metadata: `python -m cmcl config`, docs/CONFIG.md).
 Import every name from `cmcl.config`; the submodules are an implementation detail.
 
 Errors: any unknown key, wrong type or out-of-range value raises `ConfigError` naming the full key
@@ -19,7 +19,15 @@ from cmcl.config import sections
 from cmcl.config.env import EnvConfig
 from cmcl.config.experiment import Config, preset
 from cmcl.config.sections import *  # noqa: F403 (the section dataclasses, ConfigError, ALGORITHMS, TASKS, TASK_TEAMS)
-from cmcl.config.toml_io import apply_overrides, config_from_dict, dump_toml, load_config, load_data, parse_override
+from cmcl.config.toml_io import (
+    apply_overrides,
+    config_from_dict,
+    dump_toml,
+    load_config,
+    load_data,
+    load_stored_config,
+    parse_override,
+)
 
 __all__ = [*sections.__all__, "Config", "EnvConfig", "apply_overrides", "config_from_dict", "dump_toml", "load_config",
-           "load_data", "parse_override", "preset"]
+           "load_data", "load_stored_config", "parse_override", "preset"]

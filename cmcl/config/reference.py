@@ -20,7 +20,8 @@ from typing import Any, Literal
 
 from cmcl.config.env import WORLD_KEYS, EnvConfig
 from cmcl.config.experiment import Config
-from cmcl.config.sections import TASKS, TeamConfig
+from cmcl.config.runners import RUNNER_ONLY
+from cmcl.config.sections import TASKS, PriorityConfig, TeamConfig
 from cmcl.config.toml_io import _toml_value, type_requirement
 from cmcl.field_docs import MEANING, RULE, UNIT
 
@@ -80,8 +81,17 @@ def _summary(cls: type) -> str:
 
 
 def _section(table: str, owner: Any) -> SectionDoc:
-    keys = tuple(_key_doc(owner, f, f.name) for f in dataclasses.fields(owner))
-    return SectionDoc(table, _summary(type(owner)), keys)
+    """The keys of `owner`'s fields; a field holding a table of its own (a team's `priority`) is its own section. A
+    key only one runner honours (cmcl.config.runners; a whole section: its summary says whose it is) says so."""
+    keys = []
+    for f in dataclasses.fields(owner):
+        if dataclasses.is_dataclass(getattr(owner, f.name)):
+            continue
+        doc, only = _key_doc(owner, f, f.name), RUNNER_ONLY.get(f"{table}.{f.name}")
+        if only is not None:
+            doc = dataclasses.replace(doc, meaning=f"{doc.meaning}. The {only.runner} runner only: {only.instead}")
+        keys.append(doc)
+    return SectionDoc(table, _summary(type(owner)), tuple(keys))
 
 
 def _env_section(env: EnvConfig) -> SectionDoc:
@@ -99,7 +109,8 @@ def _env_section(env: EnvConfig) -> SectionDoc:
 
 
 def reference() -> dict[str, SectionDoc]:
-    """Every section of a run configuration, in Config's order; "teams" is the table of each team."""
+    """Every section of a run configuration, in Config's order; "teams" is the table of each team, "teams.priority"
+    each team's [teams.<team>.priority] table."""
     config = Config()
     sections = {}
     for f in dataclasses.fields(Config):
@@ -107,6 +118,7 @@ def reference() -> dict[str, SectionDoc]:
             sections["env"] = _env_section(config.env)
         elif f.name == "teams":
             sections["teams"] = _section("teams.<team>", TeamConfig())
+            sections["teams.priority"] = _section("teams.<team>.priority", PriorityConfig())
         else:
             sections[f.name] = _section(f.name, getattr(config, f.name))
     return sections
@@ -130,6 +142,11 @@ def _cell(text: str) -> str:
     return text.replace("|", "\\|")
 
 
+def _anchor(table: str) -> str:
+    """A section's anchor in docs/CONFIG.md: "maddpg", "teamsteam", "teamsteam-priority"."""
+    return table.replace(".<team>", "team").replace(".", "-")
+
+
 def render_markdown(sections: list[SectionDoc]) -> str:
     """docs/CONFIG.md: one table per section."""
     lines = ["# Configuration reference", "",
@@ -140,10 +157,10 @@ def render_markdown(sections: list[SectionDoc]) -> str:
              "(`--set maddpg.gamma=0.95`). *Allowed* is the text of the error a value out of range gets "
              "(`maddpg.gamma must lie in [0, 1], got 2.0`). Defaults are a run's defaults (`Config()`); "
              "`configs/` holds the shipped files and `configs/paper/` the paper's presets.", "",
-             "Sections: " + ", ".join(f"[`[{s.table}]`](#{s.table.replace('.<team>', 'team')})" for s in sections),
+             "Sections: " + ", ".join(f"[`[{s.table}]`](#{_anchor(s.table)})" for s in sections),
              ""]
     for section in sections:
-        anchor = section.table.replace(".<team>", "team")
+        anchor = _anchor(section.table)
         lines += [f'<a id="{anchor}"></a>', "", f"## `[{section.table}]`", "", section.summary, "",
                   "| key | default | unit | type | allowed | meaning |", "| --- | --- | --- | --- | --- | --- |"]
         lines += [f"| `{k.key}` | `{_cell(k.default)}` | {_cell(k.unit)} | {k.type} | {_cell(k.allowed)} | "

@@ -41,8 +41,8 @@ TASK_TEAMS = {"spread": ("agent",), "tag": ("predator", "prey")}  # teams of eac
 # (cmcl.algorithms: "proportional to the K-fold priority" for ACL and CMCL, Schaul's 0.6 for PER-MADDPG and ReLo)
 DEFAULT_ALPHA = {name: spec.default_alpha for name, spec in REGISTRY.items()}
 __all__ = ["ALGORITHMS", "DEFAULT_ALPHA", "TASKS", "TASK_TEAMS", "ConfigError",
-           "CurriculumConfig", "ICMConfig",
-           "MADDPGConfig", "ReplayConfig", "RunConfig", "ServiceConfig", "TeacherConfig", "TeamConfig"]
+           "CurriculumConfig", "ICMConfig", "MADDPGConfig", "PriorityConfig", "ReplayConfig", "RunConfig",
+           "ServiceConfig", "TeacherConfig", "TeamConfig"]
 
 
 def _check_networks(section: str, networks: str | None, share_parameters: bool) -> None:
@@ -114,11 +114,6 @@ class ReplayConfig:
 
     capacity: int = documented(5000, "rows the replay buffer holds (eq. 3's B), one per world step; the oldest is "
                                "overwritten first", unit="transitions", rule=AT_LEAST_1)
-    alpha: float | None = documented(
-        None, "sampling exponent α_s of eq. 20 for every team (A8). Unset: each team's own teams.<t>.alpha, else "
-        "the per-algorithm default (1 for acl / cmcl, 0.6 for per). A number here applies to every team that does "
-        "not set its own; precedence: teams.<t>.alpha > replay.alpha > the per-algorithm default",
-        rule=OPTIONAL_ALPHA)
     priority_eps: float = documented(1e-6, "ε_p, the floor added to every priority (no row has probability 0)",
                                      rule=POSITIVE)
     beta_is_start: float = documented(0.4, "PER importance-sampling exponent β at the start of training, annealed "
@@ -171,21 +166,6 @@ class TeacherConfig:
         "shared", "'shared': one fold batch per fold serves every agent's teacher of that fold (one target pass; "
         "the service's layout); 'per_agent': each (agent, fold) teacher draws its own batch (§3.2 literally, A × "
         "the target cost)")
-    difficulty_norm: Literal["max", "rank"] = documented(
-        "rank", "ĉ of §3.3 (A1, revised 2026-12): 'rank' = percentile over the buffer, rank/(|D|−1) (λ reads as a "
-        "difficulty percentile, so KP excludes rows while λ < 0.5); 'max' = min(1, c / max c), the earlier "
-        "default, which puts the heavy-tailed c at ĉ ≈ 0.05 (every row on KP's rising branch: near-uniform "
-        "sampling, ESS >= 0.9)")
-    difficulty_transform: Literal["none", "permuted", "reversed"] = documented(
-        "none", "sampling controls of the acl / cmcl teams (issue 21), to tell 'the curriculum helps' from "
-        "'sampling is just different': 'none' = the method; 'reversed' = anti-curriculum, ĉ → 1 − ĉ before KP "
-        "(eq. 12); 'permuted' = each recompute, every curriculum agent's priority column is shuffled across the "
-        "buffer's rows by a seeded permutation (cmcl.replay.priority.permute_priorities): the same multiset of "
-        "probabilities, hence the same ESS, carrying no information about the rows. Uniform and PER agents are "
-        "unaffected")
-    difficulty_error: Literal["squared", "abs"] = documented(
-        "squared", "a teacher's error on a row against the learner's TD target (eq. 10): 'squared' (δ²) or 'abs' "
-        "(|δ|)")
     steps_per_update: float = documented(
         0.5, "teacher fit steps per learner update, inline and in the service (its rate limiter); §3.8 has 1, the "
         "default 0.5 halves the teachers' cost (CMCL update cost vs MADDPG: bench/learner_throughput.py)",
@@ -221,9 +201,6 @@ class ICMConfig:
                                      "inverse loss's 1 − β", rule=PROBABILITY)
     lr: float = documented(1e-3, "Adam learning rate of the ICM (eq. 17)", rule=POSITIVE)
     batch_size: int = documented(128, "transitions per ICM fit batch", unit="transitions", rule=AT_LEAST_1)
-    cp_input: Literal["std", "raw"] = documented(
-        "std", "the curiosity the curiosity priority CP (eq. 19) reads (A7): 'std' = ρ divided by its standard "
-        "deviation over the buffer, per agent; 'raw' = ρ as is")
     intrinsic_reward_coef: float = documented(0.0, "weight of the curiosity ρ added to the reward; 0 (A6): "
                                               "curiosity feeds priority only", rule=AT_LEAST_0)
     steps_per_update: float = documented(0.5, "ICM fit steps per learner update, inline and in the service "
@@ -238,17 +215,49 @@ class ICMConfig:
 
 
 @dataclass(frozen=True)
+class PriorityConfig:
+    """What one team's sampler turns scores into sampling probabilities with (issue 36): one [teams.<team>.priority]
+    table per team; each agent's sampler reads its own team's (cmcl.system.agent_layout)."""
+
+    alpha: float | None = documented(
+        None, "the team's sampling exponent α_s (eq. 20, A8); unset: its algorithm's default (cmcl.algorithms: 0.6 "
+        "for per and relo, 1 for the others)", rule=OPTIONAL_ALPHA)
+    uniform_floor: float = documented(
+        0.0, "u, the uniform floor of a prioritised rule: P = (1 − u)·P_rule + u/|D| (issue 36); 0 = the rule alone; "
+        "no effect on maddpg", rule=rule("must lie in [0, 1)", lambda v: math.isfinite(v) and 0 <= v < 1))
+    difficulty_norm: Literal["max", "rank"] = documented(
+        "rank", "ĉ of §3.3 (A1, revised 2026-12), for acl / cmcl: 'rank' = percentile over the buffer, "
+        "rank/(|D|−1) (λ reads as a difficulty percentile, so KP excludes rows while λ < 0.5); 'max' = "
+        "min(1, c / max c), the earlier default, which puts the heavy-tailed c at ĉ ≈ 0.05 (every row on KP's "
+        "rising branch: near-uniform sampling, ESS >= 0.9)")
+    difficulty_transform: Literal["none", "permuted", "reversed"] = documented(
+        "none", "sampling controls (issue 21), to tell 'the curriculum helps' from 'sampling is just different': "
+        "'none' = the rule; 'reversed' = anti-curriculum, ĉ → 1 − ĉ before KP (eq. 12; acl / cmcl); 'permuted' = "
+        "at each recompute the priority column of each of the team's agents is shuffled across the buffer's rows "
+        "by a seeded permutation (cmcl.replay.priority.permute_priorities): the same multiset of probabilities, "
+        "hence the same ESS, carrying no information about the rows (any prioritised rule; maddpg's uniform "
+        "sampling is unaffected)")
+    difficulty_error: Literal["squared", "abs"] = documented(
+        "squared", "the teachers' error on a row against the learner's TD target (eq. 10), for the team's agents: "
+        "'squared' (δ²) or 'abs' (|δ|)")
+    cp_input: Literal["std", "raw"] = documented(
+        "std", "the curiosity the curiosity priority CP (eq. 19) reads (A7), for cmcl: 'std' = ρ divided by its "
+        "standard deviation over the buffer, per agent; 'raw' = ρ as is")
+
+    def __post_init__(self) -> None:
+        check_fields(self, "priority")
+
+
+@dataclass(frozen=True)
 class TeamConfig:
-    """Which algorithm a team of agents learns with (ALGORITHM.md §5): one [teams.<team>] table per team."""
+    """Which algorithm a team of agents learns with (ALGORITHM.md §5): one [teams.<team>] table per team, its
+    sampling settings in [teams.<team>.priority]."""
 
     algorithm: AlgorithmName = documented(
         "cmcl", "the team's algorithm, i.e. its replay's sampling rule (cmcl.algorithms): " +
         "; ".join(f"'{name}' ({spec.summary})" for name, spec in REGISTRY.items()))
     eta: float = documented(0.5, "η, the curiosity weight in CI = KP + η·CP (eq. 8, A15); forced to 0 for acl",
                             rule=rule("must be >= 0", lambda v: v >= 0 and math.isfinite(v)))
-    alpha: float | None = documented(
-        None, "this team's sampling exponent α_s (eq. 20, A8); unset: replay.alpha if set, else the per-algorithm "
-        "default (cmcl.algorithms: 0.6 for per and relo, 1 for the others)", rule=OPTIONAL_ALPHA)
     is_correction: bool | None = documented(None, "importance-sampling weights on the critic loss; unset: the "
                                             "algorithm's default (on for per and relo, off for the others; A9)")
     acl_variant: Literal["teachers", "td_self"] = documented(
@@ -258,24 +267,22 @@ class TeamConfig:
         "per_agent", "one sampler per agent (A3); A3's option 'team_mean' (one sampler per team on the team's mean "
         "ĉ and ρ̂) is refused here, not implemented",
         rule=rule("must be 'per_agent' (A3's 'team_mean' is not implemented)", lambda v: v == "per_agent"))
-    uniform_floor: float = documented(
-        0.0, "u, the uniform floor of a prioritised rule: P = (1 − u)·P_rule + u/|D| (issue 36); 0 = the rule alone; "
-        "no effect on maddpg", rule=rule("must lie in [0, 1)", lambda v: math.isfinite(v) and 0 <= v < 1))
     actor_batch: Literal["rule", "uniform"] = documented(
         "rule", "the rows the actor step trains on: 'rule' = the critic's minibatch, drawn by the team's rule; "
         "'uniform' = a minibatch of its own drawn uniformly from the buffer, apart from the critic's, without IS "
         "weights (actor prioritised replay, Saglam et al. 2023; issue 36); accepted and without effect on maddpg, "
         "whose critic's minibatch is already uniform")
+    priority: PriorityConfig = documented(
+        factory=PriorityConfig, meaning="the team's sampling settings: the [teams.<team>.priority] table")
 
     def __post_init__(self) -> None:
         check_fields(self, "team")
 
-    def effective_alpha(self, run_alpha: float | None = None) -> float:
-        """α_s this team samples with: its own `alpha`, else `run_alpha` (replay.alpha), else its algorithm's
-        default (DEFAULT_ALPHA, from the registry)."""
-        if self.alpha is not None:
-            return self.alpha
-        return DEFAULT_ALPHA[self.algorithm] if run_alpha is None else run_alpha
+    def effective_alpha(self) -> float:
+        """α_s this team samples with: its priority.alpha, else its algorithm's default (DEFAULT_ALPHA, from the
+        registry)."""
+        alpha = self.priority.alpha
+        return DEFAULT_ALPHA[self.algorithm] if alpha is None else alpha
 
     @property
     def uniform_actor(self) -> bool:
@@ -319,9 +326,8 @@ class RunConfig:
     seed: int = documented(0, "seed of the run's random generators (worlds, networks, sampling)", rule=AT_LEAST_0)
     log_every: int = documented(10, "episodes between progress lines / metric rows", unit="episodes",
                                 rule=AT_LEAST_1)
-    checkpoint_every: int = documented(500, "episodes between checkpoints of the inline runner (0: only at the "
-                                       "end); the service's cadence is service.checkpoint_every_s",
-                                       unit="episodes", rule=AT_LEAST_0)
+    checkpoint_every: int = documented(500, "episodes between checkpoints (0: only at the end)", unit="episodes",
+                                       rule=AT_LEAST_0)
     smoothing_window: int = documented(100, "window of the curves' and progress lines' moving averages",
                                        unit="episodes", rule=AT_LEAST_1)
     stop_coverage: float = documented(0.0, "stop early once the moving average (over smoothing_window episodes) "
@@ -355,7 +361,8 @@ class RunConfig:
 
 @dataclass(frozen=True)
 class ServiceConfig:
-    """Distributed service (services/): actor counts, per-call work, rate-limiter slack, CPUs, metrics."""
+    """Distributed service (services/), read by the service runner only: actor counts, per-call work, rate-limiter
+    slack, CPUs, metrics."""
 
     rollout_workers: int = documented(1, "rollout worker actors, each stepping env.num_envs worlds",
                                       unit="actors", rule=AT_LEAST_1)

@@ -19,7 +19,8 @@ from typing import Any, Literal
 from cmcl.config.checks import ConfigError, _require
 from cmcl.config.env import WORLD_KEYS, EnvConfig, WorldKey
 from cmcl.config.experiment import Config
-from cmcl.config.sections import TASK_TEAMS, TASKS, TeamConfig
+from cmcl.config.moved import migrate_moved, refuse_moved
+from cmcl.config.sections import TASK_TEAMS, TASKS, PriorityConfig, TeamConfig
 
 _SECTIONS = {f.name: f for f in dataclasses.fields(Config) if f.name != "teams"}
 
@@ -94,9 +95,22 @@ def _build(cls: type, data: Mapping[str, Any], prefix: str, built: Mapping[str, 
     try:
         return cls(**kwargs, **built)
     except ConfigError as err:
-        # __post_init__ messages use the section name; re-prefix team checks with the team's path.
-        msg = str(err)
-        raise ConfigError(msg.replace("team.", f"{prefix}.", 1) if msg.startswith("team.") else msg) from None
+        # __post_init__ messages use the section name; re-prefix a team's checks with the team's path.
+        msg, short = str(err), _CHECK_NAMES.get(cls)
+        raise ConfigError(msg.replace(short, f"{prefix}.", 1) if short and msg.startswith(short) else msg) from None
+
+
+# the name a section's own checks use in their messages, where its path in the TOML differs (a team's tables)
+_CHECK_NAMES = {TeamConfig: "team.", PriorityConfig: "priority."}
+
+
+def _build_team(data: Any, prefix: str) -> TeamConfig:
+    """TeamConfig from one [teams.<team>] table, its [teams.<team>.priority] table built first."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{prefix} must be a table, got {data!r}")
+    rest = {k: v for k, v in data.items() if k != "priority"}
+    priority = _build(PriorityConfig, data.get("priority", {}), f"{prefix}.priority")
+    return _build(TeamConfig, rest, prefix, built={"priority": priority}, flat_keys=("priority",))
 
 
 def _build_env(data: Mapping[str, Any], prefix: str = "env") -> EnvConfig:
@@ -124,20 +138,26 @@ def _build_env(data: Mapping[str, Any], prefix: str = "env") -> EnvConfig:
 
 
 def config_from_dict(data: Mapping[str, Any]) -> Config:
-    """Build and validate a Config from a nested mapping (as parsed from TOML)."""
+    """Build and validate a Config from a nested mapping (as parsed from TOML). A key that moved is refused, naming
+    its new place (cmcl.config.moved; a stored run config is migrated first: `load_stored_config`)."""
     unknown = sorted(set(data) - set(_SECTIONS) - {"teams"})
     if unknown:
         raise ConfigError(f"unknown section {unknown[0]!r} (known: {sorted([*_SECTIONS, 'teams'])})")
+    refuse_moved(data)
     sections = {name: _build_env(data.get(name, {})) if name == "env" else
                 _build(f.default_factory, data.get(name, {}), name) for name, f in _SECTIONS.items()}
     teams_data = data.get("teams")
     if teams_data is None:  # a factory env without team tables: one team "agent" (agent_0, agent_1, ...)
-        teams_data = {name: {} for name in (("agent",) if sections["env"].factory else
-                                            TASK_TEAMS[sections["env"].task])}
+        teams_data = {name: {} for name in default_teams(sections["env"])}
     if not isinstance(teams_data, Mapping):
         raise ConfigError(f"teams must be a table of team tables, got {teams_data!r}")
-    teams = {name: _build(TeamConfig, spec, f"teams.{name}") for name, spec in teams_data.items()}
+    teams = {name: _build_team(spec, f"teams.{name}") for name, spec in teams_data.items()}
     return Config(**sections, teams=teams)
+
+
+def default_teams(env: EnvConfig) -> tuple[str, ...]:
+    """The teams of a config without [teams] tables: its task's, or one team "agent" for an env.factory."""
+    return ("agent",) if env.factory else TASK_TEAMS[env.task]
 
 
 
@@ -181,6 +201,15 @@ def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -
     return config_from_dict(load_data(path, overrides))
 
 
+def load_stored_config(path: str | Path, overrides: Iterable[str] = ()) -> Config:
+    """A run directory's stored config.toml, keys that moved since it was written carried to their new place
+    (cmcl.config.moved.migrate_moved), then the `--set` overrides (refused if they name a moved key)."""
+    data = load_data(path)
+    env = data.get("env") if isinstance(data.get("env"), Mapping) else {}
+    teams = ("agent",) if env.get("factory") else TASK_TEAMS.get(env.get("task", EnvConfig().task), ())
+    return config_from_dict(apply_overrides(migrate_moved(data, teams), overrides))
+
+
 def load_data(path: str | Path | None = None, overrides: Iterable[str] = ()) -> dict[str, Any]:
     """The nested mapping `load_config` builds its Config from: the TOML file's tables (none when `path` is None)
     with the `--set` overrides applied. ConfigError naming the file when it is missing, a directory, not UTF-8
@@ -215,9 +244,14 @@ def dump_toml(config: Config) -> str:
         lines.extend(f"{k} = {_toml_value(v)}" for k, v in values.items())
         lines.append("")
     for team, values in data["teams"].items():
+        tables = {k: v for k, v in values.items() if isinstance(v, Mapping)}  # its [teams.<team>.priority]
         lines.append(f"[teams.{team}]")
-        lines.extend(f"{k} = {_toml_value(v)}" for k, v in values.items())
+        lines.extend(f"{k} = {_toml_value(v)}" for k, v in values.items() if k not in tables)
         lines.append("")
+        for name, table in tables.items():
+            lines.append(f"[teams.{team}.{name}]")
+            lines.extend(f"{k} = {_toml_value(v)}" for k, v in table.items())
+            lines.append("")
     return "\n".join(lines)
 
 

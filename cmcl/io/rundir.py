@@ -2,7 +2,8 @@
 
 Where it sits: both runners (`python -m cmcl train | resume`) write here; `cmcl.evaluate` and the plots read here.
 Layout of `<dir>/`:
-  config.toml            the resolved configuration (reloadable with cmcl.config.load_config)
+  config.toml            the resolved configuration (read back with `config()`: keys that moved since it was written
+                         are carried to their new place, cmcl.config.moved)
   metrics.jsonl          one JSON object per line (episode rows and update rows, each with a "kind")
   run.lock               the one writer's lock (cmcl.io.runlock)
   summary.json           the runner's last summary (how the run ended, its counters, its provenance)
@@ -28,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from cmcl.config import Config, dump_toml, load_config
+from cmcl.config import Config, dump_toml, load_stored_config
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.verified import CheckpointError, VerifiedFile, read_checked, write_checked
 from cmcl.provenance import provenance
@@ -146,8 +147,10 @@ class RunDirectory:
         return run
 
     def config(self, overrides: tuple[str, ...] = ()) -> Config:
-        """The run's resolved config, with optional overrides."""
-        return load_config(self.config_path, overrides)
+        """The run's resolved config, with optional overrides; a config.toml written before a key moved is read with
+        the key at its new place (cmcl.config.load_stored_config), so an older run resumes and evaluates as it
+        trained."""
+        return load_stored_config(self.config_path, overrides)
 
     def log(self, row: Mapping[str, Any]) -> None:
         """Append one metrics row (a flat or nested mapping) as a JSON line (the first append of this object first

@@ -125,9 +125,10 @@ def fit_teachers(teachers: TeacherEnsemble, fit: dict[str, np.ndarray], agents: 
 
 
 def teacher_errors(teachers: TeacherEnsemble, rows: dict[str, np.ndarray], agents: np.ndarray, targets: MADDPG,
-                   squared: bool = True) -> np.ndarray:
+                   squared: bool | Sequence[bool] = True) -> np.ndarray:
     """e_{j,a,i} = (y_{a,j} − T_{a,i}(x_j))² (eq. 10; |·| if not squared) of every hosted teacher on joint rows
-    obs [M, N, od], act, rew [M, N], next_obs, done [M, N] -> float32[M, A_t, K'] (K' teachers per agent hosted)."""
+    obs [M, N, od], act, rew [M, N], next_obs, done [M, N] -> float32[M, A_t, K'] (K' teachers per agent hosted).
+    squared: for all of them, or per teacher agent (`AgentLayout.teacher_error_squared`: its team's choice)."""
     y = targets.td_targets(rows["rew"], rows["next_obs"], rows.get("done"), agents=agents)  # [A_t, M]
     x = joint_input(torch.as_tensor(rows["obs"]), torch.as_tensor(rows["act"]))  # [M, in]
     return teachers.errors(x, y, squared=squared).transpose(1, 0, 2).copy()

@@ -140,10 +140,14 @@ class TeacherEnsemble:
                            .reshape(self.num_folds, self.num_agents * m, -1))  # [K, A*M]
         return q.view(self.num_folds, self.num_agents, m).transpose(0, 1).reshape(-1, m)
 
-    def errors(self, x: ArrayLike, y: ArrayLike, squared: bool = True) -> np.ndarray:
-        """Errors e_{a,j,i} = (y_{a,j} - T_{a,i}(x_j))^2 (eq. 10; or |.|): x [M, in], y [A, M] -> [A, M, K]."""
+    def errors(self, x: ArrayLike, y: ArrayLike, squared: bool | Sequence[bool] = True) -> np.ndarray:
+        """Errors e_{a,j,i} = (y_{a,j} - T_{a,i}(x_j))^2 (eq. 10; or |.|): x [M, in], y [A, M] -> [A, M, K].
+        squared: one choice for every agent, or one per agent (its team's priority.difficulty_error)."""
         d = as_tensor(y).unsqueeze(-1) - torch.from_numpy(self.predict(x))
-        return (d.pow(2) if squared else d.abs()).numpy()
+        square = np.broadcast_to(np.asarray(squared, dtype=bool), (d.shape[0],))
+        if square.all() or not square.any():
+            return (d.pow(2) if square.all() else d.abs()).numpy()
+        return torch.where(torch.from_numpy(square.copy()).view(-1, 1, 1), d.pow(2), d.abs()).numpy()
 
     def state_dict(self) -> dict:
         """{"net": stacked teacher weights [A*K, in, out]/[A*K, out], "opt": Adam state, "steps": int}."""

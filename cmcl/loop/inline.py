@@ -195,8 +195,8 @@ class InlineLoop:
         rows, slots, gens, layout = work.rows, work.slots, work.generations, self.layout
         stamp = self.counters["updates"]
         if self.teachers is not None:
-            squared = self.config.teachers.difficulty_error == "squared"
-            errors = network_steps.teacher_errors(self.teachers, rows, layout.teacher_agents, self.maddpg, squared)
+            errors = network_steps.teacher_errors(self.teachers, rows, layout.teacher_agents, self.maddpg,
+                                                  layout.teacher_error_squared)
             self.scoring.write_difficulty(self.replay, slots, gens, range(self.config.teachers.num_folds), errors,
                                           stamp)
         if self.icm is not None:

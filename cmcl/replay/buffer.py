@@ -49,39 +49,41 @@ class ReplayBuffer:
             config resolves each team's, cmcl.config.TeamConfig.effective_alpha). eps: priority floor ε_p.
             backend: "cdf" or "sumtree".
         eta: curiosity weight η (scalar or per agent; used by "cmcl" agents only).
+        The next four are scalar or per agent (each agent's team's [teams.<team>.priority], cmcl.system):
         difficulty_norm: "rank" (A1, revised) or "max". cp_input: "std" or "raw".
-        difficulty_transform: sampling control of the acl / cmcl agents (issue 21): "none"; "reversed" (ĉ -> 1 − ĉ,
-            the anti-curriculum); "permuted" (each recompute shuffles every curriculum column across the valid rows,
-            `cmcl.replay.priority.permute_priorities`, with a Generator seeded by `control_seed` and carried in
-            `state_dict`, so a resumed run draws the same permutations).
+        difficulty_transform: sampling control (issue 21): "none"; "reversed" (ĉ -> 1 − ĉ, the anti-curriculum of
+            acl / cmcl agents); "permuted" (each recompute shuffles the agent's priority column across the valid
+            rows, `cmcl.replay.priority.permute_priorities`, with a Generator seeded by `control_seed` and carried
+            in `state_dict`, so a resumed run draws the same permutations; all permuted columns in one draw).
+        difficulty_squared: the teachers' held-out error is a squared TD error (rules comparing it with δ).
         difficulty_source: "difficulty" (teachers) or "td_abs" (ACL td_self), scalar or per agent.
         min_size: transitions required before `sample` works (e.g. 3840 warm-up). lam_max: cap on λ.
         floor: uniform floor u of each agent's prioritised rule, scalar or per agent (0 = none).
-        difficulty_squared: the teachers' held-out error is a squared TD error (rules comparing it with δ).
     """
 
     def __init__(self, *, capacity: int = 5000, n_agents: int, obs_dim: int, act_dim: int, n_folds: int = 5,
                  algorithms="maddpg", alpha=1.0, eps: float = EPS_P, backend: str = "cdf", eta=0.5,
-                 difficulty_norm: str = "rank", cp_input: str = "std",
+                 difficulty_norm="rank", cp_input="std",
                  difficulty_source="difficulty", min_size: int = 1, lam_max: float = LAM_MAX,
-                 difficulty_transform: str = "none", control_seed: int | np.random.SeedSequence = 0,
-                 floor=0.0, difficulty_squared: bool = True) -> None:
+                 difficulty_transform="none", control_seed: int | np.random.SeedSequence = 0,
+                 floor=0.0, difficulty_squared=True) -> None:
         self.storage = TransitionStorage(capacity=capacity, n_agents=n_agents, obs_dim=obs_dim,
                                          act_dim=act_dim, n_folds=n_folds)
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
         if not (np.isfinite(eps) and eps > 0):
             raise ValueError(f"eps must be finite and > 0, got {eps!r}")
-        if difficulty_norm not in ("max", "rank"):
-            raise ValueError(f"difficulty_norm must be 'max' or 'rank', got {difficulty_norm!r}")
-        if cp_input not in ("std", "raw"):
-            raise ValueError(f"cp_input must be 'std' or 'raw', got {cp_input!r}")
         if int(min_size) != min_size or min_size < 1:
             raise ValueError(f"min_size must be an integer >= 1, got {min_size!r}")
-        if difficulty_transform not in DIFFICULTY_TRANSFORMS:
-            raise ValueError(f"difficulty_transform must be one of {DIFFICULTY_TRANSFORMS}, "
-                             f"got {difficulty_transform!r}")
         n = self.storage.n_agents
+        norms, cp_inputs = _per_agent("difficulty_norm", difficulty_norm, n), _per_agent("cp_input", cp_input, n)
+        transforms = _per_agent("difficulty_transform", difficulty_transform, n)
+        squared = [bool(v) for v in _per_agent("difficulty_squared", difficulty_squared, n)]
+        for name, values, allowed in (("difficulty_norm", norms, ("max", "rank")),
+                                      ("cp_input", cp_inputs, ("std", "raw")),
+                                      ("difficulty_transform", transforms, DIFFICULTY_TRANSFORMS)):
+            if any(v not in allowed for v in values):
+                raise ValueError(f"{name} must be one of {allowed} (or one per agent), got {values!r}")
         self.alpha: list[float] = [float(a) for a in _per_agent("alpha", alpha, n)]  # α_s per agent
         etas = [float(e) for e in _per_agent("eta", eta, n)]
         for name, vals in (("alpha", self.alpha), ("eta", etas)):
@@ -90,7 +92,7 @@ class ReplayBuffer:
         self.algorithms: list[str] = list(_per_agent("algorithms", algorithms, n))
         sources = _per_agent("difficulty_source", difficulty_source, n)
         self.eps, self.backend = float(eps), backend
-        self.difficulty_transform = difficulty_transform
+        self.difficulty_transform: list[str] = list(transforms)  # per agent
         self.control_rng = np.random.default_rng(control_seed)  # draws the permuted control's permutations
         self.min_size, self.lam_max = int(min_size), float(lam_max)
         self.lam: float | None = None  # λ of the last recompute
@@ -100,9 +102,9 @@ class ReplayBuffer:
         self.sampling = [
             build_sampler(algo, SamplerArgs(
                 capacity=self.capacity, alpha=self.alpha[a], backend=backend, eps=self.eps, agent=a, eta=etas[a],
-                difficulty_source=sources[a], difficulty_norm=difficulty_norm, difficulty_squared=difficulty_squared,
-                cp_input=cp_input, lam_max=self.lam_max, reversed_difficulty=difficulty_transform == "reversed",
-                permuted=difficulty_transform == "permuted", floor=floors[a]))
+                difficulty_source=sources[a], difficulty_norm=norms[a], difficulty_squared=squared[a],
+                cp_input=cp_inputs[a], lam_max=self.lam_max, reversed_difficulty=transforms[a] == "reversed",
+                permuted=transforms[a] == "permuted", floor=floors[a]))
             for a, algo in enumerate(self.algorithms)]
         self._index_recomputing()
 
@@ -201,8 +203,9 @@ class ReplayBuffer:
 
         ACL / CMCL: p = KP(ĉ, λ) + η·CP(ρ̂) + ε_p over the valid rows (η = 0 for ACL); unscored rows get the scored
         rows' mean sampling weight (`cmcl.replay.priority.provisional_priority`); other rules: their own column
-        (`recompute`). Under the "reversed" control ĉ is 1 − ĉ; under "permuted" every recomputed column is
-        shuffled across the valid rows (one draw from `control_rng` per recompute) after it is computed.
+        (`recompute`). Under the "reversed" control ĉ is 1 − ĉ; under "permuted" the recomputed column of every agent
+        with that control is shuffled across the valid rows after it is computed (one draw from `control_rng` per
+        recompute for all of them).
         Args: lam in (0, lam_max]; details: also return the curriculum's per-row terms; apply: False computes the
         terms only (read-only: the samplers, λ and the permuted control's generator are left as they are, and
         "priority" is the unpermuted one), for diagnostics that must not change the run.
@@ -221,13 +224,16 @@ class ReplayBuffer:
             return out
         # the curriculum's columns first (from their terms), then every other recomputing sampler's
         others = [(a, s) for a, s in self.recomputing if not hasattr(s, "terms")]
-        columns = [(s, out["priority"][:, i]) for i, (_, s) in enumerate(self.curriculum)]
-        columns += [(s, p) for _, s in others if (p := s.recompute(self.storage, lam)) is not None]
+        columns = [(a, s, out["priority"][:, i]) for i, (a, s) in enumerate(self.curriculum)]
+        columns += [(a, s, p) for a, s in others if (p := s.recompute(self.storage, lam)) is not None]
         if columns:
-            priority = np.stack([p for _, p in columns], axis=1)
-            if self.difficulty_transform == "permuted":
+            priority = np.stack([p for _, _, p in columns], axis=1)
+            shuffled = [i for i, (a, _, _) in enumerate(columns) if self.difficulty_transform[a] == "permuted"]
+            if len(shuffled) == len(columns):
                 priority = permute_priorities(priority, self.control_rng)
-            for i, (sampling, _) in enumerate(columns):
+            elif shuffled:
+                priority[:, shuffled] = permute_priorities(priority[:, shuffled], self.control_rng)
+            for i, (_, sampling, _) in enumerate(columns):
                 sampling.set_priorities(priority[:, i])
             out["priority"] = priority[:, :len(self.curriculum)]
         self.lam = float(lam)
@@ -288,8 +294,8 @@ class ReplayBuffer:
 
         Keys: "format", "storage" (see `TransitionStorage.state_dict`), "lam" (float, −1.0 = never recomputed),
         "algorithms" {str(agent): algorithm}, "sampling" {str(agent): that agent's sampling distribution's state},
-        "alpha" [float] * N, "eps", "backend", "difficulty_transform" and "control_rng" (the permuted control's
-        PCG64 state, its 128-bit integers as decimal strings for msgpack).
+        "alpha" [float] * N, "eps", "backend", "difficulty_transform" [str] * N and "control_rng" (the permuted
+        control's PCG64 state, its 128-bit integers as decimal strings for msgpack).
         """
         return {
             "format": STATE_FORMAT, "storage": self.storage.state_dict(),
@@ -297,7 +303,7 @@ class ReplayBuffer:
             "algorithms": {str(a): algo for a, algo in enumerate(self.algorithms)},
             "sampling": {str(a): s.state_dict() for a, s in enumerate(self.sampling)},
             "alpha": list(self.alpha), "eps": self.eps, "backend": self.backend,
-            "difficulty_transform": self.difficulty_transform, "control_rng": rng_state(self.control_rng),
+            "difficulty_transform": list(self.difficulty_transform), "control_rng": rng_state(self.control_rng),
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -314,7 +320,8 @@ class ReplayBuffer:
             raise ValueError(f"alpha in state ({state['alpha']!r}) differs from this buffer ({self.alpha!r})")
         if float(state["eps"]) != self.eps:
             raise ValueError(f"eps in state ({state['eps']!r}) differs from this buffer ({self.eps!r})")
-        transform = state.get("difficulty_transform", "none")
+        # older snapshots: one transform for every agent
+        transform = list(_per_agent("difficulty_transform in state", state.get("difficulty_transform", "none"), n))
         if transform != self.difficulty_transform:
             raise ValueError(f"difficulty_transform in state ({transform!r}) differs from this buffer "
                              f"({self.difficulty_transform!r})")

@@ -19,7 +19,7 @@ import numpy as np
 EPS_P = 1e-6  # ε_p: priority floor keeping every transition reachable
 LAM_MAX = 1.0  # largest admissible curriculum factor (KP is undefined above 1)
 STD_EPS = 1e-8  # added to the std in curiosity normalisation
-# sampling controls of the curriculum agents (issue 21; config teachers.difficulty_transform): "none" = the method,
+# sampling controls (issue 21; config teams.<team>.priority.difficulty_transform): "none" = the method,
 # "reversed" = anti-curriculum (ĉ -> 1 − ĉ before KP), "permuted" = priorities shuffled across rows
 # (`permute_priorities`)
 DIFFICULTY_TRANSFORMS = ("none", "permuted", "reversed")

@@ -1,0 +1,79 @@
+"""Config keys that moved: refused in what a user writes, carried over when a stored run config is read back.
+
+Where it sits: `cmcl.config.toml_io.config_from_dict` refuses a moved key (`refuse_moved`) with one line naming its
+new place, so a file or `--set` written for the old layout never trains with a value silently dropped. A run
+directory written before the move stores the old keys in its config.toml; `RunDirectory.config` (resume, evaluate,
+the experiments' measures) reads it through `load_stored_config`, which moves them first (`migrate_moved`), so a
+stored run resumes and evaluates with exactly the settings it trained with.
+
+The moves (issue 36): the settings a team's sampler uses are one table per team, [teams.<team>.priority]
+(cmcl.config.sections.PriorityConfig). A global old key applies to every team: migrated, its value goes to each
+team's table; a team's own old key (teams.<team>.alpha) goes to that team's table and wins over the global one
+(replay.alpha), as its precedence was.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from cmcl.config.checks import ConfigError
+
+# (section, key) of a global key that is now teams.<team>.priority.<key>, one per team
+GLOBAL_MOVED: dict[tuple[str, str], str] = {
+    ("teachers", "difficulty_norm"): "difficulty_norm",
+    ("teachers", "difficulty_transform"): "difficulty_transform",
+    ("teachers", "difficulty_error"): "difficulty_error",
+    ("icm", "cp_input"): "cp_input",
+    ("replay", "alpha"): "alpha",
+}
+# key of a team's table that is now teams.<team>.priority.<key>
+TEAM_MOVED: dict[str, str] = {"alpha": "alpha", "uniform_floor": "uniform_floor"}
+
+
+def refuse_moved(data: Mapping[str, Any]) -> None:
+    """ConfigError naming the first moved key of nested `data` (as parsed from TOML, `--set` applied), its value and
+    the key that replaced it."""
+    for (section, key), new in GLOBAL_MOVED.items():
+        table = data.get(section)
+        if isinstance(table, Mapping) and key in table:
+            raise ConfigError(f"{section}.{key} moved to teams.<team>.priority.{new} (one per team); set that "
+                              f"instead, got {table[key]!r}")
+    teams = data.get("teams")
+    for team, table in (teams.items() if isinstance(teams, Mapping) else ()):
+        for key, new in TEAM_MOVED.items():
+            if isinstance(table, Mapping) and key in table:
+                raise ConfigError(f"teams.{team}.{key} moved to teams.{team}.priority.{new}; set that instead, got "
+                                  f"{table[key]!r}")
+
+
+def migrate_moved(data: Mapping[str, Any], team_names: tuple[str, ...]) -> dict[str, Any]:
+    """A copy of a stored run config's nested `data` with every moved key at its new place (module docstring);
+    `team_names`: the teams when `data` has no [teams] tables (the run's defaults). Data without a moved key comes
+    back equal."""
+    out = {name: dict(table) if isinstance(table, Mapping) else table for name, table in data.items()}
+    moved_global = {}
+    for (section, key), new in GLOBAL_MOVED.items():
+        table = out.get(section)
+        if isinstance(table, dict) and key in table:
+            moved_global[new] = table.pop(key)
+    teams_data = out.get("teams")
+    if not isinstance(teams_data, Mapping):
+        if not moved_global:
+            return out
+        teams_data = {name: {} for name in team_names}
+    teams = {}
+    for team, table in teams_data.items():
+        table = dict(table) if isinstance(table, Mapping) else table
+        if isinstance(table, dict):
+            priority = dict(table.get("priority", {}))
+            for key, new in TEAM_MOVED.items():
+                if key in table:
+                    priority.setdefault(new, table.pop(key))
+            for new, value in moved_global.items():
+                priority.setdefault(new, value)
+            if priority:
+                table["priority"] = priority
+        teams[team] = table
+    out["teams"] = teams
+    return out
