@@ -79,6 +79,8 @@ def test_the_early_learner_measures_average_the_rows_after_warm_up_while_lambda_
                                                       "difficulty_buffer"))
 
 
+# out of the default run (its 10-minute budget): trains a run
+@pytest.mark.extended
 def test_a_record_written_before_the_learner_measures_gets_them_and_keeps_the_rest(tmp_path, monkeypatch):
     import experiments.stalls as stalls
 

@@ -146,6 +146,8 @@ def test_what_a_failed_start_left_does_not_block_the_retry_and_resume_names_the_
                             f"-m cmcl resume {run_dir}, start over with --overwrite")
 
 
+# out of the default run (its 10-minute budget): waits out the probe's timeout
+@pytest.mark.extended
 def test_a_cluster_that_does_not_answer_is_one_line_within_seconds(tmp_path):
     """--address of no cluster (a closed port): refused within the probe's timeout (Ray's own join retried for
     150 s and more, with only its warnings), before the run directory is made."""
