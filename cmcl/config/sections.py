@@ -235,8 +235,8 @@ class PriorityConfig:
         "'none' = the rule; 'reversed' = anti-curriculum, ĉ → 1 − ĉ before KP (eq. 12; acl / cmcl); 'permuted' = "
         "at each recompute the priority column of each of the team's agents is shuffled across the buffer's rows "
         "by a seeded permutation (cmcl.replay.priority.permute_priorities): the same multiset of probabilities, "
-        "hence the same ESS, carrying no information about the rows (any prioritised rule; maddpg's uniform "
-        "sampling is unaffected)")
+        "hence the same ESS, carrying no information about the rows (every rule whose priorities the buffer "
+        "holds; maddpg's uniform sampling and laber's pick at the learner are unaffected)")
     difficulty_error: Literal["squared", "abs"] = documented(
         "squared", "the teachers' error on a row against the learner's TD target (eq. 10), for the team's agents: "
         "'squared' (δ²) or 'abs' (|δ|)")
