@@ -32,7 +32,7 @@ from experiments.curriculum_tables import (
 )
 from experiments.labels import ARM_LABEL, LABEL, ORDER
 from experiments.measures import WINDOW
-from experiments.stats import TIMES, fmt, kaplan_meier, logrank_p, paired_test, welch_test
+from experiments.stats import TIMES, fmt, kaplan_meier, logrank_p, median_text, paired_test, welch_test
 from experiments.store import ResultsStore
 from experiments.tables import (
     BASELINES,
@@ -89,9 +89,7 @@ def signed(value: float, digits: int = 3) -> str:
 def km_text(times: list[float | None]) -> str:
     """A Kaplan-Meier median of episodes with the runs that got there: '10,949 (10/10)', '≥ 18,952 (5/10)',
     'not reached (3/10)'."""
-    median, reached, lower = kaplan_meier(times)
-    text = "not reached" if median is None else f"{'≥ ' if lower else ''}{median:,.0f}"
-    return f"{text} ({reached}/{len(times)})"
+    return f"{median_text(times, grouped=True)} ({kaplan_meier(times)[1]}/{len(times)})"
 
 
 def span(values: list[float], digits: int) -> str:

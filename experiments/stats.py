@@ -80,10 +80,12 @@ def km_median(times: list[float | None]) -> tuple[float | None, int]:
     return kaplan_meier(times)[:2]
 
 
-def median_text(times: list[float | None], digits: int = 0, missing: str = "not reached") -> str:
-    """The Kaplan-Meier median as printed: 'M', '≥ M' when it is only a lower bound, `missing` when not reached."""
+def median_text(times: list[float | None], digits: int = 0, missing: str = "not reached", grouped: bool = False
+                ) -> str:
+    """The Kaplan-Meier median as printed: 'M', '≥ M' when it is only a lower bound, `missing` when not reached;
+    grouped: thousands separated as in prose ('10,949')."""
     med, _, lower = kaplan_meier(times)
-    return missing if med is None else f"{'≥ ' if lower else ''}{med:.{digits}f}"
+    return missing if med is None else f"{'≥ ' if lower else ''}{med:{',' if grouped else ''}.{digits}f}"
 
 
 def fmt_time(values: list[float | None], digits: int = 0) -> str:
