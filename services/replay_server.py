@@ -39,6 +39,7 @@ from cmcl.replay.curriculum import unplayed_steps
 from cmcl.replay.dedupe import InsertLedger
 from cmcl.replay.pacing import pacing_from_config
 from cmcl.replay.scoring import ScoringState
+from cmcl.replay.snapshot import rng_state, set_rng_state
 from cmcl.system import beta_is, build_replay, build_schedule, layout_of
 from services.common import actor_setup, new_incarnation
 from services.replay_report import REPORT_SAMPLES, ReplayTallies, replay_report
@@ -284,13 +285,16 @@ class ReplayServer:
                              details=details, rng=self.rng, incarnation=self.incarnation, resumed=self.resumed)
 
     def state_dict(self) -> dict[str, Any]:
-        """Codec-ready state: the buffer, score tables, insert ledger, counters, limiters and λ's step count."""
+        """Codec-ready state: the buffer, score tables, insert ledger, counters, limiters, λ's step count and the
+        generators (each agent's sampler stream and the server's own: a restored server continues their draws
+        instead of repeating the first incarnation's)."""
         return {"replay": self.replay.state_dict(), **self.scoring.state_dict(),
                 "ledger": self.ledger.state_dict(), "counters": dict(self.counters), "rejected": dict(self.rejected),
                 "stale_scores": self.stale_scores, "teacher_steps": list(self.teacher_steps),
                 "teacher_scores": list(self.teacher_scores),
                 **self.pacing.state_dict(),
-                "schedule_env_steps": self.schedule.env_steps}
+                "schedule_env_steps": self.schedule.env_steps,
+                "sampler_rngs": [rng_state(g) for g in self.sampler_rngs], "rng": rng_state(self.rng)}
 
     def snapshot(self) -> int:
         """Write the state as a new snapshot generation of the store (msgpack, no pickle; the log restarts empty);
@@ -333,4 +337,11 @@ class ReplayServer:
         self.teacher_scores = [int(v) for v in state["teacher_scores"]]
         self.pacing.load_state_dict(state)
         self.schedule.env_steps = int(state["schedule_env_steps"])
+        if "sampler_rngs" in state:  # snapshots written before the generators were saved restart them from the seed
+            if len(state["sampler_rngs"]) != len(self.sampler_rngs):
+                raise ValueError(f"sampler_rngs: the snapshot holds {len(state['sampler_rngs'])} agents' generators, "
+                                 f"this run has {len(self.sampler_rngs)} agents")
+            for agent, (g, saved) in enumerate(zip(self.sampler_rngs, state["sampler_rngs"], strict=True)):
+                set_rng_state(g, saved, f"sampler_rngs[{agent}]")
+            set_rng_state(self.rng, state["rng"], "rng")
         self.dirty = True

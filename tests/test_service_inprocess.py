@@ -122,6 +122,23 @@ def test_snapshot_restores_buffer_scores_counters_and_dedupe(tmp_path):
     assert "duplicate" in restored.insert(chunk).error, "dedupe table survives a restart"
 
 
+@pytest.mark.parametrize("algorithm", ["per", "cmcl"])
+def test_a_restored_server_continues_the_sampler_streams(tmp_path, algorithm):
+    """The generators are in the snapshot: the restored server draws the minibatch the first one would have drawn
+    next, not the first incarnation's opening draws again."""
+    cfg = in_process_config(algorithm)
+    replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
+    for _ in range(3):
+        replay.insert(worker.rollout(None)[0])
+    opening = replay.sample(1)[0].slots
+    replay.store = ReplayStore(tmp_path / "replay")
+    replay.snapshot()
+    restored = ReplayServer(cfg, store_dir=str(tmp_path / "replay"))
+    after, again = replay.sample(1)[0].slots, restored.sample(1)[0].slots
+    np.testing.assert_array_equal(again, after)
+    assert not np.array_equal(again, opening)
+
+
 def test_learner_and_teacher_restart_from_their_checkpoints(tmp_path):
     cfg = in_process_config("cmcl")
     replay, learner, worker, teachers, _ = roles(cfg)

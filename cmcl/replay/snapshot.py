@@ -51,10 +51,11 @@ def rng_state(rng: np.random.Generator) -> dict[str, Any]:
             "has_uint32": int(st["has_uint32"]), "uinteger": int(st["uinteger"])}
 
 
-def set_rng_state(rng: np.random.Generator, state: dict[str, Any]) -> None:
-    """Inverse of `rng_state` (ValueError for another bit generator or malformed numbers)."""
+def set_rng_state(rng: np.random.Generator, state: dict[str, Any], name: str = "control_rng") -> None:
+    """Inverse of `rng_state` (ValueError naming the state's field `name` for another bit generator or malformed
+    numbers)."""
     if state.get("bit_generator") != "PCG64":
-        raise ValueError(f"control_rng must be a PCG64 state, got {state.get('bit_generator')!r}")
+        raise ValueError(f"{name} must be a PCG64 state, got {state.get('bit_generator')!r}")
     rng.bit_generator.state = {"bit_generator": "PCG64",
                                "state": {"state": int(state["state"]), "inc": int(state["inc"])},
                                "has_uint32": int(state["has_uint32"]), "uinteger": int(state["uinteger"])}
