@@ -29,6 +29,9 @@ CASES = {  # name -> (config file, extra overrides)
     "spread_cmcl": ("configs/spread_cmcl.toml", []),
     "spread_cmcl_per_agent_fit": ("configs/spread_cmcl.toml", ["teachers.fit_batch=\"per_agent\""]),
     "tag_cmcl": ("configs/tag_cmcl.toml", []),
+    "spread_laber": ("configs/spread_maddpg.toml", ["teams.agent.algorithm=\"laber\""]),
+    "spread_laber_permuted": ("configs/spread_maddpg.toml", ["teams.agent.algorithm=\"laber\"",
+                                                             "teams.agent.priority.difficulty_transform=\"permuted\""]),
 }
 
 

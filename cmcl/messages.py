@@ -100,6 +100,9 @@ class LearnerBatch:
     select_u: np.ndarray | None = None
     # actor_batch = "uniform": the actors' own uniform minibatches (their rows carry no IS weights, no feedback)
     actor: ActorRows | None = None
+    # LaBER under the permuted control: the order int64[n, N, S] in which each owner's candidates' fresh |δ| are read
+    # to pick (a permutation of 0..S−1 for the control's agents, the identity for the others; else None)
+    select_order: np.ndarray | None = None
 
     @property
     def count(self) -> int:

@@ -80,6 +80,15 @@ class AgentLayout:
         return [priority[a].difficulty_error == "squared" for a in self.teacher_agents]
 
     @property
+    def permuted_select(self) -> tuple[bool, ...]:
+        """Per agent, length N: whether it picks among candidates (`select`, LaBER) under its team's permuted control
+        (`priority.difficulty_transform`); the buffer then draws the order its candidates' |δ| are read in
+        (cmcl.replay.rules.laber.candidate_orders), as both runners sample."""
+        priority = self.priority or (PriorityConfig(),) * self.num_agents
+        return tuple(bool(pick) and p.difficulty_transform == "permuted"
+                     for pick, p in zip(self.select or (False,) * self.num_agents, priority, strict=True))
+
+    @property
     def team_of(self) -> list[str]:
         """Team name of every agent, length N."""
         names = [""] * self.num_agents

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from cmcl.algorithms import PAPER_ALGORITHMS, build_sampler
+from cmcl.algorithms import PAPER_ALGORITHMS, build_sampler, spec_of
 from cmcl.replay.priority import EPS_P
 from cmcl.replay.sampling import SamplerArgs
 from experiments.labels import PERMUTED
@@ -53,7 +53,8 @@ RESULTS = ROOT / "bench" / "results"
 EPISODES = 20_000  # the paper's budget per run
 
 # The permuted control: a rule's own priorities shuffled across the buffer's rows at every recompute (same
-# probabilities, hence the same ESS, no information about the rows; cmcl.replay.buffer). The one place naming its key.
+# probabilities, hence the same ESS, no information about the rows; cmcl.replay.buffer), or for LaBER the fresh |δ| of
+# each pick's candidates shuffled across them (cmcl.replay.rules.laber). The one place naming its key.
 PERMUTED_CONTROL = "teams.<team>.priority.difficulty_transform=permuted"
 # arm -> (config file, --set overrides) of the curriculum grids; every other setting is the shared default. An
 # override of "teams.<team>." is the learning team's: the agents of navigation, the predators of predator-prey
@@ -260,11 +261,12 @@ class ConfirmNotReady(ValueError):
 
 def has_permuted_control(algorithm: str) -> bool:
     """Whether the permuted control acts on `algorithm`'s sampling. The buffer shuffles the priorities of the samplers
-    that recompute them, and under the control a sampler recomputes exactly when it holds priorities of its own:
-    uniform replay holds none, nor does LaBER, whose minibatch the learner picks by a fresh |δ| among uniform
-    candidates (nothing there is shuffled)."""
+    that recompute them, and under the control a sampler recomputes exactly when it holds priorities of its own; a
+    rule whose learner picks each minibatch among candidates (the registry's `candidates` > 1: LaBER, by a fresh
+    |δ|) has those |δ| shuffled across its candidates (cmcl.replay.rules.laber.candidate_orders). Uniform replay
+    has neither."""
     args = SamplerArgs(capacity=1, alpha=1.0, backend="cdf", eps=EPS_P, algorithm=algorithm, permuted=True)
-    return bool(build_sampler(algorithm, args).recomputes)
+    return bool(build_sampler(algorithm, args).recomputes) or spec_of(algorithm).candidates > 1
 
 
 def confirm_arms(chosen: Sequence[str]) -> dict[str, list[str]]:
@@ -274,7 +276,8 @@ def confirm_arms(chosen: Sequence[str]) -> dict[str, list[str]]:
     lacking = [arm for arm in chosen if not has_permuted_control(rule_algorithm(SCREEN_ARMS[arm]))]
     if lacking:
         raise ConfirmNotReady(f"the permuted control does not act on the selected {lacking} (no priorities held in "
-                              f"the buffer to shuffle); the confirmation's protocol needs one for each chosen rule")
+                              f"the buffer, nor a pick among candidates, to shuffle); the confirmation's protocol "
+                              f"needs one for each chosen rule")
     arms = {}
     for arm in chosen:
         arms[arm], arms[f"{arm}{PERMUTED}"] = SCREEN_ARMS[arm], [*SCREEN_ARMS[arm], PERMUTED_CONTROL]

@@ -182,7 +182,8 @@ class ReplayServer:
         beta = beta_is(self.config, self.counters["inserts"])
         betas = [beta if w else 0.0 for w in self.layout.importance_weights]
         batch = buffer_steps.sample_owner_batches(self.replay, n, self.config.maddpg.batch_size, self.sampler_rngs,
-                                                  betas, self.layout.candidates, self.layout.uniform_actor)
+                                                  betas, self.layout.candidates, self.layout.uniform_actor,
+                                                  self.layout.permuted_select)
         self.scoring.sampled(batch.slots, self.counters["updates"], self.rng, REPORT_SAMPLES)
         self._event("updates", n)
         return batch, self.status()

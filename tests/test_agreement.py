@@ -108,12 +108,18 @@ def test_learner_batch_feedback_and_update_agree(algorithm, transform, actor_bat
     beta = beta_is(loop.config, server.counters["inserts"])
     betas = [beta if w else 0.0 for w in loop.layout.importance_weights]
     inline = buffer_steps.sample_owner_batches(loop.replay, 1, loop.config.maddpg.batch_size, rngs, betas,
-                                               loop.layout.candidates, loop.layout.uniform_actor)
+                                               loop.layout.candidates, loop.layout.uniform_actor,
+                                               loop.layout.permuted_select)
     np.testing.assert_array_equal(batch.slots, inline.slots)
     assert (batch.select_u is None) == (inline.select_u is None) == (loop.layout.candidates == 1)
     if batch.select_u is not None:  # LaBER: m·B candidates, and the same numbers to pick with
         assert batch.slots.shape[-1] == loop.layout.candidates * loop.config.maddpg.batch_size
         np.testing.assert_array_equal(batch.select_u, inline.select_u)
+    shuffled = loop.layout.candidates > 1 and transform == "permuted"  # LaBER's candidates under the control
+    assert any(loop.layout.permuted_select) == shuffled
+    assert (batch.select_order is None) == (inline.select_order is None) == (not shuffled)
+    if shuffled:  # the same orders to read the candidates' |δ| in, from the same control generator's state
+        np.testing.assert_array_equal(batch.select_order, inline.select_order)
     uniform_actor = actor_batch == "uniform" and REGISTRY[algorithm].prioritised  # maddpg's batch is uniform already
     assert (batch.actor is None) == (inline.actor is None) == (not uniform_actor)
     if uniform_actor:  # the actors' own uniform rows, drawn alike

@@ -7,7 +7,7 @@ runs' summaries, never for a component of the code."""
 import numpy as np
 import pytest
 
-from cmcl.algorithms import ALGORITHMS
+from cmcl.algorithms import ALGORITHMS, spec_of
 from experiments.__main__ import build_parser, main, selected_runs
 from experiments.confirm_tables import GOAL, confirm_table, confirm_tests, families
 from experiments.curriculum_tables import curriculum_test_rows, format_tests
@@ -119,13 +119,16 @@ def priorities_shuffled(algorithm: str) -> bool:
 @pytest.mark.parametrize("algorithm", ALGORITHMS)
 def test_the_permuted_control_shuffles_exactly_the_rules_said_to_have_one(algorithm):
     """Every rule whose priorities the buffer holds (teachers' or learner's: per, relo, rho, lp, acl, cmcl) is
-    shuffled; uniform replay and LaBER (its picks by a fresh |δ| on the learner's side) are not, so a LaBER
-    selection cannot be confirmed by this protocol."""
-    assert has_permuted_control(algorithm) == priorities_shuffled(algorithm)
-    assert has_permuted_control(algorithm) == (algorithm not in ("maddpg", "laber"))
-    if algorithm == "laber":
-        with pytest.raises(ConfirmNotReady, match="does not act on the selected \\['laber'\\]"):
-            confirm_arms(["laber"])
+    shuffled; LaBER, whose priorities are the learner's fresh |δ| of its candidates, has them shuffled across the
+    candidates at each pick (tests/test_laber_permuted.py); uniform replay has nothing to shuffle. So a LaBER
+    selection is confirmed with its permuted control like the others."""
+    picks_among_candidates = spec_of(algorithm).candidates > 1
+    assert has_permuted_control(algorithm) == (priorities_shuffled(algorithm) or picks_among_candidates)
+    assert has_permuted_control(algorithm) == (algorithm != "maddpg")
+    if picks_among_candidates:
+        assert confirm_arms(["laber"])["laber_permuted"] == [*SCREEN_ARMS["laber"], PERMUTED_CONTROL]
+    with pytest.raises(ConfirmNotReady, match="does not act on the selected \\['maddpg'\\]"):
+        confirm_arms(["maddpg"])
 
 
 def table_rows(text: str, title: str) -> list[list[str]]:

@@ -236,7 +236,10 @@ class PriorityConfig:
         "at each recompute the priority column of each of the team's agents is shuffled across the buffer's rows "
         "by a seeded permutation (cmcl.replay.priority.permute_priorities): the same multiset of probabilities, "
         "hence the same ESS, carrying no information about the rows (every rule whose priorities the buffer "
-        "holds; maddpg's uniform sampling and laber's pick at the learner are unaffected)")
+        "holds); for laber, each pick at the learner reads the fresh |δ| of its m·B candidates shuffled across "
+        "them by a seeded permutation (cmcl.replay.rules.laber.candidate_orders): the same multiset of "
+        "priorities and IS weights, no information about which candidate is hard; maddpg's uniform sampling is "
+        "unaffected")
     difficulty_error: Literal["squared", "abs"] = documented(
         "squared", "the teachers' error on a row against the learner's TD target (eq. 10), for the team's agents: "
         "'squared' (δ²) or 'abs' (|δ|)")

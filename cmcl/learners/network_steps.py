@@ -4,7 +4,8 @@ Where it sits: one implementation, two runners. `cmcl.loop` calls these on its o
 teacher and ICM actors call the same functions on theirs (`services/learner.py`, `teachers.py`, `icm.py`). The
 replay side (what is drawn, what is written back) is `cmcl.replay.buffer_steps`.
 
-  learner minibatch .. choose_minibatch    the batch's own, or LaBER's pick among m·B candidates by fresh |δ|;
+  learner minibatch .. choose_minibatch    the batch's own, or LaBER's pick among m·B candidates by fresh |δ|
+                                           (shuffled across them under the permuted control);
                                            with the actors' own uniform rows when actor_batch = "uniform"
   learner update ..... learner_update      minibatch [N, S, ...] -> MADDPG step (eqs. 4–6), |δ| [N, S]
   teacher fit ........ fit_teachers        rows [steps, B, F, S, ...] -> Adam steps of the fold teachers (eq. 9)
@@ -60,7 +61,9 @@ def choose_minibatch(maddpg: MADDPG, batch: LearnerBatch, i: int, importance_wei
     Without candidates (`batch.select_u` None) it is the batch's own. With LaBER's m·B candidates per owner, the
     agents marked in `select` pick B of them ∝ the current critic's |δ| + ε (one no-grad pass,
     `cmcl.replay.rules.laber.select_candidates`), their critic weighted by LaBER-mean's weights; the others take
-    their first B draws (i.i.d. from their own sampler) with their own IS weights. With the actors' own rows
+    their first B draws (i.i.d. from their own sampler) with their own IS weights. Under the permuted control
+    (`batch.select_order`, drawn by the buffer for the control's agents, the identity for the others) an agent picks
+    with its candidates' |δ| + ε read in that order: shuffled across its candidates. With the actors' own rows
     (`batch.actor`, actor_batch = "uniform"), the minibatch also holds "actor_obs", "actor_act" (and
     "actor_present") [N, B, N, ·]: the uniform rows for the owners marked in `batch.actor.owners`, the critic's
     chosen rows for the others (`with_actor_rows`)."""
@@ -70,7 +73,8 @@ def choose_minibatch(maddpg: MADDPG, batch: LearnerBatch, i: int, importance_wei
         return with_actor_rows(mb, batch, i), slots, generations
     u = batch.select_u[i]  # [N, B]
     n, b = u.shape
-    idx, weights = select_candidates(maddpg.td_abs(mb).astype(np.float64) + EPS_P, u)
+    order = None if batch.select_order is None else batch.select_order[i]  # [N, m·B]
+    idx, weights = select_candidates(maddpg.td_abs(mb).astype(np.float64) + EPS_P, u, order)
     picking = np.asarray(select, dtype=bool)
     idx[~picking] = np.arange(b)
     picked = {k: np.take_along_axis(v, idx.reshape(n, b, *([1] * (v.ndim - 2))), axis=1) for k, v in mb.items()}

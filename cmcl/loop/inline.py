@@ -213,7 +213,7 @@ class InlineLoop:
         beta = beta_is(cfg, self.counters["env_steps"])
         betas = [beta if isw else 0.0 for isw in layout.importance_weights]
         batch = buffer_steps.sample_owner_batches(self.replay, 1, cfg.maddpg.batch_size, self.sampler_rngs, betas,
-                                                  layout.candidates, layout.uniform_actor)
+                                                  layout.candidates, layout.uniform_actor, layout.permuted_select)
         minibatch, slots, generations = network_steps.choose_minibatch(
             self.maddpg, batch, 0, any(layout.importance_weights), layout.select)
         if batch.select_u is not None:  # the picked rows' reward-bearing share, per agent (the sampling's effect)

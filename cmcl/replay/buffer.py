@@ -54,7 +54,9 @@ class ReplayBuffer:
         difficulty_transform: sampling control (issue 21): "none"; "reversed" (ĉ -> 1 − ĉ, the anti-curriculum of
             acl / cmcl agents); "permuted" (each recompute shuffles the agent's priority column across the valid
             rows, `cmcl.replay.priority.permute_priorities`, with a Generator seeded by `control_seed` and carried
-            in `state_dict`, so a resumed run draws the same permutations; all permuted columns in one draw).
+            in `state_dict`, so a resumed run draws the same permutations; all permuted columns in one draw). The
+            same generator, `control_rng`, draws the orders in which LaBER agents under the control read their
+            candidates' |δ| (`cmcl.replay.buffer_steps.sample_owner_batches`).
         difficulty_squared: the teachers' held-out error is a squared TD error (rules comparing it with δ).
         difficulty_source: "difficulty" (teachers) or "td_abs" (ACL td_self), scalar or per agent.
         min_size: transitions required before `sample` works (e.g. 3840 warm-up). lam_max: cap on λ.
@@ -93,7 +95,8 @@ class ReplayBuffer:
         sources = _per_agent("difficulty_source", difficulty_source, n)
         self.eps, self.backend = float(eps), backend
         self.difficulty_transform: list[str] = list(transforms)  # per agent
-        self.control_rng = np.random.default_rng(control_seed)  # draws the permuted control's permutations
+        # draws the permuted control's permutations: of the priority columns, and of LaBER's candidates
+        self.control_rng = np.random.default_rng(control_seed)
         self.min_size, self.lam_max = int(min_size), float(lam_max)
         self.lam: float | None = None  # λ of the last recompute
         floors = [float(f) for f in _per_agent("floor", floor, n)]

@@ -5,7 +5,8 @@ buffer; `services.replay_server` calls the same functions when a role asks for w
 side of each step (networks) is `cmcl.learners.network_steps`. Numpy only.
 
   learner minibatches ...... sample_owner_batches       -> LearnerBatch [n, N, S]      (per-agent samplers, eq. 20;
-                                                           with the actors' own uniform rows, actor_batch = "uniform")
+                                                           with the actors' own uniform rows, actor_batch = "uniform";
+                                                           LaBER's candidate orders under the permuted control)
   learner feedback ......... apply_learner_feedback      <- LearnerFeedback (per-row losses to each sampler)
   teacher fit rows ......... fold_batch_slots            -> slots [steps, B, F, S] from each fold only (eq. 9)
   ICM fit rows ............. uniform_slots               -> slots, drawn uniformly (§3.4)
@@ -21,6 +22,7 @@ import numpy as np
 
 from cmcl.messages import ACTOR_KEYS, PRESENT_KEY, ROW_KEYS, ActorRows, LearnerBatch, LearnerFeedback, Rows
 from cmcl.replay.buffer import ReplayBuffer
+from cmcl.replay.rules.laber import candidate_orders
 from cmcl.replay.sampling import UniformSampling
 
 UNIFORM = UniformSampling()  # the actors' own minibatches are maddpg's draw: P(j) = 1/|D|
@@ -39,12 +41,15 @@ def score_rows(replay: ReplayBuffer, slots: np.ndarray) -> Rows:
 
 
 def sample_owner_batches(replay: ReplayBuffer, count: int, batch_size: int, rngs: Sequence[np.random.Generator],
-                         betas: Sequence[float], candidates: int = 1, uniform_actor: Sequence[bool] = ()
-                         ) -> LearnerBatch:
+                         betas: Sequence[float], candidates: int = 1, uniform_actor: Sequence[bool] = (),
+                         permuted_select: Sequence[bool] = ()) -> LearnerBatch:
     """`count` learner minibatches: every agent v draws its own S slots from its own P_v (eq. 20) per minibatch.
 
     betas: IS exponent per agent (0: weights of 1). candidates: m > 1 (LaBER) draws S = m·batch_size candidates
     per owner, then one uniform number per row to pick from each agent's own generator (`LearnerBatch.select_u`).
+    permuted_select: bool per agent (`AgentLayout.permuted_select`: LaBER under the permuted control): with m > 1,
+    a permutation of each marked agent's S candidates per minibatch from the buffer's `control_rng`, the order the
+    learner reads their |δ| in to pick (`LearnerBatch.select_order`; None, and nothing drawn, when none is marked).
     uniform_actor: bool per agent (actor_batch = "uniform"): those agents then draw, after their critic's rows, a
     minibatch of batch_size rows uniformly from their own generator for their actor (`LearnerBatch.actor`; None
     when no agent is marked, and nothing more is drawn).
@@ -52,11 +57,14 @@ def sample_owner_batches(replay: ReplayBuffer, count: int, batch_size: int, rngs
     from fewer agents (run.carry_replay).
     """
     owners = np.asarray(uniform_actor, dtype=bool) if any(uniform_actor) else None
-    draws, picks, actor = [], [], []
+    shuffled = np.asarray(permuted_select, dtype=bool) if candidates > 1 and any(permuted_select) else None
+    draws, picks, orders, actor = [], [], [], []
     for _ in range(count):
         draws.append(replay.sample_all(batch_size * candidates, list(rngs), beta=list(betas)))
         if candidates > 1:
             picks.append(np.stack([rng.random(batch_size) for rng in rngs]))
+        if shuffled is not None:  # the control's own stream: the sampler streams stay as without the control
+            orders.append(candidate_orders(shuffled, batch_size * candidates, replay.control_rng))
         if owners is not None:
             actor.append(actor_slots(replay, draws[-1][0][:, :batch_size], rngs, owners))
     slots = np.stack([d[0] for d in draws])  # [n, N, S]
@@ -67,7 +75,7 @@ def sample_owner_batches(replay: ReplayBuffer, count: int, batch_size: int, rngs
         actor_rows = ActorRows(rows_at(replay, own, (*ACTOR_KEYS, *present)), own, owners)
     return LearnerBatch(rows_at(replay, slots, (*ROW_KEYS, *present)), np.stack([d[1] for d in draws]), slots,
                         replay.generations(slots.reshape(-1)).reshape(slots.shape),
-                        np.stack(picks) if picks else None, actor_rows)
+                        np.stack(picks) if picks else None, actor_rows, np.stack(orders) if orders else None)
 
 
 def actor_slots(replay: ReplayBuffer, critic: np.ndarray, rngs: Sequence[np.random.Generator], owners: np.ndarray
