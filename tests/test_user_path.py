@@ -183,12 +183,31 @@ def resume_then_stop(run_dir: Path, version: int, logged: int, stop: signal.Sign
     assert min(first_versions_after(run_dir, logged)) >= version  # a fresh learner would publish version 0
 
 
+def make_run(run_dir: Path, *flags: str) -> Launched:
+    """`make run` into `run_dir` for 96 episodes (a budget in episodes, not seconds: under load a 10 s budget once
+    ended before the first episode), finished with exit 0."""
+    run = Launched(["make", "-s", "run", f"RUN_ARGS=--set run.dir={run_dir} --set run.episodes=96 "
+                                         "--set run.max_seconds=600 --metrics-port 0 " + " ".join(flags)])
+    assert run.finish() == 0, run.text
+    return run
+
+
+def make_resume(run_dir: Path, counted: str, *flags: str) -> Launched:
+    """The README's `make resume` of `run_dir` for 32 more episodes (it says so), finished with exit 0. `counted`:
+    the summary's count of episodes done ("episodes" inline, "episodes_logged" on the service)."""
+    done = json.loads((run_dir / "summary.json").read_text())[counted]
+    resumed = Launched(["make", "-s", "resume", f"RUN_DIR={run_dir}", "RESUME_EPISODES=32",
+                        "RUN_ARGS=--no-eval " + " ".join(flags)])
+    assert resumed.finish() == 0, resumed.text
+    assert f"run.episodes: {done + 32} (32 more than the {done} done)" in resumed.text, resumed.text
+    assert json.loads((run_dir / "summary.json").read_text())[counted] >= done + 32
+    assert not alive(resumed.seen), f"processes left behind: {alive(resumed.seen)}"
+    return resumed
+
+
 def test_make_run_ends_with_the_held_out_evaluation_and_a_gif_and_evaluate_finds_the_policy(tmp_path):
     run_dir = tmp_path / "make-run"
-    # a budget in episodes, not seconds: under load a 10 s budget once ended before the first episode
-    run = Launched(["make", "-s", "run", f"RUN_ARGS=--set run.dir={run_dir} --set run.episodes=96 "
-                                         "--set run.max_seconds=600 --metrics-port 0"])
-    assert run.finish() == 0, run.text
+    run = make_run(run_dir)
     assert "held-out evaluation (200 new worlds, no exploration noise): coverage" in run.text, run.text
     assert "return[agent]" in run.text and "worlds with an uncovered landmark at the final step" in run.text, run.text
     assert (run_dir / "trained.gif").stat().st_size > 0 and (run_dir / "learning_curve.png").is_file()
@@ -198,14 +217,25 @@ def test_make_run_ends_with_the_held_out_evaluation_and_a_gif_and_evaluate_finds
     assert evaluated.returncode == 0, evaluated.stderr
     result = evaluation_json(evaluated.stdout)
     assert Path(result["checkpoint"]).name.startswith("learner-") and result["episodes"] == 20
-    # the README's `make resume` on a run that ended at its episode budget: it trains RESUME_EPISODES more
-    done = json.loads((run_dir / "summary.json").read_text())["episodes_logged"]
-    resumed = Launched(["make", "-s", "resume", f"RUN_DIR={run_dir}", "RESUME_EPISODES=32",
-                        "RUN_ARGS=--metrics-port 0 --no-eval"])
-    assert resumed.finish() == 0, resumed.text
-    assert f"run.episodes: {done + 32} (32 more than the {done} done)" in resumed.text, resumed.text
-    assert json.loads((run_dir / "summary.json").read_text())["episodes_logged"] >= done + 32
-    assert not alive(resumed.seen), f"processes left behind: {alive(resumed.seen)}"
+
+
+def test_make_resume_trains_a_finished_run_for_more_episodes(tmp_path, tiny_config_file):
+    """The README's `make resume` (the Makefile's target, through make) on a finished tiny inline run: `cmcl
+    resume` finds the runner that wrote the run. The same target on `make run`'s service run is the extended test
+    below; the service's resume itself stays in the default run (tests/test_service_ray.py)."""
+    config = tiny_config_file("maddpg", dir=str(tmp_path / "run"), episodes=4, checkpoint_every=4, log_every=4)
+    trained = subprocess.run([PY, "-m", "cmcl", "train", "--config", str(config), "--quiet", "--no-eval"], cwd=ROOT,
+                             capture_output=True, text=True, timeout=300)
+    assert trained.returncode == 0, trained.stderr
+    make_resume(tmp_path / "run", "episodes")
+
+
+# out of the default run (its 10-minute budget): `make resume` of an inline run stays in the default run above
+@pytest.mark.extended
+def test_make_resume_of_make_runs_service_run_trains_it_further(tmp_path):
+    run_dir = tmp_path / "make-run"
+    make_run(run_dir, "--no-eval")
+    make_resume(run_dir, "episodes_logged", "--metrics-port 0")
 
 
 # out of the default run (its 10-minute budget): the inline Ctrl-C test and `make resume` in the make-run test stay in
