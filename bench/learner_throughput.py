@@ -243,8 +243,9 @@ def filled_loop(algorithm: str, overrides: list[str] = ()) -> InlineLoop:
     return loop
 
 
-def cmcl_vs_maddpg_cost(rounds: int = 7, updates: int = 30) -> float:
-    """Median seconds of one `InlineLoop.update()` of CMCL over one of MADDPG (interleaved rounds).
+def inline_update_seconds(rounds: int = 7, updates: int = 30) -> tuple[dict[str, float], InlineLoop]:
+    """({"maddpg": s, "cmcl": s}: median seconds of one `InlineLoop.update()` of each, interleaved rounds; the CMCL
+    loop).
 
     A CMCL update here is everything the inline loop does per update at the defaults: the teacher and ICM steps
     due at their ratios, scoring of new rows plus the rolling rescoring, the priority recompute, the MADDPG step.
@@ -257,11 +258,16 @@ def cmcl_vs_maddpg_cost(rounds: int = 7, updates: int = 30) -> float:
             for _ in range(updates):
                 loop.update()
             seconds[name].append((time.perf_counter() - t0) / updates)
-    per = {name: statistics.median(v) for name, v in seconds.items()}
+    return {name: statistics.median(v) for name, v in seconds.items()}, loops["cmcl"]
+
+
+def cmcl_vs_maddpg_cost(rounds: int = 7, updates: int = 30) -> float:
+    """Median seconds of one `InlineLoop.update()` of CMCL over one of MADDPG (`inline_update_seconds`)."""
+    per, cmcl = inline_update_seconds(rounds, updates)
     print(f"one inline update at the defaults: maddpg {1e3 * per['maddpg']:.2f} ms, cmcl {1e3 * per['cmcl']:.2f} ms "
-          f"(teachers {loops['cmcl'].config.teachers.steps_per_update:g} / ICM "
-          f"{loops['cmcl'].config.icm.steps_per_update:g} steps per update, "
-          f"{loops['cmcl'].config.teachers.rescore_rows_per_update} rows rescored per update)")
+          f"(teachers {cmcl.config.teachers.steps_per_update:g} / ICM "
+          f"{cmcl.config.icm.steps_per_update:g} steps per update, "
+          f"{cmcl.config.teachers.rescore_rows_per_update} rows rescored per update)")
     return per["cmcl"] / per["maddpg"]
 
 

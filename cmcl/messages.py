@@ -236,7 +236,10 @@ class PacingStatus:
     """Work each role may be given now (the first fields of `ReplayStatus`; built by
     `cmcl.replay.pacing.Pacing.status`). allowed_updates: learner updates;
     allowed_inserts: transitions; update_deficit / scoring_deficit: learner updates, teacher and ICM fit steps still
-    owed to their ratios (< 1: caught up); teacher_allowed: fit steps per fold [K]; icm_allowed: ICM fit steps.
+    owed to their ratios (< 1: caught up); teacher_allowed: fit steps per fold [K]; icm_allowed: ICM fit steps;
+    updates_held_by: why allowed_updates is 0 ("" when it is not): "warmup" (the buffer is still filling),
+    "env_steps" (the learner is its slack ahead of the env steps: it waits for data; said even when the scores hold
+    it too) or "scores" (it is the slack ahead of a teacher fold or the ICM: it waits for scores).
     Every allowance is 0 before the warm-up ends, except the inserts that fill it."""
 
     allowed_updates: int
@@ -245,13 +248,14 @@ class PacingStatus:
     scoring_deficit: float
     teacher_allowed: tuple[int, ...]
     icm_allowed: int
+    updates_held_by: str
 
 
 @dataclass(frozen=True)
 class ReplayStatus(PacingStatus):
     """Replay -> supervisor, with every reply of the replay server: how much work each role may be given now (the
     fields of `PacingStatus`: allowed_updates, allowed_inserts, update_deficit, scoring_deficit,
-    teacher_allowed [K], icm_allowed) and the counters the supervisor shows.
+    teacher_allowed [K], icm_allowed, updates_held_by) and the counters the supervisor shows.
 
     size: transitions stored; env_steps, episodes, updates: totals so far; lam: the curriculum factor λ;
     incarnation: the server's process life. accepted / error: set by the calls that store something (insert, score

@@ -5,6 +5,7 @@ many calls. The allowances are the replay server's pacing (`cmcl.messages.Pacing
 every `ReplayStatus`: ALGORITHM.md §3.9, DESIGN.md data-flow step 7); the work already promised to calls in flight
 is taken off them. At most CALLS_IN_FLIGHT calls per actor: one computing, one prefetched, so that while one
 computes the replay server prepares the next (the learner's prefetch; the same for teachers and the ICM).
+`HeldClock` counts the seconds in which the learner had no call at all, by what held it back.
 """
 
 from __future__ import annotations
@@ -60,3 +61,27 @@ def calls_to_issue(status: ReplayStatus, in_flight: Mapping[tuple[str, int], int
         busy = in_flight.get(("icm", 0), 0)
         calls[("icm", 0)] = _calls(status.icm_allowed - steps * busy, steps, busy)
     return calls
+
+
+class HeldClock:
+    """Seconds of the supervisor's loop in which the learner had no call in flight, by why (`seconds`).
+
+    `tick(now, learner_calls, status)` once per round of the loop, after its calls are issued: the time since the
+    previous tick goes to the state the previous tick saw (the loop changes nothing while it waits for replies).
+    A state is None (a learner call in flight), the status's `updates_held_by` ("warmup", "env_steps", "scores"),
+    or "other" (no call although updates are allowed: the episode target is reached, or a call failed);
+    `tick(..., during="checkpoint")` before a checkpoint counts its drain and saves as "checkpoint".
+    `seconds` holds every reason from the start (0.0), so a reader in another thread sees a fixed set of keys.
+    """
+
+    REASONS = ("warmup", "env_steps", "scores", "checkpoint", "other")
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = dict.fromkeys(self.REASONS, 0.0)
+        self._last: tuple[float, str | None] | None = None
+
+    def tick(self, now: float, learner_calls: int, status: ReplayStatus, during: str | None = None) -> None:
+        if self._last is not None and self._last[1] is not None:
+            self.seconds[self._last[1]] += max(0.0, now - self._last[0])
+        state = during or (None if learner_calls > 0 else (status.updates_held_by or "other"))
+        self._last = (now, state)

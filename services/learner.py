@@ -3,11 +3,13 @@
 Where it sits: replay -> learner -> (|δ| back to replay, weights to rollout workers / teachers). The shell around
 `cmcl.learners.network_steps.learner_update`, the same function the inline loop calls. The supervisor keeps two update
 calls in flight, so the replay server samples the next batches while this one computes (prefetch). Weights are
-published once per version as {"version", "weights"} (cmcl.learners.weights).
+published once per version as {"version", "weights"} (cmcl.learners.weights). Its report counts the wall and CPU
+seconds spent inside update calls (`busy_s`, `busy_cpu_s`): the rest of the wall clock it waited for batches.
 """
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
@@ -35,12 +37,14 @@ class Learner:
         self.layout = layout_of(cfg)
         self.maddpg = build_maddpg(cfg, self.layout, seed)
         self.version, self.losses = 0, {}
+        self.busy_s = self.busy_cpu_s = 0.0  # wall / CPU (this thread) seconds inside update calls with a batch
         state, refused = load_state(checkpoint_path)
         self.checkpoints_refused = len(refused)  # files refused at this start (manifest checks)
         self.resumed = state is not None
         if state is not None:
             self.maddpg.load_state_dict(state["maddpg"])
             self.version = int(state["version"])
+            self.busy_s, self.busy_cpu_s = float(state.get("busy_s", 0.0)), float(state.get("busy_cpu_s", 0.0))
         else:  # a fresh run (or a restart before the first checkpoint): the same warm start, if any
             warm_start_from_config(cfg.run.init_from, self.maddpg)
 
@@ -52,6 +56,7 @@ class Learner:
         """
         if batch is None:
             return None, self.report()
+        started, started_cpu = time.perf_counter(), time.thread_time()
         use_weights = any(self.layout.importance_weights)
         picked = []  # the slots and generations each minibatch trained on (LaBER picks them among candidates)
         stats: dict[str, Any] = {}
@@ -66,6 +71,8 @@ class Learner:
         self.version += 1
         self.losses = {f"agent_{a}": {"critic": float(stats["critic_loss"][a]), "actor": float(stats["actor_loss"][a])}
                        for a in range(self.layout.num_agents)}
+        self.busy_s += time.perf_counter() - started
+        self.busy_cpu_s += time.thread_time() - started_cpu
         return LearnerFeedback(slots, generations, td, self.losses, self.incarnation, target), self.report()
 
     def publish(self) -> dict[str, Any]:
@@ -73,12 +80,13 @@ class Learner:
         return {"version": self.version, "weights": published_weights(self.maddpg)}
 
     def report(self) -> Report:
-        """Metrics report (cumulative updates, published version, last losses per agent)."""
+        """Metrics report (cumulative updates, busy seconds, published version, last losses per agent)."""
         return Report(source="learner", role="learner", incarnation=self.incarnation, resumed=self.resumed,
                       checkpoints_refused=self.checkpoints_refused,
                       learner=LearnerReport(updates=int(self.maddpg.updates), weight_version=self.version,
-                                            losses=self.losses))
+                                            losses=self.losses, busy_s=self.busy_s, busy_cpu_s=self.busy_cpu_s))
 
     def save(self) -> str | None:
         """Write the learner checkpoint atomically (torch.save of plain state dicts)."""
-        return save_state(self.checkpoint_path, {"maddpg": self.maddpg.state_dict(), "version": self.version})
+        return save_state(self.checkpoint_path, {"maddpg": self.maddpg.state_dict(), "version": self.version,
+                                                 "busy_s": self.busy_s, "busy_cpu_s": self.busy_cpu_s})

@@ -154,6 +154,8 @@ class ServiceMetrics:
             plan.gauge("icm_loss", icm.loss)
         if (learner := report.learner) is not None:
             plan.count("learner_updates", learner.updates)
+            plan.count("learner_busy_seconds", learner.busy_s)
+            plan.count("learner_busy_cpu_seconds", learner.busy_cpu_s)
             for agent, kinds in (learner.losses or {}).items():
                 for kind, value in kinds.items():
                     plan.gauge("learner_loss", value, (agent, kind))

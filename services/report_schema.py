@@ -117,6 +117,8 @@ class LearnerReport(_Section):
     updates: float | None = None  # N: update steps (all agents at once)
     weight_version: int | None = None  # int >= 0: the version last published
     losses: Mapping[str, Mapping[str, float]] | None = None  # {agent label: {kind label: x}}, kinds critic, actor
+    busy_s: float | None = None  # N: wall seconds inside update calls (the rest of the time it waited for batches)
+    busy_cpu_s: float | None = None  # N: CPU seconds of those calls (the thread that ran them)
 
 
 @dataclass(frozen=True)
@@ -266,8 +268,9 @@ def _parse_fit(path: str, entry: Any) -> FitReport:
 
 def _parse_learner(section: Any) -> LearnerReport:
     """Validate ``learner``."""
-    section = _mapping("learner", section, {"updates", "weight_version", "losses"})
-    values: dict[str, Any] = _numbers("learner", section, (("updates", 0, None),))
+    section = _mapping("learner", section, {"updates", "weight_version", "losses", "busy_s", "busy_cpu_s"})
+    values: dict[str, Any] = _numbers("learner", section, (("updates", 0, None), ("busy_s", 0, None),
+                                                            ("busy_cpu_s", 0, None)))
     if "weight_version" in section:
         values["weight_version"] = int(_number("learner.weight_version", section["weight_version"], lo=0))
     if "losses" in section:

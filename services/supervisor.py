@@ -30,7 +30,7 @@ from cmcl.learning_progress import LearningProgress
 from cmcl.messages import ReplayStatus
 from cmcl.progress import TrainingDiverged, episode_rows, solved, window_summary
 from cmcl.system import layout_of
-from services.call_budget import calls_to_issue
+from services.call_budget import HeldClock, calls_to_issue
 from services.health import (
     CallWatch,
     RecoveryClock,
@@ -79,6 +79,7 @@ class Supervisor:
         self.hung: dict[str, int] = {}  # actors killed for a call in flight longer than service.call_timeout_s
         self.watch = CallWatch(config.service.call_timeout_s)
         self.recovery = RecoveryClock()  # seconds from a dead actor's failed call to its next reply, per role
+        self.held = HeldClock()  # seconds the learner had no call, by what held it back (the replay's pacing)
         self.lags: dict[str, int] = {}  # weight versions each rollout worker / teacher is behind
         self.episodes_logged = 0
         self.solved = False  # the coverage target run.stop_coverage was reached
@@ -330,6 +331,7 @@ class Supervisor:
                 if not collecting and self._caught_up() and self._caught_up(fresh=True):
                     break  # episode target reached; the learner, every teacher and the ICM have caught up
                 self._issue(rollouts=collecting)
+                self.held.tick(time.perf_counter(), self.inflight[("learner", 0)], self.status)
                 self._collect(timeout=0.5)
                 self._kill_hung()
                 now = time.perf_counter()
@@ -344,6 +346,7 @@ class Supervisor:
                         self.progress(self.progress_line())
                     self.run_dir.log(self.view.row(self.status, self.last_replay_report))
                 if now - last_ckpt >= cfg.service.checkpoint_every_s:
+                    self.held.tick(now, self.inflight[("learner", 0)], self.status, during="checkpoint")
                     self.checkpoint()
                     last_ckpt = time.perf_counter()
         except EnvFactoryError as err:  # the user's environment raised: keep the run (final cut, checkpoint), then
@@ -362,5 +365,5 @@ class Supervisor:
                 "recovery_s": {k: list(v) for k, v in self.recovery.times.items()}, "solved": self.solved,
                 "plateau": self.learning_progress.plateaued,
                 "stopped": self.stopped, "episodes_logged": self.episodes_logged,
-                "checkpoint_seconds": list(self.checkpoint_seconds),
+                "checkpoint_seconds": list(self.checkpoint_seconds), "learner_held_s": dict(self.held.seconds),
                 "window": window_summary(self.window), "elapsed_s": time.perf_counter() - self.started}

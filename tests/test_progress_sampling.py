@@ -28,8 +28,8 @@ def test_an_inline_progress_row_reads_its_modes_and_shares():
 
 def test_the_service_line_shows_the_same_parts_from_the_replay_report():
     status = ReplayStatus(allowed_updates=0, allowed_inserts=0, update_deficit=0.0, scoring_deficit=0.0,
-                          teacher_allowed=(), icm_allowed=0, size=500, env_steps=900, episodes=30, updates=40,
-                          lam=0.2, incarnation="x")
+                          teacher_allowed=(), icm_allowed=0, updates_held_by="env_steps", size=500, env_steps=900,
+                          episodes=30, updates=40, lam=0.2, incarnation="x")
     replay = ReplayReport(agent_sampling_ess={"0": 0.3, "1": 0.5}, reward_rows_sampled={"0": 0.01, "1": 0.03},
                           reward_rows_buffer={"0": 0.2, "1": 0.1})
     parts = replay_parts(status, Report(replay=replay), {})

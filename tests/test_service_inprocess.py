@@ -312,8 +312,8 @@ def test_the_supervisor_issues_the_calls_the_allowances_leave_room_for():
     cfg = config_from_dict(in_process_config("cmcl"))  # 4 worlds × 30 steps per chunk, 4 updates / 2 fit steps per call
     chunk = 4 * 30
     status = ReplayStatus(allowed_updates=0, allowed_inserts=3 * chunk, update_deficit=0.0, scoring_deficit=0.0,
-                          teacher_allowed=(0, 0, 0), icm_allowed=0, size=0, env_steps=0, episodes=0, updates=0,
-                          lam=0.1, incarnation="i")
+                          teacher_allowed=(0, 0, 0), icm_allowed=0, updates_held_by="warmup", size=0, env_steps=0,
+                          episodes=0, updates=0, lam=0.1, incarnation="i")
     groups = [[0], [1, 2]]
     calls = calls_to_issue(status, Counter(), cfg, 2, groups, icm=True)
     assert (calls[("rollout", 0)], calls[("rollout", 1)]) == (2, 1), "3 chunks' worth of inserts, 2 per worker"

@@ -68,14 +68,15 @@ class Pacing:
     # ------------------------------------------------------------------ asynchronous form (replay server)
     def status(self, fold_counts: np.ndarray) -> PacingStatus:
         """Work each role may be given now; fold_counts: int64[K] rows stored per fold."""
-        allowed = self.learner.allowed_samples()  # 0 before the warm-up ends
-        for lim in self.scorers:  # the learner may not run ahead of the teachers / ICM by more than their slack
-            allowed = min(allowed, lim.allowed_inserts())
+        own = self.learner.allowed_samples()  # 0 before the warm-up ends
+        # the learner may not run ahead of the teachers / ICM by more than their slack
+        allowed = min([own, *(lim.allowed_inserts() for lim in self.scorers)])
+        held_by = "" if allowed > 0 else "warmup" if not self.warm else "env_steps" if own == 0 else "scores"
         return PacingStatus(allowed_updates=allowed, allowed_inserts=self.learner.allowed_inserts(),
                             update_deficit=self.learner.deficit if self.warm else 0.0,
                             scoring_deficit=self.scoring_deficit(fold_counts),
                             teacher_allowed=tuple(self.teacher_steps_allowed([f]) for f in range(len(self.teachers))),
-                            icm_allowed=self.icm_steps_allowed())
+                            icm_allowed=self.icm_steps_allowed(), updates_held_by=held_by)
 
     def teacher_steps_allowed(self, folds: Iterable[int]) -> int:
         """Fit steps the teachers of `folds` may be given now (each fold within its slack); 0 before warm-up."""

@@ -1,0 +1,423 @@
+"""Where the seconds of a `make run` go (issue 39): the CPU each role of the service uses, and the learner's time split.
+
+First, in this process and before Ray starts, one inline MADDPG update and one inline CMCL update are timed
+(`inline_update_seconds` of bench/learner_throughput.py: the default presets' filled loops, interleaved rounds,
+median, torch on one thread): what one core gives. Then the service runs as `make run` starts it (the Makefile's
+`run:` target: configs/spread_cmcl.toml, run.stop_coverage=0.9, an embedded Ray sized to the machine, the
+reaper, the metrics endpoint; run.max_seconds = --seconds instead of 300; no held-out evaluation afterwards).
+A thread samples every second the CPU seconds (user + system, /proc via psutil) of every process this one started,
+the machine's CPU times, and the service's counters. Processes are named by role: the actors by their own
+`os.getpid()` (asked once before training), the rest by process name (raylet, gcs_server, dashboard, agents, log
+monitor, idle Ray workers, the reaper); this process is the driver, which runs the supervisor (the sampler's own
+CPU is taken off it and shown apart).
+
+The window runs from the first sample after the learner's first update (the end of the warm-up) to the end of the
+budget (the final cut, checkpoint and Ray's shutdown are left out). Per role: CPU seconds in the window, cores
+(CPU s / window s) and the share of all the machine's cores. For the learner, its time split from its own counters
+(`LearnerReport.busy_s` / `busy_cpu_s`: wall and CPU seconds inside update calls) and the supervisor's
+`HeldClock` (seconds with no learner call at all, by what the replay server's pacing held it back for: env steps,
+scores, a checkpoint): computing vs waiting, and waiting for data vs for scores vs with a call in flight (its
+batch being sampled / sent, or its feedback being written).
+
+Run: .venv/bin/python bench/service_breakdown.py [--seconds 120] [--set k=v ...] [--inline-rounds 7]
+     [--out bench/results/service_breakdown/make_run.json]
+Output: the inline costs, a table (one row per role, then totals: the service, the machine, the rest of the
+machine = other sessions), the learner's split, a summary ("the learner ran X updates/s where one core alone gives
+Y"), and the JSON of all numbers with provenance. Read the table's `cores` as "of one core" (2.0 = both cores busy);
+`share` is of all cores together; `ms/upd` is the role's CPU milliseconds per learner update in the window. CPU
+seconds are those the processes got, on a shared machine: a role that waited for the CPU shows as less CPU, not as
+more wall time (the learner's "computing" wall minus CPU shows that wait).
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import os
+import sys
+import threading
+import time
+from bisect import bisect_right
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import psutil
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from cmcl.provenance import LoadSampler, provenance  # noqa: E402
+
+DEFAULT_SECONDS = 120
+DEFAULT_OUT = "bench/results/service_breakdown/make_run.json"
+MAKE_RUN = ["run.stop_coverage=0.9"]  # the Makefile's `run:` settings besides run.dir and run.max_seconds
+SAMPLE_EVERY_S = 1.0
+# Ray's own processes, by a fragment of their command line (first match wins), and the label of their row
+RAY_PROCESSES = (("raylet", "raylet"), ("gcs_server", "gcs_server"), ("dashboard/agent.py", "dashboard agent"),
+                 ("ray::DashboardAgent", "dashboard agent"), ("dashboard.py", "dashboard"),
+                 ("RuntimeEnvAgent", "runtime env agent"), ("runtime_env/agent", "runtime env agent"),
+                 ("log_monitor", "log monitor"), ("autoscaler/_private/monitor", "monitor"),
+                 ("ray::IDLE", "idle Ray workers"))
+# an actor's process title (ray::<Class>[.<method>]) -> its role, for actor processes whose pid was not asked
+ACTOR_CLASSES = {"Learner": "learner", "ReplayServer": "replay server", "RolloutWorker": "rollout worker",
+                 "TeacherWorker": "teachers", "ICMWorker": "ICM"}
+# the groups of the summary, by role label prefix
+GROUPS = (("learner", "learner"), ("teachers", "scoring (teachers + ICM)"), ("ICM", "scoring (teachers + ICM)"),
+          ("rollout worker", "rollout workers"), ("replay server", "replay server"),
+          ("driver", "driver (supervisor)"), ("reaper", "reaper"), ("bench sampler", "bench sampler"))
+
+
+# ----------------------------------------------------------------------------- pure helpers (tested)
+def role_of_process(cmdline: str, actor_roles: dict[int, str], pid: int) -> str:
+    """The role label of a process: its actor role when its pid was asked (`actor_roles`), else by its command
+    line: an actor's title (ray::Learner.update -> "learner"), one of Ray's own processes (RAY_PROCESSES), the
+    reaper (services.reaper), else "other Ray worker" (ray::...) or "other: <first word>"."""
+    if pid in actor_roles:
+        return actor_roles[pid]
+    if cmdline.startswith("ray::"):
+        cls = cmdline[5:].split(".")[0].split()[0] if len(cmdline) > 5 else ""
+        if cls in ACTOR_CLASSES:
+            return ACTOR_CLASSES[cls] + " (pid not asked)"
+    for fragment, label in RAY_PROCESSES:
+        if fragment in cmdline:
+            return label
+    if "services.reaper" in cmdline:
+        return "reaper"
+    if cmdline.startswith("ray::"):
+        return "other Ray worker"
+    return "other: " + (Path(cmdline.split()[0]).name if cmdline.split() else "?")
+
+
+def group_of(role: str) -> str:
+    """The summary group of a role label (GROUPS by prefix; anything else is Ray's own)."""
+    return next((group for prefix, group in GROUPS if role.startswith(prefix)), "Ray's own processes")
+
+
+def cpu_between(samples: list[tuple[float, float]], t0: float, t1: float) -> float:
+    """CPU seconds a process used in [t0, t1] from its (time, cumulative CPU s) samples, in time order: the last
+    sample at or before t1 minus the last at or before t0 (0 when the process was first seen after t0: it started
+    in the window). 0 when no sample falls at or before t1."""
+    times = [t for t, _ in samples]
+    end = bisect_right(times, t1) - 1
+    if end < 0:
+        return 0.0
+    start = bisect_right(times, t0) - 1
+    return max(0.0, samples[end][1] - (samples[start][1] if start >= 0 else 0.0))
+
+
+def core_shares(cpu_s: float, window_s: float, cores: int) -> tuple[float, float]:
+    """(cores used: CPU s per wall s, share of all `cores`) of `cpu_s` CPU seconds over `window_s` seconds."""
+    if window_s <= 0 or cores <= 0:
+        raise ValueError(f"window_s and cores must be > 0, got {window_s!r}, {cores!r}")
+    return cpu_s / window_s, cpu_s / (window_s * cores)
+
+
+def machine_busy(times: Any) -> float:
+    """CPU seconds the machine's cores spent busy (psutil.cpu_times(): user, nice, system, irq, softirq, steal; guest
+    time is already inside user and nice)."""
+    return sum(getattr(times, key, 0.0) for key in ("user", "nice", "system", "irq", "softirq", "steal"))
+
+
+def learner_split(window_s: float, busy_s: float, busy_cpu_s: float, held: dict[str, float]) -> dict[str, float]:
+    """The learner's wall clock over a window: `computing_s` (inside update calls; of it `computing_cpu_s` on the CPU
+    and `computing_off_cpu_s` descheduled), `idle_s` = the rest, of it `held_<reason>_s` with no call at all (the
+    supervisor's HeldClock) and `waiting_with_call_s` = idle minus those (a call in flight: its batch being sampled
+    and sent, or its feedback being written). Shares of the window as `*_share`. Held time above the idle time
+    (the two clocks are read a second apart) is scaled down to it."""
+    idle = max(0.0, window_s - busy_s)
+    held_total = sum(held.values())
+    scale = min(1.0, idle / held_total) if held_total > 0 else 1.0
+    out = {"window_s": window_s, "computing_s": busy_s, "computing_cpu_s": busy_cpu_s,
+           "computing_off_cpu_s": max(0.0, busy_s - busy_cpu_s), "idle_s": idle}
+    out.update({f"held_{reason}_s": seconds * scale for reason, seconds in held.items()})
+    out["waiting_with_call_s"] = max(0.0, idle - held_total * scale)
+    out.update({key.removesuffix("_s") + "_share": value / window_s for key, value in list(out.items())
+                if key != "window_s"})
+    return out
+
+
+# ----------------------------------------------------------------------------- sampling
+@dataclass
+class Sample:
+    """One sample of the service's counters (learner: cumulative from its reports; held: the HeldClock)."""
+
+    t: float
+    updates: float
+    env_steps: float
+    busy_s: float
+    busy_cpu_s: float
+    held: dict[str, float]
+    machine_busy_s: float  # CPU seconds of the whole machine (all cores) so far, every process
+
+
+@dataclass
+class Sampler:
+    """Samples every SAMPLE_EVERY_S the CPU times of this process's descendants and the supervisor's counters, until
+    `deadline` (perf_counter), in a thread."""
+
+    supervisor: Any
+    deadline: float
+    cpu: dict[int, list[tuple[float, float]]] = field(default_factory=dict)  # pid -> [(t, CPU s)]
+    cmdline: dict[int, str] = field(default_factory=dict)
+    nice: dict[int, int] = field(default_factory=dict)
+    samples: list[Sample] = field(default_factory=list)
+    own_cpu: list[tuple[float, float]] = field(default_factory=list)  # (t, this thread's CPU s)
+
+    def __post_init__(self) -> None:
+        self._thread = threading.Thread(target=self._loop, daemon=True, name="breakdown-sampler")
+        self._procs: dict[int, psutil.Process] = {}
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def join(self) -> None:
+        self._thread.join()
+
+    def _loop(self) -> None:
+        while True:
+            now = time.perf_counter()
+            self._sample(now)
+            if now >= self.deadline:
+                return
+            time.sleep(max(0.0, min(SAMPLE_EVERY_S, self.deadline - time.perf_counter())))
+
+    def _sample(self, now: float) -> None:
+        me = psutil.Process()
+        for proc in [me, *me.children(recursive=True)]:
+            proc = self._procs.setdefault(proc.pid, proc)
+            try:
+                times = proc.cpu_times()
+                if proc.pid not in self.cmdline:
+                    self.cmdline[proc.pid] = " ".join(proc.cmdline()) or proc.name()
+                    self.nice[proc.pid] = proc.nice()
+            except psutil.Error:
+                continue
+            self.cpu.setdefault(proc.pid, []).append((now, times.user + times.system))
+        sup, machine = self.supervisor, psutil.cpu_times()
+        value = sup.metrics.value
+        self.samples.append(Sample(
+            t=now, updates=value("cmcl_learner_updates_total") or 0.0, env_steps=value("cmcl_env_steps_total") or 0.0,
+            busy_s=value("cmcl_learner_busy_seconds_total") or 0.0,
+            busy_cpu_s=value("cmcl_learner_busy_cpu_seconds_total") or 0.0, held=dict(sup.held.seconds),
+            machine_busy_s=machine_busy(machine)))
+        self.own_cpu.append((now, time.thread_time()))
+
+
+# ----------------------------------------------------------------------------- the run
+def _actor_pid(_actor: Any) -> int:
+    return os.getpid()
+
+
+def actor_roles(roles: Any) -> dict[int, str]:
+    """{pid: role label} of every actor, asked of each actor once (`__ray_call__`)."""
+    import ray
+
+    named = [(roles.learner, "learner"), (roles.replay, "replay server"),
+             *((w, f"rollout worker {i}") for i, w in enumerate(roles.rollout)),
+             *((t, "teachers (folds " + ",".join(map(str, folds)) + ")")
+               for t, folds in zip(roles.teachers, roles.teacher_groups, strict=True)),
+             *([(roles.icm, "ICM")] if roles.icm is not None else [])]
+    pids = ray.get([handle.__ray_call__.remote(_actor_pid) for handle, _ in named])
+    return {int(pid): label for pid, (_, label) in zip(pids, named, strict=True)}
+
+
+def run_service(config: Any, run: Any, seconds: float) -> tuple[Sampler, dict[int, str], dict[str, Any]]:
+    """The service as `make run` runs it (services.launch: reaper, embedded Ray, metrics endpoint, the roles, the
+    supervisor), sampled by a `Sampler` until the budget ends. Returns (sampler, actor roles, run summary)."""
+    from services.launch import start_ray, stderr_to, stop_ray, unblock_stop_signals
+    from services.metrics import ServiceMetrics
+    from services.placement import create_roles
+    from services.reaper import start_reaper
+    from services.supervisor import Supervisor
+
+    start_reaper()
+    start_ray(None, None)
+    unblock_stop_signals()
+    metrics = ServiceMetrics(seed=config.run.seed)
+    metrics.serve(0, config.service.metrics_host)
+    try:
+        roles = create_roles(config, run)
+        actors = actor_roles(roles)
+        supervisor = Supervisor(config, run, roles, metrics, progress=None)
+        sampler = Sampler(supervisor, supervisor.started + seconds - 0.05)
+        sampler.start()
+        summary = supervisor.run()
+        sampler.join()
+    finally:
+        metrics.close()
+        with stderr_to(run.path / "ray_shutdown.log"):
+            stop_ray()
+    return sampler, actors, summary
+
+
+def breakdown(sampler: Sampler, actors: dict[int, str], cores: int) -> dict[str, Any]:
+    """Rows per role, totals and the learner's split over the window (module docstring)."""
+    first = next((s for s in sampler.samples if s.updates > 0), None)
+    if first is None:
+        raise RuntimeError("the learner never updated within the budget: raise --seconds")
+    last = sampler.samples[-1]
+    t0, t1 = first.t, last.t
+    window = t1 - t0
+    if window <= 0:
+        raise RuntimeError("no sample after the warm-up: raise --seconds")
+    me = os.getpid()
+    sampler_cpu = cpu_between(sampler.own_cpu, t0, t1)
+    rows: dict[str, dict[str, Any]] = {}
+    for pid, samples in sampler.cpu.items():
+        role = "driver (supervisor)" if pid == me else role_of_process(sampler.cmdline.get(pid, ""), actors, pid)
+        cpu = cpu_between(samples, t0, t1) - (sampler_cpu if pid == me else 0.0)
+        row = rows.setdefault(role, {"role": role, "group": group_of(role), "pids": [], "nice": [], "cpu_s": 0.0})
+        row["pids"].append(pid)
+        row["nice"] = sorted({*row["nice"], sampler.nice.get(pid, 0)})
+        row["cpu_s"] += cpu
+    rows["bench sampler"] = {"role": "bench sampler", "group": group_of("bench sampler"), "pids": [me],
+                             "nice": [sampler.nice.get(me, 0)], "cpu_s": sampler_cpu}
+    for row in rows.values():
+        row["cores"], row["share"] = core_shares(row["cpu_s"], window, cores)
+    ordered = sorted(rows.values(), key=lambda r: -r["cpu_s"])
+    service = sum(r["cpu_s"] for r in ordered if r["role"] != "bench sampler")
+    machine = last.machine_busy_s - first.machine_busy_s
+    groups: dict[str, float] = {}
+    for row in ordered:
+        groups[row["group"]] = groups.get(row["group"], 0.0) + row["cpu_s"]
+    held = {k: last.held[k] - first.held[k] for k in last.held}
+    learner = learner_split(window, last.busy_s - first.busy_s, last.busy_cpu_s - first.busy_cpu_s, held)
+    updates, env_steps = last.updates - first.updates, last.env_steps - first.env_steps
+    learner_proc = rows.get("learner", {}).get("cpu_s", 0.0)
+    learner.update(updates=updates, updates_per_s=updates / window,
+                   process_cpu_s=learner_proc, process_cpu_outside_updates_s=learner_proc - learner["computing_cpu_s"],
+                   cpu_ms_per_update=1e3 * learner["computing_cpu_s"] / updates if updates else None,
+                   wall_ms_per_update=1e3 * learner["computing_s"] / updates if updates else None)
+    return {"window_s": window, "window_from_start_s": [t0 - sampler.supervisor.started,
+                                                        t1 - sampler.supervisor.started],
+            "cores": cores, "env_steps": env_steps, "env_steps_per_s": env_steps / window, "roles": ordered,
+            "groups": {g: {"cpu_s": c, "cores": c / window, "share": c / (window * cores)} for g, c in groups.items()},
+            "service_cpu_s": service, "machine_cpu_s": machine, "rest_of_machine_cpu_s": max(0.0, machine - service
+                                                                                              - sampler_cpu),
+            "learner": learner}
+
+
+# ----------------------------------------------------------------------------- printing
+def print_table(result: dict[str, Any]) -> None:
+    window, cores = result["window_s"], result["cores"]
+    print(f"\nwindow: {window:.1f} s of steady state (from {result['window_from_start_s'][0]:.1f} s after the "
+          f"supervisor started, the learner's first update, to the budget's end); {cores} cores")
+    print(f"{'role':34s} {'pids':>4s} {'nice':>6s} {'CPU s':>8s} {'cores':>6s} {'share':>6s} {'ms/upd':>8s}")
+    updates = result["learner"]["updates"]
+
+    def per_update(cpu: float) -> str:
+        return f"{1e3 * cpu / updates:8.2f}" if updates else f"{'-':>8s}"
+
+    for row in result["roles"]:
+        print(f"{row['role']:34s} {len(row['pids']):4d} {','.join(map(str, row['nice'])):>6s} {row['cpu_s']:8.1f} "
+              f"{row['cores']:6.2f} {100 * row['share']:5.1f}% {per_update(row['cpu_s'])}")
+    for label, cpu in (("all of the service (no sampler)", result["service_cpu_s"]),
+                       ("the whole machine", result["machine_cpu_s"]),
+                       ("rest of the machine (other work)", result["rest_of_machine_cpu_s"])):
+        used, share = core_shares(cpu, window, cores)
+        print(f"{label:34s} {'':4s} {'':>6s} {cpu:8.1f} {used:6.2f} {100 * share:5.1f}% "
+              f"{per_update(cpu) if label.startswith('all') else ''}".rstrip())
+    print("\nby group:")
+    for group, g in sorted(result["groups"].items(), key=lambda kv: -kv[1]["cpu_s"]):
+        print(f"  {group:32s} {g['cpu_s']:8.1f} CPU s  {g['cores']:5.2f} cores  {100 * g['share']:5.1f}% of {cores}"
+              f"  {per_update(g['cpu_s'])} CPU ms per update")
+    ln = result["learner"]
+    print(f"\nlearner: {ln['updates']:.0f} updates in the window, {ln['updates_per_s']:.1f} updates/s; rollouts "
+          f"{result['env_steps_per_s']:.0f} env steps/s")
+    print(f"  computing (inside update calls) {ln['computing_s']:7.1f} s  {100 * ln['computing_share']:5.1f}%   "
+          f"of which on the CPU {ln['computing_cpu_s']:.1f} s, descheduled {ln['computing_off_cpu_s']:.1f} s")
+    print(f"  idle                            {ln['idle_s']:7.1f} s  {100 * ln['idle_share']:5.1f}%")
+    for key, label in (("held_env_steps", "no call: held by env steps (data)"),
+                       ("held_scores", "no call: held by scores"),
+                       ("held_checkpoint", "no call: checkpoint"), ("held_warmup", "no call: warm-up"),
+                       ("held_other", "no call: other"), ("waiting_with_call", "a call in flight (batch / feedback)")):
+        print(f"    {label:36s}{ln[key + '_s']:7.1f} s  {100 * ln[key + '_share']:5.1f}%")
+    if ln["cpu_ms_per_update"] is not None:
+        print(f"  per update: {ln['wall_ms_per_update']:.2f} ms wall, {ln['cpu_ms_per_update']:.2f} ms CPU in update "
+              f"calls; learner process CPU outside update calls {ln['process_cpu_outside_updates_s']:.1f} s "
+              f"(Ray's threads in it: receiving batches, sending feedback and weights)")
+
+
+def print_summary(result: dict[str, Any], inline: dict[str, float] | None, load: dict[str, Any]) -> None:
+    ln, groups, cores = result["learner"], result["groups"], result["cores"]
+    print("\nsummary:")
+    if inline:
+        print(f"  the learner ran {ln['updates_per_s']:.1f} updates/s where one core alone gives "
+              f"{1 / inline['maddpg']:.1f} (an inline MADDPG update, {1e3 * inline['maddpg']:.2f} ms) and "
+              f"{1 / inline['cmcl']:.1f} (an inline CMCL update with its teachers, ICM and scoring, "
+              f"{1e3 * inline['cmcl']:.2f} ms), measured in this process before the service")
+    else:
+        print(f"  the learner ran {ln['updates_per_s']:.1f} updates/s (inline costs not measured: --inline-rounds 0)")
+    service_ms = 1e3 * result["service_cpu_s"] / ln["updates"] if ln["updates"] else float("nan")
+    print(f"  the service used {result['service_cpu_s'] / result['window_s']:.2f} cores, {service_ms:.1f} CPU ms per "
+          f"learner update in all (the learner's own update calls: {ln['cpu_ms_per_update'] or float('nan'):.1f})")
+    print(f"  the learner computed {100 * ln['computing_share']:.0f}% of the window and was idle "
+          f"{100 * ln['idle_share']:.0f}% (held by env steps {100 * ln['held_env_steps_share']:.0f}%, by scores "
+          f"{100 * ln['held_scores_share']:.0f}%, checkpoints {100 * ln['held_checkpoint_share']:.0f}%, with a call in "
+          f"flight {100 * ln['waiting_with_call_share']:.0f}%)")
+    for group, g in sorted(groups.items(), key=lambda kv: -kv[1]["cpu_s"]):
+        print(f"  {group}: {g['cores']:.2f} cores ({100 * g['share']:.0f}% of {cores})")
+    rest = result["rest_of_machine_cpu_s"] / result["window_s"]
+    print(f"  rest of the machine (other sessions' work): {rest:.2f} cores; 1-minute load average during the run "
+          f"{load['load_mean']} mean, {load['load_max']} max")
+
+
+# ----------------------------------------------------------------------------- main
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seconds", type=float, default=DEFAULT_SECONDS,
+                        help=f"the service's budget, run.max_seconds (default {DEFAULT_SECONDS}; make run: 300)")
+    parser.add_argument("--config", default="configs/spread_cmcl.toml")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], help="more config overrides k=v")
+    parser.add_argument("--inline-rounds", type=int, default=7, help="interleaved rounds of the inline costs (0: skip)")
+    parser.add_argument("--inline-updates", type=int, default=30, help="updates per round of the inline costs")
+    parser.add_argument("--run-dir", default="runs/bench_service_breakdown")
+    parser.add_argument("--out", default=DEFAULT_OUT, help=f"the JSON (default {DEFAULT_OUT}; '' = none)")
+    args = parser.parse_args(argv)
+
+    import torch
+
+    from cmcl.config import load_config
+    from cmcl.config.toml_io import dump_toml
+    from cmcl.io.rundir import RunDirectory
+
+    torch.set_num_threads(1)
+    load_before = os.getloadavg()
+    inline = None
+    if args.inline_rounds > 0:
+        from bench.learner_throughput import inline_update_seconds
+
+        inline, _ = inline_update_seconds(args.inline_rounds, args.inline_updates)
+        gc.collect()
+        print(f"inline, one core: MADDPG update {1e3 * inline['maddpg']:.2f} ms ({1 / inline['maddpg']:.1f} "
+              f"updates/s), CMCL update {1e3 * inline['cmcl']:.2f} ms ({1 / inline['cmcl']:.1f} updates/s)")
+    overrides = [*MAKE_RUN, f"run.max_seconds={args.seconds:g}", *args.overrides, f"run.dir={args.run_dir}"]
+    config = load_config(args.config, overrides)
+    run = RunDirectory.create(args.run_dir, config, overwrite=True)
+    cores = psutil.cpu_count()
+    with LoadSampler(every_s=5.0) as load:
+        sampler, actors, summary = run_service(config, run, args.seconds)
+    result = breakdown(sampler, actors, cores)
+    print(f"config {args.config} {overrides}; {cores} cores; load average before {load_before[0]:.2f}")
+    print_table(result)
+    print_summary(result, inline, load.summary())
+    record = {"command": " ".join(["bench/service_breakdown.py", *(argv if argv is not None else sys.argv[1:])]),
+              "config": args.config, "overrides": overrides, "seconds": args.seconds,
+              "inline_seconds_per_update": inline,
+              "inline": {"rounds": args.inline_rounds, "updates": args.inline_updates},
+              "breakdown": result, "load": {**load.summary(), "before": [round(x, 2) for x in load_before]},
+              "run": {k: summary.get(k) for k in ("episodes", "env_steps", "updates", "elapsed_s", "solved",
+                                                  "failures", "hung", "checkpoint_seconds", "learner_held_s")},
+              "provenance": provenance(dump_toml(config))}
+    if args.out:
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(record, indent=1, default=float) + "\n")
+        print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
