@@ -50,7 +50,7 @@ system-deps:
 		"tests/test_live_dashboard.py will skip"; fi
 
 test: install system-deps
-	$(BIN)/python -m pytest $(TEST_ARGS)
+	$(BIN)/python -m pytest -n 2 --dist loadfile $(TEST_ARGS)
 
 # The cases kept out of `make test` for its 10-minute budget (marker `extended`: more runners, faults and
 # environments of paths the default run covers once). The hours-long learning runs stay under `-m slow`.

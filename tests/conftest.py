@@ -1,5 +1,10 @@
 """Shared fixtures. Service tests share ONE embedded 2-CPU Ray for the whole session, shut down at the end. The
-tiny config (a preset shrunk so that a run takes seconds, tests/tiny.py) is a fixture here, for every test module."""
+tiny config (a preset shrunk so that a run takes seconds, tests/tiny.py) is a fixture here, for every test module.
+
+`make test` runs the suite in two processes (pytest-xdist, `-n 2 --dist loadfile`): a module's tests run in one of
+them, so its module-scoped fixtures (e.g. the live Prometheus) start once; each process that runs a service test
+starts its own session Ray. (`--dist loadgroup` would keep the service tests on one Ray, but pytest-xdist 3.8 cannot
+group under pytest 9.2: the group suffix it writes to `item._nodeid` is no longer what `nodeid` reads.)"""
 
 from __future__ import annotations
 

@@ -224,8 +224,8 @@ def test_make_resume_trains_a_finished_run_for_more_episodes(tmp_path, tiny_conf
     resume` finds the runner that wrote the run. The same target on `make run`'s service run is the extended test
     below; the service's resume itself stays in the default run (tests/test_service_ray.py)."""
     config = tiny_config_file("maddpg", dir=str(tmp_path / "run"), episodes=4, checkpoint_every=4, log_every=4)
-    trained = subprocess.run([PY, "-m", "cmcl", "train", "--config", str(config), "--quiet", "--no-eval"], cwd=ROOT,
-                             capture_output=True, text=True, timeout=300)
+    trained = subprocess.run([PY, "-m", "cmcl", "train", "--runner", "inline", "--config", str(config), "--quiet",
+                              "--no-eval"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert trained.returncode == 0, trained.stderr
     make_resume(tmp_path / "run", "episodes")
 
