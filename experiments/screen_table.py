@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from experiments.grids import SCREEN_ARMS, SCREEN_REFERENCES, SCREEN_SEEDS
+from cmcl.algorithms import spec_of
+from experiments.grids import SCREEN_ARMS, SCREEN_REFERENCES, SCREEN_SEEDS, rule_algorithm
 from experiments.labels import ARM_LABEL
 from experiments.provenance import cell_versions
 from experiments.stats import fmt
@@ -67,8 +68,16 @@ def arm_table(runs: list[dict[str, Any]], roles: dict[str, str]) -> str:
 
 
 def screen_table(runs: list[dict[str, Any]]) -> str:
-    """The screen per arm (arm_table): the candidates and the references run beside them."""
-    return arm_table(runs, {arm: "reference" if arm in SCREEN_REFERENCES else "candidate" for arm in SCREEN_ARMS})
+    """The screen per arm (arm_table): the candidates and the references run beside them, and a note on the ESS of
+    the arms whose learner picks among candidates, once one has a run."""
+    table = arm_table(runs, {arm: "reference" if arm in SCREEN_REFERENCES else "candidate" for arm in SCREEN_ARMS})
+    pickers = [ARM_LABEL[arm] for arm, sets in SCREEN_ARMS.items()
+               if spec_of(rule_algorithm(sets)).candidates > 1 and arm_runs(runs, arm)]
+    if not pickers:
+        return table
+    return table + (f"\n\nESS is that of the buffer's draw; for {', '.join(pickers)} that is the uniform candidate "
+                    "batch (1.00 by construction), and the learner's pick among the candidates shows in the reward "
+                    "rows' ratio, which the inline runner measures on the picked rows.")
 
 
 @dataclass(frozen=True)
