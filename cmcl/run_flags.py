@@ -17,18 +17,18 @@ import shutil
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal, get_args
+from typing import get_args
 
 from cmcl.config import Config, ConfigError, apply_overrides, config_from_dict, load_data
-from cmcl.config.runners import check_runner_keys
+from cmcl.config.runners import Runner, check_runner_keys
 from cmcl.envs.factory import EnvFactoryError
 from cmcl.io.rundir import MetricsError, RunDirectory
 from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
 from cmcl.io.verified import CheckpointError
 
-Runner = Literal["inline", "service"]
 RUNNERS: tuple[str, ...] = get_args(Runner)
-# the inline runner serves no metrics and starts no Ray: these flags are the service's only
+# the inline runner serves no metrics and starts no Ray: these flags are the service's only (flags, not config
+# keys: cmcl.config.runners says why RUNNER_ONLY is another table)
 SERVICE_ONLY_FLAGS = {"address": "--address", "num_cpus": "--num-cpus", "ray_metrics_port": "--ray-metrics-port",
                       "metrics_port": "--metrics-port", "metrics_host": "--metrics-host"}
 

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from cmcl.algorithms import PAPER_ALGORITHMS
 from cmcl.provenance import code_state
+from experiments.confirm_arms import ConfirmNotReady, has_permuted_control
 from experiments.grids import (
     ABLATIONS,
     CONFIRM_SEEDS,
@@ -31,10 +32,8 @@ from experiments.grids import (
     SCALE_CELLS,
     SCREEN_ARMS,
     SCREEN_REFERENCES,
-    ConfirmNotReady,
     Run,
     grid,
-    has_permuted_control,
     prefix_reference_runs,
     rule_algorithm,
 )

@@ -20,8 +20,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from experiments.confirm_arms import CONFIRM_REFERENCES, confirm_arms
 from experiments.curriculum_tables import ALPHA, NAVIGATION, Test, curriculum_test_rows, format_tests
-from experiments.grids import CONFIRM_REFERENCES, CONFIRM_SEEDS, confirm_arms
+from experiments.grids import CONFIRM_SEEDS
 from experiments.labels import ARM_LABEL, PERMUTED
 from experiments.screen_table import arm_table
 from experiments.stats import difference

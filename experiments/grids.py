@@ -18,8 +18,8 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
 * ``screen`` (issue 36): candidate sampling rules of the registry (cmcl.algorithms) on the harder task, seeds
   100-104 (SCREEN_ARMS), MADDPG and PER-MADDPG beside them for reference;
 * ``confirm`` (issue 36): the rules the screen's committed summaries select (experiments.screen_table.selection),
-  MADDPG, PER-MADDPG and each selected rule's permuted control, on the harder task, seeds 0-19 (`confirm_arms`); it
-  refuses to exist (ConfirmNotReady) while the screen has no selection;
+  MADDPG, PER-MADDPG and each selected rule's permuted control, on the harder task, seeds 0-19; its arms
+  (experiments.confirm_arms) refuse to exist (ConfirmNotReady) while the screen has no selection;
 * ``make_run`` (issue 35): the exact `make run` (MAKE_RUN), one run per seed; run it with --jobs 1 on an idle
   machine;
 * ``schedule``: time to solve navigation with MADDPG inline, maddpg.update_every x maddpg.batch_size, each run
@@ -41,12 +41,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from cmcl.algorithms import PAPER_ALGORITHMS, build_sampler, spec_of
-from cmcl.replay.priority import EPS_P
-from cmcl.replay.sampling import SamplerArgs
-from experiments.labels import PERMUTED
+from cmcl.algorithms import PAPER_ALGORITHMS
 from experiments.own_envs import OWN_ENV_LOG_EVERY, OWN_ENVS
-from experiments.store import ResultsStore
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
@@ -99,9 +95,8 @@ SCREEN_ARMS: dict[str, list[str]] = {
 SCREEN_REFERENCES = ("maddpg", "per")  # run beside the candidates, never selected
 SCREEN_SEEDS = (100, 101, 102, 103, 104)
 # The confirmation of issue 36 (protocol in docs/RESULTS.md, "the confirmation's protocol"): its arms come from the
-# screen's selection (`confirm_arms`), 20 seeds per arm, MADDPG and PER-MADDPG beside the selected rules.
+# screen's selection (experiments.confirm_arms), 20 seeds per arm, MADDPG and PER-MADDPG beside the selected rules.
 CONFIRM_SEEDS = tuple(range(20))
-CONFIRM_REFERENCES = ("maddpg", "per")
 
 ABLATIONS = {  # name -> (config file, --set overrides, episode budget or None for the grid's) of CMCL variants
     "eta0": ("spread_cmcl.toml", ["teams.agent.eta=0.0"], None),
@@ -254,49 +249,6 @@ def rule_runs(name: str, arms: dict[str, list[str]], seed: int, budget: int) -> 
             for arm, sets in arms.items()]
 
 
-class ConfirmNotReady(ValueError):
-    """The confirmation's arms cannot be derived: the screen has no selection yet, or a selected rule has no
-    permuted control."""
-
-
-def has_permuted_control(algorithm: str) -> bool:
-    """Whether the permuted control acts on `algorithm`'s sampling. The buffer shuffles the priorities of the samplers
-    that recompute them, and under the control a sampler recomputes exactly when it holds priorities of its own; a
-    rule whose learner picks each minibatch among candidates (the registry's `candidates` > 1: LaBER, by a fresh
-    |δ|) has those |δ| shuffled across its candidates (cmcl.replay.rules.laber.candidate_orders). Uniform replay
-    has neither."""
-    args = SamplerArgs(capacity=1, alpha=1.0, backend="cdf", eps=EPS_P, algorithm=algorithm, permuted=True)
-    return bool(build_sampler(algorithm, args).recomputes) or spec_of(algorithm).candidates > 1
-
-
-def confirm_arms(chosen: Sequence[str]) -> dict[str, list[str]]:
-    """The confirmation's arms (arm -> --set overrides) for the screen's chosen arms: each chosen arm with its screen
-    overrides and its permuted control "<arm>_permuted" (the same overrides and PERMUTED_CONTROL), then MADDPG and
-    PER-MADDPG. ConfirmNotReady when a chosen rule has no permuted control (`has_permuted_control`)."""
-    lacking = [arm for arm in chosen if not has_permuted_control(rule_algorithm(SCREEN_ARMS[arm]))]
-    if lacking:
-        raise ConfirmNotReady(f"the permuted control does not act on the selected {lacking} (no priorities held in "
-                              f"the buffer, nor a pick among candidates, to shuffle); the confirmation's protocol "
-                              f"needs one for each chosen rule")
-    arms = {}
-    for arm in chosen:
-        arms[arm], arms[f"{arm}{PERMUTED}"] = SCREEN_ARMS[arm], [*SCREEN_ARMS[arm], PERMUTED_CONTROL]
-    return arms | {arm: SCREEN_ARMS[arm] for arm in CONFIRM_REFERENCES}
-
-
-def screen_choice(screen: Path) -> tuple[str, ...]:
-    """The screen's selected arms from the summaries of the results folder `screen`; ConfirmNotReady, naming the
-    screen runs still missing, while there is no selection."""
-    from experiments.screen_table import selection  # it reads this module's SCREEN_ARMS
-
-    chosen = selection(ResultsStore(screen).load())
-    if not chosen.chosen:
-        raise ConfirmNotReady(f"the confirmation's arms are the screen's selection and there is none yet: "
-                              f"{chosen.missing} of {chosen.expected} screen runs missing in {screen}"
-                              + ("" if chosen.missing else f" ({chosen.reason()})"))
-    return chosen.chosen
-
-
 def ablation_runs(seed: int, budget: int) -> list[Run]:
     return [Run(f"ablation_{name}_s{seed}", "ablations", "spread", "cmcl", None, seed,
                 min(budget, own_budget or budget), ablation=name, config=config, sets=tuple(sets))
@@ -368,6 +320,8 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str] = PAPER_ALGOR
     unknown = sorted(set(names) - set(GRIDS))
     if unknown:
         raise ValueError(f"grid: unknown {unknown}; known {sorted(GRIDS)}")
+    from experiments.confirm_arms import confirm_arms, screen_choice  # here, not at the top: it imports this module
+
     confirm = confirm_arms(screen_choice(screen or GRIDS["screen"])) if "confirm" in names else {}
     runs = []
     for seed in seeds:

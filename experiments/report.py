@@ -44,7 +44,8 @@ from experiments.grids import GRIDS, RESULTS
 from experiments.labels import ARM_LABEL
 from experiments.make_run_table import make_run_table
 from experiments.own_envs import own_env_table
-from experiments.quoted import NO_RUNS, quoted_blocks
+from experiments.quoted import quoted_blocks
+from experiments.quoted_words import NO_RUNS
 from experiments.screen_table import screen_selection, screen_table, selection
 from experiments.stalls import early_learner_table, load_stalls, stall_table
 from experiments.store import ResultsStore

@@ -9,6 +9,7 @@ import pytest
 
 from cmcl.algorithms import ALGORITHMS, spec_of
 from experiments.__main__ import build_parser, main, selected_runs
+from experiments.confirm_arms import ConfirmNotReady, confirm_arms, has_permuted_control
 from experiments.confirm_tables import GOAL, confirm_table, confirm_tests, families
 from experiments.curriculum_tables import curriculum_test_rows, format_tests
 from experiments.grids import (
@@ -17,10 +18,7 @@ from experiments.grids import (
     PERMUTED_CONTROL,
     SCREEN_ARMS,
     SCREEN_SEEDS,
-    ConfirmNotReady,
-    confirm_arms,
     grid,
-    has_permuted_control,
     team_sets,
 )
 from experiments.report import NO_RUNS, blocks

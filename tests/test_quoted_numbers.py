@@ -8,7 +8,8 @@ import re
 import pytest
 
 from experiments.grids import ROOT
-from experiments.quoted import headline, p_text
+from experiments.quoted_curriculum import headline
+from experiments.quoted_words import p_text
 from experiments.report import blocks, update
 
 PAGES = ("README.md", "docs/LEARNING.md")

@@ -14,7 +14,7 @@ team's table; a team's own old key (teams.<team>.alpha) goes to that team's tabl
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 from cmcl.config.checks import ConfigError
@@ -31,20 +31,27 @@ GLOBAL_MOVED: dict[tuple[str, str], str] = {
 TEAM_MOVED: dict[str, str] = {"alpha": "alpha", "uniform_floor": "uniform_floor"}
 
 
-def refuse_moved(data: Mapping[str, Any]) -> None:
-    """ConfigError naming the first moved key of nested `data` (as parsed from TOML, `--set` applied), its value and
-    the key that replaced it."""
+def moved_keys(data: Mapping[str, Any]) -> Iterator[tuple[str | None, str, Mapping[str, Any], str, str]]:
+    """The one walk over the tables of moved keys: every moved key of nested `data`, the global ones first, then each
+    team's, as (team, its old dotted name, the table that holds it, its key there, its key in teams.<team>.priority);
+    team None for a global key (it applies to every team). The caller may pop the key from its table."""
     for (section, key), new in GLOBAL_MOVED.items():
         table = data.get(section)
         if isinstance(table, Mapping) and key in table:
-            raise ConfigError(f"{section}.{key} moved to teams.<team>.priority.{new} (one per team); set that "
-                              f"instead, got {table[key]!r}")
+            yield None, f"{section}.{key}", table, key, new
     teams = data.get("teams")
     for team, table in (teams.items() if isinstance(teams, Mapping) else ()):
         for key, new in TEAM_MOVED.items():
             if isinstance(table, Mapping) and key in table:
-                raise ConfigError(f"teams.{team}.{key} moved to teams.{team}.priority.{new}; set that instead, got "
-                                  f"{table[key]!r}")
+                yield team, f"teams.{team}.{key}", table, key, new
+
+
+def refuse_moved(data: Mapping[str, Any]) -> None:
+    """ConfigError naming the first moved key of nested `data` (as parsed from TOML, `--set` applied), its value and
+    the key that replaced it."""
+    for team, old, table, key, new in moved_keys(data):
+        place = f"teams.<team>.priority.{new} (one per team)" if team is None else f"teams.{team}.priority.{new}"
+        raise ConfigError(f"{old} moved to {place}; set that instead, got {table[key]!r}")
 
 
 def migrate_moved(data: Mapping[str, Any], team_names: tuple[str, ...]) -> dict[str, Any]:
@@ -52,28 +59,24 @@ def migrate_moved(data: Mapping[str, Any], team_names: tuple[str, ...]) -> dict[
     `team_names`: the teams when `data` has no [teams] tables (the run's defaults). Data without a moved key comes
     back equal."""
     out = {name: dict(table) if isinstance(table, Mapping) else table for name, table in data.items()}
-    moved_global = {}
-    for (section, key), new in GLOBAL_MOVED.items():
-        table = out.get(section)
-        if isinstance(table, dict) and key in table:
-            moved_global[new] = table.pop(key)
-    teams_data = out.get("teams")
-    if not isinstance(teams_data, Mapping):
+    if isinstance(out.get("teams"), Mapping):
+        out["teams"] = {team: dict(table) if isinstance(table, Mapping) else table
+                        for team, table in out["teams"].items()}
+    moved: dict[str | None, dict[str, Any]] = {}  # team (None: every team) -> {key in its priority table: value}
+    for team, _, table, key, new in moved_keys(out):
+        moved.setdefault(team, {})[new] = table.pop(key)
+    moved_global = moved.pop(None, {})
+    teams = out.get("teams")
+    if not isinstance(teams, Mapping):
         if not moved_global:
             return out
-        teams_data = {name: {} for name in team_names}
-    teams = {}
-    for team, table in teams_data.items():
-        table = dict(table) if isinstance(table, Mapping) else table
+        teams = {name: {} for name in team_names}
+    for team, table in teams.items():
         if isinstance(table, dict):
             priority = dict(table.get("priority", {}))
-            for key, new in TEAM_MOVED.items():
-                if key in table:
-                    priority.setdefault(new, table.pop(key))
-            for new, value in moved_global.items():
+            for new, value in [*moved.get(team, {}).items(), *moved_global.items()]:
                 priority.setdefault(new, value)
             if priority:
                 table["priority"] = priority
-        teams[team] = table
     out["teams"] = teams
     return out

@@ -28,6 +28,11 @@ not honour is then
     named in a one-line note on stderr, with what the chosen runner does instead, so that nothing is ignored
     silently.
 A resumed run's stored config.toml was checked when the run started: only the resume's own overrides are checked.
+
+The service-only flags of cmcl.run_flags (SERVICE_ONLY_FLAGS) are another idea, kept apart from this table: they are
+flags of the command, refused from the request before any config is read, and three of them (--address, --num-cpus,
+--ray-metrics-port) name no config key, while the two that do (--metrics-port, --metrics-host) reach this check as
+the service.* overrides they stand for.
 """
 
 from __future__ import annotations

@@ -1,0 +1,62 @@
+"""The confirmation's arms (issue 36; protocol in docs/RESULTS.md, "the confirmation's protocol"), derived from the
+screen: the rules the screen's committed summaries select (`screen_choice`, by experiments.screen_table.selection),
+each with its permuted control, then MADDPG and PER-MADDPG (`confirm_arms`); ConfirmNotReady while the screen has no
+selection or a selected rule has no permuted control. The registry (experiments.grids) makes the confirm grid's runs
+of these arms; this module reads its screen arms and permuted-control key.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+from cmcl.algorithms import build_sampler, spec_of
+from cmcl.replay.priority import EPS_P
+from cmcl.replay.sampling import SamplerArgs
+from experiments.grids import PERMUTED_CONTROL, SCREEN_ARMS, rule_algorithm
+from experiments.labels import PERMUTED
+from experiments.screen_table import selection
+from experiments.store import ResultsStore
+
+CONFIRM_REFERENCES = ("maddpg", "per")  # beside the selected rules and their controls, never selected
+
+
+class ConfirmNotReady(ValueError):
+    """The confirmation's arms cannot be derived: the screen has no selection yet, or a selected rule has no
+    permuted control."""
+
+
+def has_permuted_control(algorithm: str) -> bool:
+    """Whether the permuted control acts on `algorithm`'s sampling. The buffer shuffles the priorities of the samplers
+    that recompute them, and under the control a sampler recomputes exactly when it holds priorities of its own; a
+    rule whose learner picks each minibatch among candidates (the registry's `candidates` > 1: LaBER, by a fresh
+    |δ|) has those |δ| shuffled across its candidates (cmcl.replay.rules.laber.candidate_orders). Uniform replay
+    has neither."""
+    args = SamplerArgs(capacity=1, alpha=1.0, backend="cdf", eps=EPS_P, algorithm=algorithm, permuted=True)
+    return bool(build_sampler(algorithm, args).recomputes) or spec_of(algorithm).candidates > 1
+
+
+def confirm_arms(chosen: Sequence[str]) -> dict[str, list[str]]:
+    """The confirmation's arms (arm -> --set overrides) for the screen's chosen arms: each chosen arm with its screen
+    overrides and its permuted control "<arm>_permuted" (the same overrides and PERMUTED_CONTROL), then MADDPG and
+    PER-MADDPG. ConfirmNotReady when a chosen rule has no permuted control (`has_permuted_control`)."""
+    lacking = [arm for arm in chosen if not has_permuted_control(rule_algorithm(SCREEN_ARMS[arm]))]
+    if lacking:
+        raise ConfirmNotReady(f"the permuted control does not act on the selected {lacking} (no priorities held in "
+                              f"the buffer, nor a pick among candidates, to shuffle); the confirmation's protocol "
+                              f"needs one for each chosen rule")
+    arms = {}
+    for arm in chosen:
+        arms[arm], arms[f"{arm}{PERMUTED}"] = SCREEN_ARMS[arm], [*SCREEN_ARMS[arm], PERMUTED_CONTROL]
+    return arms | {arm: SCREEN_ARMS[arm] for arm in CONFIRM_REFERENCES}
+
+
+def screen_choice(screen: Path) -> tuple[str, ...]:
+    """The screen's selected arms from the summaries of the results folder `screen`; ConfirmNotReady, naming the
+    screen runs still missing, while there is no selection."""
+    chosen = selection(ResultsStore(screen).load())
+    if not chosen.chosen:
+        raise ConfirmNotReady(f"the confirmation's arms are the screen's selection and there is none yet: "
+                              f"{chosen.missing} of {chosen.expected} screen runs missing in {screen}"
+                              + ("" if chosen.missing else f" ({chosen.reason()})"))
+    return chosen.chosen
