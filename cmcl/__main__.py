@@ -22,6 +22,7 @@ import importlib
 import shlex
 import sys
 
+from cmcl.io.resume_hint import python_command
 from cmcl.io.rundir import RunDirectory
 from cmcl.run_flags import (
     RUNNERS,
@@ -29,7 +30,6 @@ from cmcl.run_flags import (
     RunRequestError,
     add_evaluate_flags,
     add_run_flags,
-    python_command,
     request_from,
 )
 from cmcl.stopping import exit_without_teardown

@@ -11,9 +11,6 @@ This module imports neither a runner, torch nor Ray: `--help` stays fast and `cm
 from __future__ import annotations
 
 import argparse
-import os
-import shlex
-import shutil
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -22,6 +19,7 @@ from typing import get_args
 from cmcl.config import Config, ConfigError, apply_overrides, config_from_dict, load_data
 from cmcl.config.runners import Runner, check_runner_keys
 from cmcl.envs.factory import EnvFactoryError
+from cmcl.io.resume_hint import resume_command
 from cmcl.io.rundir import MetricsError, RunDirectory
 from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
 from cmcl.io.verified import CheckpointError
@@ -95,24 +93,6 @@ class RunRequest:
         if self.metrics_host is not None:
             extra.append(f'service.metrics_host="{self.metrics_host}"')
         return tuple(extra)
-
-
-def python_command() -> str:
-    """This interpreter as the user can type it: `python` when that is the one on PATH, else its path, relative to the
-    working directory when below it (after `make run`, whose venv is not activated: `.venv/bin/python`)."""
-    on_path = shutil.which("python")
-    if on_path and os.path.abspath(on_path) == os.path.abspath(sys.executable):  # not resolved: a venv's python is a
-        return "python"  # symlink to the base interpreter, a different environment
-    relative = os.path.relpath(sys.executable)
-    if relative.startswith(".."):
-        return shlex.quote(os.path.abspath(sys.executable))
-    return shlex.quote(relative if os.sep in relative else os.path.join(".", relative))  # a bare name means PATH
-
-
-def resume_command(run_dir: object) -> str:
-    """The command that resumes the run in `run_dir`, whichever runner wrote it (printed when a run stops early), as
-    a shell line that works where it is printed."""
-    return f"{python_command()} -m cmcl resume {shlex.quote(str(run_dir))}"
 
 
 def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:

@@ -10,7 +10,8 @@ its ``<!-- name:begin -->`` / ``<!-- name:end -->`` markers) and the figures.
     python -m experiments report [--update docs/RESULTS.md]
     python -m experiments figures
 
-Modules: grids (the registry: which runs, which results folder), runner (subprocesses that die with the runner;
+Modules: grids (the registry: which runs, which results folder), run_spec (what a run is: `Run`, and ROOT),
+screen_arms (the screen's arms, seeds and the permuted control's key), runner (subprocesses that die with the runner;
 the resume rule), measures (one run's summary), store (summaries on disk, and the older time-to-solve log),
 stats (intervals and tests), tables / curriculum_tables / screen_table / confirm_tables (markdown), figures
 (PNGs), report (the blocks of docs/RESULTS.md).

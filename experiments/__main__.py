@@ -28,18 +28,15 @@ from experiments.grids import (
     CURRICULUM_ARMS,
     EPISODES,
     GRIDS,
-    ROOT,
     SCALE_CELLS,
-    SCREEN_ARMS,
-    SCREEN_REFERENCES,
-    Run,
     grid,
     prefix_reference_runs,
-    rule_algorithm,
 )
 from experiments.labels import PERMUTED
 from experiments.report import blocks, figures, update
+from experiments.run_spec import ROOT, Run
 from experiments.runner import run_grid
+from experiments.screen_arms import SCREEN_ARMS, SCREEN_REFERENCES, rule_algorithm
 from experiments.stalls import analyse_folder
 from experiments.store import ResultsStore
 

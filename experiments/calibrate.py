@@ -26,8 +26,9 @@ from cmcl.config import load_config
 from cmcl.evaluate import evaluate_policy
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
-from experiments.grids import RESULTS, ROOT
+from experiments.grids import RESULTS
 from experiments.measures import WINDOW
+from experiments.run_spec import ROOT
 from experiments.runner import die_with_parent
 
 CANDIDATES = {  # name -> --set overrides of configs/spread_maddpg.toml (every other value: the shared defaults)

@@ -2,7 +2,7 @@
 screen: the rules the screen's committed summaries select (`screen_choice`, by experiments.screen_table.selection),
 each with its permuted control, then MADDPG and PER-MADDPG (`confirm_arms`); ConfirmNotReady while the screen has no
 selection or a selected rule has no permuted control. The registry (experiments.grids) makes the confirm grid's runs
-of these arms; this module reads its screen arms and permuted-control key.
+of these arms; this module reads the screen's arms and the permuted control's key (experiments.screen_arms).
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from pathlib import Path
 from cmcl.algorithms import build_sampler, spec_of
 from cmcl.replay.priority import EPS_P
 from cmcl.replay.sampling import SamplerArgs
-from experiments.grids import PERMUTED_CONTROL, SCREEN_ARMS, rule_algorithm
 from experiments.labels import PERMUTED
+from experiments.screen_arms import PERMUTED_CONTROL, SCREEN_ARMS, rule_algorithm
 from experiments.screen_table import selection
 from experiments.store import ResultsStore
 

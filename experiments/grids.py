@@ -16,7 +16,7 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
 * ``curriculum_tag``: the same arms as the predators of sparse predator-prey (configs/tag_<algorithm>.toml), the
   prey MADDPG (the paper's Fig. 12 at the issue-21 defaults);
 * ``screen`` (issue 36): candidate sampling rules of the registry (cmcl.algorithms) on the harder task, seeds
-  100-104 (SCREEN_ARMS), MADDPG and PER-MADDPG beside them for reference;
+  100-104 (experiments.screen_arms.SCREEN_ARMS), MADDPG and PER-MADDPG beside them for reference;
 * ``confirm`` (issue 36): the rules the screen's committed summaries select (experiments.screen_table.selection),
   MADDPG, PER-MADDPG and each selected rule's permuted control, on the harder task, seeds 0-19; its arms
   (experiments.confirm_arms) refuse to exist (ConfirmNotReady) while the screen has no selection;
@@ -36,25 +36,21 @@ balanced arms. A run's id names its summary file, so ids never change once resul
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
 
 from cmcl.algorithms import PAPER_ALGORITHMS
+from experiments.confirm_arms import confirm_arms, screen_choice
 from experiments.own_envs import OWN_ENV_LOG_EVERY, OWN_ENVS
+from experiments.run_spec import ROOT, Run
+from experiments.screen_arms import PERMUTED_CONTROL, SCREEN_ARMS, rule_algorithm
 
-ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
 EPISODES = 20_000  # the paper's budget per run
 
-# The permuted control: a rule's own priorities shuffled across the buffer's rows at every recompute (same
-# probabilities, hence the same ESS, no information about the rows; cmcl.replay.buffer), or for LaBER the fresh |δ| of
-# each pick's candidates shuffled across them (cmcl.replay.rules.laber). The one place naming its key.
-PERMUTED_CONTROL = "teams.<team>.priority.difficulty_transform=permuted"
 # arm -> (config file, --set overrides) of the curriculum grids; every other setting is the shared default. An
 # override of "teams.<team>." is the learning team's: the agents of navigation, the predators of predator-prey
-# (`team_sets`).
+# (`team_sets`). PERMUTED_CONTROL, the permuted control's key: experiments.screen_arms.
 CURRICULUM_ARMS = {
     "maddpg": ("spread_maddpg.toml", []),
     "per": ("spread_per.toml", []),
@@ -77,23 +73,7 @@ HARD_SETTING_GRIDS: dict[str, dict[str, list[str]]] = {
     "curriculum_eta": {"cmcl_eta1": ["teams.agent.eta=1.0"]},
 }
 CURRICULUM_LOG_EVERY = 200  # episodes between progress rows (the ESS curve's resolution) in the curriculum grids
-# The screen of issue 36 (protocol in docs/RESULTS.md, "Sampling rules that help: the screen"): candidate sampling
-# rules on the harder task, seeds 100-104, every setting the harder grid's but the team's rule; MADDPG and PER-MADDPG
-# at the same seeds for reference (not candidates). arm -> --set overrides.
-SCREEN_ARMS: dict[str, list[str]] = {
-    "maddpg": ["teams.agent.algorithm=maddpg"],
-    "per": ["teams.agent.algorithm=per"],
-    "relo": ["teams.agent.algorithm=relo"],
-    "rho": ["teams.agent.algorithm=rho"],
-    "lp": ["teams.agent.algorithm=lp"],
-    "per_floor": ["teams.agent.algorithm=per", "teams.agent.priority.uniform_floor=0.2"],
-    "cmcl_lam05": ["teams.agent.algorithm=cmcl", "curriculum.lam0=0.5"],  # no exclusion phase (λ ≥ 0.5 from the start)
-    "cmcl_floor": ["teams.agent.algorithm=cmcl", "teams.agent.priority.uniform_floor=0.2"],
-    # added to the protocol on 2026-12-05 at 00:10 UTC, before any of its runs (docs/RESULTS.md)
-    "laber": ["teams.agent.algorithm=laber"],
-}
-SCREEN_REFERENCES = ("maddpg", "per")  # run beside the candidates, never selected
-SCREEN_SEEDS = (100, 101, 102, 103, 104)
+# The screen of issue 36: its arms (arm -> --set overrides), references and seeds are experiments.screen_arms's.
 # The confirmation of issue 36 (protocol in docs/RESULTS.md, "the confirmation's protocol"): its arms come from the
 # screen's selection (experiments.confirm_arms), 20 seeds per arm, MADDPG and PER-MADDPG beside the selected rules.
 CONFIRM_SEEDS = tuple(range(20))
@@ -161,53 +141,6 @@ UPDATE_EVERY, BATCHES = (1, 4, 16, 64), (128, 512)  # the schedule grid's maddpg
 SOLVE_STOP_COVERAGE, SOLVE_MAX_SECONDS = 0.95, 900.0  # the time-to-solve grids' stops (moving average; seconds)
 
 
-@dataclass(frozen=True)
-class Run:
-    """One learning run of a grid. id: its name (summary file, run folder); budget: episodes; config: a file
-    under configs/ (default `<task>_<algorithm>.toml`); sets: extra `--set SECTION.KEY=VALUE` overrides; source:
-    the id of a finished run whose first `budget` episodes this one reads instead of training (a prefix
-    reference); mode: the runner; stop_coverage / max_seconds: early stops (None: train the whole budget); env: a
-    name of experiments.own_envs.OWN_ENVS (task "own_env": no config file, the defaults and `sets`); stages: the
-    agent counts of an agent-count curriculum, trained by `python -m cmcl stages` into <run folder>/n<N>, measured on
-    its last stage, with the earlier stages' episodes and seconds added to its costs."""
-
-    id: str
-    grid: str
-    task: Literal["spread", "tag", "own_env"]
-    algorithm: str
-    prey_algorithm: str | None
-    seed: int
-    budget: int
-    arm: str | None = None
-    ablation: str | None = None
-    config: str | None = None
-    sets: tuple[str, ...] = ()
-    source: str | None = None
-    mode: Literal["inline", "service"] = "inline"
-    stop_coverage: float | None = None
-    max_seconds: float | None = None
-    env: str | None = None
-    stages: tuple[int, ...] = ()  # an agent-count curriculum (python -m cmcl stages --agents ...); () = one run
-    stage_episodes: tuple[int, ...] = ()  # its budget per stage (--stage-episodes); () = `budget` per stage
-
-    def record(self) -> dict[str, Any]:
-        """The run's fields as its summary stores them: the seven every summary has, then those set."""
-        out: dict[str, Any] = {"id": self.id, "grid": self.grid, "task": self.task, "algorithm": self.algorithm,
-                               "prey_algorithm": self.prey_algorithm, "seed": self.seed, "budget": self.budget}
-        if self.source is not None:
-            out["ablation"] = self.ablation  # a prefix reference: ablation None, its source named
-        for key in ("arm", "ablation", "config", "source", "stop_coverage", "max_seconds", "env"):
-            if getattr(self, key) is not None:
-                out[key] = getattr(self, key)
-        if self.sets:
-            out["sets"] = list(self.sets)
-        if self.stages:
-            out["stages"], out["stage_episodes"] = list(self.stages), list(self.stage_episodes)
-        if self.mode != "inline":
-            out["mode"] = self.mode
-        return out
-
-
 def curriculum_runs(name: str, seed: int, budget: int) -> list[Run]:
     """The arms of CURRICULUM_ARMS on the grid's task: navigation N=4 (``curriculum``), the harder navigation
     (``curriculum_hard``) or predator-prey, each arm's algorithm for the predators against MADDPG prey
@@ -234,11 +167,6 @@ def setting_runs(name: str, seed: int, budget: int) -> list[Run]:
     return [Run(f"{name}_{arm}_s{seed}", name, "spread", "cmcl", None, seed, budget, arm=arm, config=HARD_CONFIG,
                 sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *sets))
             for arm, sets in HARD_SETTING_GRIDS[name].items()]
-
-
-def rule_algorithm(sets: Sequence[str]) -> str:
-    """The sampling rule of a screen arm's overrides (the first of them: teams.agent.algorithm=<rule>)."""
-    return sets[0].split("=")[1]
 
 
 def rule_runs(name: str, arms: dict[str, list[str]], seed: int, budget: int) -> list[Run]:
@@ -320,8 +248,6 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str] = PAPER_ALGOR
     unknown = sorted(set(names) - set(GRIDS))
     if unknown:
         raise ValueError(f"grid: unknown {unknown}; known {sorted(GRIDS)}")
-    from experiments.confirm_arms import confirm_arms, screen_choice  # here, not at the top: it imports this module
-
     confirm = confirm_arms(screen_choice(screen or GRIDS["screen"])) if "confirm" in names else {}
     runs = []
     for seed in seeds:

@@ -17,8 +17,8 @@ import numpy as np
 from cmcl.evaluate import evaluate_policy, load_policy
 from cmcl.io.plots import episode_series
 from cmcl.io.rundir import RunDirectory
-from experiments.grids import Run
 from experiments.own_envs import own_env_measures
+from experiments.run_spec import Run
 
 WINDOW, TARGETS, HELD_OUT = 100, (0.5, 0.9), 200  # moving-average episodes; coverage thresholds; held-out worlds
 

@@ -23,7 +23,7 @@ from typing import Any
 
 from cmcl.io.rundir import RunDirectory
 from cmcl.provenance import provenance
-from experiments.grids import ROOT, Run
+from experiments.run_spec import ROOT, Run
 
 # Keys only the later experiments/measures.py writes: a summary without provenance that has them ran later code.
 LATER_MEASURES_KEYS = ("update_every", "batch_size")

@@ -26,9 +26,9 @@ from pathlib import Path
 
 from cmcl.io.rundir import RunDirectory
 from cmcl.provenance import LoadSampler
-from experiments.grids import ROOT, Run
 from experiments.measures import summarise
 from experiments.provenance import run_provenance
+from experiments.run_spec import ROOT, Run
 from experiments.store import ResultsStore
 
 CHECKPOINT_EVERY = 2_000  # episodes between an inline run's checkpoints (what an interrupted run resumes from)

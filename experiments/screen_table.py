@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 
 from cmcl.algorithms import spec_of
-from experiments.grids import SCREEN_ARMS, SCREEN_REFERENCES, SCREEN_SEEDS, rule_algorithm
 from experiments.labels import ARM_LABEL
 from experiments.provenance import cell_versions
+from experiments.screen_arms import SCREEN_ARMS, SCREEN_REFERENCES, SCREEN_SEEDS, rule_algorithm
 from experiments.stats import fmt
 
 SELECTED = 2  # candidates the selection rule picks

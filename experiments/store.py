@@ -1,7 +1,7 @@
 """The results store of a grid's folder: one summary per finished run, `<root>/summaries/<run id>.json`, and
 `<root>/results.csv` rebuilt from them (one row per run, curves left out).
 
-A summary is the run's fields (grids.Run.record) and its measures (measures.summarise). Summaries written by the
+A summary is the run's fields (run_spec.Run.record) and its measures (measures.summarise). Summaries written by the
 earlier `bench/reproduce.py` have the same keys and are read as they are. The earlier time-to-solve program kept
 one JSON line per run in `<root>/results.jsonl` with its held-out measures nested (`held_out: {coverage, ...}`);
 `load` reads those lines too, as summaries (held_out_coverage, ...; grid from the id's first word), so a folder

@@ -27,10 +27,11 @@ from typing import Any
 from cmcl.config import Config
 from cmcl.envs.factory import EnvFactoryError
 from cmcl.io.durable import ReplayStore
+from cmcl.io.resume_hint import resume_command
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunLock
 from cmcl.progress import TrainingDiverged
-from cmcl.run_flags import RunRequest, alias_parser, resume_command, run_alias, train_in_run
+from cmcl.run_flags import RunRequest, alias_parser, run_alias, train_in_run
 from cmcl.stopping import STOP_SIGNALS, StopSignals, exit_without_teardown
 
 

@@ -25,11 +25,12 @@ from cmcl.__main__ import build_parser, main, runner_of
 from cmcl.config import config_from_dict
 from cmcl.config.toml_io import _toml_value
 from cmcl.evaluate import build_parser as evaluate_alias_parser
+from cmcl.io.resume_hint import python_command
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import LOCK_NAME
 from cmcl.loop import InlineLoop
 from cmcl.loop.__main__ import build_parser as loop_alias_parser
-from cmcl.run_flags import RunRequest, python_command, request_from
+from cmcl.run_flags import RunRequest, request_from
 from services.launch import build_parser as launch_alias_parser
 from tests.evaluation_output import evaluation_json
 

@@ -12,16 +12,9 @@ from experiments.__main__ import build_parser, main, selected_runs
 from experiments.confirm_arms import ConfirmNotReady, confirm_arms, has_permuted_control
 from experiments.confirm_tables import GOAL, confirm_table, confirm_tests, families
 from experiments.curriculum_tables import curriculum_test_rows, format_tests
-from experiments.grids import (
-    CONFIRM_SEEDS,
-    CURRICULUM_ARMS,
-    PERMUTED_CONTROL,
-    SCREEN_ARMS,
-    SCREEN_SEEDS,
-    grid,
-    team_sets,
-)
+from experiments.grids import CONFIRM_SEEDS, CURRICULUM_ARMS, grid, team_sets
 from experiments.report import NO_RUNS, blocks
+from experiments.screen_arms import PERMUTED_CONTROL, SCREEN_ARMS, SCREEN_SEEDS
 from experiments.stats import holm
 from experiments.store import ResultsStore
 from tests.test_replay_storage import N, filled

@@ -10,8 +10,9 @@ import pytest
 
 from cmcl.io.rundir import RunDirectory
 from cmcl.loop import InlineLoop
-from experiments.grids import ABLATIONS, GRIDS, ROOT, Run, grid, prefix_reference_runs
+from experiments.grids import ABLATIONS, GRIDS, grid, prefix_reference_runs
 from experiments.measures import summarise
+from experiments.run_spec import ROOT, Run
 from tests.test_loop import INLINE_SECTIONS
 from tests.tiny import make_tiny_config
 
@@ -202,7 +203,7 @@ def test_the_command_line_filters_curriculum_arms_with_arms_and_scale_cells_with
 def test_an_agent_count_curriculum_run_is_trained_by_the_stages_command(tmp_path):
     """A run with stages: `python -m cmcl stages` with its agent counts and budgets, no --overwrite (the stages
     resume by themselves), the run folder as the curriculum's root; its record names the stages."""
-    from experiments.grids import Run
+    from experiments.run_spec import Run
     from experiments.runner import command
 
     run = Run("scale_x_s0", "scale", "spread", "maddpg", None, 0, 500, arm="x", config="spread_maddpg.toml",
@@ -217,7 +218,7 @@ def test_an_agent_count_curriculum_run_is_trained_by_the_stages_command(tmp_path
 
 def test_the_screen_runs_each_candidate_rule_on_the_harder_task_with_one_override_more_than_its_rule():
     from cmcl.algorithms import REGISTRY
-    from experiments.grids import SCREEN_ARMS, SCREEN_REFERENCES, SCREEN_SEEDS
+    from experiments.screen_arms import SCREEN_ARMS, SCREEN_REFERENCES, SCREEN_SEEDS
 
     runs = grid(["screen"], list(SCREEN_SEEDS))
     assert [r.seed for r in runs[:len(SCREEN_ARMS)]] == [100] * len(SCREEN_ARMS)  # seed outermost
@@ -231,7 +232,7 @@ def test_the_make_run_grid_runs_the_makefiles_command():
     """The grid's run is `make run`'s: the service, spread_cmcl.toml, stop at MA 0.9 or after 300 s."""
     import re
 
-    from experiments.grids import ROOT
+    from experiments.run_spec import ROOT
     from experiments.runner import command
 
     recipe = re.search(r"^run: install\n((?:\t.*\n)+)", (ROOT / "Makefile").read_text(), re.M).group(1)

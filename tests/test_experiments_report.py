@@ -165,8 +165,8 @@ def test_the_stride_tables_holm_correct_every_test_and_measure_the_curriculum_wh
 def test_the_report_of_the_committed_results_is_the_page_as_committed(tmp_path):
     """`python -m experiments report --update docs/RESULTS.md` on the committed summaries changes nothing: the
     page's tables are those of its results."""
-    from experiments.grids import ROOT
     from experiments.report import blocks, update
+    from experiments.run_spec import ROOT
 
     page = tmp_path / "RESULTS.md"
     page.write_text((ROOT / "docs" / "RESULTS.md").read_text())

@@ -12,7 +12,7 @@ from dataclasses import asdict
 import pytest
 
 from cmcl.io.rundir import RunDirectory
-from experiments.grids import ROOT, Run
+from experiments.run_spec import ROOT, Run
 from experiments.runner import command, run_grid
 from experiments.store import ResultsStore
 from services.reaper import descendants, process_table
@@ -21,7 +21,7 @@ TINY = ("env.num_envs=4", "maddpg.batch_size=16", "maddpg.warmup=96", "maddpg.hi
         "run.checkpoint_every=20", "run.log_every=20")  # tests/test_loop.py's tiny settings, as overrides
 RUNNER = """
 import json, sys
-from experiments.grids import Run
+from experiments.run_spec import Run
 from experiments.runner import run_grid
 from experiments.store import ResultsStore
 fields = json.loads(sys.argv[1])

@@ -2,8 +2,9 @@
 
 import re
 
-from experiments.grids import GRIDS, ROOT
+from experiments.grids import GRIDS
 from experiments.make_run_table import make_run_table
+from experiments.run_spec import ROOT
 from experiments.store import ResultsStore
 
 

@@ -7,10 +7,10 @@ import re
 
 import pytest
 
-from experiments.grids import ROOT
 from experiments.quoted_curriculum import headline
 from experiments.quoted_words import p_text
 from experiments.report import blocks, update
+from experiments.run_spec import ROOT
 
 PAGES = ("README.md", "docs/LEARNING.md")
 # marked blocks of these pages that the report does not write, and what does

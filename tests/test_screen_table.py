@@ -1,7 +1,7 @@
 """The screen's table and selection rule (issue 36): the manipulation check, the ranking, and no selection from an
 incomplete screen or from runs of mixed code."""
 
-from experiments.grids import SCREEN_ARMS, SCREEN_SEEDS
+from experiments.screen_arms import SCREEN_ARMS, SCREEN_SEEDS
 from experiments.screen_table import manipulation_ratio, screen_selection, screen_table
 
 AREA = {"maddpg": 0.6, "per": 0.65, "relo": 0.72, "rho": 0.80, "lp": 0.70, "per_floor": 0.66, "cmcl_lam05": 0.5,

@@ -31,6 +31,7 @@ from typing import Any, Literal
 
 from cmcl.config import Config, dump_toml, load_stored_config
 from cmcl.io.atomic import atomic_write_bytes
+from cmcl.io.resume_hint import resume_command
 from cmcl.io.verified import CheckpointError, VerifiedFile, read_checked, write_checked
 from cmcl.provenance import provenance
 
@@ -97,8 +98,6 @@ class RunDirectory:
         """Make the folder and write the resolved config. Refuses a folder that already holds a run."""
         run = cls(path)
         if run.config_path.exists() and not overwrite and not run.never_trained():
-            from cmcl.run_flags import resume_command
-
             raise FileExistsError(
                 f"run.dir {str(run.path)!r} already holds a run: continue it with {resume_command(run.path)}, start "
                 "over with --overwrite, or choose another run.dir")

@@ -15,10 +15,11 @@ from typing import TYPE_CHECKING
 
 from cmcl.config import Config
 from cmcl.io import codec
+from cmcl.io.resume_hint import resume_command
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.verified import CheckpointError
 from cmcl.progress import solved
-from cmcl.run_flags import RunRequest, alias_parser, resume_command, run_alias, train_in_run
+from cmcl.run_flags import RunRequest, alias_parser, run_alias, train_in_run
 from cmcl.stopping import StopSignals, exit_without_teardown
 
 if TYPE_CHECKING:  # torch: imported by `_train` once the run directory is taken (a run in use is refused first)

@@ -1,0 +1,41 @@
+"""The screen's arms (issue 36; protocol in docs/RESULTS.md, "Sampling rules that help: the screen"): the candidate
+sampling rules and their references with their overrides, the screen's seeds, the permuted control's key and the rule
+an arm's overrides name.
+
+Where it sits: the grid registry (experiments.grids) runs these arms, the screen's table and selection
+(experiments.screen_table) read them, and the confirmation (experiments.confirm_arms) derives its arms from them;
+this module imports nothing of the experiments, so each of those reads it without importing the registry.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+# The permuted control: a rule's own priorities shuffled across the buffer's rows at every recompute (same
+# probabilities, hence the same ESS, no information about the rows; cmcl.replay.buffer), or for LaBER the fresh |δ| of
+# each pick's candidates shuffled across them (cmcl.replay.rules.laber). The one place naming its key: the
+# confirmation's controls (experiments.confirm_arms) and the curriculum grids' cmcl_permuted arm (experiments.grids)
+# take it from here.
+PERMUTED_CONTROL = "teams.<team>.priority.difficulty_transform=permuted"
+# The screen of issue 36 (protocol in docs/RESULTS.md, "Sampling rules that help: the screen"): candidate sampling
+# rules on the harder task, seeds 100-104, every setting the harder grid's but the team's rule; MADDPG and PER-MADDPG
+# at the same seeds for reference (not candidates). arm -> --set overrides.
+SCREEN_ARMS: dict[str, list[str]] = {
+    "maddpg": ["teams.agent.algorithm=maddpg"],
+    "per": ["teams.agent.algorithm=per"],
+    "relo": ["teams.agent.algorithm=relo"],
+    "rho": ["teams.agent.algorithm=rho"],
+    "lp": ["teams.agent.algorithm=lp"],
+    "per_floor": ["teams.agent.algorithm=per", "teams.agent.priority.uniform_floor=0.2"],
+    "cmcl_lam05": ["teams.agent.algorithm=cmcl", "curriculum.lam0=0.5"],  # no exclusion phase (λ ≥ 0.5 from the start)
+    "cmcl_floor": ["teams.agent.algorithm=cmcl", "teams.agent.priority.uniform_floor=0.2"],
+    # added to the protocol on 2026-12-05 at 00:10 UTC, before any of its runs (docs/RESULTS.md)
+    "laber": ["teams.agent.algorithm=laber"],
+}
+SCREEN_REFERENCES = ("maddpg", "per")  # run beside the candidates, never selected
+SCREEN_SEEDS = (100, 101, 102, 103, 104)
+
+
+def rule_algorithm(sets: Sequence[str]) -> str:
+    """The sampling rule of a screen arm's overrides (the first of them: teams.agent.algorithm=<rule>)."""
+    return sets[0].split("=")[1]
