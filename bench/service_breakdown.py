@@ -52,7 +52,8 @@ from cmcl.provenance import LoadSampler, provenance  # noqa: E402
 
 DEFAULT_SECONDS = 120
 DEFAULT_OUT = "bench/results/service_breakdown/make_run.json"
-MAKE_RUN = ["run.stop_coverage=0.9"]  # the Makefile's `run:` settings besides run.dir and run.max_seconds
+MAKE_RUN = ["run.stop_coverage=0.9"]  # the Makefile's `run:` settings besides run.dir and run.max_seconds (and
+# its `--metrics-port`: the bench takes a free port, as the tests do)
 SAMPLE_EVERY_S = 1.0
 # Ray's own processes, by a fragment of their command line (first match wins), and the label of their row
 RAY_PROCESSES = (("raylet", "raylet"), ("gcs_server", "gcs_server"), ("dashboard/agent.py", "dashboard agent"),
@@ -224,32 +225,29 @@ def actor_roles(roles: Any) -> dict[int, str]:
 
 
 def run_service(config: Any, run: Any, seconds: float) -> tuple[Sampler, dict[int, str], dict[str, Any]]:
-    """The service as `make run` runs it (services.launch: reaper, embedded Ray, metrics endpoint, the roles, the
-    supervisor), sampled by a `Sampler` until the budget ends. Returns (sampler, actor roles, run summary)."""
-    from services.launch import start_ray, stderr_to, stop_ray, unblock_stop_signals
-    from services.metrics import ServiceMetrics
-    from services.placement import create_roles
+    """The service as `make run` runs it (the reaper, the embedded Ray, then `services.launch.run_service`: metrics
+    endpoint, the roles, the supervisor), sampled by a `Sampler` until the budget ends. Returns (sampler, actor
+    roles, run summary)."""
+    from services import launch
     from services.reaper import start_reaper
-    from services.supervisor import Supervisor
+
+    watched: dict[str, Any] = {}
+
+    def started(supervisor: Any, roles: Any) -> None:
+        watched["actors"] = actor_roles(roles)
+        watched["sampler"] = Sampler(supervisor, supervisor.started + seconds - 0.05)
+        watched["sampler"].start()
 
     start_reaper()
-    start_ray(None, None)
-    unblock_stop_signals()
-    metrics = ServiceMetrics(seed=config.run.seed)
-    metrics.serve(0, config.service.metrics_host)
+    launch.start_ray(None, None)
+    launch.unblock_stop_signals()
     try:
-        roles = create_roles(config, run)
-        actors = actor_roles(roles)
-        supervisor = Supervisor(config, run, roles, metrics, progress=None)
-        sampler = Sampler(supervisor, supervisor.started + seconds - 0.05)
-        sampler.start()
-        summary = supervisor.run()
-        sampler.join()
+        summary = launch.run_service(config, run, progress=None, started=started)
+        watched["sampler"].join()
     finally:
-        metrics.close()
-        with stderr_to(run.path / "ray_shutdown.log"):
-            stop_ray()
-    return sampler, actors, summary
+        with launch.stderr_to(run.path / "ray_shutdown.log"):
+            launch.stop_ray()
+    return watched["sampler"], watched["actors"], summary
 
 
 def breakdown(sampler: Sampler, actors: dict[int, str], cores: int) -> dict[str, Any]:
@@ -393,7 +391,8 @@ def main(argv: list[str] | None = None) -> int:
         gc.collect()
         print(f"inline, one core: MADDPG update {1e3 * inline['maddpg']:.2f} ms ({1 / inline['maddpg']:.1f} "
               f"updates/s), CMCL update {1e3 * inline['cmcl']:.2f} ms ({1 / inline['cmcl']:.1f} updates/s)")
-    overrides = [*MAKE_RUN, f"run.max_seconds={args.seconds:g}", *args.overrides, f"run.dir={args.run_dir}"]
+    overrides = [*MAKE_RUN, f"run.max_seconds={args.seconds:g}", "service.metrics_port=0", *args.overrides,
+                 f"run.dir={args.run_dir}"]
     config = load_config(args.config, overrides)
     run = RunDirectory.create(args.run_dir, config, overwrite=True)
     cores = psutil.cpu_count()

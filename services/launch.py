@@ -149,9 +149,11 @@ def stderr_to(path: Path) -> Iterator[None]:
 
 
 def run_service(config: Config, run_dir: RunDirectory, *, resume: bool = False, progress: Any = print,
-                stop: Callable[[], bool] | None = None) -> dict[str, Any]:
+                stop: Callable[[], bool] | None = None,
+                started: Callable[[Any, Any], None] | None = None) -> dict[str, Any]:
     """Run the service on the Ray already initialised; returns the supervisor's final summary. `stop` is polled
-    between rounds of work (see `Supervisor`)."""
+    between rounds of work (see `Supervisor`); `started(supervisor, roles)`, if given, is called once both exist,
+    before the supervisor runs (a bench watching the run: bench/service_breakdown.py)."""
     from services.metrics import ServiceMetrics
     from services.placement import create_roles
     from services.supervisor import Supervisor
@@ -170,6 +172,8 @@ def run_service(config: Config, run_dir: RunDirectory, *, resume: bool = False, 
         supervisor = Supervisor(config, run_dir, roles, metrics, progress=progress, stop=stop)
         if resume:
             supervisor.restore_counters()
+        if started is not None:
+            started(supervisor, roles)
         summary = supervisor.run()
         summary["metrics_port"] = port
         summary["metrics_text"] = metrics.text()

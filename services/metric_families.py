@@ -112,7 +112,7 @@ def define_metrics(r: CollectorRegistry) -> tuple[dict[str, Gauge], dict[str, Co
         "curiosity_scores": c("cmcl_curiosity_scores_total", "Curiosity rewards computed by the ICM actor."),
         "learner_updates": c("cmcl_learner_updates_total", "Learner update steps (all agents at once)."),
         "learner_busy_seconds": c("cmcl_learner_busy_seconds_total", "Wall seconds the learner spent in update calls "
-                                  "(1 - its rate: the share of time it waited for batches)."),
+                                  "(its rate: the share of time busy; 1 minus it, the share spent waiting)."),
         "learner_busy_cpu_seconds": c("cmcl_learner_busy_cpu_seconds_total",
                                       "CPU seconds of the learner's update calls (the thread that ran them)."),
         "env_steps": c("cmcl_env_steps_total", "Environment steps taken by rollout workers (per world)."),
