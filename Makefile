@@ -24,14 +24,16 @@ $(STAMP): pyproject.toml Makefile
 
 install: $(STAMP)
 
-# The main job: CMCL on the distributed service (embedded Ray) trains sparse navigation until the 100-episode moving
-# average of coverage reaches 0.9, or 5 minutes; then a held-out evaluation, a GIF and the learning curve.
+# The main job: MADDPG with uniform replay on the distributed service (embedded Ray) trains sparse navigation until the
+# 100-episode moving average of coverage reaches 0.9, or 5 minutes; then a held-out evaluation, a GIF and the learning
+# curve. Uniform replay until a sampling rule beats it (docs/RESULTS.md); the paper's CMCL is one flag away:
+# `make run RUN_ARGS="--set teams.agent.algorithm=cmcl"`.
 # Ctrl-C (or SIGTERM) stops it with every role checkpointed and the resume command printed; the run's exit 130 / 143
 # is not reported as an error of make's (on Ctrl-C make, which got the SIGINT too, only says "Interrupt").
 # `make resume` goes on from there, for 5 more minutes or RESUME_EPISODES more episodes (a run that ended at its
 # 20,000-episode budget unsolved trains further too; λ keeps its schedule).
 run: install
-	$(BIN)/python -m cmcl train --runner service --config configs/spread_cmcl.toml --set run.dir=$(RUN_DIR) \
+	$(BIN)/python -m cmcl train --runner service --config configs/spread_maddpg.toml --set run.dir=$(RUN_DIR) \
 		--set run.stop_coverage=0.9 --set run.max_seconds=300 --overwrite $(RUN_ARGS) $(STOPPED_IS_OK)
 
 resume: install

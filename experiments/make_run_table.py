@@ -14,12 +14,16 @@ from experiments.provenance import code_version
 from experiments.stats import kaplan_meier, median_text
 
 
-def make_run_table(runs: list[dict[str, Any]]) -> str:
-    """Per seed: reached MA 0.9 or not, seconds and episodes to it, held-out coverage and success at the end, the
-    training seconds, the mean load over the run, the code; then the tally over seeds."""
-    runs = sorted(runs, key=lambda r: r["seed"])
+def make_run_table(runs: list[dict[str, Any]], config: str) -> str:
+    """The runs of today's `make run` (those whose config file is `config`), per seed: reached MA 0.9 or not, seconds
+    and episodes to it, held-out coverage and success at the end, the training seconds, the mean load over the run, the
+    code; then the tally over seeds, and one tally per config `make run` trained before."""
+    earlier = sorted({r["config"] for r in runs} - {config})
+    earlier_lines = [f"Earlier, `make run` trained `configs/{c}`: {tally([r for r in runs if r['config'] == c])}"
+                     for c in earlier]
+    runs = sorted((r for r in runs if r["config"] == config), key=lambda r: r["seed"])
     if not runs:
-        return "not measured yet"
+        return "\n\n".join(["not measured yet", *earlier_lines])
     lines = ["| seed | reached MA 0.9 | seconds to MA 0.9 | episodes to MA 0.9 | held-out coverage | "
              "held-out success | training s | load (1-min mean) | code |", "| --- " * 9 + "|"]
     for r in runs:
@@ -30,10 +34,15 @@ def make_run_table(runs: list[dict[str, Any]]) -> str:
                      f"| {r['seed']} | no | — | — | ")
         lines[-1] += (f"{r['held_out_coverage']:.3f} | {r['held_out_success']:.3f} | {r['wall_s']:.0f} | "
                       f"{'—' if load is None else f'{load:.2f}'} | {code_version(r)} |")
+    lines += ["", tally(runs), *(["", *earlier_lines] if earlier_lines else [])]
+    return "\n".join(lines)
+
+
+def tally(runs: list[dict[str, Any]]) -> str:
+    """How many of `runs` reached MA 0.9 in 300 s, the Kaplan-Meier median time to it, and the code they ran."""
     seconds = [r.get("seconds_to_90") for r in runs]
     reached = sum(s is not None for s in seconds)
-    lines.append("")
-    lines.append(f"{reached} of {len(runs)} seeds reached MA 0.9 within the 300-second budget; Kaplan–Meier median "
-                 f"time to MA 0.9: {median_text(seconds, missing='not reached')}"
-                 + ("" if kaplan_meier(seconds)[0] is None else " s") + ".")
-    return "\n".join(lines)
+    codes = ", ".join(sorted({code_version(r) for r in runs}))
+    return (f"{reached} of {len(runs)} seeds reached MA 0.9 within the 300-second budget; Kaplan–Meier median time to "
+            f"MA 0.9: {median_text(seconds, missing='not reached')}"
+            + ("" if kaplan_meier(seconds)[0] is None else " s") + f" (code {codes}).")

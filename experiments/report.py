@@ -40,7 +40,7 @@ from experiments.curriculum_tables import (
     curriculum_tests,
     setting_table,
 )
-from experiments.grids import GRIDS, RESULTS
+from experiments.grids import GRIDS, MAKE_RUN, RESULTS
 from experiments.labels import ARM_LABEL
 from experiments.make_run_table import make_run_table
 from experiments.own_envs import own_env_table
@@ -110,7 +110,7 @@ def blocks(results: Path | None = None) -> dict[str, str]:
     out["confirm"], out["confirmtests"] = (NO_RUNS, NO_RUNS) if not confirm else \
         (chosen.reason(), chosen.reason()) if not chosen.chosen else \
         (confirm_table(confirm, chosen.chosen), confirm_tests(confirm, chosen.chosen))
-    out["makerun"] = make_run_table(ResultsStore(where["make_run"]).load())  # README.md's block
+    out["makerun"] = make_run_table(ResultsStore(where["make_run"]).load(), MAKE_RUN["config"])  # README.md's block
     quoted = quoted_blocks(where, RESULTS if results is None else results)  # README.md's and LEARNING.md's
     assert not quoted.keys() & out.keys(), f"two texts named {sorted(quoted.keys() & out.keys())}"
     return {**out, **quoted}

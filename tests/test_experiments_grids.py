@@ -229,16 +229,22 @@ def test_the_screen_runs_each_candidate_rule_on_the_harder_task_with_one_overrid
 
 
 def test_the_make_run_grid_runs_the_makefiles_command():
-    """The grid's run is `make run`'s: the service, spread_cmcl.toml, stop at MA 0.9 or after 300 s."""
+    """The grid's run is `make run`'s: the service, its config file (whose algorithm names the run), stop at MA 0.9
+    or after 300 s."""
     import re
+    import tomllib
 
+    from experiments.grids import MAKE_RUN, MAKE_RUN_ALGORITHM
     from experiments.run_spec import ROOT
     from experiments.runner import command
 
     recipe = re.search(r"^run: install\n((?:\t.*\n)+)", (ROOT / "Makefile").read_text(), re.M).group(1)
     run = grid(["make_run"], [3])[0]
+    config = f"configs/{MAKE_RUN['config']}"
     cmd = " ".join(command(run, Path("/nonexistent/run")))
-    assert "services.launch" in cmd and "configs/spread_cmcl.toml" in cmd and "--runner service" in recipe
-    for flag in ("run.stop_coverage=0.9", "run.max_seconds=300", "--config configs/spread_cmcl.toml"):
+    assert "services.launch" in cmd and config in cmd and "--runner service" in recipe
+    for flag in ("run.stop_coverage=0.9", "run.max_seconds=300", f"--config {config}"):
         assert flag in recipe
+    trains = tomllib.loads((ROOT / config).read_text())["teams"]["agent"]["algorithm"]
+    assert run.algorithm == trains == MAKE_RUN_ALGORITHM and run.id == f"make_run_{trains}_s3"
     assert "run.stop_coverage=0.9" in cmd and "run.max_seconds=300.0" in cmd and "run.seed=3" in cmd

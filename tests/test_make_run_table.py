@@ -2,7 +2,7 @@
 
 import re
 
-from experiments.grids import GRIDS
+from experiments.grids import GRIDS, MAKE_RUN
 from experiments.make_run_table import make_run_table
 from experiments.run_spec import ROOT
 from experiments.store import ResultsStore
@@ -12,17 +12,31 @@ def test_the_readme_table_is_regenerated_from_the_committed_summaries():
     readme = (ROOT / "README.md").read_text()
     block = re.search(r"<!-- makerun:begin -->\n(.*?)\n<!-- makerun:end -->", readme, re.S)
     assert block, "README.md lacks its makerun block"
-    assert block.group(1) == make_run_table(ResultsStore(GRIDS["make_run"]).load()), \
+    assert block.group(1) == make_run_table(ResultsStore(GRIDS["make_run"]).load(), MAKE_RUN["config"]), \
         "stale: run `python -m experiments report --update README.md`"
 
 
 def test_the_tally_counts_a_run_that_never_got_there_as_censored():
-    runs = [{"seed": s, "seconds_to_90": t, "episodes_to_90": None if t is None else 10_000,
-             "held_out_coverage": 0.9, "held_out_success": 0.6, "wall_s": 300.0 if t is None else t,
-             "provenance": {"commit": "c" * 40, "dirty": False, "load_mean": 1.1}}
-            for s, t in enumerate([100.0, None, 140.0, None])]
-    text = make_run_table(runs)
+    runs = [run(s, t) for s, t in enumerate([100.0, None, 140.0, None])]
+    text = make_run_table(runs, "now.toml")
     assert "| 1 | no | — | — | 0.900 |" in text and "| 0 | yes | 100 | 10,000 |" in text
     assert text.endswith("2 of 4 seeds reached MA 0.9 within the 300-second budget; Kaplan–Meier median time to "
-                         "MA 0.9: ≥ 140 s.")
-    assert make_run_table([]) == "not measured yet"
+                         "MA 0.9: ≥ 140 s (code ccccccc).")
+    assert make_run_table([], "now.toml") == "not measured yet"
+
+
+def run(seed: int, seconds: float | None, config: str = "now.toml", commit: str = "c" * 40) -> dict:
+    """A make_run summary: reached MA 0.9 after `seconds` (None: not in its 300 s)."""
+    return {"seed": seed, "seconds_to_90": seconds, "episodes_to_90": None if seconds is None else 10_000,
+            "held_out_coverage": 0.9, "held_out_success": 0.6, "wall_s": 300.0 if seconds is None else seconds,
+            "config": config, "provenance": {"commit": commit, "dirty": False, "load_mean": 1.1}}
+
+
+def test_the_table_holds_todays_make_run_and_tallies_what_it_trained_before_apart():
+    runs = [run(0, 100.0), run(1, 120.0), run(0, None, "before.toml", "b" * 40), run(1, None, "before.toml", "b" * 40)]
+    text = make_run_table(runs, "now.toml")
+    assert text.count("| yes |") == 2 and "| no |" not in text
+    assert "2 of 2 seeds reached MA 0.9" in text and text.endswith(
+        "Earlier, `make run` trained `configs/before.toml`: 0 of 2 seeds reached MA 0.9 within the 300-second budget; "
+        "Kaplan–Meier median time to MA 0.9: not reached (code bbbbbbb).")
+    assert make_run_table(runs[2:], "now.toml").startswith("not measured yet\n\nEarlier, `make run` trained")
