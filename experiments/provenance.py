@@ -2,7 +2,8 @@
 
 Writing: `run_provenance` is the "provenance" of a grid summary: `cmcl.provenance.provenance` of this checkout and of
 the run's resolved config, the load over its training (`LoadSampler`), the commits its run directory's segments
-recorded (`segment_commits`: a run resumed across a code change has two), and `fingerprint`: sha256s of a short,
+recorded (`segment_commits`: a run resumed across a code change has two), when the summary was written
+(`measured_utc`, "YYYY-MM-DD HH:MM", from 2026-12-05), and `fingerprint`: sha256s of a short,
 deterministic inline training of the run's own settings (`cmcl.fingerprint`), computed in a subprocess, so that two
 commits can be shown to train a setting identically.
 
@@ -18,6 +19,7 @@ import json
 import subprocess
 import sys
 from collections.abc import Iterable
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -58,7 +60,8 @@ def run_provenance(run: Run, run_path: Path, load: dict[str, Any] | None) -> dic
     """A grid summary's "provenance" (module docstring)."""
     run_dir = RunDirectory.open(run_path / f"n{run.stages[-1]}" if run.stages else run_path)
     out = provenance(run_dir.config_path.read_text())
-    out.update(load or {}, segment_commits=segment_commits(run_dir.path))
+    out.update(load or {}, segment_commits=segment_commits(run_dir.path),
+               measured_utc=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M"))
     if not run.stages and run.task != "own_env":
         out["fingerprint"] = fingerprint(run)
     return out

@@ -19,7 +19,7 @@ def test_the_readme_table_is_regenerated_from_the_committed_summaries():
 def test_the_tally_counts_a_run_that_never_got_there_as_censored():
     runs = [run(s, t) for s, t in enumerate([100.0, None, 140.0, None])]
     text = make_run_table(runs, "now.toml")
-    assert "| 1 | no | — | — | 0.900 |" in text and "| 0 | yes | 100 | 10,000 |" in text
+    assert "| 1 | no | — | — | 0.900 |" in text and "| 0 | yes | 100 | 10,000 |" in text and "| ccccccc | — |" in text
     assert text.endswith("2 of 4 seeds reached MA 0.9 within the 300-second budget; Kaplan–Meier median time to "
                          "MA 0.9: ≥ 140 s (code ccccccc).")
     assert make_run_table([], "now.toml") == "not measured yet"
