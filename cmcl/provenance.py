@@ -5,7 +5,8 @@ outputs carry `provenance(...)`:
 
   commit        the git commit of the checkout the code was imported from (40 hex digits), or None when it is not a
                 git checkout (an installed wheel, a container image: then `CMCL_COMMIT` names it if set)
-  dirty         True when tracked files differ from that commit (untracked files do not count); None without git
+  dirty         True when tracked files differ from that commit (untracked files do not count, nor the results the
+                grids write, RESULTS_PATHS: a grid's tracked results.csv changes after its first run); None without git
   config_sha256 sha256 of the resolved config (its TOML text, `cmcl.config.dump_toml`), when one is given
   versions      {"python", "torch", "numpy", "ray"} ("absent" for a package that is not installed)
   cores         os.cpu_count() of the machine
@@ -39,13 +40,17 @@ def _git(*args: str, cwd: Path = ROOT) -> str | None:
     return done.stdout.strip() if done.returncode == 0 else None
 
 
+RESULTS_PATHS = ("bench/results",)  # what the grids and benches write into the checkout: results, not code
+
+
 def code_state(root: Path = ROOT) -> tuple[str | None, bool | None]:
-    """(commit, dirty) of the checkout at `root`: dirty when a tracked file differs from the commit.
-    Outside a git checkout: (CMCL_COMMIT or None, None)."""
+    """(commit, dirty) of the checkout at `root`: dirty when a tracked file outside RESULTS_PATHS differs from the
+    commit. Outside a git checkout: (CMCL_COMMIT or None, None)."""
     commit = _git("rev-parse", "HEAD", cwd=root)
     if commit is None:
         return os.environ.get("CMCL_COMMIT") or None, None
-    status = _git("status", "--porcelain", "--untracked-files=no", cwd=root)
+    status = _git("status", "--porcelain", "--untracked-files=no", "--", ".",
+                  *(f":(exclude){p}" for p in RESULTS_PATHS), cwd=root)
     return commit, bool(status) if status is not None else None
 
 

@@ -37,6 +37,20 @@ def test_code_state_names_the_commit_and_sees_a_dirty_tracked_file(repo):
     assert code_state(repo) == (head, True)
 
 
+def test_a_grids_own_results_do_not_make_the_code_dirty(repo):
+    """A grid's tracked results.csv changes after its first run: the runs after it ran the same code."""
+    results = repo / "bench" / "results" / "grid"
+    results.mkdir(parents=True)
+    (results / "results.csv").write_text("id\n")
+    git(repo, "add", "bench")
+    git(repo, "commit", "-qm", "results")
+    head = git(repo, "rev-parse", "HEAD")
+    (results / "results.csv").write_text("id\nrun_s0\n")
+    assert code_state(repo) == (head, False)
+    (repo / "tracked.txt").write_text("changed\n")
+    assert code_state(repo) == (head, True)
+
+
 def test_outside_a_checkout_the_commit_comes_from_the_environment_or_is_none(tmp_path, monkeypatch):
     monkeypatch.delenv("CMCL_COMMIT", raising=False)
     assert code_state(tmp_path) == (None, None)
