@@ -3,8 +3,9 @@
 First, in this process and before Ray starts, one inline MADDPG update and one inline CMCL update are timed
 (`inline_update_seconds` of bench/learner_throughput.py: the default presets' filled loops, interleaved rounds,
 median, torch on one thread): what one core gives. Then the service runs as `make run` starts it (the Makefile's
-`run:` target: configs/spread_cmcl.toml, run.stop_coverage=0.9, an embedded Ray sized to the machine, the
-reaper, the metrics endpoint; run.max_seconds = --seconds instead of 300; no held-out evaluation afterwards).
+`run:` target: configs/spread_maddpg.toml (--config: another), run.stop_coverage=0.9, an embedded Ray sized to the
+machine, the reaper, the metrics endpoint; run.max_seconds = --seconds instead of 300; no held-out evaluation
+afterwards).
 A thread samples every second the CPU seconds (user + system, /proc via psutil) of every process this one started,
 the machine's CPU times, and the service's counters. Processes are named by role: the actors by their own
 `os.getpid()` (asked once before training), the rest by process name (raylet, gcs_server, dashboard, agents, log
@@ -367,7 +368,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=DEFAULT_SECONDS,
                         help=f"the service's budget, run.max_seconds (default {DEFAULT_SECONDS}; make run: 300)")
-    parser.add_argument("--config", default="configs/spread_cmcl.toml")
+    parser.add_argument("--config", default="configs/spread_maddpg.toml", help="make run's config (default)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], help="more config overrides k=v")
     parser.add_argument("--inline-rounds", type=int, default=7, help="interleaved rounds of the inline costs (0: skip)")
     parser.add_argument("--inline-updates", type=int, default=30, help="updates per round of the inline costs")
@@ -395,6 +396,7 @@ def main(argv: list[str] | None = None) -> int:
                  f"run.dir={args.run_dir}"]
     config = load_config(args.config, overrides)
     run = RunDirectory.create(args.run_dir, config, overwrite=True)
+    code = provenance(dump_toml(config))  # the code as imported, before the run (the tree may change during it)
     cores = psutil.cpu_count()
     with LoadSampler(every_s=5.0) as load:
         sampler, actors, summary = run_service(config, run, args.seconds)
@@ -409,7 +411,7 @@ def main(argv: list[str] | None = None) -> int:
               "breakdown": result, "load": {**load.summary(), "before": [round(x, 2) for x in load_before]},
               "run": {k: summary.get(k) for k in ("episodes", "env_steps", "updates", "elapsed_s", "solved",
                                                   "failures", "hung", "checkpoint_seconds", "learner_held_s")},
-              "provenance": provenance(dump_toml(config))}
+              "provenance": code}
     if args.out:
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
