@@ -17,7 +17,7 @@ from experiments.stats import kaplan_meier, median_text
 def make_run_table(runs: list[dict[str, Any]], config: str) -> str:
     """The runs of today's `make run` (those whose config file is `config`), per seed: reached MA 0.9 or not, seconds
     and episodes to it, held-out coverage and success at the end, the training seconds, the mean load over the run, the
-    code and when it ran (UTC); then the tally over seeds, and one tally per config `make run` trained before."""
+    code and the day it ran; then the tally over seeds, and one tally per config `make run` trained before."""
     earlier = sorted({r["config"] for r in runs} - {config})
     earlier_lines = [f"Earlier, `make run` trained `configs/{c}`: {tally([r for r in runs if r['config'] == c])}"
                      for c in earlier]
@@ -25,7 +25,7 @@ def make_run_table(runs: list[dict[str, Any]], config: str) -> str:
     if not runs:
         return "\n\n".join(["not measured yet", *earlier_lines])
     lines = ["| seed | reached MA 0.9 | seconds to MA 0.9 | episodes to MA 0.9 | held-out coverage | "
-             "held-out success | training s | load (1-min mean) | code | measured (UTC) |", "| --- " * 10 + "|"]
+             "held-out success | training s | load (1-min mean) | code | measured |", "| --- " * 10 + "|"]
     for r in runs:
         reached = r.get("seconds_to_90") is not None
         load = (r.get("provenance") or {}).get("load_mean")
@@ -34,7 +34,7 @@ def make_run_table(runs: list[dict[str, Any]], config: str) -> str:
                      f"| {r['seed']} | no | — | — | ")
         lines[-1] += (f"{r['held_out_coverage']:.3f} | {r['held_out_success']:.3f} | {r['wall_s']:.0f} | "
                       f"{'—' if load is None else f'{load:.2f}'} | {code_version(r)} | "
-                      f"{(r.get('provenance') or {}).get('measured_utc', '—')} |")
+                      f"{(r.get('provenance') or {}).get('measured_utc', '—')[:10]} |")
     lines += ["", tally(runs), *(["", *earlier_lines] if earlier_lines else [])]
     return "\n".join(lines)
 
