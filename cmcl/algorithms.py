@@ -52,7 +52,8 @@ class AlgorithmSpec:
     α_s when no config sets one (A8). importance_weights: IS weights on the critic when `is_correction` is unset
     (A9). needs: the scores it needs, given the team's config (`team` has eta and acl_variant). uses_eta: η
     enters its priority. paper: one of the paper's four compared algorithms (ALGORITHM.md §5). early_note: what is
-    normal while λ < 0.5, for the progress line ("" = nothing to say). candidates: m of LaBER (1 for the others)."""
+    normal while λ < 0.5, for the progress line ("" = nothing to say). candidates: m of LaBER (1 for the others).
+    uses_lambda: the curriculum factor λ enters its priority (the progress line shows λ only then)."""
 
     name: str
     summary: str
@@ -65,6 +66,7 @@ class AlgorithmSpec:
     paper: bool = False
     early_note: str = ""
     candidates: int = 1  # m: the learner picks each minibatch among m·B candidate rows (LaBER); 1 = it takes them
+    uses_lambda: bool = False
 
     @property
     def prioritised(self) -> bool:
@@ -87,10 +89,10 @@ REGISTRY: dict[str, AlgorithmSpec] = {s.name: s for s in (
     AlgorithmSpec("per", "PER-MADDPG: p = |δ| + ε (Schaul et al.)", PrioritizedSampling, "per", 0.6, True,
                   lambda team: Needs(learner_scores=("td_abs",)), paper=True),
     AlgorithmSpec("acl", "the K-fold priority KP(ĉ, λ) alone", CurriculumSampling, "acl", needs=_acl_needs,
-                  paper=True, early_note=KP_EXCLUDES),
+                  paper=True, early_note=KP_EXCLUDES, uses_lambda=True),
     AlgorithmSpec("cmcl", "CI = KP(ĉ, λ) + η·CP(ρ̂): the paper's method", CurriculumSampling, "cmcl",
                   needs=lambda team: Needs(teachers=True, icm=team.eta > 0), uses_eta=True, paper=True,
-                  early_note=KP_EXCLUDES),
+                  early_note=KP_EXCLUDES, uses_lambda=True),
     AlgorithmSpec("relo", "ReLo: p = max(0, δ² − δ_target²) + ε (Sujit et al.)", ReducibleLossSampling, "relo", 0.6,
                   True, lambda team: Needs(learner_scores=("td_abs", "target_td_abs"))),
     AlgorithmSpec("rho", "reducible held-out loss: rank(δ² − ē), ē the teachers' held-out error (RHO-LOSS)",
@@ -124,6 +126,11 @@ def build_sampler(algorithm: str, args: SamplerArgs):
 def sampling_name(algorithm: str) -> str:
     """The metrics' name of `algorithm`'s sampling distribution ("uniform", "per", "acl", ...), without building it."""
     return spec_of(algorithm).sampling
+
+
+def uses_lambda(algorithms) -> bool:
+    """Whether any of the given algorithms' priorities reads the curriculum factor λ (acl, cmcl)."""
+    return any(spec_of(a).uses_lambda for a in algorithms)
 
 
 def early_notes(algorithms) -> list[str]:

@@ -114,21 +114,23 @@ def time_left(episodes: int, target: int, elapsed_s: float, max_seconds: float =
     return "" if by_episodes is None else f"left ~{by_episodes:.0f}s"
 
 
-def progress_line(episodes: int, target: int, env_steps: int, updates: int, window: dict[str, Any], lam: float,
+def progress_line(episodes: int, target: int, env_steps: int, updates: int, window: dict[str, Any], lam: float | None,
                   rates: dict[str, float], elapsed_s: float, extra: Sequence[str] = (), max_seconds: float = 0.0,
                   notes: Sequence[str] = ()) -> str:
-    """One terminal line: counters, window means (see `window_summary`), λ, update and env-step rates, `extra`
+    """One terminal line: counters, window means (see `window_summary`), λ (None: no rule of the run reads it, so
+    the line leaves it out, and its `notes` with it), update and env-step rates, `extra`
     parts (the service adds buffer size, score age and weight lag), elapsed seconds, the time left
     (`time_left`, with the run's wall-clock budget `max_seconds`, 0 = none) and `notes`: what is normal at this point
     of the run (the sampling rules' `early_note` while λ < 0.5, cmcl.algorithms)."""
     parts = [f"ep {episodes}/{target}", f"steps {env_steps}", f"upd {updates}"]
     parts += [f"{label} {window[key]:.2f}" for key, label in WINDOW_KEYS if window.get(key) is not None]
     parts += [f"R[{t}] {v:.1f}" for t, v in window.get("reward", {}).items()]
-    parts += [f"λ {lam:.4f}", f"{rates.get('updates_per_s', 0.0):.0f} upd/s",
+    parts += [f"λ {lam:.4f}"] if lam is not None else []
+    parts += [f"{rates.get('updates_per_s', 0.0):.0f} upd/s",
               f"{rates.get('env_steps_per_s', 0.0):.0f} st/s", *extra, f"{elapsed_s:.0f}s"]
     left = time_left(episodes, target, elapsed_s, max_seconds)
     parts += [left] if left else []
-    parts += list(notes) if lam < 0.5 else []
+    parts += list(notes) if lam is not None and lam < 0.5 else []
     return " | ".join(parts)
 
 

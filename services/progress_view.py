@@ -63,11 +63,12 @@ class ProgressView:
     """Env steps and updates per second between refreshes (at least 0.5 s apart), and the progress line."""
 
     def __init__(self, episodes_target: int, started: float, status: ReplayStatus, sampling_modes: list[str],
-                 max_seconds: float = 0.0, notes: list[str] | None = None) -> None:
+                 max_seconds: float = 0.0, notes: list[str] | None = None, show_lambda: bool = True) -> None:
         """sampling_modes: each agent's sampling distribution's name (cmcl.algorithms.sampling_name); max_seconds:
-        the run's wall-clock budget (0 = none); notes: what is normal while λ < 0.5 (cmcl.algorithms.early_notes)."""
+        the run's wall-clock budget (0 = none); notes: what is normal while λ < 0.5 (cmcl.algorithms.early_notes);
+        show_lambda: whether a rule of the run reads λ (cmcl.algorithms.uses_lambda), else the line leaves it out."""
         self.episodes_target, self.started, self.sampling_modes = episodes_target, started, list(sampling_modes)
-        self.max_seconds, self.notes = float(max_seconds), list(notes or [])
+        self.max_seconds, self.notes, self.show_lambda = float(max_seconds), list(notes or []), bool(show_lambda)
         self.rates = {"env_steps_per_s": 0.0, "updates_per_s": 0.0}
         self.mark = (started, status.env_steps, status.updates)  # (time, env steps, updates) of the last refresh
 
@@ -80,10 +81,12 @@ class ProgressView:
             self.mark = (now, status.env_steps, status.updates)
 
     def line(self, status: ReplayStatus, report: Report | None, lags: dict[str, int], window: Any) -> str:
-        """One terminal line: env steps, episodes, coverage / win, reward, λ, rates, buffer, score age, lag."""
+        """One terminal line: env steps, episodes, coverage / win, reward, λ (when a rule reads it), rates, buffer,
+        score age, lag."""
         return progress_line(status.episodes, self.episodes_target, status.env_steps, status.updates,
-                             window_summary(window), status.lam, self.rates, time.perf_counter() - self.started,
-                             replay_parts(status, report, lags), self.max_seconds, self.notes)
+                             window_summary(window), status.lam if self.show_lambda else None, self.rates,
+                             time.perf_counter() - self.started, replay_parts(status, report, lags), self.max_seconds,
+                             self.notes)
 
     def row(self, status: ReplayStatus, report: Report | None) -> dict[str, Any]:
         """The progress row of metrics.jsonl: counters, rates, elapsed seconds and the sampling entries

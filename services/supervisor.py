@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import ray
 
-from cmcl.algorithms import early_notes, sampling_name
+from cmcl.algorithms import early_notes, sampling_name, uses_lambda
 from cmcl.config import Config
 from cmcl.envs.factory import EnvFactoryError
 from cmcl.io.atomic import atomic_write_bytes
@@ -90,7 +90,7 @@ class Supervisor:
         algorithms = layout_of(config).algorithms
         self.view = ProgressView(config.run.episodes, self.started, self.status,
                                  [sampling_name(a) for a in algorithms], config.run.max_seconds,
-                                 early_notes(algorithms))
+                                 early_notes(algorithms), uses_lambda(algorithms))
         self._first_reports()
 
     def _first_reports(self) -> None:

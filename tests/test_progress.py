@@ -38,3 +38,14 @@ def test_the_line_says_the_time_left_and_what_is_normal_while_lambda_is_low():
     early = progress_line(1_000, 20_000, 25_000, 100, {}, 0.2, {}, 50.0, max_seconds=300.0, notes=notes)
     late = progress_line(1_000, 20_000, 25_000, 100, {}, 0.6, {}, 50.0, max_seconds=300.0, notes=notes)
     assert early.endswith(f"50s | left ≤ 250s (budget) | {notes[0]}") and late.endswith("left ≤ 250s (budget)")
+
+
+def test_the_line_shows_lambda_only_when_a_rule_of_the_run_reads_it():
+    from cmcl.algorithms import uses_lambda
+    from cmcl.progress import progress_line
+
+    assert uses_lambda(["maddpg", "cmcl"]) and uses_lambda(["acl"])
+    assert not uses_lambda(["maddpg", "per", "relo", "rho", "lp", "laber"])
+    uniform = progress_line(1_000, 20_000, 25_000, 100, {}, None, {}, 50.0, notes=["never shown without λ"])
+    curriculum = progress_line(1_000, 20_000, 25_000, 100, {}, 0.2, {}, 50.0)
+    assert "λ" not in uniform and "never shown" not in uniform and "| λ 0.2000 |" in curriculum

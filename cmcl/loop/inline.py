@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from cmcl.algorithms import early_notes
+from cmcl.algorithms import early_notes, uses_lambda
 from cmcl.config import Config
 from cmcl.diagnostics import buffer_diagnostics
 from cmcl.episodes import WorldEpisodes
@@ -259,7 +259,8 @@ class InlineLoop:
     def format_progress(self, row: dict[str, Any]) -> str:
         """One terminal line from a progress row."""
         return progress_line(row["episodes"], self.config.run.episodes, row["env_steps"], row["updates"],
-                             row["window"], row["lambda"], row, row["elapsed_s"], extra=row_sampling_parts(row),
+                             row["window"], row["lambda"] if uses_lambda(self.layout.algorithms) else None, row,
+                             row["elapsed_s"], extra=row_sampling_parts(row),
                              max_seconds=self.config.run.max_seconds, notes=early_notes(self.layout.algorithms))
 
     # ------------------------------------------------------------------ checkpoints
