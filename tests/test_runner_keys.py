@@ -107,6 +107,13 @@ def test_the_makefiles_run_loads_on_the_service():
     assert words[words.index("--runner") + 1] == "service"
     sets = [words[i + 1] for i, w in enumerate(words) if w == "--set" and "$(" not in words[i + 1]]
     assert check("service", load_data(ROOT / words[words.index("--config") + 1]), sets) == []
+    # the README's "the paper's CMCL is one flag away": make run RUN_ARGS="--set teams.agent.algorithm=cmcl"
+    readme = (ROOT / "README.md").read_text()
+    flag = 'make run RUN_ARGS="--set teams.agent.algorithm=cmcl"'
+    assert flag in readme
+    path = ROOT / words[words.index("--config") + 1]
+    assert check("service", load_data(path), [*sets, "teams.agent.algorithm=cmcl"]) == []
+    assert load_config(path, [*sets, "teams.agent.algorithm=cmcl"]).teams["agent"].algorithm == "cmcl"
 
 
 @pytest.mark.parametrize(("argv", "key", "runner"), [
