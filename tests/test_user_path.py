@@ -212,7 +212,7 @@ def test_make_run_ends_with_the_held_out_evaluation_and_a_gif_and_evaluate_finds
     assert "return[agent]" in run.text and "worlds with an uncovered landmark at the final step" in run.text, run.text
     assert (run_dir / "trained.gif").stat().st_size > 0 and (run_dir / "learning_curve.png").is_file()
     assert not alive(run.seen), f"processes left behind: {alive(run.seen)}"
-    evaluated = subprocess.run([PY, "-m", "cmcl.evaluate", str(run_dir), "--episodes", "20", "--no-gif"], cwd=ROOT,
+    evaluated = subprocess.run([PY, "-m", "cmcl", "evaluate", str(run_dir), "--episodes", "20", "--no-gif"], cwd=ROOT,
                                capture_output=True, text=True, timeout=300)
     assert evaluated.returncode == 0, evaluated.stderr
     result = evaluation_json(evaluated.stdout)
@@ -233,8 +233,11 @@ def test_make_resume_trains_a_finished_run_for_more_episodes(tmp_path, tiny_conf
 # out of the default run (its 10-minute budget): `make resume` of an inline run stays in the default run above
 @pytest.mark.extended
 def test_make_resume_of_make_runs_service_run_trains_it_further(tmp_path):
+    """Through make, the README's CMCL variant of `make run` (RUN_ARGS="--set teams.agent.algorithm=cmcl"), then
+    `make resume` of it."""
     run_dir = tmp_path / "make-run"
-    make_run(run_dir, "--no-eval")
+    make_run(run_dir, "--no-eval", "--set teams.agent.algorithm=cmcl")
+    assert 'algorithm = "cmcl"' in (run_dir / "config.toml").read_text()
     make_resume(run_dir, "episodes_logged", "--metrics-port 0")
 
 
@@ -306,7 +309,7 @@ def test_inline_runner_stops_on_ctrl_c_refuses_a_second_writer_and_resumes(tmp_p
     assert again.returncode == 0 and f"at episode {stopped_at}" in again.stdout, again.stdout + again.stderr
     ended_at = json.loads((run_dir / "summary.json").read_text())["episodes"]
     assert ended_at >= stopped_at + 40
-    evaluated = subprocess.run([PY, "-m", "cmcl.evaluate", str(run_dir), "--episodes", "20", "--no-gif"], cwd=ROOT,
+    evaluated = subprocess.run([PY, "-m", "cmcl", "evaluate", str(run_dir), "--episodes", "20", "--no-gif"], cwd=ROOT,
                                capture_output=True, text=True, timeout=300)
     assert evaluated.returncode == 0, evaluated.stderr
     assert Path(evaluation_json(evaluated.stdout)["checkpoint"]).name == \
