@@ -21,8 +21,9 @@ import numpy as np
 
 from cmcl.config import Config, ConfigError
 from cmcl.envs.entities import EntityLayout, spread_layout
+from cmcl.io.checkpoint_files import read_replay_snapshot, replay_snapshot_path
 from cmcl.io.durable import ReplayStore
-from cmcl.io.rundir import RunDirectory, read_replay_snapshot, replay_snapshot_path
+from cmcl.io.rundir import RunDirectory
 from cmcl.replay.agent_padding import pad_rows
 from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.storage import TransitionStorage

@@ -23,7 +23,8 @@ import torch
 
 from cmcl.config import Config
 from cmcl.envs.batched_spread import BatchedSparseSpread
-from cmcl.io.rundir import PolicyCheckpoint, RunDirectory, load_checkpoint
+from cmcl.io.checkpoint_files import load_checkpoint
+from cmcl.io.rundir import PolicyCheckpoint, RunDirectory
 from cmcl.learners.maddpg import MADDPG
 from cmcl.run_flags import add_evaluate_flags
 from cmcl.stalls import MissAnatomy, miss_anatomy

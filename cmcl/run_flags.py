@@ -19,8 +19,9 @@ from typing import get_args
 from cmcl.config import Config, ConfigError, apply_overrides, config_from_dict, load_data
 from cmcl.config.runners import Runner, check_runner_keys
 from cmcl.envs.factory import EnvFactoryError
+from cmcl.io.metrics_log import MetricsError
 from cmcl.io.resume_hint import resume_command
-from cmcl.io.rundir import MetricsError, RunDirectory
+from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
 from cmcl.io.verified import CheckpointError
 

@@ -13,7 +13,7 @@ from cmcl.io.rundir import RunDirectory
 
 
 def newest_storage(run_dir):
-    from cmcl.io.rundir import replay_snapshot_path
+    from cmcl.io.checkpoint_files import replay_snapshot_path
 
     checkpoint = list(RunDirectory.open(run_dir).inline_checkpoints().values())[-1]
     return codec.read_snapshot(replay_snapshot_path(checkpoint), limits=codec.SNAPSHOT_LIMITS)["replay"]["storage"]

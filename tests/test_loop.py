@@ -8,7 +8,8 @@ import pytest
 import torch
 
 from cmcl.config import config_from_dict
-from cmcl.io.rundir import RunDirectory, load_checkpoint
+from cmcl.io.checkpoint_files import load_checkpoint
+from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import LOCK_NAME
 from cmcl.loop import InlineLoop
 from cmcl.loop.__main__ import main
@@ -200,7 +201,7 @@ def test_a_run_killed_while_checkpointing_never_leaves_a_checkpoint_without_its_
     def killed_while_writing(*args, **kwargs):
         raise KeyboardInterrupt("killed while writing the replay snapshot")
 
-    monkeypatch.setattr("cmcl.loop.inline.write_replay_snapshot", killed_while_writing)
+    monkeypatch.setattr("cmcl.loop.checkpoint.write_replay_snapshot", killed_while_writing)
     loop.counters["episodes"] = 12
     with pytest.raises(KeyboardInterrupt):
         loop.save_checkpoint()

@@ -13,7 +13,8 @@ import time
 import pytest
 import torch
 
-from cmcl.io.rundir import RunDirectory, save_torch_atomic
+from cmcl.io.checkpoint_files import save_torch_atomic
+from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import LOCK_NAME, RunDirectoryInUse, RunLock
 from cmcl.io.verified import VerifiedFile
 from cmcl.stopping import StopSignals

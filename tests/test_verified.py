@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from cmcl.io.rundir import RunDirectory, load_checkpoint, save_torch_atomic
+from cmcl.io.checkpoint_files import load_checkpoint, save_torch_atomic
+from cmcl.io.rundir import RunDirectory
 from cmcl.io.verified import CheckpointError, VerifiedFile
 from services.common import load_state, save_state
 

@@ -4,11 +4,13 @@ Where it sits: both runners (`python -m cmcl train | resume`) write here; `cmcl.
 Layout of `<dir>/`:
   config.toml            the resolved configuration (read back with `config()`: keys that moved since it was written
                          are carried to their new place, cmcl.config.moved)
-  metrics.jsonl          one JSON object per line (episode rows and update rows, each with a "kind")
+  metrics.jsonl          one JSON object per line (episode rows and update rows, each with a "kind";
+                         cmcl.io.metrics_log)
   run.lock               the one writer's lock (cmcl.io.runlock)
   summary.json           the runner's last summary (how the run ended, its counters, its provenance)
   checkpoints/ckpt_<episodes:08d>.pt   inline runner: torch.save of plain state dicts, read with weights_only=True
-  checkpoints/replay_<episodes:08d>.msgpack  inline runner: the replay snapshot beside each checkpoint
+  checkpoints/replay_<episodes:08d>.msgpack  inline runner: the replay snapshot beside each checkpoint (both files
+                         and their digest files: cmcl.io.checkpoint_files)
   checkpoints/service/   service: each role's checkpoint generations and manifest (cmcl.io.verified), the replay
                          store, the supervisor's counters (`service_paths`)
 Whichever runner wrote the run, `newest_policy()` finds its newest verified policy: evaluation, the end-of-run
@@ -19,11 +21,8 @@ from __future__ import annotations
 
 import io
 import json
-import math
-import os
 import re
 import shutil
-import sys
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,8 +30,10 @@ from typing import Any, Literal
 
 from cmcl.config import Config, dump_toml, load_stored_config
 from cmcl.io.atomic import atomic_write_bytes
+from cmcl.io.checkpoint_files import load_checkpoint, save_torch_atomic
+from cmcl.io.metrics_log import MetricsLog, json_safe
 from cmcl.io.resume_hint import resume_command
-from cmcl.io.verified import CheckpointError, VerifiedFile, read_checked, write_checked
+from cmcl.io.verified import CheckpointError, VerifiedFile
 from cmcl.provenance import provenance
 
 CHECKPOINT_GLOB = "ckpt_*.pt"
@@ -40,22 +41,6 @@ CHECKPOINT_GLOB = "ckpt_*.pt"
 # tree holding no data): nothing a retry must keep (`RunDirectory.never_trained`)
 START_LEFTOVERS = ("config.toml", "run.lock", "ray_shutdown.log")
 SERVICE_ROLES = ("learner", "icm")  # roles whose checkpoint is one VerifiedFile at checkpoints/service/<role>.pt
-
-
-TAIL_BYTES = 1 << 20  # the last line of metrics.jsonl is looked for in its last MiB
-
-
-class MetricsError(ValueError):
-    """metrics.jsonl holds a line that does not parse and is not its last: the message names the file and line."""
-
-
-def _parse_row(line: bytes) -> dict[str, Any] | None:
-    """One metrics line as its row, or None when it is not a JSON object."""
-    try:
-        row = json.loads(line)
-    except (ValueError, UnicodeDecodeError):
-        return None
-    return row if isinstance(row, dict) else None
 
 
 @dataclass(frozen=True)
@@ -69,19 +54,6 @@ class PolicyCheckpoint:
     mtime: float
 
 
-def _json_safe(value: Any) -> Any:
-    """Convert numpy / torch scalars and arrays to JSON values; non-finite floats become None."""
-    if isinstance(value, Mapping):
-        return {str(k): _json_safe(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_json_safe(v) for v in value]
-    if hasattr(value, "tolist"):
-        return _json_safe(value.tolist())
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 class RunDirectory:
     """Owns one run's output folder. `create` for a new run, `open` to resume or evaluate one."""
 
@@ -90,7 +62,7 @@ class RunDirectory:
         self.checkpoints = self.path / "checkpoints"
         self.metrics_path = self.path / "metrics.jsonl"
         self.config_path = self.path / "config.toml"
-        self._tail_checked = self._torn_said = False  # metrics.jsonl: torn last line set aside / said (`rows`)
+        self.metrics = MetricsLog(self.metrics_path)
         self.refused_policies: list[str] = []  # what the last `newest_policy` refused on its way ("file: reason")
 
     @classmethod
@@ -152,76 +124,22 @@ class RunDirectory:
         return load_stored_config(self.config_path, overrides)
 
     def log(self, row: Mapping[str, Any]) -> None:
-        """Append one metrics row (a flat or nested mapping) as a JSON line (the first append of this object first
-        moves a torn last line aside, `_set_torn_line_aside`, so that no row is ever glued to it)."""
-        if not self._tail_checked:
-            self._set_torn_line_aside()
-            self._tail_checked = True
-        with self.metrics_path.open("a") as handle:
-            handle.write(json.dumps(_json_safe(row), sort_keys=True) + "\n")
-
-    def _set_torn_line_aside(self) -> None:
-        """A metrics file whose last line has no newline (a write cut by a crash or a full disk, e.g. EFBIG): that
-        line is appended to `metrics.jsonl.torn` and removed from the file; a complete row only gets its newline."""
-        if not self.metrics_path.exists():
-            return
-        with self.metrics_path.open("rb") as handle:
-            size = handle.seek(0, 2)
-            handle.seek(max(0, size - TAIL_BYTES))
-            tail = handle.read()
-        if not tail or tail.endswith(b"\n"):
-            return
-        cut = tail.rfind(b"\n") + 1
-        if cut == 0 and size > len(tail):
-            raise MetricsError(f"{self.metrics_path}: its last line is longer than {TAIL_BYTES} bytes and has no "
-                               "end; not appending to it")
-        torn = tail[cut:]
-        if _parse_row(torn) is not None:
-            with self.metrics_path.open("ab") as handle:
-                handle.write(b"\n")
-            return
-        with self.metrics_path.with_name(self.metrics_path.name + ".torn").open("ab") as aside:
-            aside.write(torn + b"\n")
-        os.truncate(self.metrics_path, size - len(torn))
-        print(f"metrics: moved the torn last line of {self.metrics_path} ({len(torn)} bytes) to "
-              f"{self.metrics_path.name}.torn", file=sys.stderr)
+        """Append one metrics row (a flat or nested mapping) as a JSON line (`MetricsLog.append`: a torn last line
+        is first moved aside)."""
+        self.metrics.append(row)
 
     def rows(self, kind: str | None = None) -> Iterator[dict[str, Any]]:
-        """Metrics rows in order, optionally only those with row["kind"] == kind. A last line that does not parse
-        (torn by a crash or a full disk) is left out and said once on stderr; a line that does not parse with rows
-        after it raises MetricsError naming the file and the line."""
-        if not self.metrics_path.exists():
-            return
-        self.check_metrics_file()
-        bad: tuple[int, str] | None = None  # a line that did not parse, until it proves not to be the last
-        with self.metrics_path.open("rb") as handle:
-            for number, line in enumerate(handle, 1):
-                if not line.strip():
-                    continue
-                if bad is not None:
-                    raise MetricsError(f"{self.metrics_path} line {bad[0]}: {bad[1]}, with rows after it; refusing "
-                                       "to read a corrupt metrics file")
-                row = _parse_row(line)
-                if row is None:
-                    bad = (number, f"not a JSON object ({line[:40]!r})")
-                elif kind is None or row.get("kind") == kind:
-                    yield row
-        if bad is not None and not self._torn_said:
-            self._torn_said = True
-            print(f"metrics: ignored the torn last line of {self.metrics_path} (line {bad[0]})", file=sys.stderr)
+        """Metrics rows in order, optionally only those with row["kind"] == kind (`MetricsLog.rows`: a torn last
+        line is left out, a corrupt line before other rows raises MetricsError)."""
+        return self.metrics.rows(kind)
 
     def check_metrics_file(self) -> None:
         """MetricsError naming metrics.jsonl when something other than a file (a directory, ...) has its name."""
-        if self.metrics_path.exists() and not self.metrics_path.is_file():
-            kind = "a directory" if self.metrics_path.is_dir() else "not a regular file"
-            raise MetricsError(f"{self.metrics_path} is {kind}, not the run's metrics file; move it away")
+        self.metrics.check_file()
 
     def truncate_rows_after(self, episodes: int) -> None:
         """On resume: drop rows logged after the checkpoint (row["episodes"] > episodes), atomically."""
-        if not self.metrics_path.exists():
-            return
-        kept = [row for row in self.rows() if row.get("episodes", 0) <= episodes]
-        atomic_write_bytes(self.metrics_path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in kept).encode())
+        self.metrics.truncate_after(episodes)
 
     def checkpoint_path(self, episodes: int) -> Path:
         return self.checkpoints / f"ckpt_{episodes:08d}.pt"
@@ -338,7 +256,7 @@ class RunDirectory:
         earlier = self.summary().get("provenance", {})
         seen = [*earlier.get("segment_commits", [earlier.get("commit")]), record["provenance"]["commit"]]
         record["provenance"]["segment_commits"] = list(dict.fromkeys(c for c in seen if c))
-        atomic_write_bytes(self.summary_path, json.dumps(_json_safe(record), indent=2, sort_keys=True).encode())
+        atomic_write_bytes(self.summary_path, json.dumps(json_safe(record), indent=2, sort_keys=True).encode())
         return self.summary_path
 
     def summary(self) -> dict[str, Any]:
@@ -349,49 +267,3 @@ class RunDirectory:
             return {}
         return loaded if isinstance(loaded, dict) else {}
 
-
-def save_torch_atomic(path: str | Path, state: Mapping[str, Any]) -> None:
-    """torch.save `state` (tensors and plain containers, no numpy) to `path`, all or nothing, then its digest file
-    `<path>.sha256` ("<hex digest> <bytes>"), which `load_checkpoint` checks before decoding."""
-    import torch
-
-    buffer = io.BytesIO()
-    torch.save(dict(state), buffer)
-    write_checked(path, buffer.getvalue())
-
-
-def replay_snapshot_path(checkpoint: Path) -> Path:
-    """The replay snapshot an inline run writes beside a checkpoint file (ckpt_N.pt -> replay_N.msgpack)."""
-    return checkpoint.with_name(checkpoint.name.replace("ckpt_", "replay_").replace(".pt", ".msgpack"))
-
-
-def write_replay_snapshot(path: str | Path, state: dict[str, Any]) -> int:
-    """Encode a replay snapshot (msgpack, `cmcl.io.codec`) and write it with its digest file, like a checkpoint;
-    returns its bytes."""
-    from cmcl.io import codec
-
-    payload = codec.encode_snapshot(state)
-    write_checked(path, payload)
-    return len(payload)
-
-
-def read_replay_snapshot(path: str | Path) -> dict[str, Any]:
-    """A replay snapshot written by `write_replay_snapshot`: checked against its digest file (CheckpointError naming
-    the file when it is missing, truncated, flipped or has no digest file), then decoded within the snapshot
-    limits (codec.CodecError)."""
-    from cmcl.io import codec
-
-    path = Path(path)
-    size = path.stat().st_size if path.exists() else 0
-    if size > codec.SNAPSHOT_LIMITS.max_bytes:
-        raise CheckpointError(f"{path}: {size} bytes exceeds the limit of {codec.SNAPSHOT_LIMITS.max_bytes}")
-    return codec.decode_snapshot(read_checked(path), limits=codec.SNAPSHOT_LIMITS)
-
-
-def load_checkpoint(path: str | Path) -> dict[str, Any]:
-    """Load a checkpoint written by `save_torch_atomic`: checked against its digest file first (a missing,
-    truncated or corrupted file, or one without a digest file, raises `CheckpointError` naming it), then
-    torch.load(weights_only=True): no arbitrary pickle. A file that cannot be verified is never decoded."""
-    import torch
-
-    return torch.load(io.BytesIO(read_checked(path)), map_location="cpu", weights_only=True)

@@ -1,5 +1,6 @@
-"""The inline runner: Algorithm 1 in one process without Ray (`inline.py`), and its command line (`__main__.py`,
-`python -m cmcl train --runner inline`, alias `python -m cmcl.loop`).
+"""The inline runner: Algorithm 1 in one process without Ray (`inline.py`; what its checkpoint holds, `checkpoint.py`;
+the metrics rows it logs, `metrics_rows.py`), and its command line (`__main__.py`, `python -m cmcl train --runner
+inline`, alias `python -m cmcl.loop`).
 
 `from cmcl.loop import InlineLoop` works as before, but the names are loaded on first use (PEP 562): the command line
 imports this package, and it takes the run directory's lock before it loads torch (a run in use is refused at once).

@@ -7,7 +7,8 @@ rollout of B batched worlds -> replay -> per update (when due by `cmcl.replay.pa
 in its synchronous form: one per `maddpg.update_every` world steps once warm): the teacher and ICM steps due,
 scoring of the new rows plus the oldest scores up to `teachers.rescore_rows_per_update` rows (the rule of
 `cmcl.replay.scoring.ScoringState`, the service's too), priority recompute at the current λ, one MADDPG update of
-all agents; λ advanced per world step.
+all agents; λ advanced per world step. What its checkpoint holds is cmcl/loop/checkpoint.py; the metrics rows it
+logs, cmcl/loop/metrics_rows.py.
 Command line: `python -m cmcl train --runner inline` (cmcl/loop/__main__.py; alias `python -m cmcl.loop`).
 """
 
@@ -22,29 +23,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from cmcl.algorithms import early_notes, uses_lambda
 from cmcl.config import Config
-from cmcl.diagnostics import buffer_diagnostics
 from cmcl.episodes import WorldEpisodes
-from cmcl.io.rundir import (
-    RunDirectory,
-    load_checkpoint,
-    read_replay_snapshot,
-    replay_snapshot_path,
-    write_replay_snapshot,
-)
+from cmcl.io.rundir import RunDirectory
 from cmcl.learners import network_steps
 from cmcl.learning_progress import LearningProgress
+from cmcl.loop.checkpoint import load_loop_state, loop_state, restore_loop, save_loop_checkpoint
+from cmcl.loop.metrics_rows import finished_episode_rows, format_progress, progress_row
 from cmcl.messages import LearnerFeedback, Rows
-from cmcl.progress import (
-    TrainingDiverged,
-    episode_rows,
-    finished_episodes,
-    progress_line,
-    row_sampling_parts,
-    solved,
-    window_summary,
-)
+from cmcl.progress import TrainingDiverged, solved
 from cmcl.replay import buffer_steps
 from cmcl.replay.curriculum import unplayed_steps
 from cmcl.replay.pacing import pacing_from_config
@@ -119,7 +106,7 @@ class InlineLoop:
         self._run_due_updates(b)
         if "length" in info["episode"]:  # env.factory worlds: λ's clock counts every episode as episode_length steps
             self.schedule.advance(unplayed_steps(info["episode"]["length"], cfg.env.episode_length))
-        rows = self._episode_rows(info) if info["episode_mask"].any() else []
+        rows = finished_episode_rows(self, info) if info["episode_mask"].any() else []
         if rows:
             self.counters["rounds"] += 1
         return rows
@@ -227,114 +214,32 @@ class InlineLoop:
         buffer_steps.apply_learner_feedback(self.replay, layout, feedback)
         return stats
 
-    # ------------------------------------------------------------------ bookkeeping
-    def _episode_rows(self, info: dict[str, Any]) -> list[dict[str, Any]]:
-        """One metrics row per finished episode (final-step coverage / success, or captures / win; returns)."""
-        c = self.counters
-        rows = episode_rows(finished_episodes(info["episode"], self.layout.teams), c["episodes"] + 1,
-                            env_steps=c["env_steps"], updates=c["updates"], **{"lambda": self.schedule.lam})
-        c["episodes"] += len(rows)
-        self.window.extend(rows)
-        return rows
-
+    # ------------------------------------------------------------------ metrics rows (cmcl/loop/metrics_rows.py)
     def progress_row(self, elapsed: float, rate: dict[str, float]) -> dict[str, Any]:
         """A 'progress' metrics row: counters, λ, losses, priority statistics and window means."""
-        c = self.counters
-        row: dict[str, Any] = {"kind": "progress", **{k: c[k] for k in ("episodes", "env_steps", "updates")},
-                               "lambda": self.schedule.lam, "elapsed_s": elapsed, **rate,
-                               "replay_size": self.replay.size, "window": window_summary(self.window),
-                               **self.last_stats}
-        if self.replay.size:  # "sampling" for every agent; "priority" / "curriculum" for ACL / CMCL agents
-            row.update(buffer_diagnostics(self.replay, self.schedule.lam, self.maddpg.updates))
-            if self.picked_count and "reward_rows_sampled" in row.get("sampling", {}):
-                # LaBER picks in the learner: its agents' sampled share is the one measured in the picked minibatches
-                measured = self.picked_rewarded / self.picked_count
-                row["sampling"]["reward_rows_sampled"] = [round(float(measured[a]), 4) if pick else value
-                                                          for a, (pick, value) in enumerate(zip(
-                                                              self.layout.select,
-                                                              row["sampling"]["reward_rows_sampled"], strict=True))]
-                self.picked_rewarded, self.picked_count = np.zeros(self.layout.num_agents), 0
-        return row
+        return progress_row(self, elapsed, rate)
 
     def format_progress(self, row: dict[str, Any]) -> str:
         """One terminal line from a progress row."""
-        return progress_line(row["episodes"], self.config.run.episodes, row["env_steps"], row["updates"],
-                             row["window"], row["lambda"] if uses_lambda(self.layout.algorithms) else None, row,
-                             row["elapsed_s"], extra=row_sampling_parts(row),
-                             max_seconds=self.config.run.max_seconds, notes=early_notes(self.layout.algorithms))
+        return format_progress(self, row)
 
-    # ------------------------------------------------------------------ checkpoints
+    # ------------------------------------------------------------------ checkpoints (cmcl/loop/checkpoint.py)
     def state_dict(self) -> dict[str, Any]:
         """Everything needed to continue the run except the replay contents (saved as a msgpack snapshot)."""
-        return {
-            "maddpg": self.maddpg.state_dict(),
-            "teachers": None if self.teachers is None else self.teachers.state_dict(),
-            "icm": None if self.icm is None else self.icm.state_dict(),
-            "schedule": {"env_steps": self.schedule.env_steps},
-            "counters": dict(self.counters),
-            "pacing": self.pacing.state_dict(),
-            "learning_progress": self.learning_progress.state_dict(),
-            "elapsed_s": self.elapsed_s,
-            "env": {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in self.env.get_state().items()},
-            "obs": torch.from_numpy(self.obs.copy()),
-            "episode_ids": torch.from_numpy(self.episodes.ids.copy()),
-            "rng": {name: g.bit_generator.state for name, g in self.rng.items()},
-            "sampler_rng": [g.bit_generator.state for g in self.sampler_rngs],
-        }
+        return loop_state(self)
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore a `state_dict()`, world states included, so a resumed run continues exactly."""
-        self.maddpg.load_state_dict(state["maddpg"])
-        for name in ("teachers", "icm"):
-            model = getattr(self, name)
-            if (model is None) != (state[name] is None):
-                raise ValueError(f"checkpoint {name} presence differs from this config's")
-            if model is not None:
-                model.load_state_dict(state[name])
-        self.schedule.env_steps = int(state["schedule"]["env_steps"])
-        # checkpoints before the oldest-score-first rescoring also hold a "rescore_cursor": not used any more
-        self.counters.update({k: int(v) for k, v in state["counters"].items() if k in self.counters})
-        if "pacing" in state:
-            self.pacing.load_state_dict(state["pacing"])
-        else:  # checkpoints before the pacing was saved counted its steps in "counters"
-            old = state["counters"]
-            self.pacing.restore_counts(old["env_steps"], old["updates"], old.get("teacher_steps", 0),
-                                       old.get("icm_steps", 0))
-        if "learning_progress" in state:  # checkpoints before run.stop_progress: it starts afresh
-            self.learning_progress.load_state_dict(state["learning_progress"])
-        self.elapsed_s = float(state.get("elapsed_s", 0.0))  # checkpoints before the clock was kept: 0
-        for name, g in self.rng.items():
-            g.bit_generator.state = state["rng"][name]
-        for g, s in zip(self.sampler_rngs, state["sampler_rng"], strict=True):
-            g.bit_generator.state = s
-        fresh_obs = self.env.set_state({k: v.numpy() for k, v in state["env"].items()})
-        b = self.env.num_envs  # checkpoints before per-world ids: the lock-step ids of round `rounds`
-        ids = state["episode_ids"].numpy() if "episode_ids" in state else self.counters["rounds"] * b + np.arange(b)
-        self.episodes = WorldEpisodes(b, ids)
-        self.obs = state["obs"].numpy().copy()
-        if not state["env"]:  # an env.factory world cannot be saved: set_state started new episodes
-            self.obs = fresh_obs
-            self.episodes.advance(np.ones(b, bool))
+        load_loop_state(self, state)
 
     def save_checkpoint(self) -> Path | None:
-        """Write the replay snapshot, then the checkpoint, into the run directory (each atomic). The checkpoint is
-        written last, so that a run killed between the two writes never leaves a checkpoint without its replay:
-        resume takes the newest checkpoint, which is then always whole."""
-        if self.run_dir is None:
-            return None
-        path = self.run_dir.checkpoint_path(self.counters["episodes"])
-        write_replay_snapshot(replay_snapshot_path(path), {"replay": self.replay.state_dict(),
-                                                           **self.scoring.state_dict()})
-        return self.run_dir.save_checkpoint(self.counters["episodes"], self.state_dict())
+        """Write the replay snapshot, then the checkpoint (last: never one without its replay), into the run
+        directory."""
+        return save_loop_checkpoint(self)
 
     def restore(self, checkpoint: Path) -> None:
-        """Load a checkpoint and its replay snapshot, each checked against its digest file and validated before
-        anything changes (CheckpointError / codec.CodecError naming the file otherwise)."""
-        state = load_checkpoint(checkpoint)
-        snapshot = read_replay_snapshot(replay_snapshot_path(checkpoint))
-        self.replay.load_state_dict(snapshot["replay"])
-        self.scoring.load_state_dict(snapshot)
-        self.load_state_dict(state)
+        """Load a checkpoint and its replay snapshot, each checked against its digest file before anything changes."""
+        restore_loop(self, checkpoint)
 
     # ------------------------------------------------------------------ main loop
     def run(self, stop: Callable[[], bool] | None = None) -> dict[str, Any]:
