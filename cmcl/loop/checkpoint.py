@@ -12,7 +12,7 @@ Checkpoints written before a part was saved still restore: each such part says w
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
@@ -25,11 +25,11 @@ from cmcl.io.checkpoint_files import (
     write_replay_snapshot,
 )
 
-if TYPE_CHECKING:
-    from cmcl.loop.inline import InlineLoop
+# `loop` below is a cmcl.loop.inline.InlineLoop (typed Any: this module is below it, it does not import it)
+Loop = Any
 
 
-def loop_state(loop: InlineLoop) -> dict[str, Any]:
+def loop_state(loop: Loop) -> dict[str, Any]:
     """Everything needed to continue the run except the replay contents (saved as a msgpack snapshot)."""
     return {
         "maddpg": loop.maddpg.state_dict(),
@@ -48,7 +48,7 @@ def loop_state(loop: InlineLoop) -> dict[str, Any]:
     }
 
 
-def load_loop_state(loop: InlineLoop, state: dict[str, Any]) -> None:
+def load_loop_state(loop: Loop, state: dict[str, Any]) -> None:
     """Restore a `loop_state()`, world states included, so a resumed run continues exactly."""
     loop.maddpg.load_state_dict(state["maddpg"])
     for name in ("teachers", "icm"):
@@ -83,7 +83,7 @@ def load_loop_state(loop: InlineLoop, state: dict[str, Any]) -> None:
         loop.episodes.advance(np.ones(b, bool))
 
 
-def save_loop_checkpoint(loop: InlineLoop) -> Path | None:
+def save_loop_checkpoint(loop: Loop) -> Path | None:
     """Write the replay snapshot, then the checkpoint, into the loop's run directory (each atomic; None without
     one). The checkpoint is written last, so that a run killed between the two writes never leaves a checkpoint
     without its replay: resume takes the newest checkpoint, which is then always whole."""
@@ -95,7 +95,7 @@ def save_loop_checkpoint(loop: InlineLoop) -> Path | None:
     return loop.run_dir.save_checkpoint(loop.counters["episodes"], loop.state_dict())
 
 
-def restore_loop(loop: InlineLoop, checkpoint: Path) -> None:
+def restore_loop(loop: Loop, checkpoint: Path) -> None:
     """Load a checkpoint and its replay snapshot, each checked against its digest file and validated before
     anything changes (CheckpointError / codec.CodecError naming the file otherwise)."""
     state = load_checkpoint(checkpoint)

@@ -11,7 +11,7 @@ picked-row share (`picked_rewarded`, float[N], over `picked_count` updates) afre
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -19,11 +19,11 @@ from cmcl.algorithms import early_notes, uses_lambda
 from cmcl.diagnostics import buffer_diagnostics
 from cmcl.progress import episode_rows, finished_episodes, progress_line, row_sampling_parts, window_summary
 
-if TYPE_CHECKING:
-    from cmcl.loop.inline import InlineLoop
+# `loop` below is a cmcl.loop.inline.InlineLoop (typed Any: this module is below it, it does not import it)
+Loop = Any
 
 
-def finished_episode_rows(loop: InlineLoop, info: dict[str, Any]) -> list[dict[str, Any]]:
+def finished_episode_rows(loop: Loop, info: dict[str, Any]) -> list[dict[str, Any]]:
     """One metrics row per finished episode (final-step coverage / success, or captures / win; returns)."""
     c = loop.counters
     rows = episode_rows(finished_episodes(info["episode"], loop.layout.teams), c["episodes"] + 1,
@@ -33,7 +33,7 @@ def finished_episode_rows(loop: InlineLoop, info: dict[str, Any]) -> list[dict[s
     return rows
 
 
-def progress_row(loop: InlineLoop, elapsed: float, rate: dict[str, float]) -> dict[str, Any]:
+def progress_row(loop: Loop, elapsed: float, rate: dict[str, float]) -> dict[str, Any]:
     """A 'progress' metrics row: counters, λ, losses, priority statistics and window means."""
     c = loop.counters
     row: dict[str, Any] = {"kind": "progress", **{k: c[k] for k in ("episodes", "env_steps", "updates")},
@@ -53,7 +53,7 @@ def progress_row(loop: InlineLoop, elapsed: float, rate: dict[str, float]) -> di
     return row
 
 
-def format_progress(loop: InlineLoop, row: dict[str, Any]) -> str:
+def format_progress(loop: Loop, row: dict[str, Any]) -> str:
     """One terminal line from a progress row."""
     return progress_line(row["episodes"], loop.config.run.episodes, row["env_steps"], row["updates"],
                          row["window"], row["lambda"] if uses_lambda(loop.layout.algorithms) else None, row,
