@@ -1,11 +1,11 @@
 """Documented fields: every field of a configuration dataclass carries its meaning, unit and range check in its own
 metadata, declared with `documented(default, meaning, unit=..., rule=...)`.
 
-Where it sits: the one place a config field is documented. The run configuration's sections (cmcl.config.sections,
-cmcl.config.env) and the world parameters (cmcl.envs.params) declare their fields with it; their `__post_init__`
-run the fields' rules (`ruled_fields`), whose `why` is both the error message's text ("must be >= 1") and the
-allowed range that `python -m cmcl config` and docs/CONFIG.md print (cmcl.config.reference). Standard library
-only, so that cmcl.envs can use it without importing cmcl.config.
+Where it sits: the one place a config field is documented. The run configuration's sections (cmcl.config.learning,
+cmcl.config.teams, cmcl.config.run_and_service, cmcl.config.env) and the world parameters (cmcl.envs.params)
+declare their fields with it; their `__post_init__` run the fields' rules (`ruled_fields`), whose `why` is both the
+error message's text ("must be >= 1") and the allowed range that `python -m cmcl config` and docs/CONFIG.md print
+(cmcl.config.reference). Standard library only, so that cmcl.envs can use it without importing cmcl.config.
 """
 
 from __future__ import annotations

@@ -1,10 +1,11 @@
 """Health of the service's actors, as the supervisor sees it: which actor a call belongs to, hung calls, crash loops.
 
 Where it sits: `services.supervisor.Supervisor` notes each call it submits (`CallWatch.submitted`) and each reply
-(`done`). An actor whose oldest call has waited longer than `service.call_timeout_s` is hung: the supervisor kills
-it (`ray.kill(no_restart=False)`), Ray restarts it and its calls fail, which frees their slots. An actor other
-than a rollout worker that died for good (out of `service.max_restarts`) ends the run with `ServiceFailed` naming
-the role, instead of a loop of failing calls; a rollout worker out of restarts is replaced by a fresh one.
+(`done`); its services.failures.Failures acts on them. An actor whose oldest call has waited longer than
+`service.call_timeout_s` is hung: the supervisor kills it (`ray.kill(no_restart=False)`), Ray restarts it and its
+calls fail, which frees their slots. An actor other than a rollout worker that died for good (out of
+`service.max_restarts`) ends the run with `ServiceFailed` naming the role, instead of a loop of failing calls; a
+rollout worker out of restarts is replaced by a fresh one.
 """
 
 from __future__ import annotations

@@ -5,7 +5,8 @@ work and scores travel between actors as object refs owned by this process (so t
 actor that produced them); it `ray.get`s only small typed statuses and metrics reports. Data flows one way:
 rollout -> replay -> learner, teachers / ICM read the replay and write scores back, weights go out once per
 version. Pacing comes from the replay server's `cmcl.replay.pacing.Pacing`, reported in every reply
-(`ReplayStatus`) and turned into calls by `services.call_budget`. The actors themselves are started by
+(`ReplayStatus`) and turned into calls by `services.call_budget`. What a failed or hung call does (counts,
+restarts, the end of the run) is services.failures. The actors themselves are started by
 services.placement.create_roles.
 """
 
@@ -31,15 +32,8 @@ from cmcl.messages import ReplayStatus
 from cmcl.progress import TrainingDiverged, episode_rows, solved, window_summary
 from cmcl.system import layout_of
 from services.call_budget import HeldClock, calls_to_issue
-from services.health import (
-    CallWatch,
-    RecoveryClock,
-    actor_key,
-    actor_of,
-    check_not_dead_for_good,
-    failed_role,
-    restartable,
-)
+from services.failures import Failures
+from services.health import actor_key
 from services.metrics import ServiceMetrics
 from services.placement import Roles
 from services.progress_view import ProgressView
@@ -74,11 +68,8 @@ class Supervisor:
         self.weights = roles.learner.publish.remote()
         self.version = -1
         self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
-        self.failures: dict[str, int] = {}  # failed calls per role of the actor that ran them
+        self.failures = Failures(config, roles)  # failed and hung calls, restarts, recovery times
         self.reports_rejected: dict[str, int] = {}  # reports the metrics refused, per kind (each also logged)
-        self.hung: dict[str, int] = {}  # actors killed for a call in flight longer than service.call_timeout_s
-        self.watch = CallWatch(config.service.call_timeout_s)
-        self.recovery = RecoveryClock()  # seconds from a dead actor's failed call to its next reply, per role
         self.held = HeldClock()  # seconds the learner had no call, by what held it back (the replay's pacing)
         self.lags: dict[str, int] = {}  # weight versions each rollout worker / teacher is behind
         self.episodes_logged = 0
@@ -110,7 +101,7 @@ class Supervisor:
         """Remember a call just submitted, numbered in submission order."""
         self.submitted += 1
         self.pending[ref] = (kind, index, self.submitted)
-        self.watch.submitted(ref)
+        self.failures.watch.submitted(ref)
 
     def _issue(self, rollouts: bool = True) -> None:
         """Hand out every piece of work the replay server's allowances leave room for (`services.call_budget`)."""
@@ -154,7 +145,7 @@ class Supervisor:
             ready += more
         for ref in ready:
             kind, index, number = self.pending.pop(ref)
-            self.watch.done(ref)
+            self.failures.watch.done(ref)
             if kind in FORWARD:  # data for the replay server, now ready: hand over the ref, never the data
                 self._track(getattr(self.roles.replay, FORWARD[kind][0]).remote(ref), FORWARD[kind][1], index)
                 continue
@@ -166,7 +157,7 @@ class Supervisor:
                     if self.env_error is None:  # does not fit its space, a crash): a retry meets it again; the run
                         raise err.cause from None  # is checkpointed, then the CLI says it in one line (item 5)
                     continue  # another worker's, while the run is being kept: said once
-                self._failed(kind, index, err)
+                self.failures.call_failed(kind, index, err, self.inflight)
                 continue
             self._apply(kind, index, value, number)
 
@@ -178,13 +169,12 @@ class Supervisor:
         newest: an older one never replaces it (a stale episode count would let `_issue` collect more episodes
         than run.episodes).
         """
-        self.recovery.replied(actor_key(kind, index))
+        self.failures.recovery.replied(actor_key(kind, index))
         if isinstance(value, ReplayStatus):  # the replay server's reply that ends a chain of `kind`'s work
             if number > self.status_number:
                 self.status, self.status_number = value, number
             if value.error:
-                reason = value.error.split(":")[0]
-                self.failures[reason] = self.failures.get(reason, 0) + 1
+                self.failures.replay_error(value.error)
             self.inflight[(kind, index)] -= 1
             return
         self._apply_metrics(kind, value)  # a Report, dispatched on the role that sent it
@@ -212,27 +202,6 @@ class Supervisor:
         if error is not None:
             self.reports_rejected[kind] = self.reports_rejected.get(kind, 0) + 1
             self.run_dir.log({"kind": "report_rejected", "report": kind, "error": error})
-
-    def _failed(self, kind: str, index: int, err: Exception) -> None:
-        """A call failed because an actor died: free its slot (Ray restarts the actor) or replace a rollout worker
-        out of restarts; any other role out of restarts ends the run (`ServiceFailed`)."""
-        role, own_death = failed_role(kind, err)
-        self.failures[role] = self.failures.get(role, 0) + 1
-        if own_death:
-            self.recovery.failed(actor_key(kind, index))
-        if kind in ("rollout", "learner", "teacher", "icm"):
-            self.inflight[(kind, index)] -= 1
-        if own_death and isinstance(err, ray.exceptions.ActorDiedError):
-            check_not_dead_for_good(role, err, self.config.service.max_restarts)
-            if kind == "rollout_report" and not restartable(err):
-                self.roles.rollout[index] = self.roles.make_rollout(index)  # out of restarts: a fresh worker
-
-    def _kill_hung(self) -> None:
-        """Kill (for Ray to restart) every actor with a call in flight longer than service.call_timeout_s."""
-        for role, index in self.watch.overdue(self.pending):
-            ray.kill(actor_of(self.roles, role, index), no_restart=False)
-            self.hung[role] = self.hung.get(role, 0) + 1
-            self.watch.restart_clock(self.pending, (role, index))
 
     def _log_episodes(self, report: Report) -> None:
         """Append one 'episode' row per finished episode of a rollout report to metrics.jsonl."""
@@ -296,8 +265,7 @@ class Supervisor:
                 try:
                     ray.get(ref)
                 except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError) as err:
-                    self.failures[role] = self.failures.get(role, 0) + 1
-                    check_not_dead_for_good(role, err, self.config.service.max_restarts)
+                    self.failures.save_failed(role, err)
         summary = {"episodes_logged": self.episodes_logged, "status": dataclasses.asdict(self.status),
                    "time": time.time()}
         atomic_write_bytes(self.paths["supervisor"], json.dumps(summary).encode())
@@ -333,7 +301,7 @@ class Supervisor:
                 self._issue(rollouts=collecting)
                 self.held.tick(time.perf_counter(), self.inflight[("learner", 0)], self.status)
                 self._collect(timeout=0.5)
-                self._kill_hung()
+                self.failures.kill_hung(self.pending)
                 now = time.perf_counter()
                 if now - last_report >= REPORT_EVERY_S and report_ref is None:
                     report_ref = self.roles.replay.report.remote()
@@ -360,9 +328,9 @@ class Supervisor:
         if self.progress is not None:
             self.progress(self.progress_line())
         return {**dataclasses.asdict(self.status), **self.status.counters(), **self.view.rates,
-                "failures": dict(self.failures), "hung": dict(self.hung),
+                "failures": dict(self.failures.counts), "hung": dict(self.failures.hung),
                 "reports_rejected": dict(self.reports_rejected),
-                "recovery_s": {k: list(v) for k, v in self.recovery.times.items()}, "solved": self.solved,
+                "recovery_s": {k: list(v) for k, v in self.failures.recovery.times.items()}, "solved": self.solved,
                 "plateau": self.learning_progress.plateaued,
                 "stopped": self.stopped, "episodes_logged": self.episodes_logged,
                 "checkpoint_seconds": list(self.checkpoint_seconds), "learner_held_s": dict(self.held.seconds),

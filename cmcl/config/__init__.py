@@ -4,8 +4,10 @@ Where it sits: every command (`python -m cmcl train | resume | evaluate` and its
 `load_config(path, overrides)` and hands each component its section. Defaults are the paper's Table 1 values
 and the resolutions of ../shared/ALGORITHM.md §5 (each [R] choice is an option here with that default).
 
-Layout: `sections` (the section dataclasses and their range checks), `env` (the [env] section: the world
-parameters are cmcl.envs.params' SpreadParams / TagParams, under their flat TOML keys), `experiment` (`Config`, its
+Layout: the section dataclasses, each field's range check in its own metadata: `learning` ([maddpg], [replay],
+[curriculum], [teachers], [icm]), `teams` ([teams.<team>] and [teams.<team>.priority]), `run_and_service` ([run],
+[service]), `env` (the [env] section and the tasks: the world parameters are cmcl.envs.params' SpreadParams /
+TagParams, under their flat TOML keys); `checks` (`ConfigError` and the range checks), `experiment` (`Config`, its
 derived quantities, `preset`), `toml_io` (mapping / TOML loading, `--set` overrides, type coercion, `dump_toml`),
 `moved` (keys that moved: refused from user input, migrated in a stored run config), `reference` (every key's
 meaning, unit, default and range from the fields' metadata: `python -m cmcl config`, docs/CONFIG.md).
@@ -15,10 +17,13 @@ Errors: any unknown key, wrong type or out-of-range value raises `ConfigError` n
 (e.g. ``maddpg.gamma``) and the offending value.
 """
 
-from cmcl.config import sections
-from cmcl.config.env import EnvConfig
+from cmcl.algorithms import ALGORITHMS
+from cmcl.config.checks import ConfigError
+from cmcl.config.env import TASK_TEAMS, TASKS, EnvConfig
 from cmcl.config.experiment import Config, preset
-from cmcl.config.sections import *  # noqa: F403 (the section dataclasses, ConfigError, ALGORITHMS, TASKS, TASK_TEAMS)
+from cmcl.config.learning import CurriculumConfig, ICMConfig, MADDPGConfig, ReplayConfig, TeacherConfig
+from cmcl.config.run_and_service import RunConfig, ServiceConfig
+from cmcl.config.teams import DEFAULT_ALPHA, PriorityConfig, TeamConfig
 from cmcl.config.toml_io import (
     apply_overrides,
     config_from_dict,
@@ -29,5 +34,8 @@ from cmcl.config.toml_io import (
     parse_override,
 )
 
-__all__ = [*sections.__all__, "Config", "EnvConfig", "apply_overrides", "config_from_dict", "dump_toml", "load_config",
+__all__ = ["ALGORITHMS", "DEFAULT_ALPHA", "TASKS", "TASK_TEAMS", "ConfigError",
+           "CurriculumConfig", "ICMConfig", "MADDPGConfig", "PriorityConfig", "ReplayConfig", "RunConfig",
+           "ServiceConfig", "TeacherConfig", "TeamConfig",
+           "Config", "EnvConfig", "apply_overrides", "config_from_dict", "dump_toml", "load_config",
            "load_data", "load_stored_config", "parse_override", "preset"]

@@ -2,7 +2,8 @@
 
 Where it sits: `EnvConfig` holds the task's world parameters as the env package's own dataclasses
 (`spread: SpreadParams`, `tag: TagParams`, cmcl.envs.params: their one home, with units and range checks), and
-cmcl.system hands `EnvConfig.world` to the task's batched twin and PettingZoo env as it is.
+cmcl.system hands `EnvConfig.world` to the task's batched twin and PettingZoo env as it is. The built-in tasks
+(`TASKS`) and each one's teams in agent order (`TASK_TEAMS`) are named here.
 
 TOML keys: the world's fields are written flat in [env], as before (`[env] agent_radius = 0.05`,
 `num_predators = 2`, `--set env.cover_radius=0.075`): each key is the field's name, except that a `TagParams`
@@ -14,14 +15,17 @@ from __future__ import annotations
 
 import dataclasses
 import re
+import typing
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 from cmcl.config.checks import AT_LEAST_1, check_fields, rule
-from cmcl.config.sections import TASKS, TaskName
 from cmcl.envs.params import EPISODE_LENGTH, SpreadParams, TagParams
 from cmcl.field_docs import documented
 
+TaskName = Literal["spread", "tag"]
+TASKS: tuple[str, ...] = typing.get_args(TaskName)
+TASK_TEAMS = {"spread": ("agent",), "tag": ("predator", "prey")}  # teams of each task, in agent order
 FACTORY_PATTERN = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_][\w.]*$")  # "package.module:callable"
 
 

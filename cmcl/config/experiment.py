@@ -1,7 +1,7 @@
 """The whole run: `Config` (one section per component plus one TeamConfig per team), derived quantities, presets.
 
-Loading a Config from TOML or a nested mapping is cmcl.config.toml_io; the sections are cmcl.config.sections and
-cmcl.config.env.
+Loading a Config from TOML or a nested mapping is cmcl.config.toml_io; the sections are cmcl.config.learning,
+cmcl.config.teams, cmcl.config.run_and_service and cmcl.config.env.
 """
 
 from __future__ import annotations
@@ -10,21 +10,12 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
-from cmcl.config.env import EnvConfig
-from cmcl.config.sections import (
-    ALGORITHMS,
-    TASK_TEAMS,
-    TASKS,
-    CurriculumConfig,
-    ICMConfig,
-    MADDPGConfig,
-    ReplayConfig,
-    RunConfig,
-    ServiceConfig,
-    TeacherConfig,
-    TeamConfig,
-    _require,
-)
+from cmcl.algorithms import ALGORITHMS
+from cmcl.config.checks import _require
+from cmcl.config.env import TASK_TEAMS, TASKS, EnvConfig
+from cmcl.config.learning import CurriculumConfig, ICMConfig, MADDPGConfig, ReplayConfig, TeacherConfig
+from cmcl.config.run_and_service import RunConfig, ServiceConfig
+from cmcl.config.teams import TeamConfig
 from cmcl.replay.curriculum import default_stride
 
 

@@ -2,8 +2,8 @@
 render one back as TOML.
 
 Errors: any unknown key or value of the wrong type raises `ConfigError` naming the full key and the value
-(range checks are the sections' own, cmcl.config.sections and cmcl.config.env, and the world parameters' own,
-cmcl.envs.params).
+(range checks are the sections' own, cmcl.config.learning, cmcl.config.teams, cmcl.config.run_and_service and
+cmcl.config.env, and the world parameters' own, cmcl.envs.params).
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ from pathlib import Path
 from typing import Any, Literal
 
 from cmcl.config.checks import ConfigError, _require
-from cmcl.config.env import WORLD_KEYS, EnvConfig, WorldKey
+from cmcl.config.env import TASK_TEAMS, TASKS, WORLD_KEYS, EnvConfig, WorldKey
 from cmcl.config.experiment import Config
 from cmcl.config.moved import migrate_moved, refuse_moved
-from cmcl.config.sections import TASK_TEAMS, TASKS, PriorityConfig, TeamConfig
+from cmcl.config.teams import PriorityConfig, TeamConfig
 
 _SECTIONS = {f.name: f for f in dataclasses.fields(Config) if f.name != "teams"}
 

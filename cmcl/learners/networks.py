@@ -10,7 +10,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from cmcl.config.sections import NETWORK_KINDS
+from cmcl.config.learning import NETWORK_KINDS
 from cmcl.envs.entities import EntityLayout
 from cmcl.learners.entity_nets import EntityActor, EntityCritic
 from cmcl.learners.nets import StackedMLP

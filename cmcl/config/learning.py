@@ -1,0 +1,204 @@
+"""The learning sections of a run configuration: [maddpg], [replay], [curriculum], [teachers] and [icm].
+
+What the base learner, the replay buffer, the curriculum factor λ, the K-fold teacher critics and the curiosity
+module are built with, one frozen, self-validating dataclass per section. Every field has the paper's Table 1 value
+or the resolution of ../shared/ALGORITHM.md §5 as its default and is declared with `documented(default, meaning,
+unit=..., rule=...)` (cmcl.field_docs): its meaning, unit and range check live there, once, and
+`python -m cmcl config` / docs/CONFIG.md print them. Each `__post_init__` runs the rules (`check_fields`) and raises
+`ConfigError` naming the full key (e.g. ``maddpg.gamma``) and the value. The teams' sections are
+cmcl.config.teams, [run] and [service] cmcl.config.run_and_service, [env] cmcl.config.env; the value checks
+(`ConfigError`, `_require`, ...) are cmcl.config.checks. Reads nothing but its own fields.
+"""
+
+from __future__ import annotations
+
+import typing
+from dataclasses import dataclass
+from typing import Literal
+
+from cmcl.config.checks import (
+    AT_LEAST_0,
+    AT_LEAST_1,
+    OPEN_PROBABILITY,
+    POSITIVE,
+    PROBABILITY,
+    ConfigError,
+    Rule,
+    _require,
+    check_fields,
+    rule,
+)
+from cmcl.field_docs import documented
+
+NetworkKind = Literal["per_agent", "shared", "entity"]
+NETWORK_KINDS: tuple[str, ...] = typing.get_args(NetworkKind)
+__all__ = ["NETWORK_KINDS", "CurriculumConfig", "ICMConfig", "MADDPGConfig", "ReplayConfig", "TeacherConfig"]
+
+
+def _check_networks(section: str, networks: str | None, share_parameters: bool) -> None:
+    """A section's `networks` is a known kind and agrees with its `share_parameters` (which means 'shared')."""
+    if share_parameters and networks not in (None, "shared"):
+        raise ConfigError(f"{section}.share_parameters = true contradicts {section}.networks = {networks!r}: set "
+                          f"only {section}.networks (share_parameters = true means networks = 'shared')")
+    _require(networks in (None, *NETWORK_KINDS), f"{section}.networks", networks,
+             f"must be one of {list(NETWORK_KINDS)}")
+
+
+def _network_kind(networks: str | None, share_parameters: bool) -> str:
+    return networks if networks is not None else ("shared" if share_parameters else "per_agent")
+
+
+@dataclass(frozen=True)
+class MADDPGConfig:
+    """Base learner (ALGORITHM.md §2, Table 1)."""
+
+    actor_lr: float = documented(1e-3, "Adam learning rate of the actor networks (eq. 4)", rule=POSITIVE)
+    critic_lr: float = documented(1e-3, "Adam learning rate of the critic networks (eq. 5)", rule=POSITIVE)
+    gamma: float = documented(0.99, "discount factor γ of the critics' TD target (eq. 5)", rule=PROBABILITY)
+    tau: float = documented(0.01, "soft target-network update rate τ (eq. 6): target ← τ·online + (1 − τ)·target "
+                            "after every update", rule=OPEN_PROBABILITY)
+    hidden: int = documented(64, "width of each hidden layer of the actor and critic networks", unit="units",
+                             rule=AT_LEAST_1)
+    batch_size: int = documented(128, "transitions per minibatch of one learner update; must not exceed "
+                                 "maddpg.warmup (unless that is 0)", unit="transitions", rule=AT_LEAST_1)
+    grad_clip: float = documented(0.5, "gradient-norm clip of every actor and critic step, per agent",
+                                  rule=POSITIVE)
+    exploration_std: float = documented(0.1, "standard deviation of the Gaussian noise on the tanh actions "
+                                        "(exploration)", unit="action units", rule=AT_LEAST_0)
+    discrete: bool = documented(False, "Gumbel-softmax actors over the built-in tasks' 5-way discrete action (A17); "
+                                "must be false with env.factory")
+    warmup: int = documented(3840, "transitions stored before the first learner update: batch × episode length "
+                             "(A18); must not exceed replay.capacity", unit="transitions", rule=AT_LEAST_0)
+    update_every: int = documented(
+        16, "world steps (one step of one world = one transition) per learner update; 16 solves navigation fastest "
+        "in wall clock (docs/LEARNING.md, python -m experiments run schedule); the paper presets (configs/paper/) "
+        "use 1 (A18)", unit="world steps per update", rule=AT_LEAST_1)
+    share_parameters: bool = documented(
+        False, "one actor and one critic network for all agents, each with its own first-layer bias (an agent-id "
+        "embedding, cmcl.learners.nets); for N = 8 / 16 (bench/scale.py). False = the paper's per-agent networks")
+    networks: NetworkKind | None = documented(
+        None, "the networks' kind (issue 22): 'per_agent' (one actor and critic per agent, the paper's), 'shared' "
+        "(the same as share_parameters = true) or 'entity' (one attention actor and one permutation-invariant "
+        "critic for all agents over the observation's entities, a parameter count independent of N: "
+        "cmcl.learners.entity_nets; built-in tasks only). Unset: 'shared' if share_parameters else 'per_agent'")
+    entity_pool: Literal["attention", "mean", "relational"] = documented(
+        "attention", "how every entity network of the run (learner, teachers.networks and icm.networks = "
+        "'entity') pools its entities: 'attention' (one head from the agent's own embedding, plus a mean), 'mean' "
+        "(the mean only, about half the cost per update) or 'relational' ('attention' after one round of "
+        "self-attention among the entities, so that a landmark's embedding can say another agent holds it: "
+        "cmcl.learners.entity_nets)")
+
+    def __post_init__(self) -> None:
+        _check_networks("maddpg", self.networks, self.share_parameters)
+        check_fields(self, "maddpg")
+
+    @property
+    def network_kind(self) -> str:
+        """The networks built: maddpg.networks, or what share_parameters implies when it is unset."""
+        return _network_kind(self.networks, self.share_parameters)
+
+
+@dataclass(frozen=True)
+class ReplayConfig:
+    """Replay storage and prioritized sampling (ALGORITHM.md §3.1, §3.6)."""
+
+    capacity: int = documented(5000, "rows the replay buffer holds (eq. 3's B), one per world step; the oldest is "
+                               "overwritten first", unit="transitions", rule=AT_LEAST_1)
+    priority_eps: float = documented(1e-6, "ε_p, the floor added to every priority (no row has probability 0)",
+                                     rule=POSITIVE)
+    beta_is_start: float = documented(0.4, "PER importance-sampling exponent β at the start of training, annealed "
+                                      "linearly to replay.beta_is_end", rule=PROBABILITY)
+    beta_is_end: float = documented(1.0, "PER importance-sampling exponent β at the end of training",
+                                    rule=PROBABILITY)
+    backend: Literal["cdf", "sumtree"] = documented(
+        "cdf", "the samplers' structure (cmcl.replay.sampler): 'cdf' (inverse CDF) or 'sumtree' (a vectorised sum "
+        "tree); both draw from the same distribution")
+
+    def __post_init__(self) -> None:
+        check_fields(self, "replay")
+
+
+@dataclass(frozen=True)
+class CurriculumConfig:
+    """Curriculum factor λ schedule (ALGORITHM.md §3.7)."""
+
+    lam0: float = documented(0.1, "λ at the end of the warm-up: the difficulty the K-fold priority KP favours "
+                             "first (eq. 12)", rule=Rule("must lie in (0, lam_max]", lambda value, section: (
+                                 not OPEN_PROBABILITY.ok(section.lam_max, section) or 0 < value <= section.lam_max)))
+    # (lam0's rule passes while lam_max is itself out of range: lam_max's own error is the one raised)
+    lam_max: float = documented(1.0, "the largest λ, where the schedule stops", rule=OPEN_PROBABILITY)
+    stride: float = documented(0.0, "Δλ per post-warm-up env step (kind = 'linear'); 0 means 'reach lam_max at "
+                               "half of run.episodes' (3e-6 for 20k episodes)", unit="λ per env step",
+                               rule=AT_LEAST_0)
+    kind: Literal["linear", "multiplicative"] = documented(
+        "linear", "how λ grows: 'linear' (λ_0 + Δλ·t) or 'multiplicative' (λ_0·(1 + κ)^t, κ reaching lam_max at "
+        "half of training; CHER-style), t in post-warm-up env steps, capped at lam_max (cmcl.replay.curriculum)")
+
+    def __post_init__(self) -> None:
+        check_fields(self, "curriculum")
+
+
+@dataclass(frozen=True)
+class TeacherConfig:
+    """K-fold teacher critics (ALGORITHM.md §3.2, A13, A14)."""
+
+    num_folds: int = documented(5, "K: the buffer's rows are split by episode into K folds, and each agent has K "
+                                "teacher critics, each fitted on its own fold (§3.2)", unit="folds",
+                                rule=rule("must be >= 2", lambda v: v >= 2))
+    batch_size: int = documented(128, "transitions per teacher fit batch", unit="transitions", rule=AT_LEAST_1)
+    lr: float = documented(1e-3, "Adam learning rate of the teacher critics (eq. 9)", rule=POSITIVE)
+    hidden: int = documented(64, "width of each hidden layer of a teacher critic", unit="units", rule=AT_LEAST_1)
+    rescore_rows_per_update: int = documented(
+        128, "rows rescored per learner update (every never-scored row, then the oldest scores, "
+        "cmcl.replay.scoring): the whole 5000-row buffer every ~39 updates; the paper preset's 167 = all of it "
+        "every 30 updates (§3.8)", unit="rows per update", rule=AT_LEAST_1)
+    fit_batch: Literal["shared", "per_agent"] = documented(
+        "shared", "'shared': one fold batch per fold serves every agent's teacher of that fold (one target pass; "
+        "the service's layout); 'per_agent': each (agent, fold) teacher draws its own batch (§3.2 literally, A × "
+        "the target cost)")
+    steps_per_update: float = documented(
+        0.5, "teacher fit steps per learner update, inline and in the service (its rate limiter); §3.8 has 1, the "
+        "default 0.5 halves the teachers' cost (CMCL update cost vs MADDPG: bench/learner_throughput.py)",
+        unit="fit steps per update", rule=POSITIVE)
+    share_parameters: bool = documented(
+        False, "one teacher network per fold for all agents, each agent with its own first-layer bias "
+        "(cmcl.learners.nets, grouped sharing); the folds stay separate. For N = 8 / 16 (bench/scale.py). False = "
+        "per-(agent, fold) networks")
+    networks: NetworkKind | None = documented(
+        None, "the teachers' kind, as maddpg.networks: 'entity' = one entity critic (cmcl.learners.entity_nets) per "
+        "fold for all agents, its parameter count independent of N; unset: 'shared' if share_parameters else "
+        "'per_agent'")
+
+    def __post_init__(self) -> None:
+        _check_networks("teachers", self.networks, self.share_parameters)
+        check_fields(self, "teachers")
+
+    @property
+    def network_kind(self) -> str:
+        """The teachers' networks: teachers.networks, or what share_parameters implies when it is unset."""
+        return _network_kind(self.networks, self.share_parameters)
+
+
+@dataclass(frozen=True)
+class ICMConfig:
+    """Intrinsic curiosity module (ALGORITHM.md §3.4–3.5, A5–A7)."""
+
+    feature_dim: int = documented(32, "size of the encoder's feature vector φ(s) (eq. 13)", unit="features",
+                                  rule=AT_LEAST_1)
+    hidden: int = documented(64, "width of each hidden layer of the encoder, inverse and forward models",
+                             unit="units", rule=AT_LEAST_1)
+    beta_forward: float = documented(0.2, "β of the ICM objective (eq. 17): the forward loss's weight against the "
+                                     "inverse loss's 1 − β", rule=PROBABILITY)
+    lr: float = documented(1e-3, "Adam learning rate of the ICM (eq. 17)", rule=POSITIVE)
+    batch_size: int = documented(128, "transitions per ICM fit batch", unit="transitions", rule=AT_LEAST_1)
+    intrinsic_reward_coef: float = documented(0.0, "weight of the curiosity ρ added to the reward; 0 (A6): "
+                                              "curiosity feeds priority only", rule=AT_LEAST_0)
+    steps_per_update: float = documented(0.5, "ICM fit steps per learner update, inline and in the service "
+                                         "(§3.8: 1)", unit="fit steps per update", rule=POSITIVE)
+    networks: Literal["per_agent", "entity"] = documented(
+        "per_agent", "'per_agent': one encoder, inverse and forward model per curiosity agent; 'entity': one of "
+        "each for all of them, the encoder over the observation's entities (cmcl.learners.entity_nets), a size "
+        "independent of N")
+
+    def __post_init__(self) -> None:
+        check_fields(self, "icm")
