@@ -1,4 +1,4 @@
-"""What the agent-count curriculum's learning-progress signal looks like, stage by stage (issue 38, `run.stop_progress`).
+"""What the agent-count curriculum's learning-progress signal looks like, stage by stage (issue 38, run.stop_progress).
 
 `run.stop_progress` ends a stage once LP_k = |δ̄_k − δ̄_{k−1}| / δ̄_{k−1} (cmcl/learning_progress.py: δ̄_k the mean
 critic loss of episode window k) stays below the threshold for `run.progress_patience` windows. At 0.05 over three

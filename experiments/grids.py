@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cmcl.algorithms import PAPER_ALGORITHMS
+from cmcl.config import load_data
 from experiments.confirm_arms import confirm_arms, screen_choice
 from experiments.own_envs import OWN_ENV_LOG_EVERY, OWN_ENVS
 from experiments.run_spec import ROOT, Run
@@ -136,9 +137,8 @@ SCALE_CELLS: dict[str, ScaleCell] = {
 # `make run` measured, not remembered (issue 35): the Makefile's run target, one run per seed, one at a time, on an
 # otherwise idle machine: the service, configs/spread_maddpg.toml (uniform replay; configs/spread_cmcl.toml until
 # 2026-12-05), stop at a 100-episode moving-average coverage of 0.9 or after 300 s of training (the grid's runner adds
-# --quiet and --metrics-port 0, and its own seed and run folder). MAKE_RUN_ALGORITHM: the algorithm that config trains.
+# --quiet and --metrics-port 0, and its own seed and run folder).
 MAKE_RUN = {"config": "spread_maddpg.toml", "stop_coverage": 0.9, "max_seconds": 300.0}
-MAKE_RUN_ALGORITHM = "maddpg"
 UPDATE_EVERY, BATCHES = (1, 4, 16, 64), (128, 512)  # the schedule grid's maddpg.update_every x maddpg.batch_size
 SOLVE_STOP_COVERAGE, SOLVE_MAX_SECONDS = 0.95, 900.0  # the time-to-solve grids' stops (moving average; seconds)
 
@@ -210,9 +210,11 @@ def solve_runs(name: str, seed: int, budget: int, algorithms: list[str]) -> list
 
 def make_run_runs(seed: int, budget: int) -> list[Run]:
     """The make_run grid: `make run`'s command (MAKE_RUN) at `seed`, id "make_run_<algorithm>_s<seed>" (the ids
-    "make_run_s<seed>" are the CMCL `make run` measured until 2026-12-05; their summaries stay)."""
-    return [Run(f"make_run_{MAKE_RUN_ALGORITHM}_s{seed}", "make_run", "spread", MAKE_RUN_ALGORITHM, None, seed, budget,
-                mode="service", **MAKE_RUN)]
+    "make_run_s<seed>" are the CMCL `make run` measured until 2026-12-05; their summaries stay). The algorithm is
+    the one MAKE_RUN's config file trains."""
+    algorithm = load_data(ROOT / "configs" / MAKE_RUN["config"])["teams"]["agent"]["algorithm"]
+    return [Run(f"make_run_{algorithm}_s{seed}", "make_run", "spread", algorithm, None, seed, budget, mode="service",
+                **MAKE_RUN)]
 
 
 def scale_runs(seed: int, budget: int) -> list[Run]:

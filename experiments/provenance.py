@@ -19,7 +19,7 @@ import json
 import subprocess
 import sys
 from collections.abc import Iterable
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -61,7 +61,7 @@ def run_provenance(run: Run, run_path: Path, load: dict[str, Any] | None) -> dic
     run_dir = RunDirectory.open(run_path / f"n{run.stages[-1]}" if run.stages else run_path)
     out = provenance(run_dir.config_path.read_text())
     out.update(load or {}, segment_commits=segment_commits(run_dir.path),
-               measured_utc=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M"))
+               measured_utc=datetime.now(UTC).strftime("%Y-%m-%d %H:%M"))
     if not run.stages and run.task != "own_env":
         out["fingerprint"] = fingerprint(run)
     return out
