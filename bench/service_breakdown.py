@@ -10,7 +10,8 @@ A thread samples every second the CPU seconds (user + system, /proc via psutil) 
 the machine's CPU times, and the service's counters. Processes are named by role: the actors by their own
 `os.getpid()` (asked once before training), the rest by process name (raylet, gcs_server, dashboard, agents, log
 monitor, idle Ray workers, the reaper); this process is the driver, which runs the supervisor (the sampler's own
-CPU is taken off it and shown apart).
+CPU is taken off it and shown apart). The sampler and its CPU arithmetic are bench/breakdown_sampling.py; the
+table and summary are printed by bench/breakdown_table.py.
 
 The window runs from the first sample after the learner's first update (the end of the warm-up) to the end of the
 budget (the final cut, checkpoint and Ray's shutdown are left out). Per role: CPU seconds in the window, cores
@@ -37,10 +38,6 @@ import gc
 import json
 import os
 import sys
-import threading
-import time
-from bisect import bisect_right
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -49,13 +46,14 @@ import psutil
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.breakdown_sampling import Sampler, core_shares, cpu_between  # noqa: E402
+from bench.breakdown_table import print_summary, print_table  # noqa: E402
 from cmcl.provenance import LoadSampler, provenance  # noqa: E402
 
 DEFAULT_SECONDS = 120
 DEFAULT_OUT = "bench/results/service_breakdown/make_run.json"
 MAKE_RUN = ["run.stop_coverage=0.9"]  # the Makefile's `run:` settings besides run.dir and run.max_seconds (and
 # its `--metrics-port`: the bench takes a free port, as the tests do)
-SAMPLE_EVERY_S = 1.0
 # Ray's own processes, by a fragment of their command line (first match wins), and the label of their row
 RAY_PROCESSES = (("raylet", "raylet"), ("gcs_server", "gcs_server"), ("dashboard/agent.py", "dashboard agent"),
                  ("ray::DashboardAgent", "dashboard agent"), ("dashboard.py", "dashboard"),
@@ -97,31 +95,6 @@ def group_of(role: str) -> str:
     return next((group for prefix, group in GROUPS if role.startswith(prefix)), "Ray's own processes")
 
 
-def cpu_between(samples: list[tuple[float, float]], t0: float, t1: float) -> float:
-    """CPU seconds a process used in [t0, t1] from its (time, cumulative CPU s) samples, in time order: the last
-    sample at or before t1 minus the last at or before t0 (0 when the process was first seen after t0: it started
-    in the window). 0 when no sample falls at or before t1."""
-    times = [t for t, _ in samples]
-    end = bisect_right(times, t1) - 1
-    if end < 0:
-        return 0.0
-    start = bisect_right(times, t0) - 1
-    return max(0.0, samples[end][1] - (samples[start][1] if start >= 0 else 0.0))
-
-
-def core_shares(cpu_s: float, window_s: float, cores: int) -> tuple[float, float]:
-    """(cores used: CPU s per wall s, share of all `cores`) of `cpu_s` CPU seconds over `window_s` seconds."""
-    if window_s <= 0 or cores <= 0:
-        raise ValueError(f"window_s and cores must be > 0, got {window_s!r}, {cores!r}")
-    return cpu_s / window_s, cpu_s / (window_s * cores)
-
-
-def machine_busy(times: Any) -> float:
-    """CPU seconds the machine's cores spent busy (psutil.cpu_times(): user, nice, system, irq, softirq, steal; guest
-    time is already inside user and nice)."""
-    return sum(getattr(times, key, 0.0) for key in ("user", "nice", "system", "irq", "softirq", "steal"))
-
-
 def learner_split(window_s: float, busy_s: float, busy_cpu_s: float, held: dict[str, float]) -> dict[str, float]:
     """The learner's wall clock over a window: `computing_s` (inside update calls; of it `computing_cpu_s` on the CPU
     and `computing_off_cpu_s` descheduled), `idle_s` = the rest, of it `held_<reason>_s` with no call at all (the
@@ -138,73 +111,6 @@ def learner_split(window_s: float, busy_s: float, busy_cpu_s: float, held: dict[
     out.update({key.removesuffix("_s") + "_share": value / window_s for key, value in list(out.items())
                 if key != "window_s"})
     return out
-
-
-# ----------------------------------------------------------------------------- sampling
-@dataclass
-class Sample:
-    """One sample of the service's counters (learner: cumulative from its reports; held: the HeldClock)."""
-
-    t: float
-    updates: float
-    env_steps: float
-    busy_s: float
-    busy_cpu_s: float
-    held: dict[str, float]
-    machine_busy_s: float  # CPU seconds of the whole machine (all cores) so far, every process
-
-
-@dataclass
-class Sampler:
-    """Samples every SAMPLE_EVERY_S the CPU times of this process's descendants and the supervisor's counters, until
-    `deadline` (perf_counter), in a thread."""
-
-    supervisor: Any
-    deadline: float
-    cpu: dict[int, list[tuple[float, float]]] = field(default_factory=dict)  # pid -> [(t, CPU s)]
-    cmdline: dict[int, str] = field(default_factory=dict)
-    nice: dict[int, int] = field(default_factory=dict)
-    samples: list[Sample] = field(default_factory=list)
-    own_cpu: list[tuple[float, float]] = field(default_factory=list)  # (t, this thread's CPU s)
-
-    def __post_init__(self) -> None:
-        self._thread = threading.Thread(target=self._loop, daemon=True, name="breakdown-sampler")
-        self._procs: dict[int, psutil.Process] = {}
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def join(self) -> None:
-        self._thread.join()
-
-    def _loop(self) -> None:
-        while True:
-            now = time.perf_counter()
-            self._sample(now)
-            if now >= self.deadline:
-                return
-            time.sleep(max(0.0, min(SAMPLE_EVERY_S, self.deadline - time.perf_counter())))
-
-    def _sample(self, now: float) -> None:
-        me = psutil.Process()
-        for proc in [me, *me.children(recursive=True)]:
-            proc = self._procs.setdefault(proc.pid, proc)
-            try:
-                times = proc.cpu_times()
-                if proc.pid not in self.cmdline:
-                    self.cmdline[proc.pid] = " ".join(proc.cmdline()) or proc.name()
-                    self.nice[proc.pid] = proc.nice()
-            except psutil.Error:
-                continue
-            self.cpu.setdefault(proc.pid, []).append((now, times.user + times.system))
-        sup, machine = self.supervisor, psutil.cpu_times()
-        value = sup.metrics.value
-        self.samples.append(Sample(
-            t=now, updates=value("cmcl_learner_updates_total") or 0.0, env_steps=value("cmcl_env_steps_total") or 0.0,
-            busy_s=value("cmcl_learner_busy_seconds_total") or 0.0,
-            busy_cpu_s=value("cmcl_learner_busy_cpu_seconds_total") or 0.0, held=dict(sup.held.seconds),
-            machine_busy_s=machine_busy(machine)))
-        self.own_cpu.append((now, time.thread_time()))
 
 
 # ----------------------------------------------------------------------------- the run
@@ -296,71 +202,6 @@ def breakdown(sampler: Sampler, actors: dict[int, str], cores: int) -> dict[str,
             "service_cpu_s": service, "machine_cpu_s": machine, "rest_of_machine_cpu_s": max(0.0, machine - service
                                                                                               - sampler_cpu),
             "learner": learner}
-
-
-# ----------------------------------------------------------------------------- printing
-def print_table(result: dict[str, Any]) -> None:
-    window, cores = result["window_s"], result["cores"]
-    print(f"\nwindow: {window:.1f} s of steady state (from {result['window_from_start_s'][0]:.1f} s after the "
-          f"supervisor started, the learner's first update, to the budget's end); {cores} cores")
-    print(f"{'role':34s} {'pids':>4s} {'nice':>6s} {'CPU s':>8s} {'cores':>6s} {'share':>6s} {'ms/upd':>8s}")
-    updates = result["learner"]["updates"]
-
-    def per_update(cpu: float) -> str:
-        return f"{1e3 * cpu / updates:8.2f}" if updates else f"{'-':>8s}"
-
-    for row in result["roles"]:
-        print(f"{row['role']:34s} {len(row['pids']):4d} {','.join(map(str, row['nice'])):>6s} {row['cpu_s']:8.1f} "
-              f"{row['cores']:6.2f} {100 * row['share']:5.1f}% {per_update(row['cpu_s'])}")
-    for label, cpu in (("all of the service (no sampler)", result["service_cpu_s"]),
-                       ("the whole machine", result["machine_cpu_s"]),
-                       ("rest of the machine (other work)", result["rest_of_machine_cpu_s"])):
-        used, share = core_shares(cpu, window, cores)
-        print(f"{label:34s} {'':4s} {'':>6s} {cpu:8.1f} {used:6.2f} {100 * share:5.1f}% "
-              f"{per_update(cpu) if label.startswith('all') else ''}".rstrip())
-    print("\nby group:")
-    for group, g in sorted(result["groups"].items(), key=lambda kv: -kv[1]["cpu_s"]):
-        print(f"  {group:32s} {g['cpu_s']:8.1f} CPU s  {g['cores']:5.2f} cores  {100 * g['share']:5.1f}% of {cores}"
-              f"  {per_update(g['cpu_s'])} CPU ms per update")
-    ln = result["learner"]
-    print(f"\nlearner: {ln['updates']:.0f} updates in the window, {ln['updates_per_s']:.1f} updates/s; rollouts "
-          f"{result['env_steps_per_s']:.0f} env steps/s")
-    print(f"  computing (inside update calls) {ln['computing_s']:7.1f} s  {100 * ln['computing_share']:5.1f}%   "
-          f"of which on the CPU {ln['computing_cpu_s']:.1f} s, descheduled {ln['computing_off_cpu_s']:.1f} s")
-    print(f"  idle                            {ln['idle_s']:7.1f} s  {100 * ln['idle_share']:5.1f}%")
-    for key, label in (("held_env_steps", "no call: held by env steps (data)"),
-                       ("held_scores", "no call: held by scores"),
-                       ("held_checkpoint", "no call: checkpoint"), ("held_warmup", "no call: warm-up"),
-                       ("held_other", "no call: other"), ("waiting_with_call", "a call in flight (batch / feedback)")):
-        print(f"    {label:36s}{ln[key + '_s']:7.1f} s  {100 * ln[key + '_share']:5.1f}%")
-    if ln["cpu_ms_per_update"] is not None:
-        print(f"  per update: {ln['wall_ms_per_update']:.2f} ms wall, {ln['cpu_ms_per_update']:.2f} ms CPU in update "
-              f"calls; learner process CPU outside update calls {ln['process_cpu_outside_updates_s']:.1f} s "
-              f"(Ray's threads in it: receiving batches, sending feedback and weights)")
-
-
-def print_summary(result: dict[str, Any], inline: dict[str, float] | None, load: dict[str, Any]) -> None:
-    ln, groups, cores = result["learner"], result["groups"], result["cores"]
-    print("\nsummary:")
-    if inline:
-        print(f"  the learner ran {ln['updates_per_s']:.1f} updates/s where one core alone gives "
-              f"{1 / inline['maddpg']:.1f} (an inline MADDPG update, {1e3 * inline['maddpg']:.2f} ms) and "
-              f"{1 / inline['cmcl']:.1f} (an inline CMCL update with its teachers, ICM and scoring, "
-              f"{1e3 * inline['cmcl']:.2f} ms), measured in this process before the service")
-    else:
-        print(f"  the learner ran {ln['updates_per_s']:.1f} updates/s (inline costs not measured: --inline-rounds 0)")
-    service_ms = 1e3 * result["service_cpu_s"] / ln["updates"] if ln["updates"] else float("nan")
-    print(f"  the service used {result['service_cpu_s'] / result['window_s']:.2f} cores, {service_ms:.1f} CPU ms per "
-          f"learner update in all (the learner's own update calls: {ln['cpu_ms_per_update'] or float('nan'):.1f})")
-    print(f"  the learner computed {100 * ln['computing_share']:.0f}% of the window and was idle "
-          f"{100 * ln['idle_share']:.0f}% (held by env steps {100 * ln['held_env_steps_share']:.0f}%, by scores "
-          f"{100 * ln['held_scores_share']:.0f}%, checkpoints {100 * ln['held_checkpoint_share']:.0f}%, with a call in "
-          f"flight {100 * ln['waiting_with_call_share']:.0f}%)")
-    for group, g in sorted(groups.items(), key=lambda kv: -kv[1]["cpu_s"]):
-        print(f"  {group}: {g['cores']:.2f} cores ({100 * g['share']:.0f}% of {cores})")
-    rest = result["rest_of_machine_cpu_s"] / result["window_s"]
-    print(f"  rest of the machine (other sessions' work): {rest:.2f} cores; 1-minute load average during the run "
-          f"{load['load_mean']} mean, {load['load_max']} max")
 
 
 # ----------------------------------------------------------------------------- main

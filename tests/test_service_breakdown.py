@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.breakdown_sampling import core_shares, cpu_between
 from cmcl.messages import ReplayStatus
 from cmcl.replay.pacing import Pacing
 from cmcl.replay.ratelimit import RateLimiter
@@ -16,7 +17,7 @@ from services.metrics import ServiceMetrics
 from services.report_schema import LearnerReport, Report, parse_report
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from service_breakdown import core_shares, cpu_between, group_of, learner_split, role_of_process  # noqa: E402
+from service_breakdown import group_of, learner_split, role_of_process  # noqa: E402
 
 
 def test_processes_are_named_by_their_role():
