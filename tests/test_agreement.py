@@ -25,7 +25,7 @@ from services.learner import Learner
 from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
 from services.teachers import TeacherWorker
-from tests.test_service_inprocess import in_process_config
+from tests.in_process import in_process_config
 
 # every registered rule and its controls: the agreement holds for each (issue 36)
 TEACHER_RULES = [a for a in ALGORITHMS if REGISTRY[a].needs(TeamConfig(algorithm=a)).teachers]

@@ -1,4 +1,7 @@
-"""The service classes run in-process without Ray, in the order the supervisor chains them."""
+"""The service classes run in-process without Ray, in the order the supervisor chains them: one round of the data
+flow through every role, which rows each teacher fits and scores, what the replay server refuses and counts, the
+incarnation on every reply, the calls the supervisor issues, and entity networks in every role. What survives a
+restart is tests/test_service_inprocess_restart.py."""
 
 import dataclasses
 from collections import Counter
@@ -7,7 +10,6 @@ import numpy as np
 import pytest
 
 from cmcl.config import config_from_dict
-from cmcl.io.durable import ReplayStore, StoreError
 from cmcl.messages import LearnerFeedback, ReplayStatus
 from services.call_budget import calls_to_issue
 from services.icm import ICMWorker
@@ -16,27 +18,7 @@ from services.placement import teacher_groups
 from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
 from services.teachers import TeacherWorker
-from tests.tiny import make_tiny_config
-
-# The roles are driven by hand here, chunk by chunk, on the tiny service config with: a 360-row buffer (3 chunks of
-# 4 worlds × 30 steps), calls of 4 updates / 2 teacher fit steps / 200 scored rows, and the presets' 20 000 episodes
-# (the default λ stride reaches λ_max at half of run.episodes: with 12 episodes λ would reach it within 3 chunks).
-IN_PROCESS_SECTIONS = {"replay": {"capacity": 360},
-                       "service": {"updates_per_call": 4, "fit_steps_per_call": 2, "score_rows_per_call": 200}}
-
-
-def in_process_config(algorithm="cmcl", **sections):
-    """The roles' config dict (`Config.to_dict()`): the tiny service config with `IN_PROCESS_SECTIONS`, then
-    `sections` ({key: value} per section name) on top."""
-    merged = {name: {**IN_PROCESS_SECTIONS.get(name, {}), **sections.get(name, {})}
-              for name in {*IN_PROCESS_SECTIONS, *sections}}
-    return make_tiny_config(algorithm, service=True, sections=merged, episodes=20_000).to_dict()
-
-
-def roles(cfg):
-    k = cfg["teachers"]["num_folds"]
-    teachers = [TeacherWorker(cfg, [i], i) for i in range(k)]
-    return ReplayServer(cfg), Learner(cfg, 0), RolloutWorker(cfg, 0, 0), teachers, ICMWorker(cfg, 0)
+from tests.in_process import in_process_config, roles
 
 
 def test_one_round_of_the_data_flow_reaches_every_role():
@@ -102,57 +84,6 @@ def test_duplicate_bad_and_stale_inputs_are_refused_and_counted():
     assert replay.stale_scores == 40  # stale score updates: dropped by design, counted apart
 
 
-def test_snapshot_restores_buffer_scores_counters_and_dedupe(tmp_path):
-    cfg = in_process_config("cmcl")
-    replay, learner, worker, teachers, icm = roles(cfg)
-    chunk = None
-    for _ in range(3):
-        chunk, _ = worker.rollout(None)
-        replay.insert(chunk)
-    scores, _ = teachers[0].step(replay.teacher_work([0], 2)[0], learner.publish())
-    replay.write_teacher_scores(scores)
-    replay.sample(2)
-    replay.store = ReplayStore(tmp_path / "replay")
-    replay.snapshot()
-    restored = ReplayServer(cfg, store_dir=str(tmp_path / "replay"))
-    assert restored.status().env_steps == 360 and restored.status().updates == 2
-    np.testing.assert_array_equal(restored.replay.storage.obs, replay.replay.storage.obs)
-    for name, value in replay.scoring.difficulty.state_dict().items():
-        np.testing.assert_array_equal(restored.scoring.difficulty.state_dict()[name], value)
-    assert "duplicate" in restored.insert(chunk).error, "dedupe table survives a restart"
-
-
-@pytest.mark.parametrize("algorithm", ["per", "cmcl"])
-def test_a_restored_server_continues_the_sampler_streams(tmp_path, algorithm):
-    """The generators are in the snapshot: the restored server draws the minibatch the first one would have drawn
-    next, not the first incarnation's opening draws again."""
-    cfg = in_process_config(algorithm)
-    replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
-    for _ in range(3):
-        replay.insert(worker.rollout(None)[0])
-    opening = replay.sample(1)[0].slots
-    replay.store = ReplayStore(tmp_path / "replay")
-    replay.snapshot()
-    restored = ReplayServer(cfg, store_dir=str(tmp_path / "replay"))
-    after, again = replay.sample(1)[0].slots, restored.sample(1)[0].slots
-    np.testing.assert_array_equal(again, after)
-    assert not np.array_equal(again, opening)
-
-
-def test_learner_and_teacher_restart_from_their_checkpoints(tmp_path):
-    cfg = in_process_config("cmcl")
-    replay, learner, worker, teachers, _ = roles(cfg)
-    for _ in range(3):
-        replay.insert(worker.rollout(None)[0])
-    learner = Learner(cfg, 0, str(tmp_path / "learner.pt"))
-    learner.update(replay.sample(4)[0])
-    learner.save()
-    again = Learner(cfg, 0, str(tmp_path / "learner.pt"))
-    assert again.resumed and again.version == 1 and again.report().learner.updates == 4
-    for key, value in learner.publish()["weights"]["actor"].items():
-        np.testing.assert_array_equal(again.publish()["weights"]["actor"][key], value)
-
-
 def test_icm_actor_refuses_a_config_without_curiosity():
     with pytest.raises(ValueError, match="curiosity"):
         ICMWorker(in_process_config("acl"), 0)
@@ -206,84 +137,6 @@ def test_a_chunk_that_would_corrupt_the_accounting_is_refused(field, value, mess
     refused = replay.insert(dataclasses.replace(chunk, **{field: value(chunk)}))
     assert message in refused.error and refused.episodes == 0 and replay.replay.size == 0
     assert replay.insert(chunk).accepted == 120, "the good chunk with the same seq is still accepted"
-
-
-def test_no_acknowledged_chunk_is_lost_across_a_restart(tmp_path):
-    cfg = in_process_config("acl")
-    store = str(tmp_path / "replay")
-    replay, worker = ReplayServer(cfg, store_dir=store), RolloutWorker(cfg, 0, 0)
-    chunks = [worker.rollout(None)[0] for _ in range(3)]
-    replay.insert(chunks[0])
-    assert ReplayServer(cfg, store_dir=store).replay.size == 120, "the log alone restores, before any snapshot"
-    replay.insert(chunks[1])
-    replay.snapshot()
-    replay.insert(chunks[2])  # acknowledged after the snapshot: only in the log
-    replay.sample(3)
-    replay.teacher_work([1], 2)
-    restored = ReplayServer(cfg, store_dir=store)  # a crash: a new process on the same store
-    assert restored.resumed and restored.counters["restored_records"] == 3  # a chunk, 3 updates, 2 fit steps
-    assert (restored.counters["updates"], restored.teacher_steps) == (3, [0, 2, 0]), "counters never go back"
-    assert restored.pacing.state_dict() == replay.pacing.state_dict()
-    for key in ("obs", "act", "rew", "episode", "fold"):
-        np.testing.assert_array_equal(getattr(restored.replay.storage, key), getattr(replay.replay.storage, key))
-    assert restored.status().env_steps == replay.status().env_steps == 360
-    assert restored.status().lam == replay.status().lam
-    assert all("duplicate" in restored.insert(c).error for c in chunks), "a retried chunk is not stored twice"
-
-
-def test_a_torn_log_tail_is_cut_and_a_bad_snapshot_refused(tmp_path):
-    cfg = in_process_config("maddpg")
-    store = tmp_path / "replay"
-    replay, worker = ReplayServer(cfg, store_dir=str(store)), RolloutWorker(cfg, 0, 0)
-    for _ in range(2):
-        replay.insert(worker.rollout(None)[0])
-    log = store / "log-000000.bin"
-    with open(log, "r+b") as f:  # a crash in the middle of the second frame
-        f.truncate(log.stat().st_size - 100)
-    restored = ReplayServer(cfg, store_dir=str(store))
-    assert restored.replay.size == 120 and restored.rejected == {"log_truncated": 1}
-    assert restored.insert(worker.rollout(None)[0]).accepted == 120, "appends continue after the good frames"
-    restored.snapshot()
-    snapshot = next(store.glob("snapshot-*.msgpack"))
-    data = bytearray(snapshot.read_bytes())
-    data[len(data) // 2] ^= 0xFF
-    snapshot.write_bytes(bytes(data))
-    with pytest.raises(StoreError, match="SHA-256 does not match"):
-        ReplayServer(cfg, store_dir=str(store))
-
-
-def test_a_corrupt_frame_costs_only_its_own_transitions_and_the_log_is_moved_aside(tmp_path, capsys):
-    """Issue 37: one flipped byte in the first frame used to truncate the log there and lose every chunk after."""
-    cfg = in_process_config("maddpg")  # capacity 360: two chunks of 120 stay in the log
-    store = tmp_path / "replay"
-    replay, worker = ReplayServer(cfg, store_dir=str(store)), RolloutWorker(cfg, 0, 0)
-    chunks = [worker.rollout(None)[0] for _ in range(2)]
-    for chunk in chunks:
-        assert replay.insert(chunk).accepted == 120
-    log = store / "log-000000.bin"
-    damaged = bytearray(log.read_bytes())
-    damaged[len(damaged) // 4] ^= 0xFF  # inside the first chunk's frame
-    log.write_bytes(bytes(damaged))
-    restored = ReplayServer(cfg, store_dir=str(store))
-    assert restored.replay.size == 120 and restored.rejected == {"log_truncated": 1}
-    assert "duplicate" in restored.insert(chunks[1]).error, "the chunk after the bad frame is kept"
-    assert restored.insert(chunks[0]).accepted == 120, "the lost one is not marked stored: a retry is taken"
-    err = capsys.readouterr().err
-    assert "1 corrupt frame(s) skipped (120 transitions lost)" in err and "log-000000.bin.damaged-1" in err
-    assert (store / "log-000000.bin.damaged-1").read_bytes() == bytes(damaged), "moved aside whole, not cut"
-
-
-def test_the_log_never_holds_more_than_one_buffer_of_transitions(tmp_path):
-    cfg = in_process_config("maddpg")  # capacity 360 = 3 chunks of 120
-    store = tmp_path / "replay"
-    replay, worker = ReplayServer(cfg, store_dir=str(store)), RolloutWorker(cfg, 0, 0)
-    for _ in range(2):
-        replay.insert(worker.rollout(None)[0])
-    assert replay.store.generation == 0 and replay.logged_rows == 240
-    replay.insert(worker.rollout(None)[0])  # the third reaches the capacity: a snapshot, then an empty log
-    assert replay.store.generation == 1 and replay.logged_rows == 0
-    assert (store / "log-000001.bin").stat().st_size == 0
-    assert ReplayServer(cfg, store_dir=str(store)).replay.size == 360
 
 
 def test_every_reply_carries_its_actors_incarnation_and_a_bad_one_is_refused():

@@ -1,0 +1,31 @@
+"""The service's roles built in-process, without Ray, for the tests that drive them by hand chunk by chunk
+(tests/test_service_inprocess_flow.py, tests/test_service_inprocess_restart.py, tests/test_agreement.py)."""
+
+from services.icm import ICMWorker
+from services.learner import Learner
+from services.replay_server import ReplayServer
+from services.rollout import RolloutWorker
+from services.teachers import TeacherWorker
+from tests.tiny import make_tiny_config
+
+# The roles are driven by hand here, chunk by chunk, on the tiny service config with: a 360-row buffer (3 chunks of
+# 4 worlds × 30 steps), calls of 4 updates / 2 teacher fit steps / 200 scored rows, and the presets' 20 000 episodes
+# (the default λ stride reaches λ_max at half of run.episodes: with 12 episodes λ would reach it within 3 chunks).
+IN_PROCESS_SECTIONS = {"replay": {"capacity": 360},
+                       "service": {"updates_per_call": 4, "fit_steps_per_call": 2, "score_rows_per_call": 200}}
+
+
+def in_process_config(algorithm="cmcl", **sections):
+    """The roles' config dict (`Config.to_dict()`): the tiny service config with `IN_PROCESS_SECTIONS`, then
+    `sections` ({key: value} per section name) on top."""
+    merged = {name: {**IN_PROCESS_SECTIONS.get(name, {}), **sections.get(name, {})}
+              for name in {*IN_PROCESS_SECTIONS, *sections}}
+    return make_tiny_config(algorithm, service=True, sections=merged, episodes=20_000).to_dict()
+
+
+def roles(cfg):
+    """(replay server, learner, rollout worker 0, [one teacher actor per fold], ICM worker) of the config dict `cfg`,
+    each the class the service runs as a Ray actor, built here as a plain object."""
+    k = cfg["teachers"]["num_folds"]
+    teachers = [TeacherWorker(cfg, [i], i) for i in range(k)]
+    return ReplayServer(cfg), Learner(cfg, 0), RolloutWorker(cfg, 0, 0), teachers, ICMWorker(cfg, 0)
