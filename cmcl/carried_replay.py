@@ -48,13 +48,18 @@ def _source(init_from: str) -> tuple[str, Path]:
 
 def check_carry_source(config: Config) -> None:
     """Refuse run.carry_replay (ConfigError naming the field and the value) without run.init_from, or from a run
-    without a replay (`_source`) or with more agents than this one."""
+    without a replay (`_source`), with more agents than this one or with the other env.agent_tags setting."""
     if not config.run.carry_replay:
         return
     if not config.run.init_from:
         raise ConfigError("run.carry_replay=True needs run.init_from, the run whose replay rows it carries, got ''")
     _source(config.run.init_from)
-    source_agents = RunDirectory.open(config.run.init_from).config().env.spread.num_agents
+    source = RunDirectory.open(config.run.init_from).config().env.spread
+    if source.agent_tags != config.env.spread.agent_tags:
+        raise ConfigError(f"run.carry_replay=True: env.agent_tags={str(config.env.spread.agent_tags).lower()} but "
+                          f"run.init_from={config.run.init_from!r} has env.agent_tags="
+                          f"{str(source.agent_tags).lower()}; rows are carried between runs with the same setting")
+    source_agents = source.num_agents
     if source_agents > config.env.spread.num_agents:
         raise ConfigError(f"run.carry_replay=True: run.init_from={config.run.init_from!r} has {source_agents} "
                           f"agents, more than this run's {config.env.spread.num_agents}; rows are carried to as many "
@@ -77,7 +82,7 @@ def carry_replay_rows(replay: ReplayBuffer, init_from: str, layout: EntityLayout
     written, int64[T] (−1 for rows a longer source overwrote within the chunk). ValueError naming run.carry_replay
     when the rows do not fit this run's layout."""
     source = source_rows(init_from)
-    small = spread_layout(source.n_agents)
+    small = spread_layout(source.n_agents, RunDirectory.open(init_from).config().env.spread.agent_tags)
     if small.obs_dim != source.obs_dim or source.act_dim != replay.storage.act_dim:
         raise ConfigError(f"run.carry_replay=True: the rows of run.init_from={init_from!r} (obs_dim "
                           f"{source.obs_dim}, act_dim {source.act_dim}) are not navigation rows of "

@@ -123,10 +123,10 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
     config = config_from_dict(data)
     check_runner_keys(config, request.runner, file_data, overrides)  # keys only the other runner honours
     config = checked(config, request, teams_given="teams" in data)  # the env built once (AEC, ...)
-    check_warm_start(config)
     from cmcl.carried_replay import check_carry_source  # numpy only: no torch, no Ray
 
-    check_carry_source(config)
+    check_carry_source(config)  # before the warm start's shape check: it names the setting (env.agent_tags, ...)
+    check_warm_start(config)
     lock = RunLock.acquire(config.run.dir, holder_command())
     try:
         return config, RunDirectory.create(config.run.dir, config, overwrite=request.overwrite), lock

@@ -19,12 +19,14 @@ def newest_storage(run_dir):
     return codec.read_snapshot(replay_snapshot_path(checkpoint), limits=codec.SNAPSHOT_LIMITS)["replay"]["storage"]
 
 
+@pytest.mark.parametrize("tags", [False, True])
 def test_a_stages_run_two_to_four_starts_the_second_stage_with_the_first_stages_rows(tmp_path, tiny_config_file,
-                                                                                     capsys):
+                                                                                     capsys, tags):
     root = tmp_path / "cur"
+    config = str(tiny_config_file("maddpg", dir=str(root)))
     argv = ["stages", "--runner", "inline", "--agents", "2", "4", "--stage-episodes", "8", "8", "--no-eval",
-            "--config", str(tiny_config_file("maddpg", dir=str(root))), "--set", "maddpg.networks=entity",
-            "--set", "run.carry_replay=true"]
+            "--config", config, "--set", "maddpg.networks=entity", "--set", "run.carry_replay=true",
+            "--set", f"env.agent_tags={str(tags).lower()}"]
     assert main(argv) == 0
     out = capsys.readouterr().out
     first = newest_storage(root / "n2")
@@ -42,6 +44,13 @@ def test_a_stages_run_two_to_four_starts_the_second_stage_with_the_first_stages_
     np.testing.assert_array_equal(second["act"][:carried, :2], first["act"][order])
     np.testing.assert_array_equal(second["obs"][:carried, :2, :8], first["obs"][order][:, :, :8])
     assert not second["obs"][:carried, 2:].any() and not second["rew"][:carried, 2:].any()
+    if tags:  # the own tag (column 10 of 2 agents' rows, 18 of 4 agents') and the other agent's (11 -> 19) carried
+        np.testing.assert_array_equal(second["obs"][:carried, :2, 18:20], first["obs"][order][:, :, 10:12])
+    capsys.readouterr()  # rows are carried between runs with the same env.agent_tags only
+    assert main(["train", "--runner", "inline", "--config", config, "--set", "maddpg.networks=entity",
+                 "--set", "run.carry_replay=true", "--set", f"run.init_from={root / 'n2'}",
+                 "--set", f"run.dir={tmp_path / 'other'}", "--set", f"env.agent_tags={str(not tags).lower()}"]) == 2
+    assert "env.agent_tags" in capsys.readouterr().err and not (tmp_path / "other").exists()
 
 
 @pytest.mark.parametrize(("overrides", "message"), [

@@ -19,7 +19,7 @@ import pytest
 
 from cmcl.envs import sparse_spread_v0, sparse_tag_v0
 from cmcl.envs.batched import BatchedSparseSpread, BatchedSparseTag
-from cmcl.envs.params import TagParams
+from cmcl.envs.params import SpreadParams, TagParams
 from cmcl.envs.state import get_world_state, set_world_state
 
 TOL = 1e-5
@@ -27,6 +27,11 @@ TOL = 1e-5
 TAG4V2_SHARED = {"num_predators": 4, "predator_radius": 0.075, "prey_radius": 0.05, "shared_reward": True}
 TASKS = {
     "spread": (sparse_spread_v0.parallel_env, BatchedSparseSpread, ("wall_hit", "collided", "covering")),
+    "spread_tags": (  # per-episode agent tags at the end of every observation (SpreadParams.agent_tags)
+        partial(sparse_spread_v0.parallel_env, num_agents=3, agent_tags=True),
+        partial(BatchedSparseSpread, params=SpreadParams(num_agents=3, agent_tags=True)),
+        ("wall_hit", "collided", "covering"),
+    ),
     "tag": (sparse_tag_v0.parallel_env, BatchedSparseTag, ("wall_hit", "captures")),
     "tag4v2_shared": (
         partial(sparse_tag_v0.parallel_env, **TAG4V2_SHARED),
@@ -39,12 +44,15 @@ TASKS = {
 def _random_state(rng: np.random.Generator, pz, length: int) -> dict:
     """A B = 1 state anywhere in the arena: overlaps, high speeds and any step counter allowed."""
     n, num_l = len(pz.possible_agents), len(pz.world.landmarks)
-    return {
+    state = {
         "positions": rng.uniform(-0.47, 0.47, (1, n, 2)),
         "velocities": rng.uniform(-1.5, 1.5, (1, n, 2)),
         "landmarks": rng.uniform(-0.45, 0.45, (1, num_l, 2)),
         "step": rng.integers(0, length, 1),
     }
+    if pz.episode_constants():  # a tagged world: new tags too
+        state["tags"] = rng.uniform(0.0, 1.0, (1, n))
+    return state
 
 
 def _stack(states: list[dict]) -> dict:
@@ -56,7 +64,7 @@ def _check_episode(pz_episode: dict, twin_episode: dict, pos: int) -> None:
         np.testing.assert_allclose(twin_episode[key][pos], value, atol=TOL, err_msg=key)
 
 
-@pytest.mark.parametrize("task", ["spread", "tag", "tag4v2_shared"])
+@pytest.mark.parametrize("task", ["spread", "spread_tags", "tag", "tag4v2_shared"])
 @pytest.mark.parametrize("round_seed", [0, 1, 2])
 def test_float64_twin_matches_pettingzoo_over_whole_episodes(task: str, round_seed: int) -> None:
     make_pz, twin_cls, step_keys = TASKS[task]
@@ -91,7 +99,7 @@ def test_float64_twin_matches_pettingzoo_over_whole_episodes(task: str, round_se
                 assert not p_term[a] and p_trunc[a] == bool(dones[k])
                 for key in step_keys:
                     assert info[key][k, i] == p_info[a][key], key
-                if task == "spread":
+                if task.startswith("spread"):
                     assert abs(info["reward_unshared"][k, i] - p_info[a]["reward_unshared"]) <= TOL
             if dones[k]:
                 _check_episode(p_info[names[0]]["episode"], info["episode"], int(np.searchsorted(ended, k)))
@@ -100,7 +108,7 @@ def test_float64_twin_matches_pettingzoo_over_whole_episodes(task: str, round_se
                 assert "episode" not in p_info[names[0]]
 
 
-@pytest.mark.parametrize("task", ["spread", "tag", "tag4v2_shared"])
+@pytest.mark.parametrize("task", ["spread", "spread_tags", "tag", "tag4v2_shared"])
 def test_float32_twin_matches_one_step_from_reference_states(task: str) -> None:
     make_pz, twin_cls, step_keys = TASKS[task]
     b, length = 8, 30
@@ -131,14 +139,14 @@ def test_float32_twin_matches_one_step_from_reference_states(task: str) -> None:
     assert worst > 0.0  # float32 really differs from the float64 reference, yet stays within TOL per step
 
 
-@pytest.mark.parametrize("task", ["spread", "tag"])
+@pytest.mark.parametrize("task", ["spread", "spread_tags", "tag"])
 def test_same_seed_gives_same_initial_state(task: str) -> None:
     make_pz, twin_cls, _ = TASKS[task]
     env = make_pz()
     obs, _ = env.reset(seed=123)
     twin = twin_cls(1, seed=123, dtype=np.float64)
     ref, got = get_world_state(env), twin.get_state()
-    for key in ("positions", "velocities", "landmarks", "step"):
+    for key in ("positions", "velocities", "landmarks", "step", *(("tags",) if "tags" in ref else ())):
         np.testing.assert_array_equal(got[key], ref[key])
     twin_obs = twin.reset(seed=123)
     for i, a in enumerate(env.possible_agents):

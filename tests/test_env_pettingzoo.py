@@ -17,6 +17,7 @@ with warnings.catch_warnings():  # pettingzoo.test imports its example envs thro
 MAKERS = {
     "spread": sparse_spread_v0.parallel_env,
     "spread3": lambda **kw: sparse_spread_v0.parallel_env(num_agents=3, **kw),
+    "spread3_tags": lambda **kw: sparse_spread_v0.parallel_env(num_agents=3, agent_tags=True, **kw),
     "tag": sparse_tag_v0.parallel_env,
     "tag3v1": lambda **kw: sparse_tag_v0.parallel_env(num_predators=3, num_prey=1, num_obstacles=2, **kw),
     "tag4v2_shared": lambda **kw: sparse_tag_v0.parallel_env(

@@ -48,7 +48,7 @@ def test_numpy_entity_policy_matches_maddpg_act(noise, pool):
     from cmcl.envs.params import TagParams
     from cmcl.learners.policy import NumpyEntityPolicy, numpy_policy
 
-    for layout in (spread_layout(5), tag_layout(TagParams())):
+    for layout in (spread_layout(5), spread_layout(5, agent_tags=True), tag_layout(TagParams())):
         n, od = layout.num_agents, layout.obs_dim
         maddpg = MADDPG(n, od, seed=3, networks="entity", entity_layout=layout, entity_pool=pool)
         obs = np.random.default_rng(0).normal(size=(32, n, od)).astype(np.float32)

@@ -11,8 +11,8 @@ test ties them to `sparse_spread_v0` / `sparse_tag_v0`. Common interface of both
 * `step(actions [B, N, 2]) -> (obs [B, N, obs_dim], rewards [B, N], dones bool[B], info)`; actions are
   clipped to [-1, 1]; `dones` is the 30-step time limit (bootstrap through it);
 * `get_state()` / `set_state(state)`: positions, velocities [B, N, 2], landmarks [B, L, 2] (obstacles
-  for tag), step int64[B], and the episode accumulators ep_*; `cmcl.envs.state` moves the same dict
-  to and from a PettingZoo env.
+  for tag), step int64[B], the episode accumulators ep_* and, for navigation with agent_tags, the agents' tags
+  [B, N]; `cmcl.envs.state` moves the same dict to and from a PettingZoo env.
 """
 
 from cmcl.envs.batched_spread import BatchedSparseSpread

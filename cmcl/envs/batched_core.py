@@ -141,6 +141,15 @@ class BatchedWorld:
         """Fill self._obs [N, obs_dim, B] from the current state (after _geometry)."""
         raise NotImplementedError
 
+    def _draw_episode(self, rng: np.random.Generator, idx: np.ndarray) -> None:
+        """Per-episode draws beyond the initial state for the worlds idx (int[M]), after `_sample` from the same
+        generator (navigation's agent tags); none by default."""
+
+    def _episode_constants(self) -> dict[str, np.ndarray]:
+        """Per-episode constants beyond the physical state, as their batch-last buffers [..., B] (navigation's agent
+        tags "tags" [N, B]): get_state returns them batch-first, set_state requires and loads them. None by default."""
+        return {}
+
     def _score(self) -> dict[str, np.ndarray]:
         """Fill self._rew [N, B] and update self._stats; return per-step infos as [N, B] arrays."""
         raise NotImplementedError
@@ -239,6 +248,7 @@ class BatchedWorld:
     def _reset_worlds(self, idx: np.ndarray) -> None:
         """Draw new initial states for the worlds idx (int[M]) and refresh geometry and observations."""
         agents, landmarks = self._sample(self._rng, len(idx))
+        self._draw_episode(self._rng, idx)
         self._pos[..., idx] = agents.transpose(1, 2, 0)
         self._vel[..., idx] = 0.0
         self._lm[..., idx] = landmarks.transpose(1, 2, 0)
@@ -296,12 +306,17 @@ class BatchedWorld:
         }
         for k, v in self._stats.items():
             state[k] = v.T.copy()
+        for k, v in self._episode_constants().items():
+            state[k] = np.moveaxis(v, -1, 0).copy()
         return state
 
     def set_state(self, state: dict[str, Any]) -> np.ndarray:
-        """Load a state of the get_state form (ep_* keys optional, zero if absent); returns obs [B, N, obs_dim]."""
+        """Load a state of the get_state form (ep_* keys optional, zero if absent; the per-episode constants, such as
+        navigation's "tags", required); returns obs [B, N, obs_dim]."""
         b, n, num_l = self.num_envs, self.num_agents, self.num_landmarks
         shapes = {"positions": (b, n, 2), "velocities": (b, n, 2), "landmarks": (b, num_l, 2), "step": (b,)}
+        constants = self._episode_constants()
+        shapes.update({k: (b, *v.shape[:-1]) for k, v in constants.items()})
         arrays = check_state_arrays(state, shapes, self._stats)
         for key, acc in self._stats.items():
             if key in state:
@@ -315,6 +330,8 @@ class BatchedWorld:
         self._vel[...] = arrays["velocities"].transpose(1, 2, 0)
         self._lm[...] = arrays["landmarks"].transpose(1, 2, 0)
         self._t[...] = steps
+        for k, v in constants.items():
+            v[...] = np.moveaxis(arrays[k], 0, -1)
         for k, v in self._stats.items():
             v[...] = np.asarray(state[k]).T if k in state else 0
         self._geometry()

@@ -15,11 +15,13 @@ import numpy as np
 from cmcl.envs import metrics
 from cmcl.envs.batched_core import BatchedWorld, strided_view
 from cmcl.envs.params import EPISODE_LENGTH, SpreadParams
-from cmcl.envs.spawn import sample_spread
+from cmcl.envs.spawn import sample_agent_tags, sample_spread
 
 
 class BatchedSparseSpread(BatchedWorld):
-    """B sparse navigation worlds. obs [B, N, 4N + 2]: [vel, pos, landmark rel (2N), other agents rel (2(N-1))].
+    """B sparse navigation worlds. obs [B, N, 4N + 2]: [vel, pos, landmark rel (2N), other agents rel (2(N-1))],
+    with params.agent_tags then [own tag, other agents' tags (N-1)] ([B, N, 5N + 2]; tags drawn at each episode
+    start, in get_state / set_state as "tags" [B, N]).
 
     info per step: wall_hit, collided, covering bool[B, N], reward_unshared [B, N]; info["episode"]
     over the M finished worlds: coverage float64[M] (final step), success bool[M] (final step),
@@ -57,7 +59,11 @@ class BatchedSparseSpread(BatchedWorld):
         b, dt, obs = self.num_envs, self.dtype, self._obs
         self._o_vel, self._o_pos = obs[:, 0:2], obs[:, 2:4]
         self._o_lm = strided_view(obs[:, 4 : 4 + 2 * num_l], (n, num_l, 2, b))  # landmark_l - pos_i
-        self._o_oth = strided_view(obs[:, 4 + 2 * num_l :], (n, n - 1, 2, b))  # pos_j - pos_i, j != i
+        self._o_oth = strided_view(obs[:, 4 + 2 * num_l : p.tags_at], (n, n - 1, 2, b))  # pos_j - pos_i, j != i
+        # agent tags (p.agent_tags): u [N, B], drawn at each episode start; obs [u_i, u_j for j != i]
+        self._tags = np.zeros((n, b), dt) if p.agent_tags else None
+        if p.agent_tags:
+            self._o_tag, self._o_tags = obs[:, p.tags_at], obs[:, p.tags_at + 1 :]  # [N, B], [N, N-1, B]
         self._d, self._dw = np.empty((n, num_l, b), dt), np.empty((n, num_l, b), dt)
         self._mind = np.empty((num_l, b), dt)
         self._covered = np.zeros((num_l, b), bool)
@@ -77,12 +83,22 @@ class BatchedSparseSpread(BatchedWorld):
     def _sample(self, rng: np.random.Generator, count: int) -> tuple[np.ndarray, np.ndarray]:
         return sample_spread(rng, count, self.params)
 
+    def _draw_episode(self, rng: np.random.Generator, idx: np.ndarray) -> None:
+        if self._tags is not None:
+            self._tags[:, idx] = sample_agent_tags(rng, len(idx), self.params).T
+
+    def _episode_constants(self) -> dict[str, np.ndarray]:
+        return {} if self._tags is None else {"tags": self._tags}
+
     def _observe(self) -> None:
         np.copyto(self._o_vel, self._vel)
         np.copyto(self._o_pos, self._pos)
         np.subtract(self._lm[None], self._pos[:, None], out=self._o_lm)
         np.take(self._pos, self._others, axis=0, out=self._o_oth)
         self._o_oth -= self._pos[:, None]
+        if self._tags is not None:
+            np.copyto(self._o_tag, self._tags)
+            np.take(self._tags, self._others, axis=0, out=self._o_tags)
 
     def _score(self) -> dict[str, np.ndarray]:
         p = self.params

@@ -16,6 +16,8 @@ agent's view, the entities that exist only with more agents (`needs_agents`, `pr
   navigation (BatchedSparseSpread, SpreadParams.obs_dim = 4 + 2L + 2(N-1), L = N):
     own [vel(2), pos(2)] (S = 4); entities: L landmarks [landmark_l - pos_i], then N-1 other agents
     [pos_j - pos_i] (j != i, in index order); P = 2, types (landmark, agent), F = 4, E = 2N - 1.
+    With SpreadParams.agent_tags (obs_dim + N: [u_i, u_j for j != i] at the end): own [vel, pos, u_i] (S = 5);
+    landmarks [landmark_l - pos_i, 0], other agents [pos_j - pos_i, u_j]; P = 3, F = 5.
   predator-prey (BatchedSparseTag, TagParams.obs_dims, m predators then q prey):
     own [vel(2), pos(2), team one-hot (predator, prey)] (S = 6); entities: O obstacles [obstacle_o - pos_i, 0, 0],
     then N-1 other agents [pos_j - pos_i, vel_j if j is prey else (0, 0)]; P = 4, types (obstacle, predator, prey),
@@ -170,19 +172,25 @@ def _namespace(x: Any) -> Any:
     return _Torch(torch)
 
 
-def spread_layout(num_agents: int) -> EntityLayout:
-    """Navigation's layout for N agents and L = N landmarks (module docstring)."""
+def spread_layout(num_agents: int, agent_tags: bool = False) -> EntityLayout:
+    """Navigation's layout for N agents and L = N landmarks, with or without the agent tags (SpreadParams.agent_tags;
+    module docstring)."""
     n = int(num_agents)
     num_l, others = n, n - 1
-    obs_dim = SpreadParams(num_agents=n).obs_dim
+    params = SpreadParams(num_agents=n, agent_tags=agent_tags)
     lm = 4 + 2 * np.arange(num_l)[:, None] + np.arange(2)  # [L, 2]
     oth = 4 + 2 * num_l + 2 * np.arange(others)[:, None] + np.arange(2)  # [N-1, 2]
-    index = np.broadcast_to(np.concatenate([lm, oth])[None], (n, num_l + others, 2)).copy()
+    own = np.arange(4)
+    if params.agent_tags:  # own tag after [vel, pos]; the k-th other agent's tag after its [dx, dy]
+        lm = np.concatenate([lm, np.full((num_l, 1), ABSENT)], 1)
+        oth = np.concatenate([oth, params.tags_at + 1 + np.arange(others)[:, None]], 1)
+        own = np.r_[own, params.tags_at]
+    index = np.broadcast_to(np.concatenate([lm, oth])[None], (n, num_l + others, lm.shape[1])).copy()
     kind = np.r_[np.zeros(num_l, np.int64), np.ones(others, np.int64)]
     types = np.broadcast_to(np.eye(2, dtype=np.float32)[kind][None], (n, num_l + others, 2)).copy()
     shown = np.array([[-1] * num_l + [j for j in range(n) if j != i] for i in range(n)], np.int64).reshape(n, -1)
     needs = np.where(shown >= 0, shown + 1, np.arange(num_l + others) + 1)  # landmark l exists from l + 1 agents
-    return EntityLayout(obs_dim, ("landmark", "agent"), np.broadcast_to(np.arange(4), (n, 4)).copy(),
+    return EntityLayout(params.obs_dim, ("landmark", "agent"), np.broadcast_to(own, (n, len(own))).copy(),
                         np.zeros((n, 0), np.float32), index, types, np.ones((n, num_l + others), bool), shown, needs)
 
 
@@ -213,7 +221,7 @@ def tag_layout(params: TagParams) -> EntityLayout:
 def entity_layout(params: Any) -> EntityLayout | None:
     """The layout of a built-in world (SpreadParams or TagParams), None for anything else (a factory env)."""
     if isinstance(params, SpreadParams):
-        return spread_layout(params.num_agents)
+        return spread_layout(params.num_agents, params.agent_tags)
     if isinstance(params, TagParams):
         return tag_layout(params)
     return None

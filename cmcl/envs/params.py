@@ -59,18 +59,29 @@ class SpreadParams:
                                      unit=REWARD, rule=FloatIn(-math.inf))
     shared_reward: bool = documented(True, "true: every agent receives the team sum (MPE); false: its own C1 + C2 "
                                      "(§6.1 revised)")
+    agent_tags: bool = documented(False, "true: at every episode start each agent draws a tag u_i ~ U(0, 1) (per "
+                                  "world, fixed for the episode) and agent i's observation ends with [u_i, u_j for "
+                                  "j != i in index order] (N more columns), a tie-breaker for shared-parameter "
+                                  "policies; false: no tags (MPE's observation)")
 
     def __post_init__(self) -> None:
         _check_fields(self)
+        object.__setattr__(self, "agent_tags", bool(self.agent_tags))
 
     @property
     def num_landmarks(self) -> int:
         return self.num_agents
 
     @property
-    def obs_dim(self) -> int:
-        """[vel(2), pos(2), landmark rel pos (2L), other agents' rel pos (2(N-1))]."""
+    def tags_at(self) -> int:
+        """The flat column of an agent's own tag (agent_tags; the other agents' tags follow it): 4 + 2L + 2(N-1)."""
         return 4 + 2 * self.num_landmarks + 2 * (self.num_agents - 1)
+
+    @property
+    def obs_dim(self) -> int:
+        """[vel(2), pos(2), landmark rel pos (2L), other agents' rel pos (2(N-1))], then with agent_tags the tags
+        [own (1), other agents' in index order (N-1)]: 4 + 2L + 2(N-1) (+ N)."""
+        return self.tags_at + (self.num_agents if self.agent_tags else 0)
 
 
 @dataclass(frozen=True)

@@ -108,6 +108,11 @@ class SparseParallelEnv(ParallelEnv):
     def _zero_stats(self) -> None:
         raise NotImplementedError
 
+    def episode_constants(self) -> dict[str, np.ndarray]:
+        """Per-episode constants beyond the physical state, as their live float64 arrays (navigation's agent tags
+        "tags" float64[N]); in the world state of cmcl.envs.state. None by default."""
+        return {}
+
     # ----- PettingZoo API ---------------------------------------------------------------------
     def observation_space(self, agent: str) -> spaces.Space:
         """Box(-inf, inf, (obs_dim,), float32); the same object on every call."""

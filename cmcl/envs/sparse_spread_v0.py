@@ -11,7 +11,9 @@ Per-agent, per-step reward C1 + C2:
   C2 = +4 if the agent is within 0.1 of a landmark and is the closest agent to it (ties: lowest index).
 With shared_reward=True (default) every agent receives the team sum.
 Observation of agent i (obs_dim = 4N + 2, 18 for N = 4):
-  [vel(2), pos(2), landmark_l - pos_i for l = 0..N-1 (2N), pos_j - pos_i for j != i ascending (2(N-1))].
+  [vel(2), pos(2), landmark_l - pos_i for l = 0..N-1 (2N), pos_j - pos_i for j != i ascending (2(N-1))];
+  with agent_tags=True then [u_i, u_j for j != i ascending] (N more: obs_dim = 5N + 2), the agents' tags u ~ U(0, 1)
+  drawn at every reset and fixed through the episode (`tags`; in the world state as "tags", cmcl.envs.state).
 Action: float[2] in [-1, 1] (clipped), force = action * 5.0.
 Step infos per agent: wall_hit, collided, covering, reward_unshared; at the last step also "episode":
 coverage (final step), success (final step), coverage_mean (per-step average), collisions (agent pairs
@@ -28,7 +30,7 @@ from mpe2._mpe_utils.core import Agent, Landmark
 from cmcl.envs import metrics
 from cmcl.envs.params import EPISODE_LENGTH, SpreadParams
 from cmcl.envs.pz_base import SparseParallelEnv
-from cmcl.envs.spawn import sample_spread
+from cmcl.envs.spawn import sample_agent_tags, sample_spread
 
 NAME = "sparse_spread_v0"
 
@@ -41,6 +43,8 @@ class SparseSpreadEnv(SparseParallelEnv):
     def __init__(self, params: SpreadParams, max_cycles: int = EPISODE_LENGTH, render_mode: str | None = None) -> None:
         self.params = params
         self.obs_dims = (params.obs_dim,) * params.num_agents
+        # params.agent_tags: float64[N], drawn at every reset after the initial state (None without tags)
+        self.tags = np.zeros(params.num_agents) if params.agent_tags else None
         super().__init__(max_cycles, render_mode)
 
     def _build_world(self) -> None:
@@ -61,7 +65,12 @@ class SparseSpreadEnv(SparseParallelEnv):
 
     def _sample(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         agents, landmarks = sample_spread(rng, 1, self.params)
+        if self.tags is not None:  # the episode's tags, drawn as the twin draws them (spawn.sample_agent_tags)
+            self.tags[:] = sample_agent_tags(rng, 1, self.params)[0]
         return agents[0], landmarks[0]
+
+    def episode_constants(self) -> dict[str, np.ndarray]:
+        return {} if self.tags is None else {"tags": self.tags}
 
     def _render_rings(self) -> tuple[float, ...]:
         return (self.params.cover_radius,)
@@ -82,6 +91,8 @@ class SparseSpreadEnv(SparseParallelEnv):
         parts = [me.state.p_vel, me.state.p_pos]
         parts += [lm.state.p_pos - me.state.p_pos for lm in self.world.landmarks]
         parts += [o.state.p_pos - me.state.p_pos for o in self.world.agents if o is not me]
+        if self.tags is not None:
+            parts += [self.tags[i : i + 1], np.delete(self.tags, i)]
         return np.concatenate(parts)
 
     def _score(self, wall_hit: np.ndarray) -> tuple[np.ndarray, list[dict[str, Any]]]:

@@ -68,6 +68,14 @@ def sample_spread(rng: np.random.Generator, n: int, p: SpreadParams) -> tuple[np
     return agents, landmarks
 
 
+def sample_agent_tags(rng: np.random.Generator, n: int, p: SpreadParams) -> np.ndarray:
+    """Navigation's per-episode agent tags (SpreadParams.agent_tags) of n worlds: float64[n, N], each U(0, 1).
+
+    Drawn after `sample_spread`'s initial state from the same generator, by both implementations; without
+    agent_tags nothing is drawn (the generator's stream is that of a world without tags)."""
+    return rng.uniform(0.0, 1.0, (n, p.num_agents))
+
+
 def sample_tag(rng: np.random.Generator, n: int, p: TagParams) -> tuple[np.ndarray, np.ndarray]:
     """Initial state of n predator-prey worlds: (agents float64[n, N, 2], obstacles float64[n, O, 2])."""
     obstacles = rng.uniform(-p.obstacle_spawn, p.obstacle_spawn, (n, p.num_obstacles, 2))

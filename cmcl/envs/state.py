@@ -3,7 +3,8 @@
 Where it sits: used by the parity tests and by anyone who wants to render or inspect a twin's world
 with the PettingZoo version. The dict has the twins' `get_state()` form with B = 1:
 positions [1, N, 2], velocities [1, N, 2], landmarks [1, L, 2] (obstacles in predator-prey),
-step int64[1], and the episode accumulators ep_* (optional on set; zero when absent).
+step int64[1], and the episode accumulators ep_* (optional on set; zero when absent); with navigation's agent_tags
+also tags [1, N] (required on set).
 """
 
 from __future__ import annotations
@@ -35,6 +36,8 @@ def get_world_state(env: Any) -> dict[str, np.ndarray]:
     }
     for key, value in base.stats.items():
         state[key] = np.array(value)[None]
+    for key, value in base.episode_constants().items():
+        state[key] = np.array(value, dtype=np.float64)[None]
     return state
 
 
@@ -43,6 +46,8 @@ def set_world_state(env: Any, state: dict[str, Any]) -> dict[str, np.ndarray]:
     base = _base(env)
     n, num_l = len(base.world.agents), len(base.world.landmarks)
     shapes = {"positions": (1, n, 2), "velocities": (1, n, 2), "landmarks": (1, num_l, 2), "step": (1,)}
+    constants = base.episode_constants()
+    shapes.update({k: (1, *v.shape) for k, v in constants.items()})
     arrays = {k: v.astype(np.float64) for k, v in check_state_arrays(state, shapes, base.stats).items()}
     for key, value in base.stats.items():
         want = (1, *np.shape(value))
@@ -52,6 +57,8 @@ def set_world_state(env: Any, state: dict[str, Any]) -> dict[str, np.ndarray]:
     if step < 0 or step >= base.max_cycles or step != int(step):
         raise ValueError(f"state['step'] must be an integer in [0, {base.max_cycles}), got {step}")
     base.place(arrays["positions"][0], arrays["velocities"][0], arrays["landmarks"][0], int(step))
+    for key, value in constants.items():
+        value[...] = arrays[key][0]
     for key in list(base.stats):
         if key in state:
             value = np.asarray(state[key])[0]
