@@ -15,10 +15,14 @@ recorded in window k. Its learning progress in window k >= 1 is
   sparse reward the TD error first rises as rewards appear, then falls as they are fitted);
 - `coverage`: the absolute change LP_k = |m_k − m_{k−1}| (coverage is a fraction of the landmarks, already free of
   the agent count's scale).
-All three are kept, window by window; `signal` (run.progress_signal) names the one the rule reads: learning has
-stopped progressing once its LP_k < `threshold` for `patience` consecutive windows. The raw critic loss grows with
-the value scale, so its relative change stays large long after coverage is flat (bench/learning_progress_windows.py,
-docs/RESULTS.md); the other two are scale-free. No torch, no Ray.
+All three are kept, window by window; `signal` (run.progress_signal, default coverage) names the one the rule reads:
+learning has stopped progressing once its LP_k < `threshold` for `patience` consecutive windows. Why coverage
+(bench/learning_progress_windows.py, docs/RESULTS.md "The stage rule's signal", one seed, stages N = 2 then 4): the
+raw critic loss grows with the value scale, so its relative change stayed 0.04–0.43 at N = 4 (coverage 0.67–0.77)
+and never below 0.2 for three windows in a row; the normalised TD error's relative change was noisy (0.015–0.49 at
+N = 4, 0.07 once at N = 2 while coverage rose by 0.35); the coverage's change stayed >= 0.033 while N = 2 learned and
+<= 0.015 over N = 4's episodes 500–3,000, so 0.02 (patience 3) ends N = 4 at episode 2,000 and N = 2 never. No
+torch, no Ray.
 """
 
 from __future__ import annotations
@@ -91,7 +95,7 @@ class LearningProgress:
     `signal`'s stays below `threshold` for `patience` windows. threshold 0 never plateaus (off)."""
 
     def __init__(self, threshold: float = 0.0, window: int = 500, patience: int = 3,
-                 signal: str = "critic_loss") -> None:
+                 signal: str = "coverage") -> None:
         if not (threshold >= 0 and math.isfinite(threshold)):
             raise ValueError(f"threshold must be a finite number >= 0, got {threshold!r}")
         for name, value in (("window", window), ("patience", patience)):

@@ -27,7 +27,7 @@ def feed(progress: LearningProgress, window_means: list[float], per_window: int 
 
 
 def test_progress_is_the_relative_change_of_window_means_in_either_direction():
-    lp = LearningProgress(threshold=0.1, window=10, patience=2)
+    lp = LearningProgress(threshold=0.1, window=10, patience=2, signal="critic_loss")
     feed(lp, [1.0, 2.0, 1.5])
     assert lp.means == [1.0, 2.0, 1.5]
     assert lp.progress == pytest.approx([1.0, 0.25])
@@ -35,30 +35,30 @@ def test_progress_is_the_relative_change_of_window_means_in_either_direction():
 
 
 def test_a_plateau_needs_patience_consecutive_windows_below_the_threshold():
-    lp = LearningProgress(threshold=0.1, window=10, patience=2)
+    lp = LearningProgress(threshold=0.1, window=10, patience=2, signal="critic_loss")
     feed(lp, [1.0, 1.05, 2.0, 2.05])  # below, above (resets), below: one in a row
     assert lp.below == 1 and not lp.plateaued
-    feed_more = LearningProgress(threshold=0.1, window=10, patience=2)
+    feed_more = LearningProgress(threshold=0.1, window=10, patience=2, signal="critic_loss")
     feed(feed_more, [1.0, 1.05, 2.0, 2.05, 2.1])
     assert feed_more.plateaued
 
 
 def test_windows_without_updates_are_skipped_and_zero_threshold_never_plateaus():
-    lp = LearningProgress(threshold=0.5, window=10, patience=1)
+    lp = LearningProgress(threshold=0.5, window=10, patience=1, signal="critic_loss")
     lp.record(35, 1.0)  # windows 0-2 had no update (warm-up)
     lp.record(45, 1.0)
     lp.record(55, 1.0)
     assert lp.means == [1.0, 1.0] and lp.plateaued
-    off = LearningProgress(threshold=0.0, window=10, patience=1)
+    off = LearningProgress(threshold=0.0, window=10, patience=1, signal="critic_loss")
     feed(off, [1.0, 1.0, 1.0])
     assert off.progress == [0.0, 0.0] and not off.plateaued
 
 
 def test_state_round_trips_and_bad_settings_name_the_field():
-    lp = LearningProgress(threshold=0.1, window=10, patience=2)
+    lp = LearningProgress(threshold=0.1, window=10, patience=2, signal="critic_loss")
     feed(lp, [1.0, 1.05])
     lp.record(25, 3.0)
-    copy = LearningProgress(threshold=0.1, window=10, patience=2)
+    copy = LearningProgress(threshold=0.1, window=10, patience=2, signal="critic_loss")
     copy.load_state_dict(lp.state_dict())
     lp.record(31, 3.0)
     copy.record(31, 3.0)
@@ -160,7 +160,7 @@ def test_an_old_state_without_the_new_signals_loads():
     afresh, and a rule on another signal counts its own windows below the threshold."""
     old = {"window_index": 5, "total": 3.0, "count": 2, "means": [1.0, 2.0, 2.05], "progress": [1.0, 0.025],
            "below": 1}
-    lp = LearningProgress(threshold=0.1, window=10, patience=2)
+    lp = LearningProgress(threshold=0.1, window=10, patience=2, signal="critic_loss")
     lp.load_state_dict(old)
     assert lp.means == [1.0, 2.0, 2.05] and lp.progress == [1.0, 0.025] and lp.below == 1
     assert [w["window"] for w in lp.windows()] == [2, 3, 4]
@@ -174,15 +174,24 @@ def test_an_old_state_without_the_new_signals_loads():
 
 
 def test_the_progress_signal_setting_is_checked_and_feeds_the_rule(tmp_path):
+    """run.progress_signal: coverage by default (the rule off by default all the same), a bad value refused naming
+    the key and the value, coverage refused where the episodes have none while the rule is on."""
     from tests.tiny import make_tiny_config
     assert SIGNALS == PROGRESS_SIGNALS
+    default = make_tiny_config("maddpg").run
+    assert (default.progress_signal, default.stop_progress) == ("coverage", 0.0)
+    assert LearningProgress().signal == "coverage"
     with pytest.raises(ConfigError, match="run.progress_signal must be one of .*got 'td'"):
         make_tiny_config("maddpg", progress_signal="td")
-    config = make_tiny_config("maddpg", progress_signal="coverage", stop_progress=0.01)
+    config = make_tiny_config("maddpg", progress_signal="normalised_td", stop_progress=0.1)
     lp = LearningProgress.from_run_config(config.run)
-    assert (lp.signal, lp.threshold) == ("coverage", 0.01)
+    assert (lp.signal, lp.threshold) == ("normalised_td", 0.1)
     with pytest.raises(ValueError, match="signal must be one of"):
         LearningProgress(signal="return")
+    with pytest.raises(ConfigError, match="run.progress_signal needs episodes with a coverage .*'tag'"):
+        make_tiny_config("maddpg", task="tag", stop_progress=0.02)
+    make_tiny_config("maddpg", task="tag", stop_progress=0.02, progress_signal="normalised_td")
+    make_tiny_config("maddpg", task="tag", progress_signal="coverage")  # the rule off: nothing to refuse
 
 
 def test_the_learner_reports_the_share_of_its_targets_variance_it_does_not_explain():
@@ -210,14 +219,16 @@ def test_the_learner_reports_the_share_of_its_targets_variance_it_does_not_expla
 
 
 def test_the_inline_runner_ends_a_run_whose_learning_stopped_progressing(tmp_path, tiny_config_file):
-    """Every window's change is below an enormous threshold: the run ends after patience + 1 windows of updates,
-    long before its budget, and says so."""
+    """Every window's change of each signal is below an enormous threshold: the run ends after patience + 1 windows
+    of values of the signal run.progress_signal names, long before its budget, and says so."""
     run = tmp_path / "plateau"
     config = str(tiny_config_file("maddpg", dir=str(run), episodes=400))
-    assert main(["--config", config, "--no-eval", "--quiet", "--set", "run.stop_progress=1e9",
-                 "--set", "run.progress_window=4", "--set", "run.progress_patience=2"]) == 0
-    summary = RunDirectory.open(run).summary()
-    assert summary["ended"] == "plateau" and summary["episodes"] < 40, summary
+    for signal in SIGNALS:
+        assert main(["--config", config, "--no-eval", "--quiet", "--overwrite", "--set", "run.stop_progress=1e9",
+                     "--set", "run.progress_window=4", "--set", "run.progress_patience=2",
+                     "--set", f"run.progress_signal={signal!r}"]) == 0
+        summary = RunDirectory.open(run).summary()
+        assert summary["ended"] == "plateau" and summary["episodes"] < 40, (signal, summary)
     untouched = tmp_path / "budget"  # the same run without the rule trains its budget
     assert main(["--config", config, "--no-eval", "--quiet", "--set", f"run.dir={untouched}",
                  "--set", "run.episodes=40", "--set", "run.progress_window=4"]) == 0

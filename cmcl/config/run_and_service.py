@@ -43,14 +43,16 @@ class RunConfig:
     stop_progress: float = documented(
         0.0, "stop early once learning stops progressing (cmcl.learning_progress): the learning progress of "
         "progress_signal between consecutive windows of progress_window episodes stays below this for "
-        "progress_patience windows (0: off). The agent-count curriculum (python -m cmcl stages) ends its stages "
-        "by it", unit="relative change (critic_loss, normalised_td) or change of coverage (coverage)",
-        rule=FINITE_AT_LEAST_0)
+        "progress_patience windows (0: off). With the default signal, coverage, it is an absolute change of the "
+        "window's mean coverage (0.02 separated a rising from a flat stage in bench/learning_progress_windows.py, "
+        "one seed). The agent-count curriculum (python -m cmcl stages) ends its stages by it",
+        unit="change of coverage (coverage); relative change (critic_loss, normalised_td)", rule=FINITE_AT_LEAST_0)
     progress_signal: ProgressSignal = documented(
-        "critic_loss", "what stop_progress reads (cmcl.learning_progress): 'critic_loss' = the relative change of "
-        "the mean critic loss (it grows with the value scale, so it stays high after coverage is flat); "
-        "'normalised_td' = the relative change of the critic's mean squared TD error over the variance of its TD "
-        "targets (1 - R^2, scale-free); 'coverage' = the absolute change of the mean final-step coverage (spread)")
+        "coverage", "what stop_progress reads (cmcl.learning_progress): 'coverage' = the absolute change of the "
+        "mean final-step coverage (spread, or env.coverage_key); 'normalised_td' = the relative change of the "
+        "critics' mean squared TD error over the variance of their TD targets (1 - R^2); 'critic_loss' = the "
+        "relative change of the mean critic loss (the rule before issue 38: the loss grows with the value scale, "
+        "so it stays high after coverage is flat)")
     progress_window: int = documented(500, "episodes per learning-progress window (run.stop_progress)",
                                       unit="episodes", rule=AT_LEAST_1)
     progress_patience: int = documented(3, "consecutive windows below stop_progress that end the run",
