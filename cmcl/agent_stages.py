@@ -2,13 +2,15 @@
 networks the stage before it ended with (issue 22; EPC, Long et al. 2020, and SPMARL, Zhao et al. 2025).
 
     python -m cmcl stages --agents 2 4 8 --config configs/spread_maddpg.toml --set maddpg.networks=entity \
-        [--stage-episodes 3000 3000 14000] [--set run.stop_progress=0.05] [--runner inline|service]
+        [--stage-episodes 3000 3000 14000] [--set run.stop_progress=0.02] [--runner inline|service]
 
 Each stage is an ordinary run of either runner in `<run.dir>/n<N>` (`env.num_agents = N`, `run.init_from` = the
 stage before), so `python -m cmcl evaluate` and `resume` work on any stage. When a stage ends:
 - **fixed schedule**: after its own budget, `--stage-episodes` (default: run.episodes for every stage);
-- **learning progress**: with `run.stop_progress > 0`, as soon as the critics' TD-error learning progress stays below
-  it (cmcl.learning_progress), or at its budget. The last stage, the target task, always trains its whole budget.
+- **learning progress**: with `run.stop_progress > 0`, as soon as the learning progress of `run.progress_signal`
+  stays below it for `run.progress_patience` windows (cmcl.learning_progress; by default the change of the mean
+  training coverage between 500-episode windows, 0.02 measured to end a flat stage and not a learning one), or at
+  its budget. The last stage, the target task, always trains its whole budget.
 Only networks whose shapes do not depend on the number of agents can be carried from one N to the next; any other
 setting is refused before the first stage starts, naming the tensor and its shapes at both N.
 

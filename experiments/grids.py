@@ -111,7 +111,8 @@ class ScaleCell:
 NO_CAP = "run.max_seconds=0"  # the presets' wall-clock caps off: every seed gets the same episodes, whatever the load
 # The first four cells ran first (one seed): entity networks cost 6x more per update at N = 8 (docs/RESULTS.md), so
 # they trained for a wall-clock budget, 45 min or 15 min per stage (2 -> 4 -> 8), the "progress" cell also ended once
-# the critics' TD-error learning progress stayed below 5% for three 500-episode windows. The later cells fill the
+# the critics' TD-error learning progress stayed below 5% for three 500-episode windows (the rule before issue 38,
+# run.progress_signal = critic_loss; it never fired: docs/RESULTS.md). The later cells fill the
 # table of issue 22's point 4 at equal episodes: N = 4 and N = 16 with the presets' entity networks
 # (configs/spread_n8.toml, configs/spread_n16.toml), N = 16 with the paper's per-agent networks, and N = 16 trained
 # from scratch for the 3,040 episodes the preset trains after its N = 8 stage.
@@ -123,7 +124,8 @@ SCALE_CELLS: dict[str, ScaleCell] = {
                                   (3_000, 5_000, 20_000)),
     "n8_entity_stages_progress": ScaleCell("spread_maddpg.toml", ("maddpg.networks=entity", "run.max_seconds=900",
                                                                   "run.stop_progress=0.05", "run.progress_window=500",
-                                                                  "run.progress_patience=3"), (2, 4, 8),
+                                                                  "run.progress_patience=3",
+                                                                  "run.progress_signal=critic_loss"), (2, 4, 8),
                                            (3_000, 5_000, 20_000)),
     "n4_entity": ScaleCell("spread_n8.toml", ("env.num_agents=4", NO_CAP), budget=6_000),
     "n4_entity_stages": ScaleCell("spread_n8.toml", (NO_CAP,), (2, 4), (3_008, 3_000), budget=3_000),

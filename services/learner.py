@@ -24,6 +24,15 @@ from services.common import actor_setup, load_state, new_incarnation, save_state
 from services.report_schema import LearnerReport, Report
 
 
+def last_losses(stats: dict[str, Any], agent: int) -> dict[str, float]:
+    """One agent's losses of an update, as its report carries them: "critic", "actor" and, when its targets had some
+    variance, "critic_normalised" (the critic's normalised TD error, which run.progress_signal = "normalised_td"
+    reads; a report's numbers are finite)."""
+    losses = {"critic": float(stats["critic_loss"][agent]), "actor": float(stats["actor_loss"][agent])}
+    normalised = float(stats["critic_loss_normalised"][agent])
+    return {**losses, "critic_normalised": normalised} if np.isfinite(normalised) else losses
+
+
 class Learner:
     """The MADDPG learner actor. `checkpoint_path`: where `save()` writes and `__init__` restores from."""
 
@@ -69,8 +78,7 @@ class Learner:
         td = np.stack([p[2] for p in picked]).astype(np.float32)
         target = np.stack([p[3] for p in picked]).astype(np.float32) if self.maddpg.target_scores else None
         self.version += 1
-        self.losses = {f"agent_{a}": {"critic": float(stats["critic_loss"][a]), "actor": float(stats["actor_loss"][a])}
-                       for a in range(self.layout.num_agents)}
+        self.losses = {f"agent_{a}": last_losses(stats, a) for a in range(self.layout.num_agents)}
         self.busy_s += time.perf_counter() - started
         self.busy_cpu_s += time.thread_time() - started_cpu
         return LearnerFeedback(slots, generations, td, self.losses, self.incarnation, target), self.report()

@@ -27,7 +27,7 @@ from cmcl.config import Config
 from cmcl.envs.factory import EnvFactoryError
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
-from cmcl.learning_progress import LearningProgress
+from cmcl.learning_progress import LearningProgress, agent_mean
 from cmcl.messages import ReplayStatus
 from cmcl.progress import TrainingDiverged, episode_rows, solved, window_summary
 from cmcl.system import layout_of
@@ -74,7 +74,8 @@ class Supervisor:
         self.lags: dict[str, int] = {}  # weight versions each rollout worker / teacher is behind
         self.episodes_logged = 0
         self.solved = False  # the coverage target run.stop_coverage was reached
-        # run.stop_progress: fed the learner's critic losses (a resumed service run starts it afresh)
+        # run.stop_progress: fed the learner's critic losses and the episodes' coverage (a resumed service run
+        # starts it afresh)
         self.learning_progress = LearningProgress.from_run_config(config.run)
         self.last_replay_report: Report | None = None
         self.started = time.perf_counter()
@@ -188,7 +189,8 @@ class Supervisor:
             if not np.isfinite(losses).all():  # the learner's weights diverged: the run ends (services/launch.py)
                 raise TrainingDiverged(self.config, self.status.episodes, self.status.updates, "the learner's losses")
             critic = [kinds["critic"] for kinds in value.learner.losses.values()]
-            self.learning_progress.record(self.status.episodes, sum(critic) / len(critic))
+            normalised = agent_mean(kinds.get("critic_normalised", np.nan) for kinds in value.learner.losses.values())
+            self.learning_progress.record(self.status.episodes, sum(critic) / len(critic), normalised)
         if value.role == "learner" and value.learner.weight_version != self.version:
             self.version = value.learner.weight_version
             self.weights = self.roles.learner.publish.remote()
@@ -212,6 +214,7 @@ class Supervisor:
         self.window.extend(rows)
         for row in rows:
             self.run_dir.log(row)
+            self.learning_progress.record_episode(row["episodes"], row.get("coverage"))  # progress_signal coverage
 
     # ------------------------------------------------------------------ progress, checkpoints
     def progress_line(self) -> str:

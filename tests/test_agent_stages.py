@@ -107,3 +107,17 @@ def test_the_readme_stages_command_runs_on_the_service(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     assert "actors and critics initialised from" in done.stdout and "learner-" in done.stdout
     assert "held-out evaluation" in done.stdout and "stage N = 3 ended (budget)" in done.stdout
+
+
+def test_a_stage_ends_when_its_coverage_stops_progressing(tmp_path, tiny_config_file):
+    """run.stop_progress with the default signal, the change of the training coverage (issue 38): with an enormous
+    threshold the first stage ends after patience + 1 windows of episodes, far before its budget; the last stage, the
+    target task, trains its whole budget."""
+    root = tmp_path / "cur"
+    argv = ["stages", "--runner", "inline", "--agents", "2", "3", "--stage-episodes", "400", "8", "--no-eval",
+            "--quiet", "--config", str(tiny_config_file("maddpg", dir=str(root))), "--set", "maddpg.networks=entity",
+            "--set", "run.stop_progress=1e9", "--set", "run.progress_window=4", "--set", "run.progress_patience=2"]
+    assert main(argv) == 0
+    first, last = (RunDirectory.open(root / n).summary() for n in ("n2", "n3"))
+    assert first["ended"] == "plateau" and first["episodes"] < 40, first
+    assert last["ended"] == "budget" and last["episodes"] >= 8, last

@@ -45,6 +45,8 @@ def test_one_round_of_the_data_flow_reaches_every_role():
     feedback, report = learner.update(batch)
     replay.learner_result(feedback)
     assert report.learner.updates == 4 and status.updates == 4
+    for kinds in report.learner.losses.values():  # run.progress_signal = "normalised_td" reads critic_normalised
+        assert set(kinds) == {"critic", "actor", "critic_normalised"} and kinds["critic_normalised"] >= 0
     assert lam0 == pytest.approx(0.1 + (360 - 96) * replay.schedule.stride), "λ moves with env steps after warm-up"
     assert learner.publish()["version"] == 1
     sampling = replay.report().replay  # the sampling diagnostics of every agent reach the metrics report

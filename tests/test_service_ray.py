@@ -168,10 +168,12 @@ def test_infeasible_resources_are_refused_clearly(tmp_path, ray_cluster):
         create_roles(config, RunDirectory.create(config.run.dir, config))
 
 
-def test_the_service_ends_a_run_whose_learning_stopped_progressing(tmp_path, ray_cluster):
-    """run.stop_progress in the supervisor, fed the learner's critic losses: with an enormous threshold the run ends
-    after a few 4-episode windows of updates, far before its 400-episode budget."""
+@pytest.mark.parametrize("signal", ["critic_loss", "normalised_td", "coverage"])
+def test_the_service_ends_a_run_whose_learning_stopped_progressing(tmp_path, ray_cluster, signal):
+    """run.stop_progress in the supervisor, fed the learner's critic losses and normalised TD errors and the
+    episodes' coverage: with an enormous threshold the run ends after a few 4-episode windows of the signal
+    run.progress_signal names, far before its 400-episode budget."""
     config = make_tiny_config("maddpg", service=True, dir=str(tmp_path / "plateau"), episodes=400,
-                              stop_progress=1e9, progress_window=4, progress_patience=2)
+                              stop_progress=1e9, progress_window=4, progress_patience=2, progress_signal=signal)
     summary = run_service(config, RunDirectory.create(config.run.dir, config), progress=None)
     assert summary["plateau"] and summary["episodes"] < 200, {k: summary[k] for k in ("episodes", "updates")}

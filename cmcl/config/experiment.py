@@ -50,6 +50,13 @@ class Config:
                  "maddpg.batch_size", self.maddpg.batch_size, f"must not exceed maddpg.warmup ({self.maddpg.warmup})")
         if self.run.carry_replay:
             self._check_carry_replay()
+        if self.run.stop_progress > 0 and self.run.progress_signal == "coverage":
+            has_coverage = bool(self.env.coverage_key) if self.env.factory else self.env.task == "spread"
+            _require(has_coverage, "run.progress_signal", "coverage",
+                     "needs episodes with a coverage (env.task = 'spread', or env.coverage_key with env.factory) "
+                     f"when run.stop_progress > 0; env.task = {self.env.task!r}"
+                     + (" with env.factory" if self.env.factory else "")
+                     + ": set run.progress_signal = 'normalised_td' (or 'critic_loss')")
 
     def _check_carry_replay(self) -> None:
         """run.carry_replay's needs (cmcl.replay.agent_padding): rows of fewer agents padded into the navigation

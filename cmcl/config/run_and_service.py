@@ -8,12 +8,17 @@ and the value. Which keys only one runner honours is cmcl.config.runners. Reads 
 
 from __future__ import annotations
 
+import typing
 from dataclasses import dataclass
+from typing import Literal
 
 from cmcl.config.checks import AT_LEAST_0, AT_LEAST_1, FINITE_AT_LEAST_0, POSITIVE, PROBABILITY, check_fields, rule
 from cmcl.field_docs import documented
 
-__all__ = ["RunConfig", "ServiceConfig"]
+__all__ = ["PROGRESS_SIGNALS", "RunConfig", "ServiceConfig"]
+
+ProgressSignal = Literal["critic_loss", "normalised_td", "coverage"]  # cmcl.learning_progress.SIGNALS
+PROGRESS_SIGNALS: tuple[str, ...] = typing.get_args(ProgressSignal)
 
 
 @dataclass(frozen=True)
@@ -36,10 +41,18 @@ class RunConfig:
     max_seconds: float = documented(0.0, "wall-clock budget of training, inline and in the service (0: none)",
                                     unit="seconds", rule=FINITE_AT_LEAST_0)
     stop_progress: float = documented(
-        0.0, "stop early once learning stops progressing (cmcl.learning_progress): the relative change of the mean "
-        "critic loss between consecutive windows of progress_window episodes stays below this for "
-        "progress_patience windows (0: off). The agent-count curriculum (python -m cmcl stages) ends its stages "
-        "by it", unit="relative change", rule=FINITE_AT_LEAST_0)
+        0.0, "stop early once learning stops progressing (cmcl.learning_progress): the learning progress of "
+        "progress_signal between consecutive windows of progress_window episodes stays below this for "
+        "progress_patience windows (0: off). With the default signal, coverage, it is an absolute change of the "
+        "window's mean coverage (0.02 separated a rising from a flat stage in bench/learning_progress_windows.py, "
+        "one seed). The agent-count curriculum (python -m cmcl stages) ends its stages by it",
+        unit="change of coverage (coverage); relative change (critic_loss, normalised_td)", rule=FINITE_AT_LEAST_0)
+    progress_signal: ProgressSignal = documented(
+        "coverage", "what stop_progress reads (cmcl.learning_progress): 'coverage' = the absolute change of the "
+        "mean final-step coverage (spread, or env.coverage_key); 'normalised_td' = the relative change of the "
+        "critics' mean squared TD error over the variance of their TD targets (1 - R^2); 'critic_loss' = the "
+        "relative change of the mean critic loss (the rule before issue 38: the loss grows with the value scale, "
+        "so it stays high after coverage is flat)")
     progress_window: int = documented(500, "episodes per learning-progress window (run.stop_progress)",
                                       unit="episodes", rule=AT_LEAST_1)
     progress_patience: int = documented(3, "consecutive windows below stop_progress that end the run",

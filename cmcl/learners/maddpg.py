@@ -261,9 +261,10 @@ class MADDPG(MADDPGCheckpoint):
         return a_obs, a_act, AgentPresence.of_batch(batch.get(ACTOR_PREFIX + "present"), self.num_agents)
 
     def _critic_step(self, obs, act, rew, next_obs, done, w, presence: AgentPresence | None = None
-                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """One batched critic step on (y − Q_v(s, a))² (eq. 5), over the rows where owner v is present. Returns
-        (loss [N], delta [N, S] (0 where the owner is absent), grad norm [N])."""
+        (loss [N], delta [N, S] (0 where the owner is absent), grad norm [N], normalised TD error [N]: see
+        `_unexplained`)."""
         count = None if presence is None else presence.count
         y = self._td_targets_t(rew, next_obs, done, None, count)  # [N, S]
         delta = y - self._q(self.critic, joint_input(obs, act), None, count)  # [N, S]
@@ -273,11 +274,24 @@ class MADDPG(MADDPGCheckpoint):
                 target_delta = y - self._q(self.target_critic, joint_input(obs, act), None, count)
             self.last_target_td = (target_delta if presence is None else target_delta * presence.own).abs()
         loss = row_mean(delta.pow(2), w, presence)  # [N]
+        unexplained = self._unexplained(y, delta.detach(), presence)
         self.critic_opt.zero_grad(set_to_none=True)
         self._total(loss, presence).backward()
         norms = self._clip(self.critic.parameters())
         self.critic_opt.step()
-        return loss.detach(), delta.detach(), norms
+        return loss.detach(), delta.detach(), norms, unexplained
+
+    @staticmethod
+    @torch.no_grad()
+    def _unexplained(y: torch.Tensor, delta: torch.Tensor, presence: AgentPresence | None) -> torch.Tensor:
+        """Each owner's normalised TD error on its minibatch: mean (y − Q)² over the variance of y, over the rows
+        where it is present, unweighted (the share of its targets' variance the critic does not explain, 1 − R²;
+        free of the value scale, which the critic loss is not) -> [N], nan where y has no variance. Reads only
+        (run.progress_signal = "normalised_td", cmcl.learning_progress); the step does not depend on it."""
+        mse = row_mean(delta.pow(2), None, presence)
+        centred = y - row_mean(y, None, presence).unsqueeze(1)
+        var = row_mean(centred.pow(2), None, presence)
+        return torch.where(var > 0, mse / var.clamp(min=torch.finfo(var.dtype).tiny), torch.nan)
 
     def _actor_step(self, obs: torch.Tensor, act: torch.Tensor, presence: AgentPresence | None = None
                     ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -326,18 +340,20 @@ class MADDPG(MADDPGCheckpoint):
                column), optional is_weights [N, S] (critic only), optional actor_obs [N, B, N, obs_dim],
                actor_act [N, B, N, act_dim] (and actor_present [N, B, N]): the actor step's own rows (actor_batch =
                "uniform"; absent: the actor trains on the critic's rows).
-        Returns numpy: critic_loss [N] (pre-step, weighted), actor_loss [N], td_abs |y - Q| [N, S] (pre-step,
-        for PER), critic_grad_norm [N], actor_grad_norm [N] (pre-clip), and with `target_scores` target_td_abs
-        |y − Q_target| [N, S] (pre-step, ReLo).
+        Returns numpy: critic_loss [N] (pre-step, weighted), critic_loss_normalised [N] (pre-step, unweighted mean
+        squared TD error over the variance of the targets y, nan where y has none: `_unexplained`), actor_loss [N],
+        td_abs |y - Q| [N, S] (pre-step, for PER), critic_grad_norm [N], actor_grad_norm [N] (pre-clip), and with
+        `target_scores` target_td_abs |y − Q_target| [N, S] (pre-step, ReLo).
         """
         obs, act, rew, next_obs, done, w, presence = self._unpack(batch)
-        c_loss, delta, c_norm = self._critic_step(obs, act, rew, next_obs, done, w, presence)
+        c_loss, delta, c_norm, unexplained = self._critic_step(obs, act, rew, next_obs, done, w, presence)
         a_loss, a_norm = self._actor_step(*self._unpack_actor(batch, obs, act, presence))
         soft_update_(self.target_critic, self.critic, self.tau)
         soft_update_(self.target_actor, self.actor, self.tau)
         self.updates += 1
         return {
             "critic_loss": c_loss.numpy(),
+            "critic_loss_normalised": unexplained.numpy(),
             "actor_loss": a_loss.numpy(),
             "td_abs": delta.abs().numpy(),
             "critic_grad_norm": c_norm.numpy(),

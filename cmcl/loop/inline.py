@@ -27,7 +27,7 @@ from cmcl.config import Config
 from cmcl.episodes import WorldEpisodes
 from cmcl.io.rundir import RunDirectory
 from cmcl.learners import network_steps
-from cmcl.learning_progress import LearningProgress
+from cmcl.learning_progress import LearningProgress, agent_mean
 from cmcl.loop.checkpoint import load_loop_state, loop_state, restore_loop, save_loop_checkpoint
 from cmcl.loop.metrics_rows import finished_episode_rows, format_progress, progress_row
 from cmcl.messages import LearnerFeedback, Rows
@@ -109,6 +109,8 @@ class InlineLoop:
         rows = finished_episode_rows(self, info) if info["episode_mask"].any() else []
         if rows:
             self.counters["rounds"] += 1
+        for row in rows:  # run.progress_signal = "coverage"
+            self.learning_progress.record_episode(row["episodes"], row.get("coverage"))
         return rows
 
     def _run_due_updates(self, new_steps: int) -> None:
@@ -152,7 +154,8 @@ class InlineLoop:
             self.replay.recompute_priorities(self.schedule.lam)
         result = self._learner_step()
         stats["critic_loss"] = result["critic_loss"]
-        self.learning_progress.record(c["episodes"], float(np.mean(result["critic_loss"])))
+        self.learning_progress.record(c["episodes"], float(np.mean(result["critic_loss"])),
+                                      agent_mean(result["critic_loss_normalised"]))
         stats["actor_loss"] = result["actor_loss"]
         c["updates"] += 1
         self.last_stats = stats
