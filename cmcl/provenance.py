@@ -4,9 +4,14 @@ Every run summary (`RunDirectory.write_summary`), every grid summary (`experimen
 outputs carry `provenance(...)`:
 
   commit        the git commit of the checkout the code was imported from (40 hex digits), or None when it is not a
-                git checkout (an installed wheel, a container image: then `CMCL_COMMIT` names it if set)
+                git checkout (an installed wheel, a container image: then `CMCL_COMMIT` names it if set), as it was
+                when this process first asked (`code_at_start`: a run directory asks when the run opens), so a commit
+                or checkout made while the run trains does not rename the code the run ran
   dirty         True when tracked files differ from that commit (untracked files do not count, nor the results the
                 grids write, RESULTS_PATHS: a grid's tracked results.csv changes after its first run); None without git
+  changed_during_run  present only when the checkout is not what it was at the start ({"commit", "dirty"} now): the
+                process may have imported some of its modules from the later code (a lazy import), so its numbers
+                belong to neither commit alone
   config_sha256 sha256 of the resolved config (its TOML text, `cmcl.config.dump_toml`), when one is given
   versions      {"python", "torch", "numpy", "ray"} ("absent" for a package that is not installed)
   cores         os.cpu_count() of the machine
@@ -54,6 +59,18 @@ def code_state(root: Path = ROOT) -> tuple[str | None, bool | None]:
     return commit, bool(status) if status is not None else None
 
 
+_AT_START: dict[Path, tuple[str | None, bool | None]] = {}  # root -> code_state the first time this process asked
+
+
+def code_at_start(root: Path = ROOT) -> tuple[str | None, bool | None]:
+    """(commit, dirty) of the checkout at `root` the first time this process asked: the code it runs. The run
+    directory asks when a run opens (cmcl.io.rundir), a bench before its run; later calls return that answer."""
+    root = Path(root)
+    if root not in _AT_START:
+        _AT_START[root] = code_state(root)
+    return _AT_START[root]
+
+
 def config_digest(config_text: str) -> str:
     """sha256 hex of a resolved config's TOML text."""
     return hashlib.sha256(config_text.encode()).hexdigest()
@@ -77,8 +94,11 @@ def load_average() -> list[float]:
 
 def provenance(config_text: str | None = None, root: Path = ROOT) -> dict[str, Any]:
     """The provenance record (see the module docstring); `config_text`: the resolved config's TOML, if any."""
-    commit, dirty = code_state(root)
+    commit, dirty = code_at_start(root)
     out: dict[str, Any] = {"commit": commit, "dirty": dirty}
+    now = code_state(root)
+    if now != (commit, dirty):
+        out["changed_during_run"] = {"commit": now[0], "dirty": now[1]}
     if config_text is not None:
         out["config_sha256"] = config_digest(config_text)
     out.update(versions=versions(), cores=os.cpu_count(), load_avg=load_average())

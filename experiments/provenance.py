@@ -1,13 +1,16 @@
 """Which code a grid's result ran, and whether a comparison's runs may be tested together (issue 35).
 
 Writing: `run_provenance` is the "provenance" of a grid summary: `cmcl.provenance.provenance` of this checkout and of
-the run's resolved config, the load over its training (`LoadSampler`), the commits its run directory's segments
+the run's resolved config, with the commit, dirtiness and any change during the run taken from the training
+process's own summary (it recorded the code when its run opened; the grid's process may have started earlier), the load
+over its training (`LoadSampler`), the commits its run directory's segments
 recorded (`segment_commits`: a run resumed across a code change has two), when the summary was written
 (`measured_utc`, "YYYY-MM-DD HH:MM", from 2026-12-05), and `fingerprint`: sha256s of a short,
 deterministic inline training of the run's own settings (`cmcl.fingerprint`), computed in a subprocess, so that two
 commits can be shown to train a setting identically.
 
-Reading: `code_version` names the code a summary ran ("<commit[:7]>", "+dirty" when the tree was dirty, or for
+Reading: `code_version` names the code a summary ran ("<commit[:7]>", "+dirty" when the tree was dirty, "+changed"
+when the checkout changed while it trained, or for
 summaries written before provenance existed, "unrecorded" plus a key signature that tells the later measures code
 apart); `cell_versions` decides, for the runs of one comparison, whether they ran one code, ran several whose
 fingerprints agree for every arm, or are mixed (then no test is run on them).
@@ -60,6 +63,10 @@ def run_provenance(run: Run, run_path: Path, load: dict[str, Any] | None) -> dic
     """A grid summary's "provenance" (module docstring)."""
     run_dir = RunDirectory.open(run_path / f"n{run.stages[-1]}" if run.stages else run_path)
     out = provenance(run_dir.config_path.read_text())
+    written = run_dir.summary().get("provenance") or {}  # the training process's own record of the code it ran
+    if written.get("commit"):
+        out.pop("changed_during_run", None)
+        out.update({k: written[k] for k in ("commit", "dirty", "changed_during_run") if k in written})
     out.update(load or {}, segment_commits=segment_commits(run_dir.path),
                measured_utc=datetime.now(UTC).strftime("%Y-%m-%d %H:%M"))
     if not run.stages and run.task != "own_env":
@@ -68,15 +75,16 @@ def run_provenance(run: Run, run_path: Path, load: dict[str, Any] | None) -> dic
 
 
 def code_version(summary: dict[str, Any]) -> str:
-    """The code a summary ran, as a short label: "29ec5ae", "29ec5ae+dirty", "29ec5ae/7a64af0" (resumed across
-    commits), or "unrecorded" / "unrecorded, later measures" for summaries written before provenance existed."""
+    """The code a summary ran, as a short label: "29ec5ae", "29ec5ae+dirty", "29ec5ae+changed" (the checkout changed
+    during the run), "29ec5ae/7a64af0" (resumed across commits), or "unrecorded" / "unrecorded, later measures" for
+    summaries written before provenance existed."""
     prov = summary.get("provenance")
     if not prov or not prov.get("commit"):
         later = all(k in summary for k in LATER_MEASURES_KEYS)
         return "unrecorded, later measures" if later else "unrecorded"
     commits = [prov["commit"], *[c for c in prov.get("segment_commits", []) if c != prov["commit"]]]
     label = "/".join(c[:7] for c in commits)
-    return label + ("+dirty" if prov.get("dirty") else "")
+    return label + ("+dirty" if prov.get("dirty") else "") + ("+changed" if prov.get("changed_during_run") else "")
 
 
 def _fingerprint_key(summary: dict[str, Any]) -> str | None:

@@ -9,7 +9,7 @@ import pytest
 import experiments.__main__ as experiments_cli
 from cmcl.config import load_config
 from cmcl.io.rundir import RunDirectory
-from cmcl.provenance import LoadSampler, code_state, provenance
+from cmcl.provenance import LoadSampler, code_at_start, code_state, provenance
 from experiments.curriculum_tables import curriculum_tests
 from experiments.provenance import cell_versions, code_version
 
@@ -64,6 +64,23 @@ def test_the_record_holds_config_hash_versions_cores_and_load(repo):
     assert record["config_sha256"] != other["config_sha256"] and len(record["config_sha256"]) == 64
     assert set(record["versions"]) == {"python", "torch", "numpy", "ray"}
     assert record["cores"] >= 1 and len(record["load_avg"]) == 3
+
+
+def test_a_commit_made_while_a_run_trains_does_not_rename_the_code_it_ran(repo):
+    # the N = 8 runs of 2026-12-05: main was merged while they trained, and their summaries named the merge
+    started = git(repo, "rev-parse", "HEAD")
+    assert code_at_start(repo) == (started, False)  # the run opens
+    (repo / "tracked.txt").write_text("two\n")
+    git(repo, "commit", "-qam", "second")  # made while it trains
+    record = provenance(None, repo)  # its summary, written at the end
+    assert (record["commit"], record["dirty"]) == (started, False)
+    assert record["changed_during_run"] == {"commit": git(repo, "rev-parse", "HEAD"), "dirty": False}
+    assert code_version({"provenance": record}) == started[:7] + "+changed"
+
+
+def test_an_unchanged_checkout_records_no_change(repo):
+    code_at_start(repo)
+    assert "changed_during_run" not in provenance(None, repo)
 
 
 def test_run_summary_records_provenance_and_the_commits_of_every_segment(tmp_path):

@@ -34,7 +34,7 @@ from cmcl.io.checkpoint_files import load_checkpoint, save_torch_atomic
 from cmcl.io.metrics_log import MetricsLog, json_safe
 from cmcl.io.resume_hint import resume_command
 from cmcl.io.verified import CheckpointError, VerifiedFile
-from cmcl.provenance import provenance
+from cmcl.provenance import code_at_start, provenance
 
 CHECKPOINT_GLOB = "ckpt_*.pt"
 # what a start that failed before its first episode leaves at the top of its run directory (with a `checkpoints/`
@@ -68,6 +68,7 @@ class RunDirectory:
     @classmethod
     def create(cls, path: str | Path, config: Config, *, overwrite: bool = False) -> RunDirectory:
         """Make the folder and write the resolved config. Refuses a folder that already holds a run."""
+        code_at_start()  # the code this run trains with, before anything can change the checkout (cmcl.provenance)
         run = cls(path)
         if run.config_path.exists() and not overwrite and not run.never_trained():
             raise FileExistsError(
@@ -112,6 +113,7 @@ class RunDirectory:
     @classmethod
     def open(cls, path: str | Path) -> RunDirectory:
         """Open an existing run folder (must hold config.toml)."""
+        code_at_start()  # a resume's code, as in `create`
         run = cls(path)
         if not run.config_path.is_file():
             raise FileNotFoundError(f"{str(run.path)!r} is not a run directory (no config.toml)")
