@@ -9,7 +9,8 @@ Members are agents: ``actor`` maps o_v [obs_dim] -> a_v [act_dim] (tanh, or Gumb
 ``discrete``); ``critic`` maps the joint input (all obs, then all actions, flattened) -> Q_v. Every agent has the
 same obs_dim (shorter observations zero-padded by the env) and act_dim.
 
-Public boundary: inputs may be numpy arrays or torch tensors (converted once, float32); outputs are numpy.
+Public boundary: inputs may be numpy arrays or torch tensors (converted once, float32; per-owner minibatches by
+cmcl.learners.maddpg_batch); outputs are numpy.
 Data conventions: joint rows ``obs[M, N, obs_dim], act[M, N, act_dim], rew[M, N], next_obs[M, N, obs_dim],
 done[M, N]`` (per agent; ``[M]`` per row); per-owner stacks add a leading owner axis: ``obs[N, S, N, obs_dim]``,
 ``rew[N, S, N]``, ``done[N, S, N]`` (or the owner's own ``[N, S]``); with rows carried from fewer agents
@@ -28,10 +29,11 @@ from torch import nn
 
 from cmcl.envs.entities import EntityLayout
 from cmcl.learners.agent_presence import AgentPresence, row_mean
+from cmcl.learners.maddpg_batch import actor_rows, owner_batch
 from cmcl.learners.maddpg_checkpoint import MADDPGCheckpoint
 from cmcl.learners.nets import as_tensor, clip_grad_norm_per_member_, joint_input, make_adam, soft_update_
 from cmcl.learners.networks import build_networks, network_kind
-from cmcl.messages import ACTOR_PREFIX
+from cmcl.learners.normalised_td import normalised_td_error
 
 __all__ = ["MADDPG"]
 
@@ -231,67 +233,33 @@ class MADDPG(MADDPGCheckpoint):
         return self._td_targets_t(as_tensor(rew), as_tensor(next_obs), d, ag).numpy()
 
     # ------------------------------------------------------------------ update
-    def _unpack(self, batch: Mapping[str, ArrayLike]) -> tuple:
-        """Per-owner minibatch dict -> tensors (obs, act, rew, next_obs, done [N,S] or [N,S,N], weights [N,S] or
-        None) and the agents' presence (None: every agent of every row)."""
-        obs, act = as_tensor(batch["obs"]), as_tensor(batch["act"])
-        n, s = obs.shape[0], obs.shape[1]
-        if obs.dim() != 4 or n != self.num_agents or obs.shape[2] != self.num_agents:
-            raise ValueError(f"obs must be [N={self.num_agents}, S, N, obs_dim], got {tuple(obs.shape)}")
-        done = batch.get("done")
-        done = torch.zeros(n, s) if done is None else as_tensor(done)
-        w = batch.get("is_weights")
-        presence = AgentPresence.of_batch(batch.get("present"), self.num_agents)
-        if presence is not None and self.networks != "entity":
-            raise ValueError(f"rows with absent agents (run.carry_replay) need entity networks, not {self.networks!r}")
-        return (obs, act, as_tensor(batch["rew"]), as_tensor(batch["next_obs"]), done,
-                None if w is None else as_tensor(w), presence)
-
-    def _unpack_actor(self, batch: Mapping[str, ArrayLike], obs: torch.Tensor, act: torch.Tensor,
-                      presence: AgentPresence | None) -> tuple:
-        """The actor step's rows: the batch's "actor_obs", "actor_act" [N, B, N, ·] (and "actor_present") when it has
-        them (actor_batch = "uniform"), else the critic's (obs, act, presence) as given."""
-        if ACTOR_PREFIX + "obs" not in batch:
-            return obs, act, presence
-        a_obs, a_act = as_tensor(batch[ACTOR_PREFIX + "obs"]), as_tensor(batch[ACTOR_PREFIX + "act"])
-        if a_obs.dim() != 4 or a_obs.shape[0] != self.num_agents or a_obs.shape[2:] != obs.shape[2:] \
-                or a_act.shape[:2] != a_obs.shape[:2] or a_act.shape[2:] != act.shape[2:]:
-            raise ValueError(f"actor_obs / actor_act must be [N={self.num_agents}, B, N, ·] like obs / act, got "
-                             f"{tuple(a_obs.shape)} and {tuple(a_act.shape)}")
-        return a_obs, a_act, AgentPresence.of_batch(batch.get(ACTOR_PREFIX + "present"), self.num_agents)
+    def _td_errors(self, obs: torch.Tensor, act: torch.Tensor, rew: torch.Tensor, next_obs: torch.Tensor,
+                   done: torch.Tensor, presence: AgentPresence | None
+                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """TD targets y [N, S] and errors y − Q_v(s, a) [N, S] of the current critic (eq. 5; not masked by presence)
+        on per-owner rows, and the rows' present-agent counts int64[N, S] (None: all present)."""
+        count = None if presence is None else presence.count
+        y = self._td_targets_t(rew, next_obs, done, None, count)
+        return y, y - self._q(self.critic, joint_input(obs, act), None, count), count
 
     def _critic_step(self, obs, act, rew, next_obs, done, w, presence: AgentPresence | None = None
                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """One batched critic step on (y − Q_v(s, a))² (eq. 5), over the rows where owner v is present. Returns
-        (loss [N], delta [N, S] (0 where the owner is absent), grad norm [N], normalised TD error [N]: see
-        `_unexplained`)."""
-        count = None if presence is None else presence.count
-        y = self._td_targets_t(rew, next_obs, done, None, count)  # [N, S]
-        delta = y - self._q(self.critic, joint_input(obs, act), None, count)  # [N, S]
+        (loss [N], delta [N, S] (0 where the owner is absent), grad norm [N], normalised TD error [N]:
+        cmcl.learners.normalised_td)."""
+        y, delta, count = self._td_errors(obs, act, rew, next_obs, done, presence)  # [N, S], [N, S]
         delta = delta if presence is None else delta * presence.own
         if self.target_scores:  # the same target against the target critic, before the step moves it (ReLo)
             with torch.no_grad():
                 target_delta = y - self._q(self.target_critic, joint_input(obs, act), None, count)
             self.last_target_td = (target_delta if presence is None else target_delta * presence.own).abs()
         loss = row_mean(delta.pow(2), w, presence)  # [N]
-        unexplained = self._unexplained(y, delta.detach(), presence)
+        unexplained = normalised_td_error(y, delta.detach(), presence)
         self.critic_opt.zero_grad(set_to_none=True)
         self._total(loss, presence).backward()
         norms = self._clip(self.critic.parameters())
         self.critic_opt.step()
         return loss.detach(), delta.detach(), norms, unexplained
-
-    @staticmethod
-    @torch.no_grad()
-    def _unexplained(y: torch.Tensor, delta: torch.Tensor, presence: AgentPresence | None) -> torch.Tensor:
-        """Each owner's normalised TD error on its minibatch: mean (y − Q)² over the variance of y, over the rows
-        where it is present, unweighted (the share of its targets' variance the critic does not explain, 1 − R²;
-        free of the value scale, which the critic loss is not) -> [N], nan where y has no variance. Reads only
-        (run.progress_signal = "normalised_td", cmcl.learning_progress); the step does not depend on it."""
-        mse = row_mean(delta.pow(2), None, presence)
-        centred = y - row_mean(y, None, presence).unsqueeze(1)
-        var = row_mean(centred.pow(2), None, presence)
-        return torch.where(var > 0, mse / var.clamp(min=torch.finfo(var.dtype).tiny), torch.nan)
 
     def _actor_step(self, obs: torch.Tensor, act: torch.Tensor, presence: AgentPresence | None = None
                     ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -341,13 +309,13 @@ class MADDPG(MADDPGCheckpoint):
                actor_act [N, B, N, act_dim] (and actor_present [N, B, N]): the actor step's own rows (actor_batch =
                "uniform"; absent: the actor trains on the critic's rows).
         Returns numpy: critic_loss [N] (pre-step, weighted), critic_loss_normalised [N] (pre-step, unweighted mean
-        squared TD error over the variance of the targets y, nan where y has none: `_unexplained`), actor_loss [N],
+        squared TD error over the variance of the targets y, nan where y has none: normalised_td), actor_loss [N],
         td_abs |y - Q| [N, S] (pre-step, for PER), critic_grad_norm [N], actor_grad_norm [N] (pre-clip), and with
         `target_scores` target_td_abs |y − Q_target| [N, S] (pre-step, ReLo).
         """
-        obs, act, rew, next_obs, done, w, presence = self._unpack(batch)
+        obs, act, rew, next_obs, done, w, presence = owner_batch(batch, self.num_agents, self.networks)
         c_loss, delta, c_norm, unexplained = self._critic_step(obs, act, rew, next_obs, done, w, presence)
-        a_loss, a_norm = self._actor_step(*self._unpack_actor(batch, obs, act, presence))
+        a_loss, a_norm = self._actor_step(*actor_rows(batch, obs, act, presence, self.num_agents))
         soft_update_(self.target_critic, self.critic, self.tau)
         soft_update_(self.target_actor, self.actor, self.tau)
         self.updates += 1
@@ -365,16 +333,13 @@ class MADDPG(MADDPGCheckpoint):
     def td_abs(self, batch: Mapping[str, ArrayLike]) -> np.ndarray:
         """|y − Q_v(s, a)| of every row of a per-owner batch under the current critic, nothing updated ->
         float32[N, S] (0 where the owner is absent). LaBER scores its candidates with it."""
-        obs, act, rew, next_obs, done, _, presence = self._unpack(batch)
-        count = None if presence is None else presence.count
-        delta = self._td_targets_t(rew, next_obs, done, None, count) - self._q(self.critic, joint_input(obs, act),
-                                                                             None, count)
+        obs, act, rew, next_obs, done, _, presence = owner_batch(batch, self.num_agents, self.networks)
+        _, delta, _ = self._td_errors(obs, act, rew, next_obs, done, presence)
         return (delta if presence is None else delta * presence.own).abs().numpy()
 
     @torch.no_grad()
     def critic_loss(self, batch: Mapping[str, ArrayLike]) -> np.ndarray:
         """Per-agent (weighted) critic MSE on a per-owner batch without updating anything -> float32[N]."""
-        obs, act, rew, next_obs, done, w, presence = self._unpack(batch)
-        count = None if presence is None else presence.count
-        y = self._td_targets_t(rew, next_obs, done, None, count)
-        return row_mean((y - self._q(self.critic, joint_input(obs, act), None, count)).pow(2), w, presence).numpy()
+        obs, act, rew, next_obs, done, w, presence = owner_batch(batch, self.num_agents, self.networks)
+        _, delta, _ = self._td_errors(obs, act, rew, next_obs, done, presence)
+        return row_mean(delta.pow(2), w, presence).numpy()
