@@ -1,19 +1,17 @@
 """Which code a grid's result ran, and whether a comparison's runs may be tested together (issue 35).
 
 Writing: `run_provenance` is the "provenance" of a grid summary: `cmcl.provenance.provenance` of this checkout and of
-the run's resolved config, with the commit, dirtiness and any change during the run taken from the training
-process's own summary (it recorded the code when its run opened; the grid's process may have started earlier), the load
-over its training (`LoadSampler`), the commits its run directory's segments
-recorded (`segment_commits`: a run resumed across a code change has two), when the summary was written
-(`measured_utc`, "YYYY-MM-DD HH:MM", from 2026-12-05), and `fingerprint`: sha256s of a short,
-deterministic inline training of the run's own settings (`cmcl.fingerprint`), computed in a subprocess, so that two
-commits can be shown to train a setting identically.
+the run's resolved config, with the commit, dirtiness and any change during the run taken from the training process's
+own summary (it recorded the code when its run opened; the grid's process may have started earlier), the load over its
+training (`LoadSampler`), the commits its run directory's segments recorded (`segment_commits`: a run resumed across a
+code change has two), when the summary was written (`measured_utc`, "YYYY-MM-DD HH:MM", from 2026-12-05), and
+`fingerprint`: sha256s of a short, deterministic inline training of the run's own settings (`cmcl.fingerprint`),
+computed in a subprocess, so that two commits can be shown to train a setting identically.
 
-Reading: `code_version` names the code a summary ran ("<commit[:7]>", "+dirty" when the tree was dirty, "+changed"
-when the checkout changed while it trained, or for
-summaries written before provenance existed, "unrecorded" plus a key signature that tells the later measures code
-apart); `cell_versions` decides, for the runs of one comparison, whether they ran one code, ran several whose
-fingerprints agree for every arm, or are mixed (then no test is run on them).
+Reading: `code_version` names the code a summary ran ("<commit[:7]>", "+dirty" when the tree was dirty, "+changed" when
+the checkout changed while it trained, or for summaries written before provenance existed, "unrecorded" plus a key
+signature that tells the later measures code apart); `cell_versions` decides, for the runs of one comparison, whether
+they ran one code, ran several whose fingerprints agree for every arm, or are mixed (then no test is run on them).
 """
 
 from __future__ import annotations
