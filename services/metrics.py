@@ -18,8 +18,11 @@ order they become ready, which is not the order they were sent) and adds nothing
 incarnation it means the actor restarted and counts from zero: the whole new total is added (Prometheus' rule).
 
 Gauges are last-writer-wins (size, capacity, λ and coverage come from the one replay server). The rates
-`cmcl_env_steps_per_second` / `cmcl_updates_per_second` are counter growth over supervisor time, refreshed by
-`apply` at most every `rate_interval` seconds, or on demand by `update_rates(now)`.
+`cmcl_env_steps_per_second` / `cmcl_updates_per_second` are counter growth over the last `rate_window` seconds of
+supervisor time (default 30), refreshed by `apply` at most every `rate_interval` seconds, or on demand by
+`update_rates(now)`. The window spans several reports: the learner reports once per call of
+`service.updates_per_call` updates, which on a loaded machine can take longer than `rate_interval`, and a rate over
+the last refresh alone then read 0 while it trained (the dashboard's "Updates / s", at random).
 
 Histogram rule (the replay samples of the schema). Each report adds at most `max_samples` (default 512) values
 per histogram, a uniform subsample drawn with the seeded generator when the array is larger (in SAMPLE_KEYS
@@ -36,6 +39,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -83,12 +87,16 @@ class ServiceMetrics:
     """Every metric of the service in one registry, updated from actor reports (see the module docstring)."""
 
     def __init__(self, *, max_samples: int = DEFAULT_MAX_SAMPLES, window: int = 100, seed: int = 0,
-                 rate_interval: float = 5.0, clock: Callable[[], float] = time.monotonic):
+                 rate_interval: float = 5.0, rate_window: float = 30.0,
+                 clock: Callable[[], float] = time.monotonic):
         for name, value in (("max_samples", max_samples), ("window", window)):
             if value < 1:
                 raise ValueError(f"{name} must be >= 1, got {value!r}")
         self.registry = CollectorRegistry(auto_describe=True)
+        if not rate_window >= rate_interval > 0:
+            raise ValueError(f"need rate_window >= rate_interval > 0, got {rate_window!r} and {rate_interval!r}")
         self.max_samples, self.window, self.rate_interval, self._clock = max_samples, window, rate_interval, clock
+        self.rate_window = rate_window
         self._rng = np.random.default_rng(seed)
         self._lock = threading.Lock()
         self._sources: dict[str, _SourceState] = {}
@@ -96,7 +104,7 @@ class ServiceMetrics:
         self._published_version: int | None = None
         self._actor_versions: dict[str, int] = {}
         self._accumulated = {"env_steps": 0.0, "learner_updates": 0.0}
-        self._rate_mark: tuple[float, float, float] | None = None
+        self._rate_marks: deque[tuple[float, float, float]] = deque()  # (time, env steps, updates) of each refresh
         self._server: Any = None
         self._thread: threading.Thread | None = None
         self.gauges, self.counters, self.histograms = define_metrics(self.registry)
@@ -188,7 +196,7 @@ class ServiceMetrics:
             self._commit(parsed, self._plan(parsed))
             self.counters["reports"].inc()
             now = self._clock()
-            if self._rate_mark is None or now - self._rate_mark[0] >= self.rate_interval:
+            if not self._rate_marks or now - self._rate_marks[-1][0] >= self.rate_interval:
                 self._update_rates(now)
 
     def try_apply(self, report: Report | Mapping[str, Any]) -> str | None:
@@ -268,17 +276,20 @@ class ServiceMetrics:
             self.gauges["weight_lag"].labels(actor).set(max(0, self._published_version - version))
 
     def update_rates(self, now: float | None = None) -> None:
-        """Recompute env steps/s and updates/s from counter growth since the previous call."""
+        """Recompute env steps/s and updates/s from counter growth over the last `rate_window` seconds."""
         with self._lock:
             self._update_rates(self._clock() if now is None else now)
 
     def _update_rates(self, now: float) -> None:
         steps, updates = self._accumulated["env_steps"], self._accumulated["learner_updates"]
-        if self._rate_mark is not None and now > self._rate_mark[0]:
-            t0, steps0, updates0 = self._rate_mark
+        marks = self._rate_marks
+        while len(marks) > 1 and marks[1][0] <= now - self.rate_window:  # base: the newest mark at the window's start
+            marks.popleft()
+        if marks and now > marks[0][0]:
+            t0, steps0, updates0 = marks[0]
             self.gauges["env_steps_per_second"].set((steps - steps0) / (now - t0))
             self.gauges["updates_per_second"].set((updates - updates0) / (now - t0))
-        self._rate_mark = (now, steps, updates)
+        marks.append((now, steps, updates))
 
     def text(self) -> str:
         """The Prometheus exposition text of every metric (what /metrics serves)."""

@@ -233,7 +233,9 @@ def test_rates_windows_and_lag_with_a_fake_clock():
     m.apply({"source": "w0", "rollout": {"env_steps": 1000, "finished": {"win": {"predator": [1, 1, 0, 0]}}}})
     assert m.value("cmcl_env_steps_per_second") == 100.0 and m.value("cmcl_updates_per_second") == 4.0
     assert m.value("cmcl_win_rate", {"team": "predator"}) == pytest.approx(1 / 3)  # last 3 episodes
-    m.update_rates(now=120.0)
+    m.update_rates(now=120.0)  # no growth since 110, but within the 30 s window: growth since 100 over 20 s
+    assert m.value("cmcl_env_steps_per_second") == 50.0
+    m.update_rates(now=141.0)  # the window [111, 141] saw no growth: base the mark of 110
     assert m.value("cmcl_env_steps_per_second") == 0.0
     m.apply({"source": "learner", "learner": {"weight_version": 5}})
     assert m.value("cmcl_weight_version_lag", {"actor": "w0"}) == 3
@@ -246,3 +248,29 @@ def test_constructor_and_serve_arguments_are_checked():
         ServiceMetrics(max_samples=0)
     with pytest.raises(ValueError, match="port must be an integer in \\[0, 65535\\], got 70000"):
         ServiceMetrics().serve(70000)
+
+
+def test_a_learner_that_reports_less_often_than_the_refresh_never_reads_zero_while_it_trains():
+    # the live dashboard's "Updates / s" read 0 at random on a loaded machine: the learner reports once per call of
+    # 16 updates, a call took longer than the 5 s refresh, and the rate covered only the last refresh
+    clock = [0.0]
+    m = ServiceMetrics(rate_interval=5.0, clock=lambda: clock[0])  # the default window, 30 s
+    updates, rates = 0, []
+    for t in range(0, 120):  # a rollout report every second, a learner report every 8 s
+        clock[0] = float(t)
+        m.apply({"source": "w0", "rollout": {"env_steps": 100 * t}})
+        if t % 8 == 0:
+            updates += 16
+            m.apply({"source": "learner", "learner": {"updates": updates}})
+        if t >= 10:
+            rates.append(m.value("cmcl_updates_per_second"))
+    assert min(rates) > 0 and max(rates) < 4, (min(rates), max(rates))  # 16 / 8 s = 2 per second
+    clock[0] = 200.0  # the learner stopped: 30 s later the rate says so
+    m.apply({"source": "w0", "rollout": {"env_steps": 100 * 200}})
+    m.update_rates(now=240.0)
+    assert m.value("cmcl_updates_per_second") == 0.0
+
+
+def test_the_rate_window_must_hold_a_refresh():
+    with pytest.raises(ValueError, match="rate_window"):
+        ServiceMetrics(rate_interval=5.0, rate_window=1.0)
