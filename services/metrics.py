@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -47,6 +46,7 @@ from typing import Any
 import numpy as np
 from prometheus_client import CollectorRegistry, generate_latest, start_http_server
 
+from cmcl.windowed_rate import WindowedRate
 from services.metric_families import HISTOGRAMS, NumpyHistogram, define_metrics
 from services.report_schema import SAMPLE_KEYS, SCHEMA_VERSION, FinishedEpisodes, Report, ReportError, parse_report
 
@@ -104,7 +104,7 @@ class ServiceMetrics:
         self._published_version: int | None = None
         self._actor_versions: dict[str, int] = {}
         self._accumulated = {"env_steps": 0.0, "learner_updates": 0.0}
-        self._rate_marks: deque[tuple[float, float, float]] = deque()  # (time, env steps, updates) of each refresh
+        self._rates = WindowedRate(rate_window)  # env steps and updates of each refresh
         self._server: Any = None
         self._thread: threading.Thread | None = None
         self.gauges, self.counters, self.histograms = define_metrics(self.registry)
@@ -196,7 +196,7 @@ class ServiceMetrics:
             self._commit(parsed, self._plan(parsed))
             self.counters["reports"].inc()
             now = self._clock()
-            if not self._rate_marks or now - self._rate_marks[-1][0] >= self.rate_interval:
+            if self._rates.last is None or now - self._rates.last >= self.rate_interval:
                 self._update_rates(now)
 
     def try_apply(self, report: Report | Mapping[str, Any]) -> str | None:
@@ -281,15 +281,10 @@ class ServiceMetrics:
             self._update_rates(self._clock() if now is None else now)
 
     def _update_rates(self, now: float) -> None:
-        steps, updates = self._accumulated["env_steps"], self._accumulated["learner_updates"]
-        marks = self._rate_marks
-        while len(marks) > 1 and marks[1][0] <= now - self.rate_window:  # base: the newest mark at the window's start
-            marks.popleft()
-        if marks and now > marks[0][0]:
-            t0, steps0, updates0 = marks[0]
-            self.gauges["env_steps_per_second"].set((steps - steps0) / (now - t0))
-            self.gauges["updates_per_second"].set((updates - updates0) / (now - t0))
-        marks.append((now, steps, updates))
+        rates = self._rates.mark(now, (self._accumulated["env_steps"], self._accumulated["learner_updates"]))
+        if rates is not None:
+            self.gauges["env_steps_per_second"].set(rates[0])
+            self.gauges["updates_per_second"].set(rates[1])
 
     def text(self) -> str:
         """The Prometheus exposition text of every metric (what /metrics serves)."""

@@ -14,6 +14,7 @@ import numpy as np
 
 from cmcl.messages import ReplayStatus
 from cmcl.progress import progress_line, sampling_parts, window_summary
+from cmcl.windowed_rate import WindowedRate
 from services.report_schema import Report
 
 
@@ -58,9 +59,12 @@ def sampling_row(report: Report | None, modes: list[str]) -> dict[str, Any]:
         row["score_coverage"] = float(replay.score_coverage)
     return row
 
+RATE_WINDOW_S = 10.0  # seconds the progress line's rates span (several learner calls: cmcl.windowed_rate)
+
 
 class ProgressView:
-    """Env steps and updates per second between refreshes (at least 0.5 s apart), and the progress line."""
+    """Env steps and updates per second over the last RATE_WINDOW_S seconds (refreshed at most every 0.5 s), and the
+    progress line."""
 
     def __init__(self, episodes_target: int, started: float, status: ReplayStatus, sampling_modes: list[str],
                  max_seconds: float = 0.0, notes: list[str] | None = None, show_lambda: bool = True) -> None:
@@ -70,15 +74,15 @@ class ProgressView:
         self.episodes_target, self.started, self.sampling_modes = episodes_target, started, list(sampling_modes)
         self.max_seconds, self.notes, self.show_lambda = float(max_seconds), list(notes or []), bool(show_lambda)
         self.rates = {"env_steps_per_s": 0.0, "updates_per_s": 0.0}
-        self.mark = (started, status.env_steps, status.updates)  # (time, env steps, updates) of the last refresh
+        self.window = WindowedRate(RATE_WINDOW_S)
+        self.window.mark(started, (status.env_steps, status.updates))
 
     def refresh(self, status: ReplayStatus) -> None:
         now = time.perf_counter()
-        t0, s0, u0 = self.mark
-        if now - t0 > 0.5:
-            self.rates = {"env_steps_per_s": (status.env_steps - s0) / (now - t0),
-                          "updates_per_s": (status.updates - u0) / (now - t0)}
-            self.mark = (now, status.env_steps, status.updates)
+        if now - self.window.last > 0.5:
+            rates = self.window.mark(now, (status.env_steps, status.updates))
+            if rates is not None:
+                self.rates = {"env_steps_per_s": rates[0], "updates_per_s": rates[1]}
 
     def line(self, status: ReplayStatus, report: Report | None, lags: dict[str, int], window: Any) -> str:
         """One terminal line: env steps, episodes, coverage / win, reward, λ (when a rule reads it), rates, buffer,
