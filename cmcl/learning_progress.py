@@ -31,8 +31,8 @@ import math
 from collections.abc import Iterable
 from typing import Any
 
-SIGNALS = ("critic_loss", "normalised_td", "coverage")  # run.progress_signal's values
 RELATIVE = {"critic_loss": True, "normalised_td": True, "coverage": False}  # LP: relative, else absolute change
+SIGNALS = tuple(RELATIVE)  # run.progress_signal's values
 
 
 def agent_mean(values: Iterable[float]) -> float:

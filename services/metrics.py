@@ -96,7 +96,6 @@ class ServiceMetrics:
         if not rate_window >= rate_interval > 0:
             raise ValueError(f"need rate_window >= rate_interval > 0, got {rate_window!r} and {rate_interval!r}")
         self.max_samples, self.window, self.rate_interval, self._clock = max_samples, window, rate_interval, clock
-        self.rate_window = rate_window
         self._rng = np.random.default_rng(seed)
         self._lock = threading.Lock()
         self._sources: dict[str, _SourceState] = {}
