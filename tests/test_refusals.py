@@ -25,6 +25,12 @@ TEAMS_ENV = "env.factory=tests.team_env:parallel_env"
 QUICK = ["--set", "run.episodes=2", "--quiet", "--no-eval"]
 
 
+def any_port(runner: str) -> list[str]:
+    """The service's metrics on a free port (a `make run` beside the suite holds the default 9100, which the launcher
+    then refuses first); the inline runner refuses metrics flags."""
+    return ["--metrics-port", "0"] if runner == "service" else []
+
+
 def run_cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "cmcl", *args], cwd=ROOT, capture_output=True, text=True,
                           timeout=timeout)
@@ -49,7 +55,7 @@ def assert_one_line_refusal(done: subprocess.CompletedProcess, *named: str) -> N
 def test_an_error_of_the_users_environment_is_one_line_naming_env_factory(runner, fail_in, named, tmp_path):
     """On the service the launcher builds the env before Ray starts: one line, not one traceback per actor."""
     kwargs = "env.factory_kwargs={bogus=1}" if fail_in == "bogus" else f'env.factory_kwargs={{fail_in="{fail_in}"}}'
-    done = run_cli("train", "--runner", runner, "--set", TEAMS_ENV, "--set", kwargs, "--set",
+    done = run_cli("train", "--runner", runner, *any_port(runner), "--set", TEAMS_ENV, "--set", kwargs, "--set",
                    f"run.dir={tmp_path / 'run'}", *QUICK)
     assert_one_line_refusal(done, "env.factory 'tests.team_env:parallel_env'", named)
     assert not (tmp_path / "run").exists()
@@ -83,7 +89,8 @@ def test_teams_that_are_not_the_environments_are_one_line(tmp_path):
 ])
 @pytest.mark.parametrize("runner", ["inline", "service"])
 def test_sizes_that_do_not_fit_in_memory_are_refused_before_allocating(runner, setting, named, tmp_path):
-    done = run_cli("train", "--runner", runner, "--set", setting, "--set", f"run.dir={tmp_path / 'run'}", *QUICK)
+    done = run_cli("train", "--runner", runner, *any_port(runner), "--set", setting, "--set",
+                   f"run.dir={tmp_path / 'run'}", *QUICK)
     assert_one_line_refusal(done, named, "this machine has available")
     assert not (tmp_path / "run").exists()
 
