@@ -21,10 +21,9 @@ from pathlib import Path
 
 from cmcl.algorithms import PAPER_ALGORITHMS
 from cmcl.provenance import code_state
-from experiments.confirm_arms import ConfirmNotReady, has_permuted_control
+from experiments.confirm_arms import CONFIRM_SEEDS, has_permuted_control
 from experiments.grids import (
     ABLATIONS,
-    CONFIRM_SEEDS,
     CURRICULUM_ARMS,
     EPISODES,
     GRIDS,
@@ -36,7 +35,7 @@ from experiments.labels import PERMUTED
 from experiments.report import blocks, figures, update
 from experiments.run_spec import ROOT, Run
 from experiments.runner import run_grid
-from experiments.screen_arms import SCREEN_ARMS, SCREEN_REFERENCES, rule_algorithm
+from experiments.screen_arms import SCREEN_ARMS, SCREEN_REFERENCES, SCREEN_SEEDS, rule_algorithm
 from experiments.stalls import analyse_folder
 from experiments.store import ResultsStore
 
@@ -45,7 +44,8 @@ def shown(path: Path) -> str:
     return str(path.relative_to(ROOT) if path.is_relative_to(ROOT) else path)
 
 
-SEEDS = [0, 1, 2, 3, 4]  # the seeds of a grid unless --seeds names others (the confirm grid alone: CONFIRM_SEEDS)
+SEEDS = [0, 1, 2, 3, 4]  # a grid's seeds unless --seeds names others (alone, the confirm grid: CONFIRM_SEEDS; the
+# screen: SCREEN_SEEDS)
 # what --arms may name: the curriculum grids', the screen's and the confirmation's arms (a screen candidate's permuted
 # control is one of the latter once the screen selects it)
 ARMS = list(dict.fromkeys([*CURRICULUM_ARMS, *SCREEN_ARMS,
@@ -59,11 +59,29 @@ def has_arms(run: Run) -> bool:
     return run.grid in ("screen", "confirm") or (run.grid != "scale" and run.arm in CURRICULUM_ARMS)
 
 
+def grid_args(args: argparse.Namespace) -> tuple:
+    """`grid`'s arguments from the command line: a lone grid's default seeds, and a lone screen's or confirmation's
+    --out as the folder whose summaries decide its later round."""
+    own = args.out if len(args.grids) == 1 else None
+    seeds = args.seeds or (
+        {"confirm": list(CONFIRM_SEEDS), "screen": list(SCREEN_SEEDS)}.get(args.grids[0], SEEDS)
+        if len(args.grids) == 1 else SEEDS)
+    screen = own if args.grids == ["screen"] and own else args.screen
+    return args.grids, seeds, args.algorithms, args.episodes, screen, own if args.grids == ["confirm"] else None
+
+
+def waiting_seeds(args: argparse.Namespace) -> list[int]:
+    """The seeds of a screen or confirmation that have no runs yet because they wait for an earlier round."""
+    names, seeds, *rest = grid_args(args)
+    if not set(names) & {"screen", "confirm"}:
+        return []
+    return [s for s in seeds if not grid(names, [s], *rest)]
+
+
 def selected_runs(args: argparse.Namespace) -> list[Run]:
     """The runs of `args.grids` that the filters keep (--arms filters only the curriculum grids' and the screen's
     arms, --cells only the scale grid's cells), with the prefix references the kept ablations need."""
-    seeds = args.seeds or (list(CONFIRM_SEEDS) if args.grids == ["confirm"] else SEEDS)
-    runs = [r for r in grid(args.grids, seeds, args.algorithms, args.episodes, args.screen)
+    runs = [r for r in grid(*grid_args(args))
             if (r.ablation is None or r.ablation in args.ablations)
             and (args.arms is None or r.arm in args.arms or not has_arms(r))
             and (r.arm not in SCALE_CELLS or r.arm in args.cells) and r.mode in args.modes]
@@ -73,9 +91,13 @@ def selected_runs(args: argparse.Namespace) -> list[Run]:
 def run(args: argparse.Namespace) -> int:
     try:
         runs = selected_runs(args)
-    except ConfirmNotReady as refused:
+    except ValueError as refused:  # ConfirmNotReady, or a seed outside the screen's rounds
         print(f"error: {refused}", file=sys.stderr)
         return 2
+    waiting = waiting_seeds(args)
+    if waiting:
+        print(f"seeds {' '.join(map(str, waiting))} wait for the earlier round (the screen's round one, the "
+              f"confirmation's interim look): run this command again once it is in", flush=True)
     folders = {GRIDS[g] for g in args.grids}
     if args.out is None and len(folders) > 1:
         print(f"error: grids {args.grids} keep their results in different folders; run them one at a time or "
@@ -127,7 +149,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = commands.add_parser("run", help="train the runs of one or more grids (resumable)")
     p.add_argument("grids", nargs="+", choices=list(GRIDS), metavar="GRID", help=f"one of {', '.join(GRIDS)}")
     p.add_argument("--seeds", nargs="+", type=int, default=None,
-                   help="default 0 1 2 3 4; the confirm grid alone: 0 to 19")
+                   help="default 0 1 2 3 4; alone, the confirm grid 0 to 19, the screen 100 101 102")
     p.add_argument("--jobs", type=int, default=1, help="runs trained at once (one core each)")
     p.add_argument("--out", type=Path, default=None, help="results folder (default: the grid's, bench/results/...)")
     p.add_argument("--arms", nargs="+", choices=ARMS, default=None,

@@ -1,14 +1,19 @@
 """The confirmation's arms (issue 36; protocol in docs/RESULTS.md, "the confirmation's protocol"), derived from the
 screen: the rules the screen's committed summaries select (`screen_choice`, by experiments.screen_table.selection),
-each with its permuted control, then MADDPG and PER-MADDPG (`confirm_arms`); ConfirmNotReady while the screen has no
-selection or a selected rule has no permuted control. The registry (experiments.grids) makes the confirm grid's runs
-of these arms; this module reads the screen's arms and the permuted control's key (experiments.screen_arms).
+each with its permuted control, then MADDPG (`confirm_arms`); ConfirmNotReady while the screen has no selection or a
+selected rule has no permuted control. Its seeds come in two halves: after the interim look at INTERIM_SEEDS, a rule
+whose mean area does not exceed MADDPG's stops (`stopped_at_interim`), and the later seeds run only the others
+(`arms_at_seed`). The registry (experiments.grids) makes the confirm grid's runs of these arms; this module reads the
+screen's arms and the permuted control's key (experiments.screen_arms).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 from cmcl.algorithms import build_sampler, spec_of
 from cmcl.replay.priority import EPS_P
@@ -18,7 +23,12 @@ from experiments.screen_arms import PERMUTED_CONTROL, SCREEN_ARMS, rule_algorith
 from experiments.screen_table import selection
 from experiments.store import ResultsStore
 
-CONFIRM_REFERENCES = ("maddpg", "per")  # beside the selected rules and their controls, never selected
+CONFIRM_REFERENCES = ("maddpg",)  # beside the selected rules and their controls, never selected
+CONFIRM_SEEDS = tuple(range(20))
+# Amended on 2026-12-05 at 13:40 UTC, before any run of the confirmation (docs/RESULTS.md, "Amendment: the
+# confirmation with an interim look"): PER-MADDPG is no longer an arm, and once every arm has INTERIM_SEEDS a rule
+# whose mean area does not exceed MADDPG's stops (non-binding futility: it cannot raise the false positive rate).
+INTERIM_SEEDS = CONFIRM_SEEDS[:10]
 
 
 class ConfirmNotReady(ValueError):
@@ -38,8 +48,8 @@ def has_permuted_control(algorithm: str) -> bool:
 
 def confirm_arms(chosen: Sequence[str]) -> dict[str, list[str]]:
     """The confirmation's arms (arm -> --set overrides) for the screen's chosen arms: each chosen arm with its screen
-    overrides and its permuted control "<arm>_permuted" (the same overrides and PERMUTED_CONTROL), then MADDPG and
-    PER-MADDPG. ConfirmNotReady when a chosen rule has no permuted control (`has_permuted_control`)."""
+    overrides and its permuted control "<arm>_permuted" (the same overrides and PERMUTED_CONTROL), then MADDPG.
+    ConfirmNotReady when a chosen rule has no permuted control (`has_permuted_control`)."""
     lacking = [arm for arm in chosen if not has_permuted_control(rule_algorithm(SCREEN_ARMS[arm]))]
     if lacking:
         raise ConfirmNotReady(f"the permuted control does not act on the selected {lacking} (no priorities held in "
@@ -60,3 +70,28 @@ def screen_choice(screen: Path) -> tuple[str, ...]:
                               f"{chosen.missing} of {chosen.expected} screen runs missing in {screen}"
                               + ("" if chosen.missing else f" ({chosen.reason()})"))
     return chosen.chosen
+
+
+def stopped_at_interim(runs: list[dict[str, Any]], chosen: Sequence[str]) -> tuple[str, ...] | None:
+    """The chosen rules the interim look stops: those whose mean area under coverage over INTERIM_SEEDS does not exceed
+    MADDPG's (both to 3 decimals); None while an arm of `confirm_arms(chosen)` misses an interim seed."""
+    seeds = set(INTERIM_SEEDS)
+    for arm in confirm_arms(chosen):
+        if not {r["seed"] for r in runs if r.get("arm") == arm} >= seeds:
+            return None
+
+    def area(arm: str) -> float:
+        return round(float(np.mean([r["auc_coverage"] for r in runs if r.get("arm") == arm and r["seed"] in seeds])),
+                     3)
+
+    return tuple(rule for rule in chosen if area(rule) <= area("maddpg"))
+
+
+def arms_at_seed(seed: int, chosen: Sequence[str], runs: list[dict[str, Any]]) -> dict[str, list[str]]:
+    """The confirmation's arms at `seed` given its finished `runs`: every arm at an interim seed; after them, the arms
+    of the rules the interim look did not stop (none while the interim look waits for runs, or stops every rule)."""
+    if seed in INTERIM_SEEDS:
+        return confirm_arms(chosen)
+    stopped = stopped_at_interim(runs, chosen)
+    going = [rule for rule in chosen if stopped is not None and rule not in stopped]
+    return confirm_arms(going) if going else {}

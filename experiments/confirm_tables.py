@@ -1,15 +1,17 @@
 """The confirmation of issue 36 (protocol in docs/RESULTS.md, "the confirmation's protocol"): the rules the screen
-selected, MADDPG, PER-MADDPG and each rule's permuted control on the harder task, 20 seeds per arm.
+selected, MADDPG and each rule's permuted control on the harder task, 20 seeds per arm, or 10 for a rule the interim
+look stopped (experiments.confirm_arms.stopped_at_interim).
 
 Per arm (`confirm_table`): the screen's columns (experiments.screen_table.arm_table). The tests (`confirm_tests`),
 curriculum_tables' machinery in two Holm families at α = 0.05:
 
 * primary: rule − MADDPG in area under the training coverage curve, one test per chosen rule, Holm across them;
-* secondary, one family: per rule, rule − its permuted control and rule − PER-MADDPG in area, held-out success
-  rule − MADDPG, and episodes to MA 0.9 rule against MADDPG (log-rank).
+* secondary, one family: per rule, rule − its permuted control in area, held-out success rule − MADDPG, and
+  episodes to MA 0.9 rule against MADDPG (log-rank).
 
 Each difference of means carries the smallest difference it detects with 80% power at its family's α / m. Then the
-goal's verdict per rule (`verdicts`), once every arm has its 20 seeds: "meets the goal" only if the area difference
+goal's verdict per rule (`verdicts`), once every arm has its seeds: "goal not met" for a rule the interim look
+stopped; else "meets the goal" only if the area difference
 over MADDPG is at least GOAL, its Holm-corrected interval (the bootstrap interval at 1 − α / m, the level of Holm's
 first step in the primary family) lies above 0, and rule − permuted control is positive with a Holm p below α in the
 secondary family; otherwise "goal not met" and why.
@@ -20,9 +22,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from experiments.confirm_arms import CONFIRM_REFERENCES, confirm_arms
+from experiments.confirm_arms import (
+    CONFIRM_REFERENCES,
+    CONFIRM_SEEDS,
+    INTERIM_SEEDS,
+    confirm_arms,
+    stopped_at_interim,
+)
 from experiments.curriculum_tables import ALPHA, NAVIGATION, Test, curriculum_test_rows, format_tests
-from experiments.grids import CONFIRM_SEEDS
 from experiments.labels import ARM_LABEL, PERMUTED
 from experiments.screen_table import arm_table
 from experiments.stats import difference
@@ -45,19 +52,28 @@ def families(rules: Sequence[str]) -> tuple[list[tuple[str, str, str]], list[tup
     """(primary, secondary) comparisons (arm, arm, field) of the protocol, each one Holm family."""
     m = NAVIGATION
     primary = [(rule, "maddpg", m.area) for rule in rules]
-    secondary = [c for rule in rules for c in ((rule, f"{rule}{PERMUTED}", m.area), (rule, "per", m.area),
-                                               (rule, "maddpg", m.held_out), (rule, "maddpg", m.time))]
+    secondary = [c for rule in rules for c in ((rule, f"{rule}{PERMUTED}", m.area), (rule, "maddpg", m.held_out),
+                                               (rule, "maddpg", m.time))]
     return primary, secondary
 
 
 def complete(runs: list[dict[str, Any]], rules: Sequence[str]) -> bool:
-    """Whether every arm of the confirmation has every seed of CONFIRM_SEEDS."""
-    return all({r["seed"] for r in runs if r.get("arm") == arm} >= set(CONFIRM_SEEDS) for arm in confirm_roles(rules))
+    """Whether every arm of the confirmation has its seeds: INTERIM_SEEDS for the arms of a rule the interim look
+    stopped, CONFIRM_SEEDS for the others (MADDPG's only INTERIM_SEEDS when every rule stopped)."""
+    stopped = stopped_at_interim(runs, rules)
+    if stopped is None:
+        return False
+    going = [rule for rule in rules if rule not in stopped]
+    return all({r["seed"] for r in runs if r.get("arm") == arm} >= set(CONFIRM_SEEDS) for arm in confirm_arms(going)) \
+        if going else True
 
 
-def verdict(primary: Test, control: Test, interval: tuple[float, float] | None) -> str:
+def verdict(primary: Test, control: Test, interval: tuple[float, float] | None, stopped: bool = False) -> str:
     """The goal's verdict on a rule from its primary test, its test against its permuted control and its
-    Holm-corrected interval (None when its runs ran mixed code)."""
+    Holm-corrected interval (None when its runs ran mixed code); `stopped`: the interim look stopped the rule."""
+    if stopped:
+        return (f"goal not met: stopped at the interim look (seeds {INTERIM_SEEDS[0]}–{INTERIM_SEEDS[-1]}), its area "
+                f"{primary.difference:+.3f} over MADDPG's, not above it")
     if interval is None:
         return "goal not met: not tested, its runs ran different code (code versions mixed)"
     reasons = []
@@ -78,10 +94,12 @@ def verdicts(runs: list[dict[str, Any]], rules: Sequence[str], primary: list[Tes
     lines = [f"| rule | area − MADDPG [bootstrap 95%] | Holm-corrected interval ({100 * (1 - level):.4g}%) | "
              "− its permuted control (Holm p) | verdict |", "| --- " * 5 + "|"]
     ready = complete(runs, rules)
+    stopped = stopped_at_interim(runs, rules) or ()
     for rule, test in zip(rules, primary, strict=True):
         control = next(t for t in secondary if t.a == rule and t.b == f"{rule}{PERMUTED}")
         if not ready:
-            lines.append(f"| {ARM_LABEL[rule]} | | | | waits for {len(CONFIRM_SEEDS)} seeds per arm |")
+            lines.append(f"| {ARM_LABEL[rule]} | | | | waits for {len(CONFIRM_SEEDS)} seeds per arm (or "
+                         f"{len(INTERIM_SEEDS)} if the interim look stops it) |")
             continue
         interval = None
         if not (test.mixed or control.mixed):
@@ -90,7 +108,7 @@ def verdicts(runs: list[dict[str, Any]], rules: Sequence[str], primary: list[Tes
         lines.append(f"| {ARM_LABEL[rule]} | {test.text} | "
                      + ("" if interval is None else f"[{interval[0]:+.3f}, {interval[1]:+.3f}]") + " | "
                      + (control.text if interval is None else f"{control.difference:+.3f} ({control.adjusted:.3f})")
-                     + f" | {verdict(test, control, interval)} |")
+                     + f" | {verdict(test, control, interval, rule in stopped)} |")
     return "\n".join(lines)
 
 

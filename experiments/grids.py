@@ -15,11 +15,12 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
 * ``curriculum_hard``: the same arms on the calibrated harder navigation of configs/spread_hard.toml;
 * ``curriculum_tag``: the same arms as the predators of sparse predator-prey (configs/tag_<algorithm>.toml), the
   prey MADDPG (the paper's Fig. 12 at the issue-21 defaults);
-* ``screen`` (issue 36): candidate sampling rules of the registry (cmcl.algorithms) on the harder task, seeds
-  100-104 (experiments.screen_arms.SCREEN_ARMS), MADDPG and PER-MADDPG beside them for reference;
+* ``screen`` (issue 36): candidate sampling rules of the registry (cmcl.algorithms) on the harder task, MADDPG and
+  PER-MADDPG beside them for reference, in two rounds: every arm at seed 100, then MADDPG and round one's three best
+  candidates at seeds 101-102 (experiments.screen_arms);
 * ``confirm`` (issue 36): the rules the screen's committed summaries select (experiments.screen_table.selection),
-  MADDPG, PER-MADDPG and each selected rule's permuted control, on the harder task, seeds 0-19; its arms
-  (experiments.confirm_arms) refuse to exist (ConfirmNotReady) while the screen has no selection;
+  MADDPG and each selected rule's permuted control, on the harder task, seeds 0-19 with an interim look after seeds
+  0-9; its arms (experiments.confirm_arms) refuse to exist (ConfirmNotReady) while the screen has no selection;
 * ``make_run`` (issue 35): the exact `make run` (MAKE_RUN), one run per seed; run it with --jobs 1 on an idle
   machine;
 * ``schedule``: time to solve navigation with MADDPG inline, maddpg.update_every x maddpg.batch_size, each run
@@ -41,10 +42,12 @@ from pathlib import Path
 
 from cmcl.algorithms import PAPER_ALGORITHMS
 from cmcl.config import load_data
-from experiments.confirm_arms import confirm_arms, screen_choice
+from experiments.confirm_arms import arms_at_seed, screen_choice
 from experiments.own_envs import OWN_ENV_LOG_EVERY, OWN_ENVS
 from experiments.run_spec import ROOT, Run
-from experiments.screen_arms import PERMUTED_CONTROL, SCREEN_ARMS, rule_algorithm
+from experiments.screen_arms import PERMUTED_CONTROL, ROUND_ONE_SEEDS, ROUND_TWO_SEEDS, SCREEN_ARMS, rule_algorithm
+from experiments.screen_table import round_two_arms
+from experiments.store import ResultsStore
 
 RESULTS = ROOT / "bench" / "results"
 EPISODES = 20_000  # the paper's budget per run
@@ -74,10 +77,9 @@ HARD_SETTING_GRIDS: dict[str, dict[str, list[str]]] = {
     "curriculum_eta": {"cmcl_eta1": ["teams.agent.eta=1.0"]},
 }
 CURRICULUM_LOG_EVERY = 200  # episodes between progress rows (the ESS curve's resolution) in the curriculum grids
-# The screen of issue 36: its arms (arm -> --set overrides), references and seeds are experiments.screen_arms's.
+# The screen of issue 36: its arms (arm -> --set overrides), references, rounds and seeds are experiments.screen_arms's.
 # The confirmation of issue 36 (protocol in docs/RESULTS.md, "the confirmation's protocol"): its arms come from the
-# screen's selection (experiments.confirm_arms), 20 seeds per arm, MADDPG and PER-MADDPG beside the selected rules.
-CONFIRM_SEEDS = tuple(range(20))
+# screen's selection, its seeds (CONFIRM_SEEDS) and interim look from experiments.confirm_arms.
 
 ABLATIONS = {  # name -> (config file, --set overrides, episode budget or None for the grid's) of CMCL variants
     "eta0": ("spread_cmcl.toml", ["teams.agent.eta=0.0"], None),
@@ -248,24 +250,40 @@ GRIDS = {  # name -> results folder (its summaries/ and runs/)
 }
 
 
+def screen_arms_at(seed: int, screen: Path) -> dict[str, list[str]]:
+    """The screen's arms at `seed` (experiments.screen_arms): every arm in round one; in round two the arms
+    `round_two_arms` reads from the summaries in `screen` (none while round one misses a run). ValueError for a seed
+    of neither round."""
+    if seed in ROUND_ONE_SEEDS:
+        return SCREEN_ARMS
+    if seed not in ROUND_TWO_SEEDS:
+        raise ValueError(f"--seeds: {seed} is not a seed of the screen (round one {list(ROUND_ONE_SEEDS)}, round two "
+                         f"{list(ROUND_TWO_SEEDS)})")
+    return {arm: SCREEN_ARMS[arm] for arm in round_two_arms(ResultsStore(screen).load()) or ()}
+
+
 def grid(names: list[str], seeds: list[int], algorithms: list[str] = PAPER_ALGORITHMS,
-         budget: int = EPISODES, screen: Path | None = None) -> list[Run]:
+         budget: int = EPISODES, screen: Path | None = None, confirm: Path | None = None) -> list[Run]:
     """The runs of the named grids, seed outermost (every cell has seed k before any has seed k+1), duplicates
-    (same id) once. screen: the results folder whose screen summaries select the confirm grid's arms (default the
-    registry's); ConfirmNotReady while they select none."""
+    (same id) once. screen: the results folder whose screen summaries decide the screen's round two and select the
+    confirm grid's arms (default the registry's); ConfirmNotReady while they select none. confirm: the folder of the
+    confirmation's summaries, whose interim look decides its later seeds (default the registry's). A round or half
+    that waits for earlier runs has no runs yet: run the command again once they are in."""
     unknown = sorted(set(names) - set(GRIDS))
     if unknown:
         raise ValueError(f"grid: unknown {unknown}; known {sorted(GRIDS)}")
-    confirm = confirm_arms(screen_choice(screen or GRIDS["screen"])) if "confirm" in names else {}
+    screen = screen or GRIDS["screen"]
+    chosen = screen_choice(screen) if "confirm" in names else ()
+    confirmed = ResultsStore(confirm or GRIDS["confirm"]).load() if "confirm" in names else []
     runs = []
     for seed in seeds:
         for name in names:
             if name in HARD_SETTING_GRIDS:
                 runs += setting_runs(name, seed, budget)
             elif name == "screen":
-                runs += rule_runs(name, SCREEN_ARMS, seed, budget)
+                runs += rule_runs(name, screen_arms_at(seed, screen), seed, budget)
             elif name == "confirm":
-                runs += rule_runs(name, confirm, seed, budget)
+                runs += rule_runs(name, arms_at_seed(seed, chosen, confirmed), seed, budget)
             elif name == "make_run":
                 runs += make_run_runs(seed, budget)
             elif name.startswith("curriculum"):

@@ -9,6 +9,7 @@ mean ratio over its seeds is >= 1 "acted".
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -17,7 +18,16 @@ import numpy as np
 from cmcl.algorithms import spec_of
 from experiments.labels import ARM_LABEL
 from experiments.provenance import cell_versions
-from experiments.screen_arms import SCREEN_ARMS, SCREEN_REFERENCES, SCREEN_SEEDS, rule_algorithm
+from experiments.screen_arms import (
+    ROUND_ONE_KEPT,
+    ROUND_ONE_SEEDS,
+    ROUND_TWO_REFERENCES,
+    ROUND_TWO_SEEDS,
+    SCREEN_ARMS,
+    SCREEN_REFERENCES,
+    SCREEN_SEEDS,
+    rule_algorithm,
+)
 from experiments.stats import fmt
 
 SELECTED = 2  # candidates the selection rule picks
@@ -68,9 +78,19 @@ def arm_table(runs: list[dict[str, Any]], roles: dict[str, str]) -> str:
 
 
 def screen_table(runs: list[dict[str, Any]]) -> str:
-    """The screen per arm (arm_table): the candidates and the references run beside them, and a note on the ESS of
-    the arms whose learner picks among candidates, once one has a run."""
-    table = arm_table(runs, {arm: "reference" if arm in SCREEN_REFERENCES else "candidate" for arm in SCREEN_ARMS})
+    """The screen per arm (arm_table) at SCREEN_SEEDS: the candidates (those round two dropped named so once round one
+    is in) and the references run beside them; then the runs at other seeds, listed and not read; and a note on the
+    ESS of the arms whose learner picks among candidates, once one has a run."""
+    second = round_two_arms(runs)
+    roles = {arm: "reference" if arm in SCREEN_REFERENCES else
+             "candidate" if second is None or arm in second else "candidate, round one only" for arm in SCREEN_ARMS}
+    table = arm_table(at_seeds(runs, SCREEN_SEEDS), roles)
+    outside = sorted((r for r in runs if r.get("arm") in SCREEN_ARMS and r["seed"] not in SCREEN_SEEDS),
+                     key=lambda r: (list(SCREEN_ARMS).index(r["arm"]), r["seed"]))
+    if outside:
+        table += ("\n\nRun before the amendment at seeds outside the screen's, not in the table or the selection: "
+                  + "; ".join(f"{ARM_LABEL[r['arm']]} seed {r['seed']} (area {r['auc_coverage']:.3f})"
+                              for r in outside) + ".")
     pickers = [ARM_LABEL[arm] for arm, sets in SCREEN_ARMS.items()
                if spec_of(rule_algorithm(sets)).candidates > 1 and arm_runs(runs, arm)]
     if not pickers:
@@ -80,20 +100,61 @@ def screen_table(runs: list[dict[str, Any]]) -> str:
                     "rows' ratio, which the inline runner measures on the picked rows.")
 
 
+def ranking(runs: list[dict[str, Any]], arms: Iterable[str]) -> list[tuple[float, float, str]]:
+    """(mean area to 3 decimals, mean held-out success, arm) of the candidates among `arms` that acted in `runs`,
+    best first (ties in area broken by held-out success)."""
+    ranked = []
+    for arm in arms:
+        rs = arm_runs(runs, arm)
+        if arm in SCREEN_REFERENCES or not rs or not acted(rs):
+            continue
+        ranked.append((round(float(np.mean([r["auc_coverage"] for r in rs])), 3),
+                       float(np.mean([r["held_out_success"] for r in rs])), arm))
+    return sorted(ranked, reverse=True)
+
+
+def at_seeds(runs: list[dict[str, Any]], seeds: Iterable[int]) -> list[dict[str, Any]]:
+    """The screen's runs of `runs` (its arms) at `seeds`."""
+    return [r for r in runs if r.get("arm") in SCREEN_ARMS and r["seed"] in set(seeds)]
+
+
+def round_two_arms(runs: list[dict[str, Any]]) -> tuple[str, ...] | None:
+    """The arms of round two: ROUND_TWO_REFERENCES and the ROUND_ONE_KEPT candidates of round one with the highest
+    area that acted (none at all when no candidate acted); None while round one misses a run."""
+    first = at_seeds(runs, ROUND_ONE_SEEDS)
+    if len(first) < len(SCREEN_ARMS) * len(ROUND_ONE_SEEDS):
+        return None
+    kept = tuple(arm for *_, arm in ranking(first, SCREEN_ARMS)[:ROUND_ONE_KEPT])
+    return (*ROUND_TWO_REFERENCES, *kept) if kept else ()
+
+
+def planned(runs: list[dict[str, Any]]) -> set[tuple[str, int]]:
+    """The screen's (arm, seed) pairs as far as they are known: round one's, and round two's once round one is in."""
+    pairs = {(arm, seed) for arm in SCREEN_ARMS for seed in ROUND_ONE_SEEDS}
+    return pairs | {(arm, seed) for arm in round_two_arms(runs) or () for seed in ROUND_TWO_SEEDS}
+
+
+# the screen's runs at most (round two with ROUND_ONE_KEPT candidates); fewer when fewer candidates of round one acted
+EXPECTED = len(SCREEN_ARMS) * len(ROUND_ONE_SEEDS) + (len(ROUND_TWO_REFERENCES) + ROUND_ONE_KEPT) * len(ROUND_TWO_SEEDS)
+
+
 @dataclass(frozen=True)
 class Selection:
-    """The screen's selection rule applied to its summaries. done, expected: the screen's finished runs (its arms at
-    its seeds) and how many it has in all; code: their code version and testable whether they may be compared (one
+    """The screen's selection rule applied to its summaries. done, expected: the screen's finished runs (of the pairs
+    `planned`) and how many it has in all; code: their code version and testable whether they may be compared (one
     version, or fingerprints that agree), both read once the screen is complete; ranked: (mean area to 3 decimals,
-    mean held-out success, arm) of the candidates that acted, best first; chosen: the SELECTED best of them, () while
-    there is no selection."""
+    mean held-out success, arm) over SCREEN_SEEDS of round two's candidates that acted, best first; reference:
+    MADDPG's mean area over the same seeds; chosen: the SELECTED best of the ranked whose area exceeds the
+    reference's, () while there is no selection; kept: round two's candidates once round one is in."""
 
     done: int
-    expected: int
+    expected: int  # EXPECTED until round one is in, then the planned runs' count
     code: str = ""
     testable: bool = False
     ranked: tuple[tuple[float, float, str], ...] = ()
     chosen: tuple[str, ...] = ()
+    reference: float | None = None
+    kept: tuple[str, ...] = ()
 
     @property
     def missing(self) -> int:
@@ -102,31 +163,37 @@ class Selection:
     def reason(self) -> str:
         """Why there is no selection ("" when there is one)."""
         if self.missing:
-            return f"Screen incomplete: {self.done} of {self.expected} runs; no selection yet."
+            then = (f" Round one is in: round two runs {', '.join(ARM_LABEL[a] for a in self.kept)} at seeds "
+                    f"{', '.join(map(str, ROUND_TWO_SEEDS))}." if self.kept else "")
+            return f"Screen incomplete: {self.done} of {self.expected} runs; no selection yet.{then}"
         if not self.testable:
             return f"Screen runs ran different code ({self.code}); no selection."
-        return "" if self.chosen else f"No candidate acted (code {self.code}): none is selected."
+        if self.chosen:
+            return ""
+        if not self.ranked:
+            return f"No candidate acted (code {self.code}): none is selected."
+        return (f"No candidate's mean area exceeded MADDPG's {self.reference:.3f} (code {self.code}): none is "
+                f"selected, and the confirmation does not run.")
 
 
 def selection(runs: list[dict[str, Any]]) -> Selection:
-    """The selection rule: the SELECTED candidates with the highest mean area among those that acted (ties to 3
-    decimals broken by held-out success), once every arm has its SCREEN_SEEDS and the runs ran one code version."""
-    expected = len(SCREEN_ARMS) * len(SCREEN_SEEDS)
-    done = [r for r in runs if r.get("arm") in SCREEN_ARMS and r["seed"] in SCREEN_SEEDS]
+    """The selection rule: after round one, round two's candidates (`round_two_arms`); once every planned run is in
+    and the runs ran one code version, the SELECTED candidates with the highest mean area over SCREEN_SEEDS among
+    those that acted (ties to 3 decimals broken by held-out success) whose mean area exceeds MADDPG's there."""
+    pairs = planned(runs)
+    done = [r for r in runs if (r.get("arm"), r["seed"]) in pairs]
+    second = round_two_arms(runs)
+    kept = tuple(a for a in second or () if a not in ROUND_TWO_REFERENCES)
+    expected = EXPECTED if second is None else len(pairs)
     if len(done) < expected:
-        return Selection(len(done), expected)
+        return Selection(len(done), expected, kept=kept)
     code, testable = cell_versions(done)
     if not testable:
-        return Selection(len(done), expected, code)
-    ranked = []
-    for arm in SCREEN_ARMS:
-        rs = arm_runs(done, arm)
-        if arm in SCREEN_REFERENCES or not acted(rs):
-            continue
-        ranked.append((round(float(np.mean([r["auc_coverage"] for r in rs])), 3),
-                       float(np.mean([r["held_out_success"] for r in rs])), arm))
-    ranked.sort(reverse=True)
-    return Selection(len(done), expected, code, True, tuple(ranked), tuple(arm for _, _, arm in ranked[:SELECTED]))
+        return Selection(len(done), expected, code, kept=kept)
+    ranked = ranking(done, kept)
+    reference = round(float(np.mean([r["auc_coverage"] for r in arm_runs(done, "maddpg")])), 3)
+    chosen = tuple(arm for area, _, arm in ranked if area > reference)[:SELECTED]
+    return Selection(len(done), expected, code, True, tuple(ranked), chosen, reference, kept)
 
 
 def screen_selection(runs: list[dict[str, Any]]) -> str:
@@ -135,5 +202,6 @@ def screen_selection(runs: list[dict[str, Any]]) -> str:
     if not chosen.chosen:
         return chosen.reason()
     return (f"Selected for the confirmation (code {chosen.code}): " + ", ".join(ARM_LABEL[a] for a in chosen.chosen)
-            + ". Ranked by mean area among the candidates that acted: "
+            + f". Ranked by mean area over seeds {', '.join(map(str, SCREEN_SEEDS))} among round two's candidates "
+              f"that acted (MADDPG {chosen.reference:.3f}): "
             + "; ".join(f"{ARM_LABEL[a]} {area:.3f}" for area, _, a in chosen.ranked) + ".")

@@ -1,5 +1,6 @@
 """The confirmation of issue 36: its arms derived from the screen's summaries by the screen's selection rule, its
-refusal while the screen has no selection, the permuted control of each rule, and its tables and goal verdicts.
+refusal while the screen has no selection, the permuted control of each rule, the interim look after seeds 0-9, and
+its tables and goal verdicts.
 
 Every summary here is synthetic (written by the helpers below, named fake_* / synthetic_*): they stand for finished
 runs' summaries, never for a component of the code."""
@@ -9,25 +10,31 @@ import pytest
 
 from cmcl.algorithms import ALGORITHMS, spec_of
 from experiments.__main__ import build_parser, main, selected_runs
-from experiments.confirm_arms import ConfirmNotReady, confirm_arms, has_permuted_control
+from experiments.confirm_arms import (
+    CONFIRM_SEEDS,
+    INTERIM_SEEDS,
+    ConfirmNotReady,
+    confirm_arms,
+    has_permuted_control,
+    stopped_at_interim,
+)
 from experiments.confirm_tables import GOAL, confirm_table, confirm_tests, families
 from experiments.curriculum_tables import curriculum_test_rows, format_tests
-from experiments.grids import CONFIRM_SEEDS, CURRICULUM_ARMS, grid, team_sets
+from experiments.grids import CURRICULUM_ARMS, grid, team_sets
 from experiments.report import NO_RUNS, blocks
-from experiments.screen_arms import PERMUTED_CONTROL, SCREEN_ARMS, SCREEN_SEEDS
+from experiments.screen_arms import PERMUTED_CONTROL, SCREEN_ARMS
 from experiments.stats import holm
 from experiments.store import ResultsStore
 from tests.test_replay_storage import N, filled
-from tests.test_screen_table import run as fake_screen_summary
+from tests.test_screen_table import screen_runs
 
 CHOSEN = ("relo", "lp")  # what the fake screen selects: rho has the best area but does not act
 
 
 def fake_screen(folder, drop: int = 0):
-    """A results folder with the screen's summaries, all but the last `drop` of them; rho does not act."""
+    """A results folder with the screen's 17 planned summaries, all but the last `drop` of them; rho does not act."""
     store = ResultsStore(folder)
-    runs = [fake_screen_summary(arm, s, sampled=0.01 if arm == "rho" else 0.2) for s in SCREEN_SEEDS
-            for arm in SCREEN_ARMS]
+    runs = screen_runs()
     for summary in runs[:len(runs) - drop]:
         store.write(summary)
     return folder
@@ -47,34 +54,73 @@ def synthetic_confirm(areas: dict[str, float], seeds=CONFIRM_SEEDS, commit="c" *
 
 
 # relo meets the goal; lp gains too little; both well above their permuted controls
-AREAS = {"relo": 0.80, "relo_permuted": 0.66, "lp": 0.70, "lp_permuted": 0.64, "maddpg": 0.65, "per": 0.66}
+AREAS = {"relo": 0.80, "relo_permuted": 0.66, "lp": 0.70, "lp_permuted": 0.64, "maddpg": 0.65}
 
 
-def test_the_confirm_grid_is_the_screens_selection_with_maddpg_per_and_each_rules_permuted_control(tmp_path):
+def test_the_confirm_grid_is_the_screens_selection_with_maddpg_and_each_rules_permuted_control(tmp_path):
     screen = fake_screen(tmp_path / "screen")
     arms = confirm_arms(CHOSEN)
-    assert list(arms) == ["relo", "relo_permuted", "lp", "lp_permuted", "maddpg", "per"]
+    assert list(arms) == ["relo", "relo_permuted", "lp", "lp_permuted", "maddpg"]
     for rule in CHOSEN:
         assert arms[rule] == SCREEN_ARMS[rule] and arms[f"{rule}_permuted"] == [*SCREEN_ARMS[rule], PERMUTED_CONTROL]
     assert CURRICULUM_ARMS["cmcl_permuted"][1] == [PERMUTED_CONTROL]  # one key for every permuted control
     runs = grid(["confirm"], [0, 1], screen=screen)
-    assert [r.id for r in runs[:6]] == [f"confirm_{arm}_s0" for arm in arms]  # seed outermost
+    assert [r.id for r in runs[:5]] == [f"confirm_{arm}_s0" for arm in arms]  # seed outermost
     assert {r.config for r in runs} == {"spread_hard.toml"} and {r.grid for r in runs} == {"confirm"}
-    assert [r.algorithm for r in runs[:6]] == ["relo", "relo", "lp", "lp", "maddpg", "per"]
+    assert [r.algorithm for r in runs[:5]] == ["relo", "relo", "lp", "lp", "maddpg"]
     assert runs[1].sets == ("run.log_every=200", *team_sets([*SCREEN_ARMS["relo"], PERMUTED_CONTROL], "agent"))
-    every = selected_runs(build_parser().parse_args(["run", "confirm", "--screen", str(screen)]))
-    assert sorted({r.seed for r in every}) == list(CONFIRM_SEEDS) == list(range(20)) and len(every) == 20 * 6
+    # before the interim look only its seeds run (the confirmation's folder has no runs)
+    folder = ["--screen", str(screen), "--out", str(tmp_path / "confirm")]
+    every = selected_runs(build_parser().parse_args(["run", "confirm", *folder]))
+    assert sorted({r.seed for r in every}) == list(INTERIM_SEEDS) == list(range(10)) and len(every) == 10 * 5
     some = selected_runs(build_parser().parse_args(["run", "confirm", "--screen", str(screen), "--seeds", "3",
                                                     "--arms", "lp_permuted"]))
     assert [r.id for r in some] == ["confirm_lp_permuted_s3"]
 
 
-@pytest.mark.parametrize("drop", [45, 1])
+def test_the_interim_look_stops_a_rule_not_above_maddpg_and_the_later_seeds_run_the_others(tmp_path):
+    screen = fake_screen(tmp_path / "screen")
+    store = ResultsStore(tmp_path / "confirm")
+    interim = synthetic_confirm({**AREAS, "lp": 0.64}, seeds=INTERIM_SEEDS)  # lp below MADDPG's 0.65 by 0.01
+    for summary in interim[:-1]:
+        store.write(summary)
+    assert stopped_at_interim(store.load(), CHOSEN) is None  # one interim run missing: no look yet
+    args = ["run", "confirm", "--screen", str(screen), "--out", str(store.root)]
+    assert {r.seed for r in selected_runs(build_parser().parse_args(args))} == set(INTERIM_SEEDS)
+    store.write(interim[-1])
+    assert stopped_at_interim(store.load(), CHOSEN) == ("lp",)
+    later = [r for r in selected_runs(build_parser().parse_args(args)) if r.seed not in INTERIM_SEEDS]
+    assert sorted({r.seed for r in later}) == list(CONFIRM_SEEDS[10:]) and len(later) == 10 * 3
+    assert {r.arm for r in later} == {"relo", "relo_permuted", "maddpg"}
+    # every rule stopped: the later seeds have no runs, and the verdicts need none
+    for summary in synthetic_confirm({**AREAS, "relo": 0.60, "lp": 0.64}, seeds=INTERIM_SEEDS):
+        store.write(summary)
+    assert all(r.seed in INTERIM_SEEDS for r in selected_runs(build_parser().parse_args(args)))
+    goal = {row[0]: row for row in table_rows(confirm_tests(store.load(), CHOSEN), "The goal")}
+    assert goal["ReLo"][-1].startswith("goal not met: stopped at the interim look (seeds 0–9)")
+
+
+def test_the_screen_runs_round_two_once_round_one_is_in_and_refuses_a_seed_of_neither(tmp_path, capsys):
+    folder = tmp_path / "screen"
+    args = build_parser().parse_args(["run", "screen", "--out", str(folder)])
+    assert {r.seed for r in selected_runs(args)} == {100}  # round two waits for round one
+    store = ResultsStore(folder)
+    for summary in screen_runs()[:len(SCREEN_ARMS)]:
+        store.write(summary)
+    second = [r for r in selected_runs(args) if r.seed != 100]
+    assert [r.id for r in second[:4]] == ["screen_maddpg_s101", "screen_relo_s101", "screen_lp_s101",
+                                          "screen_laber_s101"] and len(second) == 8
+    assert main(["run", "screen", "--seeds", "103", "--out", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--seeds: 103 is not a seed of the screen" in err
+
+
+@pytest.mark.parametrize("drop", [17, 1])
 def test_run_confirm_refuses_in_one_line_while_the_screen_is_incomplete(tmp_path, capsys, drop):
     screen = fake_screen(tmp_path / "screen", drop=drop)
     assert main(["run", "confirm", "--screen", str(screen), "--out", str(tmp_path / "confirm")]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and f"{drop} of 45 screen runs missing in {screen}" in err
+    assert err.count("\n") == 1 and f"{drop} of 17 screen runs missing in {screen}" in err
     assert not (tmp_path / "confirm").exists()
 
 
@@ -83,7 +129,7 @@ def test_a_screen_without_a_selection_is_refused_with_its_reason(tmp_path):
     store = ResultsStore(screen)
     for summary in store.load():
         store.write({**summary, "sampling_curve": {**summary["sampling_curve"], "reward_rows_sampled": [0.0] * 4}})
-    with pytest.raises(ConfirmNotReady, match="0 of 45 screen runs missing .*No candidate acted"):
+    with pytest.raises(ConfirmNotReady, match="0 of 9 screen runs missing .*No candidate acted"):  # no round two
         grid(["confirm"], [0], screen=screen)
 
 
@@ -148,7 +194,8 @@ def test_the_goal_is_met_only_with_the_gain_the_corrected_interval_and_the_permu
     assert row[-1].startswith("goal not met: the Holm-corrected interval [-") and ";" not in row[-1]
     # until every arm has its 20 seeds there is no verdict
     early = confirm_tests(synthetic_confirm(AREAS, seeds=range(19)), CHOSEN)
-    assert all(r[-1] == "waits for 20 seeds per arm" for r in table_rows(early, "The goal"))
+    assert all(r[-1] == "waits for 20 seeds per arm (or 10 if the interim look stops it)"
+               for r in table_rows(early, "The goal"))
 
 
 def test_holm_is_applied_within_each_family_at_the_familys_alpha():
@@ -156,9 +203,9 @@ def test_holm_is_applied_within_each_family_at_the_familys_alpha():
     text = confirm_tests(runs, CHOSEN)
     first, second = families(CHOSEN)
     assert first == [("relo", "maddpg", "auc_coverage"), ("lp", "maddpg", "auc_coverage")]
-    assert second[:4] == [("relo", "relo_permuted", "auc_coverage"), ("relo", "per", "auc_coverage"),
-                          ("relo", "maddpg", "held_out_success"), ("relo", "maddpg", "episodes_to_90")]
-    for comparisons, m in ((first, 2), (second, 8)):
+    assert second[:3] == [("relo", "relo_permuted", "auc_coverage"), ("relo", "maddpg", "held_out_success"),
+                          ("relo", "maddpg", "episodes_to_90")]
+    for comparisons, m in ((first, 2), (second, 6)):
         rows = curriculum_test_rows(runs, comparisons)
         assert len(rows) == m and not any(t.primary for t in rows)
         assert [t.adjusted for t in rows] == pytest.approx(holm([t.p for t in rows]))
@@ -192,5 +239,5 @@ def test_the_report_blocks_of_the_confirmation(tmp_path):
     assert out["confirm"] == confirm_table(store.load(), CHOSEN)
     roles = {r[0]: r[1:4] for r in table_rows("x\n\n" + out["confirm"], "x")}
     assert roles["ReLo"] == ["rule", "20", "ccccccc"] and roles["ReLo, permuted control"][0] == "permuted control"
-    assert roles["MADDPG"][0] == "reference" and len(roles) == 6
+    assert roles["MADDPG"][0] == "reference" and len(roles) == 5
     assert "**meets the goal**" in out["confirmtests"]

@@ -1,40 +1,76 @@
-"""The screen's table and selection rule (issue 36): the manipulation check, the ranking, and no selection from an
-incomplete screen or from runs of mixed code."""
+"""The screen's table and selection rule (issue 36): the manipulation check, the two rounds (every arm at seed 100,
+then MADDPG and round one's three best candidates that acted), the ranking, the gate against MADDPG, and no
+selection from an incomplete screen or from runs of mixed code.
 
-from experiments.screen_arms import SCREEN_ARMS, SCREEN_SEEDS
-from experiments.screen_table import manipulation_ratio, screen_selection, screen_table
+Every summary here is synthetic (`run`, `screen_runs`): they stand for finished runs' summaries."""
+
+from experiments.screen_arms import ROUND_ONE_SEEDS, ROUND_TWO_SEEDS, SCREEN_ARMS
+from experiments.screen_table import round_two_arms, screen_selection, screen_table, selection
 
 AREA = {"maddpg": 0.6, "per": 0.65, "relo": 0.72, "rho": 0.80, "lp": 0.70, "per_floor": 0.66, "cmcl_lam05": 0.5,
         "cmcl_floor": 0.4, "laber": 0.69}
+KEPT = ("relo", "lp", "laber")  # round one's three best areas among the candidates that act (rho does not)
 
 
-def run(arm, seed, sampled=0.2, buffer=0.1, commit="a" * 40):
+def run(arm, seed, sampled=0.2, buffer=0.1, commit="a" * 40, area=None):
     return {"id": f"screen_{arm}_s{seed}", "arm": arm, "seed": seed, "budget": 20_000,
-            "auc_coverage": AREA[arm] + 0.001 * seed, "held_out_coverage": 0.9, "held_out_success": 0.5,
-            "episodes_to_90": 10_000, "ess_first_quarter": 0.6,
+            "auc_coverage": (AREA[arm] if area is None else area[arm]) + 0.001 * (seed - 100),
+            "held_out_coverage": 0.9, "held_out_success": 0.5, "episodes_to_90": 10_000, "ess_first_quarter": 0.6,
             "sampling_curve": {"episode": [200, 4_800, 5_200, 20_000], "reward_rows_sampled": [sampled, sampled, 9, 9],
                                "reward_rows_buffer": [buffer, buffer, 1, 1]},
             "provenance": {"commit": commit, "dirty": False, "segment_commits": [commit]}}
 
 
+def screen_runs(area=AREA, kept=KEPT):
+    """The screen's planned runs, round one then round two (MADDPG and `kept`); rho does not act."""
+    return [run(arm, s, sampled=0.01 if arm == "rho" else 0.2, area=area)
+            for s, arms in ((s, SCREEN_ARMS) for s in ROUND_ONE_SEEDS)
+            for arm in arms] + [run(arm, s, area=area) for s in ROUND_TWO_SEEDS for arm in ("maddpg", *kept)]
+
+
 def test_the_manipulation_ratio_reads_the_first_quarter_only():
+    from experiments.screen_table import manipulation_ratio
+
     assert manipulation_ratio(run("rho", 100, 0.05, 0.1)) == 0.5  # the later rows (ratio 9) are not read
     assert manipulation_ratio({**run("rho", 100), "sampling_curve": {}}) is None
 
 
-def test_selection_takes_the_two_best_areas_among_the_rules_that_acted():
-    runs = [run(arm, s, sampled=0.01 if arm == "rho" else 0.2) for arm in SCREEN_ARMS for s in SCREEN_SEEDS]
-    table = screen_table(runs)
-    assert "| reducible held-out loss | candidate | 5 | aaaaaaa |" in table and "did not act" in table
+def test_round_two_takes_maddpg_and_the_three_best_candidates_of_round_one_that_acted():
+    runs = screen_runs()
+    first = runs[:len(SCREEN_ARMS)]
+    assert round_two_arms(first[:-1]) is None  # round one incomplete
+    assert round_two_arms(first) == ("maddpg", *KEPT)  # rho's area is the best, but it did not act; per is a reference
+    text = screen_selection(first)
+    assert text == ("Screen incomplete: 9 of 17 runs; no selection yet. Round one is in: round two runs ReLo, "
+                    "held-out learning progress, LaBER at seeds 101, 102.")
+    table = screen_table(first)
+    assert "| reducible held-out loss | candidate, round one only | 1 | aaaaaaa |" in table and "did not act" in table
+
+
+def test_selection_takes_the_two_best_areas_of_round_two_above_maddpg():
+    runs = screen_runs()
     text = screen_selection(runs)
-    # rho has the best area but did not act: ReLo and learning progress are chosen, references never
-    assert text.startswith("Selected for the confirmation (code aaaaaaa): ReLo, held-out learning progress.")
-    assert "MADDPG" not in text.split("Ranked")[0]
+    assert text.startswith("Selected for the confirmation (code aaaaaaa): ReLo, held-out learning progress. Ranked "
+                           "by mean area over seeds 100, 101, 102 among round two's candidates that acted (MADDPG "
+                           "0.601): ReLo 0.721; held-out learning progress 0.701; LaBER 0.691.")
+    # a run at a seed outside the rounds is listed and never read, however good
+    extra = run("cmcl_floor", 103, area={"cmcl_floor": 5.0})
+    assert screen_selection([*runs, extra]) == text
+    assert "not in the table or the selection: CMCL, floor 0.2 seed 103 (area 5.003)" in screen_table([*runs, extra])
+
+
+def test_no_candidate_is_selected_unless_its_area_exceeds_maddpgs():
+    low = {**AREA, "maddpg": 0.75}
+    chosen = selection(screen_runs(area=low))
+    assert chosen.chosen == () and chosen.reference == 0.751 and [a for *_, a in chosen.ranked] == list(KEPT)
+    assert screen_selection(screen_runs(area=low)) == ("No candidate's mean area exceeded MADDPG's 0.751 (code "
+                                                       "aaaaaaa): none is selected, and the confirmation does not run.")
+    one = {**AREA, "maddpg": 0.705}  # only ReLo above it
+    assert selection(screen_runs(area=one)).chosen == ("relo",)
 
 
 def test_no_selection_from_an_incomplete_screen_or_mixed_code():
-    runs = [run(arm, s) for arm in SCREEN_ARMS for s in SCREEN_SEEDS]
-    total = len(SCREEN_ARMS) * len(SCREEN_SEEDS)
-    assert screen_selection(runs[:-1]).startswith(f"Screen incomplete: {total - 1} of {total} runs")
+    runs = screen_runs()
+    assert screen_selection(runs[:-1]).startswith("Screen incomplete: 16 of 17 runs")
     runs[0] = run(runs[0]["arm"], runs[0]["seed"], commit="b" * 40)
     assert screen_selection(runs).startswith("Screen runs ran different code (mixed: ")
