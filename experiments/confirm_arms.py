@@ -25,7 +25,7 @@ from experiments.store import ResultsStore
 
 CONFIRM_REFERENCES = ("maddpg",)  # beside the selected rules and their controls, never selected
 CONFIRM_SEEDS = tuple(range(20))
-# Amended on 2026-12-05 at 13:40 UTC, before any run of the confirmation (docs/RESULTS.md, "Amendment: the
+# Amended on 2026-12-05 at 13:35 UTC, before any run of the confirmation (docs/RESULTS.md, "Amendment: the
 # confirmation with an interim look"): PER-MADDPG is no longer an arm, and once every arm has INTERIM_SEEDS a rule
 # whose mean area does not exceed MADDPG's stops (non-binding futility: it cannot raise the false positive rate).
 INTERIM_SEEDS = CONFIRM_SEEDS[:10]

@@ -7,7 +7,8 @@ ARM_LABEL = {**LABEL, "cmcl_permuted": "CMCL, permuted control", "cmcl_anti": "C
              "cmcl_stride_x2": "CMCL, λ stride ×2", "cmcl_stride_half": "CMCL, λ stride ×½",
              "cmcl_eta1": "CMCL, η = 1", "relo": "ReLo", "rho": "reducible held-out loss",
              "lp": "held-out learning progress", "per_floor": "PER-MADDPG, floor 0.2",
-             "cmcl_lam05": "CMCL, λ₀ = 0.5", "cmcl_floor": "CMCL, floor 0.2", "laber": "LaBER"}
+             "cmcl_lam05": "CMCL, λ₀ = 0.5", "cmcl_floor": "CMCL, floor 0.2", "laber": "LaBER",
+             "per_actor_uniform": "PER-MADDPG, actor on uniform rows"}
 PERMUTED = "_permuted"  # an arm's permuted control is the arm named "<arm>_permuted" (experiments.grids)
 ARM_LABEL.update({f"{arm}{PERMUTED}": f"{label}, permuted control" for arm, label in list(ARM_LABEL.items())
                   if not arm.endswith(PERMUTED)})

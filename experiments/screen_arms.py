@@ -31,9 +31,12 @@ SCREEN_ARMS: dict[str, list[str]] = {
     "cmcl_floor": ["teams.agent.algorithm=cmcl", "teams.agent.priority.uniform_floor=0.2"],
     # added to the protocol on 2026-12-05 at 00:10 UTC, before any of its runs (docs/RESULTS.md)
     "laber": ["teams.agent.algorithm=laber"],
+    # added on 2026-12-05 at 13:42 UTC, after 11 runs had been read and before any of its own (docs/RESULTS.md,
+    # "Amendment: the screen in two rounds"): PER-MADDPG with its actor on uniform rows (Saglam et al. 2023)
+    "per_actor_uniform": ["teams.agent.algorithm=per", "teams.agent.actor_batch=uniform"],
 }
 SCREEN_REFERENCES = ("maddpg", "per")  # run beside the candidates, never selected
-# The screen in two rounds (amended on 2026-12-05 at 13:40 UTC, after 11 of the 45 runs of the first protocol had been
+# The screen in two rounds (amended on 2026-12-05 at 13:35 UTC, after 11 of the 45 runs of the first protocol had been
 # read: docs/RESULTS.md, "Amendment: the screen in two rounds"). Round one: every arm at ROUND_ONE_SEEDS. Round two:
 # ROUND_TWO_REFERENCES and the ROUND_ONE_KEPT best candidates of round one that acted, at ROUND_TWO_SEEDS
 # (experiments.screen_table.round_two_arms). The selection reads SCREEN_SEEDS; runs at other seeds (LaBER's 103 and

@@ -32,7 +32,7 @@ CHOSEN = ("relo", "lp")  # what the fake screen selects: rho has the best area b
 
 
 def fake_screen(folder, drop: int = 0):
-    """A results folder with the screen's 17 planned summaries, all but the last `drop` of them; rho does not act."""
+    """A results folder with the screen's 18 planned summaries, all but the last `drop` of them; rho does not act."""
     store = ResultsStore(folder)
     runs = screen_runs()
     for summary in runs[:len(runs) - drop]:
@@ -115,12 +115,12 @@ def test_the_screen_runs_round_two_once_round_one_is_in_and_refuses_a_seed_of_ne
     assert err.count("\n") == 1 and "--seeds: 103 is not a seed of the screen" in err
 
 
-@pytest.mark.parametrize("drop", [17, 1])
+@pytest.mark.parametrize("drop", [18, 1])
 def test_run_confirm_refuses_in_one_line_while_the_screen_is_incomplete(tmp_path, capsys, drop):
     screen = fake_screen(tmp_path / "screen", drop=drop)
     assert main(["run", "confirm", "--screen", str(screen), "--out", str(tmp_path / "confirm")]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and f"{drop} of 17 screen runs missing in {screen}" in err
+    assert err.count("\n") == 1 and f"{drop} of 18 screen runs missing in {screen}" in err
     assert not (tmp_path / "confirm").exists()
 
 
@@ -129,7 +129,7 @@ def test_a_screen_without_a_selection_is_refused_with_its_reason(tmp_path):
     store = ResultsStore(screen)
     for summary in store.load():
         store.write({**summary, "sampling_curve": {**summary["sampling_curve"], "reward_rows_sampled": [0.0] * 4}})
-    with pytest.raises(ConfirmNotReady, match="0 of 9 screen runs missing .*No candidate acted"):  # no round two
+    with pytest.raises(ConfirmNotReady, match="0 of 10 screen runs missing .*No candidate acted"):  # no round two
         grid(["confirm"], [0], screen=screen)
 
 

@@ -199,7 +199,7 @@ def test_the_command_line_filters_curriculum_arms_with_arms_and_scale_cells_with
                                                       str(tmp_path)]))
     assert [r.id for r in screen] == ["screen_laber_s100"]
     assert len(selected_runs(build_parser().parse_args(["run", "screen", "--seeds", "100", "--out",
-                                                        str(tmp_path)]))) == 9
+                                                        str(tmp_path)]))) == 10
 
 
 def test_an_agent_count_curriculum_run_is_trained_by_the_stages_command(tmp_path):

@@ -8,7 +8,7 @@ from experiments.screen_arms import ROUND_ONE_SEEDS, ROUND_TWO_SEEDS, SCREEN_ARM
 from experiments.screen_table import round_two_arms, screen_selection, screen_table, selection
 
 AREA = {"maddpg": 0.6, "per": 0.65, "relo": 0.72, "rho": 0.80, "lp": 0.70, "per_floor": 0.66, "cmcl_lam05": 0.5,
-        "cmcl_floor": 0.4, "laber": 0.69}
+        "cmcl_floor": 0.4, "laber": 0.69, "per_actor_uniform": 0.55}
 KEPT = ("relo", "lp", "laber")  # round one's three best areas among the candidates that act (rho does not)
 
 
@@ -41,7 +41,7 @@ def test_round_two_takes_maddpg_and_the_three_best_candidates_of_round_one_that_
     assert round_two_arms(first[:-1]) is None  # round one incomplete
     assert round_two_arms(first) == ("maddpg", *KEPT)  # rho's area is the best, but it did not act; per is a reference
     text = screen_selection(first)
-    assert text == ("Screen incomplete: 9 of 17 runs; no selection yet. Round one is in: round two runs ReLo, "
+    assert text == ("Screen incomplete: 10 of 18 runs; no selection yet. Round one is in: round two runs ReLo, "
                     "held-out learning progress, LaBER at seeds 101, 102.")
     table = screen_table(first)
     assert "| reducible held-out loss | candidate, round one only | 1 | aaaaaaa |" in table and "did not act" in table
@@ -71,6 +71,6 @@ def test_no_candidate_is_selected_unless_its_area_exceeds_maddpgs():
 
 def test_no_selection_from_an_incomplete_screen_or_mixed_code():
     runs = screen_runs()
-    assert screen_selection(runs[:-1]).startswith("Screen incomplete: 16 of 17 runs")
+    assert screen_selection(runs[:-1]).startswith("Screen incomplete: 17 of 18 runs")
     runs[0] = run(runs[0]["arm"], runs[0]["seed"], commit="b" * 40)
     assert screen_selection(runs).startswith("Screen runs ran different code (mixed: ")
