@@ -28,6 +28,7 @@ from torch import nn
 
 from cmcl.envs.entities import EntityLayout
 from cmcl.learners.agent_presence import AgentPresence, row_mean
+from cmcl.learners.assignment import AssignmentTerm
 from cmcl.learners.maddpg_batch import actor_rows, owner_batch
 from cmcl.learners.maddpg_checkpoint import MADDPGCheckpoint
 from cmcl.learners.maddpg_policy import MADDPGPolicy
@@ -65,6 +66,9 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         act_mask: float32[N, act_dim], 1 on the action entries each agent has and 0 on zero padding (agents whose
             action sizes differ); every actor output is multiplied by it, so the critics only ever see zeros there.
             None: every entry is used.
+        assignment_loss: β > 0 adds β · the cross-entropy of the entity actor's attention over the landmarks toward
+            a minimum-total-distance assignment to the actor loss (cmcl.learners.assignment; entity networks with
+            an attention pool, navigation only, entity_nearest 0); 0 (default): off, nothing more is computed.
     """
 
     def __init__(
@@ -89,6 +93,7 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         entity_pool: str = "attention",
         target_scores: bool = False,
         entity_nearest: int = 0,
+        assignment_loss: float = 0.0,
     ):
         self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
         # also return |y − Q_target(s, a)| per sampled row (ReLo's target loss; cmcl.algorithms Needs.learner_scores)
@@ -103,6 +108,8 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         self.share_parameters = self.networks == "shared"
         self.actor, self.critic = build_networks(self.networks, n, obs_dim, act_dim, widths, discrete, gen,
                                                  entity_layout, entity_pool, entity_nearest)
+        self.assignment = AssignmentTerm.build(float(assignment_loss), self.networks, entity_layout, entity_pool,
+                                               entity_nearest)
         self.target_actor = copy.deepcopy(self.actor).requires_grad_(False)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
         self.actor_opt = make_adam(self.actor.parameters(), actor_lr)
@@ -199,11 +206,13 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         """One batched actor step (eq. 4): owner v's own action -> pi_v(o_v), others from the buffer; over the rows
         where owner v is present.
 
-        Returns (loss [N], pre-clip grad norm [N]). Only actor parameters receive gradients.
+        Returns (loss [N], pre-clip grad norm [N]). Only actor parameters receive gradients. With the assignment
+        term (`assignment`), the step minimises loss + β · CE (cmcl.learners.assignment); the loss returned is eq. 4's.
         """
         own_obs = obs[self._agents, :, self._agents]  # [N, S, obs_dim]
         count = None if presence is None else presence.count
-        pi, raw = self._policy(self.actor, own_obs, True, count)  # [N, S, act_dim]
+        out, logits = (None, None) if self.assignment is None else self.actor.act_and_attend(own_obs, count=count)
+        pi, raw = self._policy(self.actor, own_obs, True, count, out)  # [N, S, act_dim]
         if self.networks == "entity":  # the buffer's actions fill the entity slots; pi_v enters Q_v as its own
             q = self.critic.q_own_action(obs, act, pi, count)  # [N, S], as the joint path below, fewer backward ops
         else:
@@ -213,9 +222,10 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         if self.discrete:
             l2 = raw.pow(2).mean((1, 2)) if presence is None else row_mean(raw.pow(2).mean(2), None, presence)
             loss = loss + self.logit_l2 * l2
+        total = loss if self.assignment is None else loss + self.assignment.loss(logits, own_obs, count)
         params = list(self.actor.parameters())
         self.actor_opt.zero_grad(set_to_none=True)
-        self._total(loss, presence).backward(inputs=params)
+        self._total(total, presence).backward(inputs=params)
         norms = self._clip(params)
         self.actor_opt.step()
         return loss.detach(), norms
@@ -244,7 +254,8 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         Returns numpy: critic_loss [N] (pre-step, weighted), critic_loss_normalised [N] (pre-step, unweighted mean
         squared TD error over the variance of the targets y, nan where y has none: normalised_td), actor_loss [N],
         td_abs |y - Q| [N, S] (pre-step, for PER), critic_grad_norm [N], actor_grad_norm [N] (pre-clip), and with
-        `target_scores` target_td_abs |y − Q_target| [N, S] (pre-step, ReLo).
+        `target_scores` target_td_abs |y − Q_target| [N, S] (pre-step, ReLo), and with the assignment term
+        assignment_loss [N] (its unweighted CE) and assignment_accuracy [N] (cmcl.learners.assignment).
         """
         obs, act, rew, next_obs, done, w, presence = owner_batch(batch, self.num_agents, self.networks)
         c_loss, delta, c_norm, unexplained = self._critic_step(obs, act, rew, next_obs, done, w, presence)
@@ -260,6 +271,7 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
             "critic_grad_norm": c_norm.numpy(),
             "actor_grad_norm": a_norm.numpy(),
             **({"target_td_abs": self.last_target_td.numpy()} if self.target_scores else {}),
+            **({} if self.assignment is None else self.assignment.last),
         }
 
     @torch.no_grad()
