@@ -6,9 +6,11 @@ this process and timed in interleaved rounds (the machine is shared: absolute ti
 measure). Printed: median ms per update of each, ``ratio: X`` = entity / per-agent, and the same ratio of the
 entity learner as it ran before issue 38 (`before_issue_38`: the same weights and numbers, the old actor step).
 ``--nearest K`` adds the entity networks that read only the K nearest entities of each kind (an opt-in, off by
-default). ``--profile`` also prints where an update spends its time (torch.profiler, by phase and by op).
+default); ``--assignment BETA`` the entity learner with maddpg.assignment_loss = BETA (cmcl.learners.assignment: the
+per-row assignment solver and the auxiliary loss in the actor step; off by default). ``--profile`` also prints
+where an update spends its time (torch.profiler, by phase and by op).
 
-Run: .venv/bin/python bench/entity_cost.py [--agents 8] [--batch 128] [--nearest 3] [--profile]
+Run: .venv/bin/python bench/entity_cost.py [--agents 8] [--batch 128] [--nearest 3] [--assignment 1] [--profile]
 The whole inline update (sampling included) at N = 4, 8, 16: bench/scale.py --algorithm maddpg.
 """
 
@@ -31,8 +33,9 @@ from cmcl.learners.nets import joint_input  # noqa: E402
 PHASES = ("_critic_step", "_td_targets_t", "_actor_step")  # MADDPG methods timed as profiler phases
 
 
-def learners(n: int, nearest: int) -> dict[str, MADDPG]:
-    """Navigation's learners for N agents: per-agent, entity (and entity with the K nearest entities)."""
+def learners(n: int, nearest: int, assignment: float = 0.0) -> dict[str, MADDPG]:
+    """Navigation's learners for N agents: per-agent, entity (and entity with the K nearest entities, entity with
+    the assignment loss of weight `assignment`)."""
     layout = spread_layout(n)
     cells = {"per_agent": MADDPG(n, layout.obs_dim, 2, seed=0),
              "entity": MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity", entity_layout=layout),
@@ -41,6 +44,9 @@ def learners(n: int, nearest: int) -> dict[str, MADDPG]:
     if nearest:
         cells[f"entity_nearest{nearest}"] = MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity",
                                                    entity_layout=layout, entity_nearest=nearest)
+    if assignment:
+        cells["entity_assignment"] = MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity", entity_layout=layout,
+                                            assignment_loss=assignment)
     return cells
 
 
@@ -110,10 +116,11 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=9)
     parser.add_argument("--updates", type=int, default=5)
     parser.add_argument("--nearest", type=int, default=0, metavar="K")
+    parser.add_argument("--assignment", type=float, default=0.0, metavar="BETA")
     parser.add_argument("--profile", action="store_true")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    cells = learners(args.agents, args.nearest)
+    cells = learners(args.agents, args.nearest, args.assignment)
     rows = batch(args.agents, args.batch, cells["per_agent"].obs_dim)
     for m in cells.values():  # warm-up
         m.update(rows)
@@ -130,6 +137,9 @@ def main() -> None:
     for name in cells:
         if name != "per_agent":
             print(f"ratio{'' if name == 'entity' else ' ' + name}: {median[name] / median['per_agent']:.2f}")
+    if "entity_assignment" in median:
+        print(f"assignment loss: +{1e3 * (median['entity_assignment'] - median['entity']):.1f} ms per entity update "
+              f"({median['entity_assignment'] / median['entity']:.2f}x)")
     if args.profile:
         for name, m in cells.items():
             profile(name, m, rows)

@@ -16,6 +16,7 @@ import numpy as np
 
 from cmcl.config import ConfigError
 from cmcl.learners import network_steps
+from cmcl.learners.assignment import STATS as ASSIGNMENT_STATS
 from cmcl.learners.warm_start import warm_start_from_config
 from cmcl.learners.weights import published_weights
 from cmcl.messages import LearnerBatch, LearnerFeedback
@@ -27,10 +28,15 @@ from services.report_schema import LearnerReport, Report
 def last_losses(stats: dict[str, Any], agent: int) -> dict[str, float]:
     """One agent's losses of an update, as its report carries them: "critic", "actor" and, when its targets had some
     variance, "critic_normalised" (the critic's normalised TD error, which run.progress_signal = "normalised_td"
-    reads; a report's numbers are finite)."""
+    reads; a report's numbers are finite); with maddpg.assignment_loss > 0 also "assignment" (the CE) and
+    "assignment_accuracy" (when the agent had a row), cmcl.learners.assignment."""
     losses = {"critic": float(stats["critic_loss"][agent]), "actor": float(stats["actor_loss"][agent])}
     normalised = float(stats["critic_loss_normalised"][agent])
-    return {**losses, "critic_normalised": normalised} if np.isfinite(normalised) else losses
+    losses = {**losses, "critic_normalised": normalised} if np.isfinite(normalised) else losses
+    for key in ASSIGNMENT_STATS:  # maddpg.assignment_loss > 0 only; accuracy NaN: the agent had no row
+        if key in stats and np.isfinite(stats[key][agent]):
+            losses[key.removesuffix("_loss")] = float(stats[key][agent])
+    return losses
 
 
 class Learner:

@@ -117,7 +117,8 @@ class LearnerReport(_Section):
     updates: float | None = None  # N: update steps (all agents at once)
     weight_version: int | None = None  # int >= 0: the version last published
     losses: Mapping[str, Mapping[str, float]] | None = None  # {agent label: {kind label: x}}, kinds critic, actor,
-    # critic_normalised (the critic's mean squared TD error over its targets' variance; absent when they had none)
+    # critic_normalised (the critic's mean squared TD error over its targets' variance; absent when they had none),
+    # and with maddpg.assignment_loss > 0 assignment, assignment_accuracy (services.learner.last_losses)
     busy_s: float | None = None  # N: wall seconds inside update calls (the rest of the time it waited for batches)
     busy_cpu_s: float | None = None  # N: CPU seconds of those calls (the thread that ran them)
 

@@ -50,6 +50,8 @@ class Config:
                  "maddpg.batch_size", self.maddpg.batch_size, f"must not exceed maddpg.warmup ({self.maddpg.warmup})")
         if self.run.carry_replay:
             self._check_carry_replay()
+        if self.maddpg.assignment_loss > 0:
+            self._check_assignment_loss()
         if self.run.stop_progress > 0 and self.run.progress_signal == "coverage":
             has_coverage = bool(self.env.coverage_key) if self.env.factory else self.env.task == "spread"
             _require(has_coverage, "run.progress_signal", "coverage",
@@ -73,6 +75,19 @@ class Config:
         _require(set(algorithms) <= {"maddpg", "per"}, "run.carry_replay", True,
                  why.format("every team's algorithm to be 'maddpg' or 'per' (the teachers, the ICM and ACL's "
                             "online critic do not mask absent agents when they score rows)", f"{algorithms}"))
+
+    def _check_assignment_loss(self) -> None:
+        """maddpg.assignment_loss's needs (cmcl.learners.assignment): the entity actor's attention over the entity
+        slots (entity networks, a pool with attention) and landmarks to assign (the navigation task)."""
+        key, value, why = "maddpg.assignment_loss", self.maddpg.assignment_loss, "> 0 needs {} ({} here)"
+        _require(self.maddpg.network_kind == "entity", key, value,
+                 why.format("maddpg.networks = 'entity'", f"maddpg.networks = {self.maddpg.network_kind!r}"))
+        _require(self.maddpg.entity_pool != "mean", key, value,
+                 why.format("an attention to supervise, maddpg.entity_pool = 'attention' or 'relational'",
+                            "maddpg.entity_pool = 'mean'"))
+        _require(self.env.task == "spread" and not self.env.factory, key, value,
+                 why.format("a task with landmarks, env.task = 'spread'",
+                            f"env.task = {self.env.task!r}" + (" with env.factory" if self.env.factory else "")))
 
     @property
     def total_env_steps(self) -> int:

@@ -19,6 +19,7 @@ from typing import Literal
 from cmcl.config.checks import (
     AT_LEAST_0,
     AT_LEAST_1,
+    FINITE_AT_LEAST_0,
     OPEN_PROBABILITY,
     POSITIVE,
     PROBABILITY,
@@ -87,6 +88,12 @@ class MADDPGConfig:
         "(the mean only, about half the cost per update) or 'relational' ('attention' after one round of "
         "self-attention among the entities, so that a landmark's embedding can say another agent holds it: "
         "cmcl.learners.entity_nets)")
+    assignment_loss: float = documented(
+        0.0, "weight β of an auxiliary cross-entropy on the entity actor's attention over landmarks toward the "
+        "landmark a minimum-total-distance assignment of agents to landmarks gives this agent, added to the actor "
+        "loss (issue 38; cmcl.learners.assignment); needs maddpg.networks = 'entity', maddpg.entity_pool "
+        "'attention' or 'relational' (with 'attention' a landmark's logit sees the agent and that landmark only, "
+        "not the other agents) and env.task = 'spread'. 0 = off", rule=FINITE_AT_LEAST_0)
 
     def __post_init__(self) -> None:
         _check_networks("maddpg", self.networks, self.share_parameters)

@@ -116,10 +116,16 @@ class EntityEncoder(nn.Module):
         return h + self.relate_out(context).relu_().view(g, r, e, hid)
 
     def forward(self, own: torch.Tensor, entities: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        return self.encode(own, entities, mask)[0]
+
+    def encode(self, own: torch.Tensor, entities: torch.Tensor, mask: torch.Tensor
+               ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """z as `forward` gives it, and the attention pool's logits over the entity slots float32[G, R, E]
+        (h_e · q / √H, before the mask and the softmax; None with pool="mean" or no entity slot)."""
         g, r, e, f = entities.shape
         s = self.own(own).relu_()  # [G, R, H] (in place: torch.relu on a fresh tensor runs ~5x slower here)
         if e == 0:
-            return torch.cat([s, *[torch.zeros_like(s)] * (self.out_dim // self.hidden - 1)], -1)
+            return torch.cat([s, *[torch.zeros_like(s)] * (self.out_dim // self.hidden - 1)], -1), None
         h = self.entity(entities.reshape(g, r * e, f)).relu_().view(g, r, e, self.hidden)  # [G, R, E, H]
         everyone = bool(mask.all())
         if self.pool == "relational":
@@ -130,11 +136,12 @@ class EntityEncoder(nn.Module):
             weight = mask.to(h.dtype)
             mean = (h * weight.unsqueeze(-1)).sum(-2) / weight.sum(-1, keepdim=True).clamp(min=1.0)
         if self.pool == "mean":
-            return torch.cat([s, mean], -1)
+            return torch.cat([s, mean], -1), None
         q = self.query(s) / math.sqrt(self.hidden)  # [G, R, H]
-        alpha = masked_softmax(torch.einsum("greh,grh->gre", h, q), None if everyone else mask)  # [G, R, E]
+        logits = torch.einsum("greh,grh->gre", h, q)  # [G, R, E]
+        alpha = masked_softmax(logits, None if everyone else mask)  # [G, R, E]
         pooled = torch.einsum("gre,greh->grh", alpha, h)  # [G, R, H]
-        return torch.cat([s, pooled, mean], -1)
+        return torch.cat([s, pooled, mean], -1), logits
 
 
 class EntityActor(nn.Module):
@@ -154,6 +161,14 @@ class EntityActor(nn.Module):
 
     def forward(self, x: torch.Tensor, members: torch.Tensor | None = None,
                 count: torch.Tensor | None = None) -> torch.Tensor:
+        return self.act_and_attend(x, members, count)[0]
+
+    def act_and_attend(self, x: torch.Tensor, members: torch.Tensor | None = None, count: torch.Tensor | None = None
+                       ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """`forward`'s output float32[N, B, act_dim] and, from the same pass, the attention pool's logits over
+        agent i's entity slots float32[N, B, E] (EntityEncoder.encode: before the mask and softmax; None with
+        pool="mean"; with `nearest` the slots are the picked ones). The landmark-assignment loss reads them
+        (cmcl.learners.assignment)."""
         if members is not None or x.shape[0] != self.num_agents:
             raise ValueError(f"the entity actor takes every agent's rows [N={self.num_agents}, B, obs_dim], "
                              f"got {tuple(x.shape)} (members={members})")
@@ -162,8 +177,10 @@ class EntityActor(nn.Module):
             mask = self.layout.present_mask(count.transpose(0, 1))
         if self.nearest:
             ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
-        z = self.encoder(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
-        return self.head(z).view(x.shape[1], self.num_agents, self.act_dim).transpose(0, 1)
+        z, logits = self.encoder.encode(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
+        b, n = x.shape[1], self.num_agents
+        out = self.head(z).view(b, n, self.act_dim).transpose(0, 1)
+        return out, None if logits is None else logits.view(b, n, -1).transpose(0, 1)
 
 
 class EntityFeatures(nn.Module):

@@ -24,13 +24,14 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from cmcl.envs.entities import EntityLayout
 from cmcl.learners.agent_presence import AgentPresence, row_mean
+from cmcl.learners.assignment import AssignmentTerm
 from cmcl.learners.maddpg_batch import actor_rows, owner_batch
 from cmcl.learners.maddpg_checkpoint import MADDPGCheckpoint
+from cmcl.learners.maddpg_policy import MADDPGPolicy
 from cmcl.learners.nets import as_tensor, clip_grad_norm_per_member_, joint_input, make_adam, soft_update_
 from cmcl.learners.networks import build_networks, network_kind
 from cmcl.learners.normalised_td import normalised_td_error
@@ -40,7 +41,7 @@ __all__ = ["MADDPG"]
 ArrayLike = np.ndarray | torch.Tensor
 
 
-class MADDPG(MADDPGCheckpoint):
+class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
     """Stacked MADDPG learner (continuous tanh actions by default; Gumbel-softmax option, A17).
 
     Args:
@@ -65,6 +66,9 @@ class MADDPG(MADDPGCheckpoint):
         act_mask: float32[N, act_dim], 1 on the action entries each agent has and 0 on zero padding (agents whose
             action sizes differ); every actor output is multiplied by it, so the critics only ever see zeros there.
             None: every entry is used.
+        assignment_loss: β > 0 adds β · the cross-entropy of the entity actor's attention over the landmarks toward
+            a minimum-total-distance assignment to the actor loss (cmcl.learners.assignment; entity networks with
+            an attention pool, navigation only, entity_nearest 0); 0 (default): off, nothing more is computed.
     """
 
     def __init__(
@@ -89,6 +93,7 @@ class MADDPG(MADDPGCheckpoint):
         entity_pool: str = "attention",
         target_scores: bool = False,
         entity_nearest: int = 0,
+        assignment_loss: float = 0.0,
     ):
         self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
         # also return |y − Q_target(s, a)| per sampled row (ReLo's target loss; cmcl.algorithms Needs.learner_scores)
@@ -103,6 +108,8 @@ class MADDPG(MADDPGCheckpoint):
         self.share_parameters = self.networks == "shared"
         self.actor, self.critic = build_networks(self.networks, n, obs_dim, act_dim, widths, discrete, gen,
                                                  entity_layout, entity_pool, entity_nearest)
+        self.assignment = AssignmentTerm.build(float(assignment_loss), self.networks, entity_layout, entity_pool,
+                                               entity_nearest)
         self.target_actor = copy.deepcopy(self.actor).requires_grad_(False)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
         self.actor_opt = make_adam(self.actor.parameters(), actor_lr)
@@ -112,73 +119,6 @@ class MADDPG(MADDPGCheckpoint):
         self._agents = torch.arange(n)
         self._own_mask = torch.eye(n, dtype=torch.bool).view(n, 1, n, 1)  # [owner, 1, agent, 1]
         self.act_mask = None if act_mask is None else torch.as_tensor(act_mask, dtype=torch.float32).view(n, 1, -1)
-
-    # ------------------------------------------------------------------ policies
-    def _policy(self, net: nn.Module, obs: torch.Tensor, sample: bool,
-                count: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """obs [N, B, obs_dim] (count: the present agents of each row, int64[N, B], entity networks only)
-        -> (actions [N, B, act_dim], raw outputs [N, B, act_dim]).
-
-        Continuous: the tanh output is the action. Discrete: Gumbel-softmax sample of the logits (``sample``),
-        else their softmax; padded entries (act_mask 0) get probability 0 (and raw output 0).
-        """
-        out = net(obs) if count is None else net(obs, count=count)
-        if self.act_mask is not None:
-            out = out * self.act_mask
-        if not self.discrete:
-            return out, out
-        raw, out = out, self._padded_logits(out, self.act_mask)
-        if sample:
-            u = torch.rand(out.shape, generator=self.noise_gen).clamp_(1e-10, 1.0 - 1e-7)
-            return F.softmax((out - torch.log(-torch.log(u))) / self.temperature, dim=-1), raw
-        return F.softmax(out, dim=-1), raw
-
-    @staticmethod
-    def _padded_logits(logits: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
-        """Logits with −inf on the padded entries (mask 0, broadcast against logits): a softmax gives them 0."""
-        return logits if mask is None else logits.masked_fill(mask == 0, float("-inf"))
-
-    def _joint_actions(self, net: nn.Module, obs: torch.Tensor, sample: bool,
-                       count: torch.Tensor | None = None) -> torch.Tensor:
-        """Every agent's action from its own obs: obs [..., N, obs_dim] (count int64[...]) -> act [..., N, act_dim]."""
-        lead = obs.shape[:-2]
-        x = obs.reshape(-1, self.num_agents, self.obs_dim).transpose(0, 1)  # [N, B, obs_dim]
-        rows = None if count is None else count.reshape(1, -1).expand(self.num_agents, -1)  # [N, B]
-        a, _ = self._policy(net, x, sample, rows)
-        return a.transpose(0, 1).reshape(*lead, self.num_agents, self.act_dim)
-
-    @torch.no_grad()
-    def act(self, obs: ArrayLike, noise_std: float = 0.1, rng: np.random.Generator | None = None) -> np.ndarray:
-        """Exploration actions: obs float32[B, N, obs_dim] -> float32[B, N, act_dim].
-
-        Continuous: clip(pi_v(o_v) + N(0, noise_std^2), -1, 1). Discrete: a Gumbel-softmax sample when
-        noise_std > 0, the softmax otherwise. Noise comes from ``rng`` (numpy) if given, else the internal
-        torch generator.
-        """
-        o = as_tensor(obs)
-        x = o.transpose(0, 1)  # [N, B, obs_dim]
-        out = self.actor(x).transpose(0, 1)  # [B, N, act_dim]
-        if self.discrete:
-            out = self._padded_logits(out, None if self.act_mask is None else self.act_mask.transpose(0, 1))
-            if noise_std > 0:
-                g = (
-                    torch.from_numpy(rng.gumbel(size=out.shape).astype(np.float32))
-                    if rng is not None
-                    else -torch.log(-torch.log(torch.rand(out.shape, generator=self.noise_gen).clamp_(1e-10, 1 - 1e-7)))
-                )
-                out = (out + g) / self.temperature
-            return F.softmax(out, dim=-1).numpy()
-        if noise_std > 0:
-            noise = (
-                torch.from_numpy(rng.normal(0.0, noise_std, size=out.shape).astype(np.float32))
-                if rng is not None
-                else torch.randn(out.shape, generator=self.noise_gen) * noise_std
-            )
-            out = out + noise
-        out = out.clamp_(-1.0, 1.0)
-        if self.act_mask is not None:
-            out = out * self.act_mask.transpose(0, 1)
-        return out.numpy()
 
     # ------------------------------------------------------------------ targets
     def _q(self, net: nn.Module, x: torch.Tensor, members: torch.Tensor | None = None,
@@ -266,11 +206,13 @@ class MADDPG(MADDPGCheckpoint):
         """One batched actor step (eq. 4): owner v's own action -> pi_v(o_v), others from the buffer; over the rows
         where owner v is present.
 
-        Returns (loss [N], pre-clip grad norm [N]). Only actor parameters receive gradients.
+        Returns (loss [N], pre-clip grad norm [N]). Only actor parameters receive gradients. With the assignment
+        term (`assignment`), the step minimises loss + β · CE (cmcl.learners.assignment); the loss returned is eq. 4's.
         """
         own_obs = obs[self._agents, :, self._agents]  # [N, S, obs_dim]
         count = None if presence is None else presence.count
-        pi, raw = self._policy(self.actor, own_obs, True, count)  # [N, S, act_dim]
+        out, logits = (None, None) if self.assignment is None else self.actor.act_and_attend(own_obs, count=count)
+        pi, raw = self._policy(self.actor, own_obs, True, count, out)  # [N, S, act_dim]
         if self.networks == "entity":  # the buffer's actions fill the entity slots; pi_v enters Q_v as its own
             q = self.critic.q_own_action(obs, act, pi, count)  # [N, S], as the joint path below, fewer backward ops
         else:
@@ -280,9 +222,10 @@ class MADDPG(MADDPGCheckpoint):
         if self.discrete:
             l2 = raw.pow(2).mean((1, 2)) if presence is None else row_mean(raw.pow(2).mean(2), None, presence)
             loss = loss + self.logit_l2 * l2
+        total = loss if self.assignment is None else loss + self.assignment.loss(logits, own_obs, count)
         params = list(self.actor.parameters())
         self.actor_opt.zero_grad(set_to_none=True)
-        self._total(loss, presence).backward(inputs=params)
+        self._total(total, presence).backward(inputs=params)
         norms = self._clip(params)
         self.actor_opt.step()
         return loss.detach(), norms
@@ -311,7 +254,8 @@ class MADDPG(MADDPGCheckpoint):
         Returns numpy: critic_loss [N] (pre-step, weighted), critic_loss_normalised [N] (pre-step, unweighted mean
         squared TD error over the variance of the targets y, nan where y has none: normalised_td), actor_loss [N],
         td_abs |y - Q| [N, S] (pre-step, for PER), critic_grad_norm [N], actor_grad_norm [N] (pre-clip), and with
-        `target_scores` target_td_abs |y − Q_target| [N, S] (pre-step, ReLo).
+        `target_scores` target_td_abs |y − Q_target| [N, S] (pre-step, ReLo), and with the assignment term
+        assignment_loss [N] (its unweighted CE) and assignment_accuracy [N] (cmcl.learners.assignment).
         """
         obs, act, rew, next_obs, done, w, presence = owner_batch(batch, self.num_agents, self.networks)
         c_loss, delta, c_norm, unexplained = self._critic_step(obs, act, rew, next_obs, done, w, presence)
@@ -327,6 +271,7 @@ class MADDPG(MADDPGCheckpoint):
             "critic_grad_norm": c_norm.numpy(),
             "actor_grad_norm": a_norm.numpy(),
             **({"target_td_abs": self.last_target_td.numpy()} if self.target_scores else {}),
+            **({} if self.assignment is None else self.assignment.last),
         }
 
     @torch.no_grad()

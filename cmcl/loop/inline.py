@@ -27,6 +27,7 @@ from cmcl.config import Config
 from cmcl.episodes import WorldEpisodes
 from cmcl.io.rundir import RunDirectory
 from cmcl.learners import network_steps
+from cmcl.learners.assignment import STATS as ASSIGNMENT_STATS
 from cmcl.learning_progress import LearningProgress, agent_mean
 from cmcl.loop.checkpoint import load_loop_state, loop_state, restore_loop, save_loop_checkpoint
 from cmcl.loop.metrics_rows import finished_episode_rows, format_progress, progress_row
@@ -157,6 +158,7 @@ class InlineLoop:
         self.learning_progress.record(c["episodes"], float(np.mean(result["critic_loss"])),
                                       agent_mean(result["critic_loss_normalised"]))
         stats["actor_loss"] = result["actor_loss"]
+        stats.update({k: v for k, v in result.items() if k in ASSIGNMENT_STATS})  # maddpg.assignment_loss > 0 only
         c["updates"] += 1
         self.last_stats = stats
         return stats
