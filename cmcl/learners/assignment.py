@@ -11,15 +11,15 @@ toward the landmark a minimum-total-distance assignment gives agent v:
   distances (`scipy.optimize.linear_sum_assignment`, one call per row: `assigned_landmark`); the target is the
   index, among the landmark slots, of the landmark it gives v.
 
-At N = 8 the unfinished worlds are crowded (two agents on one landmark while another is free); in an optimal
-assignment no two agents share a landmark, so the signal says which landmark is v's to take. Whether it helps
-learning is not measured (docs/RESULTS.md). The targets depend on the observation only (no gradient); the loss's
-gradient reaches the actor's encoder only (not its head, not the critic). With entity_pool = "attention" a
-landmark's logit is a function of v's own features and that landmark's alone (it cannot see the other agents, so
-at best it learns a per-landmark score such as nearness); "relational" lets the landmark embeddings see the other
-agents first. pool = "mean" has no attention and is refused. Rows carried from fewer agents
-(run.carry_replay): the absent agents and their landmarks (the layout's presence rule) take no part, and a row
-whose owner is absent adds nothing. Each update reports per owner `assignment_loss` (the mean CE, unweighted) and
+At N = 8 the unfinished worlds are crowded (two agents on one landmark while another is free); in an optimal assignment
+no two agents share a landmark, so the signal says which landmark is v's to take. Whether it helps learning is not
+shown: its one run at N = 8 (docs/RESULTS.md, "Tried against the crowding") still crowded. The targets depend on the
+observation only (no gradient); the loss's gradient reaches the actor's encoder only (not its head, not the critic).
+With entity_pool = "attention" a landmark's logit is a function of v's own features and that landmark's alone (it cannot
+see the other agents, so at best it learns a per-landmark score such as nearness); "relational" lets the landmark
+embeddings see the other agents first. pool = "mean" has no attention and is refused. Rows carried from fewer agents
+(run.carry_replay): the absent agents and their landmarks (the layout's presence rule) take no part, and a row whose
+owner is absent adds nothing. Each update reports per owner `assignment_loss` (the mean CE, unweighted) and
 `assignment_accuracy` (the share of rows whose largest landmark logit is the target; NaN for an owner with none).
 """
 
