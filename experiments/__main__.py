@@ -70,18 +70,18 @@ def grid_args(args: argparse.Namespace) -> tuple:
     return args.grids, seeds, args.algorithms, args.episodes, screen, own if args.grids == ["confirm"] else None
 
 
-def waiting_seeds(args: argparse.Namespace) -> list[int]:
-    """The seeds of a screen or confirmation that have no runs yet because they wait for an earlier round."""
-    names, seeds, *rest = grid_args(args)
-    if not set(names) & {"screen", "confirm"}:
-        return []
-    return [s for s in seeds if not grid(names, [s], *rest)]
+def waiting_seeds(args: argparse.Namespace, every: list[Run]) -> list[int]:
+    """The seeds of a screen or confirmation without a run in `every` (`grid`'s runs before the filters) because they
+    wait for an earlier round."""
+    names, seeds = grid_args(args)[:2]
+    return [s for s in seeds if not any(r.seed == s for r in every)] if set(names) & {"screen", "confirm"} else []
 
 
-def selected_runs(args: argparse.Namespace) -> list[Run]:
-    """The runs of `args.grids` that the filters keep (--arms filters only the curriculum grids' and the screen's
-    arms, --cells only the scale grid's cells), with the prefix references the kept ablations need."""
-    runs = [r for r in grid(*grid_args(args))
+def selected_runs(args: argparse.Namespace, every: list[Run] | None = None) -> list[Run]:
+    """The runs of `args.grids` (`every`, when the caller has `grid`'s runs already) that the filters keep (--arms
+    filters only the curriculum grids' and the screen's arms, --cells only the scale grid's cells), with the prefix
+    references the kept ablations need."""
+    runs = [r for r in (grid(*grid_args(args)) if every is None else every)
             if (r.ablation is None or r.ablation in args.ablations)
             and (args.arms is None or r.arm in args.arms or not has_arms(r))
             and (r.arm not in SCALE_CELLS or r.arm in args.cells) and r.mode in args.modes]
@@ -90,11 +90,12 @@ def selected_runs(args: argparse.Namespace) -> list[Run]:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        runs = selected_runs(args)
+        every = grid(*grid_args(args))
     except ValueError as refused:  # ConfirmNotReady, or a seed outside the screen's rounds
         print(f"error: {refused}", file=sys.stderr)
         return 2
-    waiting = waiting_seeds(args)
+    runs = selected_runs(args, every)
+    waiting = waiting_seeds(args, every)
     if waiting:
         print(f"seeds {' '.join(map(str, waiting))} wait for the earlier round (the screen's round one, the "
               f"confirmation's interim look): run this command again once it is in", flush=True)

@@ -13,14 +13,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from cmcl.algorithms import build_sampler, spec_of
 from cmcl.replay.priority import EPS_P
 from cmcl.replay.sampling import SamplerArgs
 from experiments.labels import PERMUTED
 from experiments.screen_arms import PERMUTED_CONTROL, SCREEN_ARMS, rule_algorithm
-from experiments.screen_table import selection
+from experiments.screen_table import mean_area, selection
 from experiments.store import ResultsStore
 
 CONFIRM_REFERENCES = ("maddpg",)  # beside the selected rules and their controls, never selected
@@ -79,12 +77,8 @@ def stopped_at_interim(runs: list[dict[str, Any]], chosen: Sequence[str]) -> tup
     for arm in confirm_arms(chosen):
         if not {r["seed"] for r in runs if r.get("arm") == arm} >= seeds:
             return None
-
-    def area(arm: str) -> float:
-        return round(float(np.mean([r["auc_coverage"] for r in runs if r.get("arm") == arm and r["seed"] in seeds])),
-                     3)
-
-    return tuple(rule for rule in chosen if area(rule) <= area("maddpg"))
+    interim = [r for r in runs if r["seed"] in seeds]
+    return tuple(rule for rule in chosen if mean_area(interim, rule) <= mean_area(interim, "maddpg"))
 
 
 def arms_at_seed(seed: int, chosen: Sequence[str], runs: list[dict[str, Any]]) -> dict[str, list[str]]:

@@ -250,16 +250,16 @@ GRIDS = {  # name -> results folder (its summaries/ and runs/)
 }
 
 
-def screen_arms_at(seed: int, screen: Path) -> dict[str, list[str]]:
-    """The screen's arms at `seed` (experiments.screen_arms): every arm in round one; in round two the arms
-    `round_two_arms` reads from the summaries in `screen` (none while round one misses a run). ValueError for a seed
+def screen_arms_at(seed: int, second: tuple[str, ...] | None) -> dict[str, list[str]]:
+    """The screen's arms at `seed` (experiments.screen_arms): every arm in round one; in round two the arms `second`
+    (`round_two_arms` of the screen's summaries; None, no arms, while round one misses a run). ValueError for a seed
     of neither round."""
     if seed in ROUND_ONE_SEEDS:
         return SCREEN_ARMS
     if seed not in ROUND_TWO_SEEDS:
         raise ValueError(f"--seeds: {seed} is not a seed of the screen (round one {list(ROUND_ONE_SEEDS)}, round two "
                          f"{list(ROUND_TWO_SEEDS)})")
-    return {arm: SCREEN_ARMS[arm] for arm in round_two_arms(ResultsStore(screen).load()) or ()}
+    return {arm: SCREEN_ARMS[arm] for arm in second or ()}
 
 
 def grid(names: list[str], seeds: list[int], algorithms: list[str] = PAPER_ALGORITHMS,
@@ -275,13 +275,14 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str] = PAPER_ALGOR
     screen = screen or GRIDS["screen"]
     chosen = screen_choice(screen) if "confirm" in names else ()
     confirmed = ResultsStore(confirm or GRIDS["confirm"]).load() if "confirm" in names else []
+    second = round_two_arms(ResultsStore(screen).load()) if "screen" in names else None
     runs = []
     for seed in seeds:
         for name in names:
             if name in HARD_SETTING_GRIDS:
                 runs += setting_runs(name, seed, budget)
             elif name == "screen":
-                runs += rule_runs(name, screen_arms_at(seed, screen), seed, budget)
+                runs += rule_runs(name, screen_arms_at(seed, second), seed, budget)
             elif name == "confirm":
                 runs += rule_runs(name, arms_at_seed(seed, chosen, confirmed), seed, budget)
             elif name == "make_run":

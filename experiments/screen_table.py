@@ -100,6 +100,12 @@ def screen_table(runs: list[dict[str, Any]]) -> str:
                     "rows' ratio, which the inline runner measures on the picked rows.")
 
 
+def mean_area(runs: list[dict[str, Any]], arm: str) -> float:
+    """The mean area under the training coverage curve of `arm`'s runs in `runs`, to 3 decimals (as the screen's
+    selection and the confirmation's interim look compare them)."""
+    return round(float(np.mean([r["auc_coverage"] for r in arm_runs(runs, arm)])), 3)
+
+
 def ranking(runs: list[dict[str, Any]], arms: Iterable[str]) -> list[tuple[float, float, str]]:
     """(mean area to 3 decimals, mean held-out success, arm) of the candidates among `arms` that acted in `runs`,
     best first (ties in area broken by held-out success)."""
@@ -108,14 +114,14 @@ def ranking(runs: list[dict[str, Any]], arms: Iterable[str]) -> list[tuple[float
         rs = arm_runs(runs, arm)
         if arm in SCREEN_REFERENCES or not rs or not acted(rs):
             continue
-        ranked.append((round(float(np.mean([r["auc_coverage"] for r in rs])), 3),
-                       float(np.mean([r["held_out_success"] for r in rs])), arm))
+        ranked.append((mean_area(rs, arm), float(np.mean([r["held_out_success"] for r in rs])), arm))
     return sorted(ranked, reverse=True)
 
 
 def at_seeds(runs: list[dict[str, Any]], seeds: Iterable[int]) -> list[dict[str, Any]]:
     """The screen's runs of `runs` (its arms) at `seeds`."""
-    return [r for r in runs if r.get("arm") in SCREEN_ARMS and r["seed"] in set(seeds)]
+    wanted = set(seeds)
+    return [r for r in runs if r.get("arm") in SCREEN_ARMS and r["seed"] in wanted]
 
 
 def round_two_arms(runs: list[dict[str, Any]]) -> tuple[str, ...] | None:
@@ -191,7 +197,7 @@ def selection(runs: list[dict[str, Any]]) -> Selection:
     if not testable:
         return Selection(len(done), expected, code, kept=kept)
     ranked = ranking(done, kept)
-    reference = round(float(np.mean([r["auc_coverage"] for r in arm_runs(done, "maddpg")])), 3)
+    reference = mean_area(done, "maddpg")
     chosen = tuple(arm for area, _, arm in ranked if area > reference)[:SELECTED]
     return Selection(len(done), expected, code, True, tuple(ranked), chosen, reference, kept)
 
