@@ -5,7 +5,7 @@ One `MADDPG.update` on a per-owner minibatch [N, S, N, ...] of random rows (S = 
 this process and timed in interleaved rounds (the machine is shared: absolute times are noisy, the ratio is the
 measure). Printed: median ms per update of each, ``ratio: X`` = entity / per-agent, and the same ratio of the
 entity learner as it ran before issue 38 (`before_issue_38`: the same weights and numbers, the old actor step).
-``--nearest K`` adds the entity networks that read only the K nearest entities of each kind (an opt-in, off by
+``--nearest K`` adds the entity networks that read only the K nearest entities of each kind (entity_nearest, off by
 default); ``--assignment BETA`` the entity learner with maddpg.assignment_loss = BETA (cmcl.learners.assignment: the
 per-row assignment solver and the auxiliary loss in the actor step; off by default). ``--profile`` also prints
 where an update spends its time (torch.profiler, by phase and by op).

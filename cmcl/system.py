@@ -204,7 +204,7 @@ def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
                   critic_lr=m.critic_lr, gamma=m.gamma, tau=m.tau, grad_clip=m.grad_clip, discrete=layout.discrete,
                   seed=seed, act_mask=layout.act_mask, networks=m.network_kind, entity_layout=layout.entities,
                   entity_pool=m.entity_pool, target_scores="target_td_abs" in layout.learner_scores,
-                  assignment_loss=m.assignment_loss)
+                  entity_nearest=m.entity_nearest, assignment_loss=m.assignment_loss)
 
 
 def build_replay(config: Config, layout: AgentLayout) -> ReplayBuffer:

@@ -57,11 +57,10 @@ class RolloutWorker:
 
                 load_published(self.policy, published["weights"], parts=("actor",))
             else:
-                self.policy = numpy_policy(published["weights"]["actor"], self.layout.act_mask, self.layout.entities)
+                self.policy = self._numpy_policy(published["weights"]["actor"])
             self.version = int(published["version"])
         if self.policy is None:  # no weights published yet: a fresh actor, initialised like the learner's
-            self.policy = numpy_policy(_initial_actor(self.config, self.layout, self.net_seed), self.layout.act_mask,
-                                       self.layout.entities)
+            self.policy = self._numpy_policy(_initial_actor(self.config, self.layout, self.net_seed))
         cfg, b = self.config, self.env.num_envs
         finished: list[dict[str, np.ndarray]] = []  # info["episode"] of the steps in which episodes ended
         while self.chunker.ready < b:
@@ -78,6 +77,10 @@ class RolloutWorker:
         episode = {k: np.concatenate([e[k] for e in finished]) for k in finished[0]} if finished \
             else {"return": np.zeros((0, self.env.num_agents))}
         return chunk, self._report(episode)
+
+    def _numpy_policy(self, actor: dict) -> Any:
+        """The numpy twin of the actor weights `actor`, reading the entities the learner's actor reads."""
+        return numpy_policy(actor, self.layout.act_mask, self.layout.entities, self.config.maddpg.entity_nearest)
 
     def _report(self, episode: dict[str, np.ndarray]) -> Report:
         """Metrics report of this call: cumulative env steps and episodes, the episodes that just finished."""

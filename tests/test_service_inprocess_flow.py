@@ -185,17 +185,20 @@ def test_the_supervisor_issues_the_calls_the_allowances_leave_room_for():
     assert calls_to_issue(warm, busy, cfg, 2, groups, icm=False)[("icm", 0)] == 0
 
 
-def test_entity_networks_run_through_every_role():
+@pytest.mark.parametrize("nearest", [0, 2])
+def test_entity_networks_run_through_every_role(nearest):
     """maddpg.networks = "entity": the rollout worker acts with the numpy entity actor, the learner and the
-    teachers' target networks load what the learner publishes; icm.networks = "entity" scores curiosity."""
+    teachers' target networks load what the learner publishes; icm.networks = "entity" scores curiosity. With
+    maddpg.entity_nearest = k every role's actor and critic read the k nearest entities of each kind."""
     from cmcl.learners.policy import NumpyEntityPolicy
 
-    cfg = in_process_config("cmcl", maddpg={"networks": "entity"}, service={"score_rows_per_call": 360},
-                            icm={"networks": "entity"})
+    cfg = in_process_config("cmcl", maddpg={"networks": "entity", "entity_nearest": nearest},
+                            service={"score_rows_per_call": 360}, icm={"networks": "entity"})
     replay, learner, worker, teachers, icm = roles(cfg)
     for _ in range(3):
         replay.insert(worker.rollout(None)[0])
-    assert isinstance(worker.policy, NumpyEntityPolicy)
+    assert isinstance(worker.policy, NumpyEntityPolicy) and worker.policy.nearest == nearest
+    assert learner.maddpg.actor.nearest == teachers[0].targets.target_critic.nearest == nearest
     learner.update(replay.sample(4)[0])
     published = learner.publish()
     assert "encoder.entity.weight" in published["weights"]["target_critic"]

@@ -85,6 +85,9 @@ class Config:
         _require(self.maddpg.entity_pool != "mean", key, value,
                  why.format("an attention to supervise, maddpg.entity_pool = 'attention' or 'relational'",
                             "maddpg.entity_pool = 'mean'"))
+        _require(self.maddpg.entity_nearest == 0, key, value,
+                 why.format("every entity slot, maddpg.entity_nearest = 0 (its attention is over the picked ones, "
+                            "reordered per row)", f"maddpg.entity_nearest = {self.maddpg.entity_nearest}"))
         _require(self.env.task == "spread" and not self.env.factory, key, value,
                  why.format("a task with landmarks, env.task = 'spread'",
                             f"env.task = {self.env.task!r}" + (" with env.factory" if self.env.factory else "")))

@@ -88,16 +88,27 @@ class MADDPGConfig:
         "(the mean only, about half the cost per update) or 'relational' ('attention' after one round of "
         "self-attention among the entities, so that a landmark's embedding can say another agent holds it: "
         "cmcl.learners.entity_nets)")
+    entity_nearest: int = documented(
+        0, "k > 0: the learner's entity actor and critic read only the k nearest present entities of each kind "
+        "(navigation: landmarks, other agents; predator-prey: obstacles, predators, prey), closest first, so each "
+        "agent's view has T·k entity rows instead of E (T kinds, E slots; E = 63 at N = 32), which is what the "
+        "entity networks' cost grows with (cmcl.learners.entity_nets.nearest_entities). Rollout workers' numpy "
+        "actor picks the same entities (cmcl.learners.policy). Needs maddpg.networks = 'entity'; the teachers' and "
+        "the ICM's entity networks still read every entity. 0 = every entity", unit="entities per kind",
+        rule=AT_LEAST_0)
     assignment_loss: float = documented(
         0.0, "weight β of an auxiliary cross-entropy on the entity actor's attention over landmarks toward the "
         "landmark a minimum-total-distance assignment of agents to landmarks gives this agent, added to the actor "
         "loss (issue 38; cmcl.learners.assignment); needs maddpg.networks = 'entity', maddpg.entity_pool "
         "'attention' or 'relational' (with 'attention' a landmark's logit sees the agent and that landmark only, "
-        "not the other agents) and env.task = 'spread'. 0 = off", rule=FINITE_AT_LEAST_0)
+        "not the other agents), maddpg.entity_nearest = 0 and env.task = 'spread'. 0 = off", rule=FINITE_AT_LEAST_0)
 
     def __post_init__(self) -> None:
         _check_networks("maddpg", self.networks, self.share_parameters)
         check_fields(self, "maddpg")
+        _require(self.entity_nearest == 0 or self.network_kind == "entity", "maddpg.entity_nearest",
+                 self.entity_nearest, f"> 0 needs maddpg.networks = 'entity' (maddpg.networks = "
+                 f"{self.network_kind!r} here)")
 
     @property
     def network_kind(self) -> str:

@@ -61,13 +61,17 @@ def nearest_entities(entities: torch.Tensor, mask: torch.Tensor, k: int, types: 
     default, keeps them all): entities float32[..., E, F], whose first two features are the entity's position
     relative to the agent (every built-in layout, cmcl.envs.entities) and `types` the columns of the type one-hot,
     mask bool[..., E] -> float32[..., T·k', F], bool[..., T·k'] (k' = min(k, E); a kind with fewer than k' present
-    entities fills its picks with absent ones). Closest first within a kind; ties go to the lower slot."""
+    entities fills its picks with absent ones). Closest first within a kind; ties go to the lower slot (as the
+    numpy twin's, cmcl.learners.policy.nearest_entities; which absent slots fill a kind's picks is not set)."""
     e = entities.shape[-2]
     kinds = entities[..., types].detach() > 0.5  # [..., E, T]
     dist = entities[..., :2].detach().square().sum(-1).masked_fill(~mask, float("inf"))  # [..., E]
     dist = dist.unsqueeze(-2).masked_fill(~kinds.transpose(-1, -2), float("inf"))  # [..., T, E]
-    value, index = dist.topk(min(int(k), e), -1, largest=False)  # [..., T, k']
-    index = index.flatten(-2)
+    k = min(int(k), e)
+    value, index = dist.topk(min(k + 1, e), -1, largest=False)  # [..., T, k' (+ 1)]: ties in no set order
+    if bool(((value[..., 1:] == value[..., :-1]) & value[..., 1:].isfinite()).any()):  # rare: the lower slot first
+        value, index = dist.sort(dim=-1, stable=True)
+    value, index = value[..., :k], index[..., :k].flatten(-2)
     picked = entities.gather(-2, index.unsqueeze(-1).expand(*index.shape, entities.shape[-1]))
     return picked, value.flatten(-2).isfinite()
 

@@ -61,8 +61,10 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         entity_layout: how the flat observation splits into entities (cmcl.envs.entities); needed by "entity".
         entity_pool: the entity encoder's pooling, "attention" or "mean" (cmcl.learners.entity_nets).
         entity_nearest: k > 0: the entity actor and critic read only the k nearest entities of each kind
-            (entity_nets.nearest_entities; cheaper, another model); 0 (default): every entity. An opt-in of the
-            learner alone: not a config setting, and the numpy twin of the actor (cmcl.learners.policy) ignores it.
+            (entity_nets.nearest_entities; cheaper per update at large N, another model); 0 (default): every
+            entity. The config's maddpg.entity_nearest; rollout workers' numpy twin of the actor
+            (cmcl.learners.policy.NumpyEntityPolicy, `nearest`) picks the same entities. The weights do not depend
+            on k, so the state dict records it and loading or warm-starting a learner of another k is refused.
         act_mask: float32[N, act_dim], 1 on the action entries each agent has and 0 on zero padding (agents whose
             action sizes differ); every actor output is multiplied by it, so the critics only ever see zeros there.
             None: every entry is used.
@@ -105,6 +107,7 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         gen = torch.Generator().manual_seed(int(init_seed))
         n = self.num_agents
         self.networks = network_kind(networks, share_parameters)
+        self.entity_nearest = int(entity_nearest)
         self.share_parameters = self.networks == "shared"
         self.actor, self.critic = build_networks(self.networks, n, obs_dim, act_dim, widths, discrete, gen,
                                                  entity_layout, entity_pool, entity_nearest)

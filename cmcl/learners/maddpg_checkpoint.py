@@ -13,7 +13,7 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 
-from cmcl.learners.state_check import require_same_shapes
+from cmcl.learners.state_check import require_same_nearest, require_same_shapes
 from cmcl.learners.weights import load_published
 
 __all__ = ["MADDPGCheckpoint"]
@@ -30,6 +30,7 @@ class MADDPGCheckpoint:
     critic_opt: torch.optim.Optimizer
     noise_gen: torch.Generator
     updates: int
+    entity_nearest: int
 
     def actor_weights(self) -> dict[str, np.ndarray]:
         """Online actor parameters as numpy copies, e.g. {"layers.0.weight": float32[N, obs_dim, 64], ...}."""
@@ -45,7 +46,8 @@ class MADDPGCheckpoint:
 
         Layout: {"actor", "critic", "target_actor", "target_critic": module state dicts with stacked
         tensors [N, in, out] / [N, out]; "actor_opt", "critic_opt": Adam state dicts; "noise_gen": uint8 tensor;
-        "updates": int}.
+        "updates": int; "entity_nearest": int, the k of maddpg.entity_nearest (the weights do not show it; a
+        state without it, written before it was kept, is k = 0)}.
         """
         return {
             "actor": self.actor.state_dict(),
@@ -56,6 +58,7 @@ class MADDPGCheckpoint:
             "critic_opt": self.critic_opt.state_dict(),
             "noise_gen": self.noise_gen.get_state(),
             "updates": int(self.updates),
+            "entity_nearest": int(self.entity_nearest),
         }
 
     def load_state_dict(self, state: Mapping) -> None:
@@ -63,6 +66,7 @@ class MADDPGCheckpoint:
         parts = ("actor", "critic", "target_actor", "target_critic")
         require_same_shapes("checkpoint maddpg", {name: getattr(self, name) for name in parts}, state,
                             "maddpg.networks, maddpg.share_parameters, maddpg.hidden, agents or observation sizes")
+        require_same_nearest("checkpoint maddpg", self.entity_nearest, state)
         for name in parts:
             getattr(self, name).load_state_dict(state[name])
         self.actor_opt.load_state_dict(state["actor_opt"])

@@ -35,6 +35,8 @@ def build_networks(kind: str, n: int, obs_dim: int, act_dim: int, widths: tuple[
     (pooling over entities `pool`: entity_nets.POOLS; `nearest` > 0: only the k nearest entities of each kind,
     entity_nets.nearest_entities)."""
     out_act = None if discrete else nn.Tanh
+    if int(nearest) < 0:
+        raise ValueError(f"nearest must be >= 0 (0: every entity), got {nearest!r}")
     if kind != "entity":
         if nearest:
             raise ValueError(f"nearest entities need entity networks, not {kind!r}")

@@ -3,7 +3,8 @@
 Where it sits: rollout workers load the learner's published online actor (cmcl.learners.weights, "actor" part) with
 `numpy_policy` and act with it. It computes exactly MADDPG.act for continuous actions (the actor's tanh output,
 Gaussian noise, clip to [-1, 1]); parity tests tie the two. Two actors: `NumpyPolicy`, the stacked per-agent (or
-shared) MLPs, and `NumpyEntityPolicy`, the entity actor of cmcl.learners.entity_nets (maddpg.networks = "entity").
+shared) MLPs, and `NumpyEntityPolicy`, the entity actor of cmcl.learners.entity_nets (maddpg.networks = "entity"),
+with maddpg.entity_nearest's selection of the nearest entities (`nearest_entities`) when k > 0.
 Keeping torch out of rollout workers (and the replay server) saves ~190 MB of private memory per process.
 """
 
@@ -79,12 +80,33 @@ def _masked_softmax(logits: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return weight / np.maximum(weight.sum(-1, keepdims=True), np.finfo(np.float32).tiny)
 
 
-class NumpyEntityPolicy(NumpyPolicy):
-    """The entity actor (cmcl.learners.entity_nets.EntityActor) in numpy: one network for all agents."""
+def nearest_entities(entities: np.ndarray, mask: np.ndarray, k: int, types: slice) -> tuple[np.ndarray, np.ndarray]:
+    """cmcl.learners.entity_nets.nearest_entities in numpy: the k nearest present entities of each kind, entities
+    float32[..., E, F] (the first two features: the position relative to the agent; `types`: the type one-hot's
+    columns), mask bool[..., E] -> float32[..., T·k', F], bool[..., T·k'] (k' = min(k, E)). Closest first within
+    a kind, ties to the lower slot; a kind with fewer than k' present entities fills its picks with absent ones."""
+    kinds = entities[..., types] > 0.5  # [..., E, T]
+    dist = np.where(mask, np.square(entities[..., :2]).sum(-1), np.float32(np.inf))  # [..., E]
+    dist = np.where(np.swapaxes(kinds, -1, -2), dist[..., None, :], np.float32(np.inf))  # [..., T, E]
+    index = np.argsort(dist, axis=-1, kind="stable")[..., :min(int(k), entities.shape[-2])]  # [..., T, k']
+    present = np.isfinite(np.take_along_axis(dist, index, -1))
+    index = index.reshape(*index.shape[:-2], -1)
+    return np.take_along_axis(entities, index[..., None], -2), present.reshape(index.shape)
 
-    def __init__(self, weights: Mapping[str, np.ndarray], layout: EntityLayout, act_mask: np.ndarray | None = None):
+
+class NumpyEntityPolicy(NumpyPolicy):
+    """The entity actor (cmcl.learners.entity_nets.EntityActor) in numpy: one network for all agents; `nearest`
+    k > 0 reads only the k nearest entities of each kind, as the learner's actor built with that k
+    (maddpg.entity_nearest; the weights do not say it)."""
+
+    def __init__(self, weights: Mapping[str, np.ndarray], layout: EntityLayout, act_mask: np.ndarray | None = None,
+                 nearest: int = 0):
         self.act_mask = None if act_mask is None else np.asarray(act_mask, np.float32)
         self.layout = layout
+        if int(nearest) < 0:
+            raise ValueError(f"nearest must be >= 0 (0: every entity), got {nearest!r}")
+        raw = layout.entity_index.shape[2]
+        self.nearest, self._type_cols = int(nearest), slice(raw, raw + len(layout.type_names))
         heads = len([k for k in weights if k.startswith("head.layers.") and k.endswith(".weight")])
         self.attention = "encoder.query.weight" in weights  # maddpg.entity_pool = "attention" or "relational"
         self.relational = "encoder.relate_query.weight" in weights  # maddpg.entity_pool = "relational"
@@ -107,10 +129,14 @@ class NumpyEntityPolicy(NumpyPolicy):
         out = np.matmul(beta, h) @ e["relate_out.weight"] + e["relate_out.bias"]
         return h + np.maximum(out, 0.0)
 
-    def mean_action(self, obs: np.ndarray) -> np.ndarray:
+    def mean_action(self, obs: np.ndarray, count: np.ndarray | None = None) -> np.ndarray:
         """obs float32[B, N, obs_dim] -> tanh(head(z)) float32[B, N, act_dim], z the encoder's [s, attention, mean]
-        (or [s, mean])."""
+        (or [s, mean]); count int64[B, N]: the present agents of each row (EntityActor's `count`; None: all N)."""
         own, ents, mask = self.layout.split(np.asarray(obs, dtype=np.float32))  # [B, N, S], [B, N, E, F], [B, N, E]
+        if count is not None:
+            mask = self.layout.present_mask(np.asarray(count, np.int64))
+        if self.nearest:
+            ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         e = self.enc
         s = np.maximum(own @ e["own.weight"] + e["own.bias"], 0.0)  # [B, N, H]
         h = np.maximum(ents @ e["entity.weight"] + e["entity.bias"], 0.0)  # [B, N, E, H]
@@ -130,10 +156,13 @@ class NumpyEntityPolicy(NumpyPolicy):
 
 
 def numpy_policy(weights: Mapping[str, np.ndarray], act_mask: np.ndarray | None = None,
-                 entities: EntityLayout | None = None) -> NumpyPolicy:
-    """The numpy twin of a published actor: the entity actor when the weights are one, else the stacked MLPs."""
+                 entities: EntityLayout | None = None, nearest: int = 0) -> NumpyPolicy:
+    """The numpy twin of a published actor: the entity actor when the weights are one (reading the `nearest`
+    entities of each kind, maddpg.entity_nearest; 0: all), else the stacked MLPs."""
     if ENTITY_KEY not in weights:
+        if nearest:
+            raise ValueError(f"nearest entities ({nearest!r}) need entity actor weights (maddpg.networks = 'entity')")
         return NumpyPolicy(weights, act_mask)
     if entities is None:
         raise ValueError("entity actor weights need the task's entity layout (cmcl.envs.entities)")
-    return NumpyEntityPolicy(weights, entities, act_mask)
+    return NumpyEntityPolicy(weights, entities, act_mask, nearest)

@@ -26,3 +26,13 @@ def require_same_shapes(owner: str, modules: Mapping[str, nn.Module], state: Map
             if saved != tuple(tensor.shape):
                 raise ValueError(f"{owner}.{name}.{key} has shape {saved}, this config builds {tuple(tensor.shape)}"
                                  f": it was saved under other {settings}")
+
+
+def require_same_nearest(owner: str, nearest: int, state: Mapping) -> None:
+    """Raise ValueError unless the saved MADDPG state was trained with the same maddpg.entity_nearest as this model
+    (`nearest`): the weights fit either way, but they were learned reading other entities (a state written before the
+    setting was kept has k = 0)."""
+    saved = int(state.get("entity_nearest", 0))
+    if saved != int(nearest):
+        raise ValueError(f"{owner} was trained with maddpg.entity_nearest = {saved} and this config has {int(nearest)}"
+                         f": the same weights would read other entities; set maddpg.entity_nearest = {saved}")

@@ -5,8 +5,9 @@ instead. What is carried: the four networks of `MADDPG` (actor, critic, target_a
 afresh: the optimisers' moments, the exploration noise, the update counter, the replay buffer (unless
 run.carry_replay: cmcl.carried_replay), the teachers, the ICM and every counter of the run. The networks must
 have the same shapes, so a run with other agent counts or network settings is refused, naming the tensor and both
-shapes; networks whose parameter count does not depend on the number of agents can carry weights from N agents to
-another N (the agent-count curriculum of issue 22)."""
+shapes (and a run of another maddpg.entity_nearest, which no shape shows, naming both values); networks whose
+parameter count does not depend on the number of agents can carry weights from N agents to another N (the
+agent-count curriculum of issue 22)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from typing import TYPE_CHECKING
 
 from cmcl.config import ConfigError
 from cmcl.io.rundir import PolicyCheckpoint, RunDirectory
-from cmcl.learners.state_check import require_same_shapes
+from cmcl.learners.state_check import require_same_nearest, require_same_shapes
 
 if TYPE_CHECKING:
     from cmcl.learners.maddpg import MADDPG
@@ -42,6 +43,7 @@ def warm_start_(maddpg: MADDPG, saved: Mapping, source: str) -> None:
     modules = {name: getattr(maddpg, name) for name in WARM_PARTS}
     require_same_shapes(f"run.init_from={source!r}: maddpg", modules, saved,
                         "agent counts, observation sizes or maddpg network settings")
+    require_same_nearest(f"run.init_from={source!r}: maddpg", maddpg.entity_nearest, saved)
     for name, module in modules.items():
         module.load_state_dict(saved[name])
 

@@ -1,0 +1,104 @@
+"""maddpg.entity_nearest (issue 38): the entity actor and critic read only the k nearest entities of each kind.
+
+The setting loads, is refused in one line where it cannot apply, reaches the learner of either runner and the
+rollout workers' numpy actor, trains inline, and its checkpoints say k, so that evaluation rebuilds the same model
+and a warm start or an evaluation under another k is refused. The numpy actor's parity with the learner's, nearest
+k included, is tests/test_policy.py.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from cmcl.config import ConfigError, load_config
+from cmcl.config.runners import check_runner_keys
+from tests.evaluation_output import evaluation_json
+
+ROOT = Path(__file__).resolve().parents[1]
+N8 = "configs/spread_n8.toml"
+NEAREST = "maddpg.entity_nearest=3"
+
+
+def test_the_default_reads_every_entity_and_the_setting_reaches_the_learner_of_either_runner():
+    from cmcl.system import build_maddpg, layout_of
+
+    default = load_config(N8)
+    assert default.maddpg.entity_nearest == 0 and build_maddpg(default, layout_of(default), seed=0).actor.nearest == 0
+    config = load_config(N8, [NEAREST])
+    for runner in ("inline", "service"):  # both runners build the learner with cmcl.system.build_maddpg
+        check_runner_keys(config, runner, overrides=[NEAREST])
+    maddpg = build_maddpg(config, layout_of(config), seed=0)
+    assert maddpg.entity_nearest == 3 and maddpg.actor.nearest == 3 and maddpg.critic.nearest == 3
+    assert maddpg.target_actor.nearest == 3 and maddpg.target_critic.nearest == 3
+    assert maddpg.state_dict()["entity_nearest"] == 3
+
+
+def test_the_rollout_workers_numpy_actor_reads_the_same_entities():
+    from cmcl.learners.weights import published_weights
+    from cmcl.system import build_maddpg
+    from services.rollout import RolloutWorker
+
+    worker = RolloutWorker(load_config(N8, [NEAREST, "env.num_envs=2"]).to_dict(), worker_id=0, seed=1)
+    actor = published_weights(build_maddpg(worker.config, worker.layout, seed=0))["actor"]
+    assert worker._numpy_policy(actor).nearest == 3
+
+
+@pytest.mark.parametrize(("path", "sets", "message"), [
+    ("configs/spread_maddpg.toml", [NEAREST],
+     "maddpg.entity_nearest > 0 needs maddpg.networks = 'entity' (maddpg.networks = 'per_agent' here), got 3"),
+    (N8, ["maddpg.networks='shared'", NEAREST],
+     "maddpg.entity_nearest > 0 needs maddpg.networks = 'entity' (maddpg.networks = 'shared' here), got 3"),
+    (N8, ["maddpg.entity_nearest=-1"], "maddpg.entity_nearest must be >= 0, got -1"),
+    (N8, [NEAREST, "maddpg.assignment_loss=0.5"],
+     "maddpg.assignment_loss > 0 needs every entity slot, maddpg.entity_nearest = 0 (its attention is over the "
+     "picked ones, reordered per row) (maddpg.entity_nearest = 3 here), got 0.5"),
+])
+def test_the_config_refuses_what_cannot_apply_in_one_line_naming_the_field_and_value(path, sets, message):
+    with pytest.raises(ConfigError) as err:
+        load_config(path, sets)
+    assert str(err.value) == message
+
+
+def test_the_command_line_refuses_it_for_other_networks_with_exit_2(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "cmcl", "train", "--runner", "inline", "--config",
+                           "configs/spread_maddpg.toml", "--set", NEAREST, "--set", f"run.dir={tmp_path / 'run'}",
+                           "--quiet", "--no-eval"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1 and "maddpg.entity_nearest > 0 needs" in lines[0], done.stderr
+    assert lines[0].endswith("got 3") and not (tmp_path / "run").exists()
+
+
+def test_it_trains_inline_and_evaluation_and_warm_starts_rebuild_the_same_model(tmp_path, capsys):
+    from cmcl.evaluate import load_policy
+    from cmcl.evaluate import main as evaluate
+    from cmcl.io.rundir import RunDirectory
+    from cmcl.loop import InlineLoop
+    from cmcl.run_flags import check_warm_start
+
+    # two rounds of the 16 worlds, two updates in the second (tests/test_scale_presets.py's smoke, k = 3)
+    run = tmp_path / "run"
+    config = load_config(N8, [NEAREST, f"run.dir={run}", "run.init_from=", "run.episodes=32", "maddpg.warmup=480",
+                              "maddpg.update_every=240", "run.max_seconds=0"])
+    loop = InlineLoop(config, RunDirectory.create(run, config), progress=None)
+    loop.run()
+    assert loop.maddpg.updates > 0 and loop.maddpg.actor.nearest == 3
+    policy = RunDirectory.open(run).newest_policy()
+    assert policy.state["maddpg"]["entity_nearest"] == 3
+    assert "entity_nearest = 3" in (run / "config.toml").read_text()
+
+    capsys.readouterr()
+    assert evaluate([str(run), "--episodes", "4", "--no-gif"]) == 0  # the run's config.toml rebuilds k = 3
+    assert evaluation_json(capsys.readouterr().out)["policy"] == "trained"
+    assert load_policy(config, policy).actor.nearest == 3
+    with pytest.raises(ValueError, match="trained with maddpg.entity_nearest = 3 and this config has 0"):
+        load_policy(load_config(N8), policy)
+
+    check_warm_start(load_config(N8, [NEAREST, f"run.init_from={run}"]))  # the same k: accepted
+    with pytest.raises(ConfigError) as err:
+        check_warm_start(load_config(N8, [f"run.init_from={run}"]))
+    assert str(err.value).startswith(f"run.init_from={str(run)!r}: maddpg was trained with maddpg.entity_nearest = 3")
+    assert "\n" not in str(err.value)
