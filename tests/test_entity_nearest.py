@@ -2,7 +2,8 @@
 
 The setting loads, is refused in one line where it cannot apply, reaches the learner of either runner and the
 rollout workers' numpy actor, trains inline, and its checkpoints say k, so that evaluation rebuilds the same model
-and a warm start or an evaluation under another k is refused. The numpy actor's parity with the learner's, nearest
+and a resume or an evaluation under another k is refused; a warm start (run.init_from) may change k, as it may change
+the agent count. The numpy actor's parity with the learner's, nearest
 k included, is tests/test_policy.py.
 """
 
@@ -98,7 +99,6 @@ def test_it_trains_inline_and_evaluation_and_warm_starts_rebuild_the_same_model(
         load_policy(load_config(N8), policy)
 
     check_warm_start(load_config(N8, [NEAREST, f"run.init_from={run}"]))  # the same k: accepted
-    with pytest.raises(ConfigError) as err:
-        check_warm_start(load_config(N8, [f"run.init_from={run}"]))
-    assert str(err.value).startswith(f"run.init_from={str(run)!r}: maddpg was trained with maddpg.entity_nearest = 3")
-    assert "\n" not in str(err.value)
+    check_warm_start(load_config(N8, [f"run.init_from={run}"]))  # another k: a transfer, as across agent counts
+    with pytest.raises(ConfigError, match="run.init_from"):  # the shapes are still checked
+        check_warm_start(load_config(N8, [f"run.init_from={run}", "maddpg.hidden=32"]))

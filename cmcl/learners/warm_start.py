@@ -5,9 +5,10 @@ instead. What is carried: the four networks of `MADDPG` (actor, critic, target_a
 afresh: the optimisers' moments, the exploration noise, the update counter, the replay buffer (unless
 run.carry_replay: cmcl.carried_replay), the teachers, the ICM and every counter of the run. The networks must
 have the same shapes, so a run with other agent counts or network settings is refused, naming the tensor and both
-shapes (and a run of another maddpg.entity_nearest, which no shape shows, naming both values); networks whose
-parameter count does not depend on the number of agents can carry weights from N agents to another N (the
-agent-count curriculum of issue 22)."""
+shapes; networks whose parameter count does not depend on the number of agents can carry weights from N agents to
+another N (the agent-count curriculum of issue 22), and from one maddpg.entity_nearest to another (the same weights
+then read other entities: a deliberate transfer, as between agent counts; a resume or an evaluation of a checkpoint
+under another k is refused instead, cmcl.learners.maddpg_checkpoint)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from typing import TYPE_CHECKING
 
 from cmcl.config import ConfigError
 from cmcl.io.rundir import PolicyCheckpoint, RunDirectory
-from cmcl.learners.state_check import require_same_nearest, require_same_shapes
+from cmcl.learners.state_check import require_same_shapes
 
 if TYPE_CHECKING:
     from cmcl.learners.maddpg import MADDPG
@@ -43,7 +44,6 @@ def warm_start_(maddpg: MADDPG, saved: Mapping, source: str) -> None:
     modules = {name: getattr(maddpg, name) for name in WARM_PARTS}
     require_same_shapes(f"run.init_from={source!r}: maddpg", modules, saved,
                         "agent counts, observation sizes or maddpg network settings")
-    require_same_nearest(f"run.init_from={source!r}: maddpg", maddpg.entity_nearest, saved)
     for name, module in modules.items():
         module.load_state_dict(saved[name])
 
