@@ -4,11 +4,13 @@ One `MADDPG.update` on a per-owner minibatch [N, S, N, ...] of random rows (S = 
 (`maddpg.networks = "per_agent"`) and entity networks (`"entity"`, cmcl.learners.entity_nets) built side by side in
 this process and timed in interleaved rounds (the machine is shared: absolute times are noisy, the ratio is the
 measure). Printed: median ms per update of each, ``ratio: X`` = entity / per-agent, and the same ratio of the
-entity learner as it ran before issue 38 (`before_issue_38`: the same weights and numbers, the old actor step).
-``--nearest K`` adds the entity networks that read only the K nearest entities of each kind (entity_nearest, off by
-default); ``--assignment BETA`` the entity learner with maddpg.assignment_loss = BETA (cmcl.learners.assignment: the
-per-row assignment solver and the auxiliary loss in the actor step; off by default). ``--profile`` also prints
-where an update spends its time (torch.profiler, by phase and by op).
+entity learner on the previous ops (`entity_reference`: `EntityEncoder.fused = False`, StackedLinear + relu_ and
+the advanced-indexing critic views instead of cmcl.learners.entity_ops / entity_views; the same numbers to float32's
+last bits) and as it ran before issue 38 (`before_issue_38`: those ops and the old actor step).
+``--nearest K`` adds the entity networks that read only the K nearest entities of each kind
+(maddpg.entity_nearest, off by default); ``--assignment BETA`` the entity learner with maddpg.assignment_loss = BETA
+(cmcl.learners.assignment: the per-row assignment solver and the auxiliary loss in the actor step; off by default).
+``--profile`` also prints where an update spends its time (torch.profiler, by phase and by op).
 
 Run: .venv/bin/python bench/entity_cost.py [--agents 8] [--batch 128] [--nearest 3] [--assignment 1] [--profile]
 The whole inline update (sampling included) at N = 4, 8, 16: bench/scale.py --algorithm maddpg.
@@ -27,6 +29,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from cmcl.envs.entities import spread_layout  # noqa: E402
+from cmcl.learners.entity_nets import EntityEncoder  # noqa: E402
 from cmcl.learners.maddpg import MADDPG  # noqa: E402
 from cmcl.learners.nets import joint_input  # noqa: E402
 
@@ -39,8 +42,10 @@ def learners(n: int, nearest: int, assignment: float = 0.0) -> dict[str, MADDPG]
     layout = spread_layout(n)
     cells = {"per_agent": MADDPG(n, layout.obs_dim, 2, seed=0),
              "entity": MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity", entity_layout=layout),
-             "entity_before": before_issue_38(MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity",
-                                                     entity_layout=layout))}
+             "entity_reference": reference_ops(MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity",
+                                                      entity_layout=layout)),
+             "entity_before": before_issue_38(reference_ops(MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity",
+                                                                   entity_layout=layout)))}
     if nearest:
         cells[f"entity_nearest{nearest}"] = MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity",
                                                    entity_layout=layout, entity_nearest=nearest)
@@ -48,6 +53,16 @@ def learners(n: int, nearest: int, assignment: float = 0.0) -> dict[str, MADDPG]
         cells["entity_assignment"] = MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity", entity_layout=layout,
                                             assignment_loss=assignment)
     return cells
+
+
+def reference_ops(m: MADDPG) -> MADDPG:
+    """The entity learner on the reference ops (``EntityEncoder.fused = False``: StackedLinear, einsum, softmax) instead
+    of the fused kernels of cmcl.learners.entity_ops; the same numbers to float32's last bits."""
+    for net in (m.actor, m.critic, m.target_actor, m.target_critic):
+        for module in net.modules():
+            if isinstance(module, EntityEncoder):
+                module.fused = False
+    return m
 
 
 def before_issue_38(m: MADDPG) -> MADDPG:

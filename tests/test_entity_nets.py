@@ -1,13 +1,16 @@
 """Entity actor and PIC-style critic (cmcl.learners.entity_nets): invariances, parameter counts, gradients."""
 
+import copy
+
 import numpy as np
 import pytest
 import torch
 
 from cmcl.envs.entities import spread_layout, tag_layout
 from cmcl.envs.params import TagParams
+from cmcl.learners import entity_ops
 from cmcl.learners.entity_nets import POOLS, EntityActor, EntityCritic, EntityEncoder
-from cmcl.learners.nets import joint_input
+from cmcl.learners.nets import StackedLinear, joint_input
 
 
 def spread_obs(pos, vel, lm):
@@ -225,3 +228,72 @@ def test_nearest_entities_is_an_opt_in_that_keeps_the_closest_of_each_kind():
     near_critic.load_state_dict(critic.state_dict())
     x = joint_input(spread_obs(pos, vel, lm), torch.rand(6, n, 2, generator=gen))
     torch.testing.assert_close(near_critic(x), critic(x), atol=1e-6, rtol=1e-5)
+
+
+def reference_copy(module):
+    """A copy of an entity module on the reference ops (StackedLinear, advanced-indexing views: fused False)."""
+    ref = copy.deepcopy(module)
+    for m in ref.modules():
+        if isinstance(m, EntityEncoder):
+            m.fused = False
+    return ref
+
+
+@pytest.mark.parametrize("onednn", [True, False])
+def test_dense_is_stacked_linear_and_relu_with_its_gradients(onednn, monkeypatch):
+    """The fused layer (oneDNN, or F.linear where a torch build lacks it) against StackedLinear + relu_."""
+    if not onednn:
+        monkeypatch.setattr(entity_ops, "_onednn", lambda: False)
+    gen = torch.Generator().manual_seed(0)
+    layer = StackedLinear(1, 6, 16, gen)
+    x = torch.randn(1, 40, 6, generator=gen)
+    for relu in (True, False):
+        xa, xb = x.clone().requires_grad_(), x.clone().requires_grad_()
+        out = entity_ops.dense(layer, xa, relu)
+        ref = layer(xb).relu() if relu else layer(xb)
+        torch.testing.assert_close(out, ref, atol=1e-6, rtol=1e-6)
+        grads = torch.autograd.grad((out * ref.detach().cos()).sum(), (xa, layer.weight, layer.bias))
+        ref_grads = torch.autograd.grad((ref * ref.detach().cos()).sum(), (xb, layer.weight, layer.bias))
+        for g, r in zip(grads, ref_grads, strict=True):
+            torch.testing.assert_close(g, r, atol=1e-5, rtol=1e-5)
+        with torch.no_grad():
+            torch.testing.assert_close(entity_ops.dense(layer, x, relu), ref, atol=1e-6, rtol=1e-6)
+
+
+@pytest.mark.parametrize("pool", POOLS)
+@pytest.mark.parametrize("task", ["spread", "tag"])
+def test_the_fused_ops_give_the_reference_ops_numbers_and_gradients(pool, task):
+    """Issue 38's kernels (entity_ops.dense, CriticViews.gather) against the reference ops: actions, Q (joint
+    path and q_own_action) and every parameter's gradient within 1e-5, with and without absent agents."""
+    layout = spread_layout(5) if task == "spread" else tag_layout(TagParams())
+    n, s = layout.num_agents, 7
+    gen = torch.Generator().manual_seed(2)
+    actor = EntityActor(layout, 2, 16, gen, out_act=torch.nn.Tanh, pool=pool)
+    critic = EntityCritic(layout, 2, 16, gen, pool=pool)
+    obs, act = torch.randn(n, s, n, layout.obs_dim, generator=gen), torch.rand(n, s, n, 2, generator=gen) * 2 - 1
+    own_obs = obs[torch.arange(n), :, torch.arange(n)]  # [N, S, obs_dim]
+    for count in (None, torch.randint(1, n + 1, (n, s), generator=gen) if task == "spread" else None):
+        values = []
+        for a, c in ((actor, critic), (reference_copy(actor), reference_copy(critic))):
+            pi = a(own_obs, count=count)
+            q = c(joint_input(obs, act), count=count)[..., 0] + c.q_own_action(obs, act, pi, count)
+            (q.square().sum() + pi.sum()).backward()
+            values.append([pi, q, *[p.grad for p in (*a.parameters(), *c.parameters())]])
+            for p in (*a.parameters(), *c.parameters()):
+                p.grad = None
+        for new, ref in zip(*values, strict=True):
+            torch.testing.assert_close(new, ref, atol=1e-5, rtol=1e-5)
+
+
+@pytest.mark.parametrize("layout", [spread_layout(4), spread_layout(5, agent_tags=True), tag_layout(TagParams())],
+                         ids=["spread", "spread_tags", "tag"])
+def test_the_critic_gathers_the_reference_views_bit_for_bit(layout):
+    n = layout.num_agents
+    views = EntityCritic(layout, 2, 8, torch.Generator().manual_seed(0)).views
+    gen = torch.Generator().manual_seed(3)
+    obs, act = torch.randn(2, 9, n, layout.obs_dim, generator=gen), torch.randn(2, 9, n, 2, generator=gen)
+    agent = torch.randint(0, n, (2, 9), generator=gen)
+    for count in (None, torch.randint(1, n + 1, (2, 9), generator=gen)):
+        for new, ref in zip(views.gather(obs, act, agent, count), views.reference(obs, act, agent, count),
+                            strict=True):
+            assert torch.equal(new, ref)

@@ -33,10 +33,13 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import nn
 
-from cmcl.envs.entities import ABSENT, EntityLayout, entities_present
+from cmcl.envs.entities import EntityLayout
+from cmcl.learners.entity_ops import dense, mlp
+from cmcl.learners.entity_views import CriticViews
 from cmcl.learners.nets import StackedLinear, StackedMLP
 
 __all__ = ["POOLS", "EntityActor", "EntityCritic", "EntityEncoder", "EntityFeatures", "nearest_entities"]
@@ -87,7 +90,13 @@ class EntityEncoder(nn.Module):
     attention pool, shared actors at N = 8 left half their agents on a landmark another agent also held.
 
     own float32[G, R, S], entities float32[G, R, E, F], mask bool[G, R, E] -> z float32[G, R, 3H] (or 2H).
+
+    ``fused`` (True): the layers of one group run as fused GEMM + bias + ReLU kernels (cmcl.learners.entity_ops.dense)
+    and an entity critic gathers its inputs with CriticViews.gather; False: the reference ops (StackedLinear, the
+    advanced-indexing views), the same numbers to float32's last bits (issue 38; bench/entity_cost.py times both).
     """
+
+    fused = True
 
     def __init__(self, groups: int, own_dim: int, entity_dim: int, hidden: int, generator: torch.Generator,
                  pool: str = "attention"):
@@ -108,16 +117,24 @@ class EntityEncoder(nn.Module):
     def out_dim(self) -> int:
         return (2 if self.pool == "mean" else 3) * self.hidden
 
+    def layer(self, layer: StackedLinear, x: torch.Tensor, relu: bool = False) -> torch.Tensor:
+        """One of this encoder's layers (then ReLU): x float32[G, R, in] -> float32[G, R, out]; fused kernels
+        (entity_ops.dense) unless ``fused`` is False."""
+        if self.fused:
+            return dense(layer, x, relu)
+        out = layer(x)
+        return out.relu_() if relu else out  # in place: torch.relu on a fresh tensor runs ~5x slower here
+
     def relate(self, h: torch.Tensor, mask: torch.Tensor, everyone: bool) -> torch.Tensor:
         """One round of masked self-attention among the entities: h float32[G, R, E, H] -> the same shape."""
         g, r, e, hid = h.shape
         flat = h.reshape(g, r * e, hid)
-        q = self.relate_query(flat).view(g * r, e, RELATION_DIM)
-        k = self.relate_key(flat).view(g * r, e, RELATION_DIM)
+        q = self.layer(self.relate_query, flat).view(g * r, e, RELATION_DIM)
+        k = self.layer(self.relate_key, flat).view(g * r, e, RELATION_DIM)
         logits = torch.bmm(q, k.transpose(1, 2)) / math.sqrt(RELATION_DIM)  # [GR, E (query), E (key)]
         beta = masked_softmax(logits, None if everyone else mask.reshape(g * r, 1, e))
         context = torch.bmm(beta, flat.view(g * r, e, hid)).view(g, r * e, hid)
-        return h + self.relate_out(context).relu_().view(g, r, e, hid)
+        return h + self.layer(self.relate_out, context, True).view(g, r, e, hid)
 
     def forward(self, own: torch.Tensor, entities: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         return self.encode(own, entities, mask)[0]
@@ -127,10 +144,10 @@ class EntityEncoder(nn.Module):
         """z as `forward` gives it, and the attention pool's logits over the entity slots float32[G, R, E]
         (h_e · q / √H, before the mask and the softmax; None with pool="mean" or no entity slot)."""
         g, r, e, f = entities.shape
-        s = self.own(own).relu_()  # [G, R, H] (in place: torch.relu on a fresh tensor runs ~5x slower here)
+        s = self.layer(self.own, own, True)  # [G, R, H]
         if e == 0:
             return torch.cat([s, *[torch.zeros_like(s)] * (self.out_dim // self.hidden - 1)], -1), None
-        h = self.entity(entities.reshape(g, r * e, f)).relu_().view(g, r, e, self.hidden)  # [G, R, E, H]
+        h = self.layer(self.entity, entities.reshape(g, r * e, f), True).view(g, r, e, self.hidden)  # [G, R, E, H]
         everyone = bool(mask.all())
         if self.pool == "relational":
             h = self.relate(h, mask, everyone)
@@ -141,7 +158,7 @@ class EntityEncoder(nn.Module):
             mean = (h * weight.unsqueeze(-1)).sum(-2) / weight.sum(-1, keepdim=True).clamp(min=1.0)
         if self.pool == "mean":
             return torch.cat([s, mean], -1), None
-        q = self.query(s) / math.sqrt(self.hidden)  # [G, R, H]
+        q = self.layer(self.query, s) / math.sqrt(self.hidden)  # [G, R, H]
         logits = torch.einsum("greh,grh->gre", h, q)  # [G, R, E]
         alpha = masked_softmax(logits, None if everyone else mask)  # [G, R, E]
         pooled = torch.einsum("gre,greh->grh", alpha, h)  # [G, R, H]
@@ -183,7 +200,7 @@ class EntityActor(nn.Module):
             ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         z, logits = self.encoder.encode(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
         b, n = x.shape[1], self.num_agents
-        out = self.head(z).view(b, n, self.act_dim).transpose(0, 1)
+        out = mlp(self.head, z, self.encoder.fused).view(b, n, self.act_dim).transpose(0, 1)
         return out, None if logits is None else logits.view(b, n, -1).transpose(0, 1)
 
 
@@ -201,7 +218,7 @@ class EntityFeatures(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         own, ents, mask = self.layout.split(x.transpose(0, 1), self.agents)  # [M, A, S], [M, A, E, F], [M, A, E]
         z = self.encoder(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
-        return self.out(z).view(x.shape[1], x.shape[0], self.out_dim).transpose(0, 1)
+        return self.encoder.layer(self.out, z).view(x.shape[1], x.shape[0], self.out_dim).transpose(0, 1)
 
 
 class EntityCritic(nn.Module):
@@ -226,23 +243,14 @@ class EntityCritic(nn.Module):
         own_in = layout.own_dim + act_dim
         self.encoder = EntityEncoder(groups, own_in, layout.entity_dim + own_in, hidden, generator, pool)
         self.value = StackedMLP(groups, self.encoder.out_dim, (hidden,), 1, generator=generator)
-        n = layout.num_agents
-        # index arrays (not parameters: kept out of the state dict) for the per-agent gathers of q_agent
-        self.register_buffer("_own_cols", torch.as_tensor(layout.own_index), persistent=False)  # [N, S_obs]
-        cols = torch.as_tensor(layout.entity_index)
-        self.register_buffer("_ent_cols", torch.where(cols == ABSENT, layout.obs_dim, cols), persistent=False)
-        self.register_buffer("_own_const", torch.as_tensor(layout.own_const), persistent=False)  # [N, S_c]
-        self.register_buffer("_types", torch.as_tensor(layout.entity_type), persistent=False)  # [N, E, T]
-        self.register_buffer("_mask", torch.as_tensor(layout.mask), persistent=False)  # [N, E]
-        self.register_buffer("_needs", torch.as_tensor(layout.needs_agents), persistent=False)  # [N, E]
-        shown = torch.as_tensor(layout.entity_agent)
-        self.register_buffer("_shown", torch.where(shown < 0, n, shown), persistent=False)  # [N, E]; n = none
-        self._sees_itself = bool((shown == torch.arange(n).unsqueeze(1)).any())  # a slot of agent i showing i
+        self.views = CriticViews(layout, act_dim)  # the gathers of q_agent (index tables only)
+        shown, n = layout.entity_agent, layout.num_agents
+        self._sees_itself = bool((shown == np.arange(n)[:, None]).any())  # a slot of agent i showing i
 
     def q_agent(self, obs: torch.Tensor, act: torch.Tensor, agent: torch.Tensor,
                 count: torch.Tensor | None = None) -> torch.Tensor:
         g, r = obs.shape[:2]
-        return self.value(self.encoder(*self._views(obs, act, agent, count))).view(g, r)
+        return mlp(self.value, self.encoder(*self._views(obs, act, agent, count)), self.encoder.fused).view(g, r)
 
     def q_own_action(self, obs: torch.Tensor, act: torch.Tensor, own_act: torch.Tensor,
                      count: torch.Tensor | None = None) -> torch.Tensor:
@@ -270,28 +278,17 @@ class EntityCritic(nn.Module):
         own, ents, mask = self._views(obs.reshape(*rows, *obs.shape[2:]), act.reshape(*rows, *act.shape[2:]),
                                       agent, count)
         own = torch.cat([own[..., :-self.act_dim], own_act.reshape(*rows, self.act_dim)], -1)
-        return self.value(self.encoder(own, ents, mask)).view(n, s)
+        return mlp(self.value, self.encoder(own, ents, mask), self.encoder.fused).view(n, s)
 
     def _views(self, obs: torch.Tensor, act: torch.Tensor, agent: torch.Tensor, count: torch.Tensor | None
                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The encoder's inputs of q_agent: own float32[G, R, S + A], entities float32[G, R, E, F + S + A], mask
         bool[G, R, E]."""
-        g, r, n, od = obs.shape
-        rows = g * r
-        ag = agent.reshape(rows)
-        at = torch.arange(rows)
-        own_all = obs[..., torch.arange(n).unsqueeze(1), self._own_cols]  # [G, R, N, S_obs]
-        known = torch.cat([own_all, self._own_const.expand(g, r, n, -1), act], -1)  # [G, R, N, S + A]
-        known = torch.cat([known, torch.zeros_like(known[..., :1, :])], -2).view(rows, n + 1, -1)  # row n: none
-        flat = torch.cat([obs, torch.zeros_like(obs[..., :1])], -1).view(rows, n, od + 1)  # column od reads 0
-        raw = flat[at.view(rows, 1, 1), ag.view(rows, 1, 1), self._ent_cols[ag]]  # agent ag's entities [GR, E, P]
-        ents = torch.cat([raw, self._types[ag], known[at.unsqueeze(1), self._shown[ag]]], -1)  # [GR, E, F+S+A]
-        mask = self._mask[ag]
-        if count is not None:
-            mask = entities_present(mask, self._needs[ag], count.reshape(rows))
+        views = self.views.gather if self.encoder.fused else self.views.reference
+        own, ents, mask = views(obs, act, agent, count)
         if self.nearest:
             ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
-        return known[at, ag].view(g, r, -1), ents.view(g, r, *ents.shape[1:]), mask.view(g, r, -1)
+        return own, ents, mask
 
     def forward(self, x: torch.Tensor, members: torch.Tensor | None = None,
                 count: torch.Tensor | None = None) -> torch.Tensor:
