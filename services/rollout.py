@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from cmcl.episodes import EpisodeChunker
-from cmcl.learners.policy import numpy_policy
+from cmcl.learners.policy import NumpyPolicy, numpy_policy
 from cmcl.messages import Chunk
 from cmcl.progress import REPORTED_STATS, finished_episodes
 from cmcl.system import agent_layout, build_maddpg, make_batched_env, to_env_actions
@@ -78,7 +78,7 @@ class RolloutWorker:
             else {"return": np.zeros((0, self.env.num_agents))}
         return chunk, self._report(episode)
 
-    def _numpy_policy(self, actor: dict) -> Any:
+    def _numpy_policy(self, actor: dict[str, np.ndarray]) -> NumpyPolicy:
         """The numpy twin of the actor weights `actor`, reading the entities the learner's actor reads."""
         return numpy_policy(actor, self.layout.act_mask, self.layout.entities, self.config.maddpg.entity_nearest)
 

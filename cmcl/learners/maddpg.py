@@ -64,7 +64,8 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
             (entity_nets.nearest_entities; cheaper per update at large N, another model); 0 (default): every
             entity. The config's maddpg.entity_nearest; rollout workers' numpy twin of the actor
             (cmcl.learners.policy.NumpyEntityPolicy, `nearest`) picks the same entities. The weights do not depend
-            on k, so the state dict records it and loading or warm-starting a learner of another k is refused.
+            on k, so the state dict records it and loading it into a learner of another k is refused (a warm start,
+            which copies the networks only, may change k: cmcl.learners.warm_start).
         act_mask: float32[N, act_dim], 1 on the action entries each agent has and 0 on zero padding (agents whose
             action sizes differ); every actor output is multiplied by it, so the critics only ever see zeros there.
             None: every entry is used.
