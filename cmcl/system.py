@@ -243,7 +243,7 @@ def build_teachers(config: Config, layout: AgentLayout, seed: int, num_folds: in
                            num_folds=t.num_folds if num_folds is None else num_folds, hidden=t.hidden, lr=t.lr,
                            seed=seed, networks=t.network_kind, agents=layout.teacher_agents,
                            entity_layout=layout.entities, act_dim=layout.act_dim,
-                           entity_pool=config.maddpg.entity_pool)
+                           entity_pool=config.maddpg.entity_pool, entity_nearest=config.maddpg.entity_nearest)
 
 
 def build_icm(config: Config, layout: AgentLayout, seed: int) -> ICM | None:
@@ -257,7 +257,7 @@ def build_icm(config: Config, layout: AgentLayout, seed: int) -> ICM | None:
     return ICM(int(layout.icm_agents.size), layout.obs_dim, layout.act_dim, feature_dim=c.feature_dim,
                hidden=c.hidden, beta_forward=c.beta_forward, lr=c.lr, discrete=layout.discrete, seed=seed,
                networks=c.networks, agents=layout.icm_agents, entity_layout=layout.entities,
-               entity_pool=config.maddpg.entity_pool)
+               entity_pool=config.maddpg.entity_pool, entity_nearest=config.maddpg.entity_nearest)
 
 
 def build_schedule(config: Config) -> CurriculumSchedule:

@@ -1,9 +1,9 @@
 """maddpg.entity_nearest (issue 38): the entity actor and critic read only the k nearest entities of each kind.
 
-The setting loads, is refused in one line where it cannot apply, reaches the learner of either runner and the
-rollout workers' numpy actor, trains inline, and its checkpoints say k, so that evaluation rebuilds the same model
-and a resume or an evaluation under another k is refused; a warm start (run.init_from) may change k, as it may change
-the agent count. The numpy actor's parity with the learner's, nearest
+The setting loads, reaches entity teachers and an entity ICM too, is refused in one line where it cannot apply,
+reaches the learner of either runner and the rollout workers' numpy actor, trains inline, and its checkpoints say k,
+so that evaluation rebuilds the same model and a resume or an evaluation under another k is refused; a warm start
+(run.init_from) may change k, as it may change the agent count. The numpy actor's parity with the learner's, nearest
 k included, is tests/test_policy.py.
 """
 
@@ -102,3 +102,59 @@ def test_it_trains_inline_and_evaluation_and_warm_starts_rebuild_the_same_model(
     check_warm_start(load_config(N8, [f"run.init_from={run}"]))  # another k: a transfer, as across agent counts
     with pytest.raises(ConfigError, match="run.init_from"):  # the shapes are still checked
         check_warm_start(load_config(N8, [f"run.init_from={run}", "maddpg.hidden=32"]))
+
+
+def test_entity_teachers_and_an_entity_icm_read_the_learners_k():
+    from cmcl.system import build_icm, build_teachers, layout_of
+
+    sets = [NEAREST, "teams.agent.algorithm='cmcl'", "teachers.networks='entity'", "icm.networks='entity'"]
+    config = load_config(N8, sets)
+    layout = layout_of(config)
+    assert build_teachers(config, layout, seed=0).net.nearest == 3
+    assert build_icm(config, layout, seed=0).phi.nearest == 3
+    every = load_config(N8, sets[1:])
+    assert build_teachers(every, layout_of(every), seed=0).net.nearest == 0
+
+
+def _far_landmark_moved(obs, num_agents: int):
+    """obs float32[..., N, obs_dim] of navigation (landmark l at columns 4 + 2l, 5 + 2l, relative to the agent)
+    -> a copy with each agent's farthest landmark moved twice as far away (still its farthest)."""
+    import torch
+
+    cols = 4 + torch.arange(num_agents) * 2
+    rel = obs[..., torch.stack([cols, cols + 1], -1)]  # [..., N, L, 2]
+    far = rel.square().sum(-1).argmax(-1, keepdim=True)  # [..., N, 1]
+    moved = obs.clone()
+    for dim in (0, 1):
+        column = cols.expand(*far.shape[:-1], num_agents).gather(-1, far) + dim  # [..., N, 1]
+        moved.scatter_(-1, column, 2 * obs.gather(-1, column))
+    return moved
+
+
+@pytest.mark.parametrize("nearest", [0, 2])
+def test_with_k_the_teachers_and_the_icm_ignore_an_entity_beyond_it_and_without_k_they_do_not(nearest):
+    import numpy as np
+    import torch
+
+    from cmcl.envs.entities import spread_layout
+    from cmcl.learners.icm import ICM
+    from cmcl.learners.teachers import TeacherEnsemble
+
+    n, act_dim, rows = 4, 2, 16
+    layout = spread_layout(n)
+    gen = torch.Generator().manual_seed(0)
+    obs = torch.randn(rows, n, layout.obs_dim, generator=gen)
+    act = torch.rand(rows, n, act_dim, generator=gen) * 2 - 1
+    moved = _far_landmark_moved(obs, n)
+    joint = lambda o: torch.cat([o.flatten(1), act.flatten(1)], 1).numpy()  # noqa: E731 (nets.joint_input's order)
+    teachers = TeacherEnsemble(n, in_dim=n * (layout.obs_dim + act_dim), num_folds=3, hidden=16, seed=1,
+                               networks="entity", entity_layout=layout, act_dim=act_dim, entity_nearest=nearest)
+    icm = ICM(n, layout.obs_dim, act_dim, feature_dim=8, hidden=16, seed=1, networks="entity", agents=list(range(n)),
+              entity_layout=layout, entity_nearest=nearest)
+    q, q_moved = teachers.predict(joint(obs)), teachers.predict(joint(moved))  # [A, M, K]
+    phi, phi_moved = (icm.phi(o.transpose(0, 1)).detach().numpy() for o in (obs, moved))  # [A, M, feature]
+    if nearest:
+        np.testing.assert_allclose(q_moved, q, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(phi_moved, phi, rtol=0, atol=1e-6)
+    else:  # every entity read: the moved landmark changes every teacher's Q and every agent's features
+        assert (np.abs(q_moved - q) > 1e-4).mean() > 0.9 and (np.abs(phi_moved - phi).max(-1) > 1e-4).mean() > 0.9

@@ -93,8 +93,9 @@ class MADDPGConfig:
         "(navigation: landmarks, other agents; predator-prey: obstacles, predators, prey), closest first, so each "
         "agent's view has T·k entity rows instead of E (T kinds, E slots; E = 63 at N = 32), which is what the "
         "entity networks' cost grows with (cmcl.learners.entity_nets.nearest_entities). Rollout workers' numpy "
-        "actor picks the same entities (cmcl.learners.policy). Needs maddpg.networks = 'entity'; the teachers' and "
-        "the ICM's entity networks still read every entity. 0 = every entity", unit="entities per kind",
+        "actor picks the same entities (cmcl.learners.policy); entity teachers (teachers.networks = 'entity') and "
+        "an entity ICM (icm.networks = 'entity') read the same k. Needs maddpg.networks = 'entity'. 0 = every "
+        "entity", unit="entities per kind",
         rule=AT_LEAST_0)
     assignment_loss: float = documented(
         0.0, "weight β of an auxiliary cross-entropy on the entity actor's attention over landmarks toward the "

@@ -206,17 +206,21 @@ class EntityActor(nn.Module):
 
 class EntityFeatures(nn.Module):
     """One observation encoder for some agents (the ICM's φ, eq. 13): float32[A, M, obs_dim], row a being agent
-    agents[a]'s observations -> float32[A, M, out_dim] = W·z + b, z the entity encoder's output."""
+    agents[a]'s observations -> float32[A, M, out_dim] = W·z + b, z the entity encoder's output; with `nearest` = k > 0
+    over the k nearest entities of each kind only (nearest_entities), as the entity actor reads them."""
 
     def __init__(self, layout: EntityLayout, agents: list[int], hidden: int, out_dim: int,
-                 generator: torch.Generator, pool: str = "attention"):
+                 generator: torch.Generator, pool: str = "attention", nearest: int = 0):
         super().__init__()
         self.layout, self.agents, self.out_dim = layout, [int(a) for a in agents], int(out_dim)
+        self.nearest, self._type_cols = int(nearest), _type_columns(layout)
         self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim, hidden, generator, pool)
         self.out = StackedLinear(1, self.encoder.out_dim, out_dim, generator)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         own, ents, mask = self.layout.split(x.transpose(0, 1), self.agents)  # [M, A, S], [M, A, E, F], [M, A, E]
+        if self.nearest:
+            ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         z = self.encoder(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
         return self.encoder.layer(self.out, z).view(x.shape[1], x.shape[0], self.out_dim).transpose(0, 1)
 

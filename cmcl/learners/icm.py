@@ -44,7 +44,8 @@ class ICM:
         grad_clip: optional per-agent gradient-norm clip (None = off, as specified).
         chunk_size: rows per forward pass in :meth:`curiosity`.  seed: initial weights.
         networks: "per_agent" (one φ, g, F per agent) or "entity" (module docstring; needs entity_layout and
-            agents, the agent index of each of the A rows; entity_pool: the encoder's pooling).
+            agents, the agent index of each of the A rows; entity_pool: the encoder's pooling; entity_nearest:
+            k > 0, φ reads only the k nearest entities of each kind, as the learner's actor does; 0: every entity).
     """
 
     def __init__(
@@ -64,6 +65,7 @@ class ICM:
         agents: Sequence[int] | np.ndarray | None = None,
         entity_layout: EntityLayout | None = None,
         entity_pool: str = "attention",
+        entity_nearest: int = 0,
     ):
         self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
         self.feature_dim, self.beta = int(feature_dim), float(beta_forward)
@@ -74,7 +76,7 @@ class ICM:
             if entity_layout is None or agents is None or len(agents) != a:
                 raise ValueError(f"an entity ICM needs the entity layout and the index of each of its {a} agents")
             self.phi: torch.nn.Module = EntityFeatures(entity_layout, list(agents), hidden, feature_dim, gen,
-                                                          entity_pool)
+                                                          entity_pool, entity_nearest)
             a = 1  # one inverse and one forward model, broadcast over the agents
         elif networks == "per_agent":
             self.phi = StackedMLP(a, obs_dim, (hidden,), feature_dim, generator=gen)

@@ -15,7 +15,8 @@ member ``a*K + i`` uses network i), each agent keeping its own first-layer bias;
 so a fold's network is still fitted on its own fold only and the cross-validation of eq. (11) holds.
 With ``networks="entity"`` each fold is one :class:`~cmcl.learners.entity_nets.EntityCritic` for all agents (group
 axis K: fold i's network only ever reads fold i's rows), teacher (a, i) being fold i's Q of agent ``agents[a]``;
-its parameter count does not depend on N.
+its parameter count does not depend on N, and with ``entity_nearest`` = k > 0 it reads only the k nearest entities of
+each kind, as the learner's critic does.
 Teacher input = the centralized critic input (all obs then all actions, flattened; see ``nets.joint_input``).
 Public boundary: numpy or torch in (converted once, float32 / int64); numpy out.
 """
@@ -54,6 +55,8 @@ class TeacherEnsemble:
         agents: int64[A], the agents the teachers stand for (entity teachers read their Q); default 0..A-1.
         entity_layout, act_dim, entity_pool: the observation's entity layout, the action width and the encoder's
             pooling (entity teachers only).
+        entity_nearest: k > 0: entity teachers read only the k nearest entities of each kind, as the learner's
+            critic does (maddpg.entity_nearest); 0: every entity.
     """
 
     def __init__(
@@ -73,6 +76,7 @@ class TeacherEnsemble:
         entity_layout: EntityLayout | None = None,
         act_dim: int = 2,
         entity_pool: str = "attention",
+        entity_nearest: int = 0,
     ):
         self.num_agents, self.num_folds, self.in_dim = int(num_agents), int(num_folds), int(in_dim)
         self.grad_clip, self.chunk_size = grad_clip, int(chunk_size)
@@ -86,7 +90,7 @@ class TeacherEnsemble:
             if len(set(widths)) != 1:
                 raise ValueError(f"entity teachers take one hidden width, got {widths}")
             self.net = EntityCritic(entity_layout, act_dim, widths[0], torch.Generator().manual_seed(int(seed)),
-                                    groups=self.num_folds, pool=entity_pool)
+                                    groups=self.num_folds, pool=entity_pool, nearest=entity_nearest)
         else:
             self.net = StackedMLP(self.num_agents * self.num_folds, self.in_dim, widths, 1, seed=seed,
                                   share=self.share_parameters, share_groups=self.num_folds)
