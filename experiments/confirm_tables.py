@@ -14,7 +14,9 @@ goal's verdict per rule (`verdicts`), once every arm has its seeds: "goal not me
 stopped; else "meets the goal" only if the area difference
 over MADDPG is at least GOAL, its Holm-corrected interval (the bootstrap interval at 1 − α / m, the level of Holm's
 first step in the primary family) lies above 0, and rule − permuted control is positive with a Holm p below α in the
-secondary family; otherwise "goal not met" and why.
+secondary family; otherwise "goal not met" and why. `recommended` is the rule the protocol's "Then" makes the
+project's curriculum (the one that meets the goal with the largest gain, else None), and `confirm_decision` README.md's
+sentence on it and on what `make run` trains (tests/test_confirm.py checks that `make run` follows it).
 """
 
 from __future__ import annotations
@@ -31,10 +33,12 @@ from experiments.confirm_arms import (
 )
 from experiments.curriculum_tables import ALPHA, NAVIGATION, Test, curriculum_test_rows, format_tests
 from experiments.labels import ARM_LABEL, PERMUTED
+from experiments.quoted_words import signed
 from experiments.screen_table import arm_table
 from experiments.stats import difference
 
 GOAL = 0.10  # the least area under coverage a rule must gain over MADDPG (the goal written before any run)
+MEETS = "**meets the goal**"  # a rule's verdict when all three conditions hold
 
 
 def confirm_roles(rules: Sequence[str]) -> dict[str, str]:
@@ -84,7 +88,26 @@ def verdict(primary: Test, control: Test, interval: tuple[float, float] | None, 
     if not (control.difference > 0 and control.adjusted < ALPHA):
         reasons.append(f"not shown above its permuted control ({control.difference:+.3f}, Holm p = "
                        f"{control.adjusted:.3f})")
-    return "**meets the goal**" if not reasons else "goal not met: " + "; ".join(reasons)
+    return MEETS if not reasons else "goal not met: " + "; ".join(reasons)
+
+
+def rule_verdicts(runs: list[dict[str, Any]], rules: Sequence[str], primary: list[Test], secondary: list[Test]
+                  ) -> list[tuple[str, Test, Test, tuple[float, float] | None, str]] | None:
+    """Per rule (rule, primary test, its test against its permuted control, Holm-corrected interval or None, verdict),
+    or None while the confirmation is not complete (`complete`)."""
+    if not complete(runs, rules):
+        return None
+    level = primary[0].level if primary else ALPHA
+    stopped = stopped_at_interim(runs, rules) or ()
+    out = []
+    for rule, test in zip(rules, primary, strict=True):
+        control = next(t for t in secondary if t.a == rule and t.b == f"{rule}{PERMUTED}")
+        interval = None
+        if not (test.mixed or control.mixed):
+            areas = [[r[test.key] for r in runs if r.get("arm") == arm] for arm in (rule, "maddpg")]
+            interval = difference(*areas, alpha=level)[1:3]
+        out.append((rule, test, control, interval, verdict(test, control, interval, rule in stopped)))
+    return out
 
 
 def verdicts(runs: list[dict[str, Any]], rules: Sequence[str], primary: list[Test], secondary: list[Test]) -> str:
@@ -93,23 +116,53 @@ def verdicts(runs: list[dict[str, Any]], rules: Sequence[str], primary: list[Tes
     level = primary[0].level if primary else ALPHA
     lines = [f"| rule | area − MADDPG [bootstrap 95%] | Holm-corrected interval ({100 * (1 - level):.4g}%) | "
              "− its permuted control (Holm p) | verdict |", "| --- " * 5 + "|"]
-    ready = complete(runs, rules)
-    stopped = stopped_at_interim(runs, rules) or ()
-    for rule, test in zip(rules, primary, strict=True):
-        control = next(t for t in secondary if t.a == rule and t.b == f"{rule}{PERMUTED}")
-        if not ready:
-            lines.append(f"| {ARM_LABEL[rule]} | | | | waits for {len(CONFIRM_SEEDS)} seeds per arm (or "
-                         f"{len(INTERIM_SEEDS)} if the interim look stops it) |")
-            continue
-        interval = None
-        if not (test.mixed or control.mixed):
-            areas = [[r[test.key] for r in runs if r.get("arm") == arm] for arm in (rule, "maddpg")]
-            interval = difference(*areas, alpha=test.level)[1:3]
+    ready = rule_verdicts(runs, rules, primary, secondary)
+    if ready is None:
+        return "\n".join(lines + [f"| {ARM_LABEL[rule]} | | | | waits for {len(CONFIRM_SEEDS)} seeds per arm (or "
+                                  f"{len(INTERIM_SEEDS)} if the interim look stops it) |" for rule in rules])
+    for rule, test, control, interval, said in ready:
         lines.append(f"| {ARM_LABEL[rule]} | {test.text} | "
                      + ("" if interval is None else f"[{interval[0]:+.3f}, {interval[1]:+.3f}]") + " | "
                      + (control.text if interval is None else f"{control.difference:+.3f} ({control.adjusted:.3f})")
-                     + f" | {verdict(test, control, interval, rule in stopped)} |")
+                     + f" | {said} |")
     return "\n".join(lines)
+
+
+def recommended(runs: list[dict[str, Any]], rules: Sequence[str]) -> str | None:
+    """The rule the confirmation recommends: of the rules that meet the goal, the one with the largest area gain over
+    MADDPG (the protocol's "Then"); None while the confirmation is incomplete or when no rule meets it."""
+    first, second = families(rules)
+    ready = rule_verdicts(runs, rules, curriculum_test_rows(runs, first), curriculum_test_rows(runs, second))
+    met = [(test.difference, rule) for rule, test, _, _, said in ready or () if said == MEETS]
+    return max(met)[1] if met else None
+
+
+def confirm_decision(runs: list[dict[str, Any]], rules: Sequence[str]) -> str:
+    """README.md's sentence on the recommended curriculum, from the confirmation's summaries: how far it is while
+    incomplete; then each rule's gain over MADDPG, its difference from its permuted control and its verdict, and
+    what `make run` trains as a consequence (the rule that meets the goal, else uniform replay)."""
+    names = " and ".join(ARM_LABEL[rule] for rule in rules)
+    first, second = families(rules)
+    primary, secondary = curriculum_test_rows(runs, first), curriculum_test_rows(runs, second)
+    ready = rule_verdicts(runs, rules, primary, secondary)
+    if ready is None:
+        per_arm = "; ".join(f"{sum(r.get('arm') == arm for r in runs)} of {ARM_LABEL[arm]}"
+                            for arm in confirm_arms(rules))
+        return (f"The confirmation of the screen's choice ({names}) against uniform replay on the harder task is under "
+                f"way (runs in: {per_arm}; {len(CONFIRM_SEEDS)} seeds per arm planned, {len(INTERIM_SEEDS)} for a "
+                "rule the interim look stops): no verdict yet, so no rule is recommended over uniform replay, and "
+                "`make run` trains uniform replay (MADDPG).")
+    parts = []
+    for rule, test, control, _, said in ready:
+        against = control.text if control.difference is None else \
+            f"{signed(control.difference)} against its permuted control (Holm p = {control.adjusted:.3f})"
+        parts.append(f"{ARM_LABEL[rule]}: area {test.text} over MADDPG, {against}; {said.strip('*')}")
+    best = recommended(runs, rules)
+    then = (f"{ARM_LABEL[best]} is the recommended curriculum, and `make run` trains it" if best else
+            "so no rule is recommended over uniform replay, and `make run` trains uniform replay (MADDPG)")
+    seeds = sorted({len({r["seed"] for r in runs if r.get("arm") == arm}) for arm in confirm_arms(rules)})
+    return (f"The confirmation on the harder task ({'–'.join(map(str, seeds))} seeds per arm, code "
+            f"{', '.join(sorted({t.code for t in primary}))}): " + "; ".join(parts) + f". {then[0].upper()}{then[1:]}.")
 
 
 def confirm_tests(runs: list[dict[str, Any]], rules: Sequence[str]) -> str:

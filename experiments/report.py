@@ -15,7 +15,8 @@ the text between them (a block whose markers the page lacks is only printed):
 * ownenvs: the own_envs grid (bench/results/own_envs), each environment against the random policy;
 * screen, screenselect: the screen of sampling rules (bench/results/screen, issue 36) and its selection rule;
   confirm, confirmtests: the confirmation of the rules the screen selected (bench/results/confirm), its two Holm
-  families and the goal's verdict per rule; "no runs yet" while it has no summary;
+  families and the goal's verdict per rule; "no runs yet" while it has no summary; confirmdecision: README.md's
+  sentence on the recommended curriculum and what `make run` trains, from the same summaries;
 * makerun: `make run` measured per seed (bench/results/make_run), the block of README.md
   (`python -m experiments report --update README.md`);
 * the numbers README.md and docs/LEARNING.md quote from the grids (experiments.quoted): headline, lambdawait (README.md;
@@ -33,7 +34,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from experiments.confirm_tables import confirm_table, confirm_tests
+from experiments.confirm_tables import confirm_decision, confirm_table, confirm_tests
 from experiments.curriculum_tables import (
     SETTING_TABLES,
     curriculum_table,
@@ -110,6 +111,7 @@ def blocks(results: Path | None = None) -> dict[str, str]:
     out["confirm"], out["confirmtests"] = (NO_RUNS, NO_RUNS) if not confirm else \
         (chosen.reason(), chosen.reason()) if not chosen.chosen else \
         (confirm_table(confirm, chosen.chosen), confirm_tests(confirm, chosen.chosen))
+    out["confirmdecision"] = confirm_decision(confirm, chosen.chosen) if chosen.chosen else chosen.reason()  # README
     out["makerun"] = make_run_table(ResultsStore(where["make_run"]).load(), MAKE_RUN["config"])  # README.md's block
     quoted = quoted_blocks(where, RESULTS if results is None else results)  # README.md's and LEARNING.md's
     assert not quoted.keys() & out.keys(), f"two texts named {sorted(quoted.keys() & out.keys())}"

@@ -18,7 +18,7 @@ from experiments.confirm_arms import (
     has_permuted_control,
     stopped_at_interim,
 )
-from experiments.confirm_tables import GOAL, confirm_table, confirm_tests, families
+from experiments.confirm_tables import GOAL, confirm_decision, confirm_table, confirm_tests, families, recommended
 from experiments.curriculum_tables import curriculum_test_rows, format_tests
 from experiments.grids import CURRICULUM_ARMS, grid, team_sets
 from experiments.report import NO_RUNS, blocks
@@ -241,3 +241,36 @@ def test_the_report_blocks_of_the_confirmation(tmp_path):
     assert roles["ReLo"] == ["rule", "20", "ccccccc"] and roles["ReLo, permuted control"][0] == "permuted control"
     assert roles["MADDPG"][0] == "reference" and len(roles) == 5
     assert "**meets the goal**" in out["confirmtests"]
+
+
+def test_the_readme_sentence_says_no_verdict_until_complete_then_what_make_run_trains():
+    early = confirm_decision(synthetic_confirm(AREAS, seeds=range(12)), CHOSEN)
+    assert "no verdict yet" in early and "12 of ReLo; 12 of ReLo, permuted control" in early
+    assert early.endswith("`make run` trains uniform replay (MADDPG).")
+    assert recommended(synthetic_confirm(AREAS, seeds=range(12)), CHOSEN) is None
+    done = confirm_decision(synthetic_confirm(AREAS), CHOSEN)
+    assert recommended(synthetic_confirm(AREAS), CHOSEN) == "relo"
+    assert "ReLo: area +0.1" in done and "; meets the goal;" in done and "**" not in done
+    assert done.endswith("ReLo is the recommended curriculum, and `make run` trains it.")
+    assert "(20 seeds per arm, code ccccccc)" in done
+    # neither rule above its permuted control: no recommendation, and the reason is said
+    tied = synthetic_confirm({**AREAS, "relo_permuted": 0.80, "lp_permuted": 0.70})
+    text = confirm_decision(tied, CHOSEN)
+    assert recommended(tied, CHOSEN) is None and "not shown above its permuted control" in text
+    assert text.endswith("So no rule is recommended over uniform replay, and `make run` trains uniform replay "
+                         "(MADDPG).")
+
+
+def test_make_run_trains_what_the_committed_confirmation_recommends():
+    """The protocol's "Then": `make run` trains the rule that met the goal, else uniform replay (issue 36)."""
+    from cmcl.config import load_config
+    from experiments.grids import GRIDS, MAKE_RUN
+    from experiments.run_spec import ROOT
+    from experiments.screen_table import selection
+
+    chosen = selection(ResultsStore(GRIDS["screen"]).load()).chosen
+    best = recommended(ResultsStore(GRIDS["confirm"]).load(), chosen) if chosen else None
+    config = ROOT / "configs" / MAKE_RUN["config"]
+    follows = SCREEN_ARMS["maddpg" if best is None else best]  # the overrides of what make run must train
+    assert load_config(config).to_dict() == load_config(config, follows).to_dict(), \
+        f"the confirmation recommends {best or 'uniform replay (maddpg)'}: make run must train it ({follows})"
