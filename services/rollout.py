@@ -79,8 +79,10 @@ class RolloutWorker:
         return chunk, self._report(episode)
 
     def _numpy_policy(self, actor: dict[str, np.ndarray]) -> NumpyPolicy:
-        """The numpy twin of the actor weights `actor`, reading the entities the learner's actor reads."""
-        return numpy_policy(actor, self.layout.act_mask, self.layout.entities, self.config.maddpg.entity_nearest)
+        """The numpy twin of the actor weights `actor`, reading the entities the learner's actor reads (its nearest
+        k and its holder margin)."""
+        m = self.config.maddpg
+        return numpy_policy(actor, self.layout.act_mask, self.layout.entities, m.entity_nearest, m.entity_holder)
 
     def _report(self, episode: dict[str, np.ndarray]) -> Report:
         """Metrics report of this call: cumulative env steps and episodes, the episodes that just finished."""

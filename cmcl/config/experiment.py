@@ -52,6 +52,9 @@ class Config:
             self._check_carry_replay()
         if self.maddpg.assignment_loss > 0:
             self._check_assignment_loss()
+        _require(not self.maddpg.entity_holder or (self.env.task == "spread" and not self.env.factory),
+                 "maddpg.entity_holder", True, "needs env.task = 'spread' (a landmark's holder margin; env.task "
+                 f"= {self.env.task!r}" + (" with env.factory" if self.env.factory else "") + " here)")
         if self.run.stop_progress > 0 and self.run.progress_signal == "coverage":
             has_coverage = bool(self.env.coverage_key) if self.env.factory else self.env.task == "spread"
             _require(has_coverage, "run.progress_signal", "coverage",

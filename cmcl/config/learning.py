@@ -97,6 +97,15 @@ class MADDPGConfig:
         "an entity ICM (icm.networks = 'entity') read the same k. Needs maddpg.networks = 'entity'. 0 = every "
         "entity", unit="entities per kind",
         rule=AT_LEAST_0)
+    entity_holder: bool = documented(
+        False, "navigation only (issue 38, the crowding of two agents on one landmark): every entity row of the "
+        "entity networks gets one more feature, the landmark's holder margin, the distance from it to the nearest "
+        "other present agent minus the viewer's own distance to it (< 0: another agent holds it; 0 for agents; +2, "
+        "more than any agent leaves, with no other agent; cmcl.learners.entity_holder), computed before "
+        "maddpg.entity_nearest's pick. The learner's actor and critic, rollout workers' numpy actor, entity teachers "
+        "and an entity ICM read it; it costs one more input of the entity layer and an E × E table of entity "
+        "distances per view (E = 2N − 1). Needs maddpg.networks = 'entity' and env.task = 'spread'; a checkpoint or "
+        "a run.init_from of the other value is refused (the entity layers' shapes differ). False = off")
     assignment_loss: float = documented(
         0.0, "weight β of an auxiliary cross-entropy on the entity actor's attention over landmarks toward the "
         "landmark a minimum-total-distance assignment of agents to landmarks gives this agent, added to the actor "
@@ -110,6 +119,8 @@ class MADDPGConfig:
         _require(self.entity_nearest == 0 or self.network_kind == "entity", "maddpg.entity_nearest",
                  self.entity_nearest, f"> 0 needs maddpg.networks = 'entity' (maddpg.networks = "
                  f"{self.network_kind!r} here)")
+        _require(not self.entity_holder or self.network_kind == "entity", "maddpg.entity_holder", self.entity_holder,
+                 f"needs maddpg.networks = 'entity' (maddpg.networks = {self.network_kind!r} here)")
 
     @property
     def network_kind(self) -> str:

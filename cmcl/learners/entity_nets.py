@@ -27,6 +27,10 @@ Rows carried from fewer agents (run.carry_replay; cmcl.replay.agent_padding): th
 optional ``count`` (int64, the present agents of each row, always the first ones) and mask, in every agent's view,
 the entities that exist only with more agents (EntityLayout.present_mask): an absent agent's entity slot, its
 observation and its action never reach a present agent's embedding or Q.
+
+Opt-ins: ``nearest`` = k > 0 keeps the k nearest present entities of each kind (:func:`nearest_entities`,
+maddpg.entity_nearest); ``holder`` appends every entity row's holder margin, computed before that pick
+(:func:`holder_margin`, cmcl.learners.entity_holder; navigation only, maddpg.entity_holder): one more entity input.
 """
 
 from __future__ import annotations
@@ -38,11 +42,13 @@ import torch
 from torch import nn
 
 from cmcl.envs.entities import EntityLayout
+from cmcl.learners.entity_holder import holder_margin, holder_width, with_holder
 from cmcl.learners.entity_ops import dense, mlp
 from cmcl.learners.entity_views import CriticViews
 from cmcl.learners.nets import StackedLinear, StackedMLP
 
-__all__ = ["POOLS", "EntityActor", "EntityCritic", "EntityEncoder", "EntityFeatures", "nearest_entities"]
+__all__ = ["POOLS", "EntityActor", "EntityCritic", "EntityEncoder", "EntityFeatures", "holder_margin",
+           "nearest_entities"]
 
 # the encoder's pooling over entities (maddpg.entity_pool); "relational" is "attention" after one round of
 # self-attention among the entities (EntityEncoder)
@@ -170,14 +176,17 @@ class EntityActor(nn.Module):
 
     ``members`` is accepted for StackedMLP's signature and must be None (every agent acts from its own row).
     ``count`` int64[N, B]: the present agents of agent i's row b (None: all N; module docstring).
+    ``holder``: every entity row gets its holder margin, F + 1 entity features (module docstring).
     """
 
     def __init__(self, layout: EntityLayout, act_dim: int, hidden: int, generator: torch.Generator,
-                 out_act: type[nn.Module] | None = None, pool: str = "attention", nearest: int = 0):
+                 out_act: type[nn.Module] | None = None, pool: str = "attention", nearest: int = 0,
+                 holder: bool = False):
         super().__init__()
         self.layout, self.num_agents, self.act_dim = layout, layout.num_agents, int(act_dim)
         self.nearest, self._type_cols = int(nearest), _type_columns(layout)
-        self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim, hidden, generator, pool)
+        self.holder = bool(holder_width(layout, holder))
+        self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim + self.holder, hidden, generator, pool)
         self.head = StackedMLP(1, self.encoder.out_dim, (hidden,), act_dim, out_act=out_act, generator=generator)
 
     def forward(self, x: torch.Tensor, members: torch.Tensor | None = None,
@@ -196,6 +205,8 @@ class EntityActor(nn.Module):
         own, ents, mask = self.layout.split(x.transpose(0, 1))  # [B, N, S], [B, N, E, F], [B, N, E]
         if count is not None:
             mask = self.layout.present_mask(count.transpose(0, 1))
+        if self.holder:
+            ents = with_holder(ents, mask, self._type_cols)
         if self.nearest:
             ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         z, logits = self.encoder.encode(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
@@ -207,18 +218,22 @@ class EntityActor(nn.Module):
 class EntityFeatures(nn.Module):
     """One observation encoder for some agents (the ICM's φ, eq. 13): float32[A, M, obs_dim], row a being agent
     agents[a]'s observations -> float32[A, M, out_dim] = W·z + b, z the entity encoder's output; with `nearest` = k > 0
-    over the k nearest entities of each kind only (nearest_entities), as the entity actor reads them."""
+    over the k nearest entities of each kind only (nearest_entities), and with `holder` each entity row with its
+    holder margin (holder_margin), as the entity actor reads them."""
 
     def __init__(self, layout: EntityLayout, agents: list[int], hidden: int, out_dim: int,
-                 generator: torch.Generator, pool: str = "attention", nearest: int = 0):
+                 generator: torch.Generator, pool: str = "attention", nearest: int = 0, holder: bool = False):
         super().__init__()
         self.layout, self.agents, self.out_dim = layout, [int(a) for a in agents], int(out_dim)
         self.nearest, self._type_cols = int(nearest), _type_columns(layout)
-        self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim, hidden, generator, pool)
+        self.holder = bool(holder_width(layout, holder))
+        self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim + self.holder, hidden, generator, pool)
         self.out = StackedLinear(1, self.encoder.out_dim, out_dim, generator)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         own, ents, mask = self.layout.split(x.transpose(0, 1), self.agents)  # [M, A, S], [M, A, E, F], [M, A, E]
+        if self.holder:
+            ents = with_holder(ents, mask, self._type_cols)
         if self.nearest:
             ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         z = self.encoder(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
@@ -235,17 +250,19 @@ class EntityCritic(nn.Module):
     N·act_dim]), for G = 1: shared rows [M, in] -> [A, M, 1] (A = len(members), default N); per-owner rows
     [N', S, in] -> [N', S, 1], owner v's rows scored by agent members[v] (default v).
     Each takes an optional ``count``, the present agents of each row (int64 [G, R]; [M] or [N', S] for forward;
-    None: all N; module docstring).
+    None: all N; module docstring). ``holder``: every entity row ends with its holder margin, after the shown
+    agent's own features and action (F + S + A + 1 entity features).
     """
 
     def __init__(self, layout: EntityLayout, act_dim: int, hidden: int, generator: torch.Generator,
-                 groups: int = 1, pool: str = "attention", nearest: int = 0):
+                 groups: int = 1, pool: str = "attention", nearest: int = 0, holder: bool = False):
         super().__init__()
         self.layout, self.num_agents, self.act_dim, self.groups = layout, layout.num_agents, int(act_dim), int(groups)
         self.nearest, self._type_cols = int(nearest), _type_columns(layout)
+        self.holder = bool(holder_width(layout, holder))
         self.obs_dim = layout.obs_dim
-        own_in = layout.own_dim + act_dim
-        self.encoder = EntityEncoder(groups, own_in, layout.entity_dim + own_in, hidden, generator, pool)
+        own_in = layout.own_dim + act_dim  # the entity rows: F features, the shown agent's own_in, the margin
+        self.encoder = EntityEncoder(groups, own_in, layout.entity_dim + own_in + self.holder, hidden, generator, pool)
         self.value = StackedMLP(groups, self.encoder.out_dim, (hidden,), 1, generator=generator)
         self.views = CriticViews(layout, act_dim)  # the gathers of q_agent (index tables only)
         shown, n = layout.entity_agent, layout.num_agents
@@ -286,10 +303,12 @@ class EntityCritic(nn.Module):
 
     def _views(self, obs: torch.Tensor, act: torch.Tensor, agent: torch.Tensor, count: torch.Tensor | None
                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The encoder's inputs of q_agent: own float32[G, R, S + A], entities float32[G, R, E, F + S + A], mask
-        bool[G, R, E]."""
+        """The encoder's inputs of q_agent: own float32[G, R, S + A], entities float32[G, R, E, F + S + A (+ 1, the
+        holder margin)], mask bool[G, R, E]."""
         views = self.views.gather if self.encoder.fused else self.views.reference
         own, ents, mask = views(obs, act, agent, count)
+        if self.holder:  # the same column whichever view built the rows
+            ents = with_holder(ents, mask, self._type_cols)
         if self.nearest:
             ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         return own, ents, mask
@@ -324,6 +343,6 @@ class EntityCritic(nn.Module):
 
 
 def _type_columns(layout: EntityLayout) -> slice:
-    """The columns of the type one-hot in an entity row (after the P raw features), for nearest_entities."""
+    """The columns of the type one-hot in an entity row (after the P raw features): nearest_entities, holder_margin."""
     raw = layout.entity_index.shape[2]
     return slice(raw, raw + len(layout.type_names))

@@ -3,7 +3,8 @@
 For agent i's Q on a row (obs float32[G, R, N, obs_dim], act float32[G, R, N, A]): own [own_i, const_i, a_i]
 (S + A features) and E entity slots [raw features (P), type one-hot (T), own_j, const_j, a_j of the agent j the slot
 shows, or zeros for a landmark / obstacle] (F + S + A features), with the layout's mask (and the presence rule for
-rows carried from fewer agents, entities_present).
+rows carried from fewer agents, entities_present). The holder margin (maddpg.entity_holder) is not among them: the
+entity critic appends it to either view's rows (cmcl.learners.entity_holder.with_holder).
 
 :meth:`CriticViews.gather` builds them with one concatenation and two gathers: every row's values sit side by
 side in one table [obs of every agent | actions | the layout's constants | 0], and a per-agent index table picks

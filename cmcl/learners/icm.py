@@ -45,7 +45,8 @@ class ICM:
         chunk_size: rows per forward pass in :meth:`curiosity`.  seed: initial weights.
         networks: "per_agent" (one φ, g, F per agent) or "entity" (module docstring; needs entity_layout and
             agents, the agent index of each of the A rows; entity_pool: the encoder's pooling; entity_nearest:
-            k > 0, φ reads only the k nearest entities of each kind, as the learner's actor does; 0: every entity).
+            k > 0, φ reads only the k nearest entities of each kind, as the learner's actor does; 0: every entity;
+            entity_holder: φ reads each entity row with its holder margin, as the learner's actor does).
     """
 
     def __init__(
@@ -66,6 +67,7 @@ class ICM:
         entity_layout: EntityLayout | None = None,
         entity_pool: str = "attention",
         entity_nearest: int = 0,
+        entity_holder: bool = False,
     ):
         self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
         self.feature_dim, self.beta = int(feature_dim), float(beta_forward)
@@ -76,7 +78,7 @@ class ICM:
             if entity_layout is None or agents is None or len(agents) != a:
                 raise ValueError(f"an entity ICM needs the entity layout and the index of each of its {a} agents")
             self.phi: torch.nn.Module = EntityFeatures(entity_layout, list(agents), hidden, feature_dim, gen,
-                                                          entity_pool, entity_nearest)
+                                                          entity_pool, entity_nearest, entity_holder)
             a = 1  # one inverse and one forward model, broadcast over the agents
         elif networks == "per_agent":
             self.phi = StackedMLP(a, obs_dim, (hidden,), feature_dim, generator=gen)

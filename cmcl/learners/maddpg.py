@@ -66,6 +66,11 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
             (cmcl.learners.policy.NumpyEntityPolicy, `nearest`) picks the same entities. The weights do not depend
             on k, so the state dict records it and loading it into a learner of another k is refused (a warm start,
             which copies the networks only, may change k: cmcl.learners.warm_start).
+        entity_holder: every entity row of the entity actor and critic (and their targets) ends with its holder
+            margin (entity_nets.holder_margin: < 0 when another agent is closer to that landmark than the viewer;
+            navigation only; one more input of the entity layer); False (default): not computed. The config's
+            maddpg.entity_holder; the numpy twin takes it as `holder`. The state dict records it, and loading or
+            warm-starting a state of the other value is refused, naming it (the entity layers' shapes differ).
         act_mask: float32[N, act_dim], 1 on the action entries each agent has and 0 on zero padding (agents whose
             action sizes differ); every actor output is multiplied by it, so the critics only ever see zeros there.
             None: every entry is used.
@@ -97,6 +102,7 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         target_scores: bool = False,
         entity_nearest: int = 0,
         assignment_loss: float = 0.0,
+        entity_holder: bool = False,
     ):
         self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
         # also return |y − Q_target(s, a)| per sampled row (ReLo's target loss; cmcl.algorithms Needs.learner_scores)
@@ -108,10 +114,10 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         gen = torch.Generator().manual_seed(int(init_seed))
         n = self.num_agents
         self.networks = network_kind(networks, share_parameters)
-        self.entity_nearest = int(entity_nearest)
+        self.entity_nearest, self.entity_holder = int(entity_nearest), bool(entity_holder)
         self.share_parameters = self.networks == "shared"
         self.actor, self.critic = build_networks(self.networks, n, obs_dim, act_dim, widths, discrete, gen,
-                                                 entity_layout, entity_pool, entity_nearest)
+                                                 entity_layout, entity_pool, entity_nearest, self.entity_holder)
         self.assignment = AssignmentTerm.build(float(assignment_loss), self.networks, entity_layout, entity_pool,
                                                entity_nearest)
         self.target_actor = copy.deepcopy(self.actor).requires_grad_(False)

@@ -13,7 +13,7 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 
-from cmcl.learners.state_check import require_same_nearest, require_same_shapes
+from cmcl.learners.state_check import require_same_holder, require_same_nearest, require_same_shapes
 from cmcl.learners.weights import load_published
 
 __all__ = ["MADDPGCheckpoint"]
@@ -31,6 +31,7 @@ class MADDPGCheckpoint:
     noise_gen: torch.Generator
     updates: int
     entity_nearest: int
+    entity_holder: bool
 
     def actor_weights(self) -> dict[str, np.ndarray]:
         """Online actor parameters as numpy copies, e.g. {"layers.0.weight": float32[N, obs_dim, 64], ...}."""
@@ -47,7 +48,8 @@ class MADDPGCheckpoint:
         Layout: {"actor", "critic", "target_actor", "target_critic": module state dicts with stacked
         tensors [N, in, out] / [N, out]; "actor_opt", "critic_opt": Adam state dicts; "noise_gen": uint8 tensor;
         "updates": int; "entity_nearest": int, the k of maddpg.entity_nearest (the weights do not show it; a
-        state without it, written before it was kept, is k = 0)}.
+        state without it, written before it was kept, is k = 0); "entity_holder": bool, maddpg.entity_holder (a
+        state without it is false)}.
         """
         return {
             "actor": self.actor.state_dict(),
@@ -59,11 +61,13 @@ class MADDPGCheckpoint:
             "noise_gen": self.noise_gen.get_state(),
             "updates": int(self.updates),
             "entity_nearest": int(self.entity_nearest),
+            "entity_holder": bool(self.entity_holder),
         }
 
     def load_state_dict(self, state: Mapping) -> None:
         """Restore everything saved by :meth:`state_dict` (same architecture required: checked first, by name)."""
         parts = ("actor", "critic", "target_actor", "target_critic")
+        require_same_holder("checkpoint maddpg", self.entity_holder, state)
         require_same_shapes("checkpoint maddpg", {name: getattr(self, name) for name in parts}, state,
                             "maddpg.networks, maddpg.share_parameters, maddpg.hidden, agents or observation sizes")
         require_same_nearest("checkpoint maddpg", self.entity_nearest, state)

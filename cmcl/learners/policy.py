@@ -4,7 +4,8 @@ Where it sits: rollout workers load the learner's published online actor (cmcl.l
 `numpy_policy` and act with it. It computes exactly MADDPG.act for continuous actions (the actor's tanh output,
 Gaussian noise, clip to [-1, 1]); parity tests tie the two. Two actors: `NumpyPolicy`, the stacked per-agent (or
 shared) MLPs, and `NumpyEntityPolicy`, the entity actor of cmcl.learners.entity_nets (maddpg.networks = "entity"),
-with maddpg.entity_nearest's selection of the nearest entities (`nearest_entities`) when k > 0.
+with maddpg.entity_nearest's selection of the nearest entities (`nearest_entities`) when k > 0 and
+maddpg.entity_holder's holder margin of every landmark (`holder_margin`) as one more entity feature when set.
 Keeping torch out of rollout workers (and the replay server) saves ~190 MB of private memory per process.
 """
 
@@ -17,6 +18,9 @@ import numpy as np
 from cmcl.envs.entities import EntityLayout
 
 ENTITY_KEY = "encoder.entity.weight"  # present in the entity actor's weights only
+# the holder margin of a landmark when no other agent is present (holder_margin): more than any margin a present
+# agent leaves (|m| <= √2 ≈ 1.41, the arena's diagonal: the walls keep all in [-0.5, 0.5]^2), the viewer's alone
+HOLDER_ALONE = 2.0
 
 
 def _checked(weights: Mapping[str, np.ndarray], keys: list[str]) -> dict[str, np.ndarray]:
@@ -94,19 +98,41 @@ def nearest_entities(entities: np.ndarray, mask: np.ndarray, k: int, types: slic
     return np.take_along_axis(entities, index[..., None], -2), present.reshape(index.shape)
 
 
+def holder_margin(entities: np.ndarray, mask: np.ndarray, types: slice) -> np.ndarray:
+    """cmcl.learners.entity_holder.holder_margin in numpy: for each present landmark l of a navigation view, entities
+    float32[..., E, F'] (the first two features: r, the position relative to the viewing agent; `types`: the type
+    one-hot's columns, landmark first, agent second), mask bool[..., E] -> float32[..., E, 1], m_l = min over the
+    present agent entities j of ||r_j − r_l|| − ||r_l|| (< 0: another agent is closer to l than the viewer, it holds
+    l; > 0: the viewer is the closest), HOLDER_ALONE with no agent entity present; 0 for agents and absent slots."""
+    pos = entities[..., :2]
+    kinds = entities[..., types] > 0.5  # [..., E, T]
+    landmark, agent = kinds[..., 0] & mask, kinds[..., 1] & mask  # [..., E]
+    viewer = np.sqrt(np.square(pos).sum(-1))  # [..., E]: ||r_l||
+    gap = np.sqrt(np.square(pos[..., :, None, :] - pos[..., None, :, :]).sum(-1))  # [..., E (l), E (j)]
+    nearest = np.where(agent[..., None, :], gap, np.float32(np.inf)).min(-1)  # [..., E]
+    margin = np.where(np.isfinite(nearest), nearest - viewer, np.float32(HOLDER_ALONE))
+    return np.where(landmark, margin, np.float32(0.0)).astype(np.float32)[..., None]
+
+
 class NumpyEntityPolicy(NumpyPolicy):
     """The entity actor (cmcl.learners.entity_nets.EntityActor) in numpy: one network for all agents; `nearest`
     k > 0 reads only the k nearest entities of each kind, as the learner's actor built with that k
-    (maddpg.entity_nearest; the weights do not say it)."""
+    (maddpg.entity_nearest; the weights do not say it); `holder` appends every entity's holder margin
+    (`holder_margin`, maddpg.entity_holder; navigation only) before the pick, as the learner's actor built with it
+    (its entity layer then takes F + 1 inputs)."""
 
     def __init__(self, weights: Mapping[str, np.ndarray], layout: EntityLayout, act_mask: np.ndarray | None = None,
-                 nearest: int = 0):
+                 nearest: int = 0, holder: bool = False):
         self.act_mask = None if act_mask is None else np.asarray(act_mask, np.float32)
         self.layout = layout
         if int(nearest) < 0:
             raise ValueError(f"nearest must be >= 0 (0: every entity), got {nearest!r}")
+        if holder and layout.type_names != ("landmark", "agent"):
+            raise ValueError(f"the holder margin needs navigation's entities (landmark, agent), got "
+                             f"{list(layout.type_names)}")
         raw = layout.entity_index.shape[2]
         self.nearest, self._type_cols = int(nearest), slice(raw, raw + len(layout.type_names))
+        self.holder = bool(holder)
         heads = len([k for k in weights if k.startswith("head.layers.") and k.endswith(".weight")])
         self.attention = "encoder.query.weight" in weights  # maddpg.entity_pool = "attention" or "relational"
         self.relational = "encoder.relate_query.weight" in weights  # maddpg.entity_pool = "relational"
@@ -118,6 +144,11 @@ class NumpyEntityPolicy(NumpyPolicy):
         self.weights = [w[f"head.layers.{i}.weight"] for i in range(heads)]
         self.biases = [w[f"head.layers.{i}.bias"][:, None, :] for i in range(heads)]
         self.hidden = self.enc["own.weight"].shape[1]
+        width = layout.entity_dim + self.holder
+        if self.enc["entity.weight"].shape[0] != width:
+            raise ValueError(f"the entity layer takes {self.enc['entity.weight'].shape[0]} inputs, this layout "
+                             f"{'with' if self.holder else 'without'} the holder margin gives {width} "
+                             "(maddpg.entity_holder)")
 
     def _relate(self, h: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """EntityEncoder.relate: h float32[B, N, E, H], mask bool[B, N, E] -> the same shape."""
@@ -135,6 +166,8 @@ class NumpyEntityPolicy(NumpyPolicy):
         own, ents, mask = self.layout.split(np.asarray(obs, dtype=np.float32))  # [B, N, S], [B, N, E, F], [B, N, E]
         if count is not None:
             mask = self.layout.present_mask(np.asarray(count, np.int64))
+        if self.holder:  # every present agent counts, so before the pick
+            ents = np.concatenate([ents, holder_margin(ents, mask, self._type_cols)], -1)
         if self.nearest:
             ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         e = self.enc
@@ -156,13 +189,16 @@ class NumpyEntityPolicy(NumpyPolicy):
 
 
 def numpy_policy(weights: Mapping[str, np.ndarray], act_mask: np.ndarray | None = None,
-                 entities: EntityLayout | None = None, nearest: int = 0) -> NumpyPolicy:
+                 entities: EntityLayout | None = None, nearest: int = 0, holder: bool = False) -> NumpyPolicy:
     """The numpy twin of a published actor: the entity actor when the weights are one (reading the `nearest`
-    entities of each kind, maddpg.entity_nearest; 0: all), else the stacked MLPs."""
+    entities of each kind, maddpg.entity_nearest; 0: all; with the holder margin when `holder`,
+    maddpg.entity_holder), else the stacked MLPs."""
     if ENTITY_KEY not in weights:
         if nearest:
             raise ValueError(f"nearest entities ({nearest!r}) need entity actor weights (maddpg.networks = 'entity')")
+        if holder:
+            raise ValueError("the holder margin needs entity actor weights (maddpg.networks = 'entity')")
         return NumpyPolicy(weights, act_mask)
     if entities is None:
         raise ValueError("entity actor weights need the task's entity layout (cmcl.envs.entities)")
-    return NumpyEntityPolicy(weights, entities, act_mask, nearest)
+    return NumpyEntityPolicy(weights, entities, act_mask, nearest, holder)

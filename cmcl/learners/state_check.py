@@ -36,3 +36,15 @@ def require_same_nearest(owner: str, nearest: int, state: Mapping) -> None:
     if saved != int(nearest):
         raise ValueError(f"{owner} was trained with maddpg.entity_nearest = {saved} and this config has {int(nearest)}"
                          f": the same weights would read other entities; set maddpg.entity_nearest = {saved}")
+
+
+def require_same_holder(owner: str, holder: bool, state: Mapping) -> None:
+    """Raise ValueError unless the saved MADDPG state was trained with the same maddpg.entity_holder as this model
+    (`holder`): the entity layers take one more input with it, so the weights do not fit (checked before the shapes,
+    so that the message names the setting; a state written before the setting was kept has it false)."""
+    saved = bool(state.get("entity_holder", False))
+    if saved != bool(holder):
+        toml = {True: "true", False: "false"}
+        raise ValueError(f"{owner} was trained with maddpg.entity_holder = {toml[saved]} and this config has "
+                         f"{toml[bool(holder)]}: its entity layers read {'one more' if saved else 'one fewer'} "
+                         f"input; set maddpg.entity_holder = {toml[saved]}")

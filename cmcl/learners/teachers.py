@@ -16,7 +16,7 @@ so a fold's network is still fitted on its own fold only and the cross-validatio
 With ``networks="entity"`` each fold is one :class:`~cmcl.learners.entity_nets.EntityCritic` for all agents (group
 axis K: fold i's network only ever reads fold i's rows), teacher (a, i) being fold i's Q of agent ``agents[a]``;
 its parameter count does not depend on N, and with ``entity_nearest`` = k > 0 it reads only the k nearest entities of
-each kind, as the learner's critic does.
+each kind, with ``entity_holder`` each entity row with its holder margin, as the learner's critic does.
 Teacher input = the centralized critic input (all obs then all actions, flattened; see ``nets.joint_input``).
 Public boundary: numpy or torch in (converted once, float32 / int64); numpy out.
 """
@@ -57,6 +57,8 @@ class TeacherEnsemble:
             pooling (entity teachers only).
         entity_nearest: k > 0: entity teachers read only the k nearest entities of each kind, as the learner's
             critic does (maddpg.entity_nearest); 0: every entity.
+        entity_holder: entity teachers read every entity row with its holder margin, as the learner's critic does
+            (maddpg.entity_holder; navigation only).
     """
 
     def __init__(
@@ -77,6 +79,7 @@ class TeacherEnsemble:
         act_dim: int = 2,
         entity_pool: str = "attention",
         entity_nearest: int = 0,
+        entity_holder: bool = False,
     ):
         self.num_agents, self.num_folds, self.in_dim = int(num_agents), int(num_folds), int(in_dim)
         self.grad_clip, self.chunk_size = grad_clip, int(chunk_size)
@@ -90,7 +93,8 @@ class TeacherEnsemble:
             if len(set(widths)) != 1:
                 raise ValueError(f"entity teachers take one hidden width, got {widths}")
             self.net = EntityCritic(entity_layout, act_dim, widths[0], torch.Generator().manual_seed(int(seed)),
-                                    groups=self.num_folds, pool=entity_pool, nearest=entity_nearest)
+                                    groups=self.num_folds, pool=entity_pool, nearest=entity_nearest,
+                                    holder=entity_holder)
         else:
             self.net = StackedMLP(self.num_agents * self.num_folds, self.in_dim, widths, 1, seed=seed,
                                   share=self.share_parameters, share_groups=self.num_folds)

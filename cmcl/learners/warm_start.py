@@ -8,7 +8,8 @@ have the same shapes, so a run with other agent counts or network settings is re
 shapes; networks whose parameter count does not depend on the number of agents can carry weights from N agents to
 another N (the agent-count curriculum of issue 22), and from one maddpg.entity_nearest to another (the same weights
 then read other entities: a deliberate transfer, as between agent counts; a resume or an evaluation of a checkpoint
-under another k is refused instead, cmcl.learners.maddpg_checkpoint)."""
+under another k is refused instead, cmcl.learners.maddpg_checkpoint). A run of another maddpg.entity_holder is
+refused, naming that setting (its entity layers take one input more or fewer)."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from typing import TYPE_CHECKING
 
 from cmcl.config import ConfigError
 from cmcl.io.rundir import PolicyCheckpoint, RunDirectory
-from cmcl.learners.state_check import require_same_shapes
+from cmcl.learners.state_check import require_same_holder, require_same_shapes
 
 if TYPE_CHECKING:
     from cmcl.learners.maddpg import MADDPG
@@ -40,8 +41,10 @@ def warm_start_source(init_from: str) -> PolicyCheckpoint:
 
 def warm_start_(maddpg: MADDPG, saved: Mapping, source: str) -> None:
     """Copy the networks of a saved `MADDPG.state_dict()` into `maddpg`, in place; nothing else changes.
-    Raises ValueError (naming `source`, the tensor and both shapes) before any weight is replaced."""
+    Raises ValueError (naming `source`, the tensor and both shapes, or maddpg.entity_holder and both values) before
+    any weight is replaced."""
     modules = {name: getattr(maddpg, name) for name in WARM_PARTS}
+    require_same_holder(f"run.init_from={source!r}: maddpg", maddpg.entity_holder, saved)
     require_same_shapes(f"run.init_from={source!r}: maddpg", modules, saved,
                         "agent counts, observation sizes or maddpg network settings")
     for name, module in modules.items():
