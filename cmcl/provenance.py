@@ -15,6 +15,10 @@ outputs carry `provenance(...)`:
   config_sha256 sha256 of the resolved config (its TOML text, `cmcl.config.dump_toml`), when one is given
   versions      {"python", "torch", "numpy", "ray"} ("absent" for a package that is not installed)
   cores         os.cpu_count() of the machine
+  cpu           {"model": /proc/cpuinfo's model name, "simd": the widest vector extension it lists, "avx512" | "avx2"
+                | "avx" | "sse" | "unknown"}: float kernels differ by vector width, so the same commit and seed
+                need not train bit-identically on two machines (a training fingerprint is a property of code and
+                machine; docs/PERFORMANCE.md)
   load_avg      the 1, 5 and 15-minute load averages when the record was made (os.getloadavg)
 
 `LoadSampler` adds the load over a whole run (mean and max of the 1-minute load average, sampled on a cadence).
@@ -87,6 +91,24 @@ def versions() -> dict[str, str]:
     return out
 
 
+SIMD = (("avx512", "avx512f"), ("avx2", "avx2"), ("avx", "avx"), ("sse", "sse2"))  # (name, /proc/cpuinfo flag)
+
+
+def cpu(cpuinfo: Path = Path("/proc/cpuinfo")) -> dict[str, str]:
+    """{"model": the CPU's model name, "simd": the widest of SIMD's extensions its flags list} ("unknown" for what
+    the file does not say, or without the file)."""
+    fields: dict[str, str] = {}
+    try:
+        for line in cpuinfo.read_text().splitlines():
+            key, _, value = line.partition(":")
+            fields.setdefault(key.strip(), value.strip())
+    except OSError:
+        pass
+    flags = set(fields.get("flags", "").split())
+    simd = next((name for name, flag in SIMD if flag in flags), "unknown")
+    return {"model": fields.get("model name") or platform.processor() or "unknown", "simd": simd}
+
+
 def load_average() -> list[float]:
     """[1, 5, 15]-minute load averages, rounded to 0.01."""
     return [round(x, 2) for x in os.getloadavg()]
@@ -101,7 +123,7 @@ def provenance(config_text: str | None = None, root: Path = ROOT) -> dict[str, A
         out["changed_during_run"] = {"commit": now[0], "dirty": now[1]}
     if config_text is not None:
         out["config_sha256"] = config_digest(config_text)
-    out.update(versions=versions(), cores=os.cpu_count(), load_avg=load_average())
+    out.update(versions=versions(), cores=os.cpu_count(), cpu=cpu(), load_avg=load_average())
     return out
 
 

@@ -9,7 +9,7 @@ import pytest
 import experiments.__main__ as experiments_cli
 from cmcl.config import load_config
 from cmcl.io.rundir import RunDirectory
-from cmcl.provenance import LoadSampler, code_at_start, code_state, provenance
+from cmcl.provenance import SIMD, LoadSampler, code_at_start, code_state, cpu, provenance
 from experiments.curriculum_tables import curriculum_tests
 from experiments.provenance import cell_versions, code_version
 
@@ -64,6 +64,17 @@ def test_the_record_holds_config_hash_versions_cores_and_load(repo):
     assert record["config_sha256"] != other["config_sha256"] and len(record["config_sha256"]) == 64
     assert set(record["versions"]) == {"python", "torch", "numpy", "ray"}
     assert record["cores"] >= 1 and len(record["load_avg"]) == 3
+    assert record["cpu"] == cpu() and record["cpu"]["model"] and record["cpu"]["simd"] in {*dict(SIMD), "unknown"}
+
+
+def test_the_cpu_is_named_with_its_widest_vector_extension(tmp_path):
+    info = tmp_path / "cpuinfo"
+    info.write_text("processor\t: 0\nmodel name\t: Some Xeon\nflags\t\t: fpu sse2 avx avx2 avx512f\n\n"
+                    "processor\t: 1\nmodel name\t: Some Xeon\nflags\t\t: fpu sse2 avx avx2 avx512f\n")
+    assert cpu(info) == {"model": "Some Xeon", "simd": "avx512"}
+    info.write_text("model name\t: Older\nflags\t\t: fpu sse2 avx avx2\n")
+    assert cpu(info) == {"model": "Older", "simd": "avx2"}
+    assert cpu(tmp_path / "absent")["simd"] == "unknown"
 
 
 def test_a_commit_made_while_a_run_trains_does_not_rename_the_code_it_ran(repo):
