@@ -9,10 +9,13 @@ the advanced-indexing critic views instead of cmcl.learners.entity_ops / entity_
 last bits) and as it ran before issue 38 (`before_issue_38`: those ops and the old actor step).
 ``--nearest K`` adds the entity networks that read only the K nearest entities of each kind
 (maddpg.entity_nearest, off by default); ``--assignment BETA`` the entity learner with maddpg.assignment_loss = BETA
-(cmcl.learners.assignment: the per-row assignment solver and the auxiliary loss in the actor step; off by default).
+(cmcl.learners.assignment: the per-row assignment solver and the auxiliary loss in the actor step; off by default);
+``--holder`` the entity learner with maddpg.entity_holder (every landmark's holder margin as one more entity feature,
+cmcl.learners.entity_holder; off by default).
 ``--profile`` also prints where an update spends its time (torch.profiler, by phase and by op).
 
-Run: .venv/bin/python bench/entity_cost.py [--agents 8] [--batch 128] [--nearest 3] [--assignment 1] [--profile]
+Run: .venv/bin/python bench/entity_cost.py [--agents 8] [--batch 128] [--nearest 3] [--assignment 1] [--holder]
+     [--profile]
 The whole inline update (sampling included) at N = 4, 8, 16: bench/scale.py --algorithm maddpg.
 """
 
@@ -36,9 +39,9 @@ from cmcl.learners.nets import joint_input  # noqa: E402
 PHASES = ("_critic_step", "_td_targets_t", "_actor_step")  # MADDPG methods timed as profiler phases
 
 
-def learners(n: int, nearest: int, assignment: float = 0.0) -> dict[str, MADDPG]:
+def learners(n: int, nearest: int, assignment: float = 0.0, holder: bool = False) -> dict[str, MADDPG]:
     """Navigation's learners for N agents: per-agent, entity (and entity with the K nearest entities, entity with
-    the assignment loss of weight `assignment`)."""
+    the assignment loss of weight `assignment`, entity with the holder margin)."""
     layout = spread_layout(n)
     cells = {"per_agent": MADDPG(n, layout.obs_dim, 2, seed=0),
              "entity": MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity", entity_layout=layout),
@@ -52,6 +55,9 @@ def learners(n: int, nearest: int, assignment: float = 0.0) -> dict[str, MADDPG]
     if assignment:
         cells["entity_assignment"] = MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity", entity_layout=layout,
                                             assignment_loss=assignment)
+    if holder:
+        cells["entity_holder"] = MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity", entity_layout=layout,
+                                        entity_holder=True)
     return cells
 
 
@@ -132,10 +138,11 @@ def main() -> None:
     parser.add_argument("--updates", type=int, default=5)
     parser.add_argument("--nearest", type=int, default=0, metavar="K")
     parser.add_argument("--assignment", type=float, default=0.0, metavar="BETA")
+    parser.add_argument("--holder", action="store_true")
     parser.add_argument("--profile", action="store_true")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    cells = learners(args.agents, args.nearest, args.assignment)
+    cells = learners(args.agents, args.nearest, args.assignment, args.holder)
     rows = batch(args.agents, args.batch, cells["per_agent"].obs_dim)
     for m in cells.values():  # warm-up
         m.update(rows)
@@ -155,6 +162,9 @@ def main() -> None:
     if "entity_assignment" in median:
         print(f"assignment loss: +{1e3 * (median['entity_assignment'] - median['entity']):.1f} ms per entity update "
               f"({median['entity_assignment'] / median['entity']:.2f}x)")
+    if "entity_holder" in median:
+        print(f"holder margin: +{1e3 * (median['entity_holder'] - median['entity']):.1f} ms per entity update "
+              f"({median['entity_holder'] / median['entity']:.2f}x)")
     if args.profile:
         for name, m in cells.items():
             profile(name, m, rows)

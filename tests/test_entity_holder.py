@@ -92,6 +92,23 @@ def test_the_torch_and_numpy_twins_agree_and_read_only_positions_and_types():
     np.testing.assert_array_equal(_numpy_margin(extra, mask), ours)
 
 
+def test_the_margin_from_the_layouts_slots_is_the_generic_margin():
+    """The networks' fast path (landmark x agent distances in the layout's static slots) gives the generic margin."""
+    from cmcl.learners.entity_holder import holder_margin, holder_margin_of_slots, holder_slots
+
+    layout = spread_layout(5)
+    rng = np.random.default_rng(7)
+    _, ents, _ = layout.split(rng.uniform(-1.5, 1.5, size=(4, 9, 5, layout.obs_dim)).astype(np.float32))
+    ents, types = torch.from_numpy(np.ascontiguousarray(ents)), slice(2, 4)
+    for keep in (0.0, 0.5, 1.0):  # no agent present anywhere, some, all
+        mask = torch.from_numpy(rng.random(ents.shape[:-1]) < 0.7)
+        mask[..., 5:] &= torch.from_numpy(rng.random(mask[..., 5:].shape) < keep)
+        fast = holder_margin_of_slots(ents, mask, *holder_slots(layout))
+        torch.testing.assert_close(fast, holder_margin(ents, mask, types), rtol=0, atol=1e-6)
+    landmarks, agents = holder_slots(layout)
+    assert landmarks.tolist() == [0, 1, 2, 3, 4] and agents.tolist() == [5, 6, 7, 8]
+
+
 @pytest.mark.parametrize("nearest", [0, 1, 3])
 @pytest.mark.parametrize("pool", ["attention", "mean", "relational"])
 @pytest.mark.parametrize("noise", [0.0, 0.1])

@@ -27,7 +27,7 @@ import torch
 from cmcl.envs.entities import EntityLayout
 from cmcl.learners.policy import HOLDER_ALONE
 
-__all__ = ["HOLDER_ALONE", "holder_margin", "holder_width", "with_holder"]
+__all__ = ["HOLDER_ALONE", "holder_margin", "holder_slots", "holder_width", "with_holder"]
 
 
 def holder_margin(entities: torch.Tensor, mask: torch.Tensor, types: slice) -> torch.Tensor:
@@ -44,9 +44,41 @@ def holder_margin(entities: torch.Tensor, mask: torch.Tensor, types: slice) -> t
     return torch.where(landmark, margin, 0.0).unsqueeze(-1)
 
 
-def with_holder(entities: torch.Tensor, mask: torch.Tensor, types: slice) -> torch.Tensor:
-    """entities float32[..., E, F'] -> float32[..., E, F' + 1], the holder margin appended as the last column."""
-    return torch.cat([entities, holder_margin(entities, mask, types)], -1)
+def holder_margin_of_slots(entities: torch.Tensor, mask: torch.Tensor, landmarks: torch.Tensor,
+                           agents: torch.Tensor) -> torch.Tensor:
+    """:func:`holder_margin` where every row has its landmarks in slots `landmarks` int64[L] and its agents in slots
+    `agents` int64[A] (`holder_slots`: a built-in layout's slot order): the same numbers, from the L x A landmark-agent
+    distances only instead of the E x E table (about 4x less work; the actor's target pass reads N x N x S views
+    per update). entities float32[..., E, F'], mask bool[..., E] -> float32[..., E, 1]."""
+    pos = entities[..., :2].detach()
+    lm, ag = pos[..., landmarks, :], pos[..., agents, :]  # [..., L, 2], [..., A, 2]
+    dx = lm[..., :, None, 0] - ag[..., None, :, 0]  # [..., L, A]
+    dy = lm[..., :, None, 1] - ag[..., None, :, 1]
+    gap2 = (dx * dx + dy * dy).masked_fill(~mask[..., None, agents], float("inf"))
+    nearest = gap2.amin(-1).sqrt()  # [..., L]: the nearest present agent's distance to each landmark
+    viewer = (lm * lm).sum(-1).sqrt()  # [..., L]: ||r_l||
+    margin = torch.where(nearest.isfinite(), nearest - viewer, HOLDER_ALONE)
+    margin = torch.where(mask[..., landmarks], margin, 0.0)
+    out = entities.new_zeros(*entities.shape[:-1])  # [..., E]: 0 for agents and absent slots
+    return out.index_copy(out.dim() - 1, landmarks, margin).unsqueeze(-1)
+
+
+def holder_slots(layout: EntityLayout) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """(landmark slots int64[L], agent slots int64[A]) when every agent's view has the same kind in each slot (every
+    built-in navigation layout), for :func:`holder_margin_of_slots`; None otherwise (the generic margin)."""
+    kinds = layout.entity_type.argmax(-1)  # [N, E]
+    if not (kinds == kinds[:1]).all():
+        return None
+    return (torch.from_numpy((kinds[0] == 0).nonzero()[0].astype("int64")),
+            torch.from_numpy((kinds[0] == 1).nonzero()[0].astype("int64")))
+
+
+def with_holder(entities: torch.Tensor, mask: torch.Tensor, types: slice,
+                slots: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
+    """entities float32[..., E, F'] -> float32[..., E, F' + 1], the holder margin appended as the last column (from
+    the layout's static `slots` when given, `holder_slots`; else the generic `holder_margin`)."""
+    margin = holder_margin(entities, mask, types) if slots is None else holder_margin_of_slots(entities, mask, *slots)
+    return torch.cat([entities, margin], -1)
 
 
 def holder_width(layout: EntityLayout, holder: bool) -> int:

@@ -42,7 +42,7 @@ import torch
 from torch import nn
 
 from cmcl.envs.entities import EntityLayout
-from cmcl.learners.entity_holder import holder_margin, holder_width, with_holder
+from cmcl.learners.entity_holder import holder_margin, holder_slots, holder_width, with_holder
 from cmcl.learners.entity_ops import dense, mlp
 from cmcl.learners.entity_views import CriticViews
 from cmcl.learners.nets import StackedLinear, StackedMLP
@@ -186,6 +186,7 @@ class EntityActor(nn.Module):
         self.layout, self.num_agents, self.act_dim = layout, layout.num_agents, int(act_dim)
         self.nearest, self._type_cols = int(nearest), _type_columns(layout)
         self.holder = bool(holder_width(layout, holder))
+        self._holder_slots = holder_slots(layout) if self.holder else None
         self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim + self.holder, hidden, generator, pool)
         self.head = StackedMLP(1, self.encoder.out_dim, (hidden,), act_dim, out_act=out_act, generator=generator)
 
@@ -206,7 +207,7 @@ class EntityActor(nn.Module):
         if count is not None:
             mask = self.layout.present_mask(count.transpose(0, 1))
         if self.holder:
-            ents = with_holder(ents, mask, self._type_cols)
+            ents = with_holder(ents, mask, self._type_cols, self._holder_slots)
         if self.nearest:
             ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         z, logits = self.encoder.encode(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
@@ -227,13 +228,14 @@ class EntityFeatures(nn.Module):
         self.layout, self.agents, self.out_dim = layout, [int(a) for a in agents], int(out_dim)
         self.nearest, self._type_cols = int(nearest), _type_columns(layout)
         self.holder = bool(holder_width(layout, holder))
+        self._holder_slots = holder_slots(layout) if self.holder else None
         self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim + self.holder, hidden, generator, pool)
         self.out = StackedLinear(1, self.encoder.out_dim, out_dim, generator)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         own, ents, mask = self.layout.split(x.transpose(0, 1), self.agents)  # [M, A, S], [M, A, E, F], [M, A, E]
         if self.holder:
-            ents = with_holder(ents, mask, self._type_cols)
+            ents = with_holder(ents, mask, self._type_cols, self._holder_slots)
         if self.nearest:
             ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         z = self.encoder(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
@@ -260,6 +262,7 @@ class EntityCritic(nn.Module):
         self.layout, self.num_agents, self.act_dim, self.groups = layout, layout.num_agents, int(act_dim), int(groups)
         self.nearest, self._type_cols = int(nearest), _type_columns(layout)
         self.holder = bool(holder_width(layout, holder))
+        self._holder_slots = holder_slots(layout) if self.holder else None
         self.obs_dim = layout.obs_dim
         own_in = layout.own_dim + act_dim  # the entity rows: F features, the shown agent's own_in, the margin
         self.encoder = EntityEncoder(groups, own_in, layout.entity_dim + own_in + self.holder, hidden, generator, pool)
@@ -308,7 +311,7 @@ class EntityCritic(nn.Module):
         views = self.views.gather if self.encoder.fused else self.views.reference
         own, ents, mask = views(obs, act, agent, count)
         if self.holder:  # the same column whichever view built the rows
-            ents = with_holder(ents, mask, self._type_cols)
+            ents = with_holder(ents, mask, self._type_cols, self._holder_slots)
         if self.nearest:
             ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         return own, ents, mask
