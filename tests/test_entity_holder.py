@@ -10,8 +10,6 @@ or a warm start under the other value is refused naming maddpg.entity_holder.
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -205,11 +203,10 @@ def test_the_config_refuses_what_cannot_apply_in_one_line_naming_the_field_and_v
 
 
 def test_the_command_line_refuses_it_for_other_networks_with_exit_2(tmp_path):
-    done = subprocess.run([sys.executable, "-m", "cmcl", "train", "--runner", "inline", "--config",
-                           "configs/spread_maddpg.toml", "--set", HOLDER, "--set", f"run.dir={tmp_path / 'run'}",
-                           "--quiet", "--no-eval"], cwd=ROOT, capture_output=True, text=True, timeout=120)
-    lines = done.stderr.strip().splitlines()
-    assert done.returncode == 2 and len(lines) == 1 and "maddpg.entity_holder needs" in lines[0], done.stderr
+    from tests.test_entity_nearest import train_per_agent_with
+
+    code, lines = train_per_agent_with(HOLDER, tmp_path)
+    assert code == 2 and len(lines) == 1 and "maddpg.entity_holder needs" in lines[0], lines
     assert not (tmp_path / "run").exists()
 
 

@@ -64,12 +64,18 @@ def test_the_config_refuses_what_cannot_apply_in_one_line_naming_the_field_and_v
     assert str(err.value) == message
 
 
-def test_the_command_line_refuses_it_for_other_networks_with_exit_2(tmp_path):
+def train_per_agent_with(setting: str, tmp_path) -> tuple[int, list[str]]:
+    """`python -m cmcl train` of the per-agent navigation config with `setting` set, into tmp_path/run: (exit code,
+    the lines of its stderr)."""
     done = subprocess.run([sys.executable, "-m", "cmcl", "train", "--runner", "inline", "--config",
-                           "configs/spread_maddpg.toml", "--set", NEAREST, "--set", f"run.dir={tmp_path / 'run'}",
+                           "configs/spread_maddpg.toml", "--set", setting, "--set", f"run.dir={tmp_path / 'run'}",
                            "--quiet", "--no-eval"], cwd=ROOT, capture_output=True, text=True, timeout=120)
-    lines = done.stderr.strip().splitlines()
-    assert done.returncode == 2 and len(lines) == 1 and "maddpg.entity_nearest > 0 needs" in lines[0], done.stderr
+    return done.returncode, done.stderr.strip().splitlines()
+
+
+def test_the_command_line_refuses_it_for_other_networks_with_exit_2(tmp_path):
+    code, lines = train_per_agent_with(NEAREST, tmp_path)
+    assert code == 2 and len(lines) == 1 and "maddpg.entity_nearest > 0 needs" in lines[0], lines
     assert lines[0].endswith("got 3") and not (tmp_path / "run").exists()
 
 
