@@ -77,16 +77,17 @@ def verdict(primary: Test, control: Test, interval: tuple[float, float] | None, 
     Holm-corrected interval (None when its runs ran mixed code); `stopped`: the interim look stopped the rule."""
     if stopped:
         return (f"goal not met: stopped at the interim look (seeds {INTERIM_SEEDS[0]}–{INTERIM_SEEDS[-1]}), its area "
-                f"{primary.difference:+.3f} over MADDPG's, not above it")
+                f"{signed(primary.difference)} over MADDPG's, not above it")
     if interval is None:
         return "goal not met: not tested, its runs ran different code (code versions mixed)"
     reasons = []
     if primary.difference < GOAL:
-        reasons.append(f"the area is {primary.difference:+.3f} over MADDPG's, less than {GOAL:+.2f}")
+        reasons.append(f"the area is {signed(primary.difference)} over MADDPG's, less than {signed(GOAL, 2)}")
     if interval[0] <= 0:
-        reasons.append(f"the Holm-corrected interval [{interval[0]:+.3f}, {interval[1]:+.3f}] does not lie above 0")
+        reasons.append(f"the Holm-corrected interval [{signed(interval[0])}, {signed(interval[1])}] does not lie "
+                       "above 0")
     if not (control.difference > 0 and control.adjusted < ALPHA):
-        reasons.append(f"not shown above its permuted control ({control.difference:+.3f}, Holm p = "
+        reasons.append(f"not shown above its permuted control ({signed(control.difference)}, Holm p = "
                        f"{control.adjusted:.3f})")
     return MEETS if not reasons else "goal not met: " + "; ".join(reasons)
 
@@ -122,8 +123,8 @@ def verdicts(runs: list[dict[str, Any]], rules: Sequence[str], primary: list[Tes
                                   f"{len(INTERIM_SEEDS)} if the interim look stops it) |" for rule in rules])
     for rule, test, control, interval, said in ready:
         lines.append(f"| {ARM_LABEL[rule]} | {test.text} | "
-                     + ("" if interval is None else f"[{interval[0]:+.3f}, {interval[1]:+.3f}]") + " | "
-                     + (control.text if interval is None else f"{control.difference:+.3f} ({control.adjusted:.3f})")
+                     + ("" if interval is None else f"[{signed(interval[0])}, {signed(interval[1])}]") + " | "
+                     + (control.text if interval is None else f"{signed(control.difference)} ({control.adjusted:.3f})")
                      + f" | {said} |")
     return "\n".join(lines)
 
@@ -156,7 +157,7 @@ def confirm_decision(runs: list[dict[str, Any]], rules: Sequence[str]) -> str:
     for rule, test, control, _, said in ready:
         against = control.text if control.difference is None else \
             f"{signed(control.difference)} against its permuted control (Holm p = {control.adjusted:.3f})"
-        parts.append(f"{ARM_LABEL[rule]}: area {test.text} over MADDPG, {against}; {said.strip('*')}")
+        parts.append(f"{ARM_LABEL[rule]}: area {test.text.replace('-', '−')} over MADDPG, {against}; {said.strip('*')}")
     best = recommended(runs, rules)
     then = (f"{ARM_LABEL[best]} is the recommended curriculum, and `make run` trains it" if best else
             "so no rule is recommended over uniform replay, and `make run` trains uniform replay (MADDPG)")

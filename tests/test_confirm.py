@@ -191,7 +191,7 @@ def test_the_goal_is_met_only_with_the_gain_the_corrected_interval_and_the_permu
         if r["arm"] in ("relo", "maddpg"):
             r["auc_coverage"] = (0.70 if r["arm"] == "relo" else 0.59) + (0.25 if r["seed"] % 2 else -0.25)
     row = {r[0]: r for r in table_rows(confirm_tests(wide, CHOSEN), "The goal")}["ReLo"]
-    assert row[-1].startswith("goal not met: the Holm-corrected interval [-") and ";" not in row[-1]
+    assert row[-1].startswith("goal not met: the Holm-corrected interval [−") and ";" not in row[-1]
     # until every arm has its 20 seeds there is no verdict
     early = confirm_tests(synthetic_confirm(AREAS, seeds=range(19)), CHOSEN)
     assert all(r[-1] == "waits for 20 seeds per arm (or 10 if the interim look stops it)"
