@@ -111,6 +111,7 @@ class ScaleCell:
 
 
 NO_CAP = "run.max_seconds=0"  # the presets' wall-clock caps off: every seed gets the same episodes, whatever the load
+NO_HOLDER = "maddpg.entity_holder=false"  # the presets' holder margin (on since issue 38): off, as these cells ran
 # The first four cells ran first (one seed): entity networks cost 6x more per update at N = 8 (docs/RESULTS.md), so
 # they trained for a wall-clock budget, 45 min or 15 min per stage (2 -> 4 -> 8), the "progress" cell also ended once
 # the critics' TD-error learning progress stayed below 5% for three 500-episode windows (the rule before issue 38,
@@ -129,13 +130,14 @@ SCALE_CELLS: dict[str, ScaleCell] = {
                                                                   "run.progress_patience=3",
                                                                   "run.progress_signal=critic_loss"), (2, 4, 8),
                                            (3_000, 5_000, 20_000)),
-    "n4_entity": ScaleCell("spread_n8.toml", ("env.num_agents=4", NO_CAP), budget=6_000),
-    "n4_entity_stages": ScaleCell("spread_n8.toml", (NO_CAP,), (2, 4), (3_008, 3_000), budget=3_000),
+    "n4_entity": ScaleCell("spread_n8.toml", ("env.num_agents=4", NO_CAP, NO_HOLDER), budget=6_000),
+    "n4_entity_stages": ScaleCell("spread_n8.toml", (NO_CAP, NO_HOLDER), (2, 4), (3_008, 3_000),
+                                  budget=3_000),
     "n16_per_agent": ScaleCell("spread_maddpg.toml", ("env.num_agents=16", NO_CAP), budget=3_040),
-    "n16_entity": ScaleCell("spread_n16.toml", ("run.init_from=", NO_CAP), budget=3_040),
+    "n16_entity": ScaleCell("spread_n16.toml", ("run.init_from=", NO_CAP, NO_HOLDER), budget=3_040),
     # from scratch for as many episodes as the staged run trains in all (3,008 + 2,624 + 1,136 at N = 2, 4, 8, then
     # 3,040 at N = 16), all at N = 16: does the curriculum's gain survive equal episodes?
-    "n16_entity_long": ScaleCell("spread_n16.toml", ("run.init_from=", NO_CAP), budget=9_808),
+    "n16_entity_long": ScaleCell("spread_n16.toml", ("run.init_from=", NO_CAP, NO_HOLDER), budget=9_808),
 }
 
 # `make run` measured, not remembered (issue 35): the Makefile's run target, one run per seed, one at a time, on an

@@ -24,6 +24,7 @@ from cmcl.learners.weights import published_weights
 ROOT = Path(__file__).resolve().parents[1]
 N8 = "configs/spread_n8.toml"
 HOLDER = "maddpg.entity_holder=true"
+OFF = "maddpg.entity_holder=false"  # the N = 8 preset has it on (issue 38)
 TYPES = slice(2, 4)  # navigation's type one-hot (landmark, agent) after the 2 raw features
 REFUSED = "maddpg.entity_holder = true and this config has false"
 
@@ -210,13 +211,14 @@ def test_the_command_line_refuses_it_for_other_networks_with_exit_2(tmp_path):
     assert not (tmp_path / "run").exists()
 
 
-def test_off_by_default_no_input_width_changes_and_on_every_entity_network_reads_one_more():
+def test_off_by_default_on_in_the_n8_preset_off_no_width_changes_on_every_entity_network_reads_one_more():
+    from cmcl.config.learning import MADDPGConfig
     from cmcl.system import build_icm, build_maddpg, build_teachers, layout_of
 
-    assert load_config(N8).maddpg.entity_holder is False
+    assert MADDPGConfig().entity_holder is False and load_config(N8).maddpg.entity_holder is True
     sets = ["teams.agent.algorithm='cmcl'", "teachers.networks='entity'", "icm.networks='entity'"]
     for on in (False, True):
-        config = load_config(N8, sets + [HOLDER] * on)
+        config = load_config(N8, sets + [HOLDER if on else OFF])
         layout = layout_of(config)
         f, own_in = layout.entities.entity_dim, layout.entities.own_dim + layout.act_dim
         maddpg = build_maddpg(config, layout, seed=0)
@@ -307,12 +309,12 @@ def test_it_trains_inline_and_evaluation_rebuilds_the_same_model_while_the_other
     obs = np.random.default_rng(0).normal(scale=0.7, size=(8, 8, rebuilt.obs_dim)).astype(np.float32)
     np.testing.assert_array_equal(rebuilt.act(obs, 0.0), loop.maddpg.act(obs, 0.0))
 
-    off = load_config(N8)
+    off = load_config(N8, [OFF])
     with pytest.raises(ValueError, match=f"checkpoint maddpg was trained with {REFUSED}"):  # evaluation
         load_policy(off, policy)
     with pytest.raises(ValueError, match=f"checkpoint maddpg was trained with {REFUSED}"):  # a resume's restore
         InlineLoop(off, None, progress=None).restore(policy.path)
     check_warm_start(load_config(N8, [HOLDER, f"run.init_from={run}"]))  # the same value: accepted
     with pytest.raises(ConfigError, match=f"run.init_from=.*: maddpg was trained with {REFUSED}") as err:
-        check_warm_start(load_config(N8, [f"run.init_from={run}"]))
+        check_warm_start(load_config(N8, [OFF, f"run.init_from={run}"]))
     assert "\n" not in str(err.value)

@@ -2,10 +2,10 @@
 
 Default run: each preset trains a few updates inline with its own networks, and the N = 16 and N = 32 presets, whose
 networks start from an N = 8 run, name `run.init_from` when that run does not exist.
-Slow (`pytest -m slow`): the commands the presets' headers give, run as a user runs them, on either runner: the
-agent-count curriculum 2 -> 4 -> 8 of spread_n8 (about 16 minutes on a free core), then spread_n16 from it (about
-13 minutes), each held-out evaluated against a floor below what docs/RESULTS.md measured; and the N = 8 preset
-trained directly (its 30 minutes), then spread_n32 from it (a few minutes).
+Slow (`pytest -m slow`): the commands the presets' headers give, run as a user runs them: the N = 8 preset trained
+directly (its 30 minutes, with the holder margin), then spread_n16 and spread_n32 from it, each held-out evaluated
+against a floor below what docs/RESULTS.md measured; and, without the margin (as it was measured), the agent-count
+curriculum 2 -> 4 -> 8 of spread_n8 (about 16 minutes on a free core), then spread_n16 from it, on either runner.
 """
 
 import subprocess
@@ -22,6 +22,8 @@ ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
 PY = sys.executable
 N8_STAGES = ["--agents", "2", "4", "8", "--stage-episodes", "3008", "2624", "1136"]
+N16_FLOOR = (0.95, 0.05)  # held-out coverage, success; measured 0.979-0.983, 0.095-0.225 (8493c07, 3 seeds)
+NO_HOLDER = ["--set", "maddpg.entity_holder=false"]  # the stages were measured without the holder margin
 
 
 @pytest.mark.parametrize("preset, agents", [("spread_n8.toml", 8), ("spread_n16.toml", 16), ("spread_n32.toml", 32)])
@@ -55,10 +57,10 @@ def held_out(run_dir: Path) -> dict:
 @pytest.mark.slow
 @pytest.mark.timeout(4 * 3600)
 @pytest.mark.parametrize("runner", ["inline", "service"])
-def test_the_n8_stages_then_the_n16_preset_learn_as_their_headers_say(runner, tmp_path):
+def test_the_n8_stages_then_the_n16_preset_without_the_holder_margin_learn_as_measured(runner, tmp_path):
     n8 = tmp_path / "spread_n8"
     stages = subprocess.run([PY, "-m", "cmcl", "stages", "--runner", runner, "--config", "configs/spread_n8.toml",
-                             *N8_STAGES, "--set", f"run.dir={n8}", "--quiet", "--no-eval"],
+                             *N8_STAGES, *NO_HOLDER, "--set", f"run.dir={n8}", "--quiet", "--no-eval"],
                             cwd=ROOT, capture_output=True, text=True, timeout=3 * 3600)
     assert stages.returncode == 0, stages.stderr[-3000:]
     n8_result = held_out(n8 / "n8")
@@ -66,22 +68,30 @@ def test_the_n8_stages_then_the_n16_preset_learn_as_their_headers_say(runner, tm
 
     n16 = subprocess.run([PY, "-m", "cmcl", "train", "--runner", runner, "--config", "configs/spread_n16.toml",
                           "--set", f"run.dir={tmp_path / 'spread_n16'}", "--set", f"run.init_from={n8 / 'n8'}",
-                          "--quiet", "--no-eval"], cwd=ROOT, capture_output=True, text=True, timeout=3 * 3600)
+                          *NO_HOLDER, "--quiet", "--no-eval"], cwd=ROOT, capture_output=True, text=True,
+                         timeout=3 * 3600)
     assert n16.returncode == 0, n16.stderr[-3000:]
     n16_result = held_out(tmp_path / "spread_n16")
     assert n16_result["coverage"] >= 0.85, n16_result  # measured 0.909 / 0.934 / 0.901 (inline, 3 seeds)
 
 
+def train(preset: str, run_dir: Path, *sets: str) -> None:
+    """`python -m cmcl train --config configs/<preset>` as the preset's header gives it (the service)."""
+    done = subprocess.run([PY, "-m", "cmcl", "train", "--config", f"configs/{preset}", "--set", f"run.dir={run_dir}",
+                           *sets, "--quiet", "--no-eval"], cwd=ROOT, capture_output=True, text=True, timeout=2 * 3600)
+    assert done.returncode == 0, done.stderr[-3000:]
+
+
 @pytest.mark.slow
-@pytest.mark.timeout(3 * 3600)
-def test_the_n8_preset_then_the_n32_preset_cover_as_the_header_says(tmp_path):
+@pytest.mark.timeout(4 * 3600)
+def test_the_n8_preset_then_the_n16_and_n32_presets_reach_the_goals_as_their_headers_say(tmp_path):
     n8 = tmp_path / "spread_n8"
-    direct = subprocess.run([PY, "-m", "cmcl", "train", "--config", "configs/spread_n8.toml", "--set", f"run.dir={n8}",
-                             "--quiet", "--no-eval"], cwd=ROOT, capture_output=True, text=True, timeout=2 * 3600)
-    assert direct.returncode == 0, direct.stderr[-3000:]
-    n32 = subprocess.run([PY, "-m", "cmcl", "train", "--config", "configs/spread_n32.toml",
-                          "--set", f"run.dir={tmp_path / 'spread_n32'}", "--set", f"run.init_from={n8}",
-                          "--quiet", "--no-eval"], cwd=ROOT, capture_output=True, text=True, timeout=3600)
-    assert n32.returncode == 0, n32.stderr[-3000:]
+    train("spread_n8.toml", n8)
+    result = held_out(n8)  # measured 0.969 / 0.983 / 0.980, success 0.560 / 0.695 / 0.695 (8493c07, 3 seeds)
+    assert result["coverage"] >= 0.95 and result["success"] >= 0.45, result
+    train("spread_n16.toml", tmp_path / "spread_n16", "--set", f"run.init_from={n8}")
+    result = held_out(tmp_path / "spread_n16")
+    assert result["coverage"] >= N16_FLOOR[0] and result["success"] >= N16_FLOOR[1], result
+    train("spread_n32.toml", tmp_path / "spread_n32", "--set", f"run.init_from={n8}")
     result = held_out(tmp_path / "spread_n32")
     assert result["coverage"] >= 0.9, result  # the issue's N = 32 goal; docs/RESULTS.md "Thirty-two agents"

@@ -103,9 +103,11 @@ class MADDPGConfig:
         "other present agent minus the viewer's own distance to it (< 0: another agent holds it; 0 for agents; +2, "
         "more than any agent leaves, with no other agent; cmcl.learners.entity_holder), computed before "
         "maddpg.entity_nearest's pick. The learner's actor and critic, rollout workers' numpy actor, entity teachers "
-        "and an entity ICM read it; it costs one more input of the entity layer and an E × E table of entity "
-        "distances per view (E = 2N − 1). Needs maddpg.networks = 'entity' and env.task = 'spread'; a checkpoint or "
-        "a run.init_from of the other value is refused (the entity layers' shapes differ). False = off")
+        "and an entity ICM read it; it costs one more input of the entity layer and the N × (N − 1) landmark-to-agent "
+        "distances of each view (1.18x the entity update at N = 8, docs/PERFORMANCE.md). Needs maddpg.networks = "
+        "'entity' and env.task = 'spread'; a checkpoint or a run.init_from of the other value is refused (the entity "
+        "layers' shapes differ). False = off; on in the presets configs/spread_n8.toml, spread_n16.toml and "
+        "spread_n32.toml")
     assignment_loss: float = documented(
         0.0, "weight β of an auxiliary cross-entropy on the entity actor's attention over landmarks toward the "
         "landmark a minimum-total-distance assignment of agents to landmarks gives this agent, added to the actor "
