@@ -17,6 +17,7 @@ the text between them (a block whose markers the page lacks is only printed):
   confirm, confirmtests: the confirmation of the rules the screen selected (bench/results/confirm), its two Holm
   families and the goal's verdict per rule; "no runs yet" while it has no summary; confirmdecision: README.md's
   sentence on the recommended curriculum and what `make run` trains, from the same summaries;
+* reruns: how far the re-runs at one commit are (experiments.reruns) and which of them the report reads;
 * makerun: `make run` measured per seed (bench/results/make_run), the block of README.md
   (`python -m experiments report --update README.md`);
 * the numbers README.md and docs/LEARNING.md quote from the grids (experiments.quoted): headline, lambdawait (README.md;
@@ -47,6 +48,7 @@ from experiments.make_run_table import make_run_table
 from experiments.own_envs import own_env_table
 from experiments.quoted import quoted_blocks
 from experiments.quoted_words import NO_RUNS
+from experiments.reruns import rerun_folders, rerun_text
 from experiments.screen_table import screen_selection, screen_table, selection
 from experiments.stalls import early_learner_table, load_stalls, stall_table
 from experiments.store import ResultsStore
@@ -70,8 +72,10 @@ SETTING_BLOCKS = {"curriculum_stride": ("curriculumstride", "curriculumstridetes
 
 
 def folders(results: Path | None = None) -> dict[str, Path]:
-    """grid -> its results folder, under `results` (default: the registry's, bench/results)."""
-    return {name: path if results is None else results / path.name for name, path in GRIDS.items()}
+    """grid -> its results folder, under `results` (default: the registry's, bench/results); a grid re-run at one
+    commit (experiments.reruns) -> its re-run's folder once that is complete."""
+    where = {name: path if results is None else results / path.name for name, path in GRIDS.items()}
+    return {**where, **rerun_folders(results)}
 
 
 def blocks(results: Path | None = None) -> dict[str, str]:
@@ -112,6 +116,7 @@ def blocks(results: Path | None = None) -> dict[str, str]:
         (chosen.reason(), chosen.reason()) if not chosen.chosen else \
         (confirm_table(confirm, chosen.chosen), confirm_tests(confirm, chosen.chosen))
     out["confirmdecision"] = confirm_decision(confirm, chosen.chosen) if chosen.chosen else chosen.reason()  # README
+    out["reruns"] = rerun_text(results)
     out["makerun"] = make_run_table(ResultsStore(where["make_run"]).load(), MAKE_RUN["config"])  # README.md's block
     quoted = quoted_blocks(where, RESULTS if results is None else results)  # README.md's and LEARNING.md's
     assert not quoted.keys() & out.keys(), f"two texts named {sorted(quoted.keys() & out.keys())}"

@@ -277,3 +277,25 @@ def test_the_figures_bands_of_a_rate_stay_in_the_unit_interval():
     [(lo, hi)] = ax.bands
     assert np.isnan(lo[0]) and np.isclose(ax.lines[0][0], 0.2)  # one run has a value: its mean, no band
     assert np.all(lo[1:] >= 0) and np.all(hi[1:] <= 1) and np.isclose(lo[3], 1.0) and np.isclose(hi[3], 1.0)
+
+
+def test_the_report_reads_a_rerun_at_one_commit_once_it_holds_every_run(tmp_path):
+    import json
+
+    from experiments.grids import grid
+    from experiments.report import blocks, folders
+    from experiments.reruns import RERUN_COMMIT, RERUN_SEEDS, rerun_progress
+
+    rerun = tmp_path / f"curriculum_hard_{RERUN_COMMIT}" / "summaries"
+    rerun.mkdir(parents=True)
+    needed = sorted(run.id for run in grid(["curriculum_hard"], list(RERUN_SEEDS)))
+    for run_id in needed[:-1]:
+        (rerun / f"{run_id}.json").write_text(json.dumps({"id": run_id}))
+    assert rerun_progress("curriculum_hard", rerun.parent) == (len(needed) - 1, len(needed)) == (59, 60)
+    assert folders(tmp_path)["curriculum_hard"] == tmp_path / "curriculum_hard"  # one run short: the first folder
+    assert f"curriculum grid {len(needed) - 1} of 60 runs" in blocks(tmp_path)["reruns"]
+    (rerun / "curriculum_hard_maddpg_s99.json").write_text(json.dumps({"id": "curriculum_hard_maddpg_s99"}))
+    assert folders(tmp_path)["curriculum_hard"] == tmp_path / "curriculum_hard"  # a seed it does not need
+    (rerun / f"{needed[-1]}.json").write_text(json.dumps({"id": needed[-1]}))
+    where = folders(tmp_path)
+    assert where["curriculum_hard"] == rerun.parent and where["curriculum_stride"] == tmp_path / "curriculum_stride"
