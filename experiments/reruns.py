@@ -24,15 +24,18 @@ def rerun_progress(name: str, folder: Path) -> tuple[int, int]:
     return len(needed & ResultsStore(folder).finished()), len(needed)
 
 
-def rerun_folders(results: Path | None = None) -> dict[str, Path]:
-    """grid -> its re-run's folder (under `results`, default bench/results), for every re-run that is complete."""
-    out = {}
+def rerun_status(results: Path | None = None) -> dict[str, tuple[Path, int, int]]:
+    """grid -> (its re-run's folder under `results`, default bench/results; runs in; runs needed)."""
+    status = {}
     for name, path in RERUNS.items():
         folder = path if results is None else results / path.name
-        done, needed = rerun_progress(name, folder)
-        if done == needed:
-            out[name] = folder
-    return out
+        status[name] = (folder, *rerun_progress(name, folder))
+    return status
+
+
+def rerun_folders(results: Path | None = None) -> dict[str, Path]:
+    """grid -> its re-run's folder (under `results`, default bench/results), for every re-run that is complete."""
+    return {name: folder for name, (folder, done, needed) in rerun_status(results).items() if done == needed}
 
 
 LABEL = {"curriculum_hard": "the harder task's curriculum grid", "curriculum_stride": "the λ-stride grid",
@@ -42,11 +45,10 @@ LABEL = {"curriculum_hard": "the harder task's curriculum grid", "curriculum_str
 def rerun_text(results: Path | None = None) -> str:
     """docs/RESULTS.md's block on the re-runs: how many runs each holds of those it needs, and which folder the report
     reads for each grid."""
-    parts, read = [], rerun_folders(results)
-    for name, path in RERUNS.items():
-        done, needed = rerun_progress(name, path if results is None else results / path.name)
-        parts.append(f"{LABEL[name]} {done} of {needed} runs (`bench/results/{path.name}`)")
-    reading = [LABEL[name] for name in RERUNS if name in read]
+    status = rerun_status(results)
+    parts = [f"{LABEL[name]} {done} of {needed} runs (`bench/results/{folder.name}`)"
+             for name, (folder, done, needed) in status.items()]
+    reading = [LABEL[name] for name, (_, done, needed) in status.items() if done == needed]
     return (f"Re-runs at one commit ({RERUN_COMMIT}, seeds {RERUN_SEEDS[0]}–{RERUN_SEEDS[-1]}): " + "; ".join(parts)
             + ". The report reads a re-run in place of the grid's first folder once it holds every run: "
             + (f"now for {', '.join(reading)}." if reading else "none is complete yet, so the tables below are the "
