@@ -120,8 +120,8 @@ def curriculum_times(curriculum: list[dict[str, Any]], hard: list[dict[str, Any]
                    f"0.9 at a median of {median['cmcl_stride_x2']}, at half the stride "
                    f"({last['cmcl_stride_half']:,.0f}) {median['cmcl_stride_half']}"
                    + "".join(f"; {x}" for x in said)
-                   + (f"; {'its other' if said else 'its'} tests compare against the harder task's runs and are "
-                      "withdrawn with them" if mixed else "")
+                   + (f"; {'its other' if said else 'its'} tests are withdrawn until its runs and the harder task's "
+                      "runs they compare against are at one commit" if mixed else "")
                    + f" ({'mixed code versions; ' if mixed else ''}{SECTION['curriculum_stride']}).")
     if any(kaplan_meier([r["episodes_to_90"] for r in rs if r.get("arm") == a])[2]
            for rs in (curriculum, hard, stride) for a in {r.get("arm") for r in rs}):
