@@ -6,7 +6,8 @@ the text between them (a block whose markers the page lacks is only printed):
 * spread, seeds, tests: the spread grid (bench/results/reproduce); ablations: the ablations grid against the
   unchanged CMCL runs; tag, tagtests: the tag and winrate grids;
 * curriculum, curriculumtests, curriculumstalls: the curriculum grid (bench/results/curriculum); curriculumhard,
-  curriculumhardtests, curriculumhardstalls: the curriculum_hard grid (bench/results/curriculum_hard);
+  curriculumhardtests, curriculumhardstalls: the curriculum_hard grid (bench/results/curriculum_hard, or its re-run
+  at one commit, experiments.reruns), curriculumhardverdicts its protocol's verdicts (experiments.curriculum_verdicts);
   curriculumtag, curriculumtagtests: the curriculum_tag grid (bench/results/curriculum_tag; predator-prey has no
   stall analysis); curriculumstride, curriculumstridetests and curriculumeta, curriculumetatests: the
   curriculum_stride and curriculum_eta grids beside the curriculum_hard grid's MADDPG and CMCL runs; "no runs yet"
@@ -42,6 +43,7 @@ from experiments.curriculum_tables import (
     curriculum_tests,
     setting_table,
 )
+from experiments.curriculum_verdicts import verdict_table
 from experiments.grids import GRIDS, MAKE_RUN, RESULTS
 from experiments.labels import ARM_LABEL
 from experiments.make_run_table import make_run_table
@@ -98,6 +100,7 @@ def blocks(results: Path | None = None) -> dict[str, str]:
         if stalls is not None:
             records = load_stalls(where[grid_name])
             out[stalls], out[early] = stall_table(records, ARM_LABEL), early_learner_table(records, ARM_LABEL)
+    out["curriculumhardverdicts"] = verdict_table(ResultsStore(where["curriculum_hard"]).load())
     for grid_name, (table, tests, _) in SETTING_BLOCKS.items():
         arms, comparisons = SETTING_TABLES[grid_name]
         runs = setting_runs(where, grid_name)
