@@ -7,7 +7,8 @@ the text between them (a block whose markers the page lacks is only printed):
   unchanged CMCL runs; tag, tagtests: the tag and winrate grids;
 * curriculum, curriculumtests, curriculumstalls: the curriculum grid (bench/results/curriculum); curriculumhard,
   curriculumhardtests, curriculumhardstalls: the curriculum_hard grid (bench/results/curriculum_hard, or its re-run
-  at one commit, experiments.reruns), curriculumhardverdicts its protocol's verdicts (experiments.curriculum_verdicts);
+  at one commit, experiments.reruns), curriculumhardverdicts its protocol's verdicts (experiments.curriculum_verdicts),
+  curriculumhardcurves its mean coverage curves in numbers (experiments.curriculum_curves);
   curriculumtag, curriculumtagtests: the curriculum_tag grid (bench/results/curriculum_tag; predator-prey has no
   stall analysis); curriculumstride, curriculumstridetests and curriculumeta, curriculumetatests: the
   curriculum_stride and curriculum_eta grids beside the curriculum_hard grid's MADDPG and CMCL runs; "no runs yet"
@@ -37,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from experiments.confirm_tables import confirm_decision, confirm_table, confirm_tests
+from experiments.curriculum_curves import curve_table
 from experiments.curriculum_tables import (
     SETTING_TABLES,
     curriculum_table,
@@ -100,7 +102,8 @@ def blocks(results: Path | None = None) -> dict[str, str]:
         if stalls is not None:
             records = load_stalls(where[grid_name])
             out[stalls], out[early] = stall_table(records, ARM_LABEL), early_learner_table(records, ARM_LABEL)
-    out["curriculumhardverdicts"] = verdict_table(ResultsStore(where["curriculum_hard"]).load())
+    hard = ResultsStore(where["curriculum_hard"]).load()
+    out["curriculumhardverdicts"], out["curriculumhardcurves"] = verdict_table(hard), curve_table(hard)
     for grid_name, (table, tests, _) in SETTING_BLOCKS.items():
         arms, comparisons = SETTING_TABLES[grid_name]
         runs = setting_runs(where, grid_name)
