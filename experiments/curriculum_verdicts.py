@@ -4,8 +4,10 @@ grid re-run at one commit for issue 35). One row per question of the protocol: t
 under the training coverage curve, Welch), the paper's Fig. 8b (CMCL against PER-MADDPG and ACL), whether CMCL ends
 better or reaches MA 0.9 sooner, and the two controls (the curriculum's information: the permuted control; its
 direction: the anti-curriculum), each judged at the level its test is judged at (the primary unadjusted, the rest by
-Holm's p over the family). A question whose tests were not run (mixed code, or too few runs) says so instead of a
-verdict. Reads only the runs it is given.
+Holm's p over the family). The settings grids on the harder task (blocks curriculumstrideverdicts and
+curriculumetaverdicts: the λ stride and η, SETTING_TABLES) get one question per comparison of their Holm family
+(SETTING_QUESTIONS). A question whose tests were not run (mixed code, or too few runs) says so instead of a verdict.
+Reads only the runs it is given.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.curriculum_tables import ALPHA, Test, curriculum_test_rows
+from experiments.curriculum_tables import ALPHA, SETTING_TABLES, Test, curriculum_test_rows
 from experiments.quoted_words import NO_RUNS, km_text, p_text, signed
 from experiments.stats import kaplan_meier
 
@@ -117,3 +119,39 @@ def verdict_table(runs: list[dict[str, Any]]) -> str:
     lines = [f"Verdicts by the protocol above, drawn from the tests (code: {code}):", "",
              "| question | verdict | numbers |", "| --- | --- | --- |"]
     return "\n".join(lines + [f"| {q} | {v} | {n} |" for q, v, n in verdict_rows(runs)])
+
+
+# a settings grid's comparison (a, b, measure) -> (its question, the verdict when a is shown below b, when above)
+SETTING_QUESTIONS = {
+    ("cmcl_stride_x2", "cmcl", "auc_coverage"): ("Does a shorter exclusion phase (λ stride ×2) help CMCL?",
+                                                 "no: it hurts", "yes: it helps"),
+    ("cmcl_stride_half", "cmcl", "auc_coverage"): ("Does a longer one (λ stride ×½) hold CMCL back further?",
+                                                   "yes: it holds CMCL back", "no: it helps"),
+    ("cmcl_stride_x2", "maddpg", "auc_coverage"): ("Does the shorter exclusion phase close the gap to MADDPG?",
+                                                   "no: still behind MADDPG", "yes: ahead of MADDPG"),
+    ("cmcl_eta1", "cmcl", "auc_coverage"): ("Does a larger curiosity weight (η = 1) help CMCL on the harder task?",
+                                            "no: it hurts", "yes: it helps"),
+    ("cmcl_eta1", "maddpg", "auc_coverage"): ("Does it close the gap to MADDPG?", "no: still behind MADDPG",
+                                              "yes: ahead of MADDPG"),
+}
+
+
+def setting_verdict_table(runs: list[dict[str, Any]], grid_name: str) -> str:
+    """A settings grid's verdicts (its runs with the harder task's MADDPG and CMCL runs beside them, as
+    experiments.report.setting_runs gives them): one row per comparison of its Holm family, with the difference,
+    its interval, Welch's and Holm's p and the smallest difference the test detects at the family's level."""
+    arms, comparisons = SETTING_TABLES[grid_name]
+    if not any(r.get("grid") == grid_name for r in runs):
+        return NO_RUNS
+    tests = curriculum_test_rows(runs, comparisons)
+    lines = ["Verdicts by the protocol above, drawn from the tests (Holm-corrected together, no primary):", "",
+             "| question | code | verdict | numbers |", "| --- | --- | --- | --- |"]
+    for t in tests:
+        question, worse, better = SETTING_QUESTIONS[(t.a, t.b, t.key)]
+        why = untested_words([t])
+        verdict, text = (why, "") if why else (
+            f"**{direction(t, worse, better)}**",
+            f"{numbers(t)} (Welch {p_text(t.p)}); the smallest difference this test detects with 80% power at the "
+            f"family's α/{len(tests)} = {t.level:.3f} is {t.detectable:.3f}.")
+        lines.append(f"| {question} | {t.code} | {verdict} | {text} |")
+    return "\n".join(lines)

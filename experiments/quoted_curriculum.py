@@ -89,7 +89,7 @@ def time_test(tests: list[Test], where: str) -> str:
     t = next(t for t in tests if t.key in TIMES)
     if not t.testable:
         return "its tests are " + untested(t, where)
-    return f"CMCL against MADDPG, log-rank {p_text(t.p)} (Holm {t.adjusted:.3f}; {where})"
+    return f"CMCL against MADDPG, log-rank {p_text(t.p)} (Holm {p_text(t.adjusted)}; {where})"
 
 
 def curriculum_times(curriculum: list[dict[str, Any]], hard: list[dict[str, Any]],

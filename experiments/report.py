@@ -11,7 +11,8 @@ the text between them (a block whose markers the page lacks is only printed):
   curriculumhardcurves its mean coverage curves in numbers (experiments.curriculum_curves);
   curriculumtag, curriculumtagtests: the curriculum_tag grid (bench/results/curriculum_tag; predator-prey has no
   stall analysis); curriculumstride, curriculumstridetests and curriculumeta, curriculumetatests: the
-  curriculum_stride and curriculum_eta grids beside the curriculum_hard grid's MADDPG and CMCL runs; "no runs yet"
+  curriculum_stride and curriculum_eta grids beside the curriculum_hard grid's MADDPG and CMCL runs, and their
+  verdicts, curriculumstrideverdicts and curriculumetaverdicts (experiments.curriculum_verdicts); "no runs yet"
   while a curriculum grid has no summary; the stalls blocks from `python -m experiments stalls FOLDER`;
 * timetosolve: the schedule and algorithms grids (bench/results/time_to_solve), printed only;
 * ownenvs: the own_envs grid (bench/results/own_envs), each environment against the random policy;
@@ -45,7 +46,7 @@ from experiments.curriculum_tables import (
     curriculum_tests,
     setting_table,
 )
-from experiments.curriculum_verdicts import verdict_table
+from experiments.curriculum_verdicts import setting_verdict_table, verdict_table
 from experiments.grids import GRIDS, MAKE_RUN, RESULTS
 from experiments.labels import ARM_LABEL
 from experiments.make_run_table import make_run_table
@@ -109,6 +110,7 @@ def blocks(results: Path | None = None) -> dict[str, str]:
         runs = setting_runs(where, grid_name)
         out[table], out[tests] = (setting_table(runs, arms), curriculum_tests(runs, comparisons)) \
             if any(r["grid"] == grid_name for r in runs) else (NO_RUNS, NO_RUNS)
+        out[f"{table}verdicts"] = setting_verdict_table(runs, grid_name)
     solve = ResultsStore(where["schedule"]).load()
     if solve:
         out["timetosolve"] = solve_table(solve)

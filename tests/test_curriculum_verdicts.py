@@ -1,7 +1,7 @@
 """The harder task's verdict table (experiments.curriculum_verdicts) follows its tests: a verdict per question at the
 level its test is judged at, "withdrawn" without numbers for mixed code, the code the tests ran."""
 
-from experiments.curriculum_verdicts import verdict_rows, verdict_table
+from experiments.curriculum_verdicts import setting_verdict_table, verdict_rows, verdict_table
 
 ARMS = ("maddpg", "per", "acl", "cmcl", "cmcl_permuted", "cmcl_anti")
 
@@ -60,3 +60,30 @@ def test_mixed_code_withdraws_the_questions_that_rest_on_it_without_numbers():
 
 def test_no_runs_no_table():
     assert verdict_table([]) == "no runs yet"
+
+
+def setting_grid(means: dict[str, float], grid_name: str) -> list[dict]:
+    """A settings grid's runs (6 seeds per arm) with the harder task's MADDPG and CMCL runs beside them."""
+    runs = [r for r in grid({**{arm: 0.5 for arm in ARMS}, **means}) if r["arm"] in ("maddpg", "cmcl")]
+    for arm in set(means) - {"maddpg", "cmcl"}:
+        for seed, jitter in enumerate((-0.02, 0.0, 0.02, -0.01, 0.01, 0.0)):
+            runs.append({"arm": arm, "grid": grid_name, "task": "spread", "seed": seed, "budget": 20_000,
+                         "auc_coverage": means[arm] + jitter, "provenance": {"commit": "a" * 40, "dirty": False}})
+    return runs
+
+
+def test_a_settings_grid_gets_one_verdict_per_comparison_of_its_holm_family():
+    stride = verdict_lines(setting_verdict_table(
+        setting_grid({"maddpg": 0.62, "cmcl": 0.33, "cmcl_stride_x2": 0.34, "cmcl_stride_half": 0.22},
+                     "curriculum_stride"), "curriculum_stride"))
+    assert [line.split(" | ")[2] for line in stride] == ["**not shown**", "**yes: it holds CMCL back**",
+                                                         "**no: still behind MADDPG**"]
+    assert "at the family's α/3 = 0.017 is" in stride[1] and "| aaaaaaa |" in stride[0]
+    eta = verdict_lines(setting_verdict_table(
+        setting_grid({"maddpg": 0.40, "cmcl": 0.33, "cmcl_eta1": 0.45}, "curriculum_eta"), "curriculum_eta"))
+    assert [line.split(" | ")[2] for line in eta] == ["**yes: it helps**", "**yes: ahead of MADDPG**"]
+    assert setting_verdict_table(setting_grid({}, "curriculum_eta"), "curriculum_eta") == "no runs yet"
+
+
+def verdict_lines(table: str) -> list[str]:
+    return [line for line in table.splitlines() if line.startswith("| ") and "---" not in line][1:]
