@@ -14,13 +14,18 @@ from experiments.provenance import code_version
 from experiments.stats import kaplan_meier, median_text
 
 
-def make_run_table(runs: list[dict[str, Any]], config: str) -> str:
-    """The runs of today's `make run` (those whose config file is `config`), per seed: reached MA 0.9 or not, seconds
-    and episodes to it, held-out coverage and success at the end, the training seconds, the mean load over the run, the
-    code and the day it ran; then the tally over seeds, and one tally per config `make run` trained before."""
-    earlier = sorted({r["config"] for r in runs} - {config})
-    earlier_lines = [f"Earlier, `make run` trained `configs/{c}`: {tally([r for r in runs if r['config'] == c])}"
-                     for c in earlier]
+def make_run_table(runs: list[dict[str, Any]], config: str, earlier: list[dict[str, Any]] = ()) -> str:
+    """The runs of today's `make run` (those of `runs` whose config file is `config`), per seed: reached MA 0.9 or not,
+    seconds and episodes to it, held-out coverage and success at the end, the training seconds, the mean load over the
+    run, the code and the day it ran; then the tally over seeds, and one tally per earlier measurement: each config
+    `make run` trained before (in `runs` or `earlier`), and each commit of the measurements moved to `earlier` (the
+    make_run grid's folder's earlier/, measured before, as on another machine)."""
+    before = [r for r in runs if r["config"] != config] + list(earlier)
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for r in before:
+        groups.setdefault((r["config"], ((r.get("provenance") or {}).get("commit") or "")[:7]), []).append(r)
+    earlier_lines = [f"Earlier, `make run` trained `configs/{c}`{measured(group)}: {tally(group)}"
+                     for (c, _), group in sorted(groups.items(), key=lambda kv: first_day(kv[1]))]
     runs = sorted((r for r in runs if r["config"] == config), key=lambda r: r["seed"])
     if not runs:
         return "\n\n".join(["not measured yet", *earlier_lines])
@@ -47,3 +52,15 @@ def tally(runs: list[dict[str, Any]]) -> str:
     return (f"{reached} of {len(runs)} seeds reached MA 0.9 within the 300-second budget; Kaplan–Meier median time to "
             f"MA 0.9: {median_text(seconds, missing='not reached')}"
             + ("" if kaplan_meier(seconds)[0] is None else " s") + f" (code {codes}).")
+
+
+def first_day(runs: list[dict[str, Any]]) -> str:
+    """The earliest 'YYYY-MM-DD HH:MM' the runs were measured ('' when none recorded it)."""
+    return min(((r.get("provenance") or {}).get("measured_utc") or "" for r in runs), default="")
+
+
+def measured(runs: list[dict[str, Any]]) -> str:
+    """' (measured 2026-12-05)' or ' (measured 2026-12-05 on <cpu model>)', '' when the runs did not record the day."""
+    day = first_day(runs)[:10]
+    cpus = sorted({((r.get("provenance") or {}).get("cpu") or {}).get("model", "") for r in runs} - {""})
+    return f" (measured {day}{' on ' + ', '.join(cpus) if cpus else ''})" if day else ""

@@ -12,7 +12,8 @@ def test_the_readme_table_is_regenerated_from_the_committed_summaries():
     readme = (ROOT / "README.md").read_text()
     block = re.search(r"<!-- makerun:begin -->\n(.*?)\n<!-- makerun:end -->", readme, re.S)
     assert block, "README.md lacks its makerun block"
-    assert block.group(1) == make_run_table(ResultsStore(GRIDS["make_run"]).load(), MAKE_RUN["config"]), \
+    assert block.group(1) == make_run_table(ResultsStore(GRIDS["make_run"]).load(), MAKE_RUN["config"],
+                                            ResultsStore(GRIDS["make_run"] / "earlier").load()), \
         "stale: run `python -m experiments report --update README.md`"
 
 
@@ -40,3 +41,14 @@ def test_the_table_holds_todays_make_run_and_tallies_what_it_trained_before_apar
         "Earlier, `make run` trained `configs/before.toml`: 0 of 2 seeds reached MA 0.9 within the 300-second budget; "
         "Kaplan–Meier median time to MA 0.9: not reached (code bbbbbbb).")
     assert make_run_table(runs[2:], "now.toml").startswith("not measured yet\n\nEarlier, `make run` trained")
+
+
+def test_an_earlier_measurement_of_the_same_config_is_tallied_apart_by_commit_with_its_day_and_cpu():
+    earlier = [run(0, None, commit="e" * 40), run(1, 200.0, commit="e" * 40)]
+    for r, cpu in zip(earlier, ("EPYC", ""), strict=True):
+        r["provenance"].update(measured_utc="2026-12-05 08:16", cpu={"model": cpu} if cpu else None)
+    text = make_run_table([run(0, 90.0)], "now.toml", earlier)
+    assert "1 of 1 seeds reached MA 0.9" in text.split("Earlier")[0]
+    assert text.endswith("Earlier, `make run` trained `configs/now.toml` (measured 2026-12-05 on EPYC): 1 of 2 seeds "
+                         "reached MA 0.9 within the 300-second budget; Kaplan–Meier median time to MA 0.9: ≥ 200 s "
+                         "(code eeeeeee).")
