@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cmcl.envs.common import ARENA_HALF
+from cmcl.envs.metrics import success
 from cmcl.io.plots import moving_average
 
 MISS_CLASSES = ("crowded", "short", "far")
@@ -38,6 +39,11 @@ class MissAnatomy:
     share of worlds where it is on no landmark; agent_crowding_share: float[N], where it is only on landmarks
     another agent is on too; agent_wall_share: float[N], where it ends at a wall. idle_distance_median: the median
     distance from an idle agent to its nearest uncovered landmark (world units; nan when none).
+    covered_unmatched_share: worlds with every landmark covered but not each by an agent of its own (no perfect
+    matching of landmarks to the agents covering them: one agent covers two landmarks no other agent is on, so the
+    episode is no success; `cmcl.envs.metrics.success`); unmatched_idle_share: of those worlds, the share with an
+    agent on no landmark (the others: the spare agent shares a landmark). None in summaries written before they were
+    measured (2026-12-06).
     """
 
     worlds: int
@@ -47,6 +53,8 @@ class MissAnatomy:
     agent_crowding_share: list[float]
     agent_wall_share: list[float]
     idle_distance_median: float
+    covered_unmatched_share: float | None = None
+    unmatched_idle_share: float | None = None
 
     def lines(self) -> list[str]:
         """Human-readable summary, one statement per line."""
@@ -57,6 +65,11 @@ class MissAnatomy:
                                                  for name in MISS_CLASSES)
                        + f" (median distance from an idle agent to the nearest uncovered landmark "
                          f"{self.idle_distance_median:.3f})")
+        if self.covered_unmatched_share is not None:
+            out.append(f"worlds with every landmark covered, but not each by an agent of its own (one agent on two): "
+                       f"{pct(self.covered_unmatched_share)} of {self.worlds}"
+                       + (f"; of those, with an agent on no landmark {pct(self.unmatched_idle_share)}"
+                          if self.covered_unmatched_share > 0 else ""))
         for label, shares in (("on no landmark", self.agent_idle_share),
                               ("sharing its landmark", self.agent_crowding_share),
                               ("at a wall", self.agent_wall_share)):
@@ -90,6 +103,8 @@ def miss_anatomy(positions: np.ndarray, landmarks: np.ndarray, cover_radius: flo
                "far": missed & ~crowded_world & ~near_idle}
     n_missed = int(missed.sum())
     wall = (np.abs(pos) >= ARENA_HALF - agent_radius - WALL_TOLERANCE).any(axis=2)
+    unmatched = ~missed & ~success(cover)
+    n_unmatched = int(unmatched.sum())
     idle_far = far[idle & missed[:, None]]
     return MissAnatomy(
         worlds=b,
@@ -99,6 +114,8 @@ def miss_anatomy(positions: np.ndarray, landmarks: np.ndarray, cover_radius: flo
         agent_crowding_share=crowding.mean(axis=0).tolist(),
         agent_wall_share=wall.mean(axis=0).tolist(),
         idle_distance_median=float(np.median(idle_far)) if idle_far.size else float("nan"),
+        covered_unmatched_share=n_unmatched / b if b else 0.0,
+        unmatched_idle_share=float((unmatched & idle.any(axis=1)).sum()) / n_unmatched if n_unmatched else 0.0,
     )
 
 

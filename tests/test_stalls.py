@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from cmcl.stalls import MISS_CLASSES, miss_anatomy, moving_average, plateau_episodes
+from cmcl.stalls import MISS_CLASSES, MissAnatomy, miss_anatomy, moving_average, plateau_episodes
 
 LANDMARKS = np.array([[[-0.3, -0.3], [0.3, -0.3], [-0.3, 0.3], [0.3, 0.3]]])  # [1, 4, 2]
 R, AGENT_R = 0.1, 0.05
@@ -60,3 +60,21 @@ def test_plateau_counts_episodes_whose_moving_average_sits_in_the_band():
     assert 400 <= expected < 500  # the 500 plateau episodes, less the ramps in and out of the window
     with pytest.raises(ValueError, match="low=0.9"):
         plateau_episodes(coverage, low=0.9, high=0.8)
+
+
+def test_a_world_whose_landmarks_one_agent_covers_two_of_is_covered_but_unmatched():
+    close = np.array([[[-0.3, -0.3], [0.3, -0.3], [-0.3, 0.3], [-0.3, 0.42]]])  # landmarks 2 and 3 0.12 apart
+    between = [-0.3, 0.36]  # within 0.1 of both
+    idle = miss_anatomy(np.array([[close[0][0], close[0][1], between, [0.0, 0.0]]]), close, R, AGENT_R)
+    assert idle.missed_share == 0 and idle.covered_unmatched_share == 1 and idle.unmatched_idle_share == 1
+    assert "one agent on two): 100.0 % of 1; of those, with an agent on no landmark 100.0 %" in "\n".join(idle.lines())
+    shared = miss_anatomy(np.array([[close[0][0], close[0][1], between, close[0][1]]]), close, R, AGENT_R)
+    assert shared.covered_unmatched_share == 1 and shared.unmatched_idle_share == 0
+    own = miss_anatomy(np.array([[close[0][0], close[0][1], close[0][2], close[0][3]]]), close, R, AGENT_R)
+    assert own.covered_unmatched_share == 0 and own.unmatched_idle_share == 0
+
+
+def test_an_anatomy_stored_before_the_unmatched_worlds_were_measured_prints_without_them():
+    stored = {k: v for k, v in vars(miss_anatomy(*world(LANDMARKS[0] + 0.01), R, AGENT_R)).items()
+              if k not in ("covered_unmatched_share", "unmatched_idle_share")}
+    assert not any("every landmark covered" in line for line in MissAnatomy(**stored).lines())
