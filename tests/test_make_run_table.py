@@ -3,7 +3,7 @@
 import re
 
 from experiments.grids import GRIDS, MAKE_RUN
-from experiments.make_run_table import make_run_table
+from experiments.make_run_table import make_run_table, tally
 from experiments.run_spec import ROOT
 from experiments.store import ResultsStore
 
@@ -52,3 +52,14 @@ def test_an_earlier_measurement_of_the_same_config_is_tallied_apart_by_commit_wi
     assert text.endswith("Earlier, `make run` trained `configs/now.toml` (measured 2026-12-05 on EPYC): 1 of 2 seeds "
                          "reached MA 0.9 within the 300-second budget; Kaplan–Meier median time to MA 0.9: ≥ 200 s "
                          "(code eeeeeee).")
+
+
+def test_a_run_that_ran_out_of_episodes_before_its_seconds_is_said_so():
+    runs = [run(0, 80.0), {**run(1, None), "episodes": 20_000, "budget": 20_000, "wall_s": 155.0},
+            {**run(2, 90.0), "budget": 20_000}]
+    assert tally(runs).startswith("2 of 3 seeds reached MA 0.9 within the budget, 300 s of training or 20,000 "
+                                  "episodes, whichever ends first (the 1 that did not ran out of episodes first, at "
+                                  "155 s); Kaplan–Meier median time to MA 0.9: 90 s")
+    runs.append({**run(3, None), "episodes": 9_000, "budget": 20_000})
+    assert "(1 of the 2 that did not ran out of episodes first, at 155 s)" in tally(runs)
+    assert tally([run(0, 80.0), run(1, None)]).startswith("1 of 2 seeds reached MA 0.9 within the 300-second budget")
