@@ -13,6 +13,12 @@ For a present landmark l of agent i's view (r: positions relative to agent i, th
 negative when another agent is closer to l than agent i (it "holds" l), positive when agent i is the closest, and
 HOLDER_ALONE (+2.0: more than any margin with an agent present, |m_l| <= the arena's diagonal √2 ≈ 1.41) when no
 other agent is present; 0 for agent entities and for absent slots.
+
+The rule (maddpg.holder_rule) says which other agents count. "nearest" (the margin above): every present other
+agent. "claimed": only the agents whose own nearest present landmark is l (ties to the lowest slot), so an agent
+holds one landmark at most: where one agent sits within the cover radius of two landmarks (at N = 16, 52-64 % of
+the held-out worlds end so, every landmark covered but not each by an agent of its own, cmcl.stalls), the landmark
+it is not nearest to reads as held by nobody (HOLDER_ALONE unless another agent claims it), not as held.
 The entity actor, the entity critic (the learner's, its targets, the entity teachers) and the entity ICM append it
 as the last column of every entity row (:func:`with_holder`), computed after the presence mask of rows carried from
 fewer agents and before maddpg.entity_nearest's pick, so that a landmark's margin sees every present agent, not only
@@ -27,25 +33,39 @@ import torch
 from cmcl.envs.entities import EntityLayout
 from cmcl.learners.policy import HOLDER_ALONE
 
-__all__ = ["HOLDER_ALONE", "holder_margin", "holder_slots", "holder_width", "with_holder"]
+__all__ = ["HOLDER_ALONE", "HOLDER_RULES", "holder_margin", "holder_slots", "holder_width", "with_holder"]
+
+HOLDER_RULES = ("nearest", "claimed")  # which other agents hold a landmark (module docstring; maddpg.holder_rule)
 
 
-def holder_margin(entities: torch.Tensor, mask: torch.Tensor, types: slice) -> torch.Tensor:
+def claims(gap: torch.Tensor, landmark: torch.Tensor) -> torch.Tensor:
+    """gap float32[..., L, A] (landmark l to agent j; rows that are no present landmark: inf) -> bool[..., L, A]:
+    landmark l is agent j's nearest (the lowest l on ties; all False for an agent with no landmark present)."""
+    first = gap.argmin(-2, keepdim=True)  # [..., 1, A]
+    rows = torch.arange(gap.shape[-2], device=gap.device).view(-1, 1)
+    return (rows == first) & landmark.unsqueeze(-1) & gap.isfinite()
+
+
+def holder_margin(entities: torch.Tensor, mask: torch.Tensor, types: slice, rule: str = "nearest") -> torch.Tensor:
     """entities float32[..., E, F'] of navigation views (the first two features: the entity's position relative to
     the viewing agent; `types`: the columns of the type one-hot, landmark first, agent second), mask bool[..., E]
-    (present entities) -> the holder margin float32[..., E, 1] (module docstring). Vectorised, detached."""
+    (present entities), rule: HOLDER_RULES -> the holder margin float32[..., E, 1] (module docstring). Vectorised,
+    detached."""
     pos = entities[..., :2].detach()
     kinds = entities[..., types].detach() > 0.5  # [..., E, T]
     landmark, agent = kinds[..., 0] & mask, kinds[..., 1] & mask  # [..., E]
     viewer = pos.square().sum(-1).sqrt()  # [..., E]: ||r_l||
     gap = (pos.unsqueeze(-2) - pos.unsqueeze(-3)).square().sum(-1).sqrt()  # [..., E (l), E (j)]: ||r_j − r_l||
-    nearest = gap.masked_fill(~agent.unsqueeze(-2), float("inf")).amin(-1)  # [..., E]
+    held = agent.unsqueeze(-2)  # [..., 1, E]: which agents count for every landmark
+    if rule == "claimed":
+        held = held & claims(gap.masked_fill(~landmark.unsqueeze(-1), float("inf")), landmark)
+    nearest = gap.masked_fill(~held, float("inf")).amin(-1)  # [..., E]
     margin = torch.where(nearest.isfinite(), nearest - viewer, HOLDER_ALONE)
     return torch.where(landmark, margin, 0.0).unsqueeze(-1)
 
 
 def holder_margin_of_slots(entities: torch.Tensor, mask: torch.Tensor, landmarks: torch.Tensor,
-                           agents: torch.Tensor) -> torch.Tensor:
+                           agents: torch.Tensor, rule: str = "nearest") -> torch.Tensor:
     """:func:`holder_margin` where every row has its landmarks in slots `landmarks` int64[L] and its agents in slots
     `agents` int64[A] (`holder_slots`: a built-in layout's slot order): the same numbers, from the L x A landmark-agent
     distances only instead of the E x E table (about 4x less work; the actor's target pass reads N x N x S views
@@ -55,7 +75,11 @@ def holder_margin_of_slots(entities: torch.Tensor, mask: torch.Tensor, landmarks
     dx = lm[..., :, None, 0] - ag[..., None, :, 0]  # [..., L, A]
     dy = lm[..., :, None, 1] - ag[..., None, :, 1]
     gap2 = (dx * dx + dy * dy).masked_fill(~mask[..., None, agents], float("inf"))
-    nearest = gap2.amin(-1).sqrt()  # [..., L]: the nearest present agent's distance to each landmark
+    if rule == "claimed":  # only the agents whose nearest present landmark this is
+        present = mask[..., landmarks]  # [..., L]
+        gap2 = gap2.masked_fill(~claims(gap2.masked_fill(~present.unsqueeze(-1), float("inf")), present),
+                                float("inf"))
+    nearest = gap2.amin(-1).sqrt()  # [..., L]: the nearest present (claiming) agent's distance to each landmark
     viewer = (lm * lm).sum(-1).sqrt()  # [..., L]: ||r_l||
     margin = torch.where(nearest.isfinite(), nearest - viewer, HOLDER_ALONE)
     margin = torch.where(mask[..., landmarks], margin, 0.0)
@@ -74,11 +98,20 @@ def holder_slots(layout: EntityLayout) -> tuple[torch.Tensor, torch.Tensor] | No
 
 
 def with_holder(entities: torch.Tensor, mask: torch.Tensor, types: slice,
-                slots: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
-    """entities float32[..., E, F'] -> float32[..., E, F' + 1], the holder margin appended as the last column (from
-    the layout's static `slots` when given, `holder_slots`; else the generic `holder_margin`)."""
-    margin = holder_margin(entities, mask, types) if slots is None else holder_margin_of_slots(entities, mask, *slots)
+                slots: tuple[torch.Tensor, torch.Tensor] | None = None, rule: str = "nearest") -> torch.Tensor:
+    """entities float32[..., E, F'] -> float32[..., E, F' + 1], the holder margin by `rule` (HOLDER_RULES) appended
+    as the last column (from the layout's static `slots` when given, `holder_slots`; else the generic
+    `holder_margin`)."""
+    margin = holder_margin(entities, mask, types, rule) if slots is None else \
+        holder_margin_of_slots(entities, mask, *slots, rule=rule)
     return torch.cat([entities, margin], -1)
+
+
+def require_holder_rule(rule: str) -> str:
+    """`rule` when it is one of HOLDER_RULES, else ValueError naming maddpg.holder_rule and the value."""
+    if rule not in HOLDER_RULES:
+        raise ValueError(f"maddpg.holder_rule must be one of {list(HOLDER_RULES)}, got {rule!r}")
+    return rule
 
 
 def holder_width(layout: EntityLayout, holder: bool) -> int:

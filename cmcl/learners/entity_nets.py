@@ -30,7 +30,8 @@ observation and its action never reach a present agent's embedding or Q.
 
 Opt-ins: ``nearest`` = k > 0 keeps the k nearest present entities of each kind (:func:`nearest_entities`,
 maddpg.entity_nearest); ``holder`` appends every entity row's holder margin, computed before that pick
-(:func:`holder_margin`, cmcl.learners.entity_holder; navigation only, maddpg.entity_holder): one more entity input.
+(:func:`holder_margin`, cmcl.learners.entity_holder; navigation only, maddpg.entity_holder): one more entity input;
+``holder_rule`` which other agents hold a landmark (maddpg.holder_rule, "nearest" or "claimed").
 """
 
 from __future__ import annotations
@@ -42,7 +43,13 @@ import torch
 from torch import nn
 
 from cmcl.envs.entities import EntityLayout
-from cmcl.learners.entity_holder import holder_margin, holder_slots, holder_width, with_holder
+from cmcl.learners.entity_holder import (
+    holder_margin,
+    holder_slots,
+    holder_width,
+    require_holder_rule,
+    with_holder,
+)
 from cmcl.learners.entity_ops import dense, mlp
 from cmcl.learners.entity_views import CriticViews
 from cmcl.learners.nets import StackedLinear, StackedMLP
@@ -181,12 +188,13 @@ class EntityActor(nn.Module):
 
     def __init__(self, layout: EntityLayout, act_dim: int, hidden: int, generator: torch.Generator,
                  out_act: type[nn.Module] | None = None, pool: str = "attention", nearest: int = 0,
-                 holder: bool = False):
+                 holder: bool = False, holder_rule: str = "nearest"):
         super().__init__()
         self.layout, self.num_agents, self.act_dim = layout, layout.num_agents, int(act_dim)
         self.nearest, self._type_cols = int(nearest), _type_columns(layout)
         self.holder = bool(holder_width(layout, holder))
         self._holder_slots = holder_slots(layout) if self.holder else None
+        self.holder_rule = require_holder_rule(holder_rule)
         self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim + self.holder, hidden, generator, pool)
         self.head = StackedMLP(1, self.encoder.out_dim, (hidden,), act_dim, out_act=out_act, generator=generator)
 
@@ -207,7 +215,7 @@ class EntityActor(nn.Module):
         if count is not None:
             mask = self.layout.present_mask(count.transpose(0, 1))
         if self.holder:
-            ents = with_holder(ents, mask, self._type_cols, self._holder_slots)
+            ents = with_holder(ents, mask, self._type_cols, self._holder_slots, self.holder_rule)
         if self.nearest:
             ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         z, logits = self.encoder.encode(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
@@ -223,19 +231,21 @@ class EntityFeatures(nn.Module):
     holder margin (holder_margin), as the entity actor reads them."""
 
     def __init__(self, layout: EntityLayout, agents: list[int], hidden: int, out_dim: int,
-                 generator: torch.Generator, pool: str = "attention", nearest: int = 0, holder: bool = False):
+                 generator: torch.Generator, pool: str = "attention", nearest: int = 0, holder: bool = False,
+                 holder_rule: str = "nearest"):
         super().__init__()
         self.layout, self.agents, self.out_dim = layout, [int(a) for a in agents], int(out_dim)
         self.nearest, self._type_cols = int(nearest), _type_columns(layout)
         self.holder = bool(holder_width(layout, holder))
         self._holder_slots = holder_slots(layout) if self.holder else None
+        self.holder_rule = require_holder_rule(holder_rule)
         self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim + self.holder, hidden, generator, pool)
         self.out = StackedLinear(1, self.encoder.out_dim, out_dim, generator)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         own, ents, mask = self.layout.split(x.transpose(0, 1), self.agents)  # [M, A, S], [M, A, E, F], [M, A, E]
         if self.holder:
-            ents = with_holder(ents, mask, self._type_cols, self._holder_slots)
+            ents = with_holder(ents, mask, self._type_cols, self._holder_slots, self.holder_rule)
         if self.nearest:
             ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         z = self.encoder(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
@@ -257,12 +267,14 @@ class EntityCritic(nn.Module):
     """
 
     def __init__(self, layout: EntityLayout, act_dim: int, hidden: int, generator: torch.Generator,
-                 groups: int = 1, pool: str = "attention", nearest: int = 0, holder: bool = False):
+                 groups: int = 1, pool: str = "attention", nearest: int = 0, holder: bool = False,
+                 holder_rule: str = "nearest"):
         super().__init__()
         self.layout, self.num_agents, self.act_dim, self.groups = layout, layout.num_agents, int(act_dim), int(groups)
         self.nearest, self._type_cols = int(nearest), _type_columns(layout)
         self.holder = bool(holder_width(layout, holder))
         self._holder_slots = holder_slots(layout) if self.holder else None
+        self.holder_rule = require_holder_rule(holder_rule)
         self.obs_dim = layout.obs_dim
         own_in = layout.own_dim + act_dim  # the entity rows: F features, the shown agent's own_in, the margin
         self.encoder = EntityEncoder(groups, own_in, layout.entity_dim + own_in + self.holder, hidden, generator, pool)
@@ -311,7 +323,7 @@ class EntityCritic(nn.Module):
         views = self.views.gather if self.encoder.fused else self.views.reference
         own, ents, mask = views(obs, act, agent, count)
         if self.holder:  # the same column whichever view built the rows
-            ents = with_holder(ents, mask, self._type_cols, self._holder_slots)
+            ents = with_holder(ents, mask, self._type_cols, self._holder_slots, self.holder_rule)
         if self.nearest:
             ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         return own, ents, mask

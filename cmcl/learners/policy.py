@@ -98,18 +98,25 @@ def nearest_entities(entities: np.ndarray, mask: np.ndarray, k: int, types: slic
     return np.take_along_axis(entities, index[..., None], -2), present.reshape(index.shape)
 
 
-def holder_margin(entities: np.ndarray, mask: np.ndarray, types: slice) -> np.ndarray:
+def holder_margin(entities: np.ndarray, mask: np.ndarray, types: slice, rule: str = "nearest") -> np.ndarray:
     """cmcl.learners.entity_holder.holder_margin in numpy: for each present landmark l of a navigation view, entities
     float32[..., E, F'] (the first two features: r, the position relative to the viewing agent; `types`: the type
     one-hot's columns, landmark first, agent second), mask bool[..., E] -> float32[..., E, 1], m_l = min over the
     present agent entities j of ||r_j − r_l|| − ||r_l|| (< 0: another agent is closer to l than the viewer, it holds
-    l; > 0: the viewer is the closest), HOLDER_ALONE with no agent entity present; 0 for agents and absent slots."""
+    l; > 0: the viewer is the closest), HOLDER_ALONE with no agent entity present; 0 for agents and absent slots.
+    rule "claimed" counts only the agents j whose nearest present landmark is l (the lowest slot on ties)."""
     pos = entities[..., :2]
     kinds = entities[..., types] > 0.5  # [..., E, T]
     landmark, agent = kinds[..., 0] & mask, kinds[..., 1] & mask  # [..., E]
     viewer = np.sqrt(np.square(pos).sum(-1))  # [..., E]: ||r_l||
     gap = np.sqrt(np.square(pos[..., :, None, :] - pos[..., None, :, :]).sum(-1))  # [..., E (l), E (j)]
-    nearest = np.where(agent[..., None, :], gap, np.float32(np.inf)).min(-1)  # [..., E]
+    held = agent[..., None, :]  # [..., 1, E]
+    if rule == "claimed":  # agent j holds only its nearest present landmark
+        to_landmarks = np.where(landmark[..., :, None], gap, np.float32(np.inf))  # [..., E (l), E (j)]
+        first = to_landmarks.argmin(-2)[..., None, :]  # [..., 1, E]
+        rows = np.arange(gap.shape[-2]).reshape(-1, 1)
+        held = held & (rows == first) & landmark[..., :, None] & np.isfinite(to_landmarks)
+    nearest = np.where(held, gap, np.float32(np.inf)).min(-1)  # [..., E]
     margin = np.where(np.isfinite(nearest), nearest - viewer, np.float32(HOLDER_ALONE))
     return np.where(landmark, margin, np.float32(0.0)).astype(np.float32)[..., None]
 
@@ -122,8 +129,11 @@ class NumpyEntityPolicy(NumpyPolicy):
     (its entity layer then takes F + 1 inputs)."""
 
     def __init__(self, weights: Mapping[str, np.ndarray], layout: EntityLayout, act_mask: np.ndarray | None = None,
-                 nearest: int = 0, holder: bool = False):
+                 nearest: int = 0, holder: bool = False, holder_rule: str = "nearest"):
         self.act_mask = None if act_mask is None else np.asarray(act_mask, np.float32)
+        if holder_rule not in ("nearest", "claimed"):
+            raise ValueError(f"maddpg.holder_rule must be one of ['nearest', 'claimed'], got {holder_rule!r}")
+        self.holder_rule = holder_rule
         self.layout = layout
         if int(nearest) < 0:
             raise ValueError(f"nearest must be >= 0 (0: every entity), got {nearest!r}")
@@ -167,7 +177,7 @@ class NumpyEntityPolicy(NumpyPolicy):
         if count is not None:
             mask = self.layout.present_mask(np.asarray(count, np.int64))
         if self.holder:  # every present agent counts, so before the pick
-            ents = np.concatenate([ents, holder_margin(ents, mask, self._type_cols)], -1)
+            ents = np.concatenate([ents, holder_margin(ents, mask, self._type_cols, self.holder_rule)], -1)
         if self.nearest:
             ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
         e = self.enc
@@ -189,7 +199,8 @@ class NumpyEntityPolicy(NumpyPolicy):
 
 
 def numpy_policy(weights: Mapping[str, np.ndarray], act_mask: np.ndarray | None = None,
-                 entities: EntityLayout | None = None, nearest: int = 0, holder: bool = False) -> NumpyPolicy:
+                 entities: EntityLayout | None = None, nearest: int = 0, holder: bool = False,
+                 holder_rule: str = "nearest") -> NumpyPolicy:
     """The numpy twin of a published actor: the entity actor when the weights are one (reading the `nearest`
     entities of each kind, maddpg.entity_nearest; 0: all; with the holder margin when `holder`,
     maddpg.entity_holder), else the stacked MLPs."""
@@ -201,4 +212,4 @@ def numpy_policy(weights: Mapping[str, np.ndarray], act_mask: np.ndarray | None 
         return NumpyPolicy(weights, act_mask)
     if entities is None:
         raise ValueError("entity actor weights need the task's entity layout (cmcl.envs.entities)")
-    return NumpyEntityPolicy(weights, entities, act_mask, nearest, holder)
+    return NumpyEntityPolicy(weights, entities, act_mask, nearest, holder, holder_rule)
