@@ -2,7 +2,7 @@
 
 Runs trained with the holder margin under the "nearest" rule (every other agent counts as holding a landmark) are
 evaluated on the same held-out worlds as `python -m cmcl evaluate RUN --episodes 200` (seed 0), once as trained and
-once with the actor reading the margin under the "claimed" rule (an agent holds only the landmark it is nearest to,
+once with the actor reading the margin under the "seated" rule (an agent seated on a landmark holds only that one,
 cmcl.learners.entity_holder). The weights are the run's; only the feature changes, so this says whether the trained
 policies already act on a landmark whose only holder sits on another landmark, before any training under the rule.
 Per run and rule: coverage, success and the miss anatomy (cmcl.stalls: worlds with an uncovered landmark, and worlds
@@ -27,7 +27,7 @@ from cmcl.evaluate import evaluate_policy, load_policy  # noqa: E402
 from cmcl.io.rundir import RunDirectory  # noqa: E402
 from cmcl.provenance import provenance  # noqa: E402
 
-RULES = ("nearest", "claimed")
+RULES = ("nearest", "seated")
 
 
 def evaluate_rules(run_dir: str, episodes: int) -> dict[str, dict]:
@@ -45,7 +45,7 @@ def evaluate_rules(run_dir: str, episodes: int) -> dict[str, dict]:
         maddpg.actor.holder_rule = rule
         result = evaluate_policy(config, maddpg, episodes, seed=0)
         out[rule] = {"coverage": result["coverage"], "success": result["success"], "misses": result["misses"],
-                     "agents": config.env.num_agents, "checkpoint": str(policy.path)}
+                     "agents": maddpg.num_agents, "checkpoint": str(policy.path)}
     return out
 
 

@@ -204,7 +204,8 @@ def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
                   critic_lr=m.critic_lr, gamma=m.gamma, tau=m.tau, grad_clip=m.grad_clip, discrete=layout.discrete,
                   seed=seed, act_mask=layout.act_mask, networks=m.network_kind, entity_layout=layout.entities,
                   entity_pool=m.entity_pool, target_scores="target_td_abs" in layout.learner_scores,
-                  entity_nearest=m.entity_nearest, assignment_loss=m.assignment_loss, entity_holder=m.entity_holder)
+                  entity_nearest=m.entity_nearest, assignment_loss=m.assignment_loss, entity_holder=m.entity_holder,
+                  holder_rule=m.holder_rule)
 
 
 def build_replay(config: Config, layout: AgentLayout) -> ReplayBuffer:
@@ -244,7 +245,8 @@ def build_teachers(config: Config, layout: AgentLayout, seed: int, num_folds: in
                            seed=seed, networks=t.network_kind, agents=layout.teacher_agents,
                            entity_layout=layout.entities, act_dim=layout.act_dim,
                            entity_pool=config.maddpg.entity_pool, entity_nearest=config.maddpg.entity_nearest,
-                           entity_holder=config.maddpg.entity_holder)
+                           entity_holder=config.maddpg.entity_holder,
+                           entity_holder_rule=config.maddpg.holder_rule)
 
 
 def build_icm(config: Config, layout: AgentLayout, seed: int) -> ICM | None:
@@ -259,7 +261,7 @@ def build_icm(config: Config, layout: AgentLayout, seed: int) -> ICM | None:
                hidden=c.hidden, beta_forward=c.beta_forward, lr=c.lr, discrete=layout.discrete, seed=seed,
                networks=c.networks, agents=layout.icm_agents, entity_layout=layout.entities,
                entity_pool=config.maddpg.entity_pool, entity_nearest=config.maddpg.entity_nearest,
-               entity_holder=config.maddpg.entity_holder)
+               entity_holder=config.maddpg.entity_holder, entity_holder_rule=config.maddpg.holder_rule)
 
 
 def build_schedule(config: Config) -> CurriculumSchedule:

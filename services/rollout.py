@@ -82,7 +82,8 @@ class RolloutWorker:
         """The numpy twin of the actor weights `actor`, reading the entities the learner's actor reads (its nearest
         k and its holder margin)."""
         m = self.config.maddpg
-        return numpy_policy(actor, self.layout.act_mask, self.layout.entities, m.entity_nearest, m.entity_holder)
+        return numpy_policy(actor, self.layout.act_mask, self.layout.entities, m.entity_nearest, m.entity_holder,
+                            m.holder_rule)
 
     def _report(self, episode: dict[str, np.ndarray]) -> Report:
         """Metrics report of this call: cumulative env steps and episodes, the episodes that just finished."""

@@ -16,6 +16,7 @@ from cmcl.config.env import TASK_TEAMS, TASKS, EnvConfig
 from cmcl.config.learning import CurriculumConfig, ICMConfig, MADDPGConfig, ReplayConfig, TeacherConfig
 from cmcl.config.run_and_service import RunConfig, ServiceConfig
 from cmcl.config.teams import TeamConfig
+from cmcl.learners.policy import SEATED_RADIUS
 from cmcl.replay.curriculum import default_stride
 
 
@@ -55,6 +56,10 @@ class Config:
         _require(not self.maddpg.entity_holder or (self.env.task == "spread" and not self.env.factory),
                  "maddpg.entity_holder", True, "needs env.task = 'spread' (a landmark's holder margin; env.task "
                  f"= {self.env.task!r}" + (" with env.factory" if self.env.factory else "") + " here)")
+        _require(self.maddpg.holder_rule == "nearest" or self.env.spread.cover_radius == SEATED_RADIUS,
+                 "maddpg.holder_rule", self.maddpg.holder_rule, f"needs env.cover_radius = {SEATED_RADIUS} "
+                 f"(an agent within it of a landmark sits there; env.cover_radius = {self.env.spread.cover_radius} "
+                 "here)")
         if self.run.stop_progress > 0 and self.run.progress_signal == "coverage":
             has_coverage = bool(self.env.coverage_key) if self.env.factory else self.env.task == "spread"
             _require(has_coverage, "run.progress_signal", "coverage",

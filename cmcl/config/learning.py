@@ -108,6 +108,14 @@ class MADDPGConfig:
         "'entity' and env.task = 'spread'; a checkpoint or a run.init_from of the other value is refused (the entity "
         "layers' shapes differ). False = off; on in the presets configs/spread_n8.toml, spread_n16.toml and "
         "spread_n32.toml")
+    holder_rule: Literal["nearest", "seated"] = documented(
+        "nearest", "which other agents count as holding a landmark in maddpg.entity_holder's margin (issue 38; "
+        "cmcl.learners.entity_holder): 'nearest', every other present agent; 'seated', an agent within 0.1 (the "
+        "default cover radius) of its nearest landmark counts for that landmark only, so a landmark it covers beside "
+        "its own reads as held by the nearest agent not seated elsewhere (at N = 16 most unfinished worlds have "
+        "every landmark covered but not each by an agent of its own, one agent on two). Needs maddpg.entity_holder = "
+        "true and env.cover_radius = 0.1; recorded in checkpoints (a resume or an evaluation under the other "
+        "rule is refused; a warm start, run.init_from, may change it: the weights fit either way)")
     assignment_loss: float = documented(
         0.0, "weight β of an auxiliary cross-entropy on the entity actor's attention over landmarks toward the "
         "landmark a minimum-total-distance assignment of agents to landmarks gives this agent, added to the actor "
@@ -123,6 +131,8 @@ class MADDPGConfig:
                  f"{self.network_kind!r} here)")
         _require(not self.entity_holder or self.network_kind == "entity", "maddpg.entity_holder", self.entity_holder,
                  f"needs maddpg.networks = 'entity' (maddpg.networks = {self.network_kind!r} here)")
+        _require(self.holder_rule == "nearest" or self.entity_holder, "maddpg.holder_rule", self.holder_rule,
+                 "needs maddpg.entity_holder = true (the rule is the holder margin's)")
 
     @property
     def network_kind(self) -> str:

@@ -15,15 +15,12 @@ HOLDER_ALONE (+2.0: more than any margin with an agent present, |m_l| <= the are
 other agent is present; 0 for agent entities and for absent slots.
 
 The rule (maddpg.holder_rule) says which other agents count. "nearest" (the margin above): every present other
-agent. "claimed": only the agents whose own nearest present landmark is l (ties to the lowest slot), so an agent
-holds one landmark at most: where one agent sits within the cover radius of two landmarks (at N = 16, 52-64 % of
-the held-out worlds end so, every landmark covered but not each by an agent of its own, cmcl.stalls), the landmark
-it is not nearest to reads as held by nobody (HOLDER_ALONE unless another agent claims it), not as held.
-The entity actor, the entity critic (the learner's, its targets, the entity teachers) and the entity ICM append it
-as the last column of every entity row (:func:`with_holder`), computed after the presence mask of rows carried from
-fewer agents and before maddpg.entity_nearest's pick, so that a landmark's margin sees every present agent, not only
-the k picked. Rollout workers' numpy twin is cmcl.learners.policy.holder_margin. No gradient flows through it (the
-positions are observations).
+agent. "seated": an agent seated on a landmark (within SEATED_RADIUS, the default task's cover radius, of its nearest
+present landmark; ties to the lowest slot) counts for that landmark only; an agent on no landmark counts for every
+one. Where one agent sits within the cover radius of two landmarks (at N = 16, 52-64 % of the held-out worlds end
+so, every landmark covered but not each by an agent of its own, cmcl.stalls), the landmark it is not nearest to reads
+as held by the nearest agent that is not seated elsewhere (HOLDER_ALONE when every other agent is), not as held by
+it. Until agents sit down the two rules give the same margins.
 """
 
 from __future__ import annotations
@@ -31,19 +28,21 @@ from __future__ import annotations
 import torch
 
 from cmcl.envs.entities import EntityLayout
-from cmcl.learners.policy import HOLDER_ALONE
+from cmcl.learners.policy import HOLDER_ALONE, SEATED_RADIUS
 
-__all__ = ["HOLDER_ALONE", "HOLDER_RULES", "holder_margin", "holder_slots", "holder_width", "with_holder"]
+__all__ = ["HOLDER_ALONE", "HOLDER_RULES", "SEATED_RADIUS", "holder_margin", "holder_slots", "holder_width",
+           "with_holder"]
 
-HOLDER_RULES = ("nearest", "claimed")  # which other agents hold a landmark (module docstring; maddpg.holder_rule)
+HOLDER_RULES = ("nearest", "seated")  # which other agents hold a landmark (module docstring; maddpg.holder_rule)
 
 
-def claims(gap: torch.Tensor, landmark: torch.Tensor) -> torch.Tensor:
-    """gap float32[..., L, A] (landmark l to agent j; rows that are no present landmark: inf) -> bool[..., L, A]:
-    landmark l is agent j's nearest (the lowest l on ties; all False for an agent with no landmark present)."""
-    first = gap.argmin(-2, keepdim=True)  # [..., 1, A]
-    rows = torch.arange(gap.shape[-2], device=gap.device).view(-1, 1)
-    return (rows == first) & landmark.unsqueeze(-1) & gap.isfinite()
+def counted(to_landmarks: torch.Tensor, radius: float) -> torch.Tensor:
+    """to_landmarks float32[..., L, A] (landmark l to agent j; inf where l is no present landmark or j is absent),
+    radius: in the same units -> bool[..., L, A]: agent j counts as a possible holder of l under the "seated" rule
+    (it sits on no landmark, or l is the one it sits on: its nearest, the lowest l on ties)."""
+    nearest, first = to_landmarks.min(-2, keepdim=True)  # [..., 1, A]
+    rows = torch.arange(to_landmarks.shape[-2], device=to_landmarks.device).view(-1, 1)
+    return ~(nearest < radius) | (rows == first)
 
 
 def holder_margin(entities: torch.Tensor, mask: torch.Tensor, types: slice, rule: str = "nearest") -> torch.Tensor:
@@ -57,8 +56,8 @@ def holder_margin(entities: torch.Tensor, mask: torch.Tensor, types: slice, rule
     viewer = pos.square().sum(-1).sqrt()  # [..., E]: ||r_l||
     gap = (pos.unsqueeze(-2) - pos.unsqueeze(-3)).square().sum(-1).sqrt()  # [..., E (l), E (j)]: ||r_j − r_l||
     held = agent.unsqueeze(-2)  # [..., 1, E]: which agents count for every landmark
-    if rule == "claimed":
-        held = held & claims(gap.masked_fill(~landmark.unsqueeze(-1), float("inf")), landmark)
+    if rule == "seated":
+        held = held & counted(gap.masked_fill(~landmark.unsqueeze(-1), float("inf")), SEATED_RADIUS)
     nearest = gap.masked_fill(~held, float("inf")).amin(-1)  # [..., E]
     margin = torch.where(nearest.isfinite(), nearest - viewer, HOLDER_ALONE)
     return torch.where(landmark, margin, 0.0).unsqueeze(-1)
@@ -75,11 +74,11 @@ def holder_margin_of_slots(entities: torch.Tensor, mask: torch.Tensor, landmarks
     dx = lm[..., :, None, 0] - ag[..., None, :, 0]  # [..., L, A]
     dy = lm[..., :, None, 1] - ag[..., None, :, 1]
     gap2 = (dx * dx + dy * dy).masked_fill(~mask[..., None, agents], float("inf"))
-    if rule == "claimed":  # only the agents whose nearest present landmark this is
+    if rule == "seated":  # an agent seated on one landmark holds no other
         present = mask[..., landmarks]  # [..., L]
-        gap2 = gap2.masked_fill(~claims(gap2.masked_fill(~present.unsqueeze(-1), float("inf")), present),
-                                float("inf"))
-    nearest = gap2.amin(-1).sqrt()  # [..., L]: the nearest present (claiming) agent's distance to each landmark
+        to_landmarks = gap2.masked_fill(~present.unsqueeze(-1), float("inf"))
+        gap2 = gap2.masked_fill(~counted(to_landmarks, SEATED_RADIUS ** 2), float("inf"))
+    nearest = gap2.amin(-1).sqrt()  # [..., L]: the nearest present (counted) agent's distance to each landmark
     viewer = (lm * lm).sum(-1).sqrt()  # [..., L]: ||r_l||
     margin = torch.where(nearest.isfinite(), nearest - viewer, HOLDER_ALONE)
     margin = torch.where(mask[..., landmarks], margin, 0.0)
@@ -102,6 +101,7 @@ def with_holder(entities: torch.Tensor, mask: torch.Tensor, types: slice,
     """entities float32[..., E, F'] -> float32[..., E, F' + 1], the holder margin by `rule` (HOLDER_RULES) appended
     as the last column (from the layout's static `slots` when given, `holder_slots`; else the generic
     `holder_margin`)."""
+    require_holder_rule(rule)
     margin = holder_margin(entities, mask, types, rule) if slots is None else \
         holder_margin_of_slots(entities, mask, *slots, rule=rule)
     return torch.cat([entities, margin], -1)

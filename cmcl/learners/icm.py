@@ -46,7 +46,8 @@ class ICM:
         networks: "per_agent" (one φ, g, F per agent) or "entity" (module docstring; needs entity_layout and
             agents, the agent index of each of the A rows; entity_pool: the encoder's pooling; entity_nearest:
             k > 0, φ reads only the k nearest entities of each kind, as the learner's actor does; 0: every entity;
-            entity_holder: φ reads each entity row with its holder margin, as the learner's actor does).
+            entity_holder: φ reads each entity row with its holder margin, as the learner's actor does, by
+            entity_holder_rule, maddpg.holder_rule).
     """
 
     def __init__(
@@ -68,6 +69,7 @@ class ICM:
         entity_pool: str = "attention",
         entity_nearest: int = 0,
         entity_holder: bool = False,
+        entity_holder_rule: str = "nearest",
     ):
         self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
         self.feature_dim, self.beta = int(feature_dim), float(beta_forward)
@@ -78,7 +80,8 @@ class ICM:
             if entity_layout is None or agents is None or len(agents) != a:
                 raise ValueError(f"an entity ICM needs the entity layout and the index of each of its {a} agents")
             self.phi: torch.nn.Module = EntityFeatures(entity_layout, list(agents), hidden, feature_dim, gen,
-                                                          entity_pool, entity_nearest, entity_holder)
+                                                          entity_pool, entity_nearest, entity_holder,
+                                                          entity_holder_rule)
             a = 1  # one inverse and one forward model, broadcast over the agents
         elif networks == "per_agent":
             self.phi = StackedMLP(a, obs_dim, (hidden,), feature_dim, generator=gen)

@@ -29,6 +29,7 @@ from torch import nn
 from cmcl.envs.entities import EntityLayout
 from cmcl.learners.agent_presence import AgentPresence, row_mean
 from cmcl.learners.assignment import AssignmentTerm
+from cmcl.learners.entity_holder import require_holder_rule
 from cmcl.learners.maddpg_batch import actor_rows, owner_batch
 from cmcl.learners.maddpg_checkpoint import MADDPGCheckpoint
 from cmcl.learners.maddpg_policy import MADDPGPolicy
@@ -71,6 +72,9 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
             navigation only; one more input of the entity layer); False (default): not computed. The config's
             maddpg.entity_holder; the numpy twin takes it as `holder`. The state dict records it, and loading or
             warm-starting a state of the other value is refused, naming it (the entity layers' shapes differ).
+        holder_rule: which other agents count as holding a landmark in that margin, "nearest" (default) or "seated"
+            (cmcl.learners.entity_holder; maddpg.holder_rule). The state dict records it; loading a state of the
+            other rule is refused (a warm start may change it: the weights fit either way).
         act_mask: float32[N, act_dim], 1 on the action entries each agent has and 0 on zero padding (agents whose
             action sizes differ); every actor output is multiplied by it, so the critics only ever see zeros there.
             None: every entry is used.
@@ -103,6 +107,7 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         entity_nearest: int = 0,
         assignment_loss: float = 0.0,
         entity_holder: bool = False,
+        holder_rule: str = "nearest",
     ):
         self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
         # also return |y − Q_target(s, a)| per sampled row (ReLo's target loss; cmcl.algorithms Needs.learner_scores)
@@ -115,9 +120,11 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         n = self.num_agents
         self.networks = network_kind(networks, share_parameters)
         self.entity_nearest, self.entity_holder = int(entity_nearest), bool(entity_holder)
+        self.holder_rule = require_holder_rule(holder_rule)
         self.share_parameters = self.networks == "shared"
         self.actor, self.critic = build_networks(self.networks, n, obs_dim, act_dim, widths, discrete, gen,
-                                                 entity_layout, entity_pool, entity_nearest, self.entity_holder)
+                                                 entity_layout, entity_pool, entity_nearest, self.entity_holder,
+                                                 self.holder_rule)
         self.assignment = AssignmentTerm.build(float(assignment_loss), self.networks, entity_layout, entity_pool,
                                                entity_nearest)
         self.target_actor = copy.deepcopy(self.actor).requires_grad_(False)

@@ -13,7 +13,12 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 
-from cmcl.learners.state_check import require_same_holder, require_same_nearest, require_same_shapes
+from cmcl.learners.state_check import (
+    require_same_holder,
+    require_same_holder_rule,
+    require_same_nearest,
+    require_same_shapes,
+)
 from cmcl.learners.weights import load_published
 
 __all__ = ["MADDPGCheckpoint"]
@@ -32,6 +37,7 @@ class MADDPGCheckpoint:
     updates: int
     entity_nearest: int
     entity_holder: bool
+    holder_rule: str
 
     def actor_weights(self) -> dict[str, np.ndarray]:
         """Online actor parameters as numpy copies, e.g. {"layers.0.weight": float32[N, obs_dim, 64], ...}."""
@@ -49,7 +55,7 @@ class MADDPGCheckpoint:
         tensors [N, in, out] / [N, out]; "actor_opt", "critic_opt": Adam state dicts; "noise_gen": uint8 tensor;
         "updates": int; "entity_nearest": int, the k of maddpg.entity_nearest (the weights do not show it; a
         state without it, written before it was kept, is k = 0); "entity_holder": bool, maddpg.entity_holder (a
-        state without it is false)}.
+        state without it is false); "holder_rule": str, maddpg.holder_rule (a state without it is "nearest")}.
         """
         return {
             "actor": self.actor.state_dict(),
@@ -62,6 +68,7 @@ class MADDPGCheckpoint:
             "updates": int(self.updates),
             "entity_nearest": int(self.entity_nearest),
             "entity_holder": bool(self.entity_holder),
+            "holder_rule": str(self.holder_rule),
         }
 
     def load_state_dict(self, state: Mapping) -> None:
@@ -71,6 +78,7 @@ class MADDPGCheckpoint:
         require_same_shapes("checkpoint maddpg", {name: getattr(self, name) for name in parts}, state,
                             "maddpg.networks, maddpg.share_parameters, maddpg.hidden, agents or observation sizes")
         require_same_nearest("checkpoint maddpg", self.entity_nearest, state)
+        require_same_holder_rule("checkpoint maddpg", self.holder_rule, state)
         for name in parts:
             getattr(self, name).load_state_dict(state[name])
         self.actor_opt.load_state_dict(state["actor_opt"])

@@ -30,10 +30,11 @@ def network_kind(networks: str | None, share_parameters: bool) -> str:
 
 def build_networks(kind: str, n: int, obs_dim: int, act_dim: int, widths: tuple[int, ...], discrete: bool,
                    gen: torch.Generator, layout: EntityLayout | None, pool: str = "attention", nearest: int = 0,
-                   holder: bool = False) -> tuple[nn.Module, nn.Module]:
+                   holder: bool = False, holder_rule: str = "nearest") -> tuple[nn.Module, nn.Module]:
     """(actor, critic) of the given kind: StackedMLPs with N members (per agent or shared), or entity networks
     (pooling over entities `pool`: entity_nets.POOLS; `nearest` > 0: only the k nearest entities of each kind,
-    entity_nets.nearest_entities; `holder`: each entity row with its holder margin, entity_nets.holder_margin)."""
+    entity_nets.nearest_entities; `holder`: each entity row with its holder margin, entity_nets.holder_margin, by
+    `holder_rule`)."""
     out_act = None if discrete else nn.Tanh
     if int(nearest) < 0:
         raise ValueError(f"nearest must be >= 0 (0: every entity), got {nearest!r}")
@@ -50,5 +51,7 @@ def build_networks(kind: str, n: int, obs_dim: int, act_dim: int, widths: tuple[
                          f"{None if layout is None else (layout.num_agents, layout.obs_dim)}")
     if len(set(widths)) != 1:
         raise ValueError(f"entity networks take one hidden width, got {widths}")
-    return (EntityActor(layout, act_dim, widths[0], gen, out_act=out_act, pool=pool, nearest=nearest, holder=holder),
-            EntityCritic(layout, act_dim, widths[0], gen, pool=pool, nearest=nearest, holder=holder))
+    return (EntityActor(layout, act_dim, widths[0], gen, out_act=out_act, pool=pool, nearest=nearest, holder=holder,
+                        holder_rule=holder_rule),
+            EntityCritic(layout, act_dim, widths[0], gen, pool=pool, nearest=nearest, holder=holder,
+                         holder_rule=holder_rule))

@@ -21,6 +21,9 @@ ENTITY_KEY = "encoder.entity.weight"  # present in the entity actor's weights on
 # the holder margin of a landmark when no other agent is present (holder_margin): more than any margin a present
 # agent leaves (|m| <= √2 ≈ 1.41, the arena's diagonal: the walls keep all in [-0.5, 0.5]^2), the viewer's alone
 HOLDER_ALONE = 2.0
+# the holder rule "seated" (cmcl.learners.entity_holder): an agent this near its nearest landmark sits on it (world
+# units; SpreadParams.cover_radius's default)
+SEATED_RADIUS = 0.1
 
 
 def _checked(weights: Mapping[str, np.ndarray], keys: list[str]) -> dict[str, np.ndarray]:
@@ -104,18 +107,21 @@ def holder_margin(entities: np.ndarray, mask: np.ndarray, types: slice, rule: st
     one-hot's columns, landmark first, agent second), mask bool[..., E] -> float32[..., E, 1], m_l = min over the
     present agent entities j of ||r_j − r_l|| − ||r_l|| (< 0: another agent is closer to l than the viewer, it holds
     l; > 0: the viewer is the closest), HOLDER_ALONE with no agent entity present; 0 for agents and absent slots.
-    rule "claimed" counts only the agents j whose nearest present landmark is l (the lowest slot on ties)."""
+    rule "seated": an agent within SEATED_RADIUS of its nearest present landmark (the lowest slot on ties) counts
+    for that landmark only (cmcl.learners.entity_holder)."""
+    if rule not in ("nearest", "seated"):
+        raise ValueError(f"maddpg.holder_rule must be one of ['nearest', 'seated'], got {rule!r}")
     pos = entities[..., :2]
     kinds = entities[..., types] > 0.5  # [..., E, T]
     landmark, agent = kinds[..., 0] & mask, kinds[..., 1] & mask  # [..., E]
     viewer = np.sqrt(np.square(pos).sum(-1))  # [..., E]: ||r_l||
     gap = np.sqrt(np.square(pos[..., :, None, :] - pos[..., None, :, :]).sum(-1))  # [..., E (l), E (j)]
     held = agent[..., None, :]  # [..., 1, E]
-    if rule == "claimed":  # agent j holds only its nearest present landmark
+    if rule == "seated":  # an agent seated on one landmark holds no other
         to_landmarks = np.where(landmark[..., :, None], gap, np.float32(np.inf))  # [..., E (l), E (j)]
         first = to_landmarks.argmin(-2)[..., None, :]  # [..., 1, E]
-        rows = np.arange(gap.shape[-2]).reshape(-1, 1)
-        held = held & (rows == first) & landmark[..., :, None] & np.isfinite(to_landmarks)
+        seated = to_landmarks.min(-2)[..., None, :] < SEATED_RADIUS
+        held = held & (~seated | (np.arange(gap.shape[-2]).reshape(-1, 1) == first))
     nearest = np.where(held, gap, np.float32(np.inf)).min(-1)  # [..., E]
     margin = np.where(np.isfinite(nearest), nearest - viewer, np.float32(HOLDER_ALONE))
     return np.where(landmark, margin, np.float32(0.0)).astype(np.float32)[..., None]
@@ -131,8 +137,8 @@ class NumpyEntityPolicy(NumpyPolicy):
     def __init__(self, weights: Mapping[str, np.ndarray], layout: EntityLayout, act_mask: np.ndarray | None = None,
                  nearest: int = 0, holder: bool = False, holder_rule: str = "nearest"):
         self.act_mask = None if act_mask is None else np.asarray(act_mask, np.float32)
-        if holder_rule not in ("nearest", "claimed"):
-            raise ValueError(f"maddpg.holder_rule must be one of ['nearest', 'claimed'], got {holder_rule!r}")
+        if holder_rule not in ("nearest", "seated"):
+            raise ValueError(f"maddpg.holder_rule must be one of ['nearest', 'seated'], got {holder_rule!r}")
         self.holder_rule = holder_rule
         self.layout = layout
         if int(nearest) < 0:

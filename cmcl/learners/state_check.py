@@ -48,3 +48,13 @@ def require_same_holder(owner: str, holder: bool, state: Mapping) -> None:
         raise ValueError(f"{owner} was trained with maddpg.entity_holder = {toml[saved]} and this config has "
                          f"{toml[bool(holder)]}: its entity layers read {'one more' if saved else 'one fewer'} "
                          f"input; set maddpg.entity_holder = {toml[saved]}")
+
+
+def require_same_holder_rule(owner: str, rule: str, state: Mapping) -> None:
+    """Raise ValueError unless the saved MADDPG state was trained with the same maddpg.holder_rule as this model
+    (`rule`): the weights fit either way, but they learned to read the margin by the saved rule (a state written
+    before the rule was kept has "nearest")."""
+    saved = str(state.get("holder_rule", "nearest"))
+    if saved != rule:
+        raise ValueError(f"{owner} was trained with maddpg.holder_rule = {saved!r} and this config has {rule!r}: the "
+                         f"same weights would read another margin; set maddpg.holder_rule = {saved!r}")

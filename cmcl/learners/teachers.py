@@ -58,7 +58,7 @@ class TeacherEnsemble:
         entity_nearest: k > 0: entity teachers read only the k nearest entities of each kind, as the learner's
             critic does (maddpg.entity_nearest); 0: every entity.
         entity_holder: entity teachers read every entity row with its holder margin, as the learner's critic does
-            (maddpg.entity_holder; navigation only).
+            (maddpg.entity_holder; navigation only), by entity_holder_rule (maddpg.holder_rule).
     """
 
     def __init__(
@@ -80,6 +80,7 @@ class TeacherEnsemble:
         entity_pool: str = "attention",
         entity_nearest: int = 0,
         entity_holder: bool = False,
+        entity_holder_rule: str = "nearest",
     ):
         self.num_agents, self.num_folds, self.in_dim = int(num_agents), int(num_folds), int(in_dim)
         self.grad_clip, self.chunk_size = grad_clip, int(chunk_size)
@@ -94,7 +95,7 @@ class TeacherEnsemble:
                 raise ValueError(f"entity teachers take one hidden width, got {widths}")
             self.net = EntityCritic(entity_layout, act_dim, widths[0], torch.Generator().manual_seed(int(seed)),
                                     groups=self.num_folds, pool=entity_pool, nearest=entity_nearest,
-                                    holder=entity_holder)
+                                    holder=entity_holder, holder_rule=entity_holder_rule)
         else:
             self.net = StackedMLP(self.num_agents * self.num_folds, self.in_dim, widths, 1, seed=seed,
                                   share=self.share_parameters, share_groups=self.num_folds)
