@@ -11,7 +11,8 @@ last bits) and as it ran before issue 38 (`before_issue_38`: those ops and the o
 (maddpg.entity_nearest, off by default); ``--assignment BETA`` the entity learner with maddpg.assignment_loss = BETA
 (cmcl.learners.assignment: the per-row assignment solver and the auxiliary loss in the actor step; off by default);
 ``--holder`` the entity learner with maddpg.entity_holder (every landmark's holder margin as one more entity feature,
-cmcl.learners.entity_holder; off by default).
+cmcl.learners.entity_holder; off by default), and with it under maddpg.holder_rule = "seated" (an agent seated on a
+landmark holds only that one).
 ``--profile`` also prints where an update spends its time (torch.profiler, by phase and by op).
 
 Run: .venv/bin/python bench/entity_cost.py [--agents 8] [--batch 128] [--nearest 3] [--assignment 1] [--holder]
@@ -58,6 +59,8 @@ def learners(n: int, nearest: int, assignment: float = 0.0, holder: bool = False
     if holder:
         cells["entity_holder"] = MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity", entity_layout=layout,
                                         entity_holder=True)
+        cells["entity_holder_seated"] = MADDPG(n, layout.obs_dim, 2, seed=0, networks="entity", entity_layout=layout,
+                                               entity_holder=True, holder_rule="seated")
     return cells
 
 
@@ -165,6 +168,8 @@ def main() -> None:
     if "entity_holder" in median:
         print(f"holder margin: +{1e3 * (median['entity_holder'] - median['entity']):.1f} ms per entity update "
               f"({median['entity_holder'] / median['entity']:.2f}x)")
+        print(f"seated rule: +{1e3 * (median['entity_holder_seated'] - median['entity_holder']):.1f} ms per entity "
+              f"update with the margin ({median['entity_holder_seated'] / median['entity_holder']:.2f}x)")
     if args.profile:
         for name, m in cells.items():
             profile(name, m, rows)

@@ -13,11 +13,16 @@ For a present landmark l of agent i's view (r: positions relative to agent i, th
 negative when another agent is closer to l than agent i (it "holds" l), positive when agent i is the closest, and
 HOLDER_ALONE (+2.0: more than any margin with an agent present, |m_l| <= the arena's diagonal √2 ≈ 1.41) when no
 other agent is present; 0 for agent entities and for absent slots.
+The entity actor, the entity critic (the learner's, its targets, the entity teachers) and the entity ICM append it
+as the last column of every entity row (:func:`with_holder`), computed after the presence mask of rows carried from
+fewer agents and before maddpg.entity_nearest's pick, so that a landmark's margin sees every present agent, not only
+the k picked. Rollout workers' numpy twin is cmcl.learners.policy.holder_margin. No gradient flows through it (the
+positions are observations).
 
 The rule (maddpg.holder_rule) says which other agents count. "nearest" (the margin above): every present other
 agent. "seated": an agent seated on a landmark (within SEATED_RADIUS, the default task's cover radius, of its nearest
 present landmark; ties to the lowest slot) counts for that landmark only; an agent on no landmark counts for every
-one. Where one agent sits within the cover radius of two landmarks (at N = 16, 52-64 % of the held-out worlds end
+one. Where one agent sits within the cover radius of two landmarks (at N = 16, 56-64 % of the held-out worlds end
 so, every landmark covered but not each by an agent of its own, cmcl.stalls), the landmark it is not nearest to reads
 as held by the nearest agent that is not seated elsewhere (HOLDER_ALONE when every other agent is), not as held by
 it. Until agents sit down the two rules give the same margins.
@@ -28,12 +33,10 @@ from __future__ import annotations
 import torch
 
 from cmcl.envs.entities import EntityLayout
-from cmcl.learners.policy import HOLDER_ALONE, SEATED_RADIUS
+from cmcl.learners.policy import HOLDER_ALONE, HOLDER_RULES, SEATED_RADIUS, require_holder_rule
 
 __all__ = ["HOLDER_ALONE", "HOLDER_RULES", "SEATED_RADIUS", "holder_margin", "holder_slots", "holder_width",
-           "with_holder"]
-
-HOLDER_RULES = ("nearest", "seated")  # which other agents hold a landmark (module docstring; maddpg.holder_rule)
+           "require_holder_rule", "with_holder"]
 
 
 def counted(to_landmarks: torch.Tensor, radius: float) -> torch.Tensor:
@@ -105,13 +108,6 @@ def with_holder(entities: torch.Tensor, mask: torch.Tensor, types: slice,
     margin = holder_margin(entities, mask, types, rule) if slots is None else \
         holder_margin_of_slots(entities, mask, *slots, rule=rule)
     return torch.cat([entities, margin], -1)
-
-
-def require_holder_rule(rule: str) -> str:
-    """`rule` when it is one of HOLDER_RULES, else ValueError naming maddpg.holder_rule and the value."""
-    if rule not in HOLDER_RULES:
-        raise ValueError(f"maddpg.holder_rule must be one of {list(HOLDER_RULES)}, got {rule!r}")
-    return rule
 
 
 def holder_width(layout: EntityLayout, holder: bool) -> int:

@@ -24,6 +24,14 @@ HOLDER_ALONE = 2.0
 # the holder rule "seated" (cmcl.learners.entity_holder): an agent this near its nearest landmark sits on it (world
 # units; SpreadParams.cover_radius's default)
 SEATED_RADIUS = 0.1
+HOLDER_RULES = ("nearest", "seated")  # which other agents hold a landmark (maddpg.holder_rule)
+
+
+def require_holder_rule(rule: str) -> str:
+    """`rule` when it is one of HOLDER_RULES, else ValueError naming maddpg.holder_rule and the value."""
+    if rule not in HOLDER_RULES:
+        raise ValueError(f"maddpg.holder_rule must be one of {list(HOLDER_RULES)}, got {rule!r}")
+    return rule
 
 
 def _checked(weights: Mapping[str, np.ndarray], keys: list[str]) -> dict[str, np.ndarray]:
@@ -109,8 +117,7 @@ def holder_margin(entities: np.ndarray, mask: np.ndarray, types: slice, rule: st
     l; > 0: the viewer is the closest), HOLDER_ALONE with no agent entity present; 0 for agents and absent slots.
     rule "seated": an agent within SEATED_RADIUS of its nearest present landmark (the lowest slot on ties) counts
     for that landmark only (cmcl.learners.entity_holder)."""
-    if rule not in ("nearest", "seated"):
-        raise ValueError(f"maddpg.holder_rule must be one of ['nearest', 'seated'], got {rule!r}")
+    require_holder_rule(rule)
     pos = entities[..., :2]
     kinds = entities[..., types] > 0.5  # [..., E, T]
     landmark, agent = kinds[..., 0] & mask, kinds[..., 1] & mask  # [..., E]
@@ -137,9 +144,7 @@ class NumpyEntityPolicy(NumpyPolicy):
     def __init__(self, weights: Mapping[str, np.ndarray], layout: EntityLayout, act_mask: np.ndarray | None = None,
                  nearest: int = 0, holder: bool = False, holder_rule: str = "nearest"):
         self.act_mask = None if act_mask is None else np.asarray(act_mask, np.float32)
-        if holder_rule not in ("nearest", "seated"):
-            raise ValueError(f"maddpg.holder_rule must be one of ['nearest', 'seated'], got {holder_rule!r}")
-        self.holder_rule = holder_rule
+        self.holder_rule = require_holder_rule(holder_rule)
         self.layout = layout
         if int(nearest) < 0:
             raise ValueError(f"nearest must be >= 0 (0: every entity), got {nearest!r}")
