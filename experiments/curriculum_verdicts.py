@@ -51,9 +51,10 @@ def direction(test: Test, worse: str, better: str) -> str:
     return (worse if test.difference < 0 else better) if shown(test) else "not shown"
 
 
-def verdict_rows(runs: list[dict[str, Any]]) -> list[tuple[str, str, str]]:
-    """(question, verdict, numbers) per question of the protocol, from the grid's runs."""
-    tests = {(t.a, t.b, t.key): t for t in curriculum_test_rows(runs)}
+def verdict_rows(runs: list[dict[str, Any]], tests: list[Test] | None = None) -> list[tuple[str, str, str]]:
+    """(question, verdict, numbers) per question of the protocol, from the grid's runs and their tests
+    (curriculum_test_rows of them, computed here when not given)."""
+    tests = {(t.a, t.b, t.key): t for t in (curriculum_test_rows(runs) if tests is None else tests)}
     auc, success, time = "auc_coverage", "held_out_success", "episodes_to_90"
     primary = tests[("cmcl", "maddpg", auc)]
     per, acl = tests[("cmcl", "per", auc)], tests[("cmcl", "acl", auc)]
@@ -115,10 +116,11 @@ def verdict_table(runs: list[dict[str, Any]]) -> str:
     """The verdict rows as a markdown table, with the code the tests ran ('no runs yet' without runs)."""
     if not runs:
         return NO_RUNS
-    code = curriculum_test_rows(runs)[0].code
+    tests = curriculum_test_rows(runs)
+    code = tests[0].code
     lines = [f"Verdicts by the protocol above, drawn from the tests (code: {code}):", "",
              "| question | verdict | numbers |", "| --- | --- | --- |"]
-    return "\n".join(lines + [f"| {q} | {v} | {n} |" for q, v, n in verdict_rows(runs)])
+    return "\n".join(lines + [f"| {q} | {v} | {n} |" for q, v, n in verdict_rows(runs, tests)])
 
 
 # a settings grid's comparison (a, b, measure) -> (its question, the verdict when a is shown below b, when above)

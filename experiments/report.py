@@ -97,14 +97,15 @@ def blocks(results: Path | None = None) -> dict[str, str]:
                                           + [r for r in runs if r.get("grid") == "ablation_reference"])
     if tag:
         out["tag"], out["tagtests"] = tag_table(tag), tag_tests_table(tag)
+    loaded = {}
     for grid_name, (table, tests, stalls, early) in CURRICULUM_BLOCKS.items():
-        curriculum = ResultsStore(where[grid_name]).load()
+        curriculum = loaded[grid_name] = ResultsStore(where[grid_name]).load()
         out[table], out[tests] = (curriculum_table(curriculum), curriculum_tests(curriculum)) if curriculum \
             else (NO_RUNS, NO_RUNS)
         if stalls is not None:
             records = load_stalls(where[grid_name])
             out[stalls], out[early] = stall_table(records, ARM_LABEL), early_learner_table(records, ARM_LABEL)
-    hard = ResultsStore(where["curriculum_hard"]).load()
+    hard = loaded["curriculum_hard"]
     out["curriculumhardverdicts"], out["curriculumhardcurves"] = verdict_table(hard), curve_table(hard)
     for grid_name, (table, tests, _) in SETTING_BLOCKS.items():
         arms, comparisons = SETTING_TABLES[grid_name]

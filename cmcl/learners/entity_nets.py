@@ -31,7 +31,7 @@ observation and its action never reach a present agent's embedding or Q.
 Opt-ins: ``nearest`` = k > 0 keeps the k nearest present entities of each kind (:func:`nearest_entities`,
 maddpg.entity_nearest); ``holder`` appends every entity row's holder margin, computed before that pick
 (:func:`holder_margin`, cmcl.learners.entity_holder; navigation only, maddpg.entity_holder): one more entity input;
-``holder_rule`` which other agents hold a landmark (maddpg.holder_rule, "nearest" or "claimed").
+``holder_rule`` which other agents hold a landmark (maddpg.holder_rule, "nearest" or "seated").
 """
 
 from __future__ import annotations
