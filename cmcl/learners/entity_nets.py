@@ -178,7 +178,26 @@ class EntityEncoder(nn.Module):
         return torch.cat([s, pooled, mean], -1), logits
 
 
-class EntityActor(nn.Module):
+class _EntityOptIns:
+    """The opt-ins every entity network shares (module docstring): ``nearest`` k, ``holder`` (the margin column,
+    navigation only) and ``holder_rule``; :meth:`_opt_ins` applies them to entity rows float32[..., E, F] and their
+    mask bool[..., E], the margin first (computed over every entity), then the pick of the k nearest."""
+
+    def _set_opt_ins(self, layout: EntityLayout, nearest: int, holder: bool, holder_rule: str) -> None:
+        self.nearest, self._type_cols = int(nearest), _type_columns(layout)
+        self.holder = bool(holder_width(layout, holder))
+        self._holder_slots = holder_slots(layout) if self.holder else None
+        self.holder_rule = require_holder_rule(holder_rule)
+
+    def _opt_ins(self, ents: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        if self.holder:
+            ents = with_holder(ents, mask, self._type_cols, self._holder_slots, self.holder_rule)
+        if self.nearest:
+            ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
+        return ents, mask
+
+
+class EntityActor(_EntityOptIns, nn.Module):
     """One actor for all agents: float32[N, B, obs_dim] (agent axis first, as StackedMLP) -> float32[N, B, act_dim].
 
     ``members`` is accepted for StackedMLP's signature and must be None (every agent acts from its own row).
@@ -191,10 +210,7 @@ class EntityActor(nn.Module):
                  holder: bool = False, holder_rule: str = "nearest"):
         super().__init__()
         self.layout, self.num_agents, self.act_dim = layout, layout.num_agents, int(act_dim)
-        self.nearest, self._type_cols = int(nearest), _type_columns(layout)
-        self.holder = bool(holder_width(layout, holder))
-        self._holder_slots = holder_slots(layout) if self.holder else None
-        self.holder_rule = require_holder_rule(holder_rule)
+        self._set_opt_ins(layout, nearest, holder, holder_rule)
         self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim + self.holder, hidden, generator, pool)
         self.head = StackedMLP(1, self.encoder.out_dim, (hidden,), act_dim, out_act=out_act, generator=generator)
 
@@ -214,17 +230,14 @@ class EntityActor(nn.Module):
         own, ents, mask = self.layout.split(x.transpose(0, 1))  # [B, N, S], [B, N, E, F], [B, N, E]
         if count is not None:
             mask = self.layout.present_mask(count.transpose(0, 1))
-        if self.holder:
-            ents = with_holder(ents, mask, self._type_cols, self._holder_slots, self.holder_rule)
-        if self.nearest:
-            ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
+        ents, mask = self._opt_ins(ents, mask)
         z, logits = self.encoder.encode(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
         b, n = x.shape[1], self.num_agents
         out = mlp(self.head, z, self.encoder.fused).view(b, n, self.act_dim).transpose(0, 1)
         return out, None if logits is None else logits.view(b, n, -1).transpose(0, 1)
 
 
-class EntityFeatures(nn.Module):
+class EntityFeatures(_EntityOptIns, nn.Module):
     """One observation encoder for some agents (the ICM's φ, eq. 13): float32[A, M, obs_dim], row a being agent
     agents[a]'s observations -> float32[A, M, out_dim] = W·z + b, z the entity encoder's output; with `nearest` = k > 0
     over the k nearest entities of each kind only (nearest_entities), and with `holder` each entity row with its
@@ -235,24 +248,18 @@ class EntityFeatures(nn.Module):
                  holder_rule: str = "nearest"):
         super().__init__()
         self.layout, self.agents, self.out_dim = layout, [int(a) for a in agents], int(out_dim)
-        self.nearest, self._type_cols = int(nearest), _type_columns(layout)
-        self.holder = bool(holder_width(layout, holder))
-        self._holder_slots = holder_slots(layout) if self.holder else None
-        self.holder_rule = require_holder_rule(holder_rule)
+        self._set_opt_ins(layout, nearest, holder, holder_rule)
         self.encoder = EntityEncoder(1, layout.own_dim, layout.entity_dim + self.holder, hidden, generator, pool)
         self.out = StackedLinear(1, self.encoder.out_dim, out_dim, generator)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         own, ents, mask = self.layout.split(x.transpose(0, 1), self.agents)  # [M, A, S], [M, A, E, F], [M, A, E]
-        if self.holder:
-            ents = with_holder(ents, mask, self._type_cols, self._holder_slots, self.holder_rule)
-        if self.nearest:
-            ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
+        ents, mask = self._opt_ins(ents, mask)
         z = self.encoder(own.flatten(0, 1)[None], ents.flatten(0, 1)[None], mask.flatten(0, 1)[None])
         return self.encoder.layer(self.out, z).view(x.shape[1], x.shape[0], self.out_dim).transpose(0, 1)
 
 
-class EntityCritic(nn.Module):
+class EntityCritic(_EntityOptIns, nn.Module):
     """Centralised Q_i of agent i on each row, G independent groups (module docstring).
 
     :meth:`q_agent`: obs float32[G, R, N, obs_dim], act float32[G, R, N, act_dim], agent int64[G, R]
@@ -271,10 +278,7 @@ class EntityCritic(nn.Module):
                  holder_rule: str = "nearest"):
         super().__init__()
         self.layout, self.num_agents, self.act_dim, self.groups = layout, layout.num_agents, int(act_dim), int(groups)
-        self.nearest, self._type_cols = int(nearest), _type_columns(layout)
-        self.holder = bool(holder_width(layout, holder))
-        self._holder_slots = holder_slots(layout) if self.holder else None
-        self.holder_rule = require_holder_rule(holder_rule)
+        self._set_opt_ins(layout, nearest, holder, holder_rule)
         self.obs_dim = layout.obs_dim
         own_in = layout.own_dim + act_dim  # the entity rows: F features, the shown agent's own_in, the margin
         self.encoder = EntityEncoder(groups, own_in, layout.entity_dim + own_in + self.holder, hidden, generator, pool)
@@ -322,10 +326,7 @@ class EntityCritic(nn.Module):
         holder margin)], mask bool[G, R, E]."""
         views = self.views.gather if self.encoder.fused else self.views.reference
         own, ents, mask = views(obs, act, agent, count)
-        if self.holder:  # the same column whichever view built the rows
-            ents = with_holder(ents, mask, self._type_cols, self._holder_slots, self.holder_rule)
-        if self.nearest:
-            ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
+        ents, mask = self._opt_ins(ents, mask)  # the same holder column whichever view built the rows
         return own, ents, mask
 
     def forward(self, x: torch.Tensor, members: torch.Tensor | None = None,
