@@ -179,3 +179,15 @@ def test_it_trains_inline_and_evaluation_rebuilds_the_rule(tmp_path):
     np.testing.assert_array_equal(rebuilt.act(obs, 0.0), loop.maddpg.act(obs, 0.0))
     with pytest.raises(ValueError, match="trained with maddpg.holder_rule = 'seated'"):
         load_policy(load_config(N8), policy)
+
+
+def test_the_configs_holder_rules_are_the_learners_and_the_seated_radius_is_the_default_cover_radius():
+    import typing
+
+    from cmcl.config.learning import MADDPGConfig
+    from cmcl.envs.params import SpreadParams
+    from cmcl.holder_rules import HOLDER_RULES, SEATED_RADIUS
+
+    hints = typing.get_type_hints(MADDPGConfig)
+    assert typing.get_args(hints["holder_rule"]) == HOLDER_RULES
+    assert SpreadParams().cover_radius == SEATED_RADIUS

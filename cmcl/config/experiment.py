@@ -16,7 +16,7 @@ from cmcl.config.env import TASK_TEAMS, TASKS, EnvConfig
 from cmcl.config.learning import CurriculumConfig, ICMConfig, MADDPGConfig, ReplayConfig, TeacherConfig
 from cmcl.config.run_and_service import RunConfig, ServiceConfig
 from cmcl.config.teams import TeamConfig
-from cmcl.learners.policy import SEATED_RADIUS
+from cmcl.holder_rules import SEATED_RADIUS
 from cmcl.replay.curriculum import default_stride
 
 

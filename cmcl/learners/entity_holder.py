@@ -33,7 +33,8 @@ from __future__ import annotations
 import torch
 
 from cmcl.envs.entities import EntityLayout
-from cmcl.learners.policy import HOLDER_ALONE, HOLDER_RULES, SEATED_RADIUS, require_holder_rule
+from cmcl.holder_rules import HOLDER_RULES, SEATED_RADIUS, require_holder_rule
+from cmcl.learners.policy import HOLDER_ALONE
 
 __all__ = ["HOLDER_ALONE", "HOLDER_RULES", "SEATED_RADIUS", "holder_margin", "holder_slots", "holder_width",
            "require_holder_rule", "with_holder"]

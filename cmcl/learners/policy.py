@@ -16,22 +16,12 @@ from collections.abc import Mapping
 import numpy as np
 
 from cmcl.envs.entities import EntityLayout
+from cmcl.holder_rules import SEATED_RADIUS, require_holder_rule
 
 ENTITY_KEY = "encoder.entity.weight"  # present in the entity actor's weights only
 # the holder margin of a landmark when no other agent is present (holder_margin): more than any margin a present
 # agent leaves (|m| <= √2 ≈ 1.41, the arena's diagonal: the walls keep all in [-0.5, 0.5]^2), the viewer's alone
 HOLDER_ALONE = 2.0
-# the holder rule "seated" (cmcl.learners.entity_holder): an agent this near its nearest landmark sits on it (world
-# units; SpreadParams.cover_radius's default)
-SEATED_RADIUS = 0.1
-HOLDER_RULES = ("nearest", "seated")  # which other agents hold a landmark (maddpg.holder_rule)
-
-
-def require_holder_rule(rule: str) -> str:
-    """`rule` when it is one of HOLDER_RULES, else ValueError naming maddpg.holder_rule and the value."""
-    if rule not in HOLDER_RULES:
-        raise ValueError(f"maddpg.holder_rule must be one of {list(HOLDER_RULES)}, got {rule!r}")
-    return rule
 
 
 def _checked(weights: Mapping[str, np.ndarray], keys: list[str]) -> dict[str, np.ndarray]:
