@@ -109,7 +109,7 @@ def blocks(results: Path | None = None) -> dict[str, str]:
     out["curriculumhardverdicts"], out["curriculumhardcurves"] = verdict_table(hard), curve_table(hard)
     for grid_name, (table, tests, _) in SETTING_BLOCKS.items():
         arms, comparisons = SETTING_TABLES[grid_name]
-        runs = setting_runs(where, grid_name)
+        runs = setting_runs(where, grid_name, hard)
         out[table], out[tests] = (setting_table(runs, arms), curriculum_tests(runs, comparisons)) \
             if any(r["grid"] == grid_name for r in runs) else (NO_RUNS, NO_RUNS)
         out[f"{table}verdicts"] = setting_verdict_table(runs, grid_name)
@@ -134,11 +134,13 @@ def blocks(results: Path | None = None) -> dict[str, str]:
     return {**out, **quoted}
 
 
-def setting_runs(where: dict[str, Path], grid_name: str) -> list[dict[str, Any]]:
+def setting_runs(where: dict[str, Path], grid_name: str,
+                 hard: list[dict[str, Any]] | None = None) -> list[dict[str, Any]]:
     """A harder-task settings grid's runs with the harder task's runs of the other arms of its table (MADDPG and the
-    default CMCL) beside them."""
+    default CMCL) beside them; `hard`: the harder task's runs when already loaded (else read from its folder)."""
     arms = SETTING_TABLES[grid_name][0]
-    hard = [r for r in ResultsStore(where["curriculum_hard"]).load() if r.get("arm") in arms]
+    hard = ResultsStore(where["curriculum_hard"]).load() if hard is None else hard
+    hard = [r for r in hard if r.get("arm") in arms]
     return [*hard, *ResultsStore(where[grid_name]).load()]
 
 
