@@ -28,10 +28,11 @@ optional ``count`` (int64, the present agents of each row, always the first ones
 the entities that exist only with more agents (EntityLayout.present_mask): an absent agent's entity slot, its
 observation and its action never reach a present agent's embedding or Q.
 
-Opt-ins: ``nearest`` = k > 0 keeps the k nearest present entities of each kind (:func:`nearest_entities`,
-maddpg.entity_nearest); ``holder`` appends every entity row's holder margin, computed before that pick
-(:func:`holder_margin`, cmcl.learners.entity_holder; navigation only, maddpg.entity_holder): one more entity input;
-``holder_rule`` which other agents hold a landmark (maddpg.holder_rule, "nearest" or "seated").
+Opt-ins (cmcl.learners.entity_picks: which entity rows a network reads): ``nearest`` = k > 0 keeps the k nearest
+present entities of each kind (:func:`nearest_entities`, maddpg.entity_nearest); ``holder`` appends every entity
+row's holder margin, computed before that pick (:func:`holder_margin`, cmcl.learners.entity_holder; navigation only,
+maddpg.entity_holder): one more entity input; ``holder_rule`` which other agents hold a landmark (maddpg.holder_rule,
+"nearest" or "seated").
 """
 
 from __future__ import annotations
@@ -43,14 +44,9 @@ import torch
 from torch import nn
 
 from cmcl.envs.entities import EntityLayout
-from cmcl.learners.entity_holder import (
-    holder_margin,
-    holder_slots,
-    holder_width,
-    require_holder_rule,
-    with_holder,
-)
+from cmcl.learners.entity_holder import holder_margin
 from cmcl.learners.entity_ops import dense, mlp
+from cmcl.learners.entity_picks import EntityOptIns, nearest_entities
 from cmcl.learners.entity_views import CriticViews
 from cmcl.learners.nets import StackedLinear, StackedMLP
 
@@ -69,27 +65,6 @@ def masked_softmax(logits: torch.Tensor, mask: torch.Tensor | None) -> torch.Ten
     if mask is not None:
         logits = logits.masked_fill(~mask, float("-inf"))
     return torch.softmax(logits, -1).nan_to_num(0.0)
-
-
-def nearest_entities(entities: torch.Tensor, mask: torch.Tensor, k: int, types: slice
-                     ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The k nearest present entities of each kind (an opt-in, ``nearest`` of the entity actor and critic; 0, the
-    default, keeps them all): entities float32[..., E, F], whose first two features are the entity's position
-    relative to the agent (every built-in layout, cmcl.envs.entities) and `types` the columns of the type one-hot,
-    mask bool[..., E] -> float32[..., T·k', F], bool[..., T·k'] (k' = min(k, E); a kind with fewer than k' present
-    entities fills its picks with absent ones). Closest first within a kind; ties go to the lower slot (as the
-    numpy twin's, cmcl.learners.policy.nearest_entities; which absent slots fill a kind's picks is not set)."""
-    e = entities.shape[-2]
-    kinds = entities[..., types].detach() > 0.5  # [..., E, T]
-    dist = entities[..., :2].detach().square().sum(-1).masked_fill(~mask, float("inf"))  # [..., E]
-    dist = dist.unsqueeze(-2).masked_fill(~kinds.transpose(-1, -2), float("inf"))  # [..., T, E]
-    k = min(int(k), e)
-    value, index = dist.topk(min(k + 1, e), -1, largest=False)  # [..., T, k' (+ 1)]: ties in no set order
-    if bool(((value[..., 1:] == value[..., :-1]) & value[..., 1:].isfinite()).any()):  # rare: the lower slot first
-        value, index = dist.sort(dim=-1, stable=True)
-    value, index = value[..., :k], index[..., :k].flatten(-2)
-    picked = entities.gather(-2, index.unsqueeze(-1).expand(*index.shape, entities.shape[-1]))
-    return picked, value.flatten(-2).isfinite()
 
 
 class EntityEncoder(nn.Module):
@@ -178,26 +153,7 @@ class EntityEncoder(nn.Module):
         return torch.cat([s, pooled, mean], -1), logits
 
 
-class _EntityOptIns:
-    """The opt-ins every entity network shares (module docstring): ``nearest`` k, ``holder`` (the margin column,
-    navigation only) and ``holder_rule``; :meth:`_opt_ins` applies them to entity rows float32[..., E, F] and their
-    mask bool[..., E], the margin first (computed over every entity), then the pick of the k nearest."""
-
-    def _set_opt_ins(self, layout: EntityLayout, nearest: int, holder: bool, holder_rule: str) -> None:
-        self.nearest, self._type_cols = int(nearest), _type_columns(layout)
-        self.holder = bool(holder_width(layout, holder))
-        self._holder_slots = holder_slots(layout) if self.holder else None
-        self.holder_rule = require_holder_rule(holder_rule)
-
-    def _opt_ins(self, ents: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        if self.holder:
-            ents = with_holder(ents, mask, self._type_cols, self._holder_slots, self.holder_rule)
-        if self.nearest:
-            ents, mask = nearest_entities(ents, mask, self.nearest, self._type_cols)
-        return ents, mask
-
-
-class EntityActor(_EntityOptIns, nn.Module):
+class EntityActor(EntityOptIns, nn.Module):
     """One actor for all agents: float32[N, B, obs_dim] (agent axis first, as StackedMLP) -> float32[N, B, act_dim].
 
     ``members`` is accepted for StackedMLP's signature and must be None (every agent acts from its own row).
@@ -237,7 +193,7 @@ class EntityActor(_EntityOptIns, nn.Module):
         return out, None if logits is None else logits.view(b, n, -1).transpose(0, 1)
 
 
-class EntityFeatures(_EntityOptIns, nn.Module):
+class EntityFeatures(EntityOptIns, nn.Module):
     """One observation encoder for some agents (the ICM's φ, eq. 13): float32[A, M, obs_dim], row a being agent
     agents[a]'s observations -> float32[A, M, out_dim] = W·z + b, z the entity encoder's output; with `nearest` = k > 0
     over the k nearest entities of each kind only (nearest_entities), and with `holder` each entity row with its
@@ -259,7 +215,7 @@ class EntityFeatures(_EntityOptIns, nn.Module):
         return self.encoder.layer(self.out, z).view(x.shape[1], x.shape[0], self.out_dim).transpose(0, 1)
 
 
-class EntityCritic(_EntityOptIns, nn.Module):
+class EntityCritic(EntityOptIns, nn.Module):
     """Centralised Q_i of agent i on each row, G independent groups (module docstring).
 
     :meth:`q_agent`: obs float32[G, R, N, obs_dim], act float32[G, R, N, act_dim], agent int64[G, R]
@@ -357,8 +313,3 @@ class EntityCritic(_EntityOptIns, nn.Module):
         act = x[..., split:].unflatten(-1, (n, self.act_dim))
         return self.q_agent(obs, act, agent, count)
 
-
-def _type_columns(layout: EntityLayout) -> slice:
-    """The columns of the type one-hot in an entity row (after the P raw features): nearest_entities, holder_margin."""
-    raw = layout.entity_index.shape[2]
-    return slice(raw, raw + len(layout.type_names))
