@@ -18,7 +18,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-WALL_CLOCK = ("elapsed_s", "env_steps_per_s", "updates_per_s")
+WALL_CLOCK = ("elapsed_s", "segment_s", "env_steps_per_s", "updates_per_s")
 # The prefix's own settings (small, fast, past the warm-up): they override the configuration's.
 PREFIX_SETS = ("run.log_every=16", "run.checkpoint_every=0", "env.num_envs=8", "maddpg.warmup=800",
                "maddpg.batch_size=64", "replay.capacity=2000", "teachers.batch_size=32", "icm.batch_size=32",

@@ -104,11 +104,15 @@ def row_sampling_parts(row: dict[str, Any]) -> list[str]:
                           [m == "uniform" for m in modes][:len(ess)])
 
 
-def time_left(episodes: int, target: int, elapsed_s: float, max_seconds: float = 0.0) -> str:
+def time_left(episodes: int, target: int, elapsed_s: float, max_seconds: float = 0.0,
+              segment_s: float | None = None) -> str:
     """How long the run has left, in seconds: the wall-clock budget's rest ("left ≤ 183s (budget)") when it ends
-    first, else the episode budget's rest at the rate so far ("left ~240s"); "" before the first episode."""
+    first, else the episode budget's rest at the rate so far ("left ~240s"); "" before the first episode.
+    elapsed_s: the run's training seconds, over every segment of a resumed run; segment_s: this command's (the
+    budget run.max_seconds is this command's); None: the same as elapsed_s (a run not resumed)."""
+    used = elapsed_s if segment_s is None else segment_s
     by_episodes = elapsed_s / episodes * max(target - episodes, 0) if episodes > 0 and elapsed_s > 0 else None
-    by_budget = max(max_seconds - elapsed_s, 0.0) if max_seconds > 0 else None
+    by_budget = max(max_seconds - used, 0.0) if max_seconds > 0 else None
     if by_budget is not None and (by_episodes is None or by_budget <= by_episodes):
         return f"left ≤ {by_budget:.0f}s (budget)"
     return "" if by_episodes is None else f"left ~{by_episodes:.0f}s"
@@ -116,11 +120,12 @@ def time_left(episodes: int, target: int, elapsed_s: float, max_seconds: float =
 
 def progress_line(episodes: int, target: int, env_steps: int, updates: int, window: dict[str, Any], lam: float | None,
                   rates: dict[str, float], elapsed_s: float, extra: Sequence[str] = (), max_seconds: float = 0.0,
-                  notes: Sequence[str] = ()) -> str:
+                  notes: Sequence[str] = (), segment_s: float | None = None) -> str:
     """One terminal line: counters, window means (see `window_summary`), λ (None: no rule of the run reads it, so
     the line leaves it out, and its `notes` with it), update and env-step rates, `extra`
-    parts (the service adds buffer size, score age and weight lag), elapsed seconds, the time left
-    (`time_left`, with the run's wall-clock budget `max_seconds`, 0 = none) and `notes`: what is normal at this point
+    parts (the service adds buffer size, score age and weight lag), elapsed seconds (over every segment of a resumed
+    run), the time left (`time_left`, with the wall-clock budget `max_seconds` of this command's `segment_s`, 0 =
+    none) and `notes`: what is normal at this point
     of the run (the sampling rules' `early_note` while λ < 0.5, cmcl.algorithms)."""
     parts = [f"ep {episodes}/{target}", f"steps {env_steps}", f"upd {updates}"]
     parts += [f"{label} {window[key]:.2f}" for key, label in WINDOW_KEYS if window.get(key) is not None]
@@ -128,7 +133,7 @@ def progress_line(episodes: int, target: int, env_steps: int, updates: int, wind
     parts += [f"λ {lam:.4f}"] if lam is not None else []
     parts += [f"{rates.get('updates_per_s', 0.0):.0f} upd/s",
               f"{rates.get('env_steps_per_s', 0.0):.0f} st/s", *extra, f"{elapsed_s:.0f}s"]
-    left = time_left(episodes, target, elapsed_s, max_seconds)
+    left = time_left(episodes, target, elapsed_s, max_seconds, segment_s)
     parts += [left] if left else []
     parts += list(notes) if lam is not None and lam < 0.5 else []
     return " | ".join(parts)

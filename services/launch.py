@@ -265,17 +265,22 @@ def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: Ru
         stop.restore()
 
 
+def resumed_part(summary: dict[str, Any]) -> str:
+    """The `done` line's note on a resumed run: " (123s of them this time)" when earlier segments trained too."""
+    segment = summary.get("segment_s", summary["elapsed_s"])
+    return f" ({segment:.0f}s of them this time)" if summary["elapsed_s"] - segment >= 0.5 else ""
+
+
 def _report(request: RunRequest, config: Config, run_dir: RunDirectory, summary: dict[str, Any],
             stop: StopSignals) -> int:
     """The end of a run: summary.json, the `done` line, then the resume hint (stopped) or the evaluation."""
     ended = stop.name or ("solved" if summary.get("solved") else "plateau" if summary.get("plateau") else "budget")
     run_dir.write_summary({**{k: v for k, v in summary.items() if k != "metrics_text"}, "ended": ended,
                            "runner": "service"})
+    why = (f" (coverage target {config.run.stop_coverage} reached)" if summary.get("solved") else
+           " (learning stopped progressing: run.stop_progress)" if summary.get("plateau") else "")
     print(f"done: {summary['episodes']} episodes, {summary['env_steps']} env steps, {summary['updates']} updates "
-          f"in {summary['elapsed_s']:.0f}s" + (f" (coverage target {config.run.stop_coverage} reached)"
-                                               if summary.get("solved") else
-                                               " (learning stopped progressing: run.stop_progress)"
-                                               if summary.get("plateau") else ""))
+          f"in {summary['elapsed_s']:.0f}s{resumed_part(summary)}{why}")
     if stop.requested:
         print(f"stopped by {stop.name}; every role is checkpointed. Resume with: "
               f"{resume_command(run_dir.path)}")

@@ -74,6 +74,7 @@ class ProgressView:
         self.episodes_target, self.started, self.sampling_modes = episodes_target, started, list(sampling_modes)
         self.max_seconds, self.notes, self.show_lambda = float(max_seconds), list(notes or []), bool(show_lambda)
         self.rates = {"env_steps_per_s": 0.0, "updates_per_s": 0.0}
+        self.before_s = 0.0  # training seconds of the run's earlier segments (set on resume)
         self.window = WindowedRate(RATE_WINDOW_S)
         self.window.mark(started, (status.env_steps, status.updates))
 
@@ -89,11 +90,13 @@ class ProgressView:
         score age, lag."""
         return progress_line(status.episodes, self.episodes_target, status.env_steps, status.updates,
                              window_summary(window), status.lam if self.show_lambda else None, self.rates,
-                             time.perf_counter() - self.started, replay_parts(status, report, lags), self.max_seconds,
-                             self.notes)
+                             self.before_s + time.perf_counter() - self.started, replay_parts(status, report, lags),
+                             self.max_seconds, self.notes, segment_s=time.perf_counter() - self.started)
 
     def row(self, status: ReplayStatus, report: Report | None) -> dict[str, Any]:
-        """The progress row of metrics.jsonl: counters, rates, elapsed seconds and the sampling entries
+        """The progress row of metrics.jsonl: counters, rates, elapsed seconds (the run's, over every segment;
+        segment_s: this command's) and the sampling entries
         (`sampling_row`) of the replay server's newest report."""
-        return {"kind": "progress", **status.counters(), **self.rates, "elapsed_s": time.perf_counter() - self.started,
-                **sampling_row(report, self.sampling_modes)}
+        segment = time.perf_counter() - self.started
+        return {"kind": "progress", **status.counters(), **self.rates, "elapsed_s": self.before_s + segment,
+                "segment_s": segment, **sampling_row(report, self.sampling_modes)}

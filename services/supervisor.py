@@ -78,7 +78,8 @@ class Supervisor:
         # starts it afresh)
         self.learning_progress = LearningProgress.from_run_config(config.run)
         self.last_replay_report: Report | None = None
-        self.started = time.perf_counter()
+        self.started = time.perf_counter()  # this command's start: run.max_seconds counts from here
+        self.before_s = 0.0  # training seconds of the run's earlier segments (a resumed run: restore_counters)
         algorithms = layout_of(config).algorithms
         self.view = ProgressView(config.run.episodes, self.started, self.status,
                                  [sampling_name(a) for a in algorithms], config.run.max_seconds,
@@ -208,7 +209,7 @@ class Supervisor:
     def _log_episodes(self, report: Report) -> None:
         """Append one 'episode' row per finished episode of a rollout report to metrics.jsonl."""
         rows = episode_rows(report.rollout.finished.to_dict(), self.episodes_logged + 1,
-                            elapsed_s=time.perf_counter() - self.started, worker=report.source,
+                            elapsed_s=self.elapsed_s(), worker=report.source,
                             weight_version=report.weight_version or 0)
         self.episodes_logged += len(rows)
         self.window.extend(rows)
@@ -270,16 +271,24 @@ class Supervisor:
                 except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError) as err:
                     self.failures.save_failed(role, err)
         summary = {"episodes_logged": self.episodes_logged, "status": dataclasses.asdict(self.status),
-                   "time": time.time()}
+                   "time": time.time(), "elapsed_s": self.elapsed_s()}
         atomic_write_bytes(self.paths["supervisor"], json.dumps(summary).encode())
         self.checkpoint_seconds.append(time.perf_counter() - started)
 
     def restore_counters(self) -> None:
-        """On resume: continue the episode numbering of metrics.jsonl from the last checkpoint."""
+        """On resume: continue the episode numbering of metrics.jsonl and the training clock (elapsed_s) from the last
+        checkpoint (one written before the clock was kept: from 0)."""
         path = self.paths["supervisor"]
         if path.exists():
-            self.episodes_logged = int(json.loads(path.read_text())["episodes_logged"])
+            saved = json.loads(path.read_text())
+            self.episodes_logged = int(saved["episodes_logged"])
+            self.before_s = self.view.before_s = float(saved.get("elapsed_s", 0.0))
             self.run_dir.truncate_rows_after(self.episodes_logged)
+
+    def elapsed_s(self) -> float:
+        """The run's training seconds so far, over every segment (a resumed run's clock goes on from its checkpoint,
+        as the inline runner's)."""
+        return self.before_s + time.perf_counter() - self.started
 
     def run(self) -> dict[str, Any]:
         """Train until the episode target (or the time budget) is reached; checkpoint periodically and at the end."""
@@ -337,4 +346,5 @@ class Supervisor:
                 "plateau": self.learning_progress.plateaued,
                 "stopped": self.stopped, "episodes_logged": self.episodes_logged,
                 "checkpoint_seconds": list(self.checkpoint_seconds), "learner_held_s": dict(self.held.seconds),
-                "window": window_summary(self.window), "elapsed_s": time.perf_counter() - self.started}
+                "window": window_summary(self.window), "elapsed_s": self.elapsed_s(),
+                "segment_s": time.perf_counter() - self.started}

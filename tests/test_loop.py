@@ -209,3 +209,22 @@ def test_a_run_killed_while_checkpointing_never_leaves_a_checkpoint_without_its_
     resumed = InlineLoop(run_dir.config(()), run_dir, progress=None)
     resumed.restore(run_dir.latest_checkpoint())
     assert resumed.counters["episodes"] == 8
+
+
+def test_a_run_ended_by_its_time_budget_resumes_for_that_budget_again_and_its_clock_goes_on(tmp_path, tiny_config):
+    """run.max_seconds is each command's budget (as `make resume`'s "5 more minutes"): a run that spent it trains
+    further when resumed; elapsed_s, in the rows and the summary's loop, counts every segment, segment_s this one."""
+    config = tiny_config("maddpg", dir=str(tmp_path / "budget"), episodes=100_000, checkpoint_every=0)
+    config = config_from_dict({**config.to_dict(), "run": {**config.to_dict()["run"], "max_seconds": 0.5}})
+    first = InlineLoop(config, RunDirectory.create(config.run.dir, config), progress=None)
+    first.run()
+    done = first.counters["episodes"]
+    assert 0 < done < 100_000 and first.elapsed_s >= 0.5 and first.segment_s == pytest.approx(first.elapsed_s)
+    run_dir = RunDirectory.open(config.run.dir)
+    resumed = InlineLoop(run_dir.config(), run_dir, progress=None)
+    resumed.restore(run_dir.latest_checkpoint())
+    resumed.run()
+    assert resumed.counters["episodes"] > done, "the resumed run trained for its own budget"
+    assert resumed.segment_s >= 0.5 and resumed.elapsed_s >= first.elapsed_s + resumed.segment_s - 1e-6
+    clock = [r["elapsed_s"] for r in run_dir.rows("episode")]
+    assert clock == sorted(clock) and clock[-1] > first.elapsed_s, "the clock goes on across the resume"

@@ -33,6 +33,9 @@ def test_the_line_says_the_time_left_and_what_is_normal_while_lambda_is_low():
     assert time_left(1_000, 20_000, 50.0, 300.0) == "left ≤ 250s (budget)"  # the budget ends first
     assert time_left(10_000, 20_000, 100.0, 300.0) == "left ~100s"  # the episodes end first, at 100 episodes/s
     assert time_left(0, 20_000, 0.0) == "" and time_left(10, 20, 5.0) == "left ~5s"
+    # a resumed run: the budget is this command's (segment_s), the episodes' rate the whole run's
+    assert time_left(10_000, 20_000, 400.0, 300.0, segment_s=100.0) == "left ≤ 200s (budget)"
+    assert time_left(10_000, 20_000, 100.0, 300.0, segment_s=10.0) == "left ~100s"
     notes = early_notes(["cmcl", "cmcl", "maddpg"])
     assert len(notes) == 1 and "λ < 0.5" in notes[0] and early_notes(["maddpg", "per", "relo"]) == []
     early = progress_line(1_000, 20_000, 25_000, 100, {}, 0.2, {}, 50.0, max_seconds=300.0, notes=notes)

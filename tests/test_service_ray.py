@@ -116,6 +116,10 @@ def test_resume_continues_counters(tmp_path, ray_cluster):
     assert second["updates"] >= first["updates"] + 6, "the resumed run does the updates its env steps owe"
     episodes = [r["episodes"] for r in run_dir.rows("episode")]
     assert episodes == list(range(1, second["episodes"] + 1))
+    # the training clock goes on from the checkpoint, as the inline runner's; segment_s is this command's
+    clock = [r["elapsed_s"] for r in run_dir.rows("episode")]
+    assert clock == sorted(clock), clock
+    assert second["elapsed_s"] >= clock[first["episodes"] - 1] + second["segment_s"], (first, second)
 
 
 # out of the default run (its 10-minute budget): tests/test_service_faults.py kills a worker three times in the

@@ -38,8 +38,9 @@ class RunConfig:
     stop_coverage: float = documented(0.0, "stop early once the moving average (over smoothing_window episodes) "
                                       "of final-step coverage reaches this (spread only; 0: off, train all "
                                       "run.episodes)", unit="fraction of landmarks", rule=PROBABILITY)
-    max_seconds: float = documented(0.0, "wall-clock budget of training, inline and in the service (0: none)",
-                                    unit="seconds", rule=FINITE_AT_LEAST_0)
+    max_seconds: float = documented(0.0, "wall-clock budget of this command's training, inline and in the service "
+                                    "(0: none); a resumed run gets it again, and its elapsed_s goes on over every "
+                                    "segment", unit="seconds", rule=FINITE_AT_LEAST_0)
     stop_progress: float = documented(
         0.0, "stop early once learning stops progressing (cmcl.learning_progress): the learning progress of "
         "progress_signal between consecutive windows of progress_window episodes stays below this for "

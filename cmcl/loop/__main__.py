@@ -93,13 +93,13 @@ def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
             row = loop.run(stop=lambda: stop.requested)
         except TrainingDiverged as err:  # the last checkpoint before it stays the run's newest
             run_dir.write_summary({"runner": "inline", "ended": "diverged", **loop.counters,
-                                   "elapsed_s": loop.elapsed_s})
+                                   "elapsed_s": loop.elapsed_s, "segment_s": loop.segment_s})
             print(f"error: {err}", file=sys.stderr)
             return 2
         except EnvFactoryError as err:  # the user's environment raised or misfit: keep the run, then one line
             checkpoint = loop.save_checkpoint()
             run_dir.write_summary({"runner": "inline", "ended": "env_error", **loop.counters,
-                                   "elapsed_s": loop.elapsed_s})
+                                   "elapsed_s": loop.elapsed_s, "segment_s": loop.segment_s})
             print(f"error: {err}; the run is kept at episode {loop.counters['episodes']} ({checkpoint}); resume "
                   f"with: {resume_command(run_dir.path)}", file=sys.stderr)
             return 2
@@ -107,7 +107,7 @@ def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
         ended = stop.name or ("solved" if solved(loop.window, config.run) else
                               "plateau" if loop.learning_progress.plateaued else "budget")
         run_dir.write_summary({"runner": "inline", "ended": ended, **loop.counters, "elapsed_s": loop.elapsed_s,
-                               "window": row.get("window", {})})
+                               "segment_s": loop.segment_s, "window": row.get("window", {})})
         if stop.requested:
             print(f"stopped by {stop.name} at episode {loop.counters['episodes']}; checkpointed. Resume with: "
                   f"{resume_command(run_dir.path)}")

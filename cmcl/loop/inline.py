@@ -82,6 +82,7 @@ class InlineLoop:
         self.learning_progress = LearningProgress.from_run_config(config.run)  # run.stop_progress
         self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "rounds": 0}
         self.elapsed_s = 0.0  # training wall clock so far, seconds (kept across checkpoint + resume)
+        self.segment_s = 0.0  # this command's training seconds (run.max_seconds is this command's budget)
         self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
         self.last_stats: dict[str, Any] = {}
         self.stopped = False  # the last `run` ended because its `stop` said so
@@ -220,9 +221,9 @@ class InlineLoop:
         return stats
 
     # ------------------------------------------------------------------ metrics rows (cmcl/loop/metrics_rows.py)
-    def progress_row(self, elapsed: float, rate: dict[str, float]) -> dict[str, Any]:
+    def progress_row(self, elapsed: float, rate: dict[str, float], segment: float | None = None) -> dict[str, Any]:
         """A 'progress' metrics row: counters, λ, losses, priority statistics and window means."""
-        return progress_row(self, elapsed, rate)
+        return progress_row(self, elapsed, rate, segment)
 
     def format_progress(self, row: dict[str, Any]) -> str:
         """One terminal line from a progress row."""
@@ -253,7 +254,8 @@ class InlineLoop:
         (polled after every batched env step: a graceful SIGINT / SIGTERM); checkpoints at the end in every case;
         returns the final progress row."""
         cfg, c = self.config, self.counters
-        start = time.perf_counter() - self.elapsed_s  # a resumed run's clock goes on from its checkpoint
+        segment_start = time.perf_counter()  # run.max_seconds counts from here: a resumed run gets its budget again
+        start = segment_start - self.elapsed_s  # a resumed run's clock goes on from its checkpoint
         last_t = time.perf_counter()
         last = {"env_steps": c["env_steps"], "updates": c["updates"]}
         next_log = (c["episodes"] // cfg.run.log_every + 1) * cfg.run.log_every
@@ -268,20 +270,20 @@ class InlineLoop:
             self.stopped = stop is not None and stop()
             done = (c["episodes"] >= cfg.run.episodes or solved(self.window, cfg.run) or self.stopped
                     or self.learning_progress.plateaued
-                    or (cfg.run.max_seconds > 0 and time.perf_counter() - start >= cfg.run.max_seconds))
+                    or (cfg.run.max_seconds > 0 and time.perf_counter() - segment_start >= cfg.run.max_seconds))
             if c["episodes"] >= next_log or done:
                 now = time.perf_counter()
                 dt = max(now - last_t, 1e-9)
                 rate = {"env_steps_per_s": (c["env_steps"] - last["env_steps"]) / dt,
                         "updates_per_s": (c["updates"] - last["updates"]) / dt}
-                row = self.progress_row(now - start, rate)
+                row = self.progress_row(now - start, rate, now - segment_start)
                 if self.run_dir is not None:
                     self.run_dir.log(row)
                 if self.progress is not None:
                     self.progress(self.format_progress(row))
                 last_t, last = now, {"env_steps": c["env_steps"], "updates": c["updates"]}
                 next_log = (c["episodes"] // cfg.run.log_every + 1) * cfg.run.log_every
-            self.elapsed_s = time.perf_counter() - start
+            self.elapsed_s, self.segment_s = time.perf_counter() - start, time.perf_counter() - segment_start
             if next_ckpt is not None and (c["episodes"] >= next_ckpt or done):
                 self.save_checkpoint()
                 next_ckpt = (c["episodes"] // ce + 1) * ce

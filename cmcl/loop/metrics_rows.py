@@ -33,11 +33,13 @@ def finished_episode_rows(loop: Loop, info: dict[str, Any]) -> list[dict[str, An
     return rows
 
 
-def progress_row(loop: Loop, elapsed: float, rate: dict[str, float]) -> dict[str, Any]:
-    """A 'progress' metrics row: counters, λ, losses, priority statistics and window means."""
+def progress_row(loop: Loop, elapsed: float, rate: dict[str, float], segment: float | None = None) -> dict[str, Any]:
+    """A 'progress' metrics row: counters, λ, losses, priority statistics and window means; elapsed: the training
+    seconds over every segment of the run (resumes included), segment: this command's (None: the same)."""
     c = loop.counters
     row: dict[str, Any] = {"kind": "progress", **{k: c[k] for k in ("episodes", "env_steps", "updates")},
-                           "lambda": loop.schedule.lam, "elapsed_s": elapsed, **rate,
+                           "lambda": loop.schedule.lam, "elapsed_s": elapsed,
+                           "segment_s": elapsed if segment is None else segment, **rate,
                            "replay_size": loop.replay.size, "window": window_summary(loop.window),
                            **loop.last_stats}
     if loop.replay.size:  # "sampling" for every agent; "priority" / "curriculum" for ACL / CMCL agents
@@ -58,4 +60,5 @@ def format_progress(loop: Loop, row: dict[str, Any]) -> str:
     return progress_line(row["episodes"], loop.config.run.episodes, row["env_steps"], row["updates"],
                          row["window"], row["lambda"] if uses_lambda(loop.layout.algorithms) else None, row,
                          row["elapsed_s"], extra=row_sampling_parts(row),
-                         max_seconds=loop.config.run.max_seconds, notes=early_notes(loop.layout.algorithms))
+                         max_seconds=loop.config.run.max_seconds, notes=early_notes(loop.layout.algorithms),
+                         segment_s=row.get("segment_s"))
