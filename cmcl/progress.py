@@ -107,7 +107,8 @@ def row_sampling_parts(row: dict[str, Any]) -> list[str]:
 def time_left(episodes: int, target: int, elapsed_s: float, max_seconds: float = 0.0,
               segment_s: float | None = None) -> str:
     """How long the run has left, in seconds: the wall-clock budget's rest ("left ≤ 183s (budget)") when it ends
-    first, else the episode budget's rest at the rate so far ("left ~240s"); "" before the first episode.
+    first, else the episode budget's rest at the rate so far ("left ~240s"); "" before the first episode and once
+    every episode is done.
     elapsed_s: the run's training seconds, over every segment of a resumed run; segment_s: this command's (the
     budget run.max_seconds is this command's); None: the same as elapsed_s (a run not resumed)."""
     used = elapsed_s if segment_s is None else segment_s
@@ -115,7 +116,7 @@ def time_left(episodes: int, target: int, elapsed_s: float, max_seconds: float =
     by_budget = max(max_seconds - used, 0.0) if max_seconds > 0 else None
     if by_budget is not None and (by_episodes is None or by_budget <= by_episodes):
         return f"left ≤ {by_budget:.0f}s (budget)"
-    return "" if by_episodes is None else f"left ~{by_episodes:.0f}s"
+    return "" if by_episodes is None or episodes >= target else f"left ~{by_episodes:.0f}s"
 
 
 def progress_line(episodes: int, target: int, env_steps: int, updates: int, window: dict[str, Any], lam: float | None,

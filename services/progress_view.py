@@ -87,11 +87,14 @@ class ProgressView:
 
     def line(self, status: ReplayStatus, report: Report | None, lags: dict[str, int], window: Any) -> str:
         """One terminal line: env steps, episodes, coverage / win, reward, λ (when a rule reads it), rates, buffer,
-        score age, lag."""
-        return progress_line(status.episodes, self.episodes_target, status.env_steps, status.updates,
+        score age, lag; once every episode is collected, what the learner, the teachers and the ICM still owe their
+        ratios before the run ends (`owed_part`)."""
+        line = progress_line(status.episodes, self.episodes_target, status.env_steps, status.updates,
                              window_summary(window), status.lam if self.show_lambda else None, self.rates,
                              self.before_s + time.perf_counter() - self.started, replay_parts(status, report, lags),
                              self.max_seconds, self.notes, segment_s=time.perf_counter() - self.started)
+        owed = owed_part(status) if status.episodes >= self.episodes_target else ""
+        return f"{line} | {owed}" if owed else line
 
     def row(self, status: ReplayStatus, report: Report | None) -> dict[str, Any]:
         """The progress row of metrics.jsonl: counters, rates, elapsed seconds (the run's, over every segment;
@@ -100,3 +103,11 @@ class ProgressView:
         segment = time.perf_counter() - self.started
         return {"kind": "progress", **status.counters(), **self.rates, "elapsed_s": self.before_s + segment,
                 "segment_s": segment, **sampling_row(report, self.sampling_modes)}
+
+
+def owed_part(status: ReplayStatus) -> str:
+    """After the last episode: "finishing: 373 updates, 45 teacher / ICM fit steps owed" (the run ends when both are
+    below 1: services.supervisor), "" when nothing is owed."""
+    owed = [f"{status.update_deficit:.0f} updates"] if status.update_deficit >= 1 else []
+    owed += [f"{status.scoring_deficit:.0f} teacher / ICM fit steps"] if status.scoring_deficit >= 1 else []
+    return f"finishing: {', '.join(owed)} owed" if owed else ""
