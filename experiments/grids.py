@@ -142,9 +142,11 @@ SCALE_CELLS: dict[str, ScaleCell] = {
 
 # `make run` measured, not remembered (issue 35): the Makefile's run target, one run per seed, one at a time, on an
 # otherwise idle machine: the service, configs/spread_maddpg.toml (uniform replay; configs/spread_cmcl.toml until
-# 2026-12-05), stop at a 100-episode moving-average coverage of 0.9 or after 300 s of training (the grid's runner adds
-# --quiet and --metrics-port 0, and its own seed and run folder).
+# 2026-12-05), stop at a 100-episode moving-average coverage of 0.9 or after 300 s of training, or at the Makefile's
+# RUN_EPISODES (MAKE_RUN_EPISODES; the config's 20,000 until 2026-12-06, which a fast machine used up in ~150 s) (the
+# grid's runner adds --quiet and --metrics-port 0, and its own seed and run folder).
 MAKE_RUN = {"config": "spread_maddpg.toml", "stop_coverage": 0.9, "max_seconds": 300.0}
+MAKE_RUN_EPISODES = 60_000
 UPDATE_EVERY, BATCHES = (1, 4, 16, 64), (128, 512)  # the schedule grid's maddpg.update_every x maddpg.batch_size
 SOLVE_STOP_COVERAGE, SOLVE_MAX_SECONDS = 0.95, 900.0  # the time-to-solve grids' stops (moving average; seconds)
 
@@ -214,13 +216,13 @@ def solve_runs(name: str, seed: int, budget: int, algorithms: list[str]) -> list
             for mode in ("inline", "service") for a in reversed(algorithms)]
 
 
-def make_run_runs(seed: int, budget: int) -> list[Run]:
-    """The make_run grid: `make run`'s command (MAKE_RUN) at `seed`, id "make_run_<algorithm>_s<seed>" (the ids
-    "make_run_s<seed>" are the CMCL `make run` measured until 2026-12-05; their summaries stay). The algorithm is
-    the one MAKE_RUN's config file trains."""
+def make_run_runs(seed: int) -> list[Run]:
+    """The make_run grid: `make run`'s command (MAKE_RUN, MAKE_RUN_EPISODES episodes) at `seed`, id
+    "make_run_<algorithm>_s<seed>" (the ids "make_run_s<seed>" are the CMCL `make run` measured until 2026-12-05;
+    their summaries stay). The algorithm is the one MAKE_RUN's config file trains."""
     algorithm = load_data(ROOT / "configs" / MAKE_RUN["config"])["teams"]["agent"]["algorithm"]
-    return [Run(f"make_run_{algorithm}_s{seed}", "make_run", "spread", algorithm, None, seed, budget, mode="service",
-                **MAKE_RUN)]
+    return [Run(f"make_run_{algorithm}_s{seed}", "make_run", "spread", algorithm, None, seed, MAKE_RUN_EPISODES,
+                mode="service", **MAKE_RUN)]
 
 
 def scale_runs(seed: int, budget: int) -> list[Run]:
@@ -288,7 +290,7 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str] = PAPER_ALGOR
             elif name == "confirm":
                 runs += rule_runs(name, arms_at_seed(seed, chosen, confirmed), seed, budget)
             elif name == "make_run":
-                runs += make_run_runs(seed, budget)
+                runs += make_run_runs(seed)
             elif name.startswith("curriculum"):
                 runs += curriculum_runs(name, seed, budget)
             elif name == "ablations":

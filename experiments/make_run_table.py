@@ -11,10 +11,19 @@ over seeds.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from experiments.provenance import code_version
 from experiments.stats import kaplan_meier, median_text
+from experiments.store import ResultsStore
+
+
+def earlier_runs(folder: Path) -> list[dict[str, Any]]:
+    """The summaries of every earlier measurement kept under the make_run grid's folder: <folder>/earlier/<commit>/
+    (one results folder per measurement, named by its commit), oldest folder name first."""
+    return [r for sub in sorted(p for p in (folder / "earlier").glob("*") if p.is_dir())
+            for r in ResultsStore(sub).load()]
 
 
 def make_run_table(runs: list[dict[str, Any]], config: str, earlier: list[dict[str, Any]] = ()) -> str:
@@ -22,7 +31,7 @@ def make_run_table(runs: list[dict[str, Any]], config: str, earlier: list[dict[s
     seconds and episodes to it, held-out coverage and success at the end, the training seconds, the mean load over the
     run, the code and the day it ran; then the tally over seeds, and one tally per earlier measurement: each config
     `make run` trained before (in `runs` or `earlier`), and each commit of the measurements moved to `earlier` (the
-    make_run grid's folder's earlier/, measured before, as on another machine)."""
+    make_run grid's folder's earlier/<commit>/, measured before, as on another machine: earlier_runs)."""
     before = [r for r in runs if r["config"] != config] + list(earlier)
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for r in before:

@@ -21,8 +21,8 @@ the text between them (a block whose markers the page lacks is only printed):
   families and the goal's verdict per rule; "no runs yet" while it has no summary; confirmdecision: README.md's
   sentence on the recommended curriculum and what `make run` trains, from the same summaries;
 * reruns: how far the re-runs at one commit are (experiments.reruns) and which of them the report reads;
-* makerun: `make run` measured per seed (bench/results/make_run; earlier measurements in its earlier/), the block of
-  README.md
+* makerun: `make run` measured per seed (bench/results/make_run; earlier measurements in its earlier/<commit>/),
+  the block of README.md
   (`python -m experiments report --update README.md`);
 * the numbers README.md and docs/LEARNING.md quote from the grids (experiments.quoted): headline, lambdawait (README.md;
   headline in docs/LEARNING.md too), tts, schedule, ttstag, learningcurriculum, learningspread, learningtag,
@@ -50,7 +50,7 @@ from experiments.curriculum_tables import (
 from experiments.curriculum_verdicts import setting_verdict_table, verdict_table
 from experiments.grids import GRIDS, MAKE_RUN, RESULTS
 from experiments.labels import ARM_LABEL
-from experiments.make_run_table import make_run_table
+from experiments.make_run_table import earlier_runs, make_run_table
 from experiments.own_envs import own_env_table
 from experiments.quoted import quoted_blocks
 from experiments.quoted_words import NO_RUNS
@@ -128,7 +128,7 @@ def blocks(results: Path | None = None) -> dict[str, str]:
     out["confirmdecision"] = confirm_decision(confirm, chosen.chosen) if chosen.chosen else chosen.reason()  # README
     out["reruns"] = rerun_text(results)
     out["makerun"] = make_run_table(ResultsStore(where["make_run"]).load(), MAKE_RUN["config"],  # README.md's block
-                                    ResultsStore(where["make_run"] / "earlier").load())
+                                    earlier_runs(where["make_run"]))
     quoted = quoted_blocks(where, RESULTS if results is None else results)  # README.md's and LEARNING.md's
     assert not quoted.keys() & out.keys(), f"two texts named {sorted(quoted.keys() & out.keys())}"
     return {**out, **quoted}

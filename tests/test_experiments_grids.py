@@ -236,7 +236,7 @@ def test_the_make_run_grid_runs_the_makefiles_command():
     import re
     import tomllib
 
-    from experiments.grids import MAKE_RUN
+    from experiments.grids import MAKE_RUN, MAKE_RUN_EPISODES
     from experiments.run_spec import ROOT
     from experiments.runner import command
 
@@ -245,8 +245,10 @@ def test_the_make_run_grid_runs_the_makefiles_command():
     config = f"configs/{MAKE_RUN['config']}"
     cmd = " ".join(command(run, Path("/nonexistent/run")))
     assert "services.launch" in cmd and config in cmd and "--runner service" in recipe
-    for flag in ("run.stop_coverage=0.9", "run.max_seconds=300", f"--config {config}"):
+    for flag in ("run.stop_coverage=0.9", "run.max_seconds=300", f"--config {config}", "run.episodes=$(RUN_EPISODES)"):
         assert flag in recipe
+    episodes = re.search(r"^RUN_EPISODES \?= (\d+)$", (ROOT / "Makefile").read_text(), re.M).group(1)
+    assert int(episodes) == MAKE_RUN_EPISODES and f"run.episodes={episodes}" in cmd
     trains = tomllib.loads((ROOT / config).read_text())["teams"]["agent"]["algorithm"]
     assert run.algorithm == trains and run.id == f"make_run_{trains}_s3"
     assert "run.stop_coverage=0.9" in cmd and "run.max_seconds=300.0" in cmd and "run.seed=3" in cmd
