@@ -4,9 +4,9 @@ the README's block against the committed summaries).
 
 Seconds are the run's training clock when its 100-episode moving-average coverage first reached 0.9 (the run stops
 there); a run that did not get there is counted as censored after every time that did (stats.kaplan_meier): true
-for a run that used its 300 s; a run whose 20,000 episodes ran out first, as on a fast machine, stops earlier (in
-the table measured on 2026-12-06 at 155 s, after the last time that got there, 126 s). The median is Kaplan-Meier
-over seeds.
+for a run that used its 300 s; a run whose episode budget ran out first stops earlier (the 20,000 episodes of the
+budget before 32bb9d1 did so on a fast machine: at 400bdbe at 155 s, after the last time that got there, 126 s; since
+then the budget is 60,000, MAKE_RUN_EPISODES). The median is Kaplan-Meier over seeds.
 """
 
 from __future__ import annotations
