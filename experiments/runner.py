@@ -2,7 +2,8 @@
 
 Resume rule: a run whose summary exists is skipped; a run whose folder holds a checkpoint is resumed from its
 newest one (`python -m cmcl.loop --resume`, or `python -m services.launch --resume` for a service run; its clock
-goes on from the checkpoint, so seconds stay comparable); any other run starts afresh (`--overwrite`: a folder
+goes on from the checkpoint, so seconds stay comparable, and a wall-clock budget is given as what is left of it,
+`remaining_budget`: run.max_seconds is each command's); any other run starts afresh (`--overwrite`: a folder
 without a checkpoint holds nothing worth keeping). Inline runs checkpoint every CHECKPOINT_EVERY episodes and log every
 LOG_EVERY; a service run keeps the service's own cadences (it refuses the inline runner's keys on its command line).
 
@@ -76,7 +77,9 @@ def command(run: Run, run_path: Path) -> list[str]:
     if run_path.exists() and not run.stages:  # (the stages command resumes by itself: cmcl/agent_stages.py)
         runners = RunDirectory.open(run_path).runners()
         if runners:  # a checkpoint exists (a runner refuses a folder the other runner wrote; say so loudly)
-            return [sys.executable, "-m", launcher, "--resume", str(run_path), "--quiet", *service_flags]
+            budget = max_seconds_of(run)
+            left = [] if not budget else ["--set", f"run.max_seconds={remaining_budget(run_path, budget)!r}"]
+            return [sys.executable, "-m", launcher, "--resume", str(run_path), *left, "--quiet", *service_flags]
     sets = [f"run.seed={run.seed}", f"run.dir={run_path}", f"run.episodes={run.budget}"]
     if run.mode == "inline":  # the inline runner's cadences (the service has its own: cmcl/config/runners.py)
         sets += [f"run.log_every={LOG_EVERY}", f"run.checkpoint_every={CHECKPOINT_EVERY}"]
@@ -95,6 +98,24 @@ def command(run: Run, run_path: Path) -> list[str]:
         return [sys.executable, "-m", "cmcl", "stages", "--runner", run.mode, "--agents", *map(str, run.stages),
                 *budgets, *config, *set_flags, "--quiet", *service_flags]
     return [sys.executable, "-m", launcher, *config, *set_flags, "--overwrite", "--quiet", *service_flags]
+
+
+def max_seconds_of(run: Run) -> float:
+    """The run's wall-clock budget, seconds: its max_seconds, else a run.max_seconds among its sets (the last one);
+    0.0 when it has none."""
+    budget = run.max_seconds or 0.0
+    for item in run.sets:
+        if item.startswith("run.max_seconds="):
+            budget = float(item.split("=", 1)[1])
+    return float(budget)
+
+
+def remaining_budget(run_path: Path, budget: float) -> float:
+    """What is left of a `budget` of training seconds in an interrupted run: the budget less the training clock of
+    its newest metrics row (both runners' clocks go on over resumes), at least 1 ms (run.max_seconds = 0 would mean
+    no budget at all)."""
+    spent = max((float(r.get("elapsed_s", 0.0)) for r in RunDirectory.open(run_path).rows()), default=0.0)
+    return max(float(budget) - spent, 0.001)
 
 
 def train(run: Run, store: ResultsStore) -> Path:

@@ -114,3 +114,22 @@ def test_a_niced_runner_leading_its_session_gives_its_autogroup_that_nice_and_on
     assert (leader, autogroup_nice) == ("True", nice) and int(nice) > 0, (own.returncode, own.stdout, own.stderr)
     shared = subprocess.run(probe, cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert shared.stdout.split()[:1] == ["False"], (shared.returncode, shared.stdout, shared.stderr)
+
+
+def test_an_interrupted_run_with_a_wall_clock_budget_resumes_with_what_is_left_of_it(tmp_path, tiny_config):
+    """run.max_seconds is each command's budget (a resumed run gets it again), so the runner resumes a grid's run with
+    the budget less the seconds its rows record: a grid's budget stays the run's, however often it is paused."""
+    from cmcl.loop import InlineLoop
+    from experiments.runner import max_seconds_of, remaining_budget
+
+    config = tiny_config("maddpg", dir=str(tmp_path / "run"), episodes=8)
+    InlineLoop(config, RunDirectory.create(config.run.dir, config), progress=None).run()
+    spent = max(r["elapsed_s"] for r in RunDirectory.open(config.run.dir).rows())
+    run = Run("make_run_maddpg_s0", "make_run", "spread", "maddpg", None, 0, 60_000, max_seconds=300.0)
+    cmd = command(run, tmp_path / "run")
+    assert cmd[3] == "--resume" and cmd[5:7] == ["--set", f"run.max_seconds={300.0 - spent!r}"], cmd
+    assert remaining_budget(tmp_path / "run", spent / 2) == 0.001, "a spent budget stays a budget (0 is none)"
+    no_budget = Run("spread_maddpg_s0", "spread", "spread", "maddpg", None, 0, 200)
+    assert "--set" not in command(no_budget, tmp_path / "run")
+    assert max_seconds_of(Run("scale_x_s0", "scale", "spread", "maddpg", None, 0, 200,
+                              sets=("run.max_seconds=900", "maddpg.networks=entity"))) == 900.0
