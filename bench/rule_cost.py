@@ -1,6 +1,6 @@
 """Cost per update of every registered sampling rule, inline, against MADDPG's in the same process (issue 36).
 
-For each rule of the registry (cmcl.algorithms), the inline loop of the default navigation preset with
+For each rule of the registry (cmcl.replay.registry), the inline loop of the default navigation preset with
 `teams.agent.algorithm=<rule>`, its 5000-row buffer filled by the policy; then rounds of `InlineLoop.update()`
 interleaved across the rules (the machine is shared), the median seconds per update reported with its ratio to
 MADDPG's. An update is everything the loop does per update at the defaults: teacher and ICM steps where the rule
@@ -27,8 +27,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.learner_throughput import filled_loop  # noqa: E402
-from cmcl.algorithms import ALGORITHMS  # noqa: E402
 from cmcl.provenance import provenance  # noqa: E402
+from cmcl.replay.registry import ALGORITHMS  # noqa: E402
 
 # an option of a rule -> (the rule, its overrides): measured beside the rules, its ratio to the rule printed too
 OPTIONS = {"per+uniform_actor": ("per", ['teams.agent.actor_batch="uniform"'])}

@@ -127,7 +127,7 @@ def progress_line(episodes: int, target: int, env_steps: int, updates: int, wind
     parts (the service adds buffer size, score age and weight lag), elapsed seconds (over every segment of a resumed
     run), the time left (`time_left`, with the wall-clock budget `max_seconds` of this command's `segment_s`, 0 =
     none) and `notes`: what is normal at this point
-    of the run (the sampling rules' `early_note` while λ < 0.5, cmcl.algorithms)."""
+    of the run (the sampling rules' `early_note` while λ < 0.5, cmcl.replay.registry)."""
     parts = [f"ep {episodes}/{target}", f"steps {env_steps}", f"upd {updates}"]
     parts += [f"{label} {window[key]:.2f}" for key, label in WINDOW_KEYS if window.get(key) is not None]
     parts += [f"R[{t}] {v:.1f}" for t, v in window.get("reward", {}).items()]

@@ -12,11 +12,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cmcl.algorithms import REGISTRY
 from cmcl.config import Config, ConfigError, PriorityConfig
 from cmcl.envs.entities import EntityLayout, entity_layout
 from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.curriculum import CurriculumSchedule, default_growth
+from cmcl.replay.registry import REGISTRY
 
 if TYPE_CHECKING:  # torch-backed classes load lazily: the replay server and rollout workers never need torch
     from cmcl.learners.icm import ICM
@@ -31,7 +31,7 @@ DISCRETE_ACT_DIM = 5  # MPE's discrete action: no-op, +x, -x, +y, -y
 class AgentLayout:
     """Who is who: agent indices per team and what each agent's algorithm needs.
 
-    algorithms: each agent's algorithm (a name of cmcl.algorithms.REGISTRY, its team's), length N.
+    algorithms: each agent's algorithm (a name of cmcl.replay.registry.REGISTRY, its team's), length N.
     alpha: sampling exponent α_s of eq. 20 per agent, length N (its team's `effective_alpha`, A8).
     priority: each agent's team's sampling settings ([teams.<team>.priority], cmcl.config.PriorityConfig), length N:
     what its sampler and the teachers' errors on its rows use.
@@ -53,7 +53,7 @@ class AgentLayout:
     # u, the uniform floor of each agent's prioritised rule (its team's `priority.uniform_floor`), length N
     floor: tuple[float, ...] = ()
     priority: tuple[PriorityConfig, ...] = ()
-    # the learner's per-row losses some agent's rule asks back ("td_abs", "target_td_abs"; cmcl.algorithms.Needs)
+    # the learner's per-row losses some agent's rule asks back ("td_abs", "target_td_abs"; cmcl.replay.registry.Needs)
     learner_scores: tuple[str, ...] = ()
     # LaBER: each learner minibatch is drawn as `candidates` × batch rows, and the agents marked in `select` pick
     # theirs among them by fresh |δ| (cmcl.replay.rules.laber); the others take their first batch-size draws

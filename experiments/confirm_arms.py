@@ -13,8 +13,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from cmcl.algorithms import build_sampler, spec_of
 from cmcl.replay.priority import EPS_P
+from cmcl.replay.registry import build_sampler, spec_of
 from cmcl.replay.sampling import SamplerArgs
 from experiments.labels import PERMUTED
 from experiments.screen_arms import PERMUTED_CONTROL, SCREEN_ARMS, rule_algorithm

@@ -15,7 +15,7 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
 * ``curriculum_hard``: the same arms on the calibrated harder navigation of configs/spread_hard.toml;
 * ``curriculum_tag``: the same arms as the predators of sparse predator-prey (configs/tag_<algorithm>.toml), the
   prey MADDPG (the paper's Fig. 12 at the issue-21 defaults);
-* ``screen`` (issue 36): candidate sampling rules of the registry (cmcl.algorithms) on the harder task, MADDPG and
+* ``screen`` (issue 36): candidate sampling rules of the registry (cmcl.replay.registry) on the harder task, MADDPG and
   PER-MADDPG beside them for reference, in two rounds: every arm at seed 100, then MADDPG and round one's three best
   candidates at seeds 101-102 (experiments.screen_arms);
 * ``confirm`` (issue 36): the rules the screen's committed summaries select (experiments.screen_table.selection),
@@ -40,8 +40,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from cmcl.algorithms import PAPER_ALGORITHMS
 from cmcl.config import load_data
+from cmcl.replay.registry import PAPER_ALGORITHMS
 from experiments.confirm_arms import arms_at_seed, screen_choice
 from experiments.own_envs import OWN_ENV_LOG_EVERY, OWN_ENVS
 from experiments.run_spec import ROOT, Run

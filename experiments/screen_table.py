@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.algorithms import spec_of
+from cmcl.replay.registry import spec_of
 from experiments.labels import ARM_LABEL
 from experiments.provenance import cell_versions
 from experiments.screen_arms import (

@@ -68,9 +68,10 @@ class ProgressView:
 
     def __init__(self, episodes_target: int, started: float, status: ReplayStatus, sampling_modes: list[str],
                  max_seconds: float = 0.0, notes: list[str] | None = None, show_lambda: bool = True) -> None:
-        """sampling_modes: each agent's sampling distribution's name (cmcl.algorithms.sampling_name); max_seconds:
-        the run's wall-clock budget (0 = none); notes: what is normal while λ < 0.5 (cmcl.algorithms.early_notes);
-        show_lambda: whether a rule of the run reads λ (cmcl.algorithms.uses_lambda), else the line leaves it out."""
+        """sampling_modes: each agent's sampling distribution's name (cmcl.replay.registry.sampling_name);
+        max_seconds: the run's wall-clock budget (0 = none); notes: what is normal while λ < 0.5
+        (cmcl.replay.registry.early_notes); show_lambda: whether a rule of the run reads λ
+        (cmcl.replay.registry.uses_lambda), else the line leaves it out."""
         self.episodes_target, self.started, self.sampling_modes = episodes_target, started, list(sampling_modes)
         self.max_seconds, self.notes, self.show_lambda = float(max_seconds), list(notes or []), bool(show_lambda)
         self.rates = {"env_steps_per_s": 0.0, "updates_per_s": 0.0}

@@ -22,7 +22,6 @@ from typing import Any
 import numpy as np
 import ray
 
-from cmcl.algorithms import early_notes, sampling_name, uses_lambda
 from cmcl.config import Config
 from cmcl.envs.factory import EnvFactoryError
 from cmcl.io.atomic import atomic_write_bytes
@@ -30,6 +29,7 @@ from cmcl.io.rundir import RunDirectory
 from cmcl.learning_progress import LearningProgress, agent_mean
 from cmcl.messages import ReplayStatus
 from cmcl.progress import TrainingDiverged, episode_rows, solved, window_summary
+from cmcl.replay.registry import early_notes, sampling_name, uses_lambda
 from cmcl.system import layout_of
 from services.call_budget import HeldClock, calls_to_issue
 from services.failures import Failures

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 import torch
 
-from cmcl.algorithms import ALGORITHMS, REGISTRY
 from cmcl.config import ConfigError, TeamConfig, config_from_dict, load_config
 from cmcl.io.rundir import RunDirectory
 from cmcl.learners.maddpg import MADDPG
@@ -19,6 +18,7 @@ from cmcl.messages import ACTOR_PREFIX
 from cmcl.replay.agent_padding import pad_rows
 from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.buffer_steps import sample_owner_batches
+from cmcl.replay.registry import ALGORITHMS, REGISTRY
 from cmcl.system import layout_of
 from tests.test_agent_padding import BIG, SMALL, small_rows, twin_learners
 from tests.test_loop import INLINE_SECTIONS

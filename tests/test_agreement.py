@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 import torch
 
-from cmcl.algorithms import ALGORITHMS, REGISTRY
 from cmcl.config import TeamConfig, config_from_dict
 from cmcl.learners.network_steps import choose_minibatch, learner_update
 from cmcl.loop import InlineLoop
 from cmcl.messages import LearnerFeedback
 from cmcl.replay import buffer_steps
+from cmcl.replay.registry import ALGORITHMS, REGISTRY
 from cmcl.system import beta_is
 from services.icm import ICMWorker
 from services.learner import Learner

@@ -8,7 +8,7 @@ runs' summaries, never for a component of the code."""
 import numpy as np
 import pytest
 
-from cmcl.algorithms import ALGORITHMS, spec_of
+from cmcl.replay.registry import ALGORITHMS, spec_of
 from experiments.__main__ import build_parser, main, selected_runs
 from experiments.confirm_arms import (
     CONFIRM_SEEDS,

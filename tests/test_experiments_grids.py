@@ -219,7 +219,7 @@ def test_an_agent_count_curriculum_run_is_trained_by_the_stages_command(tmp_path
 
 
 def test_the_screen_runs_each_candidate_rule_on_the_harder_task_with_one_override_more_than_its_rule():
-    from cmcl.algorithms import REGISTRY
+    from cmcl.replay.registry import REGISTRY
     from experiments.screen_arms import ROUND_ONE_SEEDS, SCREEN_ARMS, SCREEN_REFERENCES
 
     runs = grid(["screen"], list(ROUND_ONE_SEEDS))  # round one: every arm

@@ -27,8 +27,8 @@ def test_off_or_without_coverage_never_stops():
 
 
 def test_the_line_says_the_time_left_and_what_is_normal_while_lambda_is_low():
-    from cmcl.algorithms import early_notes
     from cmcl.progress import progress_line, time_left
+    from cmcl.replay.registry import early_notes
 
     assert time_left(1_000, 20_000, 50.0, 300.0) == "left ≤ 250s (budget)"  # the budget ends first
     assert time_left(10_000, 20_000, 100.0, 300.0) == "left ~100s"  # the episodes end first, at 100 episodes/s
@@ -44,8 +44,8 @@ def test_the_line_says_the_time_left_and_what_is_normal_while_lambda_is_low():
 
 
 def test_the_line_shows_lambda_only_when_a_rule_of_the_run_reads_it():
-    from cmcl.algorithms import uses_lambda
     from cmcl.progress import progress_line
+    from cmcl.replay.registry import uses_lambda
 
     assert uses_lambda(["maddpg", "cmcl"]) and uses_lambda(["acl"])
     assert not uses_lambda(["maddpg", "per", "relo", "rho", "lp", "laber"])

@@ -57,7 +57,7 @@ def test_the_service_progress_row_carries_the_sampling_entry_in_the_inline_rows_
 
 
 def test_sampling_name_is_the_name_of_the_distribution_the_registry_builds():
-    from cmcl.algorithms import ALGORITHMS, build_sampler, sampling_name
+    from cmcl.replay.registry import ALGORITHMS, build_sampler, sampling_name
     from cmcl.replay.sampling import SamplerArgs
 
     for algorithm in ALGORITHMS:

@@ -17,7 +17,6 @@ Errors: any unknown key, wrong type or out-of-range value raises `ConfigError` n
 (e.g. ``maddpg.gamma``) and the offending value.
 """
 
-from cmcl.algorithms import ALGORITHMS
 from cmcl.config.checks import ConfigError
 from cmcl.config.env import TASK_TEAMS, TASKS, EnvConfig
 from cmcl.config.experiment import Config, preset
@@ -33,6 +32,7 @@ from cmcl.config.toml_io import (
     load_stored_config,
     parse_override,
 )
+from cmcl.replay.registry import ALGORITHMS
 
 __all__ = ["ALGORITHMS", "DEFAULT_ALPHA", "TASKS", "TASK_TEAMS", "ConfigError",
            "CurriculumConfig", "ICMConfig", "MADDPGConfig", "PriorityConfig", "ReplayConfig", "RunConfig",

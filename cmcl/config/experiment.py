@@ -10,7 +10,6 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
-from cmcl.algorithms import ALGORITHMS
 from cmcl.config.checks import _require
 from cmcl.config.env import TASK_TEAMS, TASKS, EnvConfig
 from cmcl.config.learning import CurriculumConfig, ICMConfig, MADDPGConfig, ReplayConfig, TeacherConfig
@@ -18,6 +17,7 @@ from cmcl.config.run_and_service import RunConfig, ServiceConfig
 from cmcl.config.teams import TeamConfig
 from cmcl.holder_rules import SEATED_RADIUS
 from cmcl.replay.curriculum import default_stride
+from cmcl.replay.registry import ALGORITHMS
 
 
 @dataclass(frozen=True)

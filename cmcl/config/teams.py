@@ -1,11 +1,11 @@
 """The teams' sections of a run configuration: [teams.<team>] (`TeamConfig`) and [teams.<team>.priority]
 (`PriorityConfig`), one of each per team of the task.
 
-Which algorithm (sampling rule, cmcl.algorithms) a team of agents learns with and what its sampler turns scores
+Which algorithm (sampling rule, cmcl.replay.registry) a team of agents learns with and what its sampler turns scores
 into sampling probabilities with (ALGORITHM.md §5). Every field is declared with `documented(default, meaning,
 unit=..., rule=...)` (cmcl.field_docs), as in cmcl.config.learning; each `__post_init__` runs the rules
 (`check_fields`) and raises `ConfigError` naming the key and the value. A team's derived settings (α_s, η, IS
-weights, what its rule needs) come from the algorithm registry (cmcl.algorithms.REGISTRY); which teams a task has
+weights, what its rule needs) come from the algorithm registry (cmcl.replay.registry.REGISTRY); which teams a task has
 is cmcl.config.env's `TASK_TEAMS`. Reads nothing but its own fields and the registry.
 """
 
@@ -15,12 +15,12 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
-from cmcl.algorithms import REGISTRY, AlgorithmName
 from cmcl.config.checks import OPTIONAL_ALPHA, check_fields, rule
 from cmcl.field_docs import documented
+from cmcl.replay.registry import REGISTRY, AlgorithmName
 
 # α_s of eq. 20 when nothing sets it (ALGORITHM.md A8, revised 2026-12): each registered algorithm's default
-# (cmcl.algorithms: "proportional to the K-fold priority" for ACL and CMCL, Schaul's 0.6 for PER-MADDPG and ReLo)
+# (cmcl.replay.registry: "proportional to the K-fold priority" for ACL and CMCL, Schaul's 0.6 for PER-MADDPG and ReLo)
 DEFAULT_ALPHA = {name: spec.default_alpha for name, spec in REGISTRY.items()}
 __all__ = ["DEFAULT_ALPHA", "PriorityConfig", "TeamConfig"]
 
@@ -31,8 +31,8 @@ class PriorityConfig:
     table per team; each agent's sampler reads its own team's (cmcl.system.agent_layout)."""
 
     alpha: float | None = documented(
-        None, "the team's sampling exponent α_s (eq. 20, A8); unset: its algorithm's default (cmcl.algorithms: 0.6 "
-        "for per and relo, 1 for the others)", rule=OPTIONAL_ALPHA)
+        None, "the team's sampling exponent α_s (eq. 20, A8); unset: its algorithm's default "
+        "(cmcl.replay.registry: 0.6 for per and relo, 1 for the others)", rule=OPTIONAL_ALPHA)
     uniform_floor: float = documented(
         0.0, "u, the uniform floor of a prioritised rule: P = (1 − u)·P_rule + u/|D| (issue 36); 0 = the rule alone; "
         "no effect on maddpg", rule=rule("must lie in [0, 1)", lambda v: math.isfinite(v) and 0 <= v < 1))
@@ -68,7 +68,7 @@ class TeamConfig:
     sampling settings in [teams.<team>.priority]."""
 
     algorithm: AlgorithmName = documented(
-        "cmcl", "the team's algorithm, i.e. its replay's sampling rule (cmcl.algorithms): " +
+        "cmcl", "the team's algorithm, i.e. its replay's sampling rule (cmcl.replay.registry): " +
         "; ".join(f"'{name}' ({spec.summary})" for name, spec in REGISTRY.items()))
     eta: float = documented(0.5, "η, the curiosity weight in CI = KP + η·CP (eq. 8, A15); forced to 0 for acl",
                             rule=rule("must be >= 0", lambda v: v >= 0 and math.isfinite(v)))
@@ -106,7 +106,7 @@ class TeamConfig:
 
     @property
     def needs(self):
-        """What this team's sampling rule needs (cmcl.algorithms.Needs: teachers, icm, learner scores)."""
+        """What this team's sampling rule needs (cmcl.replay.registry.Needs: teachers, icm, learner scores)."""
         return REGISTRY[self.algorithm].needs(self)
 
     @property

@@ -110,7 +110,8 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         holder_rule: str = "nearest",
     ):
         self.num_agents, self.obs_dim, self.act_dim = int(num_agents), int(obs_dim), int(act_dim)
-        # also return |y − Q_target(s, a)| per sampled row (ReLo's target loss; cmcl.algorithms Needs.learner_scores)
+        # also return |y − Q_target(s, a)| per sampled row (ReLo's target loss; cmcl.replay.registry's
+        # Needs.learner_scores)
         self.target_scores = bool(target_scores)
         self.gamma, self.tau, self.grad_clip = float(gamma), float(tau), float(grad_clip)
         self.discrete, self.temperature, self.logit_l2 = bool(discrete), float(gumbel_temperature), float(logit_l2)

@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.algorithms import early_notes, uses_lambda
 from cmcl.diagnostics import buffer_diagnostics
 from cmcl.progress import episode_rows, finished_episodes, progress_line, row_sampling_parts, window_summary
+from cmcl.replay.registry import early_notes, uses_lambda
 
 # `loop` below is a cmcl.loop.inline.InlineLoop (typed Any: this module is below it, it does not import it)
 Loop = Any

@@ -6,7 +6,7 @@ Where it sits in the flow: the inline loop (or the replay server actor) owns one
 `feedback`; after λ or scores change, `recompute_priorities(lam)` rebuilds the priority column of every agent whose
 sampler recomputes, in bulk; the learner calls `sample(agent, S, rng)` per agent.
 
-Each agent samples from the sampler of its algorithm (the registry, `cmcl.algorithms`, builds it once at
+Each agent samples from the sampler of its algorithm (the registry, `cmcl.replay.registry`, builds it once at
 construction); the buffer only calls the sampler protocol of `cmcl.replay.sampling`, never asks its kind.
 """
 
@@ -18,6 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from cmcl.replay.priority import DIFFICULTY_TRANSFORMS, EPS_P, LAM_MAX, kfold_priority, permute_priorities
+from cmcl.replay.registry import build_sampler
 from cmcl.replay.sampler import BACKENDS
 from cmcl.replay.sampling import LEARNER_SCORES, SamplerArgs
 from cmcl.replay.snapshot import STATE_FORMAT, rng_state, set_rng_state, upgrade_state
@@ -43,7 +44,7 @@ class ReplayBuffer:
 
     Args:
         capacity, n_agents, obs_dim, act_dim, n_folds: storage layout (see `cmcl.replay.storage`).
-        algorithms: one algorithm for all agents or one per agent (names of cmcl.algorithms.REGISTRY; the teams'
+        algorithms: one algorithm for all agents or one per agent (names of cmcl.replay.registry.REGISTRY; the teams'
             `algorithm` in the config).
         alpha: sampling exponent α_s of eq. 20, scalar or per agent (A8: 1 for acl / cmcl, 0.6 for per; the
             config resolves each team's, cmcl.config.TeamConfig.effective_alpha). eps: priority floor ε_p.
@@ -100,8 +101,6 @@ class ReplayBuffer:
         self.min_size, self.lam_max = int(min_size), float(lam_max)
         self.lam: float | None = None  # λ of the last recompute
         floors = [float(f) for f in _per_agent("floor", floor, n)]
-        from cmcl.algorithms import build_sampler  # the registry (it imports the samplers of this package)
-
         self.sampling = [
             build_sampler(algo, SamplerArgs(
                 capacity=self.capacity, alpha=self.alpha[a], backend=backend, eps=self.eps, agent=a, eta=etas[a],

@@ -1,7 +1,7 @@
 """The sampling distributions of replay, behind one closed protocol (ALGORITHM.md §3.6, §5, A8, A9, A11).
 
 Where it sits: `cmcl.replay.buffer.ReplayBuffer` holds one sampler per agent, built from the agent's algorithm by the
-registry (`cmcl.algorithms`: one spec per algorithm names its sampler class; as Dopamine has one replay class per
+registry (`cmcl.replay.registry`: one spec per algorithm names its sampler class; as Dopamine has one replay class per
 sampling distribution). The buffer never asks what kind a sampler is; it calls the protocol on every one of them:
 
   added(slots)                        new slots int64[k] were written (their initial priority)
@@ -23,7 +23,7 @@ sampling distribution). The buffer never asks what kind a sampler is; it calls t
   acl, cmcl ...... CurriculumSampling:  p = KP(ĉ, λ) [+ η·CP(ρ̂)] + ε_p recomputed from the score columns
                                         (`terms`, eqs. 8, 12, 19); a row not yet scored gets the
                                         mean sampling weight of the scored rows (`provisional_priority`, A11).
-  other rules .... cmcl/replay/rules/, one file each (cmcl.algorithms registers them).
+  other rules .... cmcl/replay/rules/, one file each (cmcl.replay.registry registers them).
 Prioritized draws use P(j) = p_j^α / Σ_k p_k^α (eq. 20) from a `cmcl.replay.sampler.PrioritySampler` (cdf or sum
 tree backend, vectorised), mixed with a uniform floor u when one is set: P_u(j) = (1 − u)·P(j) + u/|D|.
 """
@@ -39,12 +39,12 @@ from cmcl.replay.sampler import PrioritySampler, importance_weights
 from cmcl.replay.storage import TransitionStorage
 
 DIFFICULTY_SOURCES = ("difficulty", "td_abs")  # "td_abs" = ACL's td_self variant (§5)
-LEARNER_SCORES = ("td_abs", "target_td_abs")  # per-row learner losses a sampler can ask for (cmcl.algorithms)
+LEARNER_SCORES = ("td_abs", "target_td_abs")  # per-row learner losses a sampler can ask for (cmcl.replay.registry)
 
 
 @dataclass(frozen=True)
 class SamplerArgs:
-    """What a sampler is built from (cmcl.algorithms builds one per agent from the config).
+    """What a sampler is built from (cmcl.replay.registry builds one per agent from the config).
 
     capacity: buffer slots. alpha: α_s of eq. 20. backend: "cdf" | "sumtree". eps: ε_p. agent: the agent index.
     algorithm: its registry name. eta: η (CMCL). difficulty_source: "difficulty" | "td_abs". difficulty_norm:
