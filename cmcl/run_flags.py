@@ -24,6 +24,7 @@ from cmcl.io.resume_hint import resume_command
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
 from cmcl.io.verified import CheckpointError
+from cmcl.replay.registry import uses_lambda
 
 RUNNERS: tuple[str, ...] = get_args(Runner)
 # the inline runner serves no metrics and starts no Ray: these flags are the service's only (flags, not config
@@ -169,8 +170,9 @@ def resumed_config(run_dir: RunDirectory, overrides: tuple[str, ...], request: R
         total = done + request.more_episodes
         config = run_dir.config((*overrides, f"curriculum.stride={stride!r}", f"run.episodes={total}"))
         if not request.quiet:
-            print(f"run.episodes: {total} ({request.more_episodes} more than the {done} done); "
-                  f"λ stride {stride:.4g} per env step")
+            reads_lambda = uses_lambda(team.algorithm for team in config.teams.values())
+            print(f"run.episodes: {total} ({request.more_episodes} more than the {done} done)"
+                  + (f"; λ stride {stride:.4g} per env step" if reads_lambda else ""))
     elif done >= config.run.episodes:
         print(f"note: {run_dir.path} has done all its run.episodes = {config.run.episodes}: nothing to train. To "
               f"train further: {resume_command(run_dir.path)} --more-episodes N", file=sys.stderr)

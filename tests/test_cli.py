@@ -67,9 +67,9 @@ def run_cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
                           timeout=timeout)
 
 
-def trained_run(tiny_config, path: Path, episodes: int = 4) -> RunDirectory:
+def trained_run(tiny_config, path: Path, episodes: int = 4, algorithm: str = "maddpg") -> RunDirectory:
     """A finished tiny inline run in `path`, trained in this process, checkpointed at its last episode."""
-    config = tiny_config("maddpg", dir=str(path), episodes=episodes, checkpoint_every=episodes, log_every=episodes)
+    config = tiny_config(algorithm, dir=str(path), episodes=episodes, checkpoint_every=episodes, log_every=episodes)
     run_dir = RunDirectory.create(path, config)
     InlineLoop(config, run_dir, progress=None).run()
     return run_dir
@@ -132,11 +132,19 @@ def test_resume_finds_the_runner_that_wrote_the_run_and_goes_on(tmp_path, tiny_c
     assert not (run_dir.path / "learning_curve.png").exists(), "--no-eval: no learning curve"
 
 
+def test_more_episodes_of_a_rule_that_does_not_read_lambda_say_no_lambda_stride(tmp_path, tiny_config):
+    run_dir = trained_run(tiny_config, tmp_path / "run")  # MADDPG: uniform replay, no λ
+    more = run_cli("resume", str(run_dir.path), "--more-episodes", "4", "--no-eval")
+    assert more.returncode == 0, more.stdout + more.stderr
+    assert "run.episodes: 8 (4 more than the 4 done)\n" in more.stdout and "λ" not in more.stdout, more.stdout
+
+
 def test_a_finished_run_is_said_so_on_resume_and_more_episodes_train_it_further(tmp_path, tiny_config, capsys):
     """A run that ended at its budget, resumed as it is, only evaluates and says how to train further; with
-    --more-episodes N it trains N episodes past those it did, its derived λ stride unchanged; a multiplicative λ
-    schedule, whose growth follows run.episodes, is refused naming it, the run untouched."""
-    run_dir = trained_run(tiny_config, tmp_path / "run")
+    --more-episodes N it trains N episodes past those it did, its derived λ stride unchanged (said only where a rule
+    reads λ); a multiplicative λ schedule, whose growth follows run.episodes, is refused naming it, the run
+    untouched."""
+    run_dir = trained_run(tiny_config, tmp_path / "run", algorithm="acl")
     checkpoints = sorted(run_dir.inline_checkpoints())
     again = run_cli("resume", str(run_dir.path), "--quiet", "--no-eval")
     assert again.returncode == 0, again.stdout + again.stderr
