@@ -33,7 +33,8 @@ install: $(STAMP)
 # Ctrl-C (or SIGTERM) stops it with every role checkpointed and the resume command printed; the run's exit 130 / 143
 # is not reported as an error of make's (on Ctrl-C make, which got the SIGINT too, only says "Interrupt").
 # `make resume` goes on from there, for 5 more minutes or RESUME_EPISODES more episodes (a run that ended at its
-# episode budget unsolved trains further too; λ keeps its schedule).
+# episode budget unsolved trains further too; λ keeps its schedule; one that reached MA 0.9 stops again once 100 new
+# episodes show it: RUN_ARGS="--set run.stop_coverage=0" trains it on).
 run: install
 	$(BIN)/python -m cmcl train --runner service --config configs/spread_maddpg.toml --set run.dir=$(RUN_DIR) \
 		--set run.stop_coverage=0.9 --set run.max_seconds=300 --set run.episodes=$(RUN_EPISODES) --overwrite \
