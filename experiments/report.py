@@ -35,6 +35,7 @@ page can be updated with all of them.
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 from typing import Any
@@ -55,6 +56,7 @@ from experiments.own_envs import own_env_table
 from experiments.quoted import quoted_blocks
 from experiments.quoted_words import NO_RUNS
 from experiments.reruns import rerun_folders, rerun_text
+from experiments.run_spec import ROOT
 from experiments.screen_table import screen_selection, screen_table, selection
 from experiments.stalls import early_learner_table, load_stalls, stall_table
 from experiments.store import ResultsStore
@@ -75,6 +77,22 @@ CURRICULUM_BLOCKS = {"curriculum": ("curriculum", "curriculumtests", "curriculum
 # the harder task's settings grids (SETTING_TABLES) -> (their table block, tests block, figure title's tail)
 SETTING_BLOCKS = {"curriculum_stride": ("curriculumstride", "curriculumstridetests", "CMCL at three λ strides"),
                   "curriculum_eta": ("curriculumeta", "curriculumetatests", "CMCL at η = 0.5 and 1")}
+
+
+# the sampling figures of the grids re-run at one commit: block -> (grid, alt text); the link follows the folder the
+# report reads (the re-run's once complete: experiments.reruns), from docs/
+FIGURE_LINKS = {
+    "curriculumhardfigure": ("curriculum_hard", "Harder task: training coverage, ESS and reward rows sampled against "
+                                                "the buffer, per arm"),
+    "curriculumstridefigure": ("curriculum_stride", "Harder task: CMCL at three λ strides beside MADDPG: training "
+                                                    "coverage, ESS and reward rows sampled against the buffer"),
+    "curriculumetafigure": ("curriculum_eta", "Harder task: CMCL at η = 0.5 and 1 beside MADDPG: training coverage, "
+                                              "ESS and reward rows sampled against the buffer")}
+
+
+def figure_link(folder: Path, alt: str) -> str:
+    """The markdown image of a grid's sampling figure (<folder>/figures/curriculum_sampling.png), linked from docs/."""
+    return f"![{alt}]({os.path.relpath(folder / 'figures' / 'curriculum_sampling.png', ROOT / 'docs')})"
 
 
 def folders(results: Path | None = None) -> dict[str, Path]:
@@ -127,6 +145,7 @@ def blocks(results: Path | None = None) -> dict[str, str]:
         (confirm_table(confirm, chosen.chosen), confirm_tests(confirm, chosen.chosen))
     out["confirmdecision"] = confirm_decision(confirm, chosen.chosen) if chosen.chosen else chosen.reason()  # README
     out["reruns"] = rerun_text(results)
+    out |= {block: figure_link(where[grid_name], alt) for block, (grid_name, alt) in FIGURE_LINKS.items()}
     out["makerun"] = make_run_table(ResultsStore(where["make_run"]).load(), MAKE_RUN["config"],  # README.md's block
                                     earlier_runs(where["make_run"]))
     quoted = quoted_blocks(where, RESULTS if results is None else results)  # README.md's and LEARNING.md's

@@ -299,3 +299,10 @@ def test_the_report_reads_a_rerun_at_one_commit_once_it_holds_every_run(tmp_path
     (rerun / f"{needed[-1]}.json").write_text(json.dumps({"id": needed[-1]}))
     where = folders(tmp_path)
     assert where["curriculum_hard"] == rerun.parent and where["curriculum_stride"] == tmp_path / "curriculum_stride"
+    # the page's figure follows the folder the report reads
+    from experiments.report import FIGURE_LINKS, figure_link
+
+    grid_name, alt = FIGURE_LINKS["curriculumhardfigure"]
+    link = figure_link(where[grid_name], alt)
+    assert link.startswith(f"![{alt}](") and link.endswith(f"curriculum_hard_{RERUN_COMMIT}/figures/"
+                                                           "curriculum_sampling.png)"), link
