@@ -32,6 +32,7 @@ from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunLock
 from cmcl.progress import TrainingDiverged
 from cmcl.run_flags import RunRequest, alias_parser, run_alias, train_in_run
+from cmcl.run_report import done_line, report_trained
 from cmcl.stopping import STOP_SIGNALS, StopSignals, exit_without_teardown
 
 
@@ -265,22 +266,13 @@ def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: Ru
         stop.restore()
 
 
-def resumed_part(summary: dict[str, Any]) -> str:
-    """The `done` line's note on a resumed run: " (123s of them this time)" when earlier segments trained too."""
-    segment = summary.get("segment_s", summary["elapsed_s"])
-    return f" ({segment:.0f}s of them this time)" if summary["elapsed_s"] - segment >= 0.5 else ""
-
-
 def _report(request: RunRequest, config: Config, run_dir: RunDirectory, summary: dict[str, Any],
             stop: StopSignals) -> int:
     """The end of a run: summary.json, the `done` line, then the resume hint (stopped) or the evaluation."""
     ended = stop.name or ("solved" if summary.get("solved") else "plateau" if summary.get("plateau") else "budget")
     run_dir.write_summary({**{k: v for k, v in summary.items() if k != "metrics_text"}, "ended": ended,
                            "runner": "service"})
-    why = (f" (coverage target {config.run.stop_coverage} reached)" if summary.get("solved") else
-           " (learning stopped progressing: run.stop_progress)" if summary.get("plateau") else "")
-    print(f"done: {summary['episodes']} episodes, {summary['env_steps']} env steps, {summary['updates']} updates "
-          f"in {summary['elapsed_s']:.0f}s{resumed_part(summary)}{why}")
+    print(done_line(summary, config.run.stop_coverage))
     if stop.requested:
         print(f"stopped by {stop.name}; every role is checkpointed. Resume with: "
               f"{resume_command(run_dir.path)}")
@@ -288,36 +280,6 @@ def _report(request: RunRequest, config: Config, run_dir: RunDirectory, summary:
     if not request.no_eval:
         report_trained(config, run_dir)
     return 0
-
-
-def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -> None:
-    """Held-out evaluation of the run's newest verified policy (no exploration noise, worlds never trained on), a
-    GIF of one episode and the learning curve, all in the run directory."""
-    from cmcl.evaluate import evaluate_policy, gif_line, load_policy
-    from cmcl.io.plots import plot_learning_curves
-    from cmcl.stalls import MissAnatomy
-
-    if any(True for _ in run_dir.rows("episode")):
-        window = min(config.run.smoothing_window, max(1, config.run.episodes // 10))
-        png = plot_learning_curves([run_dir.path], run_dir.path / "learning_curve.png", window=window)
-        print(f"learning curve: {png}")
-    checkpoint = run_dir.newest_policy()
-    if checkpoint is None:
-        print(f"no policy checkpoint in {run_dir.path}: nothing to evaluate")
-        return
-    policy = load_policy(config, checkpoint)
-    trained, random = evaluate_policy(config, policy, episodes), evaluate_policy(config, None, episodes)
-    keys = [k for k in ("coverage", "success", "collisions", "wall_hits", "predator_win") if k in trained]
-
-    def measures(result: dict[str, Any]) -> str:  # the named measures, then each team's return (any environment)
-        return ", ".join([*(f"{k} {result[k]:.3f}" for k in keys),
-                          *(f"return[{team}] {value:.1f}" for team, value in result["reward"].items())])
-
-    print(f"held-out evaluation ({episodes} new worlds, no exploration noise): {measures(trained)}"
-          f"  | random policy: {measures(random)}")
-    if "misses" in trained:
-        print("\n".join(MissAnatomy(**trained["misses"]).lines()))
-    print(gif_line(config, policy, run_dir.path / "trained.gif"))
 
 
 if __name__ == "__main__":

@@ -116,6 +116,10 @@ def test_train_runs_the_inline_runner_to_its_budget(tmp_path, tiny_config_file):
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["runner"] == "inline" and summary["ended"] == "budget" and summary["episodes"] == 8
     assert (run_dir / "learning_curve.png").stat().st_size > 0
+    # the end of the run as the service's (cmcl.run_report): the done line, the held-out evaluation, the GIF
+    assert f"done: 8 episodes, {summary['env_steps']} env steps, {summary['updates']} updates in " in trained.stdout
+    assert "held-out evaluation (200 new worlds, no exploration noise): coverage " in trained.stdout
+    assert f"gif: {run_dir / 'trained.gif'}" in trained.stdout and (run_dir / "trained.gif").stat().st_size > 0
     assert RunDirectory.open(run_dir).newest_policy().path.name == "ckpt_00000008.pt"
     holder = json.loads((run_dir / LOCK_NAME).read_text())
     assert holder["command"].startswith("python -m cmcl train --runner inline"), holder

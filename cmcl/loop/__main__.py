@@ -20,6 +20,7 @@ from cmcl.io.rundir import RunDirectory
 from cmcl.io.verified import CheckpointError
 from cmcl.progress import solved
 from cmcl.run_flags import RunRequest, alias_parser, run_alias, train_in_run
+from cmcl.run_report import done_line, report_trained
 from cmcl.stopping import StopSignals, exit_without_teardown
 
 if TYPE_CHECKING:  # torch: imported by `_train` once the run directory is taken (a run in use is refused first)
@@ -54,7 +55,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run_inline(request: RunRequest) -> int:
-    """Train, or resume, one inline run; write the learning curve at the end (unless `no_eval`). Exit codes: 0 done,
+    """Train, or resume, one inline run; at the end the `done` line and, unless `no_eval`, the learning curve, the
+    held-out evaluation and a GIF, as the service's (cmcl.run_report). Exit codes: 0 done,
     2 bad config / arguments / run directory in use / nothing to resume / training diverged, 130 / 143 stopped by
     SIGINT / SIGTERM (after a checkpoint)."""
     return train_in_run(request, lambda config, run_dir, _lock: _train(request, config, run_dir))
@@ -106,20 +108,17 @@ def _train(request: RunRequest, config: Config, run_dir: RunDirectory) -> int:
         stop.training_over()
         ended = stop.name or ("solved" if solved(loop.window, config.run) else
                               "plateau" if loop.learning_progress.plateaued else "budget")
-        run_dir.write_summary({"runner": "inline", "ended": ended, **loop.counters, "elapsed_s": loop.elapsed_s,
-                               "segment_s": loop.segment_s, "window": row.get("window", {})})
+        summary = {"runner": "inline", "ended": ended, **loop.counters, "elapsed_s": loop.elapsed_s,
+                   "segment_s": loop.segment_s, "window": row.get("window", {})}
+        run_dir.write_summary(summary)
+        print(done_line(summary, config.run.stop_coverage))  # as the service's (cmcl.run_report)
         if stop.requested:
             print(f"stopped by {stop.name} at episode {loop.counters['episodes']}; checkpointed. Resume with: "
                   f"{resume_command(run_dir.path)}")
             return stop.exit_code
-        if request.no_eval:
-            print(f"run directory: {run_dir.path}")
-            return 0
-        from cmcl.io.plots import plot_learning_curves
-
-        png = plot_learning_curves([run_dir.path], run_dir.path / "learning_curve.png",
-                                   window=min(config.run.smoothing_window, max(1, config.run.episodes // 10)))
-        print(f"run directory: {run_dir.path}  (learning curve: {png})")
+        if not request.no_eval:
+            report_trained(config, run_dir)  # learning curve, held-out evaluation, misses, GIF
+        print(f"run directory: {run_dir.path}")
     return 0
 
 

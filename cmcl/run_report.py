@@ -1,0 +1,52 @@
+"""The end of a training run, the same for both runners: the `done` line, then (unless --no-eval) the learning
+curve, the held-out evaluation beside the random policy, the miss anatomy and a GIF of one episode."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from cmcl.config import Config
+from cmcl.io.rundir import RunDirectory
+
+
+def done_line(summary: dict[str, Any], stop_coverage: float) -> str:
+    """"done: E episodes, S env steps, U updates in Ts" from a run's summary (episodes, env_steps, updates, elapsed_s,
+    segment_s; solved / plateau or ended), with " (Ns of them this time)" on a resumed run and why it ended early."""
+    segment = summary.get("segment_s", summary["elapsed_s"])
+    resumed = f" ({segment:.0f}s of them this time)" if summary["elapsed_s"] - segment >= 0.5 else ""
+    ended = summary.get("ended")
+    why = (f" (coverage target {stop_coverage} reached)" if summary.get("solved") or ended == "solved" else
+           " (learning stopped progressing: run.stop_progress)" if summary.get("plateau") or ended == "plateau"
+           else "")
+    return (f"done: {summary['episodes']} episodes, {summary['env_steps']} env steps, {summary['updates']} updates "
+            f"in {summary['elapsed_s']:.0f}s{resumed}{why}")
+
+
+def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -> None:
+    """Held-out evaluation of the run's newest verified policy (no exploration noise, worlds never trained on), a
+    GIF of one episode and the learning curve, all in the run directory; printed."""
+    from cmcl.evaluate import evaluate_policy, gif_line, load_policy
+    from cmcl.io.plots import plot_learning_curves
+    from cmcl.stalls import MissAnatomy
+
+    if any(True for _ in run_dir.rows("episode")):
+        window = min(config.run.smoothing_window, max(1, config.run.episodes // 10))
+        png = plot_learning_curves([run_dir.path], run_dir.path / "learning_curve.png", window=window)
+        print(f"learning curve: {png}")
+    checkpoint = run_dir.newest_policy()
+    if checkpoint is None:
+        print(f"no policy checkpoint in {run_dir.path}: nothing to evaluate")
+        return
+    policy = load_policy(config, checkpoint)
+    trained, random = evaluate_policy(config, policy, episodes), evaluate_policy(config, None, episodes)
+    keys = [k for k in ("coverage", "success", "collisions", "wall_hits", "predator_win") if k in trained]
+
+    def measures(result: dict[str, Any]) -> str:  # the named measures, then each team's return (any environment)
+        return ", ".join([*(f"{k} {result[k]:.3f}" for k in keys),
+                          *(f"return[{team}] {value:.1f}" for team, value in result["reward"].items())])
+
+    print(f"held-out evaluation ({episodes} new worlds, no exploration noise): {measures(trained)}"
+          f"  | random policy: {measures(random)}")
+    if "misses" in trained:
+        print("\n".join(MissAnatomy(**trained["misses"]).lines()))
+    print(gif_line(config, policy, run_dir.path / "trained.gif"))
