@@ -73,13 +73,15 @@ def command(run: Run, run_path: Path) -> list[str]:
     """The command line that trains `run` in `run_path`: a resume when the folder holds a checkpoint, else a fresh
     start from the run's config file with its overrides."""
     launcher = "cmcl.loop" if run.mode == "inline" else "services.launch"
-    service_flags = [] if run.mode == "inline" else ["--metrics-port", "0"]
+    # inline: no evaluation at the end (the summary makes its own, experiments.measures); the service's runs keep
+    # make run's command as it is
+    runner_flags = ["--no-eval"] if run.mode == "inline" else ["--metrics-port", "0"]
     if run_path.exists() and not run.stages:  # (the stages command resumes by itself: cmcl/agent_stages.py)
         runners = RunDirectory.open(run_path).runners()
         if runners:  # a checkpoint exists (a runner refuses a folder the other runner wrote; say so loudly)
             budget = max_seconds_of(run)
             left = [] if not budget else ["--set", f"run.max_seconds={remaining_budget(run_path, budget)!r}"]
-            return [sys.executable, "-m", launcher, "--resume", str(run_path), *left, "--quiet", *service_flags]
+            return [sys.executable, "-m", launcher, "--resume", str(run_path), *left, "--quiet", *runner_flags]
     sets = [f"run.seed={run.seed}", f"run.dir={run_path}", f"run.episodes={run.budget}"]
     if run.mode == "inline":  # the inline runner's cadences (the service has its own: cmcl/config/runners.py)
         sets += [f"run.log_every={LOG_EVERY}", f"run.checkpoint_every={CHECKPOINT_EVERY}"]
@@ -96,8 +98,8 @@ def command(run: Run, run_path: Path) -> list[str]:
     if run.stages:
         budgets = ["--stage-episodes", *map(str, run.stage_episodes)] if run.stage_episodes else []
         return [sys.executable, "-m", "cmcl", "stages", "--runner", run.mode, "--agents", *map(str, run.stages),
-                *budgets, *config, *set_flags, "--quiet", *service_flags]
-    return [sys.executable, "-m", launcher, *config, *set_flags, "--overwrite", "--quiet", *service_flags]
+                *budgets, *config, *set_flags, "--quiet", *runner_flags]
+    return [sys.executable, "-m", launcher, *config, *set_flags, "--overwrite", "--quiet", *runner_flags]
 
 
 def max_seconds_of(run: Run) -> float:
