@@ -270,10 +270,10 @@ class Supervisor:
                     ray.get(ref)
                 except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError) as err:
                     self.failures.save_failed(role, err)
+        self.checkpoint_seconds.append(time.perf_counter() - started)  # (its own counters' write below excluded)
         summary = {"episodes_logged": self.episodes_logged, "status": dataclasses.asdict(self.status),
-                   "time": time.time(), "elapsed_s": self.elapsed_s()}
+                   "time": time.time(), "elapsed_s": self.elapsed_s(), "tallies": self.tallies()}
         atomic_write_bytes(self.paths["supervisor"], json.dumps(summary).encode())
-        self.checkpoint_seconds.append(time.perf_counter() - started)
 
     def restore_counters(self) -> None:
         """On resume: continue the episode numbering of metrics.jsonl and the training clock (elapsed_s) from the last
@@ -283,7 +283,29 @@ class Supervisor:
             saved = json.loads(path.read_text())
             self.episodes_logged = int(saved["episodes_logged"])
             self.before_s = self.view.before_s = float(saved.get("elapsed_s", 0.0))
+            self.add_tallies(saved.get("tallies", {}))
             self.run_dir.truncate_rows_after(self.episodes_logged)
+
+    def tallies(self) -> dict[str, Any]:
+        """What the run has counted so far, over every segment: failed and hung calls per role, reports the metrics
+        refused, recovery and checkpoint seconds, the seconds the learner was held and why (the summary's keys)."""
+        return {"failures": dict(self.failures.counts), "hung": dict(self.failures.hung),
+                "reports_rejected": dict(self.reports_rejected),
+                "recovery_s": {k: list(v) for k, v in self.failures.recovery.times.items()},
+                "checkpoint_seconds": list(self.checkpoint_seconds), "learner_held_s": dict(self.held.seconds)}
+
+    def add_tallies(self, earlier: dict[str, Any]) -> None:
+        """On resume: the tallies of the run's earlier segments (`tallies`, from the checkpoint) added to this one's,
+        so that the summary counts the whole run, as its elapsed_s does."""
+        for mine, theirs in ((self.failures.counts, earlier.get("failures", {})),
+                             (self.failures.hung, earlier.get("hung", {})),
+                             (self.reports_rejected, earlier.get("reports_rejected", {})),
+                             (self.held.seconds, earlier.get("learner_held_s", {}))):
+            for key, value in theirs.items():
+                mine[key] = mine.get(key, 0) + value
+        for role, seconds in earlier.get("recovery_s", {}).items():
+            self.failures.recovery.times[role] = [*seconds, *self.failures.recovery.times.get(role, [])]
+        self.checkpoint_seconds[:0] = earlier.get("checkpoint_seconds", [])
 
     def elapsed_s(self) -> float:
         """The run's training seconds so far, over every segment (a resumed run's clock goes on from its checkpoint,
@@ -340,11 +362,7 @@ class Supervisor:
         if self.progress is not None:
             self.progress(self.progress_line())
         return {**dataclasses.asdict(self.status), **self.status.counters(), **self.view.rates,
-                "failures": dict(self.failures.counts), "hung": dict(self.failures.hung),
-                "reports_rejected": dict(self.reports_rejected),
-                "recovery_s": {k: list(v) for k, v in self.failures.recovery.times.items()}, "solved": self.solved,
-                "plateau": self.learning_progress.plateaued,
+                **self.tallies(), "solved": self.solved, "plateau": self.learning_progress.plateaued,
                 "stopped": self.stopped, "episodes_logged": self.episodes_logged,
-                "checkpoint_seconds": list(self.checkpoint_seconds), "learner_held_s": dict(self.held.seconds),
                 "window": window_summary(self.window), "elapsed_s": self.elapsed_s(),
                 "segment_s": time.perf_counter() - self.started}

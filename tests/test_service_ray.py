@@ -120,6 +120,11 @@ def test_resume_continues_counters(tmp_path, ray_cluster):
     clock = [r["elapsed_s"] for r in run_dir.rows("episode")]
     assert clock == sorted(clock), clock
     assert second["elapsed_s"] >= clock[first["episodes"] - 1] + second["segment_s"], (first, second)
+    # so do its tallies: the warm-up held the learner in the first segment only; every segment checkpoints
+    held = first["learner_held_s"]["warmup"]
+    assert held > 0 and second["learner_held_s"]["warmup"] >= held, (first["learner_held_s"], second["learner_held_s"])
+    assert second["checkpoint_seconds"][:len(first["checkpoint_seconds"])] == first["checkpoint_seconds"]
+    assert len(second["checkpoint_seconds"]) > len(first["checkpoint_seconds"])
 
 
 # out of the default run (its 10-minute budget): tests/test_service_faults.py kills a worker three times in the
