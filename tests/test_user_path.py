@@ -246,8 +246,9 @@ def test_make_resume_of_make_runs_service_run_trains_it_further(tmp_path):
 @pytest.mark.extended
 def test_make_run_stopped_by_ctrl_c_a_second_launcher_refused_and_the_printed_command_resumes_the_policy(tmp_path):
     run_dir = tmp_path / "run"
+    # the README's CMCL variant of make run: every role (learner, teachers, ICM) must checkpoint on Ctrl-C
     first = Launched(["make", "-s", "run", f"RUN_ARGS=--set run.dir={run_dir} --set run.max_seconds=120 "
-                                           "--metrics-port 0"])
+                                           "--set teams.agent.algorithm=cmcl --metrics-port 0"])
     first.progress_lines(1, min_updates=16)
     second = subprocess.run([PY, "-m", "services.launch", "--config", "configs/spread_cmcl.toml", "--set",
                              f"run.dir={run_dir}", "--overwrite", "--metrics-port", "0"], cwd=ROOT,
