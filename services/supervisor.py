@@ -38,6 +38,7 @@ from services.metrics import ServiceMetrics
 from services.placement import Roles
 from services.progress_view import ProgressView
 from services.report_schema import Report
+from services.run_tallies import add_tallies, tallies
 
 # Outputs of one actor that go to the replay server. They are forwarded only once ready: an actor runs one
 # caller's calls in submission order, so a replay call still waiting for its argument would hold up every
@@ -276,36 +277,20 @@ class Supervisor:
         atomic_write_bytes(self.paths["supervisor"], json.dumps(summary).encode())
 
     def restore_counters(self) -> None:
-        """On resume: continue the episode numbering of metrics.jsonl and the training clock (elapsed_s) from the last
-        checkpoint (one written before the clock was kept: from 0)."""
+        """On resume: continue the episode numbering of metrics.jsonl, the training clock (elapsed_s) and the tallies
+        from the last checkpoint (one written before the clock was kept: from 0)."""
         path = self.paths["supervisor"]
         if path.exists():
             saved = json.loads(path.read_text())
             self.episodes_logged = int(saved["episodes_logged"])
             self.before_s = self.view.before_s = float(saved.get("elapsed_s", 0.0))
-            self.add_tallies(saved.get("tallies", {}))
+            add_tallies(saved.get("tallies", {}), self.failures, self.held, self.reports_rejected,
+                        self.checkpoint_seconds)
             self.run_dir.truncate_rows_after(self.episodes_logged)
 
     def tallies(self) -> dict[str, Any]:
-        """What the run has counted so far, over every segment: failed and hung calls per role, reports the metrics
-        refused, recovery and checkpoint seconds, the seconds the learner was held and why (the summary's keys)."""
-        return {"failures": dict(self.failures.counts), "hung": dict(self.failures.hung),
-                "reports_rejected": dict(self.reports_rejected),
-                "recovery_s": {k: list(v) for k, v in self.failures.recovery.times.items()},
-                "checkpoint_seconds": list(self.checkpoint_seconds), "learner_held_s": dict(self.held.seconds)}
-
-    def add_tallies(self, earlier: dict[str, Any]) -> None:
-        """On resume: the tallies of the run's earlier segments (`tallies`, from the checkpoint) added to this one's,
-        so that the summary counts the whole run, as its elapsed_s does."""
-        for mine, theirs in ((self.failures.counts, earlier.get("failures", {})),
-                             (self.failures.hung, earlier.get("hung", {})),
-                             (self.reports_rejected, earlier.get("reports_rejected", {})),
-                             (self.held.seconds, earlier.get("learner_held_s", {}))):
-            for key, value in theirs.items():
-                mine[key] = mine.get(key, 0) + value
-        for role, seconds in earlier.get("recovery_s", {}).items():
-            self.failures.recovery.times[role] = [*seconds, *self.failures.recovery.times.get(role, [])]
-        self.checkpoint_seconds[:0] = earlier.get("checkpoint_seconds", [])
+        """What the run has counted so far, over every segment (services.run_tallies; the summary's keys)."""
+        return tallies(self.failures, self.held, self.reports_rejected, self.checkpoint_seconds)
 
     def elapsed_s(self) -> float:
         """The run's training seconds so far, over every segment (a resumed run's clock goes on from its checkpoint,
