@@ -33,7 +33,7 @@ from cmcl.replay.registry import early_notes, sampling_name, uses_lambda
 from cmcl.system import layout_of
 from services.call_budget import HeldClock, calls_to_issue
 from services.failures import Failures
-from services.health import actor_key
+from services.health import actor_key, failed_role
 from services.metrics import ServiceMetrics
 from services.placement import Roles
 from services.progress_view import ProgressView
@@ -66,6 +66,9 @@ class Supervisor:
         self.inflight: Counter[tuple[str, int]] = Counter()  # calls in flight per (role, actor index)
         self.status: ReplayStatus = self._ask_replay("status")
         self.status_number = 0  # submission number of the replay call that returned `status`
+        # a call to the replay server failed with it: it may have stored (logged) what it never acknowledged, so
+        # its status is asked afresh before more work is handed out (`_issue`)
+        self.replay_failed = False
         self.weights = roles.learner.publish.remote()
         self.version = -1
         self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
@@ -107,7 +110,12 @@ class Supervisor:
         self.failures.watch.submitted(ref)
 
     def _issue(self, rollouts: bool = True) -> None:
-        """Hand out every piece of work the replay server's allowances leave room for (`services.call_budget`)."""
+        """Hand out every piece of work the replay server's allowances leave room for (`services.call_budget`).
+        After a replay server's failure its status is asked first: an insert whose reply died with the server may be
+        in its log, and a stale count would collect a chunk more than run.episodes."""
+        if self.replay_failed:
+            self.status, self.status_number = self._ask_replay("status"), self.submitted
+            self.replay_failed = False
         r, svc = self.roles, self.config.service
         calls = calls_to_issue(self.status, self.inflight, self.config, len(r.rollout),
                                r.teacher_groups, r.icm is not None, rollouts)
@@ -161,6 +169,7 @@ class Supervisor:
                         raise err.cause from None  # is checkpointed, then the CLI says it in one line (item 5)
                     continue  # another worker's, while the run is being kept: said once
                 self.failures.call_failed(kind, index, err, self.inflight)
+                self.replay_failed |= failed_role(kind, err) == ("replay", True)
                 continue
             self._apply(kind, index, value, number)
 

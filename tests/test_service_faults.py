@@ -77,6 +77,33 @@ def test_a_replay_server_killed_mid_insert_loses_no_acknowledged_transition(tmp_
     kill_all(ray, roles)
 
 
+def test_a_replay_server_killed_after_logging_a_chunk_it_never_acknowledged_collects_no_more_than_the_target(
+        tmp_path, ray_cluster):
+    """The replay server dies right after the chunk that completes run.episodes is in its durable log, before the
+    insert's reply: the insert fails, yet the restarted server has the chunk (log replay). The supervisor asks its
+    status afresh before handing out more rollouts, so the run stores exactly run.episodes (it collected one chunk
+    more on the stale count: the extended mid-snapshot test did so at random, when the server's own snapshot inside
+    an insert died)."""
+    ray = ray_cluster
+    config = tiny_service("maddpg", tmp_path / "logged-kill", episodes=60)
+    roles, metrics, supervisor = supervised(config)
+
+    def arm(server):
+        append = server.store.append
+
+        def append_then_die(payload, transitions=0):  # a chunk's frame has its rows; an event's has 0
+            append(payload, transitions)
+            if transitions and server.counters["episodes"] >= 60:  # the last chunk, logged and not acknowledged
+                os.kill(os.getpid(), signal.SIGKILL)
+        server.store.append = append_then_die
+
+    ray.get(roles.replay.__ray_call__.remote(arm))
+    summary = supervisor.run()
+    assert summary["failures"].get("replay", 0) >= 1, summary["failures"]
+    assert summary["episodes"] == 60 and summary["env_steps"] == 60 * config.env.episode_length, summary
+    kill_all(ray, roles)
+
+
 # out of the default run (its 10-minute budget): a worker killed three times stays in the default run
 @pytest.mark.extended
 def test_a_hung_rollout_worker_is_killed_and_restarted(tmp_path, ray_cluster):
