@@ -142,7 +142,7 @@ def run_service(config: Any, run: Any, seconds: float) -> tuple[Sampler, dict[in
 
     def started(supervisor: Any, roles: Any) -> None:
         watched["actors"] = actor_roles(roles)
-        watched["sampler"] = Sampler(supervisor, supervisor.started + seconds - 0.05)
+        watched["sampler"] = Sampler(supervisor, supervisor.clock.started + seconds - 0.05)
         watched["sampler"].start()
 
     start_reaper()
@@ -195,8 +195,8 @@ def breakdown(sampler: Sampler, actors: dict[int, str], cores: int) -> dict[str,
                    process_cpu_s=learner_proc, process_cpu_outside_updates_s=learner_proc - learner["computing_cpu_s"],
                    cpu_ms_per_update=1e3 * learner["computing_cpu_s"] / updates if updates else None,
                    wall_ms_per_update=1e3 * learner["computing_s"] / updates if updates else None)
-    return {"window_s": window, "window_from_start_s": [t0 - sampler.supervisor.started,
-                                                        t1 - sampler.supervisor.started],
+    return {"window_s": window, "window_from_start_s": [t0 - sampler.supervisor.clock.started,
+                                                        t1 - sampler.supervisor.clock.started],
             "cores": cores, "env_steps": env_steps, "env_steps_per_s": env_steps / window, "roles": ordered,
             "groups": {g: {"cpu_s": c, "cores": c / window, "share": c / (window * cores)} for g, c in groups.items()},
             "service_cpu_s": service, "machine_cpu_s": machine, "rest_of_machine_cpu_s": max(0.0, machine - service

@@ -11,13 +11,11 @@ from cmcl.io.rundir import RunDirectory
 
 def done_line(summary: dict[str, Any], stop_coverage: float) -> str:
     """"done: E episodes, S env steps, U updates in Ts" from a run's summary (episodes, env_steps, updates, elapsed_s,
-    segment_s; solved / plateau or ended), with " (Ns of them this time)" on a resumed run and why it ended early."""
+    segment_s, ended), with " (Ns of them this time)" on a resumed run and why it ended early."""
     segment = summary.get("segment_s", summary["elapsed_s"])
     resumed = f" ({segment:.0f}s of them this time)" if summary["elapsed_s"] - segment >= 0.5 else ""
-    ended = summary.get("ended")
-    why = (f" (coverage target {stop_coverage} reached)" if summary.get("solved") or ended == "solved" else
-           " (learning stopped progressing: run.stop_progress)" if summary.get("plateau") or ended == "plateau"
-           else "")
+    why = {"solved": f" (coverage target {stop_coverage} reached)",
+           "plateau": " (learning stopped progressing: run.stop_progress)"}.get(summary.get("ended"), "")
     return (f"done: {summary['episodes']} episodes, {summary['env_steps']} env steps, {summary['updates']} updates "
             f"in {summary['elapsed_s']:.0f}s{resumed}{why}")
 

@@ -47,9 +47,11 @@ class Failures:
         """The replay server reported an error in a reply (`ReplayStatus.error`): counted under its reason."""
         self._count(error.split(":")[0])
 
-    def call_failed(self, kind: str, index: int, err: Exception, inflight: Counter[tuple[str, int]]) -> None:
+    def call_failed(self, kind: str, index: int, err: Exception,
+                    inflight: Counter[tuple[str, int]]) -> tuple[str, bool]:
         """A call failed because an actor died: free its slot in `inflight` (Ray restarts the actor) or replace a
-        rollout worker out of restarts; any other role out of restarts ends the run (`ServiceFailed`)."""
+        rollout worker out of restarts; any other role out of restarts ends the run (`ServiceFailed`). Returns
+        (the role whose actor failed, whether that actor itself died: `failed_role`)."""
         role, own_death = failed_role(kind, err)
         self._count(role)
         if own_death:
@@ -60,6 +62,7 @@ class Failures:
             check_not_dead_for_good(role, err, self.max_restarts)
             if kind == "rollout_report" and not restartable(err):
                 self.roles.rollout[index] = self.roles.make_rollout(index)  # out of restarts: a fresh worker
+        return role, own_death
 
     def save_failed(self, role: str, err: Exception) -> None:
         """A role's save failed (it keeps its previous checkpoint): counted; a role dead for good ends the run."""

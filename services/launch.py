@@ -270,8 +270,8 @@ def _report(request: RunRequest, config: Config, run_dir: RunDirectory, summary:
             stop: StopSignals) -> int:
     """The end of a run: summary.json, the `done` line, then the resume hint (stopped) or the evaluation."""
     ended = stop.name or ("solved" if summary.get("solved") else "plateau" if summary.get("plateau") else "budget")
-    run_dir.write_summary({**{k: v for k, v in summary.items() if k != "metrics_text"}, "ended": ended,
-                           "runner": "service"})
+    summary = {**{k: v for k, v in summary.items() if k != "metrics_text"}, "ended": ended, "runner": "service"}
+    run_dir.write_summary(summary)
     print(done_line(summary, config.run.stop_coverage))
     if stop.requested:
         print(f"stopped by {stop.name}; every role is checkpointed. Resume with: "

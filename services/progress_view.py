@@ -14,6 +14,7 @@ import numpy as np
 
 from cmcl.messages import ReplayStatus
 from cmcl.progress import progress_line, sampling_parts, window_summary
+from cmcl.run_clock import RunClock
 from cmcl.windowed_rate import WindowedRate
 from services.report_schema import Report
 
@@ -66,18 +67,17 @@ class ProgressView:
     """Env steps and updates per second over the last RATE_WINDOW_S seconds (refreshed at most every 0.5 s), and the
     progress line."""
 
-    def __init__(self, episodes_target: int, started: float, status: ReplayStatus, sampling_modes: list[str],
+    def __init__(self, episodes_target: int, clock: RunClock, status: ReplayStatus, sampling_modes: list[str],
                  max_seconds: float = 0.0, notes: list[str] | None = None, show_lambda: bool = True) -> None:
-        """sampling_modes: each agent's sampling distribution's name (cmcl.replay.registry.sampling_name);
-        max_seconds: the run's wall-clock budget (0 = none); notes: what is normal while λ < 0.5
-        (cmcl.replay.registry.early_notes); show_lambda: whether a rule of the run reads λ
+        """clock: the run's training clock (the supervisor's); sampling_modes: each agent's sampling distribution's
+        name (cmcl.replay.registry.sampling_name); max_seconds: the run's wall-clock budget (0 = none); notes: what is
+        normal while λ < 0.5 (cmcl.replay.registry.early_notes); show_lambda: whether a rule of the run reads λ
         (cmcl.replay.registry.uses_lambda), else the line leaves it out."""
-        self.episodes_target, self.started, self.sampling_modes = episodes_target, started, list(sampling_modes)
+        self.episodes_target, self.clock, self.sampling_modes = episodes_target, clock, list(sampling_modes)
         self.max_seconds, self.notes, self.show_lambda = float(max_seconds), list(notes or []), bool(show_lambda)
         self.rates = {"env_steps_per_s": 0.0, "updates_per_s": 0.0}
-        self.before_s = 0.0  # training seconds of the run's earlier segments (set on resume)
         self.window = WindowedRate(RATE_WINDOW_S)
-        self.window.mark(started, (status.env_steps, status.updates))
+        self.window.mark(clock.started, (status.env_steps, status.updates))
 
     def refresh(self, status: ReplayStatus) -> None:
         now = time.perf_counter()
@@ -92,8 +92,8 @@ class ProgressView:
         ratios before the run ends (`owed_part`)."""
         line = progress_line(status.episodes, self.episodes_target, status.env_steps, status.updates,
                              window_summary(window), status.lam if self.show_lambda else None, self.rates,
-                             self.before_s + time.perf_counter() - self.started, replay_parts(status, report, lags),
-                             self.max_seconds, self.notes, segment_s=time.perf_counter() - self.started)
+                             self.clock.elapsed(), replay_parts(status, report, lags), self.max_seconds, self.notes,
+                             segment_s=self.clock.segment())
         owed = owed_part(status) if status.episodes >= self.episodes_target else ""
         return f"{line} | {owed}" if owed else line
 
@@ -101,9 +101,9 @@ class ProgressView:
         """The progress row of metrics.jsonl: counters, rates, elapsed seconds (the run's, over every segment;
         segment_s: this command's) and the sampling entries
         (`sampling_row`) of the replay server's newest report."""
-        segment = time.perf_counter() - self.started
-        return {"kind": "progress", **status.counters(), **self.rates, "elapsed_s": self.before_s + segment,
-                "segment_s": segment, **sampling_row(report, self.sampling_modes)}
+        now = time.perf_counter()
+        return {"kind": "progress", **status.counters(), **self.rates, "elapsed_s": self.clock.elapsed(now),
+                "segment_s": self.clock.segment(now), **sampling_row(report, self.sampling_modes)}
 
 
 def owed_part(status: ReplayStatus) -> str:

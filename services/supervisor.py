@@ -30,10 +30,11 @@ from cmcl.learning_progress import LearningProgress, agent_mean
 from cmcl.messages import ReplayStatus
 from cmcl.progress import TrainingDiverged, episode_rows, solved, window_summary
 from cmcl.replay.registry import early_notes, sampling_name, uses_lambda
+from cmcl.run_clock import RunClock
 from cmcl.system import layout_of
 from services.call_budget import HeldClock, calls_to_issue
 from services.failures import Failures
-from services.health import actor_key, failed_role
+from services.health import actor_key
 from services.metrics import ServiceMetrics
 from services.placement import Roles
 from services.progress_view import ProgressView
@@ -82,10 +83,9 @@ class Supervisor:
         # starts it afresh)
         self.learning_progress = LearningProgress.from_run_config(config.run)
         self.last_replay_report: Report | None = None
-        self.started = time.perf_counter()  # this command's start: run.max_seconds counts from here
-        self.before_s = 0.0  # training seconds of the run's earlier segments (a resumed run: restore_counters)
+        self.clock = RunClock()  # the run's training clock (a resumed run's goes on: restore_counters)
         algorithms = layout_of(config).algorithms
-        self.view = ProgressView(config.run.episodes, self.started, self.status,
+        self.view = ProgressView(config.run.episodes, self.clock, self.status,
                                  [sampling_name(a) for a in algorithms], config.run.max_seconds,
                                  early_notes(algorithms), uses_lambda(algorithms))
         self._first_reports()
@@ -168,8 +168,7 @@ class Supervisor:
                     if self.env_error is None:  # does not fit its space, a crash): a retry meets it again; the run
                         raise err.cause from None  # is checkpointed, then the CLI says it in one line (item 5)
                     continue  # another worker's, while the run is being kept: said once
-                self.failures.call_failed(kind, index, err, self.inflight)
-                self.replay_failed |= failed_role(kind, err) == ("replay", True)
+                self.replay_failed |= self.failures.call_failed(kind, index, err, self.inflight) == ("replay", True)
                 continue
             self._apply(kind, index, value, number)
 
@@ -219,7 +218,7 @@ class Supervisor:
     def _log_episodes(self, report: Report) -> None:
         """Append one 'episode' row per finished episode of a rollout report to metrics.jsonl."""
         rows = episode_rows(report.rollout.finished.to_dict(), self.episodes_logged + 1,
-                            elapsed_s=self.elapsed_s(), worker=report.source,
+                            elapsed_s=self.clock.elapsed(), worker=report.source,
                             weight_version=report.weight_version or 0)
         self.episodes_logged += len(rows)
         self.window.extend(rows)
@@ -282,7 +281,7 @@ class Supervisor:
                     self.failures.save_failed(role, err)
         self.checkpoint_seconds.append(time.perf_counter() - started)  # (its own counters' write below excluded)
         summary = {"episodes_logged": self.episodes_logged, "status": dataclasses.asdict(self.status),
-                   "time": time.time(), "elapsed_s": self.elapsed_s(), "tallies": self.tallies()}
+                   "time": time.time(), "elapsed_s": self.clock.elapsed(), "tallies": self.tallies()}
         atomic_write_bytes(self.paths["supervisor"], json.dumps(summary).encode())
 
     def restore_counters(self) -> None:
@@ -292,7 +291,7 @@ class Supervisor:
         if path.exists():
             saved = json.loads(path.read_text())
             self.episodes_logged = int(saved["episodes_logged"])
-            self.before_s = self.view.before_s = float(saved.get("elapsed_s", 0.0))
+            self.clock.before_s = float(saved.get("elapsed_s", 0.0))
             add_tallies(saved.get("tallies", {}), self.failures, self.held, self.reports_rejected,
                         self.checkpoint_seconds)
             self.run_dir.truncate_rows_after(self.episodes_logged)
@@ -300,11 +299,6 @@ class Supervisor:
     def tallies(self) -> dict[str, Any]:
         """What the run has counted so far, over every segment (services.run_tallies; the summary's keys)."""
         return tallies(self.failures, self.held, self.reports_rejected, self.checkpoint_seconds)
-
-    def elapsed_s(self) -> float:
-        """The run's training seconds so far, over every segment (a resumed run's clock goes on from its checkpoint,
-        as the inline runner's)."""
-        return self.before_s + time.perf_counter() - self.started
 
     def run(self) -> dict[str, Any]:
         """Train until the episode target (or the time budget) is reached; checkpoint periodically and at the end."""
@@ -316,7 +310,7 @@ class Supervisor:
                 if self.stop is not None and self.stop():
                     self.stopped = True
                     break
-                if cfg.run.max_seconds and time.perf_counter() - self.started > cfg.run.max_seconds:
+                if cfg.run.max_seconds and self.clock.segment() > cfg.run.max_seconds:
                     break
                 if solved(self.window, cfg.run):
                     self.solved = True
@@ -358,5 +352,5 @@ class Supervisor:
         return {**dataclasses.asdict(self.status), **self.status.counters(), **self.view.rates,
                 **self.tallies(), "solved": self.solved, "plateau": self.learning_progress.plateaued,
                 "stopped": self.stopped, "episodes_logged": self.episodes_logged,
-                "window": window_summary(self.window), "elapsed_s": self.elapsed_s(),
-                "segment_s": time.perf_counter() - self.started}
+                "window": window_summary(self.window), "elapsed_s": self.clock.elapsed(),
+                "segment_s": self.clock.segment()}

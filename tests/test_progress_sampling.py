@@ -72,12 +72,13 @@ def test_the_service_line_says_what_is_owed_once_every_episode_is_collected():
     instead of "left ~0s"."""
     from dataclasses import replace
 
+    from cmcl.run_clock import RunClock
     from services.progress_view import ProgressView
 
     status = ReplayStatus(allowed_updates=0, allowed_inserts=0, update_deficit=373.4, scoring_deficit=45.0,
                           teacher_allowed=(), icm_allowed=0, updates_held_by="env_steps", size=500, env_steps=900,
                           episodes=30, updates=40, lam=0.2, incarnation="x")
-    view = ProgressView(30, 0.0, status, ["curriculum"])
+    view = ProgressView(30, RunClock(started=0.0), status, ["curriculum"])
     line = view.line(status, None, {}, [])
     assert line.endswith("| finishing: 373 updates, 45 teacher / ICM fit steps owed") and "left ~" not in line, line
     assert view.line(replace(status, update_deficit=0.5), None, {}, []).endswith("45 teacher / ICM fit steps owed")

@@ -37,6 +37,7 @@ from cmcl.replay import buffer_steps
 from cmcl.replay.curriculum import unplayed_steps
 from cmcl.replay.pacing import pacing_from_config
 from cmcl.replay.scoring import ScoringState
+from cmcl.run_clock import RunClock
 from cmcl.system import (
     agent_layout,
     beta_is,
@@ -254,8 +255,7 @@ class InlineLoop:
         (polled after every batched env step: a graceful SIGINT / SIGTERM); checkpoints at the end in every case;
         returns the final progress row."""
         cfg, c = self.config, self.counters
-        segment_start = time.perf_counter()  # run.max_seconds counts from here: a resumed run gets its budget again
-        start = segment_start - self.elapsed_s  # a resumed run's clock goes on from its checkpoint
+        clock = RunClock(before_s=self.elapsed_s)  # goes on from the checkpoint; run.max_seconds is this command's
         last_t = time.perf_counter()
         last = {"env_steps": c["env_steps"], "updates": c["updates"]}
         next_log = (c["episodes"] // cfg.run.log_every + 1) * cfg.run.log_every
@@ -264,26 +264,27 @@ class InlineLoop:
         row: dict[str, Any] = {}
         while c["episodes"] < cfg.run.episodes:
             for episode_row in self.env_step():
-                episode_row["elapsed_s"] = time.perf_counter() - start
+                episode_row["elapsed_s"] = clock.elapsed()
                 if self.run_dir is not None:
                     self.run_dir.log(episode_row)
             self.stopped = stop is not None and stop()
             done = (c["episodes"] >= cfg.run.episodes or solved(self.window, cfg.run) or self.stopped
                     or self.learning_progress.plateaued
-                    or (cfg.run.max_seconds > 0 and time.perf_counter() - segment_start >= cfg.run.max_seconds))
+                    or (cfg.run.max_seconds > 0 and clock.segment() >= cfg.run.max_seconds))
             if c["episodes"] >= next_log or done:
                 now = time.perf_counter()
                 dt = max(now - last_t, 1e-9)
                 rate = {"env_steps_per_s": (c["env_steps"] - last["env_steps"]) / dt,
                         "updates_per_s": (c["updates"] - last["updates"]) / dt}
-                row = self.progress_row(now - start, rate, now - segment_start)
+                row = self.progress_row(clock.elapsed(now), rate, clock.segment(now))
                 if self.run_dir is not None:
                     self.run_dir.log(row)
                 if self.progress is not None:
                     self.progress(self.format_progress(row))
                 last_t, last = now, {"env_steps": c["env_steps"], "updates": c["updates"]}
                 next_log = (c["episodes"] // cfg.run.log_every + 1) * cfg.run.log_every
-            self.elapsed_s, self.segment_s = time.perf_counter() - start, time.perf_counter() - segment_start
+            now = time.perf_counter()
+            self.elapsed_s, self.segment_s = clock.elapsed(now), clock.segment(now)
             if next_ckpt is not None and (c["episodes"] >= next_ckpt or done):
                 self.save_checkpoint()
                 next_ckpt = (c["episodes"] // ce + 1) * ce
