@@ -101,8 +101,8 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
     """The config (file, or the run's own config.toml on resume, with `config_overrides`), the run directory (new, or
     the one resumed) and its lock, taken before anything in the directory changes: a run in use is refused, naming
     its holder, and left untouched; so is the other runner's run, and a key only the other runner honours
-    (cmcl.config.runners.check_runner_keys). Raises ConfigError, FileExistsError (a run.dir
-    holding a run, without `overwrite`), FileNotFoundError (no run to resume), RunDirectoryInUse, ResumeMismatch,
+    (cmcl.config.runners.check_runner_keys). Raises ConfigError (also a run.dir that cannot be made a folder),
+    FileExistsError (a run.dir holding a run, without `overwrite`), FileNotFoundError (no run to resume), RunDirectoryInUse, ResumeMismatch,
     CheckpointError (a resumed run holds checkpoint files that cannot be verified), MetricsError (its metrics.jsonl
     has a corrupt line before its last)."""
     overrides = request.config_overrides()
@@ -128,7 +128,10 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
 
     check_carry_source(config)  # before the warm start's shape check: it names the setting (env.agent_tags, ...)
     check_warm_start(config)
-    lock = RunLock.acquire(config.run.dir, holder_command())
+    try:
+        lock = RunLock.acquire(config.run.dir, holder_command())
+    except OSError as err:  # a path that cannot be a folder (a file, under /proc, no permission): name the key
+        raise ConfigError(f"run.dir = {str(config.run.dir)!r} cannot hold a run: {err.strerror or err}") from None
     try:
         return config, RunDirectory.create(config.run.dir, config, overwrite=request.overwrite), lock
     except BaseException:

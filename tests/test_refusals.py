@@ -107,6 +107,18 @@ def test_a_config_file_that_is_not_toml_text_is_named(kind, tmp_path):
                             "not UTF-8 text (byte 0x8f at offset 0)" if kind == "binary" else "is a directory")
 
 
+
+@pytest.mark.parametrize("runner", ["inline", "service"])
+@pytest.mark.parametrize("where", ["a file", "under a file"])
+def test_a_run_dir_that_cannot_be_a_folder_is_named_and_the_file_kept(runner, where, tmp_path):
+    """Before: "error: [Errno 17] File exists: '...'" with no key named (found by hand, 2026-12-06)."""
+    taken = tmp_path / "notes.txt"
+    taken.write_text("a user's file\n")
+    run_dir = taken if where == "a file" else taken / "run"
+    done = run_cli("train", "--runner", runner, "--set", f"run.dir={run_dir}", *QUICK, *any_port(runner))
+    assert_one_line_refusal(done, f"run.dir = {str(run_dir)!r} cannot hold a run")
+    assert taken.read_text() == "a user's file\n"
+
 def test_a_start_that_fails_before_its_first_episode_leaves_nothing(tmp_path, capsys):
     """Whatever ends a new run before its first episode (an error exit, an exception), its config.toml, run.lock,
     empty checkpoints/ and the directory the command made are removed; a directory that existed is kept."""
