@@ -102,9 +102,9 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
     the one resumed) and its lock, taken before anything in the directory changes: a run in use is refused, naming
     its holder, and left untouched; so is the other runner's run, and a key only the other runner honours
     (cmcl.config.runners.check_runner_keys). Raises ConfigError (also a run.dir that cannot be made a folder),
-    FileExistsError (a run.dir holding a run, without `overwrite`), FileNotFoundError (no run to resume), RunDirectoryInUse, ResumeMismatch,
-    CheckpointError (a resumed run holds checkpoint files that cannot be verified), MetricsError (its metrics.jsonl
-    has a corrupt line before its last)."""
+    FileExistsError (a run.dir holding a run, without `overwrite`), FileNotFoundError (no run to resume),
+    RunDirectoryInUse, ResumeMismatch, CheckpointError (a resumed run holds checkpoint files that cannot be verified),
+    MetricsError (its metrics.jsonl has a corrupt line before its last)."""
     overrides = request.config_overrides()
     if request.resume_dir:
         run_dir = RunDirectory.open(request.resume_dir)
