@@ -11,6 +11,7 @@ Run:  python -m cmcl evaluate runs/spread_cmcl [--episodes 100] [--checkpoint PA
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import sys
 import tempfile
@@ -23,8 +24,10 @@ import torch
 
 from cmcl.config import Config
 from cmcl.envs.batched_spread import BatchedSparseSpread
+from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.checkpoint_files import load_checkpoint
 from cmcl.io.rundir import PolicyCheckpoint, RunDirectory
+from cmcl.io.write_failure import RunWriteError
 from cmcl.learners.maddpg import MADDPG
 from cmcl.run_flags import add_evaluate_flags
 from cmcl.stalls import MissAnatomy, miss_anatomy
@@ -96,11 +99,11 @@ def render_gif(config: Config, maddpg: MADDPG | None, path: str | Path, seed: in
         frames = _factory_frames(config, maddpg, seed)
     else:
         frames = _twin_frames(config, maddpg, seed)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     images = [Image.fromarray(np.asarray(f, dtype=np.uint8)) for f in frames]
-    images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
-    return path
+    encoded = io.BytesIO()
+    images[0].save(encoded, format="GIF", save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+    atomic_write_bytes(path, encoded.getvalue())  # all or nothing; a full disk: RunWriteError naming the file
+    return Path(path)
 
 
 def gif_line(config: Config, maddpg: MADDPG | None, path: str | Path, seed: int = 0) -> str:
@@ -109,6 +112,8 @@ def gif_line(config: Config, maddpg: MADDPG | None, path: str | Path, seed: int 
     is an extra: a render that fails never fails the evaluation or the run before it."""
     try:
         return f"gif: {render_gif(config, maddpg, path, seed)}"
+    except RunWriteError as err:  # a full disk: the line says so, the evaluation before it stands
+        return f"gif: not written ({err})"
     except Exception as err:  # noqa: BLE001 - any failure of the env's own render, reported, never fatal
         return f"gif: none, the environment could not render here ({type(err).__name__}: {err})"
 
@@ -211,11 +216,11 @@ def evaluate_run(args: argparse.Namespace) -> int:
                            args.seed))
         else:
             print(f"gif: not written, {run.path} is read-only (pass --gif PATH to write it elsewhere)")
-    from cmcl.io.plots import plot_learning_curves
+    from cmcl.io.plots import curve_line
 
     if episode_rows:
         if writable:
-            print(f"learning curve: {plot_learning_curves([run.path], run.path / 'learning_curve.png')}")
+            print(curve_line([run.path], run.path / "learning_curve.png"))
         else:
             print(f"learning curve: not written, {run.path} is read-only")
     return 0

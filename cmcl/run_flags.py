@@ -24,6 +24,7 @@ from cmcl.io.resume_hint import resume_command
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
 from cmcl.io.verified import CheckpointError
+from cmcl.io.write_failure import RunWriteError, write_failure_line
 from cmcl.replay.registry import uses_lambda
 
 RUNNERS: tuple[str, ...] = get_args(Runner)
@@ -201,13 +202,14 @@ def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, Run
     """Open the run (`open_run`) and call `train(config, run_dir, lock)` while holding its lock; returns its exit
     code, or 2 after printing the error when the run cannot be opened (nothing in the directory changed then) or
     when the user's environment (`env.factory`) cannot be used (EnvFactoryError: an AEC env, an unsupported space,
-    an observation that does not fit its space, ...). A new run that fails (an error exit or an exception, not a
-    stop by signal) before its first episode is removed again, its directory too when this command made it
-    (`RunDirectory.discard_failed_start`)."""
+    an observation that does not fit its space, ...) or a file of the run cannot be written (RunWriteError: a full
+    disk; the line names the file and what a resume starts from, `resume_point`). A new run that fails (an error
+    exit or an exception, not a stop by signal) before its first episode is removed again, its directory too when
+    this command made it (`RunDirectory.discard_failed_start`)."""
     try:
         config, run_dir, lock = open_run(request)
     except (CheckpointError, ConfigError, EnvFactoryError, FileExistsError, FileNotFoundError, MetricsError,
-            RunDirectoryInUse, RunRequestError) as err:
+            RunDirectoryInUse, RunRequestError, RunWriteError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     code = 1
@@ -219,10 +221,24 @@ def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, Run
             print(f"error: {err}", file=sys.stderr)
             code = 2
             return code
+        except RunWriteError as err:  # a full disk, in either runner: what was written stays as it was
+            print(f"error: {write_failure_line(err, run_dir.path, resume_point(run_dir, request.runner))}",
+                  file=sys.stderr)
+            code = 2
+            return code
         finally:  # a new run that failed before its first episode leaves nothing that blocks the retry
             if code not in (0, 130, 143) and not request.resume_dir and run_dir.never_trained():
                 run_dir.discard_failed_start()
                 lock.discard()
+
+
+def resume_point(run_dir: RunDirectory, runner: Runner) -> str | None:
+    """What a resume of `run_dir` starts from, said when a file of the run could not be written: its last checkpoint;
+    a service run without a policy checkpoint yet resumes from its replay alone (services.launch.resume_notice); None
+    when there is nothing to resume from."""
+    if run_dir.runners():
+        return "its last checkpoint"
+    return "its replay (no policy checkpoint yet)" if runner == "service" else None
 
 
 def add_run_flags(parser: argparse.ArgumentParser, *, new_run: bool = True) -> None:

@@ -24,13 +24,12 @@ def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -
     """Held-out evaluation of the run's newest verified policy (no exploration noise, worlds never trained on), a
     GIF of one episode and the learning curve, all in the run directory; printed."""
     from cmcl.evaluate import evaluate_policy, gif_line, load_policy
-    from cmcl.io.plots import plot_learning_curves
+    from cmcl.io.plots import curve_line
     from cmcl.stalls import MissAnatomy
 
     if any(True for _ in run_dir.rows("episode")):
         window = min(config.run.smoothing_window, max(1, config.run.episodes // 10))
-        png = plot_learning_curves([run_dir.path], run_dir.path / "learning_curve.png", window=window)
-        print(f"learning curve: {png}")
+        print(curve_line([run_dir.path], run_dir.path / "learning_curve.png", window=window))
     checkpoint = run_dir.newest_policy()
     if checkpoint is None:
         print(f"no policy checkpoint in {run_dir.path}: nothing to evaluate")

@@ -30,6 +30,7 @@ from cmcl.io.durable import ReplayStore
 from cmcl.io.resume_hint import resume_command
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunLock
+from cmcl.io.write_failure import RunWriteError
 from cmcl.progress import TrainingDiverged
 from cmcl.run_flags import RunRequest, alias_parser, run_alias, train_in_run
 from cmcl.run_report import done_line, report_trained
@@ -245,6 +246,8 @@ def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: Ru
         try:
             summary = run_service(config, run_dir, resume=bool(request.resume_dir),
                                   progress=None if request.quiet else print, stop=lambda: stop.requested)
+        except RunWriteError:  # a full disk (a role's file, the metrics, the counters): cmcl.run_flags.train_in_run
+            raise  # names the file and what a resume starts from
         except (InfeasibleResources, OSError) as err:
             print(f"error: {err}", file=sys.stderr)
             return 2

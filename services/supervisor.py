@@ -26,6 +26,7 @@ from cmcl.config import Config
 from cmcl.envs.factory import EnvFactoryError
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
+from cmcl.io.write_failure import RunWriteError
 from cmcl.learning_progress import LearningProgress, agent_mean
 from cmcl.messages import ReplayStatus
 from cmcl.progress import TrainingDiverged, episode_rows, solved, window_summary
@@ -168,6 +169,8 @@ class Supervisor:
                     if self.env_error is None:  # does not fit its space, a crash): a retry meets it again; the run
                         raise err.cause from None  # is checkpointed, then the CLI says it in one line (item 5)
                     continue  # another worker's, while the run is being kept: said once
+                if isinstance(getattr(err, "cause", None), RunWriteError):  # a full disk: a retry meets it again;
+                    raise err.cause from None  # the run ends, its files as they were (services/launch.py)
                 self.replay_failed |= self.failures.call_failed(kind, index, err, self.inflight) == ("replay", True)
                 continue
             self._apply(kind, index, value, number)
@@ -278,6 +281,8 @@ class Supervisor:
                 try:
                     ray.get(ref)
                 except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError) as err:
+                    if isinstance(getattr(err, "cause", None), RunWriteError):  # a full disk: its older checkpoint
+                        raise err.cause from None  # stays; the run ends (services/launch.py)
                     self.failures.save_failed(role, err)
         self.checkpoint_seconds.append(time.perf_counter() - started)  # (its own counters' write below excluded)
         summary = {"episodes_logged": self.episodes_logged, "status": dataclasses.asdict(self.status),

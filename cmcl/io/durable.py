@@ -29,6 +29,7 @@ from typing import Any
 
 from cmcl.io import codec
 from cmcl.io.atomic import atomic_write_bytes
+from cmcl.io.write_failure import write_error
 
 MAGIC = b"CML2"
 FRAME = struct.Struct("<4sQI32sI")  # magic, payload bytes, transitions, sha256(payload), crc32(the 48 bytes before)
@@ -253,12 +254,15 @@ class ReplayStore:
     def append(self, payload: bytes, transitions: int = 0) -> None:
         """Append one frame (a chunk of `transitions` rows, or an event: 0) and flush it to the OS (and to disk with
         fsync) before returning."""
-        if self._log is None:
-            self._open_log()
-        self._log.write(frame(payload, transitions))
-        self._log.flush()
-        if self.fsync:
-            os.fsync(self._log.fileno())
+        try:
+            if self._log is None:
+                self._open_log()
+            self._log.write(frame(payload, transitions))
+            self._log.flush()
+            if self.fsync:
+                os.fsync(self._log.fileno())
+        except OSError as err:  # a full disk: the frame may be torn, and is set aside on resume (`_replay_log`)
+            raise write_error(err, self._log_path(self.generation)) from None
 
     def snapshot(self, state: dict[str, Any]) -> int:
         """Write `state` as a new generation, switch the manifest to it with an empty log, drop the old files.

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from cmcl.io.atomic import atomic_write_bytes
+from cmcl.io.write_failure import write_error
 
 TAIL_BYTES = 1 << 20  # the last line of metrics.jsonl is looked for in its last MiB
 
@@ -61,8 +62,11 @@ class MetricsLog:
         if not self._tail_checked:
             self._set_torn_line_aside()
             self._tail_checked = True
-        with self.path.open("a") as handle:
-            handle.write(json.dumps(json_safe(row), sort_keys=True) + "\n")
+        try:
+            with self.path.open("a") as handle:
+                handle.write(json.dumps(json_safe(row), sort_keys=True) + "\n")
+        except OSError as err:  # a full disk: the row may be torn, and is set aside by the next append
+            raise write_error(err, self.path) from None
 
     def _set_torn_line_aside(self) -> None:
         """A metrics file whose last line has no newline (a write cut by a crash or a full disk, e.g. EFBIG): that

@@ -6,12 +6,15 @@ of a run.
 
 from __future__ import annotations
 
+import io
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
+from cmcl.io.write_failure import RunWriteError
 
 
 def moving_average(values: np.ndarray, window: int) -> np.ndarray:
@@ -64,8 +67,17 @@ def plot_learning_curves(runs: Sequence[str | Path], out: str | Path, window: in
         if ax.has_data():
             ax.legend(fontsize=7)
     fig.tight_layout()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=100)
+    encoded = io.BytesIO()
+    fig.savefig(encoded, format="png", dpi=100)
     plt.close(fig)
-    return out
+    atomic_write_bytes(out, encoded.getvalue())  # all or nothing; a full disk: RunWriteError naming the file
+    return Path(out)
+
+
+def curve_line(runs: Sequence[str | Path], out: str | Path, window: int = 100) -> str:
+    """The line that names the learning curve `plot_learning_curves` wrote, or why it is not written (a full
+    disk: the run's results before it stand)."""
+    try:
+        return f"learning curve: {plot_learning_curves(runs, out, window=window)}"
+    except RunWriteError as err:
+        return f"learning curve: not written ({err})"

@@ -57,8 +57,9 @@ def main(argv: list[str] | None = None) -> int:
 def run_inline(request: RunRequest) -> int:
     """Train, or resume, one inline run; at the end the `done` line and, unless `no_eval`, the learning curve, the
     held-out evaluation and a GIF, as the service's (cmcl.run_report). Exit codes: 0 done,
-    2 bad config / arguments / run directory in use / nothing to resume / training diverged, 130 / 143 stopped by
-    SIGINT / SIGTERM (after a checkpoint)."""
+    2 bad config / arguments / run directory in use / nothing to resume / training diverged / a file of the run that
+    cannot be written (a full disk: said by cmcl.run_flags.train_in_run), 130 / 143 stopped by SIGINT / SIGTERM (after
+    a checkpoint)."""
     return train_in_run(request, lambda config, run_dir, _lock: _train(request, config, run_dir))
 
 
