@@ -21,7 +21,7 @@ from cmcl.config.runners import Runner, check_runner_keys
 from cmcl.envs.factory import EnvFactoryError
 from cmcl.io.metrics_log import MetricsError
 from cmcl.io.resume_hint import resume_command
-from cmcl.io.rundir import RunDirectory
+from cmcl.io.rundir import ForeignFolderError, RunDirectory
 from cmcl.io.runlock import RunDirectoryInUse, RunLock, holder_command
 from cmcl.io.verified import CheckpointError
 from cmcl.io.write_failure import RunWriteError, write_failure_line
@@ -135,6 +135,9 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
         raise ConfigError(f"run.dir = {str(config.run.dir)!r} cannot hold a run: {err.strerror or err}") from None
     try:
         return config, RunDirectory.create(config.run.dir, config, overwrite=request.overwrite), lock
+    except ForeignFolderError:
+        lock.discard()  # the user's folder is left as it was, without our lock file
+        raise
     except BaseException:
         lock.release()
         raise

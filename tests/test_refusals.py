@@ -119,6 +119,21 @@ def test_a_run_dir_that_cannot_be_a_folder_is_named_and_the_file_kept(runner, wh
     assert_one_line_refusal(done, f"run.dir = {str(run_dir)!r} cannot hold a run")
     assert taken.read_text() == "a user's file\n"
 
+
+@pytest.mark.parametrize("runner", ["inline", "service"])
+def test_a_folder_of_the_users_that_holds_no_run_is_refused_and_left_as_it_was(runner, tmp_path):
+    """Before (found by hand 2026-12-06): `train --overwrite` into a folder of the user's that held no run deleted its
+    checkpoints/ and metrics.jsonl, then trained there."""
+    folder = tmp_path / "project"
+    (folder / "checkpoints").mkdir(parents=True)
+    (folder / "checkpoints" / "model.bin").write_bytes(b"the user's weights")
+    (folder / "metrics.jsonl").write_text("{}\n")
+    before = {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+    done = run_cli("train", "--runner", runner, "--set", f"run.dir={folder}", "--overwrite", *QUICK, *any_port(runner))
+    assert_one_line_refusal(done, f"run.dir {str(folder)!r} holds files that are not a run's (checkpoints, "
+                                  "metrics.jsonl); nothing there is touched")
+    assert {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()} == before  # no lock file left either
+
 def test_a_start_that_fails_before_its_first_episode_leaves_nothing(tmp_path, capsys):
     """Whatever ends a new run before its first episode (an error exit, an exception), its config.toml, run.lock,
     empty checkpoints/ and the directory the command made are removed; a directory that existed is kept."""

@@ -40,6 +40,10 @@ CHECKPOINT_GLOB = "ckpt_*.pt"
 # what a start that failed before its first episode leaves at the top of its run directory (with a `checkpoints/`
 # tree holding no data): nothing a retry must keep (`RunDirectory.never_trained`)
 START_LEFTOVERS = ("config.toml", "run.lock", "ray_shutdown.log")
+
+
+class ForeignFolderError(FileExistsError):
+    """A new run's run.dir holds files, and no run (no config.toml): none of them is touched."""
 SERVICE_ROLES = ("learner", "icm")  # roles whose checkpoint is one VerifiedFile at checkpoints/service/<role>.pt
 
 
@@ -67,9 +71,17 @@ class RunDirectory:
 
     @classmethod
     def create(cls, path: str | Path, config: Config, *, overwrite: bool = False) -> RunDirectory:
-        """Make the folder and write the resolved config. Refuses a folder that already holds a run."""
+        """Make the folder and write the resolved config. Refuses a folder that already holds a run (FileExistsError;
+        `overwrite` starts it over), and, even with `overwrite`, a folder holding anything but what a run's start
+        leaves that is no run (ForeignFolderError: no config.toml; before, --overwrite deleted its checkpoints/ and
+        metrics.jsonl)."""
         code_at_start()  # the code this run trains with, before anything can change the checkout (cmcl.provenance)
         run = cls(path)
+        if not run.config_path.exists() and run.path.is_dir() and not run.never_trained():  # --overwrite too
+            foreign = sorted(e.name for e in run.path.iterdir() if e.name not in START_LEFTOVERS)
+            raise ForeignFolderError(f"run.dir {str(run.path)!r} holds files that are not a run's "
+                                     f"({', '.join(foreign[:4])}{', ...' if len(foreign) > 4 else ''}); nothing there "
+                                     "is touched: choose a new or empty folder")
         if run.config_path.exists() and not overwrite and not run.never_trained():
             raise FileExistsError(
                 f"run.dir {str(run.path)!r} already holds a run: continue it with {resume_command(run.path)}, start "
