@@ -164,9 +164,14 @@ def resumed_config(run_dir: RunDirectory, overrides: tuple[str, ...], request: R
     derived from the old budget (curriculum.stride = 0), so that λ goes on along the schedule it had (a multiplicative
     schedule, whose growth has no setting, is refused: ConfigError). A run whose episodes are all done, resumed
     without more, is said so on stderr (it then only evaluates). Only `overrides` are checked against the runner
-    (cmcl.config.runners: the stored config was checked when the run started)."""
+    (cmcl.config.runners: the stored config was checked when the run started), and against the shapes the run's
+    checkpoints hold (cmcl.resume_shapes: ConfigError naming them)."""
     config = run_dir.config(overrides)
     check_runner_keys(config, request.runner, overrides=overrides)
+    if overrides:  # one that changes what the checkpoints hold is refused here, naming it (cmcl.resume_shapes)
+        from cmcl.resume_shapes import check_resume_shapes  # torch: only when a resume sets something
+
+        check_resume_shapes(run_dir.config(), config, overrides)
     done = max((int(row["episodes"]) for row in run_dir.rows("episode")), default=0)
     if request.more_episodes:
         if config.curriculum.kind != "linear":  # its growth per step is derived from run.episodes, with no setting
