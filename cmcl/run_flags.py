@@ -18,6 +18,7 @@ from typing import get_args
 
 from cmcl.config import Config, ConfigError, apply_overrides, config_from_dict, load_data
 from cmcl.config.runners import Runner, check_runner_keys
+from cmcl.config.world_keys import check_world_keys
 from cmcl.envs.factory import EnvFactoryError
 from cmcl.io.metrics_log import MetricsError
 from cmcl.io.resume_hint import resume_command
@@ -124,6 +125,7 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
     data = apply_overrides(file_data, overrides)
     config = config_from_dict(data)
     check_runner_keys(config, request.runner, file_data, overrides)  # keys only the other runner honours
+    check_world_keys(config, file_data, overrides)  # the built-in worlds' keys, with env.factory
     config = checked(config, request, teams_given="teams" in data)  # the env built once (AEC, ...)
     from cmcl.carried_replay import check_carry_source  # numpy only: no torch, no Ray
 
@@ -168,6 +170,7 @@ def resumed_config(run_dir: RunDirectory, overrides: tuple[str, ...], request: R
     checkpoints hold (cmcl.resume_shapes: ConfigError naming them)."""
     config = run_dir.config(overrides)
     check_runner_keys(config, request.runner, overrides=overrides)
+    check_world_keys(config, overrides=overrides)
     if overrides:  # one that changes what the checkpoints hold is refused here, naming it (cmcl.resume_shapes)
         from cmcl.resume_shapes import check_resume_shapes  # torch: only when a resume sets something
 
