@@ -69,7 +69,9 @@ def build_parser() -> argparse.ArgumentParser:
     config = verbs.add_parser("config", help="every config key: its meaning, unit, default and allowed range",
                               description="Print every key of a run configuration (or of SECTION) with its meaning, "
                                           "unit, default and allowed range (cmcl/config/reference.py).")
-    config.add_argument("section", nargs="?", metavar="SECTION", help="one section, e.g. maddpg (default: all)")
+    config.add_argument("section", nargs="?", metavar="SECTION",
+                        help="one section, e.g. maddpg, or one key, e.g. maddpg.hidden or teams.agent.eta (default: "
+                             "all)")
     config.add_argument("--markdown", action="store_true", help="Markdown tables (docs/CONFIG.md)")
     return parser
 

@@ -88,5 +88,19 @@ def test_one_section_is_printed_and_an_unknown_one_is_refused_in_one_line(capsys
     assert main(["config", "nonsense"]) == 2
     captured = capsys.readouterr()
     assert captured.out == ""
-    assert captured.err == ("error: unknown section 'nonsense' (known: env, maddpg, replay, curriculum, teachers, "
-                            "icm, run, service, teams, teams.priority)\n")
+    assert captured.err == ("error: unknown section or key 'nonsense' (sections: env, maddpg, replay, curriculum, "
+                            "teachers, icm, run, service, teams, teams.priority; a key: SECTION.KEY, e.g. "
+                            "maddpg.hidden or teams.agent.eta)\n")
+
+
+@pytest.mark.parametrize(("key", "table", "shown"), [("maddpg.hidden", "[maddpg]", "  hidden = 64\n"),
+                                                     ("env.num_agents", "[env]", "  num_agents = 4\n"),
+                                                     ("teams.prey.eta", "[teams.<team>]", "  eta = 0.5\n"),
+                                                     ("teams.agent.priority.alpha", "[teams.<team>.priority]",
+                                                      "  alpha = unset\n")])
+def test_one_key_is_printed_under_its_section_and_an_unknown_one_refused(capsys, key, table, shown):
+    assert main(["config", key]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(table) and shown in out and len(re.findall(r"(?m)^  \S+ = ", out)) == 1, out
+    assert main(["config", key + "x"]) == 2
+    assert capsys.readouterr().err.startswith(f"error: unknown section or key {key + 'x'!r}")

@@ -172,11 +172,33 @@ def render_markdown(sections: list[SectionDoc]) -> str:
 
 
 def config_command(section: str | None, markdown: bool) -> int:
-    """`python -m cmcl config [SECTION] [--markdown]`: print the reference (of one section); exit code."""
+    """`python -m cmcl config [SECTION | SECTION.KEY] [--markdown]`: print the reference (of one section, or of one
+    key: `maddpg.hidden`, `env.num_agents`, `teams.agent.eta`, `teams.agent.priority.alpha`); exit code."""
     sections = reference()
-    if section is not None and section not in sections:
-        print(f"error: unknown section {section!r} (known: {', '.join(sections)})", file=sys.stderr)
-        return 2
-    chosen = list(sections.values()) if section is None else [sections[section]]
+    if section is None or section in sections:
+        chosen = list(sections.values()) if section is None else [sections[section]]
+    else:
+        found = _one_key(sections, section)
+        if found is None:
+            print(f"error: unknown section or key {section!r} (sections: {', '.join(sections)}; a key: SECTION.KEY, "
+                  "e.g. maddpg.hidden or teams.agent.eta)", file=sys.stderr)
+            return 2
+        chosen = [found]
     print((render_markdown if markdown else render_text)(chosen), end="")
     return 0
+
+
+def _one_key(sections: dict[str, SectionDoc], dotted: str) -> SectionDoc | None:
+    """The section of `dotted` (SECTION.KEY; a team's keys under any team name: teams.<team>.KEY,
+    teams.<team>.priority.KEY) holding that key alone (teams.<team>: the team's whole table), None when there is no
+    such key."""
+    parts = dotted.split(".")
+    if parts[0] == "teams" and len(parts) == 2:  # teams.<team>: the team's table
+        return sections["teams"]
+    if parts[0] == "teams" and len(parts) >= 3:  # the team's name stands for any team
+        parts = ["teams.priority", *parts[3:]] if parts[2] == "priority" and len(parts) > 3 else ["teams", *parts[2:]]
+    if len(parts) != 2 or parts[0] not in sections:
+        return None
+    doc = sections[parts[0]]
+    keys = tuple(k for k in doc.keys if k.key == parts[1])
+    return dataclasses.replace(doc, keys=keys) if keys else None
