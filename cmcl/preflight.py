@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import errno
 import socket
+import sys
 import tracemalloc
 from collections.abc import Callable
 from pathlib import Path
@@ -99,21 +100,42 @@ def _close(env: Any) -> None:
             pass
 
 
+def metrics_port_checked(config: Config, port_given: bool) -> Config:
+    """`config` once service.metrics_port is free: a port the user chose (`port_given`) is refused when in use
+    (ConfigError naming it); the default one (9100, also node_exporter's) is then replaced by 0 (a free port, which the
+    launcher's `metrics:` line names), said in a note on stderr."""
+    s = config.service
+    if not port_given and port_in_use(s.metrics_host, s.metrics_port, "service.metrics_port"):
+        print(f"note: service.metrics_port = {s.metrics_port} is in use on {s.metrics_host}; the metrics are served on "
+              "a free port instead (the `metrics:` line names it; --metrics-port chooses one)", file=sys.stderr)
+        return dataclasses.replace(config, service=dataclasses.replace(s, metrics_port=0))
+    check_port_free(s.metrics_host, s.metrics_port, "service.metrics_port")
+    return config
+
+
 def check_port_free(host: str, port: int, key: str) -> None:
     """ConfigError naming `key` when TCP `port` on `host` cannot be bound now (in use, or a host not of this
     machine); port 0 (any free port) always passes."""
+    if port_in_use(host, port, key):
+        raise ConfigError(f"{key} = {port} is in use on {host}: pass --metrics-port 0 for a free port, or another "
+                          "port")
+
+
+def port_in_use(host: str, port: int, key: str) -> bool:
+    """Whether TCP `port` on `host` is taken now (port 0, any free port: never); ConfigError naming `key` when `host`
+    is no address of this machine."""
     if port == 0:
-        return
+        return False
     with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
         probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the HTTP server binds it
         try:
             probe.bind((host, port))
         except OSError as err:
             if err.errno == errno.EADDRINUSE:
-                raise ConfigError(f"{key} = {port} is in use on {host}: pass --metrics-port 0 for a free port, or "
-                                  "another port") from None
+                return True
             raise ConfigError(f"service.metrics_host = {host!r} cannot serve {key} = {port} here "
                               f"({err.strerror or err}): pass --metrics-host with an address of this machine") from None
+    return False
 
 
 # ----- memory ---------------------------------------------------------------------------------------------------

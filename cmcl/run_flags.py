@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import get_args
+from typing import Any, get_args
 
 from cmcl.config import Config, ConfigError, apply_overrides, config_from_dict, load_data
 from cmcl.config.runners import Runner, check_runner_keys
@@ -117,7 +117,8 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
                 raise ResumeMismatch(f"{request.resume_dir} was written by the {' and '.join(sorted(written_by))} "
                                      f"runner; resume it with {resume_command(request.resume_dir)}")
             run_dir.check_no_unverifiable_checkpoint()
-            return checked(resumed_config(run_dir, overrides, request), request), run_dir, lock
+            config = resumed_config(run_dir, overrides, request)
+            return checked(config, request, port_given=port_given(config, {}, overrides)), run_dir, lock
         except BaseException:
             lock.release()
             raise
@@ -126,7 +127,8 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
     config = config_from_dict(data)
     check_runner_keys(config, request.runner, file_data, overrides)  # keys only the other runner honours
     check_world_keys(config, file_data, overrides)  # the built-in worlds' keys, with env.factory
-    config = checked(config, request, teams_given="teams" in data)  # the env built once (AEC, ...)
+    config = checked(config, request, teams_given="teams" in data,  # the env built once (AEC, ...)
+                     port_given=port_given(config, file_data, overrides))
     from cmcl.carried_replay import check_carry_source  # numpy only: no torch, no Ray
 
     check_carry_source(config)  # before the warm start's shape check: it names the setting (env.agent_tags, ...)
@@ -145,19 +147,29 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
         raise
 
 
-def checked(config: Config, request: RunRequest, teams_given: bool = True) -> Config:
+def checked(config: Config, request: RunRequest, teams_given: bool = True, port_given: bool = True) -> Config:
     """`config` after `cmcl.preflight.preflight`: the environment built and stepped once, the teams matched (the env's
     own, with default settings, when `teams_given` is false and they differ from the default team), the memory of
     the worlds (of every rollout worker on the service) and the replay checked, unless the run joins a cluster
-    (--address: its nodes' memory is not this machine's); on the service, service.metrics_port free. Raises
-    ConfigError."""
-    from cmcl.preflight import check_port_free, preflight  # numpy and the env package: no torch, no Ray
+    (--address: its nodes' memory is not this machine's); on the service, service.metrics_port free: a port the user
+    gave (`port_given`) is refused when in use, the default one (9100, also node_exporter's) is then replaced by a
+    free one, said on stderr. Raises ConfigError."""
+    from cmcl.preflight import metrics_port_checked, preflight  # numpy and the env package: no torch, no Ray
 
     service = request.runner == "service"
     if service:  # the launcher serves it once Ray has started: a port in use is named before
-        check_port_free(config.service.metrics_host, config.service.metrics_port, "service.metrics_port")
+        config = metrics_port_checked(config, port_given)
     workers = config.service.rollout_workers if service else 1
     return preflight(config, teams_given=teams_given, worker_processes=workers, check_memory=not request.address)
+
+
+def port_given(config: Config, file_data: Mapping[str, Any], overrides: tuple[str, ...]) -> bool:
+    """Whether the user chose service.metrics_port: in the config file, by --set (or --metrics-port), or as a value
+    other than the default (a resumed run's config.toml holds every key)."""
+    service = file_data.get("service", {})
+    return (config.service.metrics_port != Config().service.metrics_port
+            or (isinstance(service, Mapping) and "metrics_port" in service)
+            or any(text.split("=", 1)[0].strip() == "service.metrics_port" for text in overrides))
 
 
 def resumed_config(run_dir: RunDirectory, overrides: tuple[str, ...], request: RunRequest) -> Config:
