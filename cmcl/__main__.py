@@ -4,7 +4,9 @@
     python -m cmcl resume RUN_DIR [--more-episodes N] [--set ...]  (the runner that wrote RUN_DIR, by default)
     python -m cmcl evaluate RUN_DIR [--episodes 100] [--checkpoint PATH] [--random] [--no-gif]
     python -m cmcl stages --agents 2 4 8 [--stage-episodes E E E] [train's flags]   (cmcl/agent_stages.py)
-    python -m cmcl config [SECTION] [--markdown]   (every config key: meaning, unit, default, range; docs/CONFIG.md)
+    python -m cmcl status RUN_DIR [RUN_DIR ...]   (where each run stands, one line each: cmcl/run_status.py)
+    python -m cmcl config [SECTION | SECTION.KEY] [--markdown]   (every config key: meaning, unit, default, range;
+                                                                 docs/CONFIG.md)
 
 The default runner of `train` is the service on an embedded Ray: the system this project is about, what `make run`
 starts, and the one that ends with the held-out evaluation and the GIF. `--runner inline` trains in this process
@@ -66,6 +68,11 @@ def build_parser() -> argparse.ArgumentParser:
     stages.add_argument("--runner", choices=RUNNERS, default=DEFAULT_RUNNER,
                         help="service (Ray; default) or inline (one process, no Ray)")
     add_run_flags(stages)
+    status = verbs.add_parser("status", help="where each run stands: running, ended or cut off, episodes, seconds, "
+                                             "coverage, newest checkpoint",
+                              description="One line per run folder, read from its files alone (nothing written, no "
+                                          "Ray): cmcl/run_status.py.")
+    status.add_argument("run_dirs", nargs="+", metavar="DIR", help="run folders, e.g. runs/*")
     config = verbs.add_parser("config", help="every config key: its meaning, unit, default and allowed range",
                               description="Print every key of a run configuration (or of SECTION) with its meaning, "
                                           "unit, default and allowed range (cmcl/config/reference.py).")
@@ -114,6 +121,10 @@ def main(argv: list[str] | None = None) -> int:
         from cmcl.config.reference import config_command
 
         return config_command(args.section, args.markdown)
+    if args.verb == "status":
+        from cmcl.run_status import status_command
+
+        return status_command(args.run_dirs)
     if args.verb == "evaluate":
         from cmcl.evaluate import evaluate_run
 

@@ -89,6 +89,29 @@ class RunLock:
         self.release()
 
 
+def holder_of(run_dir: str | Path) -> str | None:
+    """Who holds the lock of `run_dir` now ("pid 123 on h since 2026-12-06 10:09:44"), None when no process does.
+    Read only: the lock file is neither made nor written (a shared lock is tried and dropped at once; a start that
+    meets it in that instant waits and retries, as for a dead holder)."""
+    path = Path(run_dir) / LOCK_NAME
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
+    except BlockingIOError:
+        try:
+            holder = json.loads(path.read_text() or "{}")
+            return f"pid {holder['pid']} on {holder['host']} since {holder['since']}"
+        except (OSError, ValueError, KeyError, TypeError):
+            return "holder unknown: its lock file is unreadable"
+    finally:
+        os.close(fd)
+
+
 def holder_command() -> str:
     """This process's command line as a user typed it: `python -m cmcl resume runs/x` (the module
     name stands for the path Python puts in argv[0] under -m)."""
