@@ -1,5 +1,6 @@
 """Typed configuration: presets, TOML loading, overrides and validation errors that name the field."""
 
+import os
 import tomllib
 from pathlib import Path
 
@@ -175,3 +176,12 @@ def test_a_stored_config_without_moved_keys_reads_as_it_is(tmp_path):
     config = load_config(CONFIGS / "tag_cmcl.toml", ["teams.predator.priority.difficulty_norm=max"])
     path.write_text(dump_toml(config))
     assert load_stored_config(path) == config
+
+
+def test_a_run_dir_under_home_is_the_users_home_not_a_folder_named_tilde():
+    """`--set run.dir=~/runs/x` reaches the program unexpanded (a shell expands ~ after = only in assignments); before
+    (found by hand 2026-12-06) it made a folder named "~" in the working directory."""
+    config = load_config(None, ("run.dir=~/runs/x", "run.init_from=~/runs/y"))
+    assert config.run.dir == os.path.expanduser("~/runs/x") and not config.run.dir.startswith("~")
+    assert config.run.init_from == os.path.expanduser("~/runs/y")
+    assert load_config(None, ("run.dir=runs/~x",)).run.dir == "runs/~x"  # a ~ inside a name is the name's

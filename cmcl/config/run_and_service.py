@@ -8,6 +8,7 @@ and the value. Which keys only one runner honours is cmcl.config.runners. Reads 
 
 from __future__ import annotations
 
+import os
 import typing
 from dataclasses import dataclass
 from typing import Literal
@@ -70,6 +71,10 @@ class RunConfig:
         "either runner. Off: an empty buffer")
 
     def __post_init__(self) -> None:
+        for name in ("dir", "init_from"):  # "~/runs/x" is the user's home, as in a shell, not a folder named "~"
+            value = getattr(self, name)  # (a shell leaves `--set run.dir=~/x` unexpanded: it is no assignment)
+            if isinstance(value, str) and value.startswith("~"):
+                object.__setattr__(self, name, os.path.expanduser(value))
         check_fields(self, "run")
 
 
