@@ -88,7 +88,22 @@ def selected_runs(args: argparse.Namespace, every: list[Run] | None = None) -> l
     return runs + prefix_reference_runs(runs, args.episodes)
 
 
+def refused_numbers(args: argparse.Namespace) -> str | None:
+    """The one-line refusal of a number `run` cannot train with (before any run starts; before, --jobs 0 ended in a
+    ThreadPoolExecutor traceback and --seeds -1 or --episodes 0 started every run only for each to fail), or None."""
+    if args.jobs < 1:
+        return f"--jobs must be >= 1 (runs trained at once), got {args.jobs}"
+    if args.episodes < 1:
+        return f"--episodes must be >= 1, got {args.episodes}"
+    negative = [s for s in args.seeds or () if s < 0]
+    return f"--seeds must be >= 0 (run.seed), got {negative[0]}" if negative else None
+
+
 def run(args: argparse.Namespace) -> int:
+    refusal = refused_numbers(args)
+    if refusal is not None:
+        print(f"error: {refusal}", file=sys.stderr)
+        return 2
     try:
         every = grid(*grid_args(args))
     except ValueError as refused:  # ConfirmNotReady, or a seed outside the screen's rounds
@@ -120,6 +135,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def report(args: argparse.Namespace) -> int:
+    if args.update and not Path(args.update).is_file():  # before the tables are drawn (a minute of statistics)
+        print(f"error: --update {args.update}: no such markdown file (the page whose marked blocks get the tables)",
+              file=sys.stderr)
+        return 2
     new = blocks(args.results)
     for name, body in new.items():
         print(f"{name}:\n{body}\n")
@@ -131,6 +150,11 @@ def report(args: argparse.Namespace) -> int:
 
 
 def stalls(args: argparse.Namespace) -> int:
+    missing = [folder for folder in args.folders if not (folder / "runs").is_dir()]
+    if missing:  # before: a folder without runs/ (a typo) wrote nothing and said nothing, exit 0
+        print(f"error: {missing[0]} holds no runs/ folder (a grid folder, e.g. bench/results/curriculum)",
+              file=sys.stderr)
+        return 2
     for folder in args.folders:
         for path in analyse_folder(folder):
             print(f"stall record: {shown(path)}")
