@@ -1,7 +1,8 @@
 """`python -m experiments` refuses a number it cannot train with, a page it cannot update and a folder with no runs
 in one line, exit 2, before any run starts or any table is drawn (before, 2026-12-06: a ThreadPoolExecutor traceback
-for --jobs 0; --seeds -1 and --episodes 0 started every run only for each to fail; --update of a missing page ended in
-a FileNotFoundError traceback after the statistics; `stalls` of a mistyped folder wrote nothing, said nothing, exit 0)."""
+for --jobs 0; --seeds -1 and --episodes 0 started every run only for each to fail; --update of a missing page ended
+in a FileNotFoundError traceback after the statistics; `stalls` of a mistyped folder wrote nothing and said nothing,
+exit 0)."""
 
 from __future__ import annotations
 
