@@ -92,7 +92,14 @@ def evaluate_policy(config: Config, maddpg: MADDPG | None, episodes: int = 100, 
 
 
 def render_gif(config: Config, maddpg: MADDPG | None, path: str | Path, seed: int = 0, fps: int = 10) -> Path:
-    """One episode of the PettingZoo env with the policy (no noise; random if maddpg is None) as a GIF."""
+    """One episode of the PettingZoo env with the policy (no noise; random if maddpg is None) as a GIF at `path`,
+    written atomically (a full disk: RunWriteError naming the file)."""
+    atomic_write_bytes(path, gif_bytes(config, maddpg, seed, fps))
+    return Path(path)
+
+
+def gif_bytes(config: Config, maddpg: MADDPG | None, seed: int = 0, fps: int = 10) -> bytes:
+    """One episode of the PettingZoo env with the policy (no noise; random if maddpg is None), encoded as a GIF."""
     from PIL import Image
 
     if config.env.factory:
@@ -102,20 +109,25 @@ def render_gif(config: Config, maddpg: MADDPG | None, path: str | Path, seed: in
     images = [Image.fromarray(np.asarray(f, dtype=np.uint8)) for f in frames]
     encoded = io.BytesIO()
     images[0].save(encoded, format="GIF", save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
-    atomic_write_bytes(path, encoded.getvalue())  # all or nothing; a full disk: RunWriteError naming the file
-    return Path(path)
+    return encoded.getvalue()
 
 
 def gif_line(config: Config, maddpg: MADDPG | None, path: str | Path, seed: int = 0) -> str:
-    """The line that ends an evaluation: "gif: PATH", or, when the environment cannot draw itself here (a headless
-    machine without the OpenGL MuJoCo needs, a render that returns nothing, ...), why there is no GIF. The GIF
-    is an extra: a render that fails never fails the evaluation or the run before it."""
+    """The line that ends an evaluation: "gif: PATH"; when the environment cannot draw itself here (a headless
+    machine without the OpenGL MuJoCo needs, a render that returns nothing, ...), why there is no GIF; when the file
+    cannot be written (a full disk, a folder that cannot be made), that it is not written and why. The GIF is an
+    extra: neither failure fails the evaluation or the run before it."""
     try:
-        return f"gif: {render_gif(config, maddpg, path, seed)}"
-    except RunWriteError as err:  # a full disk: the line says so, the evaluation before it stands
-        return f"gif: not written ({err})"
+        encoded = gif_bytes(config, maddpg, seed)
     except Exception as err:  # noqa: BLE001 - any failure of the env's own render, reported, never fatal
         return f"gif: none, the environment could not render here ({type(err).__name__}: {err})"
+    try:
+        atomic_write_bytes(path, encoded)
+    except RunWriteError as err:  # a full disk: the line says so, the evaluation before it stands
+        return f"gif: not written ({err})"
+    except OSError as err:  # a path that cannot be written (no such folder, no permission): named as such
+        return f"gif: not written (cannot write {path}: {err.strerror or err})"
+    return f"gif: {path}"
 
 
 def _factory_frames(config: Config, maddpg: MADDPG | None, seed: int) -> list[Any]:
