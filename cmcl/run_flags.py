@@ -118,7 +118,7 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
                                      f"runner; resume it with {resume_command(request.resume_dir)}")
             run_dir.check_no_unverifiable_checkpoint()
             config = resumed_config(run_dir, overrides, request)
-            return checked(config, request, port_given=port_given(config, {}, overrides)), run_dir, lock
+            return checked(config, request, port_given=port_given_by(request, config)), run_dir, lock
         except BaseException:
             lock.release()
             raise
@@ -170,6 +170,12 @@ def port_given(config: Config, file_data: Mapping[str, Any], overrides: tuple[st
     return (config.service.metrics_port != Config().service.metrics_port
             or (isinstance(service, Mapping) and "metrics_port" in service)
             or any(text.split("=", 1)[0].strip() == "service.metrics_port" for text in overrides))
+
+
+def port_given_by(request: RunRequest, config: Config) -> bool:
+    """`port_given` of `request`: its config file's tables (a new run's) and its overrides."""
+    file_data = load_data(request.config_file) if request.config_file and not request.resume_dir else {}
+    return port_given(config, file_data, request.config_overrides())
 
 
 def resumed_config(run_dir: RunDirectory, overrides: tuple[str, ...], request: RunRequest) -> Config:

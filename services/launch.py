@@ -32,7 +32,7 @@ from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunLock
 from cmcl.io.write_failure import RunWriteError
 from cmcl.progress import TrainingDiverged
-from cmcl.run_flags import RunRequest, alias_parser, run_alias, train_in_run
+from cmcl.run_flags import RunRequest, alias_parser, port_given_by, run_alias, train_in_run
 from cmcl.run_report import done_line, report_trained
 from cmcl.stopping import STOP_SIGNALS, StopSignals, exit_without_teardown
 
@@ -152,10 +152,12 @@ def stderr_to(path: Path) -> Iterator[None]:
 
 def run_service(config: Config, run_dir: RunDirectory, *, resume: bool = False, progress: Any = print,
                 stop: Callable[[], bool] | None = None,
-                started: Callable[[Any, Any], None] | None = None) -> dict[str, Any]:
+                started: Callable[[Any, Any], None] | None = None, port_fallback: bool = False) -> dict[str, Any]:
     """Run the service on the Ray already initialised; returns the supervisor's final summary. `stop` is polled
     between rounds of work (see `Supervisor`); `started(supervisor, roles)`, if given, is called once both exist,
-    before the supervisor runs (a bench watching the run: bench/service_breakdown.py)."""
+    before the supervisor runs (a bench watching the run: bench/service_breakdown.py). `port_fallback`: the user did
+    not choose service.metrics_port (cmcl.run_flags.port_given), so a port taken since the check before Ray (another
+    run starting beside this one) is replaced by a free one, said in a note, rather than refused."""
     from services.metrics import ServiceMetrics
     from services.placement import create_roles
     from services.supervisor import Supervisor
@@ -164,9 +166,14 @@ def run_service(config: Config, run_dir: RunDirectory, *, resume: bool = False, 
     host, port = config.service.metrics_host, config.service.metrics_port
     try:
         port = metrics.serve(port, host)
-    except OSError as err:  # taken since the check before Ray (cmcl.preflight.check_port_free)
-        raise OSError(f"service.metrics_port = {port} cannot be bound on {host} ({err.strerror or err}): pass "
-                      "--metrics-port 0 for a free port, or another port") from None
+    except OSError as err:  # taken since the check before Ray (cmcl.preflight.metrics_port_checked)
+        if not port_fallback:
+            raise OSError(f"service.metrics_port = {port} cannot be bound on {host} ({err.strerror or err}): pass "
+                          "--metrics-port 0 for a free port, or another port") from None
+        print(f"note: service.metrics_port = {port} was taken on {host} since the check before Ray; the metrics are "
+              "served on a free port instead (the `metrics:` line names it; --metrics-port chooses one)",
+              file=sys.stderr)
+        port = metrics.serve(0, host)
     try:
         if progress is not None:
             progress(f"metrics: http://{config.service.metrics_host}:{port}/metrics   run directory: {run_dir.path}")
@@ -245,7 +252,8 @@ def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: Ru
             unblock_stop_signals()
         try:
             summary = run_service(config, run_dir, resume=bool(request.resume_dir),
-                                  progress=None if request.quiet else print, stop=lambda: stop.requested)
+                                  progress=None if request.quiet else print, stop=lambda: stop.requested,
+                                  port_fallback=not port_given_by(request, config))
         except RunWriteError:  # a full disk (a role's file, the metrics, the counters): cmcl.run_flags.train_in_run
             raise  # names the file and what a resume starts from
         except (InfeasibleResources, OSError) as err:

@@ -56,3 +56,32 @@ def test_the_port_counts_as_chosen_from_the_file_the_command_line_or_a_value_of_
     assert port_given(default, {}, ("service.metrics_port=9100",))
     assert port_given(with_port(9200), {}, ())  # a resumed run's config.toml that holds a port of its own
     assert not port_given(default, {"service": {"metrics_host": "0.0.0.0"}}, ("run.episodes=3",))
+
+
+def test_a_port_taken_after_the_check_falls_back_only_when_the_user_did_not_choose_it(busy_port, tmp_path, capsys,
+                                                                                     ray_cluster):
+    """Two runs started together (found by hand 2026-12-06: two `make run`s): both pass the check before Ray, the
+    first binds 9100, the second's bind failed ("cannot be bound ... pass --metrics-port 0", exit 2)."""
+    from cmcl.io.rundir import RunDirectory
+    from services.launch import run_service
+
+    config = make_tiny_config("maddpg", service=True, dir=str(tmp_path / "run"), episodes=4)
+    config = replace(config, service=replace(config.service, metrics_port=busy_port, metrics_host="127.0.0.1"))
+    run_dir = RunDirectory.create(config.run.dir, config)
+    with pytest.raises(OSError, match=f"service.metrics_port = {busy_port} cannot be bound on 127.0.0.1"):
+        run_service(config, run_dir, progress=None)
+    summary = run_service(config, run_dir, progress=None, port_fallback=True)
+    assert summary["metrics_port"] not in (busy_port, 0) and summary["episodes"] >= 4
+    assert f"note: service.metrics_port = {busy_port} was taken on 127.0.0.1 since the check before Ray" in \
+        capsys.readouterr().err
+
+
+def test_the_request_says_whether_the_port_was_chosen(tmp_path):
+    from cmcl.run_flags import RunRequest, port_given_by
+
+    chosen = tmp_path / "chosen.toml"
+    chosen.write_text("[service]\nmetrics_port = 9100\n")
+    assert port_given_by(RunRequest(runner="service", config_file=str(chosen)), Config())
+    assert not port_given_by(RunRequest(runner="service"), Config())
+    assert port_given_by(RunRequest(runner="service", overrides=("service.metrics_port=9100",)), Config())
+    assert not port_given_by(RunRequest(runner="service", config_file=str(chosen), resume_dir=str(tmp_path)), Config())
