@@ -59,7 +59,7 @@ def check_resume_shapes(stored: Config, resumed: Config, overrides: tuple[str, .
     before, after = checkpoint_shapes(stored), checkpoint_shapes(resumed)
     differs = [part for part in dict.fromkeys([*before, *after]) if before.get(part) != after.get(part)]
     if differs:
-        part, changed = differs[0], _changed(stored, resumed, overrides) or list(overrides)
+        part, changed = differs[0], _shape_changers(stored, before, _changed(stored, resumed, overrides))
         raise ConfigError(f"resume --set {' --set '.join(changed)}: the run's checkpoints hold other shapes ({part}: "
                           f"{_shown(before.get(part))} in them, {_shown(after.get(part))} with these settings); a "
                           "resume keeps the settings that shape its networks and replay: drop the --set, or start a "
@@ -76,6 +76,16 @@ def _changed(stored: Config, resumed: Config, overrides: tuple[str, ...]) -> lis
         return data
 
     return [item for item in overrides if value(before, item.split("=", 1)[0]) != value(after, item.split("=", 1)[0])]
+
+
+def _shape_changers(stored: Config, before: dict[str, Any], changed: list[str]) -> list[str]:
+    """The overrides of `changed` that alone change the shapes `before` (`stored`'s); all of `changed` when none
+    does alone (only their combination)."""
+    from cmcl.config import apply_overrides, config_from_dict
+
+    alone = [item for item in changed
+             if checkpoint_shapes(config_from_dict(apply_overrides(stored.to_dict(), [item]))) != before]
+    return alone or changed
 
 
 def _shown(value: Any) -> str:
