@@ -11,6 +11,7 @@ This module imports neither a runner, torch nor Ray: `--help` stays fast and `cm
 from __future__ import annotations
 
 import argparse
+import errno
 import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -136,7 +137,9 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
     try:
         lock = RunLock.acquire(config.run.dir, holder_command())
     except OSError as err:  # a path that cannot be a folder (a file, under /proc, no permission): name the key
-        raise ConfigError(f"run.dir = {str(config.run.dir)!r} cannot hold a run: {err.strerror or err}") from None
+        why = {errno.EEXIST: "it is a file", errno.ENOTDIR: "a folder on its path is a file"}.get(
+            err.errno, err.strerror or str(err))
+        raise ConfigError(f"run.dir = {str(config.run.dir)!r} cannot hold a run: {why}") from None
     try:
         return config, RunDirectory.create(config.run.dir, config, overwrite=request.overwrite), lock
     except ForeignFolderError:

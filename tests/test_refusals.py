@@ -116,7 +116,8 @@ def test_a_run_dir_that_cannot_be_a_folder_is_named_and_the_file_kept(runner, wh
     taken.write_text("a user's file\n")
     run_dir = taken if where == "a file" else taken / "run"
     done = run_cli("train", "--runner", runner, "--set", f"run.dir={run_dir}", *QUICK, *any_port(runner))
-    assert_one_line_refusal(done, f"run.dir = {str(run_dir)!r} cannot hold a run")
+    assert_one_line_refusal(done, f"run.dir = {str(run_dir)!r} cannot hold a run: "
+                            + ("it is a file" if where == "a file" else "a folder on its path is a file"))
     assert taken.read_text() == "a user's file\n"
 
 
