@@ -105,14 +105,16 @@ def row_sampling_parts(row: dict[str, Any]) -> list[str]:
 
 
 def time_left(episodes: int, target: int, elapsed_s: float, max_seconds: float = 0.0,
-              segment_s: float | None = None) -> str:
+              segment_s: float | None = None, learning: bool = True) -> str:
     """How long the run has left, in seconds: the wall-clock budget's rest ("left ≤ 183s (budget)") when it ends
-    first, else the episode budget's rest at the rate so far ("left ~240s"); "" before the first episode and once
-    every episode is done.
+    first, else the episode budget's rest at the rate so far ("left ~240s"); "" before the first episode, during
+    the warm-up (`learning` false: no learner update yet, whose episodes cost a small part of a learning one's; the
+    rate so far said "left ~0s") unless the budget tells, and once every episode is done.
     elapsed_s: the run's training seconds, over every segment of a resumed run; segment_s: this command's (the
     budget run.max_seconds is this command's); None: the same as elapsed_s (a run not resumed)."""
     used = elapsed_s if segment_s is None else segment_s
-    by_episodes = elapsed_s / episodes * max(target - episodes, 0) if episodes > 0 and elapsed_s > 0 else None
+    by_episodes = elapsed_s / episodes * max(target - episodes, 0) \
+        if episodes > 0 and elapsed_s > 0 and learning else None
     by_budget = max(max_seconds - used, 0.0) if max_seconds > 0 else None
     if by_budget is not None and (by_episodes is None or by_budget <= by_episodes):
         return f"left ≤ {by_budget:.0f}s (budget)"
@@ -134,7 +136,7 @@ def progress_line(episodes: int, target: int, env_steps: int, updates: int, wind
     parts += [f"λ {lam:.4f}"] if lam is not None else []
     parts += [f"{rates.get('updates_per_s', 0.0):.0f} upd/s",
               f"{rates.get('env_steps_per_s', 0.0):.0f} st/s", *extra, f"{elapsed_s:.0f}s"]
-    left = time_left(episodes, target, elapsed_s, max_seconds, segment_s)
+    left = time_left(episodes, target, elapsed_s, max_seconds, segment_s, learning=updates > 0)
     parts += [left] if left else []
     parts += list(notes) if lam is not None and lam < 0.5 else []
     return " | ".join(parts)

@@ -33,6 +33,9 @@ def test_the_line_says_the_time_left_and_what_is_normal_while_lambda_is_low():
     assert time_left(1_000, 20_000, 50.0, 300.0) == "left ≤ 250s (budget)"  # the budget ends first
     assert time_left(10_000, 20_000, 100.0, 300.0) == "left ~100s"  # the episodes end first, at 100 episodes/s
     assert time_left(0, 20_000, 0.0) == "" and time_left(10, 20, 5.0) == "left ~5s"
+    # the warm-up (no learner update yet): its cheap episodes' rate said "left ~0s"; only the budget tells then
+    assert time_left(48, 400, 0.07, learning=False) == "" and time_left(48, 400, 0.07) == "left ~1s"
+    assert time_left(48, 400, 0.07, 300.0, learning=False) == "left ≤ 300s (budget)"
     # a resumed run: the budget is this command's (segment_s), the episodes' rate the whole run's
     assert time_left(10_000, 20_000, 400.0, 300.0, segment_s=100.0) == "left ≤ 200s (budget)"
     assert time_left(10_000, 20_000, 100.0, 300.0, segment_s=10.0) == "left ~100s"
