@@ -16,6 +16,7 @@ from __future__ import annotations
 from typing import Any
 
 from cmcl.config import Config, ConfigError
+from cmcl.config.toml_io import parse_override
 
 
 def checkpoint_shapes(config: Config) -> dict[str, Any]:
@@ -75,7 +76,8 @@ def _changed(stored: Config, resumed: Config, overrides: tuple[str, ...]) -> lis
             data = data.get(part) if isinstance(data, dict) else None
         return data
 
-    return [item for item in overrides if value(before, item.split("=", 1)[0]) != value(after, item.split("=", 1)[0])]
+    keys = {item: ".".join(parse_override(item)[0]) for item in overrides}
+    return [item for item, key in keys.items() if value(before, key) != value(after, key)]
 
 
 def _shape_changers(stored: Config, before: dict[str, Any], changed: list[str]) -> list[str]:

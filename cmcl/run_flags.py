@@ -19,6 +19,7 @@ from typing import Any, get_args
 
 from cmcl.config import Config, ConfigError, apply_overrides, config_from_dict, load_data
 from cmcl.config.runners import Runner, check_runner_keys
+from cmcl.config.toml_io import parse_override
 from cmcl.config.world_keys import check_world_keys
 from cmcl.envs.factory import EnvFactoryError
 from cmcl.io.metrics_log import MetricsError
@@ -172,7 +173,7 @@ def port_given(config: Config, file_data: Mapping[str, Any], overrides: tuple[st
     service = file_data.get("service", {})
     return (config.service.metrics_port != Config().service.metrics_port
             or (isinstance(service, Mapping) and "metrics_port" in service)
-            or any(text.split("=", 1)[0].strip() == "service.metrics_port" for text in overrides))
+            or any(parse_override(text)[0] == ["service", "metrics_port"] for text in overrides))
 
 
 def port_given_by(request: RunRequest, config: Config) -> bool:

@@ -26,8 +26,9 @@ from typing import Any
 from cmcl.config import ConfigError
 from cmcl.io.metrics_log import MetricsError
 from cmcl.io.resume_hint import resume_command
-from cmcl.io.rundir import CHECKPOINT_GLOB, RunDirectory
+from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import holder_of
+from cmcl.io.verified import VerifiedFile
 
 RECENT = 100  # episodes the coverage and success are averaged over (the `cov` of the progress line, MA 0.9's window)
 ENDED = {"solved": "solved", "budget": "its budget done", "plateau": "stopped on a plateau",
@@ -80,13 +81,14 @@ def _last_progress(run_dir: RunDirectory) -> dict[str, Any]:
 
 
 def _newest_checkpoint(run_dir: RunDirectory) -> str | None:
-    """The name of the newest policy checkpoint file (inline ckpt_*.pt by episode, else the service learner's newest
+    """The name of the newest policy checkpoint file (the inline runner's latest, else the service learner's newest
     generation), not verified; None when there is none."""
-    inline = sorted(run_dir.checkpoints.glob(CHECKPOINT_GLOB))
-    if inline:
-        return inline[-1].name
-    learner = sorted(run_dir.service_dir.glob("learner-*.pt"))
-    return learner[-1].name if learner else None
+    inline = run_dir.latest_checkpoint()
+    if inline is not None:
+        return inline.name
+    learner = VerifiedFile(run_dir.service_dir / "learner.pt")
+    generations = learner.generations()
+    return learner.file_of(generations[0]).name if generations else None
 
 
 def status_command(paths: list[str]) -> int:

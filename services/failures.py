@@ -17,6 +17,7 @@ from typing import Any
 import ray
 
 from cmcl.config import Config
+from cmcl.io.write_failure import RunWriteError
 from services.health import (
     CallWatch,
     RecoveryClock,
@@ -27,6 +28,13 @@ from services.health import (
     restartable,
 )
 from services.placement import Roles
+
+
+def end_if_write_failure(err: Exception) -> None:
+    """Raise the cause of a role's failed call when it is a write its device refused (RunWriteError: a full disk):
+    a retry would meet it again, so the run ends, its files as they were (cmcl.run_flags.train_in_run says it)."""
+    if isinstance(getattr(err, "cause", None), RunWriteError):
+        raise err.cause from None
 
 
 class Failures:

@@ -26,7 +26,6 @@ from cmcl.config import Config
 from cmcl.envs.factory import EnvFactoryError
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.rundir import RunDirectory
-from cmcl.io.write_failure import RunWriteError
 from cmcl.learning_progress import LearningProgress, agent_mean
 from cmcl.messages import ReplayStatus
 from cmcl.progress import TrainingDiverged, episode_rows, solved, window_summary
@@ -34,7 +33,7 @@ from cmcl.replay.registry import early_notes, sampling_name, uses_lambda
 from cmcl.run_clock import RunClock
 from cmcl.system import layout_of
 from services.call_budget import HeldClock, calls_to_issue
-from services.failures import Failures
+from services.failures import Failures, end_if_write_failure
 from services.health import actor_key
 from services.metrics import ServiceMetrics
 from services.placement import Roles
@@ -169,8 +168,7 @@ class Supervisor:
                     if self.env_error is None:  # does not fit its space, a crash): a retry meets it again; the run
                         raise err.cause from None  # is checkpointed, then the CLI says it in one line (item 5)
                     continue  # another worker's, while the run is being kept: said once
-                if isinstance(getattr(err, "cause", None), RunWriteError):  # a full disk: a retry meets it again;
-                    raise err.cause from None  # the run ends, its files as they were (services/launch.py)
+                end_if_write_failure(err)  # a full disk
                 self.replay_failed |= self.failures.call_failed(kind, index, err, self.inflight) == ("replay", True)
                 continue
             self._apply(kind, index, value, number)
@@ -281,8 +279,7 @@ class Supervisor:
                 try:
                     ray.get(ref)
                 except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError) as err:
-                    if isinstance(getattr(err, "cause", None), RunWriteError):  # a full disk: its older checkpoint
-                        raise err.cause from None  # stays; the run ends (services/launch.py)
+                    end_if_write_failure(err)  # a full disk: the role's older checkpoint stays
                     self.failures.save_failed(role, err)
         self.checkpoint_seconds.append(time.perf_counter() - started)  # (its own counters' write below excluded)
         summary = {"episodes_logged": self.episodes_logged, "status": dataclasses.asdict(self.status),
