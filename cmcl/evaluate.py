@@ -11,6 +11,7 @@ Run:  python -m cmcl evaluate runs/spread_cmcl [--episodes 100] [--checkpoint PA
 from __future__ import annotations
 
 import argparse
+import errno
 import io
 import json
 import sys
@@ -126,7 +127,9 @@ def gif_line(config: Config, maddpg: MADDPG | None, path: str | Path, seed: int 
     except RunWriteError as err:  # a full disk: the line says so, the evaluation before it stands
         return f"gif: not written ({err})"
     except OSError as err:  # a path that cannot be written (no such folder, no permission): named as such
-        return f"gif: not written (cannot write {path}: {err.strerror or err})"
+        # mkdir of a parent that is a file says "File exists" (EEXIST), of one under a file ENOTDIR: said plainly
+        why = "a folder on its path is a file" if err.errno in (errno.EEXIST, errno.ENOTDIR) else err.strerror or err
+        return f"gif: not written (cannot write {path}: {why})"
     return f"gif: {path}"
 
 

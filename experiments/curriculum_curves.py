@@ -1,9 +1,10 @@
-"""The curriculum figure's coverage panel in numbers (block curriculumhardcurves of docs/RESULTS.md, under the harder
-task's figure): per arm, the mean over its seeds of the training coverage curve (WINDOW-episode windows, as the
-figure's panel a draws it) at its first window, the episodes at which that mean first reaches 0.2 and 0.5
-(interpolated between windows), and its value at a few episodes up to the budget; then the mean episode at which λ
-reaches 0.5 (the figure's dotted line). So the sentences about the figure are read from the runs, not from the
-picture. Reads only the runs it is given.
+"""The curriculum figure's coverage panel in numbers (blocks curriculumhardcurves, curriculumstridecurves and
+curriculumetacurves of docs/RESULTS.md, under the harder task's figures): per arm, the mean over its seeds of the
+training coverage curve (WINDOW-episode windows, as the figure's panel a draws it) at its first window, the episodes
+at which that mean first reaches 0.2 and 0.5 (interpolated between windows), and its value at a few episodes up to
+the budget; then the mean episode at which λ reaches 0.5 (the figure's dotted line), or, where the arms' λ schedules
+differ (the λ-stride grid; as the figure decides, `lambda_half_lines`), a column of it per arm. So the sentences
+about the figure are read from the runs, not from the picture. Reads only the runs it is given.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.curriculum_figure import episode_lambda_reaches
+from experiments.curriculum_figure import episode_lambda_reaches, lambda_half_lines
 from experiments.labels import ARM_LABEL, ARM_ORDER
 from experiments.measures import WINDOW
 from experiments.quoted_words import NO_RUNS
@@ -45,24 +46,35 @@ def row(cells: list[str]) -> str:
     return "| " + " | ".join(cells) + " |"
 
 
-def curve_table(runs: list[dict[str, Any]]) -> str:
-    """The per-arm table of the mean training coverage curve and the λ line, as markdown ('no runs yet' without)."""
+def curve_table(runs: list[dict[str, Any]], order: tuple[str, ...] = ARM_ORDER) -> str:
+    """The per-arm table of the mean training coverage curve and the λ line, as markdown ('no runs yet' without),
+    one row per arm of `order` that has runs (a settings grid's: its SETTING_TABLES arms); where the arms' λ
+    schedules differ, a column "λ reaches 0.5" (each arm's mean episode, "—" for an arm without λ) instead of one
+    mean over every arm."""
     if not runs:
         return NO_RUNS
     budget = max(r["budget"] for r in runs)
+    arms = [a for a in order if any(r.get("arm") == a for r in runs)]
+    half_lines = lambda_half_lines(runs, tuple(arms), budget)  # {None: episode} when the schedules agree
+    lambda_per_arm = bool(half_lines) and None not in half_lines
     at = [e for e in AT if e <= budget]
-    header = ["arm", "seeds", "at the first window", *(f"first reaches {v}" for v in LEVELS),
-              *(f"at episode {e:,}" for e in at)]
+    header = ["arm", "seeds", *(["λ reaches 0.5"] if lambda_per_arm else []), "at the first window",
+              *(f"first reaches {v}" for v in LEVELS), *(f"at episode {e:,}" for e in at)]
     lines = [row(header), "| --- " * len(header) + "|"]
-    for arm in (a for a in ARM_ORDER if any(r.get("arm") == a for r in runs)):
+    for arm in arms:
         mine = [r for r in runs if r.get("arm") == arm]
         episodes, curve = mean_curve(mine)
         reached = [first_reaches(episodes, curve, v) for v in LEVELS]
-        lines.append(row([ARM_LABEL[arm], str(len(mine)), f"{curve[0]:.2f}",
+        half = [] if not lambda_per_arm else [episode_lambda_reaches(mine, 0.5)]
+        lines.append(row([ARM_LABEL[arm], str(len(mine)), *("—" if e is None else f"{e:,.0f}" for e in half),
+                          f"{curve[0]:.2f}",
                           *("never" if e is None else f"{e:,.0f}" for e in reached),
                           *(f"{np.interp(e, episodes, curve):.2f}" if e <= episodes[-1] else "—" for e in at)]))
+    said = f"Mean training coverage over each arm's seeds ({WINDOW}-episode windows, the figure's panel a)"
+    if lambda_per_arm:
+        return "\n".join([*lines, "", said + "; λ reaches 0.5: each arm's mean episode (the dotted lines)."])
     half = episode_lambda_reaches(runs, 0.5)
-    lines += ["", f"Mean training coverage over each arm's seeds ({WINDOW}-episode windows, the figure's panel a); λ "
+    lines += ["", said + "; λ "
               + (f"reaches 0.5 at episode {half:,.0f} on average (the dotted line)." if half is not None else
                  "does not reach 0.5 in these runs.")]
     return "\n".join(lines)

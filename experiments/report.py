@@ -12,7 +12,8 @@ the text between them (a block whose markers the page lacks is only printed):
   curriculumtag, curriculumtagtests: the curriculum_tag grid (bench/results/curriculum_tag; predator-prey has no
   stall analysis); curriculumstride, curriculumstridetests and curriculumeta, curriculumetatests: the
   curriculum_stride and curriculum_eta grids beside the curriculum_hard grid's MADDPG and CMCL runs, and their
-  verdicts, curriculumstrideverdicts and curriculumetaverdicts (experiments.curriculum_verdicts); "no runs yet"
+  verdicts, curriculumstrideverdicts and curriculumetaverdicts (experiments.curriculum_verdicts), and their mean
+  coverage curves in numbers, curriculumstridecurves and curriculumetacurves; "no runs yet"
   while a curriculum grid has no summary; the stalls blocks from `python -m experiments stalls FOLDER`;
 * timetosolve: the schedule and algorithms grids (bench/results/time_to_solve), printed only;
 * ownenvs: the own_envs grid (bench/results/own_envs), each environment against the random policy;
@@ -131,6 +132,7 @@ def blocks(results: Path | None = None) -> dict[str, str]:
         out[table], out[tests] = (setting_table(runs, arms), curriculum_tests(runs, comparisons)) \
             if any(r["grid"] == grid_name for r in runs) else (NO_RUNS, NO_RUNS)
         out[f"{table}verdicts"] = setting_verdict_table(runs, grid_name)
+        out[f"{table}curves"] = curve_table(runs, arms) if any(r["grid"] == grid_name for r in runs) else NO_RUNS
     solve = ResultsStore(where["schedule"]).load()
     if solve:
         out["timetosolve"] = solve_table(solve)

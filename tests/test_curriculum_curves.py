@@ -35,3 +35,21 @@ def test_the_table_names_each_arm_in_order_with_its_crossings_and_values_within_
 
 def test_no_runs_no_table():
     assert curve_table([]) == "no runs yet"
+
+
+def lambda_run(arm: str, curve: list[float], half_at: float) -> dict:
+    """A run of `arm` whose λ grows linearly from 0.1 at episode 0 to 0.5 at `half_at`."""
+    return {**run(arm, curve), "sampling_curve": {"lambda": [0.1, 0.5], "episode": [0.0, half_at]}}
+
+
+def test_arms_whose_lambda_schedules_differ_get_a_column_of_their_own_and_agreeing_ones_a_line():
+    flat = [0.1] * 10
+    differing = [run("maddpg", flat), lambda_run("cmcl", flat, 400.0), lambda_run("cmcl_stride_x2", flat, 200.0)]
+    table = curve_table(differing, ("maddpg", "cmcl_stride_x2", "cmcl")).splitlines()
+    assert table[0].startswith("| arm | seeds | λ reaches 0.5 | at the first window |"), table[0]
+    assert [line.split(" | ")[2] for line in table[2:5]] == ["—", "200", "400"], table
+    assert table[-1].endswith("λ reaches 0.5: each arm's mean episode (the dotted lines).")
+    agreeing = [run("maddpg", flat), lambda_run("cmcl", flat, 400.0), lambda_run("cmcl_eta1", flat, 420.0)]
+    table = curve_table(agreeing, ("maddpg", "cmcl", "cmcl_eta1")).splitlines()
+    assert "λ reaches 0.5" not in table[0] and table[-1].endswith("λ reaches 0.5 at episode 410 on average (the "
+                                                                  "dotted line).")

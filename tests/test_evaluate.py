@@ -88,9 +88,11 @@ def test_an_environment_that_cannot_render_gets_no_gif_and_a_reason_not_a_failur
 
 def test_a_gif_path_that_cannot_be_written_is_said_not_written_not_blamed_on_the_environment(tmp_path):
     """Before (found by hand 2026-12-06): `evaluate --gif /proc/x.gif` said "the environment could not render here
-    (FileNotFoundError: ...)"."""
+    (FileNotFoundError: ...)"; under a file it then said the OS's "File exists"."""
     config = load_config(None, ["env.factory=cmcl.envs.examples.reach:parallel_env", "env.episode_length=25"])
     blocked = tmp_path / "a file"
     blocked.write_text("")
     assert gif_line(config, None, blocked / "eval.gif") == \
-        f"gif: not written (cannot write {blocked / 'eval.gif'}: File exists)"
+        f"gif: not written (cannot write {blocked / 'eval.gif'}: a folder on its path is a file)"
+    assert gif_line(config, None, blocked / "deeper" / "eval.gif") == \
+        f"gif: not written (cannot write {blocked / 'deeper' / 'eval.gif'}: a folder on its path is a file)"
