@@ -108,6 +108,20 @@ def test_run_summary_records_provenance_and_the_commits_of_every_segment(tmp_pat
     assert len(run_dir.summary()["provenance"]["segment_commits"]) == (2 if first["commit"] else 1)
 
 
+
+def test_a_run_started_over_does_not_inherit_the_old_runs_commits_or_its_ending(tmp_path):
+    """Before (found 2026-12-06): --overwrite deleted the old run's checkpoints and metrics but kept its summary.json,
+    so the new run's summary listed the old run's commit among its segments (a grid read it as resumed across
+    commits: "mixed"), and a new run cut off before its first summary still read as the old one's ending."""
+    config = load_config(None, [f"run.dir={tmp_path / 'run'}"])
+    old = RunDirectory.create(config.run.dir, config)
+    old.summary_path.write_text(json.dumps({"ended": "solved", "provenance": {"commit": "0" * 40,
+                                                                              "segment_commits": ["0" * 40]}}))
+    new = RunDirectory.create(config.run.dir, config, overwrite=True)
+    assert new.summary() == {}  # nothing of the old run's ending is left to read
+    new.write_summary({"ended": "budget"})
+    assert "0" * 40 not in new.summary()["provenance"]["segment_commits"]
+
 def test_load_sampler_takes_a_sample_at_entry_and_exit():
     with LoadSampler(every_s=60) as load:
         pass

@@ -74,7 +74,7 @@ class RunDirectory:
         """Make the folder and write the resolved config. Refuses a folder that already holds a run (FileExistsError;
         `overwrite` starts it over), and, even with `overwrite`, a folder holding anything but what a run's start
         leaves that is no run (ForeignFolderError: no config.toml; before, --overwrite deleted its checkpoints/ and
-        metrics.jsonl)."""
+        metrics.jsonl). Starting over removes the old run's checkpoints, metrics.jsonl and summary.json."""
         code_at_start()  # the code this run trains with, before anything can change the checkout (cmcl.provenance)
         run = cls(path)
         if not run.config_path.exists() and run.path.is_dir() and not run.never_trained():  # --overwrite too
@@ -87,9 +87,10 @@ class RunDirectory:
                 f"run.dir {str(run.path)!r} already holds a run: continue it with {resume_command(run.path)}, start "
                 "over with --overwrite, or choose another run.dir")
         run.check_metrics_file()
-        if overwrite:  # start over: no old metrics, and no old checkpoint a role could restore itself from
-            shutil.rmtree(run.checkpoints, ignore_errors=True)
-            run.metrics_path.unlink(missing_ok=True)
+        if overwrite:  # start over: no old metrics, no old checkpoint a role could restore itself from, and no old
+            shutil.rmtree(run.checkpoints, ignore_errors=True)  # summary (its ending, its commits: the new run's
+            run.metrics_path.unlink(missing_ok=True)  # summary would list them among its segments)
+            run.summary_path.unlink(missing_ok=True)
         run.checkpoints.mkdir(parents=True, exist_ok=True)
         atomic_write_bytes(run.config_path, dump_toml(config).encode())
         return run
