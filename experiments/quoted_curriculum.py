@@ -115,10 +115,10 @@ def curriculum_times(curriculum: list[dict[str, Any]], hard: list[dict[str, Any]
         said += [f"{ARM_LABEL[t.a]} − {ARM_LABEL[t.b]} is {untested(t)}" for t in tests if not t.testable
                  and not t.mixed]
         mixed = any(t.mixed for t in tests)
-        out.append(f"CMCL at twice the default λ stride (the last progress row with λ < 0.5 at episode "
-                   f"{last['cmcl_stride_x2']:,.0f} on average, against {last['cmcl']:,.0f} at the default) reaches MA "
-                   f"0.9 at a median of {median['cmcl_stride_x2']}, at half the stride "
-                   f"({last['cmcl_stride_half']:,.0f}) {median['cmcl_stride_half']}"
+        out.append(f"Kaplan–Meier median of CMCL at twice the default λ stride (the last progress row with λ < 0.5 "
+                   f"at episode {last['cmcl_stride_x2']:,.0f} on average, against {last['cmcl']:,.0f} at the "
+                   f"default): {median['cmcl_stride_x2']}; at half the stride ({last['cmcl_stride_half']:,.0f}): "
+                   f"{median['cmcl_stride_half']}"
                    + "".join(f"; {x}" for x in said)
                    + (f"; {'its other' if said else 'its'} tests are withdrawn until its runs and the harder task's "
                       "runs they compare against are at one commit" if mixed else "")
