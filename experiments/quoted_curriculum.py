@@ -115,8 +115,8 @@ def curriculum_times(curriculum: list[dict[str, Any]], hard: list[dict[str, Any]
         said += [f"{ARM_LABEL[t.a]} − {ARM_LABEL[t.b]} is {untested(t)}" for t in tests if not t.testable
                  and not t.mixed]
         mixed = any(t.mixed for t in tests)
-        out.append(f"Kaplan–Meier median of CMCL at twice the default λ stride (the last progress row with λ < 0.5 "
-                   f"at episode {last['cmcl_stride_x2']:,.0f} on average, against {last['cmcl']:,.0f} at the "
+        out.append(f"CMCL's Kaplan–Meier median to MA 0.9 at twice the default λ stride (the last progress row with "
+                   f"λ < 0.5 at episode {last['cmcl_stride_x2']:,.0f} on average, against {last['cmcl']:,.0f} at the "
                    f"default): {median['cmcl_stride_x2']}; at half the stride ({last['cmcl_stride_half']:,.0f}): "
                    f"{median['cmcl_stride_half']}"
                    + "".join(f"; {x}" for x in said)
