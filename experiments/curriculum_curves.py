@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.curriculum_figure import episode_lambda_reaches, lambda_half_lines
+from experiments.curriculum_figure import lambda_half_lines
 from experiments.labels import ARM_LABEL, ARM_ORDER
 from experiments.measures import WINDOW
 from experiments.quoted_words import NO_RUNS
@@ -55,7 +55,7 @@ def curve_table(runs: list[dict[str, Any]], order: tuple[str, ...] = ARM_ORDER) 
         return NO_RUNS
     budget = max(r["budget"] for r in runs)
     arms = [a for a in order if any(r.get("arm") == a for r in runs)]
-    half_lines = lambda_half_lines(runs, tuple(arms), budget)  # {None: episode} when the schedules agree
+    half_lines = lambda_half_lines(runs, tuple(arms), budget)  # {None: episode} when the schedules agree, else per arm
     lambda_per_arm = bool(half_lines) and None not in half_lines
     at = [e for e in AT if e <= budget]
     header = ["arm", "seeds", *(["λ reaches 0.5"] if lambda_per_arm else []), "at the first window",
@@ -65,15 +65,14 @@ def curve_table(runs: list[dict[str, Any]], order: tuple[str, ...] = ARM_ORDER) 
         mine = [r for r in runs if r.get("arm") == arm]
         episodes, curve = mean_curve(mine)
         reached = [first_reaches(episodes, curve, v) for v in LEVELS]
-        half = [] if not lambda_per_arm else [episode_lambda_reaches(mine, 0.5)]
-        lines.append(row([ARM_LABEL[arm], str(len(mine)), *("—" if e is None else f"{e:,.0f}" for e in half),
-                          f"{curve[0]:.2f}",
+        half = [f"{half_lines[arm]:,.0f}" if arm in half_lines else "—"] if lambda_per_arm else []
+        lines.append(row([ARM_LABEL[arm], str(len(mine)), *half, f"{curve[0]:.2f}",
                           *("never" if e is None else f"{e:,.0f}" for e in reached),
                           *(f"{np.interp(e, episodes, curve):.2f}" if e <= episodes[-1] else "—" for e in at)]))
     said = f"Mean training coverage over each arm's seeds ({WINDOW}-episode windows, the figure's panel a)"
     if lambda_per_arm:
         return "\n".join([*lines, "", said + "; λ reaches 0.5: each arm's mean episode (the dotted lines)."])
-    half = episode_lambda_reaches(runs, 0.5)
+    half = half_lines.get(None)  # the mean over the table's arms' runs
     lines += ["", said + "; λ "
               + (f"reaches 0.5 at episode {half:,.0f} on average (the dotted line)." if half is not None else
                  "does not reach 0.5 in these runs.")]

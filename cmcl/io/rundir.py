@@ -40,11 +40,11 @@ CHECKPOINT_GLOB = "ckpt_*.pt"
 # what a start that failed before its first episode leaves at the top of its run directory (with a `checkpoints/`
 # tree holding no data): nothing a retry must keep (`RunDirectory.never_trained`)
 START_LEFTOVERS = ("config.toml", "run.lock", "ray_shutdown.log")
+SERVICE_ROLES = ("learner", "icm")  # roles whose checkpoint is one VerifiedFile at checkpoints/service/<role>.pt
 
 
 class ForeignFolderError(FileExistsError):
     """A new run's run.dir holds files, and no run (no config.toml): none of them is touched."""
-SERVICE_ROLES = ("learner", "icm")  # roles whose checkpoint is one VerifiedFile at checkpoints/service/<role>.pt
 
 
 @dataclass(frozen=True)
