@@ -39,7 +39,7 @@ from cmcl.stopping import exit_without_teardown
 DEFAULT_RUNNER = "service"
 # Each runner's entry function, imported only when that runner runs: `cmcl/` never imports Ray, and `--help`
 # imports no torch.
-RUNNER_ENTRIES = {"inline": ("cmcl.loop.__main__", "run_inline"), "service": ("services.launch", "run_launch")}
+RUNNER_ENTRIES = {"inline": ("services.launch", "run_launch"), "service": ("services.launch", "run_launch")}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -84,20 +84,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def runner_of(run_dir: RunDirectory) -> str:
-    """The runner that wrote `run_dir`: the one whose policy checkpoint it holds (the newer one if both do), else
-    the one its summary.json names, else the service if its checkpoint folder exists. Raises RunRequestError
-    when none of these tells."""
-    runners = run_dir.runners()
-    if len(runners) == 1:
-        return next(iter(runners))
-    if runners:
-        newest = run_dir.newest_policy()
-        if newest is not None:
-            return newest.runner
+    """The runner that wrote `run_dir`: the one its summary.json names, else the service if it holds a checkpoint
+    (both runners write and resume the same checkpoints; one of the inline runner's own format of earlier versions is
+    refused by cmcl.run_flags.open_run). Raises RunRequestError when none of these tells."""
     summary = run_dir.summary()
     if summary.get("runner") in RUNNERS:
         return summary["runner"]
-    if run_dir.service_dir.is_dir():
+    if "inline" in run_dir.runners():
+        return "inline"
+    if run_dir.runners() or run_dir.service_dir.is_dir():
         return "service"
     if run_dir.never_trained():  # a start that failed before its first episode (e.g. of older code) left it
         config = shlex.quote(str(run_dir.config_path))

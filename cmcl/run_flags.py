@@ -35,6 +35,9 @@ RUNNERS: tuple[str, ...] = get_args(Runner)
 # keys: cmcl.config.runners says why RUNNER_ONLY is another table)
 SERVICE_ONLY_FLAGS = {"address": "--address", "num_cpus": "--num-cpus", "ray_metrics_port": "--ray-metrics-port",
                       "metrics_port": "--metrics-port", "metrics_host": "--metrics-host"}
+# the last commit whose inline runner wrote and resumed checkpoints of its own format (checkpoints/ckpt_*.pt); since,
+# both runners write the service's (each role's verified files under checkpoints/service/)
+LAST_OWN_INLINE_FORMAT = "8dbaee8"
 
 
 class RunRequestError(ValueError):
@@ -42,7 +45,7 @@ class RunRequestError(ValueError):
 
 
 class ResumeMismatch(RunRequestError):
-    """The run to resume was written by the other runner (the message says how to resume it)."""
+    """The run to resume holds checkpoints of a format this version does not read (the message says what does)."""
 
 
 @dataclass(frozen=True)
@@ -114,10 +117,11 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
         run_dir = RunDirectory.open(request.resume_dir)
         lock = RunLock.acquire(run_dir.path, holder_command())
         try:
-            written_by = run_dir.runners()
-            if written_by and request.runner not in written_by:
-                raise ResumeMismatch(f"{request.resume_dir} was written by the {' and '.join(sorted(written_by))} "
-                                     f"runner; resume it with {resume_command(request.resume_dir)}")
+            if "inline" in run_dir.runners():
+                raise ResumeMismatch(f"{request.resume_dir} holds checkpoints of the inline runner's own format "
+                                     f"(checkpoints/ckpt_*.pt), which this version no longer reads: resume it with "
+                                     f"the code of commit {LAST_OWN_INLINE_FORMAT} (`git checkout "
+                                     f"{LAST_OWN_INLINE_FORMAT}`), or start a new run")
             run_dir.check_no_unverifiable_checkpoint()
             config = resumed_config(run_dir, overrides, request)
             return checked(config, request, port_given=port_given_by(request, config)), run_dir, lock

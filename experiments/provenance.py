@@ -5,7 +5,7 @@ the run's resolved config, with the commit, dirtiness and any change during the 
 own summary (it recorded the code when its run opened; the grid's process may have started earlier), the load over its
 training (`LoadSampler`), the commits its run directory's segments recorded (`segment_commits`: a run resumed across a
 code change has two), when the summary was written (`measured_utc`, "YYYY-MM-DD HH:MM", from 2026-12-05), and
-`fingerprint`: sha256s of a short, deterministic inline training of the run's own settings (`cmcl.fingerprint`),
+`fingerprint`: sha256s of a short, deterministic inline training of the run's own settings (`services.fingerprint`),
 computed in a subprocess, so that two commits can be shown to train a setting identically.
 
 Reading: `code_version` names the code a summary ran ("<commit[:7]>", "+dirty" when the tree was dirty, "+changed" when
@@ -44,13 +44,13 @@ def segment_commits(run_path: Path) -> list[str]:
 
 def fingerprint(run: Run) -> dict[str, Any] | None:
     """The training fingerprint of `run`'s settings ({"curve", "weights", "updates"}), from
-    `python -m cmcl.fingerprint` in a subprocess; None when it fails (the reason is not the run's)."""
+    `python -m services.fingerprint` in a subprocess; None when it fails (the reason is not the run's)."""
     config = [] if run.task == "own_env" else ["--config", str(ROOT / "configs" / (run.config or
                                                                                    f"{run.task}_{run.algorithm}.toml"))]
     sets = [s for s in run.sets if not s.startswith(("run.", "env.num_envs"))]
     if run.prey_algorithm is not None:
         sets.append(f"teams.prey.algorithm={run.prey_algorithm}")
-    cmd = [sys.executable, "-m", "cmcl.fingerprint", *config, *[a for s in sets for a in ("--set", s)]]
+    cmd = [sys.executable, "-m", "services.fingerprint", *config, *[a for s in sets for a in ("--set", s)]]
     done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
     if done.returncode != 0:
         return None

@@ -28,6 +28,18 @@ def actor_setup(config: Config | dict[str, Any], uses_torch: bool = True) -> Con
     return config if isinstance(config, Config) else config_from_dict(config)
 
 
+def restarted_actor() -> bool:
+    """Whether this process is a Ray actor that Ray has restarted (False in one process: `--runner inline`, where Ray
+    is not even imported)."""
+    import sys
+
+    ray = sys.modules.get("ray")
+    if ray is None or not ray.is_initialized():
+        return False
+    context = ray.get_runtime_context()
+    return context.get_actor_id() is not None and context.was_current_actor_reconstructed
+
+
 def new_incarnation() -> str:
     """A fresh id for this process's life of an actor (changes on every restart)."""
     return uuid.uuid4().hex[:12]

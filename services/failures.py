@@ -14,8 +14,6 @@ from __future__ import annotations
 from collections import Counter
 from typing import Any
 
-import ray
-
 from cmcl.config import Config
 from cmcl.io.write_failure import RunWriteError
 from services.health import (
@@ -66,6 +64,8 @@ class Failures:
             self.recovery.failed(actor_key(kind, index))
         if kind in ("rollout", "learner", "teacher", "icm"):
             inflight[(kind, index)] -= 1
+        import ray  # failures only happen on the Ray scheduler (services.calls)
+
         if own_death and isinstance(err, ray.exceptions.ActorDiedError):
             check_not_dead_for_good(role, err, self.max_restarts)
             if kind == "rollout_report" and not restartable(err):
@@ -81,6 +81,8 @@ class Failures:
         """Kill (for Ray to restart) every actor with a call in `pending` in flight longer than
         service.call_timeout_s."""
         for role, index in self.watch.overdue(pending):
+            import ray  # an overdue call is a Ray actor's (one process's calls are done when submitted)
+
             ray.kill(actor_of(self.roles, role, index), no_restart=False)
             self.hung[role] = self.hung.get(role, 0) + 1
             self.watch.restart_clock(pending, (role, index))

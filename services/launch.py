@@ -152,20 +152,59 @@ def stderr_to(path: Path) -> Iterator[None]:
 
 def run_service(config: Config, run_dir: RunDirectory, *, resume: bool = False, progress: Any = print,
                 stop: Callable[[], bool] | None = None,
-                started: Callable[[Any, Any], None] | None = None, port_fallback: bool = False) -> dict[str, Any]:
-    """Run the service on the Ray already initialised; returns the supervisor's final summary. `stop` is polled
-    between rounds of work (see `Supervisor`); `started(supervisor, roles)`, if given, is called once both exist,
-    before the supervisor runs (a bench watching the run: bench/service_breakdown.py). `port_fallback`: the user did
-    not choose service.metrics_port (cmcl.run_flags.port_given), so a port taken since the check before Ray (another
-    run starting beside this one) is replaced by a free one, said in a note, rather than refused."""
+                started: Callable[[Any, Any], None] | None = None, port_fallback: bool = False,
+                in_process: bool = False) -> dict[str, Any]:
+    """Run the roles of `config` under the supervisor; returns its final summary. On the Ray already initialised
+    (each role an actor, the metrics served on service.metrics_port), or with `in_process` the same roles as plain
+    objects in this process (`--runner inline`: services.calls.InProcessCalls; no Ray, no metrics endpoint). `stop`
+    is polled between rounds of work (see `Supervisor`); `started(supervisor, roles)`, if given, is called once both
+    exist, before the supervisor runs (a bench watching the run: bench/service_breakdown.py). `port_fallback`: the
+    user did not choose service.metrics_port (cmcl.run_flags.port_given), so a port taken since the check before Ray
+    (another run starting beside this one) is replaced by a free one, said in a note, rather than refused."""
+    from services.calls import InProcessCalls, RayCalls
     from services.metrics import ServiceMetrics
     from services.placement import create_roles
     from services.supervisor import Supervisor
 
     metrics = ServiceMetrics(seed=config.run.seed)
+    port = None if in_process else serve_metrics(metrics, config, port_fallback)
+    try:
+        if progress is not None:
+            where = "" if port is None else f"metrics: http://{config.service.metrics_host}:{port}/metrics   "
+            progress(f"{where}run directory: {run_dir.path}")
+        roles = create_roles(config, run_dir, in_process=in_process)
+        supervisor = Supervisor(config, run_dir, roles, metrics, progress=progress, stop=stop,
+                                calls=InProcessCalls() if in_process else RayCalls())
+        if resume:
+            supervisor.restore_counters()
+        if started is not None:
+            started(supervisor, roles)
+        summary = supervisor.run()
+        if port is not None:
+            summary["metrics_port"] = port
+        summary["metrics_text"] = metrics.text()
+        return summary
+    finally:
+        metrics.close()
+
+
+def train_in_process(config: Config, run_dir: RunDirectory, *, resume: bool = False, progress: Any = None,
+                     stop: Callable[[], bool] | None = None) -> tuple[dict[str, Any], Any]:
+    """One run of the inline runner from Python (tests, benches, the fingerprint): the roles of `config` trained in
+    this process (`run_service(in_process=True)`). Returns (the supervisor's final summary, the roles: e.g.
+    `roles.learner.maddpg`, `roles.replay.replay`)."""
+    roles: list[Any] = []
+    summary = run_service(config, run_dir, resume=resume, progress=progress, stop=stop, in_process=True,
+                          started=lambda _supervisor, r: roles.append(r))
+    return summary, roles[0]
+
+
+def serve_metrics(metrics: Any, config: Config, port_fallback: bool) -> int:
+    """Serve `metrics` on service.metrics_host:metrics_port (a free port when it was taken since the check before
+    Ray and the user did not choose it: `port_fallback`, said in a note); returns the port."""
     host, port = config.service.metrics_host, config.service.metrics_port
     try:
-        port = metrics.serve(port, host)
+        return metrics.serve(port, host)
     except OSError as err:  # taken since the check before Ray (cmcl.preflight.metrics_port_checked)
         if not port_fallback:
             raise OSError(f"service.metrics_port = {port} cannot be bound on {host} ({err.strerror or err}): pass "
@@ -173,22 +212,7 @@ def run_service(config: Config, run_dir: RunDirectory, *, resume: bool = False, 
         print(f"note: service.metrics_port = {port} was taken on {host} since the check before Ray; the metrics are "
               "served on a free port instead (the `metrics:` line names it; --metrics-port chooses one)",
               file=sys.stderr)
-        port = metrics.serve(0, host)
-    try:
-        if progress is not None:
-            progress(f"metrics: http://{config.service.metrics_host}:{port}/metrics   run directory: {run_dir.path}")
-        roles = create_roles(config, run_dir)
-        supervisor = Supervisor(config, run_dir, roles, metrics, progress=progress, stop=stop)
-        if resume:
-            supervisor.restore_counters()
-        if started is not None:
-            started(supervisor, roles)
-        summary = supervisor.run()
-        summary["metrics_port"] = port
-        summary["metrics_text"] = metrics.text()
-        return summary
-    finally:
-        metrics.close()
+        return metrics.serve(0, host)
 
 
 def resume_notice(run_dir: RunDirectory) -> str:
@@ -219,69 +243,85 @@ def run_launch(request: RunRequest) -> int:
 
 
 def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: RunLock) -> int:
-    """Start (or join) Ray, train until done or stopped, shut Ray down quietly, report; the lock is held."""
-    import ray
-
+    """Train until done or stopped, then report; the lock is held. The service starts (or joins) Ray and shuts it
+    down quietly at the end; the inline runner (`request.runner == "inline"`) runs the same roles in this process."""
     from services.placement import InfeasibleResources
-    from services.reaper import start_reaper
 
+    in_process = request.runner == "inline"
     if request.resume_dir:
         print(resume_notice(run_dir))
         damage = ReplayStore(run_dir.service_replay_dir).recover_log()
         if damage is not None:
             print(f"replay log of {run_dir.path}: {damage}", file=sys.stderr)
-    elif config.run.init_from:  # the learner actor loads it (services/learner.py); checked by open_run
+    elif config.run.init_from:  # the learner loads it (services/learner.py); checked by open_run
         from cmcl.learners.warm_start import warm_start_source  # torch: imported only when needed
 
         print(f"actors and critics initialised from {warm_start_source(config.run.init_from).path}")
         if config.run.carry_replay:  # the replay server reads them when it starts (services/replay_server.py)
             print(f"replay: starts with the rows of {config.run.init_from}")
-    if not request.address and not ray.is_initialized():
-        start_reaper(keep_fds=(lock.fd,))  # no process of the embedded Ray outlives this one, SIGKILL included
     stop = StopSignals(notice=print)
     try:
-        try:
-            start_ray(request.address, request.num_cpus, request.ray_metrics_port)
-        except ConnectionError as err:
-            print(f"error: {err}", file=sys.stderr)
-            return 2
-        finally:
-            # after ray.init, whose core worker installs a C-level SIGTERM handler (a stack dump and abort) over
-            # any earlier one; then a signal held during Ray's start arrives and only sets `stop.requested`
+        if in_process:
             stop.install()
-            unblock_stop_signals()
+        else:
+            started = _start_embedded_or_join(request, lock, stop)
+            if started is not None:
+                return started
         try:
             summary = run_service(config, run_dir, resume=bool(request.resume_dir),
                                   progress=None if request.quiet else print, stop=lambda: stop.requested,
-                                  port_fallback=not port_given_by(request, config))
+                                  port_fallback=not port_given_by(request, config), in_process=in_process)
         except RunWriteError:  # a full disk (a role's file, the metrics, the counters): cmcl.run_flags.train_in_run
             raise  # names the file and what a resume starts from
         except (InfeasibleResources, OSError) as err:
             print(f"error: {err}", file=sys.stderr)
             return 2
         except TrainingDiverged as err:  # every role's last checkpoint before it stays the run's newest
-            run_dir.write_summary({"runner": "service", "ended": "diverged"})
+            run_dir.write_summary({"runner": request.runner, "ended": "diverged"})
             print(f"error: {err}", file=sys.stderr)
             return 2
         except EnvFactoryError as err:  # the user's environment raised or misfit: every role checkpointed first
-            run_dir.write_summary({"runner": "service", "ended": "env_error"})
+            run_dir.write_summary({"runner": request.runner, "ended": "env_error"})
             print(f"error: {err}; the run is kept (every role checkpointed); resume with: "
                   f"{resume_command(run_dir.path)}", file=sys.stderr)
             return 2
         finally:
             stop.training_over()
-            with stderr_to(run_dir.path / "ray_shutdown.log"):
-                stop_ray()
+            if not in_process:
+                with stderr_to(run_dir.path / "ray_shutdown.log"):
+                    stop_ray()
         return _report(request, config, run_dir, summary, stop)
     finally:
         stop.restore()
+
+
+def _start_embedded_or_join(request: RunRequest, lock: RunLock, stop: StopSignals) -> int | None:
+    """Start the embedded Ray (with the reaper: no process of it outlives this one, SIGKILL included) or join
+    --address; then the stop signals. Returns 2 after a one-line error when Ray cannot be had, else None."""
+    import ray
+
+    from services.reaper import start_reaper
+
+    if not request.address and not ray.is_initialized():
+        start_reaper(keep_fds=(lock.fd,))
+    try:
+        start_ray(request.address, request.num_cpus, request.ray_metrics_port)
+    except ConnectionError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    finally:
+        # after ray.init, whose core worker installs a C-level SIGTERM handler (a stack dump and abort) over
+        # any earlier one; then a signal held during Ray's start arrives and only sets `stop.requested`
+        stop.install()
+        unblock_stop_signals()
+    return None
 
 
 def _report(request: RunRequest, config: Config, run_dir: RunDirectory, summary: dict[str, Any],
             stop: StopSignals) -> int:
     """The end of a run: summary.json, the `done` line, then the resume hint (stopped) or the evaluation."""
     ended = stop.name or ("solved" if summary.get("solved") else "plateau" if summary.get("plateau") else "budget")
-    summary = {**{k: v for k, v in summary.items() if k != "metrics_text"}, "ended": ended, "runner": "service"}
+    summary = {**{k: v for k, v in summary.items() if k != "metrics_text"}, "ended": ended, "runner": request.runner}
     run_dir.write_summary(summary)
     print(done_line(summary, config.run.stop_coverage))
     if stop.requested:

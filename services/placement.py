@@ -63,37 +63,46 @@ class Roles:
     make_rollout: Callable[[int], Any] = field(repr=False, default=None)
 
 
-def create_roles(config: Config, run_dir: RunDirectory) -> Roles:
-    """Start every role as a restartable Ray actor with fractional CPUs (after a feasibility check)."""
-    import ray  # only here: the policy above needs no cluster
+def create_roles(config: Config, run_dir: RunDirectory, in_process: bool = False) -> Roles:
+    """Start every role: as a restartable Ray actor with fractional CPUs (after a feasibility check), or, with
+    `in_process`, as the same class built as a plain object in this process (`--runner inline`:
+    services.calls.InProcessCalls calls it), with the same seeds and checkpoint files."""
+    s, seed, paths = config.service, config.run.seed, run_dir.service_paths()
+    if in_process:  # one process is one core: every teacher fold in one stacked ensemble (teacher_groups)
+        available, cfg = 1.0, config
 
-    available = ray.cluster_resources().get("CPU", 0.0)
-    need = required_cpus(config, available)
-    if need > available + 1e-9:
-        raise InfeasibleResources(f"the roles request {need:.2f} CPUs (service.*_cpus) but the cluster has "
-                                  f"{available:g}; lower service.rollout_workers or the per-role CPU requests")
-    s, seed, paths, cfg = config.service, config.run.seed, run_dir.service_paths(), config.to_dict()
+        def actor(cls: type, cpus: float, resources: dict[str, float] | None = None) -> Callable[..., Any]:
+            return cls
+    else:
+        import ray  # only here: the policy above needs no cluster
 
-    def actor(cls: type, cpus: float, resources: dict[str, float] | None = None):
-        return ray.remote(num_cpus=cpus, resources=resources or {}, max_restarts=s.max_restarts,
-                          max_task_retries=0)(cls)
+        available = ray.cluster_resources().get("CPU", 0.0)
+        need = required_cpus(config, available)
+        if need > available + 1e-9:
+            raise InfeasibleResources(f"the roles request {need:.2f} CPUs (service.*_cpus) but the cluster has "
+                                      f"{available:g}; lower service.rollout_workers or the per-role CPU requests")
+        cfg = config.to_dict()  # configs cross process boundaries as plain dicts, re-validated on arrival
+
+        def actor(cls: type, cpus: float, resources: dict[str, float] | None = None) -> Callable[..., Any]:
+            return ray.remote(num_cpus=cpus, resources=resources or {}, max_restarts=s.max_restarts,
+                              max_task_retries=0)(cls).remote
 
     rollout_resources = {s.rollout_resource: ROLLOUT_RESOURCE_SHARE} if s.rollout_resource else None
 
     def make_rollout(w: int):
-        return actor(RolloutWorker, s.rollout_cpus, rollout_resources).remote(cfg, w, seed * 1000 + w)
+        return actor(RolloutWorker, s.rollout_cpus, rollout_resources)(cfg, w, seed * 1000 + w)
 
     teams = config.teams.values()
     groups = teacher_groups(config, available)
     teachers = []
     if any(t.uses_teachers for t in teams):
-        teachers = [actor(TeacherWorker, s.teacher_cpus).remote(
+        teachers = [actor(TeacherWorker, s.teacher_cpus)(
             cfg, folds, seed * 1000 + 100 + i, str(paths["teacher"] / f"teacher_{'-'.join(map(str, folds))}.pt"))
             for i, folds in enumerate(groups)]
     icm = None
     if any(t.uses_icm for t in teams):
-        icm = actor(ICMWorker, s.icm_cpus).remote(cfg, seed * 1000 + 200, str(paths["icm"]))
-    return Roles(replay=actor(ReplayServer, s.replay_cpus).remote(cfg, str(paths["replay"]), seed),
-                 learner=actor(Learner, s.learner_cpus).remote(cfg, seed, str(paths["learner"])),
+        icm = actor(ICMWorker, s.icm_cpus)(cfg, seed * 1000 + 200, str(paths["icm"]))
+    return Roles(replay=actor(ReplayServer, s.replay_cpus)(cfg, str(paths["replay"]), seed),
+                 learner=actor(Learner, s.learner_cpus)(cfg, seed, str(paths["learner"])),
                  rollout=[make_rollout(w) for w in range(s.rollout_workers)], teachers=teachers, icm=icm,
                  teacher_groups=groups if teachers else [], make_rollout=make_rollout)

@@ -70,6 +70,9 @@ class ReplayServer:
         seeds = np.random.SeedSequence([int(seed), 7]).spawn(self.layout.num_agents + 1)
         self.sampler_rngs = [np.random.default_rng(s) for s in seeds[:-1]]
         self.rng = np.random.default_rng(seeds[-1])
+        # the reports' subsamples: a stream of their own, so that when reports are asked (wall clock) never moves
+        # the draws of the fit rows and the sampling
+        self.report_rng = np.random.default_rng([int(seed), 8])
         self.dirty, self.inserts_at_recompute = True, -1
         self.losses: dict[str, Any] = {}
         self.resumed = self.store is not None and self.store.exists()
@@ -274,16 +277,17 @@ class ReplayServer:
     def report(self) -> Report:
         """Metrics report: buffer, λ, difficulty / priority distributions, score age and coverage."""
         details = None
-        if self.replay.size and self.replay.curriculum:  # the report reads the curriculum's terms at the current λ
-            details = self.replay.recompute_priorities(self.schedule.lam, details=True)
-            self.dirty, self.inserts_at_recompute = False, self.counters["inserts"]
+        if self.replay.size and self.replay.curriculum:  # the curriculum's terms at the current λ, read-only: a
+            # report (asked every few seconds of wall clock) never changes what the run samples
+            details = self.replay.recompute_priorities(self.schedule.lam, details=True, apply=False)
         c = self.counters
         tallies = ReplayTallies(inserts=c["inserts"], samples=c["samples"], rejected=self.rejected,
                                 stale_scores=self.stale_scores, teacher_steps=tuple(self.teacher_steps),
                                 teacher_scores=tuple(self.teacher_scores), icm_steps=c["icm_steps"],
                                 icm_scores=c["icm_scores"], losses=self.losses)
         return replay_report(self.replay, self.scoring, tallies, lam=self.schedule.lam, updates=c["updates"],
-                             details=details, rng=self.rng, incarnation=self.incarnation, resumed=self.resumed)
+                             details=details, rng=self.report_rng, incarnation=self.incarnation,
+                             resumed=self.resumed)
 
     def state_dict(self) -> dict[str, Any]:
         """Codec-ready state: the buffer, score tables, insert ledger, counters, limiters, λ's step count and the

@@ -18,7 +18,7 @@ from cmcl.learners.policy import NumpyPolicy, numpy_policy
 from cmcl.messages import Chunk
 from cmcl.progress import REPORTED_STATS, finished_episodes
 from cmcl.system import agent_layout, build_maddpg, make_batched_env, to_env_actions
-from services.common import actor_setup, new_incarnation
+from services.common import actor_setup, new_incarnation, restarted_actor
 from services.report_schema import FinishedEpisodes, Report, RolloutReport
 
 
@@ -28,8 +28,9 @@ class RolloutWorker:
     def __init__(self, config: Any, worker_id: int, seed: int):
         parsed = actor_setup(config, uses_torch=False)
         self.worker_id, self.incarnation = int(worker_id), new_incarnation()
-        # a restarted worker must not replay its predecessor's worlds: mix the incarnation into the seed
-        entropy = [int(seed), int(worker_id), int(self.incarnation, 16)]
+        # a restarted worker must not replay its predecessor's worlds: its incarnation is mixed into the seed (a
+        # first incarnation's worlds are the seed's own, so that one process's runs repeat exactly)
+        entropy = [int(seed), int(worker_id), *([int(self.incarnation, 16)] if restarted_actor() else [])]
         env_seed, noise_seed, net_seed = np.random.SeedSequence(entropy).spawn(3)
         self.env = make_batched_env(parsed, seed=np.random.default_rng(env_seed), auto_reset=True)
         self.layout = agent_layout(parsed, self.env)

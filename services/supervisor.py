@@ -20,7 +20,6 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-import ray
 
 from cmcl.config import Config
 from cmcl.envs.factory import EnvFactoryError
@@ -33,6 +32,7 @@ from cmcl.replay.registry import early_notes, sampling_name, uses_lambda
 from cmcl.run_clock import RunClock
 from cmcl.system import layout_of
 from services.call_budget import HeldClock, calls_to_issue
+from services.calls import InProcessCalls, RayCalls
 from services.failures import Failures, end_if_write_failure
 from services.health import actor_key
 from services.metrics import ServiceMetrics
@@ -53,10 +53,13 @@ class Supervisor:
     """The pacing loop. `run()` trains until run.episodes episodes are stored (or run.max_seconds)."""
 
     def __init__(self, config: Config, run_dir: RunDirectory, roles: Roles, metrics: ServiceMetrics,
-                 progress: Callable[[str], None] | None = print, stop: Callable[[], bool] | None = None):
+                 progress: Callable[[str], None] | None = print, stop: Callable[[], bool] | None = None,
+                 calls: RayCalls | InProcessCalls | None = None):
         """`stop`: polled between rounds of work; once it returns True the run ends as at its budget (drain, final
-        cut, every role checkpointed) and the summary says `stopped` (a graceful SIGINT / SIGTERM)."""
+        cut, every role checkpointed) and the summary says `stopped` (a graceful SIGINT / SIGTERM). `calls`: the
+        scheduler (services.calls): Ray actor calls (the default) or the same roles called in this process."""
         self.config, self.run_dir, self.roles, self.metrics, self.progress = config, run_dir, roles, metrics, progress
+        self.calls = calls if calls is not None else RayCalls()
         self.stop = stop
         self.stopped = False  # the run ended because `stop` said so
         self.env_error: EnvFactoryError | None = None  # the user's environment raised: the run ends, kept
@@ -70,7 +73,7 @@ class Supervisor:
         # a call to the replay server failed with it: it may have stored (logged) what it never acknowledged, so
         # its status is asked afresh before more work is handed out (`_issue`)
         self.replay_failed = False
-        self.weights = roles.learner.publish.remote()
+        self.weights = self.calls.submit(roles.learner, "publish")
         self.version = -1
         self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
         self.failures = Failures(config, roles)  # failed and hung calls, restarts, recovery times
@@ -97,7 +100,8 @@ class Supervisor:
         r = self.roles
         handles = [("replay_report", r.replay), ("learner_report", r.learner),
                    *(("teacher_report", t) for t in r.teachers), *([("icm_report", r.icm)] if r.icm else [])]
-        for (kind, _), report in zip(handles, ray.get([h.report.remote() for _, h in handles]), strict=True):
+        refs = [self.calls.submit(h, "report") for _, h in handles]
+        for (kind, _), report in zip(handles, map(self.calls.get, refs), strict=True):
             self._apply_metrics(kind, report)
             if kind == "replay_report":
                 self.last_replay_report = report
@@ -116,31 +120,31 @@ class Supervisor:
         if self.replay_failed:
             self.status, self.status_number = self._ask_replay("status"), self.submitted
             self.replay_failed = False
-        r, svc = self.roles, self.config.service
+        r, svc, submit = self.roles, self.config.service, self.calls.submit
         calls = calls_to_issue(self.status, self.inflight, self.config, len(r.rollout),
                                r.teacher_groups, r.icm is not None, rollouts)
         for w, worker in enumerate(r.rollout):
             for _ in range(calls[("rollout", w)]):
-                chunk_ref, report = worker.rollout.options(num_returns=2).remote(self.weights)
+                chunk_ref, report = submit(worker, "rollout", self.weights, returns=2)
                 self._track(report, "rollout_report", w)
                 self._track(chunk_ref, "chunk", w)
                 self.inflight[("rollout", w)] += 1
         for _ in range(calls[("learner", 0)]):
-            batch, _ = r.replay.sample.options(num_returns=2).remote(svc.updates_per_call)
-            feedback, report = r.learner.update.options(num_returns=2).remote(batch)
+            batch, _ = submit(r.replay, "sample", svc.updates_per_call, returns=2)
+            feedback, report = submit(r.learner, "update", batch, returns=2)
             self._track(report, "learner_report")
             self._track(feedback, "feedback")
             self.inflight[("learner", 0)] += 1
         for k, (teacher, folds) in enumerate(zip(r.teachers, r.teacher_groups, strict=True)):
             for _ in range(calls[("teacher", k)]):
-                work, _ = r.replay.teacher_work.options(num_returns=2).remote(folds, svc.fit_steps_per_call)
-                scores, report = teacher.step.options(num_returns=2).remote(work, self.weights)
+                work, _ = submit(r.replay, "teacher_work", folds, svc.fit_steps_per_call, returns=2)
+                scores, report = submit(teacher, "step", work, self.weights, returns=2)
                 self._track(report, "teacher_report", k)
                 self._track(scores, "teacher_scores", k)
                 self.inflight[("teacher", k)] += 1
         for _ in range(calls[("icm", 0)]):
-            work, _ = r.replay.icm_work.options(num_returns=2).remote(svc.fit_steps_per_call)
-            scores, report = r.icm.step.options(num_returns=2).remote(work)
+            work, _ = submit(r.replay, "icm_work", svc.fit_steps_per_call, returns=2)
+            scores, report = submit(r.icm, "step", work, returns=2)
             self._track(report, "icm_report")
             self._track(scores, "icm_scores")
             self.inflight[("icm", 0)] += 1
@@ -150,20 +154,16 @@ class Supervisor:
         """Wait for at least one reply (up to `timeout` s) and apply every reply that is ready."""
         if not self.pending:
             return
-        ready, rest = ray.wait(list(self.pending), num_returns=1, timeout=timeout, fetch_local=False)
-        if ready and rest:  # take everything else that is already done, without waiting
-            more, _ = ray.wait(rest, num_returns=len(rest), timeout=0, fetch_local=False)
-            ready += more
-        for ref in ready:
+        for ref in self.calls.wait(list(self.pending), timeout):
             kind, index, number = self.pending.pop(ref)
             self.failures.watch.done(ref)
             if kind in FORWARD:  # data for the replay server, now ready: hand over the ref, never the data
-                self._track(getattr(self.roles.replay, FORWARD[kind][0]).remote(ref), FORWARD[kind][1], index)
+                self._track(self.calls.submit(self.roles.replay, FORWARD[kind][0], ref), FORWARD[kind][1], index)
                 continue
             try:
-                value = ray.get(ref)
-            except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError,
-                    ray.exceptions.ObjectLostError) as err:
+                value = self.calls.get(ref)
+            except self.calls.FAILED as err:  # a Ray actor's call failed (none in one process: a role's error
+                # propagates from submit)
                 if isinstance(getattr(err, "cause", None), EnvFactoryError):  # the user's env (an observation that
                     if self.env_error is None:  # does not fit its space, a crash): a retry meets it again; the run
                         raise err.cause from None  # is checkpointed, then the CLI says it in one line (item 5)
@@ -204,7 +204,7 @@ class Supervisor:
             self.learning_progress.record(self.status.episodes, sum(critic) / len(critic), normalised)
         if value.role == "learner" and value.learner.weight_version != self.version:
             self.version = value.learner.weight_version
-            self.weights = self.roles.learner.publish.remote()
+            self.weights = self.calls.submit(self.roles.learner, "publish")
         if value.role == "rollout":
             self._log_episodes(value)
 
@@ -253,7 +253,7 @@ class Supervisor:
         retried until the server answers: one that reaches a process that has just died, before Ray has noticed
         (ActorUnavailableError), runs again on the restarted server; a server out of restarts raises
         ActorDiedError."""
-        return ray.get(getattr(self.roles.replay, method).options(max_task_retries=-1).remote())
+        return self.calls.get(self.calls.submit(self.roles.replay, method, retry=True))
 
     def _settle(self) -> None:
         """Drain every call in flight, then take the replay server's status now (newer than any reply)."""
@@ -272,13 +272,14 @@ class Supervisor:
         started = time.perf_counter()
         self.drain()
         r = self.roles
-        saves = {"learner": [r.learner.save.remote()], "replay": [r.replay.snapshot.remote()],
-                 "teacher": [t.save.remote() for t in r.teachers], "icm": [r.icm.save.remote()] if r.icm else []}
+        submit = self.calls.submit
+        saves = {"learner": [submit(r.learner, "save")], "replay": [submit(r.replay, "snapshot")],
+                 "teacher": [submit(t, "save") for t in r.teachers], "icm": [submit(r.icm, "save")] if r.icm else []}
         for role, refs in saves.items():
             for ref in refs:
                 try:
-                    ray.get(ref)
-                except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError) as err:
+                    self.calls.get(ref)
+                except self.calls.FAILED as err:
                     end_if_write_failure(err)  # a full disk: the role's older checkpoint stays
                     self.failures.save_failed(role, err)
         self.checkpoint_seconds.append(time.perf_counter() - started)  # (its own counters' write below excluded)
@@ -328,7 +329,7 @@ class Supervisor:
                 self.failures.kill_hung(self.pending)
                 now = time.perf_counter()
                 if now - last_report >= REPORT_EVERY_S and report_ref is None:
-                    report_ref = self.roles.replay.report.remote()
+                    report_ref = self.calls.submit(self.roles.replay, "report")
                     self._track(report_ref, "replay_report")
                 if report_ref is not None and report_ref not in self.pending:
                     report_ref, last_report = None, now

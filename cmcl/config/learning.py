@@ -190,10 +190,6 @@ class TeacherConfig:
     batch_size: int = documented(128, "transitions per teacher fit batch", unit="transitions", rule=AT_LEAST_1)
     lr: float = documented(1e-3, "Adam learning rate of the teacher critics (eq. 9)", rule=POSITIVE)
     hidden: int = documented(64, "width of each hidden layer of a teacher critic", unit="units", rule=AT_LEAST_1)
-    rescore_rows_per_update: int = documented(
-        128, "rows rescored per learner update (every never-scored row, then the oldest scores, "
-        "cmcl.replay.scoring): the whole 5000-row buffer every ~39 updates; the paper preset's 167 = all of it "
-        "every 30 updates (§3.8)", unit="rows per update", rule=AT_LEAST_1)
     fit_batch: Literal["shared", "per_agent"] = documented(
         "shared", "'shared': one fold batch per fold serves every agent's teacher of that fold (one target pass; "
         "the service's layout); 'per_agent': each (agent, fold) teacher draws its own batch (§3.2 literally, A × "

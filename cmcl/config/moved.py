@@ -29,6 +29,20 @@ GLOBAL_MOVED: dict[tuple[str, str], str] = {
 }
 # key of a team's table that is now teams.<team>.priority.<key>
 TEAM_MOVED: dict[str, str] = {"alpha": "alpha", "uniform_floor": "uniform_floor"}
+# (section, key) removed when the two runners became one (both schedule the same roles): what does its work now
+REMOVED: dict[tuple[str, str], str] = {
+    ("run", "log_every"): "both runners log a progress row every 2 s",
+    ("run", "checkpoint_every"): "both runners checkpoint every service.checkpoint_every_s seconds",
+    ("teachers", "rescore_rows_per_update"): "each teacher / ICM call rescores service.score_rows_per_call rows",
+}
+
+
+def removed_keys(data: Mapping[str, Any]) -> Iterator[tuple[str, Mapping[str, Any], str]]:
+    """(dotted name, its table, its key there) of every removed key of nested `data`."""
+    for (section, key) in REMOVED:
+        table = data.get(section)
+        if isinstance(table, Mapping) and key in table:
+            yield f"{section}.{key}", table, key
 
 
 def moved_keys(data: Mapping[str, Any]) -> Iterator[tuple[str | None, str, Mapping[str, Any], str, str]]:
@@ -48,7 +62,10 @@ def moved_keys(data: Mapping[str, Any]) -> Iterator[tuple[str | None, str, Mappi
 
 def refuse_moved(data: Mapping[str, Any]) -> None:
     """ConfigError naming the first moved key of nested `data` (as parsed from TOML, `--set` applied), its value and
-    the key that replaced it."""
+    the key that replaced it (or, for a removed key, what does its work now)."""
+    for name, table, key in removed_keys(data):
+        section, short = name.split(".")
+        raise ConfigError(f"{name} was removed ({REMOVED[(section, short)]}); leave it out, got {table[key]!r}")
     for team, old, table, key, new in moved_keys(data):
         place = f"teams.<team>.priority.{new} (one per team)" if team is None else f"teams.{team}.priority.{new}"
         raise ConfigError(f"{old} moved to {place}; set that instead, got {table[key]!r}")
@@ -62,6 +79,8 @@ def migrate_moved(data: Mapping[str, Any], team_names: tuple[str, ...]) -> dict[
     if isinstance(out.get("teams"), Mapping):
         out["teams"] = {team: dict(table) if isinstance(table, Mapping) else table
                         for team, table in out["teams"].items()}
+    for _, table, key in list(removed_keys(out)):  # a removed key's work is done elsewhere now: dropped
+        table.pop(key)
     moved: dict[str | None, dict[str, Any]] = {}  # team (None: every team) -> {key in its priority table: value}
     for team, _, table, key, new in moved_keys(out):
         moved.setdefault(team, {})[new] = table.pop(key)

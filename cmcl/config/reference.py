@@ -21,7 +21,7 @@ from typing import Any, Literal
 
 from cmcl.config.env import TASKS, WORLD_KEYS, EnvConfig
 from cmcl.config.experiment import Config
-from cmcl.config.runners import RUNNER_ONLY
+from cmcl.config.runners import IN_ONE_PROCESS, SERVICE_ONLY
 from cmcl.config.teams import PriorityConfig, TeamConfig
 from cmcl.config.toml_io import _toml_value, type_requirement
 from cmcl.field_docs import MEANING, RULE, UNIT
@@ -83,14 +83,14 @@ def _summary(cls: type) -> str:
 
 def _section(table: str, owner: Any) -> SectionDoc:
     """The keys of `owner`'s fields; a field holding a table of its own (a team's `priority`) is its own section. A
-    key only one runner honours (cmcl.config.runners; a whole section: its summary says whose it is) says so."""
+    key only the service runner honours (cmcl.config.runners) says so."""
     keys = []
     for f in dataclasses.fields(owner):
         if dataclasses.is_dataclass(getattr(owner, f.name)):
             continue
-        doc, only = _key_doc(owner, f, f.name), RUNNER_ONLY.get(f"{table}.{f.name}")
-        if only is not None:
-            doc = dataclasses.replace(doc, meaning=f"{doc.meaning}. The {only.runner} runner only: {only.instead}")
+        doc = _key_doc(owner, f, f.name)
+        if f"{table}.{f.name}" in SERVICE_ONLY:
+            doc = dataclasses.replace(doc, meaning=f"{doc.meaning}. The service runner only: {IN_ONE_PROCESS}")
         keys.append(doc)
     return SectionDoc(table, _summary(type(owner)), tuple(keys))
 

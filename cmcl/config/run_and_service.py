@@ -30,10 +30,6 @@ class RunConfig:
     dir: str = documented("runs/default", "the run directory (config, metrics, checkpoints, evaluation; "
                           "cmcl.io.rundir)", unit="path", rule=rule("must be a non-empty path", bool))
     seed: int = documented(0, "seed of the run's random generators (worlds, networks, sampling)", rule=AT_LEAST_0)
-    log_every: int = documented(10, "episodes between progress lines / metric rows", unit="episodes",
-                                rule=AT_LEAST_1)
-    checkpoint_every: int = documented(500, "episodes between checkpoints (0: only at the end)", unit="episodes",
-                                       rule=AT_LEAST_0)
     smoothing_window: int = documented(100, "window of the curves' and progress lines' moving averages",
                                        unit="episodes", rule=AT_LEAST_1)
     stop_coverage: float = documented(0.0, "stop early once the moving average (over smoothing_window episodes) "
@@ -80,8 +76,9 @@ class RunConfig:
 
 @dataclass(frozen=True)
 class ServiceConfig:
-    """Distributed service (services/), read by the service runner only: actor counts, per-call work, rate-limiter
-    slack, CPUs, metrics."""
+    """The roles and their calls (services/), read by both runners: actor counts, per-call work, rate-limiter slack,
+    checkpoint cadence; and the service's own (Ray) keys, CPUs, restarts, timeouts and metrics
+    (cmcl.config.runners)."""
 
     rollout_workers: int = documented(1, "rollout worker actors, each stepping env.num_envs worlds",
                                       unit="actors", rule=AT_LEAST_1)

@@ -16,13 +16,13 @@ resume: its overrides) call `check_world_keys`, beside `check_runner_keys`, befo
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from cmcl.config.checks import ConfigError
 from cmcl.config.env import WORLD_KEYS, EnvConfig
 from cmcl.config.experiment import Config
-from cmcl.config.runners import note_on_stderr
 from cmcl.config.toml_io import parse_override
 
 
@@ -32,6 +32,10 @@ def _world_value(env: EnvConfig, name: str) -> Any:
         return env.task
     where = WORLD_KEYS[name]
     return getattr(getattr(env, where.task), where.name)
+
+
+def note_on_stderr(line: str) -> None:
+    print(line, file=sys.stderr)
 
 
 def check_world_keys(config: Config, file_data: Mapping[str, Any] | None = None, overrides: Iterable[str] = (),

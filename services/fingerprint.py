@@ -1,11 +1,13 @@
-"""A training fingerprint: sha256s of a short, deterministic inline training of one configuration.
+"""A training fingerprint: sha256s of a short, deterministic training of one configuration by the inline runner
+(the service's roles called in one process: services.calls.InProcessCalls).
 
 Two code versions that print the same fingerprint for a configuration trained it bit-identically over the
-prefix (the metrics rows without wall-clock fields, and the final MADDPG weights). The report of the experiments
+prefix (the episode rows of metrics.jsonl without wall-clock fields, and the final MADDPG weights; the progress rows
+are left out: they are written every few seconds of wall clock). The report of the experiments
 uses it to decide whether runs of one comparison made at different commits may be tested together
 (experiments.provenance.cell_versions); bench/curve_fingerprint.py prints it for a set of configurations.
 
-    python -m cmcl.fingerprint --config configs/spread_hard.toml [--set k=v ...] [--episodes 160]
+    python -m services.fingerprint --config configs/spread_hard.toml [--set k=v ...] [--episodes 160]
         prints one JSON line {"curve": 16 hex, "weights": 16 hex, "updates": int}
 """
 
@@ -20,7 +22,7 @@ from pathlib import Path
 
 WALL_CLOCK = ("elapsed_s", "segment_s", "env_steps_per_s", "updates_per_s")
 # The prefix's own settings (small, fast, past the warm-up): they override the configuration's.
-PREFIX_SETS = ("run.log_every=16", "run.checkpoint_every=0", "env.num_envs=8", "maddpg.warmup=800",
+PREFIX_SETS = ("service.checkpoint_every_s=1e9", "env.num_envs=8", "maddpg.warmup=800",
                "maddpg.batch_size=64", "replay.capacity=2000", "teachers.batch_size=32", "icm.batch_size=32",
                "run.seed=3")
 EPISODES = 160
@@ -44,27 +46,26 @@ def fingerprint(config_path: str | None, overrides: list[str], episodes: int = E
 
     from cmcl.config import load_config
     from cmcl.io.rundir import RunDirectory
-    from cmcl.loop import InlineLoop
+    from services.launch import train_in_process
 
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
         sets = [*overrides, f"run.episodes={episodes}", f"run.dir=\"{tmp}/run\"", *PREFIX_SETS]
         config = load_config(config_path, sets)
         run_dir = RunDirectory.create(config.run.dir, config)
-        loop = InlineLoop(config, run_dir, progress=None)
-        loop.run()
-        rows = [_strip(json.loads(line)) for line in run_dir.metrics_path.read_text().splitlines()]
+        summary, roles = train_in_process(config, run_dir)
+        rows = [_strip(row) for row in run_dir.rows("episode")]
         curve = hashlib.sha256(json.dumps(rows, sort_keys=True).encode()).hexdigest()[:16]
-        state = loop.maddpg.state_dict()
+        state = roles.learner.maddpg.state_dict()
         weights = hashlib.sha256()
         for part in ("actor", "critic"):
             for key, value in sorted(state[part].items()):
                 weights.update(key.encode() + value.detach().numpy().tobytes())
-        return {"curve": curve, "weights": weights.hexdigest()[:16], "updates": loop.counters["updates"]}
+        return {"curve": curve, "weights": weights.hexdigest()[:16], "updates": int(summary["updates"])}
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m cmcl.fingerprint", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m services.fingerprint", description=__doc__.split("\n")[0])
     parser.add_argument("--config", type=Path, default=None, help="a config file (default: the defaults)")
     parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE")
     parser.add_argument("--episodes", type=int, default=EPISODES)
