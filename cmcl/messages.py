@@ -103,6 +103,9 @@ class LearnerBatch:
     # LaBER under the permuted control: the order int64[n, N, S] in which each owner's candidates' fresh |δ| are read
     # to pick (a permutation of 0..S−1 for the control's agents, the identity for the others; else None)
     select_order: np.ndarray | None = None
+    # ACL td_self: rows the learner's online critics score after its updates (every row they have not scored yet,
+    # then the oldest of their scores), the scorer the learner hosts; else None
+    score: Rows | None = None
 
     @property
     def count(self) -> int:
@@ -119,14 +122,18 @@ class LearnerBatch:
 @dataclass(frozen=True)
 class LearnerFeedback:
     """Learner -> replay: |δ| float32[n, N, S] of each sampled (slot, generation), |y − Q_target| when a rule asks
-    for it (ReLo; else None), and the last losses per agent."""
+    for it (ReLo; else None), the online critics' scores of the rows it was asked to score (`online_td`: Rows whose
+    rows["td_abs"] is float32[M, N]; ACL td_self), and the last losses per agent."""
 
     slots: np.ndarray
     generations: np.ndarray
     td_abs: np.ndarray
     losses: dict[str, Any] = field(default_factory=dict)
-    incarnation: str = ""  # the learner actor's incarnation id ("" inline)
+    incarnation: str = ""  # the learner actor's incarnation id
     target_td_abs: np.ndarray | None = None
+    # the online critics' |y − Q_v(s, a)| float32[M, N] of LearnerBatch.score's rows (ACL td_self), with their
+    # slots and generations int64[M]; else None
+    online_td: Rows | None = None
 
 
 @dataclass(frozen=True)
@@ -228,6 +235,9 @@ def check_feedback(msg: Any, num_agents: int) -> LearnerFeedback:
     if msg.target_td_abs is not None:
         _check_rows("LearnerFeedback.target_td_abs", np.ravel(msg.slots), np.ravel(msg.generations),
                     np.ravel(msg.target_td_abs), ())
+    if msg.online_td is not None:
+        _check_rows("LearnerFeedback.online_td", msg.online_td.slots, msg.online_td.generations,
+                    msg.online_td.rows.get("td_abs"), (num_agents,))
     return msg
 
 

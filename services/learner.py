@@ -19,7 +19,7 @@ from cmcl.learners import network_steps
 from cmcl.learners.assignment import STATS as ASSIGNMENT_STATS
 from cmcl.learners.warm_start import warm_start_from_config
 from cmcl.learners.weights import published_weights
-from cmcl.messages import LearnerBatch, LearnerFeedback
+from cmcl.messages import LearnerBatch, LearnerFeedback, Rows
 from cmcl.system import build_maddpg, layout_of
 from services.common import actor_setup, load_state, new_incarnation, save_state
 from services.report_schema import LearnerReport, Report
@@ -44,10 +44,9 @@ class Learner:
 
     def __init__(self, config: Any, seed: int, checkpoint_path: str | None = None):
         self.config = cfg = actor_setup(config)
-        if cfg.icm.intrinsic_reward_coef > 0:  # ablation A6 needs the ICM inside the learner: inline loop only
-            raise ConfigError(f"icm.intrinsic_reward_coef={cfg.icm.intrinsic_reward_coef!r} is supported by the "
-                              "inline runner only (python -m cmcl train --runner inline); the service's learner "
-                              "holds no ICM")
+        if cfg.icm.intrinsic_reward_coef > 0:  # ablation A6 needs the ICM's ρ of the learner's rows
+            raise ConfigError(f"icm.intrinsic_reward_coef={cfg.icm.intrinsic_reward_coef!r} is not supported: the "
+                              "learner holds no ICM (curiosity feeds the priority only); leave it at 0")
         self.incarnation, self.checkpoint_path = new_incarnation(), checkpoint_path
         self.layout = layout_of(cfg)
         self.maddpg = build_maddpg(cfg, self.layout, seed)
@@ -83,11 +82,16 @@ class Learner:
         slots, generations = np.stack([p[0] for p in picked]), np.stack([p[1] for p in picked])
         td = np.stack([p[2] for p in picked]).astype(np.float32)
         target = np.stack([p[3] for p in picked]).astype(np.float32) if self.maddpg.target_scores else None
+        online_td = None
+        if batch.score is not None:  # ACL td_self: the online critics score the rows they were given, after the
+            # updates (the scorer this role hosts)
+            td_rows = network_steps.online_td_abs(self.maddpg, batch.score.rows)  # [M, N]
+            online_td = Rows({"td_abs": td_rows.astype(np.float32)}, batch.score.slots, batch.score.generations)
         self.version += 1
         self.losses = {f"agent_{a}": last_losses(stats, a) for a in range(self.layout.num_agents)}
         self.busy_s += time.perf_counter() - started
         self.busy_cpu_s += time.thread_time() - started_cpu
-        return LearnerFeedback(slots, generations, td, self.losses, self.incarnation, target), self.report()
+        return LearnerFeedback(slots, generations, td, self.losses, self.incarnation, target, online_td), self.report()
 
     def publish(self) -> dict[str, Any]:
         """The current weights with their version (the supervisor puts this in the object store)."""

@@ -188,6 +188,11 @@ class ReplayServer:
                                                   betas, self.layout.candidates, self.layout.uniform_actor,
                                                   self.layout.permuted_select)
         self.scoring.sampled(batch.slots, self.counters["updates"], self.rng, REPORT_SAMPLES)
+        if self.scoring.online_td:  # the learner's online critics score (A11) every row they have not, then the
+            # oldest of their scores, after this call's updates (the scorer the learner hosts)
+            rows = self.scoring.rows_to_score(self.replay, self.config.service.score_rows_per_call, online_td=True,
+                                              every_unscored=True)
+            batch = dataclasses.replace(batch, score=buffer_steps.score_rows(self.replay, rows))
         self._event("updates", n)
         return batch, self.status()
 
@@ -201,6 +206,11 @@ class ReplayServer:
         except MessageError as err:
             return self._reject("bad_feedback", str(err))
         stale, scores_changed = buffer_steps.apply_learner_feedback(self.replay, self.layout, feedback)
+        if feedback.online_td is not None:
+            scored = feedback.online_td
+            _, stale_scores = self.scoring.write_online_td(self.replay, scored.slots, scored.generations,
+                                                           scored.rows["td_abs"], self.counters["updates"])
+            stale, scores_changed = stale + stale_scores, True
         self._count_stale(stale)
         self.dirty = self.dirty or scores_changed
         return self.status()
