@@ -1,17 +1,16 @@
 """The scoring state of the curriculum: who scored which replay row and when, and the one rule that picks the rows to
 (re)score next (ALGORITHM.md §3.2, §3.4, §3.8, §3.9, A11).
 
-Where it sits: one `ScoringState` beside the `ReplayBuffer` in each runner, the inline loop (`cmcl.loop.inline`) and
-the replay server (`services.replay_server`). Scores come in through `write_difficulty` (teacher errors, eqs. 10–11),
+Where it sits: one `ScoringState` beside the `ReplayBuffer` of the replay server (`services.replay_server`), whichever
+scheduler runs it. Scores come in through `write_difficulty` (teacher errors, eqs. 10–11),
 `write_curiosity` (ρ, eq. 18) and `write_online_td` (ACL td_self's |δ|); each writes the buffer's score column and
 stamps the rows with the learner update the score was made at. The buffer's columns hold the scores; this object
 holds the stamps, the teachers' per-fold errors (`cmcl.replay.difficulty.DifficultyTable`) and the insertion times.
 
-The rescoring rule (`rows_to_score`), the same in both runners: the rows whose score from the given scorers is
-oldest, never-scored rows first. The replay server asks it for the rows of one teacher group (a teacher never scores
-its own fold, eq. 9) or of the ICM, a fixed number per call; the inline loop asks it, at every learner update, for
-every never-scored row (A11: a new row is scored before it can be sampled) topped up to
-`teachers.rescore_rows_per_update` rows with the oldest scores (§3.8's periodic rescoring, spread over the updates).
+The rescoring rule (`rows_to_score`): the rows whose score from the given scorers is oldest, never-scored rows first.
+The replay server asks it for the rows of one teacher group (a teacher never scores its own fold, eq. 9) or of the
+ICM, `service.score_rows_per_call` per call, and, for the online critics the learner hosts (ACL td_self), every
+never-scored row topped up to that many with the oldest scores (§3.8's periodic rescoring, spread over the calls).
 Oldest first rather than a cursor walking the slots: the asynchronous teacher groups of the service cannot share a
 cursor, and a cursor would spend rescoring on rows that were scored at insertion a few updates ago while older
 scores wait. Either way a full buffer of |D| rows is rescored every |D| / rows updates at most.
@@ -154,13 +153,6 @@ class ScoringState:
         if every_unscored:
             count = max(int(count), int((stamp < 0).sum()))
         return oldest_first(valid, stamp, int(count))
-
-    def rescore_rows(self, replay: ReplayBuffer, count: int) -> np.ndarray:
-        """The inline loop's rows at one learner update, scored by every scorer at once: every never-scored row,
-        then the oldest scores up to `count` rows (`rows_to_score` with all the scorers this layout uses)."""
-        folds = range(self.difficulty.num_folds) if self.teacher_agents.size else ()
-        return self.rows_to_score(replay, count, folds, curiosity=bool(self.icm_agents.size),
-                                  online_td=self.online_td, every_unscored=True)
 
     # ------------------------------------------------------------------ report
     def summary(self, replay: ReplayBuffer, updates: int, rng: np.random.Generator, keep: int) -> ScoringSummary:
