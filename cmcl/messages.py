@@ -18,6 +18,7 @@ import numpy as np
 
 ROW_KEYS = ("obs", "act", "rew", "next_obs", "done")  # one joint transition: obs [N, od], act [N, ad], rew [N], ...
 PRESENT_KEY = "present"  # bool [N]: the agents a row holds, in learner batches of a buffer with carried rows only
+CURIOSITY_KEY = "curiosity"  # float32 [N]: the rows' stored ρ, in learner batches when icm.intrinsic_reward_coef > 0
 ACTOR_KEYS = ("obs", "act")  # the row columns the actor step reads (with PRESENT_KEY when the buffer has carried rows)
 ACTOR_PREFIX = "actor_"  # an actor's own rows in a learner minibatch: "actor_obs", "actor_act", "actor_present"
 
@@ -88,9 +89,9 @@ class ActorRows:
 @dataclass(frozen=True)
 class LearnerBatch:
     """Replay -> learner: n per-owner minibatches. rows: obs [n, N, S, N, od], act, rew [n, N, S, N], next_obs,
-    done [n, N, S, N], and present bool[n, N, S, N] when the buffer holds rows carried from fewer agents
-    (run.carry_replay); is_weights float32[n, N, S]; slots / generations int64[n, N, S] (owner v's minibatch is
-    [:, v])."""
+    done [n, N, S, N], present bool[n, N, S, N] when the buffer holds rows carried from fewer agents
+    (run.carry_replay), and curiosity float32[n, N, S, N] (the rows' stored ρ) when icm.intrinsic_reward_coef > 0;
+    is_weights float32[n, N, S]; slots / generations int64[n, N, S] (owner v's minibatch is [:, v])."""
 
     rows: dict[str, np.ndarray]
     is_weights: np.ndarray
@@ -113,7 +114,7 @@ class LearnerBatch:
 
     def minibatch(self, i: int, importance_weights: bool) -> dict[str, np.ndarray]:
         """The i-th minibatch as `MADDPG.update` takes it ([N, S, ...]); is_weights only if some agent uses them."""
-        batch = {k: self.rows[k][i] for k in (*ROW_KEYS, PRESENT_KEY) if k in self.rows}
+        batch = {k: self.rows[k][i] for k in (*ROW_KEYS, PRESENT_KEY, CURIOSITY_KEY) if k in self.rows}
         if importance_weights:
             batch["is_weights"] = self.is_weights[i]
         return batch

@@ -14,7 +14,6 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.config import ConfigError
 from cmcl.learners import network_steps
 from cmcl.learners.assignment import STATS as ASSIGNMENT_STATS
 from cmcl.learners.warm_start import warm_start_from_config
@@ -44,9 +43,6 @@ class Learner:
 
     def __init__(self, config: Any, seed: int, checkpoint_path: str | None = None):
         self.config = cfg = actor_setup(config)
-        if cfg.icm.intrinsic_reward_coef > 0:  # ablation A6 needs the ICM's ρ of the learner's rows
-            raise ConfigError(f"icm.intrinsic_reward_coef={cfg.icm.intrinsic_reward_coef!r} is not supported: the "
-                              "learner holds no ICM (curiosity feeds the priority only); leave it at 0")
         self.incarnation, self.checkpoint_path = new_incarnation(), checkpoint_path
         self.layout = layout_of(cfg)
         self.maddpg = build_maddpg(cfg, self.layout, seed)
@@ -77,7 +73,8 @@ class Learner:
         for i in range(batch.count):
             minibatch, slots, generations = network_steps.choose_minibatch(self.maddpg, batch, i, use_weights,
                                                                            self.layout.select)
-            stats = network_steps.learner_update(self.maddpg, minibatch)
+            stats = network_steps.learner_update(self.maddpg, minibatch, self.layout.icm_agents,
+                                                 self.config.icm.intrinsic_reward_coef)
             picked.append((slots, generations, stats["td_abs"], stats.get("target_td_abs")))
         slots, generations = np.stack([p[0] for p in picked]), np.stack([p[1] for p in picked])
         td = np.stack([p[2] for p in picked]).astype(np.float32)

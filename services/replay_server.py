@@ -26,6 +26,7 @@ import numpy as np
 from cmcl.io import codec, records
 from cmcl.io.durable import ReplayStore
 from cmcl.messages import (
+    CURIOSITY_KEY,
     CuriosityWork,
     MessageError,
     ReplayStatus,
@@ -188,6 +189,8 @@ class ReplayServer:
                                                   betas, self.layout.candidates, self.layout.uniform_actor,
                                                   self.layout.permuted_select)
         self.scoring.sampled(batch.slots, self.counters["updates"], self.rng, REPORT_SAMPLES)
+        if self.config.icm.intrinsic_reward_coef > 0:  # each row's ρ as the ICM scorer last wrote it (0 before)
+            batch.rows[CURIOSITY_KEY] = self.replay.storage.scores["curiosity"][batch.slots]
         if self.scoring.online_td:  # the learner's online critics score (A11) every row they have not, then the
             # oldest of their scores, after this call's updates (the scorer the learner hosts)
             rows = self.scoring.rows_to_score(self.replay, self.config.service.score_rows_per_call, online_td=True,

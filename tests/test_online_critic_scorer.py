@@ -26,3 +26,41 @@ def test_every_stored_row_is_scored_by_the_online_critics(tiny_config, tmp_path)
     assert (stamp >= 0).all(), f"{int((stamp < 0).sum())} of {valid.size} rows never scored by the online critics"
     td = replay.storage.scores["td_abs"][valid]
     assert replay.storage.scored["td_abs"][valid].all() and np.isfinite(td).all() and (td > 0).any()
+
+
+def test_curiosity_as_an_intrinsic_reward_reaches_the_learner_on_the_inline_runner(tiny_config, tmp_path):
+    """icm.intrinsic_reward_coef > 0: the learner's minibatch rewards of each curiosity agent are its rows' reward
+    plus coef × the ρ the ICM scorer stored for them (the same roles on the service: services.calls)."""
+    from cmcl.learners.network_steps import learner_update
+
+    config = config_from_dict({**tiny_config("cmcl", service=True, dir=str(tmp_path / "run")).to_dict(),
+                               "icm": {**tiny_config("cmcl").to_dict()["icm"], "intrinsic_reward_coef": 2.0}})
+    _, roles = train_in_process(config, RunDirectory.create(config.run.dir, config))
+    server = roles.replay
+    batch, _ = server.sample(1)
+    assert batch is not None and np.any(batch.rows["curiosity"] > 0)
+    a = roles.learner.layout.icm_agents
+    recorder = RecordingMADDPG()
+    learner_update(recorder, batch.minibatch(0, False), a, 2.0)
+    expected = batch.rows["rew"][0][a, :, a] + 2.0 * batch.rows["curiosity"][0][a, :, a]
+    np.testing.assert_allclose(recorder.minibatch["rew"][a, :, a], expected, rtol=1e-6)
+    assert "curiosity" not in recorder.minibatch
+
+
+class RecordingMADDPG:
+    """A stand-in for MADDPG (named so): its update records the minibatch it is given."""
+
+    def update(self, minibatch):
+        self.minibatch = minibatch
+        return {}
+
+
+def test_an_intrinsic_reward_without_an_icm_is_refused_in_one_line(tiny_config):
+    import pytest
+
+    from cmcl.config import ConfigError
+
+    data = tiny_config("maddpg").to_dict()
+    data["icm"]["intrinsic_reward_coef"] = 1.0
+    with pytest.raises(ConfigError, match=r"^icm.intrinsic_reward_coef .*needs a team whose rule trains the ICM"):
+        config_from_dict(data)

@@ -60,6 +60,10 @@ class Config:
                  "maddpg.holder_rule", self.maddpg.holder_rule, f"needs env.cover_radius = {SEATED_RADIUS} "
                  f"(an agent within it of a landmark sits there; env.cover_radius = {self.env.spread.cover_radius} "
                  "here)")
+        _require(self.icm.intrinsic_reward_coef == 0 or any(t.uses_icm for t in self.teams.values()),
+                 "icm.intrinsic_reward_coef", self.icm.intrinsic_reward_coef,
+                 "> 0 needs a team whose rule trains the ICM (algorithm 'cmcl'): ρ is the ICM scorer's; "
+                 f"teams' algorithms here: {sorted({t.algorithm for t in self.teams.values()})}")
         if self.run.stop_progress > 0 and self.run.progress_signal == "coverage":
             has_coverage = bool(self.env.coverage_key) if self.env.factory else self.env.task == "spread"
             _require(has_coverage, "run.progress_signal", "coverage",

@@ -229,8 +229,10 @@ class ICMConfig:
                                      "inverse loss's 1 − β", rule=PROBABILITY)
     lr: float = documented(1e-3, "Adam learning rate of the ICM (eq. 17)", rule=POSITIVE)
     batch_size: int = documented(128, "transitions per ICM fit batch", unit="transitions", rule=AT_LEAST_1)
-    intrinsic_reward_coef: float = documented(0.0, "weight of the curiosity ρ added to the reward; 0 (A6): "
-                                              "curiosity feeds priority only", rule=AT_LEAST_0)
+    intrinsic_reward_coef: float = documented(
+        0.0, "weight of the curiosity ρ added to each curiosity agent's reward in the learner's minibatches: the "
+        "row's ρ as the ICM scorer last scored it (0 until it has; both runners); 0 (A6): curiosity feeds the "
+        "priority only", rule=AT_LEAST_0)
     steps_per_update: float = documented(0.5, "ICM fit steps per learner update, inline and in the service "
                                          "(§3.8: 1)", unit="fit steps per update", rule=POSITIVE)
     networks: Literal["per_agent", "entity"] = documented(

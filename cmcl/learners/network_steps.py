@@ -26,7 +26,7 @@ from cmcl.learners.icm import ICM
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.nets import joint_input
 from cmcl.learners.teachers import TeacherEnsemble
-from cmcl.messages import ACTOR_PREFIX, LearnerBatch
+from cmcl.messages import ACTOR_PREFIX, CURIOSITY_KEY, LearnerBatch
 from cmcl.replay.priority import EPS_P
 from cmcl.replay.rules.laber import select_candidates
 
@@ -36,20 +36,20 @@ def agent_major(rows: dict[str, np.ndarray], agents: np.ndarray, key: str) -> np
     return np.ascontiguousarray(np.moveaxis(rows[key][..., agents, :], -2, 0))
 
 
-def learner_update(maddpg: MADDPG, minibatch: dict[str, np.ndarray], icm: ICM | None = None,
-                   icm_agents: np.ndarray | None = None, intrinsic_reward_coef: float = 0.0) -> dict[str, Any]:
+def learner_update(maddpg: MADDPG, minibatch: dict[str, np.ndarray], icm_agents: np.ndarray | None = None,
+                   intrinsic_reward_coef: float = 0.0) -> dict[str, Any]:
     """One batched MADDPG update of every agent on its own minibatch (eqs. 4–6).
 
-    minibatch: obs [N, S, N, od], act, rew [N, S, N], next_obs, done [N, S, N], optional is_weights [N, S].
-    Ablation A6: with an ICM and intrinsic_reward_coef > 0, r_v += coef·ρ_v on each curiosity agent's own rows.
+    minibatch: obs [N, S, N, od], act, rew [N, S, N], next_obs, done [N, S, N], optional is_weights [N, S] and
+    curiosity [N, S, N] (the rows' stored ρ). With intrinsic_reward_coef > 0 (ablation A6's reverse): r_v += coef·ρ_v
+    on each curiosity agent's (icm_agents) own rows.
     Returns the MADDPG stats (critic_loss [N], actor_loss [N], td_abs [N, S], ...).
     """
-    if intrinsic_reward_coef > 0 and icm is not None:
+    rho = minibatch.pop(CURIOSITY_KEY, None)
+    if intrinsic_reward_coef > 0 and rho is not None:
         a = icm_agents
-        # minibatch[k][a, :, a] -> [A_c, S, ·]: owner a's rows, agent a's own columns
-        rho = icm.curiosity(minibatch["obs"][a, :, a], minibatch["act"][a, :, a], minibatch["next_obs"][a, :, a])
         minibatch = {**minibatch, "rew": minibatch["rew"].copy()}
-        minibatch["rew"][a, :, a] += intrinsic_reward_coef * rho
+        minibatch["rew"][a, :, a] += intrinsic_reward_coef * rho[a, :, a]  # owner a's rows, agent a's own columns
     return maddpg.update(minibatch)
 
 
