@@ -12,13 +12,10 @@ Three ratios, each held by a `cmcl.replay.ratelimit.RateLimiter`:
 * teacher fit steps per learner update: teachers.steps_per_update, one limiter per fold (its fit steps);
 * ICM fit steps per learner update: icm.steps_per_update.
 
-Teachers / the ICM have limiters only when some team uses them. Two forms of the same counts:
-
-* synchronous (`cmcl.loop.inline`): `due_updates`, `due_teacher_steps`, `due_icm_steps` return exactly what is
-  owed now; the caller runs that much and records it;
-* asynchronous (`services.replay_server`): `status` says how much work each role may be given now, each ratio held
-  within a slack (the service's chunk sizes plus `service.slack_updates`) so that the actors overlap instead of
-  waiting for each other.
+Teachers / the ICM have limiters only when some team uses them. The replay server (`services.replay_server`) asks
+`status` how much work each role may be given now, each ratio held within a slack (the calls' sizes plus
+`service.slack_updates`), so that on the service the actors overlap instead of waiting for each other; in one
+process (`--runner inline`) the same allowances are handed out one call after the other.
 
 Built by `pacing_from_config`, the one place the config's ratios become limiters. Pure Python and numpy, no Ray.
 """
@@ -51,21 +48,7 @@ class Pacing:
         """The buffer holds W = max(1, maddpg.warmup) transitions: learner, teacher and ICM work may start."""
         return self.learner.warmed_up
 
-    # ------------------------------------------------------------------ synchronous form (inline loop)
-    def due_updates(self) -> int:
-        """Learner updates owed now: the multiples of update_every among the env steps in (P, t] once warm (module
-        docstring), minus those recorded."""
-        return self.learner.due()
-
-    def due_teacher_steps(self) -> int:
-        """Fit steps every fold owes now (the inline loop fits all folds at once); 0 without teachers."""
-        return min((lim.due() for lim in self.teachers), default=0)
-
-    def due_icm_steps(self) -> int:
-        """ICM fit steps owed now; 0 without an ICM."""
-        return self.icm.due() if self.icm is not None else 0
-
-    # ------------------------------------------------------------------ asynchronous form (replay server)
+    # ------------------------------------------------------------------ what may be handed out (replay server)
     def status(self, fold_counts: np.ndarray) -> PacingStatus:
         """Work each role may be given now; fold_counts: int64[K] rows stored per fold."""
         own = self.learner.allowed_samples()  # 0 before the warm-up ends
@@ -150,24 +133,14 @@ class Pacing:
             except ValueError as err:
                 raise ValueError(f"{key}: {err}") from None
 
-    def restore_counts(self, env_steps: int, updates: int, teacher_steps: int, icm_steps: int) -> None:
-        """Set the counters from totals (inline checkpoints saved before the pacing was: their "counters")."""
-        self.learner.inserts, self.learner.samples = int(env_steps), int(updates)
-        for lim in self.scorers:
-            lim.inserts = int(updates)
-        for lim in self.teachers:
-            lim.samples = int(teacher_steps)
-        if self.icm is not None:
-            self.icm.samples = int(icm_steps)
 
-
-def pacing_from_config(config: Any, asynchronous: bool = False) -> Pacing:
+def pacing_from_config(config: Any, asynchronous: bool = True) -> Pacing:
     """The pacing of a `cmcl.config.Config` (units in the module docstring).
 
-    asynchronous=False: the inline loop's (its chunk is one batched env step of env.num_envs transitions, one fit
-    step at a time); True: the replay server's, whose slack fits a rollout chunk (env.num_envs × env.episode_length
-    transitions) and a call's service.fit_steps_per_call fit steps, plus service.slack_updates learner updates of
-    drift between the actors (the learner's slack is at least it, each scorer's grows by it).
+    The replay server's: its slack fits a rollout chunk (env.num_envs × env.episode_length transitions) and a call's
+    service.fit_steps_per_call fit steps, plus service.slack_updates learner updates of drift between the roles (the
+    learner's slack is at least it, each scorer's grows by it). asynchronous=False: the tight form (chunks of one
+    batched env step, one fit step, no extra slack), which the tests of the limiters' arithmetic read.
     """
     env, every = config.env, config.maddpg.update_every
     insert_chunk = env.num_envs * env.episode_length if asynchronous else env.num_envs
