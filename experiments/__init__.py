@@ -1,7 +1,8 @@
 """The learning experiments of the project: one grid registry, one runner, one results store, one report.
 
 A *grid* is a named list of learning runs (task, algorithm per team, seed, budget, overrides); every run trains in
-its own subprocess (``python -m cmcl.loop`` inline, or ``python -m services.launch`` on the embedded service), is
+its own subprocess (``python -m cmcl train --runner inline``: the service's roles in one process, or ``--runner
+service``: on the embedded Ray), is
 summarised once finished (measures, held-out evaluation, 100-episode window curves) and its summary is stored as
 ``<results>/summaries/<run id>.json``. The report turns the summaries into the tables of docs/RESULTS.md (between
 its ``<!-- name:begin -->`` / ``<!-- name:end -->`` markers) and the figures.

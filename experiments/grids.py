@@ -43,7 +43,7 @@ from pathlib import Path
 from cmcl.config import load_data
 from cmcl.replay.registry import PAPER_ALGORITHMS
 from experiments.confirm_arms import arms_at_seed, screen_choice
-from experiments.own_envs import OWN_ENV_LOG_EVERY, OWN_ENVS
+from experiments.own_envs import OWN_ENVS
 from experiments.run_spec import ROOT, Run
 from experiments.screen_arms import PERMUTED_CONTROL, ROUND_ONE_SEEDS, ROUND_TWO_SEEDS, SCREEN_ARMS, rule_algorithm
 from experiments.screen_table import round_two_arms
@@ -76,7 +76,6 @@ HARD_SETTING_GRIDS: dict[str, dict[str, list[str]]] = {
     },
     "curriculum_eta": {"cmcl_eta1": ["teams.agent.eta=1.0"]},
 }
-CURRICULUM_LOG_EVERY = 200  # episodes between progress rows (the ESS curve's resolution) in the curriculum grids
 # The screen of issue 36: its arms (arm -> --set overrides), references, rounds and seeds are experiments.screen_arms's.
 # The confirmation of issue 36 (protocol in docs/RESULTS.md, "the confirmation's protocol"): its arms come from the
 # screen's selection, its seeds (CONFIRM_SEEDS) and interim look from experiments.confirm_arms.
@@ -163,7 +162,7 @@ def curriculum_runs(name: str, seed: int, budget: int) -> list[Run]:
         elif name == "curriculum_tag":  # the predators' config of each algorithm; its prey learn with MADDPG
             config, task, prey, team = f"tag_{algorithm}.toml", "tag", "maddpg", "predator"
         runs.append(Run(f"{name}_{arm}_s{seed}", name, task, algorithm, prey, seed, budget, arm=arm,
-                        config=config, sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *team_sets(sets, team))))
+                        config=config, sets=tuple(team_sets(sets, team))))
     return runs
 
 
@@ -173,17 +172,16 @@ def team_sets(sets: list[str], team: str) -> list[str]:
 
 
 def setting_runs(name: str, seed: int, budget: int) -> list[Run]:
-    """A grid of HARD_SETTING_GRIDS: its arms, CMCL on the harder task, logged as the curriculum grids are."""
+    """A grid of HARD_SETTING_GRIDS: its arms, CMCL on the harder task."""
     return [Run(f"{name}_{arm}_s{seed}", name, "spread", "cmcl", None, seed, budget, arm=arm, config=HARD_CONFIG,
-                sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *sets))
+                sets=tuple(sets))
             for arm, sets in HARD_SETTING_GRIDS[name].items()]
 
 
 def rule_runs(name: str, arms: dict[str, list[str]], seed: int, budget: int) -> list[Run]:
-    """The screen's or the confirmation's arms (arm -> overrides) on the harder task, logged as the curriculum grids
-    are."""
+    """The screen's or the confirmation's arms (arm -> overrides) on the harder task."""
     return [Run(f"{name}_{arm}_s{seed}", name, "spread", rule_algorithm(sets), None, seed, budget, arm=arm,
-                config=HARD_CONFIG, sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *team_sets(sets, "agent")))
+                config=HARD_CONFIG, sets=tuple(team_sets(sets, "agent")))
             for arm, sets in arms.items()]
 
 
@@ -229,17 +227,16 @@ def scale_runs(seed: int, budget: int) -> list[Run]:
     """The scale grid: every cell of SCALE_CELLS with MADDPG at its budget (else the grid's), id
     "scale_<cell>_s<seed>"."""
     return [Run(f"scale_{name}_s{seed}", "scale", "spread", "maddpg", None, seed, cell.budget or budget, arm=name,
-                config=cell.config, sets=(f"run.log_every={CURRICULUM_LOG_EVERY}", *cell.sets), stages=cell.stages,
+                config=cell.config, sets=tuple(cell.sets), stages=cell.stages,
                 stage_episodes=cell.stage_episodes)
             for name, cell in SCALE_CELLS.items()]
 
 
 def own_env_runs(seed: int) -> list[Run]:
-    """The own_envs grid: every environment of OWN_ENVS on each runner, at its own budget and settings (the log cadence
-    of the inline runs: the service logs on its own clock)."""
+    """The own_envs grid: every environment of OWN_ENVS on each runner, at its own budget and settings (both runners log
+    a progress row every 2 s)."""
     return [Run(f"own_{name}_{mode}_s{seed}", "own_envs", "own_env", "maddpg", None, seed, env.budget, mode=mode,
-                env=name, sets=(f"env.factory={env.factory}", *env.sets,
-                                *([f"run.log_every={OWN_ENV_LOG_EVERY}"] if mode == "inline" else [])))
+                env=name, sets=(f"env.factory={env.factory}", *env.sets))
             for name, env in OWN_ENVS.items() for mode in ("inline", "service")]
 
 

@@ -1,11 +1,13 @@
 """The one runner of learning runs: each run trains in its own subprocess, which dies with the runner.
 
 Resume rule: a run whose summary exists is skipped; a run whose folder holds a checkpoint is resumed from its
-newest one (`python -m cmcl.loop --resume`, or `python -m services.launch --resume` for a service run; its clock
-goes on from the checkpoint, so seconds stay comparable, and a wall-clock budget is given as what is left of it,
-`remaining_budget`: run.max_seconds is each command's); any other run starts afresh (`--overwrite`: a folder
-without a checkpoint holds nothing worth keeping). Inline runs checkpoint every CHECKPOINT_EVERY episodes and log every
-LOG_EVERY; a service run keeps the service's own cadences (it refuses the inline runner's keys on its command line).
+newest one (`python -m cmcl resume DIR --runner inline|service`: both runners write and resume the same checkpoints;
+its clock goes on from the checkpoint, so seconds stay comparable, and a wall-clock budget is given as what is left of
+it, `remaining_budget`: run.max_seconds is each command's); any other run starts afresh (`python -m cmcl train
+--runner inline|service ... --overwrite`: a folder without a checkpoint holds nothing worth keeping). Both runners
+keep the same cadences: a progress row every 2 s, a checkpoint every service.checkpoint_every_s seconds. A folder
+holding the inline runner's checkpoints of before 8dbaee8 (checkpoints/ckpt_*.pt) is refused by the resume in one
+line (cmcl.run_flags.open_run): the run is reported failed, and the grid goes on.
 
 Children die with the runner: each is started with PR_SET_PDEATHSIG = SIGKILL (Linux prctl, set in the child
 before exec), so a runner killed by any signal, SIGKILL included, leaves no orphan training that a rerun's resume
@@ -32,8 +34,6 @@ from experiments.provenance import run_provenance
 from experiments.run_spec import ROOT, Run
 from experiments.store import ResultsStore
 
-CHECKPOINT_EVERY = 2_000  # episodes between an inline run's checkpoints (what an interrupted run resumes from)
-LOG_EVERY = 500  # episodes between progress rows (a run's own sets may change it: the curriculum grids use 200)
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
@@ -71,20 +71,17 @@ def session_yields_like_nice(autogroup: Path = Path("/proc/self/autogroup")) -> 
 
 def command(run: Run, run_path: Path) -> list[str]:
     """The command line that trains `run` in `run_path`: a resume when the folder holds a checkpoint, else a fresh
-    start from the run's config file with its overrides."""
-    launcher = "cmcl.loop" if run.mode == "inline" else "services.launch"
+    start from the run's config file with its overrides; on the run's runner (`run.mode`: inline or service)."""
     # inline: no evaluation at the end (the summary makes its own, experiments.measures); the service's runs keep
     # make run's command as it is
     runner_flags = ["--no-eval"] if run.mode == "inline" else ["--metrics-port", "0"]
     if run_path.exists() and not run.stages:  # (the stages command resumes by itself: cmcl/agent_stages.py)
-        runners = RunDirectory.open(run_path).runners()
-        if runners:  # a checkpoint exists (a runner refuses a folder the other runner wrote; say so loudly)
+        if RunDirectory.open(run_path).runners():  # a checkpoint exists: resumed on the run's own runner
             budget = max_seconds_of(run)
             left = [] if not budget else ["--set", f"run.max_seconds={remaining_budget(run_path, budget)!r}"]
-            return [sys.executable, "-m", launcher, "--resume", str(run_path), *left, "--quiet", *runner_flags]
+            return [sys.executable, "-m", "cmcl", "resume", str(run_path), *left, "--runner", run.mode, "--quiet",
+                    *runner_flags]
     sets = [f"run.seed={run.seed}", f"run.dir={run_path}", f"run.episodes={run.budget}"]
-    if run.mode == "inline":  # the inline runner's cadences (the service has its own: cmcl/config/runners.py)
-        sets += [f"run.log_every={LOG_EVERY}", f"run.checkpoint_every={CHECKPOINT_EVERY}"]
     if run.prey_algorithm is not None:
         sets.append(f"teams.prey.algorithm={run.prey_algorithm}")
     if run.stop_coverage is not None:
@@ -99,7 +96,8 @@ def command(run: Run, run_path: Path) -> list[str]:
         budgets = ["--stage-episodes", *map(str, run.stage_episodes)] if run.stage_episodes else []
         return [sys.executable, "-m", "cmcl", "stages", "--runner", run.mode, "--agents", *map(str, run.stages),
                 *budgets, *config, *set_flags, "--quiet", *runner_flags]
-    return [sys.executable, "-m", launcher, *config, *set_flags, "--overwrite", "--quiet", *runner_flags]
+    return [sys.executable, "-m", "cmcl", "train", "--runner", run.mode, *config, *set_flags, "--overwrite",
+            "--quiet", *runner_flags]
 
 
 def max_seconds_of(run: Run) -> float:

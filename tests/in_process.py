@@ -29,3 +29,39 @@ def roles(cfg):
     k = cfg["teachers"]["num_folds"]
     teachers = [TeacherWorker(cfg, [i], i) for i in range(k)]
     return ReplayServer(cfg), Learner(cfg, 0), RolloutWorker(cfg, 0, 0), teachers, ICMWorker(cfg, 0)
+
+
+def train_tiny(config, directory, episodes=None, resume=False, **run):
+    """Train `config` (a cmcl.config.Config) with the inline runner in this process (services.launch.train_in_process)
+    into `directory`: a new run, or with `resume` the run already there, continued to `episodes` (its stored
+    config's otherwise). `run`: further run-section values of a new run. Returns (summary, roles)."""
+    from cmcl.config import config_from_dict
+    from cmcl.io.rundir import RunDirectory
+    from services.launch import train_in_process
+
+    if resume:
+        run_dir = RunDirectory.open(directory)
+        config = run_dir.config(() if episodes is None else (f"run.episodes={episodes}",))
+        return train_in_process(config, run_dir, resume=True)
+    data = config.to_dict()
+    data["run"] = {**data["run"], **({} if episodes is None else {"episodes": episodes}), **run,
+                   "dir": str(directory)}
+    config = config_from_dict(data)
+    return train_in_process(config, RunDirectory.create(config.run.dir, config))
+
+
+def trained_inline_run(config):
+    """A finished run of `config` in its run.dir, as `python -m cmcl train --runner inline --quiet --no-eval` leaves
+    it (the service's checkpoint files, summary.json naming the inline runner), trained in this process; its config
+    file is written beside the run directory (<run.dir>.toml). Returns the RunDirectory."""
+    from pathlib import Path
+
+    from cmcl.__main__ import main
+    from cmcl.config import dump_toml
+    from cmcl.io.rundir import RunDirectory
+
+    path = Path(config.run.dir)
+    file = path.with_name(f"{path.name}.toml")
+    file.write_text(dump_toml(config))
+    assert main(["train", "--runner", "inline", "--config", str(file), "--quiet", "--no-eval"]) == 0
+    return RunDirectory.open(path)

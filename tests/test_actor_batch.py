@@ -3,29 +3,27 @@ trains on a minibatch drawn uniformly from the buffer, apart from the critic's p
 default) on the critic's, exactly as before. The agreement of the two runners is in tests/test_agreement.py."""
 
 import copy
-import functools
 
 import numpy as np
 import pytest
 import torch
 
 from cmcl.config import ConfigError, TeamConfig, config_from_dict, load_config
-from cmcl.io.rundir import RunDirectory
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.network_steps import choose_minibatch
-from cmcl.loop import InlineLoop
 from cmcl.messages import ACTOR_PREFIX
 from cmcl.replay.agent_padding import pad_rows
 from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.buffer_steps import sample_owner_batches
 from cmcl.replay.registry import ALGORITHMS, REGISTRY
 from cmcl.system import layout_of
+from tests.in_process import train_tiny
 from tests.test_agent_padding import BIG, SMALL, small_rows, twin_learners
-from tests.test_loop import INLINE_SECTIONS
 from tests.test_maddpg import joint_rows, owner_batch, params, same
 from tests.test_replay_storage import N, filled
 
 torch.set_num_threads(1)
+UPDATE_EVERY_STEP = {"maddpg": {"update_every": 1}}  # one update per env step once warm
 HOT = np.array([3, 50, 200])  # the rows the rule's priorities put (nearly) all the mass on
 
 
@@ -152,25 +150,6 @@ def test_the_critic_steps_on_its_batch_and_the_actor_on_its_own():
         copy.deepcopy(base).update({**batch, "actor_obs": other["obs"][:, :, :2], "actor_act": other["act"]})
 
 
-@pytest.fixture
-def tiny_config(tiny_config):
-    return functools.partial(tiny_config, sections=INLINE_SECTIONS)
-
-
-def inline_run(config, episodes, directory, resume_from=None):
-    data = config.to_dict()
-    data["run"] = {**data["run"], "episodes": episodes, "dir": str(directory)}
-    config = config_from_dict(data)
-    if resume_from is None:
-        loop = InlineLoop(config, RunDirectory.create(config.run.dir, config), progress=None)
-    else:
-        run_dir = RunDirectory.open(resume_from)
-        loop = InlineLoop(run_dir.config((f"run.episodes={episodes}",)), run_dir, progress=None)
-        loop.restore(run_dir.latest_checkpoint())
-    loop.run()
-    return loop
-
-
 def with_actor_batch(config, value):
     data = config.to_dict()
     for team in data["teams"].values():
@@ -180,8 +159,8 @@ def with_actor_batch(config, value):
     return config_from_dict(data)
 
 
-def weights(loop):
-    return {part: copy.deepcopy(getattr(loop.maddpg, part).state_dict()) for part in ("actor", "critic")}
+def weights(roles):
+    return {part: copy.deepcopy(getattr(roles.learner.maddpg, part).state_dict()) for part in ("actor", "critic")}
 
 
 def assert_same_weights(a, b):
@@ -190,23 +169,28 @@ def assert_same_weights(a, b):
             torch.testing.assert_close(b[part][key], value, rtol=0, atol=0)
 
 
-def test_an_inline_run_with_uniform_actor_rows_resumes_exactly(tmp_path, tiny_config):
-    config = with_actor_batch(tiny_config("per", checkpoint_every=4), "uniform")
+def counters(summary):
+    return {k: summary[k] for k in ("episodes", "env_steps", "updates")}
+
+
+def test_an_inline_run_with_uniform_actor_rows_resumes_and_trains_other_actors_than_the_rule(tmp_path, tiny_config):
+    config = with_actor_batch(tiny_config("per", service=True, sections=UPDATE_EVERY_STEP), "uniform")
     assert all(layout_of(config).uniform_actor)
-    full = inline_run(config, 8, tmp_path / "full")
-    inline_run(config, 4, tmp_path / "split")
-    resumed = inline_run(config, 8, tmp_path / "split", resume_from=tmp_path / "split")
-    assert resumed.counters == full.counters and full.counters["updates"] > 0
-    assert_same_weights(weights(full), weights(resumed))
-    rule = inline_run(with_actor_batch(config, "rule"), 8, tmp_path / "rule")
-    assert rule.counters == full.counters
+    full, full_roles = train_tiny(config, tmp_path / "full", 8)
+    split, _ = train_tiny(config, tmp_path / "split", 4)
+    resumed, resumed_roles = train_tiny(config, tmp_path / "split", 8, resume=True)
+    # the service's checkpoints restart the worlds (not bit-exact): the resumed run goes on from the first part
+    assert counters(resumed) == counters(full) and split["updates"] < resumed["updates"] and full["updates"] > 0
+    assert resumed_roles.learner.maddpg.updates == resumed["updates"]
+    rule, rule_roles = train_tiny(with_actor_batch(config, "rule"), tmp_path / "rule", 8)
+    assert counters(rule) == counters(full)
     with pytest.raises(AssertionError):  # the actor trained on other rows
-        assert_same_weights(weights(full), weights(rule))
+        assert_same_weights(weights(full_roles), weights(rule_roles))
 
 
 def test_uniform_actor_rows_under_maddpg_train_exactly_as_the_rule(tmp_path, tiny_config):
-    config = tiny_config("maddpg")
-    default = inline_run(config, 6, tmp_path / "default")
-    uniform = inline_run(with_actor_batch(config, "uniform"), 6, tmp_path / "uniform")
-    assert not any(uniform.layout.uniform_actor) and uniform.layout.uniform_actor
+    config = tiny_config("maddpg", service=True, sections=UPDATE_EVERY_STEP)
+    _, default = train_tiny(config, tmp_path / "default", 6)
+    _, uniform = train_tiny(with_actor_batch(config, "uniform"), tmp_path / "uniform", 6)
+    assert not any(uniform.learner.layout.uniform_actor) and uniform.learner.layout.uniform_actor
     assert_same_weights(weights(default), weights(uniform))

@@ -45,7 +45,7 @@ def test_networks_that_grow_with_the_agent_count_are_refused_before_anything_tra
 
 def test_a_rerun_keeps_finished_stages_and_resumes_a_stopped_one(tmp_path, tiny_config):
     """A stage folder with a finished summary is kept, one with a checkpoint is resumed, one without starts over."""
-    from cmcl.loop.inline import InlineLoop
+    from services.launch import train_in_process
 
     config = tiny_config("maddpg", dir=str(tmp_path / "cur"), episodes=4)
     stages = plan_stages(config, [2, 3], None)
@@ -55,7 +55,7 @@ def test_a_rerun_keeps_finished_stages_and_resumes_a_stopped_one(tmp_path, tiny_
     assert fresh.overrides[0] == "run.seed=3" and "env.num_agents=2" in fresh.overrides
     staged = tiny_config("maddpg", dir=str(stages[0].run_dir), episodes=4)
     run_dir = RunDirectory.create(staged.run.dir, staged)
-    InlineLoop(staged, run_dir, progress=None).run()
+    train_in_process(staged, run_dir)  # the inline runner: leaves the service's checkpoints
     resumed = stage_request(base, stages[0])
     assert resumed.resume_dir == str(stages[0].run_dir) and resumed.overrides == ()
     assert not stage_finished(stages[0])

@@ -224,10 +224,10 @@ def test_padding_carries_tagged_rows_to_more_agents():
 
 def test_a_short_tagged_training_run_and_its_evaluation(tmp_path, capsys):
     from cmcl.evaluate import main as evaluate
-    from cmcl.loop.__main__ import main as train
+    from cmcl.__main__ import main as cmcl
 
     run = tmp_path / "run"
-    assert train(["--config", "configs/smoke.toml", "--set", f"run.dir={run}", "--set", "run.episodes=8",
+    assert cmcl(["train", "--runner", "inline", "--config", "configs/smoke.toml", "--set", f"run.dir={run}", "--set", "run.episodes=8",
                   "--set", "env.num_agents=3", "--set", "env.agent_tags=true", "--set", "maddpg.networks=entity",
                   "--set", "maddpg.warmup=64", "--set", "maddpg.batch_size=16", "--quiet"]) == 0
     capsys.readouterr()

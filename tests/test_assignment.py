@@ -204,17 +204,17 @@ def test_the_setting_reaches_the_learner_of_either_runner():
 
 
 def test_both_runners_report_the_terms_stats(tmp_path, tiny_config):
-    from cmcl.io.rundir import RunDirectory
-    from cmcl.loop import InlineLoop
     from services.learner import last_losses
+    from tests.in_process import train_tiny
 
-    config = tiny_config("maddpg", dir=str(tmp_path / "run"), episodes=6,
+    config = tiny_config("maddpg", episodes=6, service=True,
                          sections={"maddpg": {"networks": "entity", "assignment_loss": 1.0}})
-    run_dir = RunDirectory.create(config.run.dir, config)
-    InlineLoop(config, run_dir, progress=None).run()
-    row = list(run_dir.metrics.rows("progress"))[-1]  # the inline loop's metrics row, per agent
+    summary, roles = train_tiny(config, tmp_path / "run")  # the inline runner: the service's learner in-process
     n = config.env.spread.num_agents
-    assert len(row["assignment_loss"]) == n and len(row["assignment_accuracy"]) == n
+    losses = roles.learner.report().learner.losses  # the learner's report, per agent (as on the Ray service)
+    assert len(losses) == n and all({"assignment", "assignment_accuracy"} <= set(kinds) for kinds in losses.values())
+    served = [line for line in summary["metrics_text"].splitlines() if 'kind="assignment"' in line]
+    assert len(served) == n  # and its metrics, as the service serves them
     stats = {"critic_loss": np.ones(2), "actor_loss": np.ones(2), "critic_loss_normalised": np.ones(2),
              "assignment_loss": np.array([1.2, 0.0]), "assignment_accuracy": np.array([0.5, np.nan])}
     assert last_losses(stats, 0) == {"critic": 1.0, "actor": 1.0, "critic_normalised": 1.0, "assignment": 1.2,

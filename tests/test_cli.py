@@ -1,12 +1,13 @@
 """One entry point, `python -m cmcl train | resume | evaluate`, its aliases and its refusals.
 
-- The three training commands (`python -m cmcl train|resume`, `python -m cmcl.loop`, `python -m services.launch`)
-  have the same flags and turn the same arguments into the same `RunRequest`; the two evaluate commands likewise.
+- The training commands (`python -m cmcl train|resume`, its alias `python -m services.launch`) have the same flags
+  and turn the same arguments into the same `RunRequest`; the two evaluate commands likewise.
 - Each verb runs as a user runs it, a subprocess, on the inline runner with the tiny config; `resume` finds the
-  runner from the run directory itself.
-- Bad input (an unknown verb or runner, a folder that is not a run, a service flag for the inline runner, the other
-  runner's run, a config key that moved) exits with 2 and a message naming the value, and leaves what is stored
-  untouched; a run stored before a key moved still resumes and evaluates.
+  runner from the run directory itself, and either runner resumes a run of either (one checkpoint format).
+- Bad input (an unknown verb or runner, a folder that is not a run, a service flag for the inline runner, a run of
+  the inline runner's own old checkpoint format, a config key that moved) exits with 2 and a message naming the
+  value, and leaves what is stored untouched; a run stored before a key moved or was removed still resumes and
+  evaluates.
 """
 
 from __future__ import annotations
@@ -28,11 +29,11 @@ from cmcl.evaluate import build_parser as evaluate_alias_parser
 from cmcl.io.resume_hint import python_command
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import LOCK_NAME
-from cmcl.loop import InlineLoop
-from cmcl.loop.__main__ import build_parser as loop_alias_parser
-from cmcl.run_flags import RunRequest, request_from
+from cmcl.io.verified import VerifiedFile
+from cmcl.run_flags import LAST_OWN_INLINE_FORMAT, RunRequest, open_run, request_from
 from services.launch import build_parser as launch_alias_parser
 from tests.evaluation_output import evaluation_json
+from tests.in_process import trained_inline_run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -68,11 +69,24 @@ def run_cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
 
 
 def trained_run(tiny_config, path: Path, episodes: int = 4, algorithm: str = "maddpg") -> RunDirectory:
-    """A finished tiny inline run in `path`, trained in this process, checkpointed at its last episode."""
-    config = tiny_config(algorithm, dir=str(path), episodes=episodes, checkpoint_every=episodes, log_every=episodes)
-    run_dir = RunDirectory.create(path, config)
-    InlineLoop(config, run_dir, progress=None).run()
-    return run_dir
+    """A finished tiny inline run in `path`, trained in this process, every role checkpointed at its end."""
+    return trained_inline_run(tiny_config(algorithm, dir=str(path), episodes=episodes))
+
+
+def same_tensors(a, b) -> bool:
+    """Whether two nested state dicts hold the same keys and equal tensors (and equal other values)."""
+    import torch
+
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(same_tensors(a[k], b[k]) for k in a)
+    if isinstance(a, torch.Tensor):
+        return isinstance(b, torch.Tensor) and torch.equal(a, b)
+    return a == b
+
+
+def learner_generations(run_dir: RunDirectory) -> list[int]:
+    """The generations of the learner's checkpoint (the run's policy) on disk, newest first."""
+    return VerifiedFile(run_dir.service_dir / "learner.pt").generations()
 
 
 def stored_files(path: Path) -> dict[Path, bytes]:
@@ -82,7 +96,7 @@ def stored_files(path: Path) -> dict[Path, bytes]:
 
 def test_the_training_commands_have_one_set_of_flags_and_make_the_same_request():
     train, resume = verbs()["train"], verbs()["resume"]
-    aliases = {"cmcl.loop": loop_alias_parser(), "services.launch": launch_alias_parser()}
+    aliases = {"services.launch": launch_alias_parser()}
     for name, alias in aliases.items():
         assert options(alias) == options(train) - {"--runner"} | {"--resume", "--more-episodes"}, name
     assert options(resume) == options(train) - {"--config", "--overwrite"} | {"--more-episodes"}
@@ -109,7 +123,7 @@ def test_the_evaluate_commands_have_one_set_of_flags():
 
 def test_train_runs_the_inline_runner_to_its_budget(tmp_path, tiny_config_file):
     run_dir = tmp_path / "run"
-    config = tiny_config_file("cmcl", dir=str(run_dir), episodes=8, log_every=4, checkpoint_every=4)
+    config = tiny_config_file("cmcl", dir=str(run_dir), episodes=8)
     trained = run_cli("train", "--runner", "inline", "--config", str(config))
     assert trained.returncode == 0, trained.stdout + trained.stderr
     assert "ep 8/8" in trained.stdout and f"run directory: {run_dir}" in trained.stdout
@@ -120,7 +134,8 @@ def test_train_runs_the_inline_runner_to_its_budget(tmp_path, tiny_config_file):
     assert f"done: 8 episodes, {summary['env_steps']} env steps, {summary['updates']} updates in " in trained.stdout
     assert "held-out evaluation (200 new worlds, no exploration noise): coverage " in trained.stdout
     assert f"gif: {run_dir / 'trained.gif'}" in trained.stdout and (run_dir / "trained.gif").stat().st_size > 0
-    assert RunDirectory.open(run_dir).newest_policy().path.name == "ckpt_00000008.pt"
+    newest = RunDirectory.open(run_dir).newest_policy()
+    assert newest.path == run_dir / "checkpoints" / "service" / "learner-000001.pt" and newest.runner == "service"
     holder = json.loads((run_dir / LOCK_NAME).read_text())
     assert holder["command"].startswith("python -m cmcl train --runner inline"), holder
 
@@ -130,7 +145,8 @@ def test_resume_finds_the_runner_that_wrote_the_run_and_goes_on(tmp_path, tiny_c
     assert runner_of(run_dir) == "inline"
     resumed = run_cli("resume", str(run_dir.path), "--set", "run.episodes=8", "--quiet", "--no-eval")
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
-    assert f"resumed from {run_dir.checkpoints / 'ckpt_00000004.pt'} at episode 4" in resumed.stdout
+    assert f"resuming {run_dir.path} from checkpoints/service/learner-000001.pt (policy version " in resumed.stdout
+    assert "Ray" not in resumed.stdout + resumed.stderr and not (run_dir.path / "ray_shutdown.log").exists()
     assert [r["episodes"] for r in run_dir.rows("episode")] == list(range(1, 9))
     assert run_dir.summary()["runner"] == "inline" and run_dir.summary()["episodes"] == 8
     assert not (run_dir.path / "learning_curve.png").exists(), "--no-eval: no learning curve"
@@ -149,13 +165,13 @@ def test_a_finished_run_is_said_so_on_resume_and_more_episodes_train_it_further(
     reads λ); a multiplicative λ schedule, whose growth follows run.episodes, is refused naming it, the run
     untouched."""
     run_dir = trained_run(tiny_config, tmp_path / "run", algorithm="acl")
-    checkpoints = sorted(run_dir.inline_checkpoints())
+    policy, updates = run_dir.newest_policy().state, run_dir.summary()["updates"]
     again = run_cli("resume", str(run_dir.path), "--quiet", "--no-eval")
     assert again.returncode == 0, again.stdout + again.stderr
     assert "has done all its run.episodes = 4: nothing to train" in again.stderr
     assert f"-m cmcl resume {run_dir.path} --more-episodes N" in again.stderr
     assert [r["episodes"] for r in run_dir.rows("episode")] == [1, 2, 3, 4]
-    assert sorted(run_dir.inline_checkpoints()) == checkpoints == [4]
+    assert run_dir.summary()["updates"] == updates and same_tensors(run_dir.newest_policy().state, policy)
 
     stride = run_dir.config().curriculum_stride()
     more = run_cli("resume", str(run_dir.path), "--more-episodes", "4", "--no-eval")
@@ -164,12 +180,12 @@ def test_a_finished_run_is_said_so_on_resume_and_more_episodes_train_it_further(
     assert [r["episodes"] for r in run_dir.rows("episode")] == list(range(1, 9))
     assert run_dir.summary()["episodes"] == 8
 
-    checkpoints = sorted(run_dir.inline_checkpoints())
+    before = stored_files(run_dir.path)
     assert main(["resume", str(run_dir.path), "--more-episodes", "4", "--set", "curriculum.kind=multiplicative",
                  "--quiet", "--no-eval"]) == 2
     assert "--more-episodes 4: curriculum.kind = 'multiplicative' derives λ's growth from run.episodes" in \
         capsys.readouterr().err
-    assert sorted(run_dir.inline_checkpoints()) == checkpoints and run_dir.summary()["episodes"] == 8
+    assert stored_files(run_dir.path) == before and run_dir.summary()["episodes"] == 8
 
 
 @pytest.mark.parametrize(("request_args", "named"), [
@@ -202,7 +218,7 @@ def test_evaluate_finds_the_newest_policy(tmp_path, tiny_config):
     assert evaluated.returncode == 0, evaluated.stderr
     result = evaluation_json(evaluated.stdout)
     assert result["policy"] == "trained" and result["episodes"] == 8
-    assert Path(result["checkpoint"]).name == "ckpt_00000004.pt"
+    assert Path(result["checkpoint"]) == run_dir.service_dir / f"learner-{learner_generations(run_dir)[0]:06d}.pt"
 
 
 @pytest.mark.parametrize(("argv", "named"), [
@@ -230,12 +246,38 @@ def test_resume_of_a_folder_that_is_not_a_run_names_it_and_leaves_it_alone(tmp_p
     assert (folder / "results.txt").read_text() == "keep me"
 
 
-def test_the_other_runners_run_and_a_service_flag_for_the_inline_runner_are_refused(tmp_path, tiny_config, capsys):
+def test_either_runner_resumes_a_run_of_either(tmp_path, tiny_config, capsys):
+    """One checkpoint format: the service takes the inline runner's run (its resume is opened without a word, here
+    without starting Ray), and the inline runner goes on with a run the service wrote (its summary names the
+    service, so a plain `resume` would start the service: --runner inline)."""
     run_dir = trained_run(tiny_config, tmp_path / "run")
+    config, opened, lock = open_run(RunRequest(runner="service", resume_dir=str(run_dir.path), quiet=True))
+    lock.release()
+    assert opened.path == run_dir.path and config.run.episodes == 4 and capsys.readouterr().err == ""
+    run_dir.write_summary({**run_dir.summary(), "runner": "service"})
+    assert runner_of(run_dir) == "service"
+    assert main(["resume", str(run_dir.path), "--runner", "inline", "--more-episodes", "4", "--quiet",
+                 "--no-eval"]) == 0, capsys.readouterr().err
+    assert [r["episodes"] for r in run_dir.rows("episode")] == list(range(1, 9))
+    assert run_dir.summary()["runner"] == "inline" and learner_generations(run_dir)[0] == 2
+
+
+def test_a_run_of_the_old_inline_format_and_a_service_flag_for_the_inline_runner_are_refused(tmp_path, tiny_config,
+                                                                                              capsys):
+    """A run directory holding checkpoints of the inline runner's own format (checkpoints/ckpt_*.pt, before one
+    runner): refused in one line naming the last commit that reads them, on either runner, left untouched."""
+    path = tmp_path / "run"
+    run_dir = RunDirectory.create(path, tiny_config("maddpg", dir=str(path), episodes=4))
+    (run_dir.checkpoints / "ckpt_00000004.pt").write_bytes(b"an old inline checkpoint")
+    run_dir.log({"kind": "episode", "episodes": 4})
     before = stored_files(run_dir.path)
-    assert main(["resume", str(run_dir.path), "--runner", "service"]) == 2
-    assert f"{run_dir.path} was written by the inline runner; resume it with {python_command()} -m cmcl resume " \
-           f"{run_dir.path}" in capsys.readouterr().err
+    assert runner_of(run_dir) == "inline"
+    for runner in ([], ["--runner", "inline"], ["--runner", "service"]):
+        assert main(["resume", str(path), *runner, "--quiet", "--no-eval"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"error: {path} holds checkpoints of the inline runner's own format ") and \
+            f"commit {LAST_OWN_INLINE_FORMAT}" in err and err.count("\n") == 1, err
+    assert LAST_OWN_INLINE_FORMAT == "8dbaee8"
     assert main(["train", "--runner", "inline", "--address", "auto", "--set", f"run.dir={tmp_path / 'new'}"]) == 2
     assert "--address auto is a flag of the service runner" in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
@@ -281,8 +323,11 @@ def test_a_moved_key_is_refused_in_one_line_and_nothing_is_made(tmp_path, capsys
 
 def old_layout(text: str) -> str:
     """A config.toml as the code before [teams.<team>.priority] wrote it: the team's α and floor in its own table,
-    the other priority settings global (every team of these tests has the same)."""
+    the other priority settings global (every team of these tests has the same); and the keys removed since
+    (cmcl.config.moved.REMOVED) at their defaults of then."""
     data = tomllib.loads(text)
+    data["run"].update(log_every=10, checkpoint_every=500)
+    data["teachers"]["rescore_rows_per_update"] = 128
     for team in data["teams"].values():
         priority = team.pop("priority")
         team.update({k: priority.pop(k) for k in ("alpha", "uniform_floor") if k in priority})
@@ -297,17 +342,17 @@ def old_layout(text: str) -> str:
 
 
 def test_a_run_written_before_the_priority_tables_resumes_and_evaluates(tmp_path, tiny_config, capsys):
-    """A run directory whose config.toml has the old keys (teams.agent.alpha, teachers.difficulty_norm, ...) resumes
-    with the values it trained with (its replay snapshot's α must match the buffer's) and evaluates; its stored
-    config.toml is left as it is."""
+    """A run directory whose config.toml has the old keys (teams.agent.alpha, teachers.difficulty_norm, ...,
+    run.log_every) resumes with the values it trained with (its replay snapshot's α must match the buffer's) and
+    evaluates; its stored config.toml is left as it is."""
     path = tmp_path / "run"
-    data = tiny_config("per", dir=str(path), episodes=4, checkpoint_every=4, log_every=4).to_dict()
+    data = tiny_config("per", dir=str(path), episodes=4).to_dict()
     data["teams"]["agent"]["priority"].update(alpha=0.7, uniform_floor=0.1, difficulty_norm="max")
     config = config_from_dict(data)
-    run_dir = RunDirectory.create(path, config)
-    InlineLoop(config, run_dir, progress=None).run()
+    run_dir = trained_inline_run(config)
     stored = old_layout(run_dir.config_path.read_text())
     assert "[teams.agent.priority]" not in stored and 'difficulty_norm = "max"' in stored
+    assert "log_every = 10" in stored and "rescore_rows_per_update = 128" in stored
     run_dir.config_path.write_text(stored)
     assert run_dir.config() == config
     resumed = main(["resume", str(path), "--more-episodes", "4", "--quiet", "--no-eval"])

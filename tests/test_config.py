@@ -1,5 +1,6 @@
 """Typed configuration: presets, TOML loading, overrides and validation errors that name the field."""
 
+import math
 import os
 import tomllib
 from pathlib import Path
@@ -118,9 +119,15 @@ def test_paper_presets_keep_the_papers_schedule_and_nothing_else():
         ours, theirs = load_config(CONFIGS / path.name).to_dict(), load_config(path).to_dict()
         assert theirs["maddpg"]["update_every"] == 1 and theirs["teachers"]["steps_per_update"] == 1.0
         assert theirs["icm"]["steps_per_update"] == 1.0 and theirs["teachers"]["fit_batch"] == "per_agent"
-        for section in ("maddpg", "teachers", "icm"):
-            for key in ("update_every", "steps_per_update", "rescore_rows_per_update", "fit_batch"):
-                ours[section].pop(key, None), theirs[section].pop(key, None)
+        # the whole buffer rescored every 30 updates (§3.8): a teacher call comes every fit_steps_per_call /
+        # steps_per_update updates, and rescores that many updates' share of the buffer
+        service, updates_per_teacher_call = theirs["service"], theirs["service"]["fit_steps_per_call"] / 1.0
+        assert service["score_rows_per_call"] == math.ceil(theirs["replay"]["capacity"] / 30) * \
+            updates_per_teacher_call
+        for section, keys in (("maddpg", ("update_every",)), ("teachers", ("steps_per_update", "fit_batch")),
+                              ("icm", ("steps_per_update",)), ("service", ("score_rows_per_call",))):
+            for key in keys:
+                ours[section].pop(key), theirs[section].pop(key)
         ours["run"].pop("dir"), theirs["run"].pop("dir")
         assert ours == theirs, path
 
@@ -152,8 +159,11 @@ def test_a_moved_key_is_refused_naming_the_key_that_replaced_it(old, new, tmp_pa
 def test_a_stored_config_from_before_the_priority_tables_is_read_with_its_keys_moved():
     """A run directory's config.toml written before [teams.<team>.priority] (tests/fixtures): read as a stored
     config (resume, evaluate), every old value lands in the new table of each team it applied to; the team's own α
-    wins over the global replay.alpha, as it did. Read as user input, it is refused."""
+    wins over the global replay.alpha, as it did; the keys removed since (run.log_every, run.checkpoint_every,
+    teachers.rescore_rows_per_update: cmcl.config.moved.REMOVED) are dropped. Read as user input, it is refused."""
     stored = FIXTURES / "config_before_priority.toml"
+    old = tomllib.loads(stored.read_text())
+    assert {"log_every", "checkpoint_every"} <= set(old["run"]) and "rescore_rows_per_update" in old["teachers"]
     config = load_stored_config(stored)
     predator, prey = config.teams["predator"].priority, config.teams["prey"].priority
     for team in (predator, prey):
@@ -164,10 +174,13 @@ def test_a_stored_config_from_before_the_priority_tables_is_read_with_its_keys_m
     assert load_stored_config(stored, ["teams.prey.priority.alpha=0.5"]).teams["prey"].priority.alpha == 0.5
     with pytest.raises(ConfigError, match=r"^teachers\.difficulty_norm moved to"):
         load_stored_config(stored, ["teachers.difficulty_norm=rank"])  # an override is the user's: the new keys
-    with pytest.raises(ConfigError, match="moved to"):
-        load_config(stored)
+    with pytest.raises(ConfigError, match=r"^run\.log_every was removed \(both runners log a progress row every "):
+        load_config(stored)  # the first refusal of user input: a removed key, before the moved ones
     again = tomllib.loads(dump_toml(config))  # written back, it has only the new keys
     assert "alpha" not in again["replay"] and "difficulty_norm" not in again["teachers"]
+    assert not {"log_every", "checkpoint_every"} & set(again["run"]) and "rescore_rows_per_update" not in \
+        again["teachers"]
+    assert config.service.checkpoint_every_s == 60.0 and config.service.score_rows_per_call == 1024  # kept
     assert config_from_dict(again) == config and load_stored_config(stored) == config
 
 

@@ -287,17 +287,18 @@ def test_it_trains_inline_and_evaluation_rebuilds_the_same_model_while_the_other
     from cmcl.evaluate import load_policy
     from cmcl.evaluate import main as evaluate
     from cmcl.io.rundir import RunDirectory
-    from cmcl.loop import InlineLoop
+    from services.launch import train_in_process
     from cmcl.run_flags import check_warm_start
+    from services.learner import Learner
     from tests.evaluation_output import evaluation_json
 
     # two rounds of the 16 worlds, two updates in the second (tests/test_entity_nearest.py's smoke)
     run = tmp_path / "run"
     config = load_config(N8, [HOLDER, f"run.dir={run}", "run.init_from=", "run.episodes=32", "maddpg.warmup=480",
                               "maddpg.update_every=240", "run.max_seconds=0"])
-    loop = InlineLoop(config, RunDirectory.create(run, config), progress=None)
-    loop.run()
-    assert loop.maddpg.updates > 0 and loop.maddpg.actor.holder and loop.maddpg.target_critic.holder
+    _, roles = train_in_process(config, RunDirectory.create(run, config))  # the inline runner
+    maddpg = roles.learner.maddpg
+    assert maddpg.updates > 0 and maddpg.actor.holder and maddpg.target_critic.holder
     policy = RunDirectory.open(run).newest_policy()
     assert policy.state["maddpg"]["entity_holder"] is True
     assert "entity_holder = true" in (run / "config.toml").read_text()
@@ -307,13 +308,13 @@ def test_it_trains_inline_and_evaluation_rebuilds_the_same_model_while_the_other
     assert evaluation_json(capsys.readouterr().out)["policy"] == "trained"
     rebuilt = load_policy(config, policy)
     obs = np.random.default_rng(0).normal(scale=0.7, size=(8, 8, rebuilt.obs_dim)).astype(np.float32)
-    np.testing.assert_array_equal(rebuilt.act(obs, 0.0), loop.maddpg.act(obs, 0.0))
+    np.testing.assert_array_equal(rebuilt.act(obs, 0.0), maddpg.act(obs, 0.0))
 
     off = load_config(N8, [OFF])
     with pytest.raises(ValueError, match=f"checkpoint maddpg was trained with {REFUSED}"):  # evaluation
         load_policy(off, policy)
     with pytest.raises(ValueError, match=f"checkpoint maddpg was trained with {REFUSED}"):  # a resume's restore
-        InlineLoop(off, None, progress=None).restore(policy.path)
+        Learner(off, 0, str(RunDirectory.open(run).service_paths()["learner"]))  # the learner role restores it
     check_warm_start(load_config(N8, [HOLDER, f"run.init_from={run}"]))  # the same value: accepted
     with pytest.raises(ConfigError, match=f"run.init_from=.*: maddpg was trained with {REFUSED}") as err:
         check_warm_start(load_config(N8, [OFF, f"run.init_from={run}"]))

@@ -83,16 +83,16 @@ def test_it_trains_inline_and_evaluation_and_warm_starts_rebuild_the_same_model(
     from cmcl.evaluate import load_policy
     from cmcl.evaluate import main as evaluate
     from cmcl.io.rundir import RunDirectory
-    from cmcl.loop import InlineLoop
+    from services.launch import train_in_process
     from cmcl.run_flags import check_warm_start
 
     # two rounds of the 16 worlds, two updates in the second (tests/test_scale_presets.py's smoke, k = 3)
     run = tmp_path / "run"
     config = load_config(N8, [NEAREST, f"run.dir={run}", "run.init_from=", "run.episodes=32", "maddpg.warmup=480",
                               "maddpg.update_every=240", "run.max_seconds=0"])
-    loop = InlineLoop(config, RunDirectory.create(run, config), progress=None)
-    loop.run()
-    assert loop.maddpg.updates > 0 and loop.maddpg.actor.nearest == 3
+    _, roles = train_in_process(config, RunDirectory.create(run, config))  # the inline runner
+    maddpg = roles.learner.maddpg
+    assert maddpg.updates > 0 and maddpg.actor.nearest == 3
     policy = RunDirectory.open(run).newest_policy()
     assert policy.state["maddpg"]["entity_nearest"] == 3
     assert "entity_nearest = 3" in (run / "config.toml").read_text()

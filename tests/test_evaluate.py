@@ -40,16 +40,17 @@ def test_cli_on_a_folder_without_a_run(tmp_path, capsys):
 
 
 def test_cli_evaluates_a_trained_smoke_run(tmp_path, capsys):
-    from cmcl.loop.__main__ import main as train
+    from cmcl.__main__ import main as cmcl
 
     run = tmp_path / "run"
-    assert train(["--config", "configs/smoke.toml", "--set", f"run.dir={run}", "--set", "run.episodes=8",
-                  "--set", "maddpg.warmup=64", "--set", "maddpg.batch_size=16", "--quiet"]) == 0
+    assert cmcl(["train", "--runner", "inline", "--config", "configs/smoke.toml", "--set", f"run.dir={run}",
+                 "--set", "run.episodes=8", "--set", "maddpg.warmup=64", "--set", "maddpg.batch_size=16",
+                 "--quiet"]) == 0
     capsys.readouterr()
     assert main([str(run), "--episodes", "8", "--gif", str(tmp_path / "e.gif")]) == 0
     text = capsys.readouterr().out
     result = json.loads(text[: text.index("gif:")])
-    assert result["policy"] == "trained" and result["checkpoint"].endswith("ckpt_00000008.pt")
+    assert result["policy"] == "trained" and result["checkpoint"].endswith("checkpoints/service/learner-000001.pt")
     assert (tmp_path / "e.gif").stat().st_size > 0
 
 

@@ -164,19 +164,19 @@ def test_it_trains_inline_and_evaluation_rebuilds_the_rule(tmp_path):
     from cmcl.config import load_config
     from cmcl.evaluate import load_policy
     from cmcl.io.rundir import RunDirectory
-    from cmcl.loop import InlineLoop
+    from services.launch import train_in_process
 
     run = tmp_path / "run"
     config = load_config(N8, [SEATED, f"run.dir={run}", "run.init_from=", "run.episodes=32", "maddpg.warmup=480",
                               "maddpg.update_every=240", "run.max_seconds=0"])
-    loop = InlineLoop(config, RunDirectory.create(run, config), progress=None)
-    loop.run()
-    assert loop.maddpg.updates > 0 and loop.maddpg.actor.holder_rule == "seated"
+    _, roles = train_in_process(config, RunDirectory.create(run, config))  # the inline runner
+    maddpg = roles.learner.maddpg
+    assert maddpg.updates > 0 and maddpg.actor.holder_rule == "seated"
     policy = RunDirectory.open(run).newest_policy()
     assert policy.state["maddpg"]["holder_rule"] == "seated"
     rebuilt = load_policy(RunDirectory.open(run).config(), policy)
     obs = np.random.default_rng(0).uniform(-0.5, 0.5, size=(8, 8, rebuilt.obs_dim)).astype(np.float32)
-    np.testing.assert_array_equal(rebuilt.act(obs, 0.0), loop.maddpg.act(obs, 0.0))
+    np.testing.assert_array_equal(rebuilt.act(obs, 0.0), maddpg.act(obs, 0.0))
     with pytest.raises(ValueError, match="trained with maddpg.holder_rule = 'seated'"):
         load_policy(load_config(N8), policy)
 

@@ -34,10 +34,10 @@ def test_replay_stage_and_batched_envs_never_load_torch():
 
 
 def test_the_training_commands_load_no_torch_before_the_run_directory_is_taken():
-    """`python -m cmcl train`, `python -m cmcl.loop` and `python -m services.launch` import their runner, then take
-    the run directory's lock: a second writer on a run in use is refused without first loading torch (~4 s of a
-    2-core machine's time; the training itself imports it once the lock is held)."""
-    code = ("import json, sys, cmcl.__main__, cmcl.loop.__main__, services.launch\n"
+    """`python -m cmcl train` (either runner: both run services.launch) and `python -m services.launch` import their
+    runner, then take the run directory's lock: a second writer on a run in use is refused without first loading
+    torch or Ray (~4 s of a 2-core machine's time; the training itself imports them once the lock is held)."""
+    code = ("import json, sys, cmcl.__main__, services.launch\n"
             "print(json.dumps(sorted({n.split('.')[0] for n in sys.modules} & {'torch', 'ray'})))\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr

@@ -118,8 +118,8 @@ def test_only_the_controls_laber_agents_draw_and_only_from_the_control_generator
 
 def test_the_controls_permutations_are_restored_on_resume_and_drawn_alike_one_minibatch_at_a_time():
     """The buffer's state carries the control's generator: a buffer loaded from it (built with another seed) draws
-    the same next batch, orders included; n minibatches in one call (the replay server) are n calls of one (the
-    inline loop)."""
+    the same next batch, orders included; n minibatches in one call are n calls of one (the replay server's
+    `service.updates_per_call`)."""
     kw = {"capacity": 300, "episodes": 10, "algorithms": "laber", "difficulty_transform": "permuted"}
     rb = filled(control_seed=5, **kw)
     rngs = [np.random.default_rng(i) for i in range(N)]
@@ -148,16 +148,20 @@ def test_the_layout_marks_the_laber_agents_under_the_permuted_control(algorithm,
 
 
 @pytest.mark.parametrize("transform", ["permuted", "none"])
-def test_both_runners_own_learner_steps_draw_the_controls_orders_alike(transform):
-    """The inline loop's learner step and the replay server's `sample` (their own call sites, not this test's) draw
-    one minibatch's orders from their buffers' control generators, alike; neither draws without the control."""
-    from tests.test_agreement import twins
+def test_the_replay_servers_sample_draws_the_controls_orders_only_under_the_control(transform):
+    """The replay server's `sample` (the learner's batches of both runners: the inline runner calls the same server
+    in-process) draws each minibatch's orders from its buffer's control generator; without the control it draws
+    none."""
+    from services.replay_server import ReplayServer
+    from services.rollout import RolloutWorker
+    from tests.in_process import in_process_config
 
-    _, server, loop = twins("laber", transform)
-    before = rng_state(loop.replay.control_rng)
-    assert before == rng_state(server.replay.control_rng)
+    cfg = in_process_config("laber", service={"score_rows_per_call": 360})
+    cfg["teams"]["agent"]["priority"]["difficulty_transform"] = transform
+    server, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
+    for _ in range(3):
+        server.insert(worker.rollout(None)[0])
+    before = rng_state(server.replay.control_rng)
     batch, _ = server.sample(1)
-    loop._learner_step()
-    assert rng_state(loop.replay.control_rng) == rng_state(server.replay.control_rng)
-    assert (rng_state(loop.replay.control_rng) != before) == (transform == "permuted")
+    assert (rng_state(server.replay.control_rng) != before) == (transform == "permuted")
     assert (batch.select_order is None) == (transform == "none")

@@ -1,6 +1,7 @@
 """cmcl.learning_progress: the windowed learning progress of the critic loss, the normalised TD error and the
 coverage, the plateau rule run.stop_progress applies to the one run.progress_signal names, its checkpoint state (and
-an old one's), the learner's normalised TD error, and the inline runner ending a run by it."""
+an old one's), the learner's normalised TD error, and the inline runner (the supervisor in one process) ending a run
+by it."""
 
 from __future__ import annotations
 
@@ -10,12 +11,12 @@ import numpy as np
 import pytest
 import torch
 
+from cmcl.__main__ import main as cmcl
 from cmcl.config import ConfigError
 from cmcl.config.run_and_service import PROGRESS_SIGNALS
 from cmcl.io.rundir import RunDirectory
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learning_progress import SIGNALS, LearningProgress, agent_mean
-from cmcl.loop.__main__ import main
 
 
 def feed(progress: LearningProgress, window_means: list[float], per_window: int = 3) -> None:
@@ -220,15 +221,21 @@ def test_the_learner_reports_the_share_of_its_targets_variance_it_does_not_expla
 
 def test_the_inline_runner_ends_a_run_whose_learning_stopped_progressing(tmp_path, tiny_config_file):
     """Every window's change of each signal is below an enormous threshold: the run ends after patience + 1 windows
-    of values of the signal run.progress_signal names, long before its budget, and says so."""
+    of values of the signal run.progress_signal names, long before its 400-episode budget, and says so. (The learner's
+    signals come once per learner call, service.updates_per_call updates: here a value every other 4-episode
+    window.)"""
     run = tmp_path / "plateau"
     config = str(tiny_config_file("maddpg", dir=str(run), episodes=400))
+
+    def main(argv):
+        return cmcl(["train", "--runner", "inline", *argv])
+
     for signal in SIGNALS:
         assert main(["--config", config, "--no-eval", "--quiet", "--overwrite", "--set", "run.stop_progress=1e9",
                      "--set", "run.progress_window=4", "--set", "run.progress_patience=2",
                      "--set", f"run.progress_signal={signal!r}"]) == 0
         summary = RunDirectory.open(run).summary()
-        assert summary["ended"] == "plateau" and summary["episodes"] < 40, (signal, summary)
+        assert summary["ended"] == "plateau" and summary["episodes"] < 100, (signal, summary["episodes"])
     untouched = tmp_path / "budget"  # the same run without the rule trains its budget
     assert main(["--config", config, "--no-eval", "--quiet", "--set", f"run.dir={untouched}",
                  "--set", "run.episodes=40", "--set", "run.progress_window=4"]) == 0

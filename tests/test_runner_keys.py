@@ -1,11 +1,18 @@
-"""Keys only one runner honours (cmcl/config/runners.py): refused on the other runner's command line in one line
-naming the key, the runner and the value (exit 2, nothing made); a config file may carry the other runner's own
-settings (not read, said in a note), except one that changes what is learned; every shipped preset, the grids'
-commands and the Makefile's run still load on the runners they are run with."""
+"""Which runner honours which key (cmcl/config/runners.py) and the keys removed when the two runners became one
+(cmcl/config/moved.py REMOVED).
+
+Both runners schedule the same roles (services.calls), so every key is read by both but the service's Ray-only ones
+(SERVICE_ONLY: restarts, call timeouts, CPU requests, the metrics endpoint): those are refused on the inline
+runner's command line in one line naming the key, the runner and the value (exit 2, nothing made), and not read
+there from a config file. Every other service.* key (service.updates_per_call, ...) is accepted inline. A removed
+key (run.log_every, run.checkpoint_every, teachers.rescore_rows_per_update) is refused in one line naming what does
+its work now, on both runners, from the command line and from a file. Every shipped preset, the grids' commands and
+the Makefile's run still load on the runners they are run with."""
 
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import re
 from pathlib import Path
 
@@ -13,74 +20,113 @@ import pytest
 
 from cmcl.__main__ import main
 from cmcl.config import Config, ConfigError, apply_overrides, config_from_dict, load_config, load_data
-from cmcl.config.runners import RUNNER_ONLY, check_runner_keys, runner_key
-from cmcl.loop.__main__ import main as loop_main
+from cmcl.config.moved import REMOVED
+from cmcl.config.runners import SERVICE_ONLY, check_runner_keys
+from cmcl.io.rundir import RunDirectory
 from services.launch import main as launch_main
 
 ROOT = Path(__file__).resolve().parents[1]
 PRESETS = sorted((ROOT / "configs").glob("*.toml")) + sorted((ROOT / "configs" / "paper").glob("*.toml"))
-OTHER = {"inline": "service", "service": "inline"}
-# one non-default value of every key of the table (a [service] key stands for its section)
-NON_DEFAULT = {"service.rollout_workers": 2, "service.metrics_port": 0, "run.checkpoint_every": 20,
-               "run.log_every": 8, "teachers.rescore_rows_per_update": 64, "icm.intrinsic_reward_coef": 0.1}
+# one non-default value of every service-only key
+SERVICE_ONLY_VALUES = {"service.max_restarts": 5, "service.call_timeout_s": 30.0, "service.rollout_resource": "gpu",
+                       "service.rollout_cpus": 0.5, "service.learner_cpus": 1.0, "service.teacher_cpus": 0.5,
+                       "service.icm_cpus": 0.5, "service.replay_cpus": 0.5, "service.metrics_port": 0,
+                       "service.metrics_host": "0.0.0.0"}
+# one non-default value of service keys both runners honour
+SHARED_VALUES = {"service.updates_per_call": 4, "service.fit_steps_per_call": 2, "service.score_rows_per_call": 200,
+                 "service.checkpoint_every_s": 5.0, "service.rollout_workers": 2}
+REMOVED_VALUES = {"run.log_every": 8, "run.checkpoint_every": 20, "teachers.rescore_rows_per_update": 64}
 
 
 def check(runner, file_data=None, overrides=()):
-    """The check as `open_run` makes it; returns the notes it made."""
-    notes = []
+    """The check as `open_run` makes it (on the config the file and overrides resolve to)."""
     config = config_from_dict(apply_overrides(file_data or {}, overrides))
-    check_runner_keys(config, runner, file_data, overrides, note=notes.append)
-    return notes
+    check_runner_keys(config, runner, file_data, overrides)
+    return config
 
 
-def test_the_table_names_real_keys_and_every_key_of_the_service_section():
-    sections = {f.name: getattr(Config(), f.name) for f in dataclasses.fields(Config) if f.name != "teams"}
-    for key in RUNNER_ONLY:
-        section, name = key.split(".")
-        assert name == "*" or name in {f.name for f in dataclasses.fields(sections[section])}, key
-    assert all(runner_key(f"service.{f.name}").runner == "service" for f in dataclasses.fields(Config().service))
-    assert runner_key("run.episodes") is None and runner_key("maddpg.update_every") is None
-    assert {runner_key(k).runner for k in NON_DEFAULT} == {"inline", "service"}
-    assert all(runner_key(k) is not None for k in NON_DEFAULT)
-    from services.supervisor import REPORT_EVERY_S  # what the table says the service does instead is what it does
-
-    assert f"every {REPORT_EVERY_S:g} s" in RUNNER_ONLY["run.log_every"].instead
+def override(key, value):
+    return f"{key}={value!r}"
 
 
-@pytest.mark.parametrize("key", sorted(NON_DEFAULT))
-def test_a_set_key_the_runner_ignores_is_refused_naming_key_runner_and_value(key):
-    honoured = runner_key(key).runner
-    override = f"{key}={NON_DEFAULT[key]}"
+def default_of(key):
+    section, name = key.split(".")
+    return getattr(getattr(Config(), section), name)
+
+
+def test_the_service_only_keys_are_real_service_keys_and_the_others_are_both_runners():
+    service = {f.name for f in dataclasses.fields(Config().service)}
+    assert SERVICE_ONLY == set(SERVICE_ONLY_VALUES)
+    assert {key.split(".")[1] for key in SERVICE_ONLY} < service
+    assert all(key.startswith("service.") for key in SERVICE_ONLY)
+    assert {"updates_per_call", "fit_steps_per_call", "score_rows_per_call", "checkpoint_every_s"} <= \
+        service - {key.split(".")[1] for key in SERVICE_ONLY}
+    assert all(value != default_of(key) for key, value in {**SERVICE_ONLY_VALUES, **SHARED_VALUES}.items())
+
+
+@pytest.mark.parametrize("key", sorted(SERVICE_ONLY_VALUES))
+def test_a_service_only_key_set_for_the_inline_runner_is_refused_naming_key_runner_and_value(key):
+    value = SERVICE_ONLY_VALUES[key]
     with pytest.raises(ConfigError) as err:
-        check(OTHER[honoured], overrides=[override])
+        check("inline", overrides=[override(key, value)])
     text = str(err.value)
-    assert text.startswith(f"{key} is honoured by the {honoured} runner only, not the {OTHER[honoured]} runner (")
-    assert text.endswith(f", got {NON_DEFAULT[key]!r}") and f"--runner {honoured}" in text and "\n" not in text
-    assert check(honoured, overrides=[override]) == []  # the runner that honours it
-    default = getattr(getattr(Config(), key.split(".")[0]), key.split(".")[1])
-    assert check(OTHER[honoured], overrides=[f"{key}={default!r}"]) == []  # its default: nothing asked
+    assert text.startswith(f"{key} is honoured by the service runner only, not the inline runner (")
+    assert text.endswith(f", got {value!r}") and "--runner service" in text and "\n" not in text
+    assert getattr(check("service", overrides=[override(key, value)]).service, key.split(".")[1]) == value
+    check("inline", overrides=[override(key, default_of(key))])  # its default: nothing asked
 
 
-def test_a_config_file_may_carry_the_other_runners_own_settings_but_not_a_learning_change():
-    file = {"service": {"rollout_workers": 2}, "run": {"checkpoint_every": 20, "log_every": 8},
-            "teachers": {"rescore_rows_per_update": 64}}
-    assert check("inline", file) == []  # the [service] section is the service's: not read inline, nothing to say
-    (note,) = check("service", file)
-    assert note.startswith("note: the service runner does not read the config file's run.checkpoint_every = 20 (")
-    assert "run.log_every = 8" in note and "teachers.rescore_rows_per_update = 64" in note
-    assert "service.checkpoint_every_s" in note and "service.score_rows_per_call" in note
-    with pytest.raises(ConfigError, match=r"^icm\.intrinsic_reward_coef is honoured by the inline runner only"):
-        check("service", {"icm": {"intrinsic_reward_coef": 0.1}})
-    assert check("inline", {"icm": {"intrinsic_reward_coef": 0.1}}) == []
-    with pytest.raises(ConfigError, match=r"^run\.log_every is honoured"):  # on the command line it is refused
-        check("service", file, ["run.log_every=4"])
+@pytest.mark.parametrize("key", sorted(SHARED_VALUES))
+def test_the_other_service_keys_are_honoured_inline(key):
+    value = SHARED_VALUES[key]
+    for runner in ("inline", "service"):
+        assert getattr(check(runner, overrides=[override(key, value)]).service, key.split(".")[1]) == value
+
+
+def test_a_config_file_may_carry_the_services_own_settings_for_the_inline_runner():
+    """A file describes a run for either runner (the deploy files' CPU requests): not read inline, not refused."""
+    file = {"service": {"learner_cpus": 1.0, "max_restarts": 5, "updates_per_call": 4}}
+    assert check("inline", file).service.updates_per_call == 4
+    assert check("service", file).service.learner_cpus == 1.0
+    with pytest.raises(ConfigError, match=r"^service\.max_restarts is honoured by the service runner only"):
+        check("inline", file, ["service.max_restarts=7"])  # on the command line it is refused
+
+
+@pytest.mark.parametrize("key", sorted(REMOVED_VALUES))
+def test_a_removed_key_is_refused_in_one_line_naming_what_does_its_work_now(key, tmp_path):
+    value = REMOVED_VALUES[key]
+    section, name = key.split(".")
+    expected = f"{key} was removed ({REMOVED[(section, name)]}); leave it out, got {value!r}"
+    with pytest.raises(ConfigError) as err:
+        load_config(None, [override(key, value)])
+    assert str(err.value) == expected
+    path = tmp_path / "old.toml"
+    path.write_text(f"[{section}]\n{name} = {value}\n")
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    assert str(err.value) == expected
+    assert set(REMOVED) == {tuple(k.split(".")) for k in REMOVED_VALUES}
+
+
+def test_what_the_removed_keys_say_does_their_work_is_what_does_it():
+    from services.supervisor import REPORT_EVERY_S
+
+    assert f"every {REPORT_EVERY_S:g} s" in REMOVED[("run", "log_every")]
+    assert "service.checkpoint_every_s" in REMOVED[("run", "checkpoint_every")]
+    assert "service.score_rows_per_call" in REMOVED[("teachers", "rescore_rows_per_update")]
+    fields = {f"{s}.{f.name}" for s in ("run", "service", "teachers")
+              for f in dataclasses.fields(getattr(Config(), s))}
+    assert {"service.checkpoint_every_s", "service.score_rows_per_call"} <= fields
+    assert not {".".join(k) for k in REMOVED} & fields
 
 
 @pytest.mark.parametrize("path", PRESETS, ids=lambda p: str(p.relative_to(ROOT / "configs")))
 @pytest.mark.parametrize("runner", ["inline", "service"])
 def test_every_shipped_preset_loads_on_both_runners(path, runner):
-    notes = check(runner, load_data(path))
-    assert len(notes) <= 1 and (runner == "service" or not notes)
+    data = load_data(path)
+    assert not any(key in data.get(section, {}) for section, key in REMOVED), path
+    check(runner, data)
+    load_config(path)
 
 
 def test_every_grid_run_passes_the_check_of_its_runner(tmp_path):
@@ -95,10 +141,10 @@ def test_every_grid_run_passes_the_check_of_its_runner(tmp_path):
         if run.source is not None:
             continue
         argv = command(run, tmp_path / run.id)
+        assert argv[1] == "-m" and importlib.util.find_spec(argv[2]) is not None, (run.id, argv[:3])
         sets = [argv[i + 1] for i, a in enumerate(argv) if a == "--set"]
         file = argv[argv.index("--config") + 1] if "--config" in argv else None
-        mode = "inline" if "cmcl.loop" in argv[2] or "--runner" in argv and argv[argv.index("--runner") + 1] == \
-            "inline" else "service"
+        mode = argv[argv.index("--runner") + 1] if "--runner" in argv else "service"
         assert mode == run.mode, run.id
         check(mode, load_data(file), sets)
 
@@ -108,48 +154,48 @@ def test_the_makefiles_run_loads_on_the_service():
     words = recipe.replace("\\\n", " ").split()
     assert words[words.index("--runner") + 1] == "service"
     sets = [words[i + 1] for i, w in enumerate(words) if w == "--set" and "$(" not in words[i + 1]]
-    assert check("service", load_data(ROOT / words[words.index("--config") + 1]), sets) == []
+    path = ROOT / words[words.index("--config") + 1]
+    check("service", load_data(path), sets)
     # the README's "the paper's CMCL is one flag away": make run RUN_ARGS="--set teams.agent.algorithm=cmcl"
     readme = (ROOT / "README.md").read_text()
-    flag = 'make run RUN_ARGS="--set teams.agent.algorithm=cmcl"'
-    assert flag in readme
-    path = ROOT / words[words.index("--config") + 1]
-    assert check("service", load_data(path), [*sets, "teams.agent.algorithm=cmcl"]) == []
+    assert 'make run RUN_ARGS="--set teams.agent.algorithm=cmcl"' in readme
+    check("service", load_data(path), [*sets, "teams.agent.algorithm=cmcl"])
     assert load_config(path, [*sets, "teams.agent.algorithm=cmcl"]).teams["agent"].algorithm == "cmcl"
 
 
-@pytest.mark.parametrize(("argv", "key", "runner"), [
-    (["train", "--runner", "inline", "--set", "service.rollout_workers=2"], "service.rollout_workers", "inline"),
-    (["train", "--set", "run.checkpoint_every=20"], "run.checkpoint_every", "service"),  # the default runner
-    (["train", "--runner", "service", "--set", "teachers.rescore_rows_per_update=64"],
-     "teachers.rescore_rows_per_update", "service"),
+@pytest.mark.parametrize(("argv", "error"), [
+    (["train", "--runner", "inline", "--set", "service.max_restarts=5"],
+     r"service\.max_restarts is honoured by the service runner only, not the inline runner \(.+\); leave it out or "
+     r"train with --runner service, got 5"),
+    (["train", "--set", "run.checkpoint_every=20"],  # the default runner
+     r"run\.checkpoint_every was removed \(.+\); leave it out, got 20"),
+    (["train", "--runner", "inline", "--set", "teachers.rescore_rows_per_update=64"],
+     r"teachers\.rescore_rows_per_update was removed \(.+\); leave it out, got 64"),
 ])
-def test_the_command_line_refuses_in_one_line_before_anything_is_made(argv, key, runner, tmp_path, capsys):
+def test_the_command_line_refuses_in_one_line_before_anything_is_made(argv, error, tmp_path, capsys):
     run = tmp_path / "run"
     assert main([*argv, "--set", f"run.dir={run}"]) == 2
     err = capsys.readouterr().err
-    assert re.fullmatch(rf"error: {re.escape(key)} is honoured by the \w+ runner only, not the {runner} runner "
-                        r"\(.+\); leave it out or train with --runner \w+, got \d+\n", err), err
+    assert re.fullmatch(rf"error: {error}\n", err), err
     assert not run.exists()
 
 
-def test_the_aliases_and_resume_refuse_alike(tmp_path, tiny_config, capsys):
-    from cmcl.io.rundir import RunDirectory
-    from cmcl.loop import InlineLoop
+def test_the_alias_and_resume_refuse_alike_and_a_shared_key_resumes_inline(tmp_path, tiny_config, capsys):
+    from services.launch import train_in_process
 
-    assert loop_main(["--set", "service.updates_per_call=4", "--set", f"run.dir={tmp_path / 'a'}"]) == 2
     assert launch_main(["--set", "run.log_every=4", "--set", f"run.dir={tmp_path / 'b'}"]) == 2
-    err = capsys.readouterr().err.splitlines()
-    assert err[0].startswith("error: service.updates_per_call is honoured by the service runner only, not the inline")
-    assert err[1].startswith("error: run.log_every is honoured by the inline runner only, not the service runner")
-    config = tiny_config("maddpg", dir=str(tmp_path / "run"), episodes=4, checkpoint_every=4)
+    assert capsys.readouterr().err.startswith("error: run.log_every was removed (both runners log a progress row")
+    assert not (tmp_path / "b").exists()
+    config = tiny_config("maddpg", dir=str(tmp_path / "run"), episodes=4)
     run_dir = RunDirectory.create(config.run.dir, config)
-    InlineLoop(config, run_dir, progress=None).run()
+    train_in_process(config, run_dir)
     before = run_dir.metrics_path.read_bytes()
-    assert main(["resume", config.run.dir, "--set", "service.slack_updates=8", "--quiet", "--no-eval"]) == 2
-    assert capsys.readouterr().err.startswith("error: service.slack_updates is honoured by the service runner only")
+    resume = ["resume", config.run.dir, "--runner", "inline", "--quiet", "--no-eval"]
+    assert main([*resume, "--set", "service.max_restarts=5"]) == 2
+    assert capsys.readouterr().err.startswith("error: service.max_restarts is honoured by the service runner only")
+    assert main([*resume, "--set", "run.log_every=2"]) == 2
+    assert capsys.readouterr().err.startswith("error: run.log_every was removed")
     assert run_dir.metrics_path.read_bytes() == before
-    stored = load_config(run_dir.config_path)  # its stored cadence (inline) is the run's own: resumed without a word
-    assert stored.run.checkpoint_every == 4
-    assert main(["resume", config.run.dir, "--set", "run.log_every=2", "--more-episodes", "2", "--quiet",
-                 "--no-eval"]) == 0
+    assert main([*resume, "--set", "service.updates_per_call=4", "--more-episodes", "2"]) == 0
+    assert [r["episodes"] for r in run_dir.rows("episode")][-1] >= 6
+    assert run_dir.summary()["runner"] == "inline"

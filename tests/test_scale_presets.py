@@ -15,7 +15,8 @@ from pathlib import Path
 import pytest
 
 from cmcl.config import load_config
-from cmcl.loop import InlineLoop
+from cmcl.io.rundir import RunDirectory
+from services.launch import train_in_process
 from tests.evaluation_output import evaluation_json
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -27,14 +28,13 @@ NO_HOLDER = ["--set", "maddpg.entity_holder=false"]  # the stages were measured 
 
 
 @pytest.mark.parametrize("preset, agents", [("spread_n8.toml", 8), ("spread_n16.toml", 16), ("spread_n32.toml", 32)])
-def test_each_scale_preset_trains_inline_with_entity_networks(preset, agents):
+def test_each_scale_preset_trains_inline_with_entity_networks(preset, agents, tmp_path):
     # two rounds of the 16 worlds, two updates in the second (an update at N = 16 takes about a second)
-    config = load_config(CONFIGS / preset, ["run.dir=unused", "run.init_from=", "run.episodes=32",
+    config = load_config(CONFIGS / preset, [f"run.dir={tmp_path / 'run'}", "run.init_from=", "run.episodes=32",
                                             "maddpg.warmup=480", "maddpg.update_every=240", "run.max_seconds=0"])
     assert config.env.spread.num_agents == agents and config.maddpg.networks == "entity"
-    loop = InlineLoop(config, None, progress=None)
-    loop.run()
-    assert loop.maddpg.updates > 0 and loop.maddpg.num_agents == agents
+    _, roles = train_in_process(config, RunDirectory.create(config.run.dir, config))
+    assert roles.learner.maddpg.updates > 0 and roles.learner.maddpg.num_agents == agents
 
 
 @pytest.mark.parametrize("preset", ["spread_n16.toml", "spread_n32.toml"])

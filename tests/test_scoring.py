@@ -1,4 +1,5 @@
-"""The scoring state and the one rescoring rule both runners use (cmcl.replay.scoring; ALGORITHM.md §3.8, §3.9, A11)."""
+"""The scoring state and the one rescoring rule of the replay server, whichever runner schedules it
+(cmcl.replay.scoring; ALGORITHM.md §3.8, §3.9, A11)."""
 
 import numpy as np
 import pytest
@@ -22,7 +23,7 @@ def scoring(online_td: bool = False) -> ScoringState:
 
 
 def score(state: ScoringState, rb: ReplayBuffer, slots, stamp: int, folds=range(K)) -> None:
-    """Every scorer scores `slots` at learner update `stamp` (the inline loop's pass)."""
+    """Every scorer scores `slots` at learner update `stamp`."""
     slots = np.asarray(slots, np.int64)
     gens = rb.generations(slots)
     errors = np.ones((slots.size, N, len(folds)), np.float32)
@@ -38,26 +39,42 @@ def test_oldest_first_never_scored_then_oldest():
     assert oldest_first(np.arange(6), stamps, 10).tolist() == list(range(6))
 
 
-def test_inline_rule_scores_every_new_row_then_the_oldest_scores():
+def test_a_call_scores_never_scored_rows_first_then_the_oldest_scores():
+    """A teacher group's or the ICM's call: a fixed number of rows (service.score_rows_per_call), never-scored ones
+    first, then the oldest scores."""
     rb, state = buffer_with(20), scoring()
-    assert state.rescore_rows(rb, 4).tolist() == list(range(20)), "A11: every never-scored row, beyond the count"
+    everyone = {"folds": range(K), "curiosity": True}
+    assert state.rows_to_score(rb, 4, **everyone).size == 4, "the count, never-scored rows or not"
     for stamp, rows in enumerate((range(0, 5), range(5, 10), range(10, 15), range(15, 20))):
         score(state, rb, rows, stamp)
-    assert state.rescore_rows(rb, 4).size == 4 and set(state.rescore_rows(rb, 4)) <= set(range(5))
-    seven = state.rescore_rows(rb, 7).tolist()
+    four = state.rows_to_score(rb, 4, **everyone)
+    assert four.size == 4 and set(four) <= set(range(5))
+    seven = state.rows_to_score(rb, 7, **everyone).tolist()
     assert seven[:5] == [0, 1, 2, 3, 4] and set(seven[5:]) <= set(range(5, 10))
     rb.add(*(np.zeros((3, N, 1), np.float32),) * 2, np.zeros((3, N), np.float32), np.zeros((3, N, 1), np.float32),
            np.zeros(3, np.float32), np.full(3, 9))  # slots 20..22: never scored, taken first
-    picked = state.rescore_rows(rb, 4).tolist()  # sorted by slot
+    picked = state.rows_to_score(rb, 4, **everyone).tolist()  # sorted by slot
     assert len(picked) == 4 and {20, 21, 22} <= set(picked) and picked[0] in range(5)
 
 
-def test_inline_rule_waits_for_the_oldest_of_every_scorer():
+def test_the_learners_online_scores_take_every_never_scored_row_beyond_the_count():
+    """A11 for ACL td_self's |δ| (the scorer the learner hosts): every never-scored row, then the oldest up to the
+    count."""
+    rb, state = buffer_with(20), scoring(online_td=True)
+    assert state.rows_to_score(rb, 4, online_td=True, every_unscored=True).tolist() == list(range(20))
+    slots = np.arange(20)
+    state.write_online_td(rb, slots[:15], rb.generations(slots[:15]), np.ones((15, N), np.float32), 3)
+    assert state.rows_to_score(rb, 7, online_td=True, every_unscored=True).size == 7
+    assert set(state.rows_to_score(rb, 7, online_td=True, every_unscored=True)) >= set(range(15, 20))
+    assert state.rows_to_score(rb, 2, online_td=True, every_unscored=True).tolist() == list(range(15, 20))
+
+
+def test_rows_wait_for_the_oldest_score_of_every_scorer_asked():
     rb, state = buffer_with(10), scoring(online_td=True)
     score(state, rb, range(10), 7)
     slots, gens = np.arange(10), rb.generations(np.arange(10))
     state.write_curiosity(rb, slots[5:], gens[5:], np.ones((5, N), np.float32), 9)  # only ρ refreshed for 5..9
-    assert state.rescore_rows(rb, 5).tolist() == [0, 1, 2, 3, 4]
+    assert state.rows_to_score(rb, 5, folds=range(K), curiosity=True, online_td=True).tolist() == [0, 1, 2, 3, 4]
     assert state.rows_to_score(rb, 5, curiosity=True).tolist() == [0, 1, 2, 3, 4]
 
 
@@ -73,10 +90,12 @@ def test_a_teacher_group_never_gets_rows_of_its_own_fold():
 def test_overwritten_rows_count_as_never_scored():
     rb, state = buffer_with(30), scoring()
     score(state, rb, range(30), 1)
-    assert state.rescore_rows(rb, 0).size == 0
+    everyone = {"folds": range(K), "curiosity": True, "every_unscored": True}
+    assert state.rows_to_score(rb, 0, **everyone).size == 0
     z = np.zeros((5, N, 1), np.float32)
     rb.add(z, z, np.zeros((5, N), np.float32), z, np.zeros(5, np.float32), np.full(5, 50))  # overwrites 0..4
-    assert state.rescore_rows(rb, 0).tolist() == [0, 1, 2, 3, 4]
+    assert state.rows_to_score(rb, 0, **everyone).tolist() == [0, 1, 2, 3, 4]
+    assert state.rows_to_score(rb, 5, folds=range(K)).tolist() == [0, 1, 2, 3, 4]
 
 
 def test_state_round_trip_and_an_older_snapshot_with_only_the_teacher_table():
@@ -88,7 +107,7 @@ def test_state_round_trip_and_an_older_snapshot_with_only_the_teacher_table():
     assert np.array_equal(other.rows_to_score(rb, 25), state.rows_to_score(rb, 25))
     assert np.array_equal(other.inserted_at, state.inserted_at)
     older = scoring()
-    older.load_state_dict({"difficulty": state.difficulty.state_dict()})  # an inline snapshot before this module
+    older.load_state_dict({"difficulty": state.difficulty.state_dict()})  # a snapshot from before this module
     assert older.rows_to_score(rb, 0, curiosity=True, every_unscored=True).size == 20, "curiosity: never scored"
     with pytest.raises(ValueError, match="inserted_at"):
         older.load_state_dict({**state.state_dict(), "inserted_at": np.zeros(3)})

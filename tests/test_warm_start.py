@@ -1,6 +1,6 @@
 """run.init_from: a new run's actors and critics start from another run's newest policy (cmcl.learners.warm_start),
-on the inline runner's command line and in the service's learner; bad sources are refused before the new run's
-directory exists, naming the field and the value."""
+on the command line (the inline runner: the service's roles in one process) and in the learner itself; bad sources
+are refused before the new run's directory exists, naming the field and the value."""
 
 from __future__ import annotations
 
@@ -9,11 +9,16 @@ from pathlib import Path
 import pytest
 import torch
 
+from cmcl.__main__ import main as cmcl
 from cmcl.io.rundir import RunDirectory
 from cmcl.learners.warm_start import WARM_PARTS
-from cmcl.loop.__main__ import main
 
 NO_UPDATES = ["--set", "maddpg.warmup=600"]  # 4 episodes fill 120 rows, fewer than the warm-up: no update, weights stay
+
+
+def main(argv: list[str]) -> int:
+    """`python -m cmcl train --runner inline ARGV`."""
+    return cmcl(["train", "--runner", "inline", *argv])
 
 
 def _policy(run: Path) -> dict:
@@ -67,7 +72,7 @@ def test_a_bad_source_is_refused_before_the_new_run_exists(tmp_path, source_run,
         source, sets = tmp_path / "nope", []
     elif case == "no_policy":
         source, sets = source_run, []
-        for checkpoint in (source_run / "checkpoints").iterdir():
+        for checkpoint in RunDirectory.open(source_run).service_dir.glob("learner*"):  # the policy's files
             checkpoint.unlink()
     else:
         source, sets = source_run, ["--set", "env.num_agents=3"]
