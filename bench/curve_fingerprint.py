@@ -1,7 +1,9 @@
 """Fingerprint of short inline learning curves, to show that a refactoring changed no behaviour.
 
-For each configuration below, train the inline loop (`cmcl.loop.InlineLoop`) with a fixed seed for a short budget
-past the warm-up, then hash (sha256) its metrics rows (wall-clock fields dropped) and its final MADDPG weights.
+For each configuration below, train with the inline runner (the service's roles in one process,
+`services.launch.train_in_process`) with a fixed seed for a short budget past the warm-up, then hash (sha256) its
+episode rows (wall-clock fields dropped; the progress rows come on a 2 s clock) and its final MADDPG weights
+(services/fingerprint.py).
 Two code versions that print the same hashes produced bit-identical learning curves and weights.
 
 Run:  python bench/curve_fingerprint.py [--episodes 160] [--out fingerprints.json]
@@ -18,8 +20,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from cmcl.fingerprint import fingerprint  # noqa: E402
 from cmcl.provenance import provenance  # noqa: E402
+from services.fingerprint import fingerprint  # noqa: E402
 
 CASES = {  # name -> (config file, extra overrides)
     "spread_maddpg": ("configs/spread_maddpg.toml", []),

@@ -6,7 +6,8 @@ Also times a full rescoring of a 5000-row buffer (TD targets, teacher errors, cr
 curiosity). Rounds of ours and the peer are interleaved (the machine is shared); the median update round and the
 best rescoring run are reported.
 
-Then one update of the inline loop at the default settings, CMCL against MADDPG on the same filled buffer.
+Then one update as the runners do it at the default settings (both run the service's roles: `FilledRoles`, the roles
+called in this process as `--runner inline` calls them), CMCL against MADDPG on the same filled buffer.
 
 Run: .venv/bin/python bench/learner_throughput.py   (``ratio: X`` = ours / peer updates per second; last line
 ``cmcl/maddpg cost: X`` = seconds of one CMCL update over one MADDPG update, target <= 3)
@@ -28,7 +29,6 @@ from cmcl.learners.icm import ICM
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.network_steps import curiosity_values, fit_teachers, teacher_errors
 from cmcl.learners.teachers import TeacherEnsemble
-from cmcl.loop import InlineLoop
 from cmcl.replay.buffer_steps import fold_draw_indices
 from cmcl.replay.difficulty import cross_validated_difficulty
 
@@ -231,43 +231,96 @@ def main() -> None:
     print(f"cmcl/maddpg cost: {cost:.2f}")
 
 
-# ----------------------------------------------------------------------------- CMCL vs MADDPG, as the loop runs them
-def filled_loop(algorithm: str, overrides: list[str] = ()) -> InlineLoop:
-    """The inline loop of the default spread preset for `algorithm` (plus config `overrides`), its 5000-row buffer
-    filled by the policy."""
+# ----------------------------------------------------------------------------- CMCL vs MADDPG, as the runners run them
+class FilledRoles:
+    """The service's roles of one config built in this process (as `--runner inline` builds them: every teacher
+    fold in one stacked worker), the replay buffer filled to its capacity by the rollout worker's policy. `update()`
+    is what the supervisor hands out per `service.updates_per_call` learner updates: one learner call (the replay's
+    sample, the MADDPG steps, the |δ| written back) and the teacher / ICM calls that the ratios
+    (`teachers.steps_per_update`, `icm.steps_per_update`) owe for those updates, each of `service.fit_steps_per_call`
+    fit steps and the scoring of `service.score_rows_per_call` rows, their scores written back; returns the number
+    of learner updates it ran."""
+
+    def __init__(self, config):
+        from services.icm import ICMWorker
+        from services.learner import Learner
+        from services.replay_server import ReplayServer
+        from services.rollout import RolloutWorker
+        from services.teachers import TeacherWorker
+
+        self.config = config
+        cfg = config.to_dict()
+        teams = config.teams.values()
+        self.replay, self.learner = ReplayServer(cfg), Learner(cfg, 0)
+        self.maddpg = self.learner.maddpg
+        folds = list(range(config.teachers.num_folds))
+        self.teacher = TeacherWorker(cfg, folds, 1) if any(t.uses_teachers for t in teams) else None
+        self.icm = ICMWorker(cfg, 2) if any(t.uses_icm for t in teams) else None
+        self.teachers = None if self.teacher is None else self.teacher.teachers  # the ensemble of every fold
+        self.folds = folds
+        worker = RolloutWorker(cfg, 0, 0)
+        while self.replay.replay.size < self.replay.replay.capacity:
+            self.replay.insert(worker.rollout(self.learner.publish())[0])
+        self.published = self.learner.publish()
+        s = config.service
+        self.teacher_calls = config.teachers.steps_per_update * s.updates_per_call / s.fit_steps_per_call
+        self.icm_calls = config.icm.steps_per_update * s.updates_per_call / s.fit_steps_per_call
+        self.owed = {"teacher": 0.0, "icm": 0.0}
+
+    def update(self) -> int:
+        s = self.config.service
+        batch, _ = self.replay.sample(s.updates_per_call)
+        feedback, _ = self.learner.update(batch)
+        self.replay.learner_result(feedback)
+        if self.teacher is not None:
+            self.owed["teacher"] += self.teacher_calls
+            while self.owed["teacher"] >= 1:
+                work, _ = self.replay.teacher_work(self.folds, s.fit_steps_per_call)
+                self.replay.write_teacher_scores(self.teacher.step(work, self.published)[0])
+                self.owed["teacher"] -= 1
+        if self.icm is not None:
+            self.owed["icm"] += self.icm_calls
+            while self.owed["icm"] >= 1:
+                work, _ = self.replay.icm_work(s.fit_steps_per_call)
+                self.replay.write_curiosity(self.icm.step(work)[0])
+                self.owed["icm"] -= 1
+        return s.updates_per_call
+
+
+def filled_loop(algorithm: str, overrides: list[str] = ()) -> FilledRoles:
+    """The roles of the default spread preset for `algorithm` (plus config `overrides`), its 5000-row buffer filled
+    by the policy (`FilledRoles`)."""
     config = load_config(f"{ROOT}/configs/spread_{algorithm}.toml",
                          ["run.dir=unused", "maddpg.warmup=5000", *overrides])
-    loop = InlineLoop(config, None, progress=None)
-    while loop.replay.size < loop.replay.capacity:
-        loop.env_step()
-    return loop
+    return FilledRoles(config)
 
 
-def inline_update_seconds(rounds: int = 7, updates: int = 30) -> tuple[dict[str, float], InlineLoop]:
-    """({"maddpg": s, "cmcl": s}: median seconds of one `InlineLoop.update()` of each, interleaved rounds; the CMCL
-    loop).
+def inline_update_seconds(rounds: int = 7, updates: int = 32) -> tuple[dict[str, float], FilledRoles]:
+    """({"maddpg": s, "cmcl": s}: median seconds of one learner update of each with what the runners do for it,
+    interleaved rounds of about `updates` updates; the CMCL roles).
 
-    A CMCL update here is everything the inline loop does per update at the defaults: the teacher and ICM steps
-    due at their ratios, scoring of new rows plus the rolling rescoring, the priority recompute, the MADDPG step.
+    A CMCL update here is everything the roles do per update at the defaults: the teacher and ICM fit steps due at
+    their ratios with their scoring calls, the priority recompute of the sampling, the MADDPG step (`FilledRoles`).
     """
     loops = {name: filled_loop(name) for name in ("maddpg", "cmcl")}
     seconds: dict[str, list[float]] = {name: [] for name in loops}
     for _ in range(rounds):
         for name, loop in loops.items():
-            t0 = time.perf_counter()
-            for _ in range(updates):
-                loop.update()
-            seconds[name].append((time.perf_counter() - t0) / updates)
+            t0, done = time.perf_counter(), 0
+            while done < updates:
+                done += loop.update()
+            seconds[name].append((time.perf_counter() - t0) / done)
     return {name: statistics.median(v) for name, v in seconds.items()}, loops["cmcl"]
 
 
-def cmcl_vs_maddpg_cost(rounds: int = 7, updates: int = 30) -> float:
-    """Median seconds of one `InlineLoop.update()` of CMCL over one of MADDPG (`inline_update_seconds`)."""
+def cmcl_vs_maddpg_cost(rounds: int = 7, updates: int = 32) -> float:
+    """Median seconds of one learner update of CMCL over one of MADDPG (`inline_update_seconds`)."""
     per, cmcl = inline_update_seconds(rounds, updates)
-    print(f"one inline update at the defaults: maddpg {1e3 * per['maddpg']:.2f} ms, cmcl {1e3 * per['cmcl']:.2f} ms "
+    s = cmcl.config.service
+    print(f"one update at the defaults: maddpg {1e3 * per['maddpg']:.2f} ms, cmcl {1e3 * per['cmcl']:.2f} ms "
           f"(teachers {cmcl.config.teachers.steps_per_update:g} / ICM "
-          f"{cmcl.config.icm.steps_per_update:g} steps per update, "
-          f"{cmcl.config.teachers.rescore_rows_per_update} rows rescored per update)")
+          f"{cmcl.config.icm.steps_per_update:g} steps per update, calls of {s.updates_per_call} updates / "
+          f"{s.fit_steps_per_call} fit steps / {s.score_rows_per_call} rows scored)")
     return per["cmcl"] / per["maddpg"]
 
 

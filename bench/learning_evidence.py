@@ -1,7 +1,8 @@
 """Learning evidence: inline runs of several algorithms × seeds on one task, evaluated against a random policy.
 
-Runs `cmcl.loop` for every (algorithm, seed) in turn (one process, one torch thread), evaluates the final
-checkpoint without exploration noise on held-out worlds, and prints a table of mean ± std across seeds.
+Trains with the inline runner (the service's roles in this process, `services.launch.train_in_process`) for every
+(algorithm, seed) in turn (one process, one torch thread), evaluates the final policy checkpoint without exploration
+noise on held-out worlds, and prints a table of mean ± std across seeds.
 Nothing here is a claim by itself: read the spread across seeds.
 
     python bench/learning_evidence.py --algorithms cmcl maddpg --seeds 0 1 2 --episodes 600 --out runs/evidence
@@ -20,23 +21,23 @@ from cmcl.config import load_config
 from cmcl.evaluate import evaluate_policy, load_policy
 from cmcl.io.plots import plot_learning_curves
 from cmcl.io.rundir import RunDirectory
-from cmcl.loop import InlineLoop
 from cmcl.provenance import provenance
+from services.launch import train_in_process
 
 
 def run_one(task: str, algorithm: str, seed: int, episodes: int, out: Path, overrides: list[str]) -> dict:
     """Train one inline run (or reuse a finished one in the same folder) and evaluate its final checkpoint."""
     run_path = out / f"{task}_{algorithm}_s{seed}"
-    sets = [f"run.episodes={episodes}", f"run.seed={seed}", f"run.dir={run_path}", "run.log_every=50",
-            f"run.checkpoint_every={episodes}", *overrides]
+    sets = [f"run.episodes={episodes}", f"run.seed={seed}", f"run.dir={run_path}", *overrides]
     config = load_config(f"configs/{task}_{algorithm}.toml", sets)
     started = time.perf_counter()
-    finished = RunDirectory(run_path).inline_checkpoints()
-    if not finished or max(finished) < episodes:  # reuse a finished run
+    if RunDirectory(run_path).summary().get("episodes", 0) < episodes:  # else reuse the finished run
         run_dir = RunDirectory.create(run_path, config, overwrite=True)
-        InlineLoop(config, run_dir, progress=lambda line: print(f"  [{algorithm} s{seed}] {line}", flush=True)).run()
-    result = evaluate_policy(config, load_policy(config, RunDirectory.open(run_path).latest_checkpoint()),
-                             episodes=200, seed=seed)
+        summary, _ = train_in_process(config, run_dir,
+                                      progress=lambda line: print(f"  [{algorithm} s{seed}] {line}", flush=True))
+        run_dir.write_summary({**{k: v for k, v in summary.items() if k != "metrics_text"}, "runner": "inline"})
+    policy = RunDirectory.open(run_path).newest_policy()
+    result = evaluate_policy(config, load_policy(config, policy), episodes=200, seed=seed)
     result.update(algorithm=algorithm, seed=seed, train_seconds=time.perf_counter() - started)
     return result
 

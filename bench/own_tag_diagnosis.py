@@ -5,8 +5,10 @@ mpe2's simple_tag pays every adversary +10 per step for each (adversary, good ag
 adversary team (3 agents) earns 30 per contact-step; the good agent pays -10 per contact and a boundary penalty per
 axis per step: 0 below |x| = 0.9, 10 (|x| - 0.9) up to 1, then min(exp(2 |x| - 2), 10) (`Scenario.agent_reward`).
 
-During training, every `--log-every` episodes: the team returns of those episodes (with exploration noise) and the
-last update's critic loss and actor loss (-Q, so a growing magnitude means growing Q estimates) per agent. After
+The run trains with the inline runner (the service's roles in this process, `services.launch.train_in_process`, in a
+temporary run directory). After it, for every `--log-every` episodes of its episode rows: the team returns of
+those episodes (with exploration noise) and the weight version they acted with; then the learner's last critic
+loss and actor loss (-Q, so a growing magnitude means growing Q estimates) per agent. After
 training, on the same 200 held-out worlds (seeded as the grid's evaluation), four pairings without noise: trained
 against trained, trained adversaries against a uniformly random good agent, the trained good agent against
 random adversaries, and all random. For each: the team returns, contact-steps per episode, the good agent's
@@ -21,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -30,8 +33,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from cmcl.config import Config, load_config  # noqa: E402
 from cmcl.evaluate import EVAL_SEED_OFFSET  # noqa: E402
+from cmcl.io.rundir import RunDirectory  # noqa: E402
 from cmcl.learners.maddpg import MADDPG  # noqa: E402
-from cmcl.loop.inline import InlineLoop  # noqa: E402
 from cmcl.system import make_batched_env  # noqa: E402
 from experiments.own_envs import OWN_ENVS  # noqa: E402
 
@@ -77,21 +80,35 @@ def return_parts(config: Config, policy: MADDPG | None, random_teams: tuple[str,
     return {**out, **{k: float(v.mean()) for k, v in per_step.items()}, "largest_coordinate": float(largest.mean())}
 
 
-def train(config: Config, log_every: int) -> InlineLoop:
-    """The inline run, printing a training row every `log_every` episodes."""
-    loop, finished, next_row = InlineLoop(config, None, progress=None), [], log_every
-    while loop.counters["episodes"] < config.run.episodes:
-        finished += loop.env_step()
-        if loop.counters["episodes"] >= next_row:
-            stats = loop.last_stats
-            row: dict[str, Any] = {"episodes": loop.counters["episodes"], "updates": loop.counters["updates"]}
-            row.update({f"return_{t}": round(float(np.mean([r["reward"][t] for r in finished])), 2)
-                        for t in loop.layout.teams})
-            for key in ("critic_loss", "actor_loss"):
-                row[key] = np.round(np.asarray(stats[key], np.float64), 2).tolist() if key in stats else None
-            print(json.dumps(row), flush=True)
-            finished, next_row = [], next_row + log_every
-    return loop
+def train(config: Config, log_every: int) -> MADDPG:
+    """The inline run, then a training row per `log_every` episodes of its episode rows and the learner's last
+    losses; returns the trained MADDPG."""
+    from services.launch import train_in_process
+
+    with tempfile.TemporaryDirectory() as tmp:
+        data = config.to_dict()
+        data["run"] = {**data["run"], "dir": f"{tmp}/run"}
+        config = _config(data)
+        run_dir = RunDirectory.create(config.run.dir, config)
+        summary, roles = train_in_process(config, run_dir)
+        rows = list(run_dir.rows("episode"))
+    teams = list(roles.learner.layout.teams)
+    for start in range(0, len(rows), log_every):
+        part = rows[start:start + log_every]
+        row: dict[str, Any] = {"episodes": part[-1]["episodes"], "weight_version": part[-1].get("weight_version")}
+        row.update({f"return_{t}": round(float(np.mean([r["reward"][t] for r in part])), 2) for t in teams})
+        print(json.dumps(row), flush=True)
+    losses = roles.learner.report().learner.losses
+    print(json.dumps({"episodes": summary["episodes"], "updates": summary["updates"],
+                      **{f"{kind}_loss": [round(float(agent[kind]), 2) for agent in losses.values()]
+                         for kind in ("critic", "actor") if losses}}), flush=True)
+    return roles.learner.maddpg
+
+
+def _config(data: dict[str, Any]) -> Config:
+    from cmcl.config import config_from_dict
+
+    return config_from_dict(data)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -104,10 +121,10 @@ def main(argv: list[str] | None = None) -> None:
     args = p.parse_args(argv)
     env = OWN_ENVS["tag"]
     config = load_config(None, [f"env.factory={env.factory}", *env.sets, *args.sets, f"run.episodes={args.episodes}",
-                                "run.checkpoint_every=0", f"run.seed={args.seed}"])
-    loop = train(config, args.log_every)
+                                f"run.seed={args.seed}"])
+    trained = train(config, args.log_every)
     for name, (who, random_teams) in PAIRINGS.items():
-        policy = loop.maddpg if who == "trained" else None
+        policy = trained if who == "trained" else None
         print(json.dumps({"pairing": name, **return_parts(config, policy, random_teams, args.seed)}), flush=True)
 
 

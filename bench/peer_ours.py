@@ -6,7 +6,7 @@ Training is the public command, unchanged defaults except what the environment n
 ``env.factory`` / ``env.factory_kwargs`` (the constructor of `peer_envs.ENVS[--env]`), ``env.episode_length`` = the
 env's max_cycles, ``teams.agent.algorithm`` = --algorithm, ``run.episodes`` = --env-steps / max_cycles (every
 episode lasts max_cycles world steps, so the run takes exactly --env-steps world steps; env.num_envs stays 16 as
-AgileRL's), ``run.seed``. Train seconds: the loop's own clock (``elapsed_s`` of the run's summary: training only,
+AgileRL's), ``run.seed``. Train seconds: the runner's own clock (``elapsed_s`` of the run's summary: training only,
 no start-up, as AgileRL's side measures); the wall seconds of the whole command and its CPU seconds
 (``RUSAGE_CHILDREN`` user + system: the command is one process, torch set to one thread) are recorded too.
 
@@ -48,7 +48,7 @@ def train_command(env_spec: PeerEnv, algorithm: str, env_steps: int, seed: int, 
     sets = [f"env.factory={env_spec.factory}", f"env.factory_kwargs={{{kwargs}}}",
             f"env.episode_length={env_spec.max_cycles}", f"teams.agent.algorithm={algorithm}",
             f"run.episodes={env_steps // env_spec.max_cycles}", f"run.seed={seed}", f"run.dir={run_dir}",
-            f"env.num_envs={NUM_ENVS}", "run.log_every=1000", "run.checkpoint_every=0"]
+            f"env.num_envs={NUM_ENVS}"]
     return [sys.executable, "-m", "cmcl", "train", "--runner", "inline", "--quiet",
             *[a for s in sets for a in ("--set", s)]]
 

@@ -1,10 +1,11 @@
-"""Cost per update of every registered sampling rule, inline, against MADDPG's in the same process (issue 36).
+"""Cost per update of every registered sampling rule, in one process, against MADDPG's in the same process (issue 36).
 
-For each rule of the registry (cmcl.replay.registry), the inline loop of the default navigation preset with
-`teams.agent.algorithm=<rule>`, its 5000-row buffer filled by the policy; then rounds of `InlineLoop.update()`
+For each rule of the registry (cmcl.replay.registry), the service's roles of the default navigation preset with
+`teams.agent.algorithm=<rule>` built in this process (as `--runner inline` runs them: bench/learner_throughput.py
+`FilledRoles`), the 5000-row buffer filled by the policy; then rounds of about `--updates` learner updates
 interleaved across the rules (the machine is shared), the median seconds per update reported with its ratio to
-MADDPG's. An update is everything the loop does per update at the defaults: teacher and ICM steps where the rule
-needs them, scoring and rescoring, the priority recompute, the candidates' critic pass (LaBER), the MADDPG step.
+MADDPG's. An update is everything the roles do per update at the defaults: teacher and ICM steps where the rule
+needs them with their scoring calls, the priority recompute, the candidates' critic pass (LaBER), the MADDPG step.
 
 Options of a rule are measured as arms of their own beside the rules (`OPTIONS`): per+uniform_actor is PER with
 `teams.agent.actor_batch="uniform"` (the actor's own uniform minibatch), its ratio to per printed too.
@@ -50,10 +51,10 @@ def main(argv: list[str] | None = None) -> int:
     seconds: dict[str, list[float]] = {name: [] for name in loops}
     for _ in range(args.rounds):
         for name, loop in loops.items():
-            t0 = time.perf_counter()
-            for _ in range(args.updates):
-                loop.update()
-            seconds[name].append((time.perf_counter() - t0) / args.updates)
+            t0, done = time.perf_counter(), 0
+            while done < args.updates:  # in learner calls of service.updates_per_call updates
+                done += loop.update()
+            seconds[name].append((time.perf_counter() - t0) / done)
     per = {name: statistics.median(v) for name, v in seconds.items()}
     for name in arms:
         print(f"{name:8s} {1e3 * per[name]:7.2f} ms per update   ratio to maddpg {per[name] / per['maddpg']:.2f}")

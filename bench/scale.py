@@ -3,16 +3,18 @@
 Cost (default): for each N and each network kind (NETWORKS: per-agent networks, the paper's; `maddpg.
 share_parameters = true`; and that plus `teachers.share_parameters = true`, one teacher network per fold; and
 `maddpg.networks = "entity"`, one attention actor and critic whose size does not depend on N),
-the inline loop of cooperative navigation (N agents, N landmarks) is filled to its buffer capacity by its own
-policy, then timed over interleaved rounds of `InlineLoop.update()` (everything the loop does per update at the
-defaults: the MADDPG step, and for CMCL the teacher and ICM steps, scoring and the priority recompute). Printed:
+the service's roles of cooperative navigation (N agents, N landmarks), built in this process as `--runner inline`
+runs them (bench/learner_throughput.py `FilledRoles`), fill the buffer to its capacity by their own policy, then are
+timed over interleaved rounds of learner updates (everything the roles do per update at the defaults: the MADDPG
+step, and for CMCL the teacher and ICM steps with their scoring calls and the priority recompute). Printed:
 median milliseconds per update, parameter counts of the actors + critics (+ teachers), and the ratio of each
 cell against N = 4 per-agent measured in the same process.
 
-Learning (`--learn EPISODES`): one inline training run per (N, sharing, seed) with early stop off, reporting the
-final moving-average coverage and success, episodes to MA 0.5 / 0.9 and wall seconds. Writes one JSON per run to
-`--out` (default bench/results/scale/); a rerun skips finished runs and resumes an interrupted one from its
-latest checkpoint (every 2,000 episodes; its clock goes on from there).
+Learning (`--learn EPISODES`): one inline training run (`python -m cmcl train --runner inline`) per (N, sharing,
+seed) with early stop off, reporting the final moving-average coverage and success, episodes to MA 0.5 / 0.9 and
+wall seconds. Writes one JSON per run to `--out` (default bench/results/scale/); a rerun skips finished runs and
+resumes an interrupted one from its newest checkpoint (`python -m cmcl resume`; every service.checkpoint_every_s
+seconds; its clock goes on from there).
 
 Run: .venv/bin/python bench/scale.py [--algorithm cmcl] [--agents 4 8 16] [--before-issue-38]
      .venv/bin/python bench/scale.py --learn 20000 --agents 8 --seeds 0 1 2
@@ -33,9 +35,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.learner_throughput import filled_loop  # noqa: E402
+from bench.learner_throughput import FilledRoles, filled_loop  # noqa: E402
 from cmcl.io.rundir import RunDirectory  # noqa: E402
-from cmcl.loop import InlineLoop  # noqa: E402
 from cmcl.provenance import provenance  # noqa: E402
 from experiments.measures import WINDOW, first_reaching  # noqa: E402
 
@@ -53,7 +54,7 @@ def overrides(n: int, kind: str) -> list[str]:
     return [f"env.num_agents={n}", f"maddpg.networks={maddpg}", f"teachers.share_parameters={str(teachers).lower()}"]
 
 
-def parameter_counts(loop: InlineLoop) -> tuple[int, int]:
+def parameter_counts(loop: FilledRoles) -> tuple[int, int]:
     """Trainable parameters of (the learner's actors + critics, the teacher critics; 0 without teachers)."""
     learner = sum(p.numel() for m in (loop.maddpg.actor, loop.maddpg.critic) for p in m.parameters())
     teachers = loop.teachers
@@ -63,7 +64,7 @@ def parameter_counts(loop: InlineLoop) -> tuple[int, int]:
 
 def update_cost(algorithm: str, agents: list[int], rounds: int, updates: int, networks: list[str],
                 before: bool = False) -> None:
-    """Median ms per inline update for every (N, network kind) cell, interleaved, and the ratio to the first
+    """Median ms per update for every (N, network kind) cell, interleaved, and the ratio to the first
     cell (the smallest N with the first kind); `before`: also the entity learner as it ran before issue 38
     (bench.entity_cost.before_issue_38: the same numbers, the old actor step), as kind "entity_before"."""
     cells = {(n, kind): filled_loop(algorithm, overrides(n, kind)) for n in agents for kind in networks}
@@ -76,13 +77,14 @@ def update_cost(algorithm: str, agents: list[int], rounds: int, updates: int, ne
     seconds: dict[tuple[int, str], list[float]] = {cell: [] for cell in cells}
     for _ in range(rounds):
         for cell, loop in cells.items():
-            t0 = time.perf_counter()
-            for _ in range(updates):
-                loop.update()
-            seconds[cell].append((time.perf_counter() - t0) / updates)
+            t0, done = time.perf_counter(), 0
+            while done < updates:  # in learner calls of service.updates_per_call updates
+                done += loop.update()
+            seconds[cell].append((time.perf_counter() - t0) / done)
     median = {cell: statistics.median(v) for cell, v in seconds.items()}
     peer = median[(min(agents), networks[0])]
-    print(f"{algorithm}: one inline update at the defaults, median of {rounds} rounds of {updates}")
+    print(f"{algorithm}: one update at the defaults (the roles in one process), median of {rounds} rounds of "
+          f"~{updates}")
     print(f"| N | networks | ms per update | actor + critic parameters | teacher parameters | "
           f"cost / N={min(agents)} {networks[0]} |")
     print("| --- | --- | --- | --- | --- | --- |")
@@ -103,12 +105,12 @@ def learn(algorithm: str, agents: list[int], seeds: list[int], episodes: int, ou
                 if (out / f"{name}.json").exists():
                     continue
                 run_dir = out / "runs" / name
-                if run_dir.exists() and RunDirectory.open(run_dir).latest_checkpoint() is not None:
-                    args = [sys.executable, "-m", "cmcl.loop", "--resume", str(run_dir), "--quiet"]
+                if run_dir.exists() and RunDirectory.open(run_dir).runners():
+                    args = [sys.executable, "-m", "cmcl", "resume", str(run_dir), "--runner", "inline", "--quiet"]
                 else:
                     settings = [f"run.dir={run_dir}", f"run.seed={seed}", f"run.episodes={episodes}",
-                                "run.stop_coverage=0", "run.checkpoint_every=2000", *overrides(n, kind)]
-                    args = [sys.executable, "-m", "cmcl.loop", "--config",
+                                "run.stop_coverage=0", *overrides(n, kind)]
+                    args = [sys.executable, "-m", "cmcl", "train", "--runner", "inline", "--config",
                             f"{ROOT}/configs/spread_{algorithm}.toml", "--quiet", "--overwrite",
                             *[a for kv in settings for a in ("--set", kv)]]
                 subprocess.run(args, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)

@@ -58,10 +58,10 @@ def calibrate(name: str, seed: int, episodes: int, out: Path, budget: int) -> di
     """Train one candidate (subprocess, inline MADDPG) and measure it; returns the stored record."""
     run_id = f"{name}_s{seed}_e{episodes}"
     run_path = out / "runs" / run_id
-    sets = [*CANDIDATES[name], f"run.seed={seed}", f"run.episodes={episodes}", f"run.dir={run_path}",
-            "run.log_every=500", "run.checkpoint_every=0"]
+    sets = [*CANDIDATES[name], f"run.seed={seed}", f"run.episodes={episodes}", f"run.dir={run_path}"]
     started = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "cmcl.loop", "--config", str(ROOT / "configs" / "spread_maddpg.toml"),
+    subprocess.run([sys.executable, "-m", "cmcl", "train", "--runner", "inline", "--config",
+                    str(ROOT / "configs" / "spread_maddpg.toml"),
                     *[a for s in sets for a in ("--set", s)], "--overwrite", "--quiet"], cwd=ROOT, check=True,
                    stdout=subprocess.DEVNULL, preexec_fn=die_with_parent())
     rows = list(RunDirectory.open(run_path).rows("episode"))

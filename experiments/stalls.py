@@ -15,7 +15,9 @@ Per run:
   minibatches, their Q (minus the actor's loss, eq. 4: the mean Q of the actor's own actions on those rows), and
   for the curriculum arms the mean normalised difficulty ĉ of the sampled rows against the buffer's;
 * `at_plateau` (runs with a plateau of at least MIN_PLATEAU episodes): the held-out anatomy of the misses
-  (`cmcl.stalls.miss_anatomy`, 200 worlds) of the checkpoint nearest `plateau_middle`, the agent most often on no
+  (`cmcl.stalls.miss_anatomy`, 200 worlds) of the checkpoint nearest `plateau_middle` (`policy_checkpoints`: a run
+  of the service's format keeps only the learner's last two checkpoints, so for it that is one of the end's), the
+  agent most often on no
   landmark, and the curriculum's state at the progress row nearest that episode (λ, ESS, that agent's and the
   other agents' reward-bearing rows, sampled / buffer).
 """
@@ -94,9 +96,41 @@ def analyse_run(run_path: Path, arm: str) -> dict[str, Any] | None:
     return record
 
 
+def policy_checkpoints(run: RunDirectory) -> dict[int, Any]:
+    """The run's policy checkpoints that pass their checks, by the episode each was written at: the learner's
+    verified generations (the service's format, which both runners write: the newest and the one before it,
+    services/learner.py; each placed at the last episode row acted with its weight version or an older one), and
+    those of the inline runner's own format of before 8dbaee8 (ckpt_<episodes>.pt, read as files)."""
+    import io
+
+    import torch
+
+    from cmcl.io.rundir import PolicyCheckpoint
+    from cmcl.io.verified import VerifiedFile
+
+    found: dict[int, Any] = dict(run.inline_checkpoints())
+    learner, below = VerifiedFile(run.service_dir / "learner.pt"), None
+    rows = [(int(r.get("weight_version", 0)), int(r["episodes"])) for r in run.rows("episode")]
+    while True:
+        loaded = learner._newest(below=below)
+        if loaded.payload is None or loaded.generation is None:
+            return found
+        path = learner.file_of(loaded.generation)
+        state = torch.load(io.BytesIO(loaded.payload), map_location="cpu", weights_only=True)
+        version = int(state.get("version", 0))  # the weights' version; an episode row names the one it acted with
+        episode = max((e for v, e in rows if v <= version), default=0)
+        found.setdefault(episode, PolicyCheckpoint(path, "service", state, path.stat().st_mtime))
+        below = loaded.generation
+
+
+def _checkpoint_episode(checkpoint: Any, checkpoints: dict[int, Any]) -> int:
+    return next(e for e, c in checkpoints.items() if c is checkpoint)
+
+
 def _at_plateau(run: RunDirectory, config: Any, middle: int, progress: list[dict[str, Any]]) -> dict[str, Any]:
-    """The anatomy of the checkpoint nearest episode `middle`, and the curriculum's state then."""
-    checkpoints = run.inline_checkpoints()
+    """The anatomy of the checkpoint nearest episode `middle` (`policy_checkpoints`), and the curriculum's state
+    then."""
+    checkpoints = policy_checkpoints(run)
     if not checkpoints:
         return {"error": "no checkpoints"}
     nearest = checkpoints[min(checkpoints, key=lambda episodes: abs(episodes - middle))]
@@ -113,7 +147,7 @@ def _at_plateau(run: RunDirectory, config: Any, middle: int, progress: list[dict
                  "idle_agent_reward_rows": [sampled[idle], buffer[idle]],
                  "other_agents_reward_rows": [float(np.mean([sampled[a] for a in others])),
                                               float(np.mean([buffer[a] for a in others]))]}
-    return {"checkpoint_episode": int(nearest.stem.split("_")[1]), "coverage": held_out["coverage"],
+    return {"checkpoint_episode": _checkpoint_episode(nearest, checkpoints), "coverage": held_out["coverage"],
             "anatomy": held_out["misses"], "idle_agent": idle,
             "idle_agent_share": anatomy.agent_idle_share[idle],
             "idle_agent_wall_share": anatomy.agent_wall_share[idle], "curriculum": state}

@@ -68,7 +68,7 @@ def test_the_confirm_grid_is_the_screens_selection_with_maddpg_and_each_rules_pe
     assert [r.id for r in runs[:5]] == [f"confirm_{arm}_s0" for arm in arms]  # seed outermost
     assert {r.config for r in runs} == {"spread_hard.toml"} and {r.grid for r in runs} == {"confirm"}
     assert [r.algorithm for r in runs[:5]] == ["relo", "relo", "lp", "lp", "maddpg"]
-    assert runs[1].sets == ("run.log_every=200", *team_sets([*SCREEN_ARMS["relo"], PERMUTED_CONTROL], "agent"))
+    assert runs[1].sets == tuple(team_sets([*SCREEN_ARMS["relo"], PERMUTED_CONTROL], "agent"))
     # before the interim look only its seeds run (the confirmation's folder has no runs)
     folder = ["--screen", str(screen), "--out", str(tmp_path / "confirm")]
     every = selected_runs(build_parser().parse_args(["run", "confirm", *folder]))

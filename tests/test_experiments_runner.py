@@ -17,8 +17,9 @@ from experiments.runner import command, run_grid
 from experiments.store import ResultsStore
 from services.reaper import descendants, process_table
 
+# the tiny settings as overrides (tests/tiny.py), with a checkpoint every second (both runners checkpoint on a clock)
 TINY = ("env.num_envs=4", "maddpg.batch_size=16", "maddpg.warmup=96", "maddpg.hidden=32", "replay.capacity=600",
-        "run.checkpoint_every=20", "run.log_every=20")  # tests/test_loop.py's tiny settings, as overrides
+        "service.checkpoint_every_s=1.0")
 RUNNER = """
 import json, sys
 from experiments.run_spec import Run
@@ -57,9 +58,9 @@ def test_a_killed_runner_kills_its_child_and_a_rerun_resumes_it_and_skips_finish
     interrupted = Run("spread_maddpg_s3", "spread", "spread", "maddpg", None, 3, 200, sets=TINY)
     runner = subprocess.Popen([sys.executable, "-c", RUNNER, json.dumps(asdict(interrupted)), str(tmp_path)],
                               cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
-    checkpoints = store.runs_dir(interrupted.id) / "checkpoints"
+    checkpoints = store.runs_dir(interrupted.id) / "checkpoints" / "service"
     try:
-        first = wait_for(lambda: sorted(checkpoints.glob("ckpt_*.pt")), 120, "the run's first checkpoint")[0]
+        first = wait_for(lambda: sorted(checkpoints.glob("supervisor.json")), 120, "the run's first checkpoint")[0]
         children = descendants({runner.pid}, process_table())
         assert children, "the runner has a training child"
         runner.send_signal(signal.SIGKILL)
@@ -68,13 +69,14 @@ def test_a_killed_runner_kills_its_child_and_a_rerun_resumes_it_and_skips_finish
                  f"the runner's children {sorted(children)} to die with it")
     finally:
         runner.kill()
-    before = RunDirectory.open(store.runs_dir(interrupted.id)).latest_checkpoint()
-    assert before is not None and int(before.stem.split("_")[1]) < 200, "killed before the end of its budget"
-    first_inode = first.stat().st_ino
+    run_dir = RunDirectory.open(store.runs_dir(interrupted.id))
+    assert run_dir.runners() == {"service"}, "the inline runner writes the service's checkpoints"
+    assert json.loads(first.read_text())["episodes_logged"] < 200, "killed before the end of its budget"
+    first_row = next(run_dir.rows("episode"))  # its wall clock: a run started over would not repeat it
 
     finished = Run("spread_maddpg_s4", "spread", "spread", "maddpg", None, 4, 200, sets=TINY)
     store.write({**finished.record(), "held_out_coverage": 0.25})
-    assert command(interrupted, store.runs_dir(interrupted.id))[3] == "--resume"
+    assert command(interrupted, store.runs_dir(interrupted.id))[3:5] == ["resume", str(run_dir.path)]
     lines: list[str] = []
     assert run_grid([finished, interrupted], store, report=lines.append) == 0, lines
     assert lines[0] == f"1 runs to do: {interrupted.id}"
@@ -83,7 +85,7 @@ def test_a_killed_runner_kills_its_child_and_a_rerun_resumes_it_and_skips_finish
     assert summaries[finished.id]["held_out_coverage"] == 0.25
     resumed = summaries[interrupted.id]
     assert resumed["episodes"] == 200 and resumed["seed"] == 3
-    assert first.stat().st_ino == first_inode  # resumed in place, not started over (--overwrite would remove it)
+    assert next(run_dir.rows("episode")) == first_row  # resumed in place, not started over (--overwrite)
     episodes = [r["episodes"] for r in RunDirectory.open(store.runs_dir(interrupted.id)).rows("episode")]
     assert episodes == list(range(1, 201))  # every episode once: the rows after the checkpoint were replayed
     assert (tmp_path / "results.csv").read_text().count("\n") == 3  # header and two runs
@@ -119,15 +121,15 @@ def test_a_niced_runner_leading_its_session_gives_its_autogroup_that_nice_and_on
 def test_an_interrupted_run_with_a_wall_clock_budget_resumes_with_what_is_left_of_it(tmp_path, tiny_config):
     """run.max_seconds is each command's budget (a resumed run gets it again), so the runner resumes a grid's run with
     the budget less the seconds its rows record: a grid's budget stays the run's, however often it is paused."""
-    from cmcl.loop import InlineLoop
     from experiments.runner import max_seconds_of, remaining_budget
+    from tests.in_process import train_tiny
 
-    config = tiny_config("maddpg", dir=str(tmp_path / "run"), episodes=8)
-    InlineLoop(config, RunDirectory.create(config.run.dir, config), progress=None).run()
-    spent = max(r["elapsed_s"] for r in RunDirectory.open(config.run.dir).rows())
+    train_tiny(tiny_config("maddpg", service=True, episodes=8), tmp_path / "run")
+    spent = max(r["elapsed_s"] for r in RunDirectory.open(tmp_path / "run").rows())
     run = Run("make_run_maddpg_s0", "make_run", "spread", "maddpg", None, 0, 60_000, max_seconds=300.0)
     cmd = command(run, tmp_path / "run")
-    assert cmd[3] == "--resume" and cmd[5:7] == ["--set", f"run.max_seconds={300.0 - spent!r}"], cmd
+    assert cmd[3:5] == ["resume", str(tmp_path / "run")], cmd
+    assert cmd[5:9] == ["--set", f"run.max_seconds={300.0 - spent!r}", "--runner", "inline"], cmd
     assert remaining_budget(tmp_path / "run", spent / 2) == 0.001, "a spent budget stays a budget (0 is none)"
     no_budget = Run("spread_maddpg_s0", "spread", "spread", "maddpg", None, 0, 200)
     assert "--set" not in command(no_budget, tmp_path / "run")
