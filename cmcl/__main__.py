@@ -20,7 +20,9 @@ SIGINT / SIGTERM after a checkpoint.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import json
 import shlex
 import sys
 
@@ -84,12 +86,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def runner_of(run_dir: RunDirectory) -> str:
-    """The runner that wrote `run_dir`: the one its summary.json names, else the service if it holds a checkpoint
+    """The runner that wrote `run_dir`: the one its summary.json names, else the one its last checkpoint of the
+    supervisor's counters names (a run cut off before its summary), else the service if it holds a checkpoint
     (both runners write and resume the same checkpoints; one of the inline runner's own format of earlier versions is
     refused by cmcl.run_flags.open_run). Raises RunRequestError when none of these tells."""
     summary = run_dir.summary()
     if summary.get("runner") in RUNNERS:
         return summary["runner"]
+    counters = run_dir.supervisor_counters  # a run cut off before its summary: its last checkpoint names it
+    if counters.exists():
+        with contextlib.suppress(ValueError, OSError):
+            runner = json.loads(counters.read_text()).get("runner")
+            if runner in RUNNERS:
+                return runner
     if "inline" in run_dir.runners():
         return "inline"
     if run_dir.runners() or run_dir.service_dir.is_dir():

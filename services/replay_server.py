@@ -66,6 +66,7 @@ class ReplayServer:
         self.counters = {"inserts": 0, "samples": 0, "updates": 0, "episodes": 0, "icm_steps": 0,
                          "icm_scores": 0, "chunks": 0, "restored_records": 0}
         self.teacher_steps, self.teacher_scores = [0] * k, [0] * k
+        self.fold_groups: dict[int, tuple[int, ...]] = {}  # fold -> the folds of the teacher serving it (status)
         self.rejected: dict[str, int] = {}  # refused inputs per reason (services.report_schema.REJECT_REASONS)
         self.stale_scores = 0  # score / |δ| updates dropped as stale (expected, not refused input)
         seeds = np.random.SeedSequence([int(seed), 7]).spawn(self.layout.num_agents + 1)
@@ -96,7 +97,11 @@ class ReplayServer:
     def status(self) -> ReplayStatus:
         """How much work each role may be given now (`cmcl.replay.pacing.Pacing.status`), and the counters the
         supervisor shows."""
-        return ReplayStatus(**dataclasses.asdict(self.pacing.status(self.replay.storage.fold_counts())),
+        counts = self.replay.storage.fold_counts()
+        # a fold served with others (one stacked teacher: teacher_work) gets no work while one of them holds no row
+        # (fewer episodes than folds): its fit steps are not owed yet, else the run's end waits for them forever
+        counts[[f for f, group in self.fold_groups.items() if (counts[list(group)] == 0).any()]] = 0
+        return ReplayStatus(**dataclasses.asdict(self.pacing.status(counts)),
                             size=self.replay.size, env_steps=self.counters["inserts"],
                             episodes=self.counters["episodes"], updates=self.counters["updates"],
                             lam=self.schedule.lam, incarnation=self.incarnation)
@@ -230,6 +235,7 @@ class ReplayServer:
         rows (of other folds) whose score from these teachers is oldest, to score."""
         cfg = self.config
         folds = [int(f) for f in folds]
+        self.fold_groups.update((f, tuple(folds)) for f in folds)
         steps = min(int(steps), self.pacing.teacher_steps_allowed(folds))
         if steps < 1 or (self.replay.storage.fold_counts()[folds] == 0).any():
             return None, self.status()

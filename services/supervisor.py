@@ -283,7 +283,8 @@ class Supervisor:
                     end_if_write_failure(err)  # a full disk: the role's older checkpoint stays
                     self.failures.save_failed(role, err)
         self.checkpoint_seconds.append(time.perf_counter() - started)  # (its own counters' write below excluded)
-        summary = {"episodes_logged": self.episodes_logged, "status": dataclasses.asdict(self.status),
+        summary = {"runner": "inline" if isinstance(self.calls, InProcessCalls) else "service",
+                   "episodes_logged": self.episodes_logged, "status": dataclasses.asdict(self.status),
                    "time": time.time(), "elapsed_s": self.clock.elapsed(), "tallies": self.tallies()}
         atomic_write_bytes(self.paths["supervisor"], json.dumps(summary).encode())
 

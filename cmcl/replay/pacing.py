@@ -137,10 +137,10 @@ class Pacing:
 def pacing_from_config(config: Any, asynchronous: bool = False) -> Pacing:
     """The pacing of a `cmcl.config.Config` (units in the module docstring).
 
-    asynchronous=True, the replay server's: its slack fits a rollout chunk (env.num_envs × env.episode_length transitions) and a call's
-    service.fit_steps_per_call fit steps, plus service.slack_updates learner updates of drift between the roles (the
-    learner's slack is at least it, each scorer's grows by it). False: the tight form (chunks of one batched env
-    step, one fit step, no extra slack), which the tests of the limiters' arithmetic read.
+    asynchronous=True, the replay server's: its slack fits a rollout chunk (env.num_envs × env.episode_length
+    transitions) and a call's service.fit_steps_per_call fit steps, plus service.slack_updates learner updates of
+    drift between the roles (the learner's slack is at least it, each scorer's grows by it). False: the tight form
+    (chunks of one batched env step, one fit step, no extra slack), which the tests of the limiters' arithmetic read.
     """
     env, every = config.env, config.maddpg.update_every
     insert_chunk = env.num_envs * env.episode_length if asynchronous else env.num_envs
