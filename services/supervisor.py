@@ -86,6 +86,7 @@ class Supervisor:
         # starts it afresh)
         self.learning_progress = LearningProgress.from_run_config(config.run)
         self.last_replay_report: Report | None = None
+        self.last_losses: dict[str, list[float]] = {}  # the learner's last reported losses, per kind and agent
         self.clock = RunClock()  # the run's training clock (a resumed run's goes on: restore_counters)
         algorithms = layout_of(config).algorithms
         self.view = ProgressView(config.run.episodes, self.clock, self.status,
@@ -199,6 +200,8 @@ class Supervisor:
             losses = [loss for kinds in value.learner.losses.values() for loss in kinds.values()]
             if not np.isfinite(losses).all():  # the learner's weights diverged: the run ends (services/launch.py)
                 raise TrainingDiverged(self.config, self.status.episodes, self.status.updates, "the learner's losses")
+            self.last_losses = {kind: [agent[kind] for agent in value.learner.losses.values()]
+                                for kind in ("critic", "actor")}  # per agent, in index order
             critic = [kinds["critic"] for kinds in value.learner.losses.values()]
             normalised = agent_mean(kinds.get("critic_normalised", np.nan) for kinds in value.learner.losses.values())
             self.learning_progress.record(self.status.episodes, sum(critic) / len(critic), normalised)
@@ -228,6 +231,12 @@ class Supervisor:
             self.learning_progress.record_episode(row["episodes"], row.get("coverage"))  # progress_signal coverage
 
     # ------------------------------------------------------------------ progress, checkpoints
+    def progress_row(self) -> dict[str, Any]:
+        """The progress row of metrics.jsonl (services.progress_view) with the learner's last losses per agent
+        ("critic_loss", "actor_loss": lists over agents in index order) once it has reported them."""
+        row = self.view.row(self.status, self.last_replay_report)
+        return {**row, **{f"{kind}_loss": losses for kind, losses in self.last_losses.items()}}
+
     def progress_line(self) -> str:
         """One terminal line (services.progress_view)."""
         return self.view.line(self.status, self.last_replay_report, self.lags, self.window)
@@ -338,7 +347,7 @@ class Supervisor:
                     self.metrics.update_rates()
                     if self.progress is not None:
                         self.progress(self.progress_line())
-                    self.run_dir.log(self.view.row(self.status, self.last_replay_report))
+                    self.run_dir.log(self.progress_row())
                 if now - last_ckpt >= cfg.service.checkpoint_every_s:
                     self.held.tick(now, self.inflight[("learner", 0)], self.status, during="checkpoint")
                     self.checkpoint()
@@ -350,7 +359,7 @@ class Supervisor:
         if self.env_error is not None:
             raise self.env_error
         self.view.refresh(self.status)
-        self.run_dir.log(self.view.row(self.status, self.last_replay_report))  # the rows end at the final cut
+        self.run_dir.log(self.progress_row())  # the rows end at the final cut
         if self.progress is not None:
             self.progress(self.progress_line())
         return {**dataclasses.asdict(self.status), **self.status.counters(), **self.view.rates,
