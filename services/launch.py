@@ -26,7 +26,7 @@ from typing import Any
 
 from cmcl.config import Config
 from cmcl.envs.factory import EnvFactoryError
-from cmcl.io.durable import ReplayStore
+from cmcl.io.durable import ReplayStore, StoreError
 from cmcl.io.resume_hint import resume_command
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunLock
@@ -273,8 +273,8 @@ def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: Ru
                                   port_fallback=not port_given_by(request, config), in_process=in_process)
         except RunWriteError:  # a full disk (a role's file, the metrics, the counters): cmcl.run_flags.train_in_run
             raise  # names the file and what a resume starts from
-        except (InfeasibleResources, OSError) as err:
-            print(f"error: {err}", file=sys.stderr)
+        except (InfeasibleResources, OSError, StoreError) as err:  # StoreError: a replay snapshot that fails its
+            print(f"error: {err}", file=sys.stderr)  # checks (cmcl.io.durable), kept as it is
             return 2
         except TrainingDiverged as err:  # every role's last checkpoint before it stays the run's newest
             run_dir.write_summary({"runner": request.runner, "ended": "diverged"})

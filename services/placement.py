@@ -63,6 +63,17 @@ class Roles:
     make_rollout: Callable[[int], Any] = field(repr=False, default=None)
 
 
+def resumed_episodes(run_dir: RunDirectory) -> int:
+    """The episodes a resumed run had logged at its last checkpoint (0 for a new run, or one without it)."""
+    import json
+
+    path = run_dir.supervisor_counters
+    try:
+        return int(json.loads(path.read_text())["episodes_logged"]) if path.exists() else 0
+    except (ValueError, KeyError, OSError):
+        return 0
+
+
 def create_roles(config: Config, run_dir: RunDirectory, in_process: bool = False) -> Roles:
     """Start every role: as a restartable Ray actor with fractional CPUs (after a feasibility check), or, with
     `in_process`, as the same class built as a plain object in this process (`--runner inline`:
@@ -89,8 +100,10 @@ def create_roles(config: Config, run_dir: RunDirectory, in_process: bool = False
 
     rollout_resources = {s.rollout_resource: ROLLOUT_RESOURCE_SHARE} if s.rollout_resource else None
 
+    resumed_at = resumed_episodes(run_dir)
+
     def make_rollout(w: int):
-        return actor(RolloutWorker, s.rollout_cpus, rollout_resources)(cfg, w, seed * 1000 + w)
+        return actor(RolloutWorker, s.rollout_cpus, rollout_resources)(cfg, w, seed * 1000 + w, resumed_at)
 
     teams = config.teams.values()
     groups = teacher_groups(config, available)

@@ -25,12 +25,15 @@ from services.report_schema import FinishedEpisodes, Report, RolloutReport
 class RolloutWorker:
     """One worker: B worlds of the configured task and a copy of the online actors."""
 
-    def __init__(self, config: Any, worker_id: int, seed: int):
+    def __init__(self, config: Any, worker_id: int, seed: int, resumed_at: int = 0):
+        """resumed_at: the episodes the run had stored when this segment began (0: a new run); a resumed run's worlds
+        are then not its first segment's again."""
         parsed = actor_setup(config, uses_torch=False)
         self.worker_id, self.incarnation = int(worker_id), new_incarnation()
         # a restarted worker must not replay its predecessor's worlds: its incarnation is mixed into the seed (a
         # first incarnation's worlds are the seed's own, so that one process's runs repeat exactly)
-        entropy = [int(seed), int(worker_id), *([int(self.incarnation, 16)] if restarted_actor() else [])]
+        entropy = [int(seed), int(worker_id), *([int(resumed_at)] if resumed_at else []),
+                   *([int(self.incarnation, 16)] if restarted_actor() else [])]
         env_seed, noise_seed, net_seed = np.random.SeedSequence(entropy).spawn(3)
         self.env = make_batched_env(parsed, seed=np.random.default_rng(env_seed), auto_reset=True)
         self.layout = agent_layout(parsed, self.env)

@@ -1,5 +1,5 @@
 """Checkpoints are checked against their manifest before decoding: a missing, truncated or bit-flipped file is
-refused by name and the previous generation is used; the roles and the inline resume do so too."""
+refused by name and the previous generation is used; the roles and a resume do so too."""
 
 import json
 import shutil
@@ -58,23 +58,6 @@ def test_a_role_checkpoint_refused_is_reported_and_the_previous_one_restored(tmp
     state, refused = load_state(path)
     assert int(state["version"]) == 1 and len(refused) == 1
     assert "checkpoint refused" in capsys.readouterr().err
-
-
-def test_the_inline_resume_skips_a_corrupt_checkpoint_for_the_one_before(tmp_path):
-    from cmcl.loop.__main__ import main
-
-    run = tmp_path / "run"
-    sets = ["--set", f"run.dir={run}", "--set", "run.episodes=64", "--set", "run.checkpoint_every=32",
-            "--set", "env.num_envs=16", "--set", "maddpg.warmup=64", "--set", "maddpg.batch_size=16"]
-    assert main(["--config", "configs/spread_maddpg.toml", *sets, "--quiet"]) == 0
-    checkpoints = sorted((run / "checkpoints").glob("ckpt_*.pt"))
-    assert [p.name for p in checkpoints] == ["ckpt_00000032.pt", "ckpt_00000064.pt"]
-    flip(checkpoints[-1])
-    with pytest.raises(CheckpointError, match="ckpt_00000064.pt: SHA-256 differs"):
-        load_checkpoint(checkpoints[-1])
-    assert main(["--resume", str(run), "--set", "run.episodes=80", "--quiet"]) == 0
-    episodes = [r["episodes"] for r in RunDirectory.open(run).rows("episode")]
-    assert episodes == list(range(1, 81)), "resumed at episode 32: rows after it rewritten once"
 
 
 def test_a_checkpoint_without_its_digest_file_or_with_a_bad_one_is_refused(tmp_path):
@@ -159,50 +142,59 @@ def test_resume_finds_the_trained_policy_when_the_learner_manifest_is_lost(tmp_p
 
 @pytest.fixture(scope="module")
 def inline_run(tmp_path_factory):
-    """A tiny inline run with checkpoints (and replay snapshots) at episodes 4 and 8."""
-    from cmcl.loop.inline import InlineLoop
+    """A tiny run of the inline runner (the service's roles in one process) checkpointed at episodes 8 and 12: two
+    generations of every role's verified file."""
+    from services.launch import train_in_process
     from tests.tiny import make_tiny_config
 
-    config = make_tiny_config("cmcl", dir=str(tmp_path_factory.mktemp("inline") / "run"), episodes=8,
-                              checkpoint_every=4)
-    InlineLoop(config, RunDirectory.create(config.run.dir, config), progress=None).run()
+    config = make_tiny_config("cmcl", service=True, dir=str(tmp_path_factory.mktemp("inline") / "run"), episodes=8)
+    run = RunDirectory.create(config.run.dir, config)
+    train_in_process(config, run)
+    train_in_process(run.config(("run.episodes=12",)), run, resume=True)
     return Path(config.run.dir)
-
-
-def flip_a_float(snapshot: Path) -> None:
-    """Flip the lowest bit of the first stored observation: the snapshot still decodes, to a value never seen."""
-    from cmcl.io import codec
-
-    obs = codec.decode_snapshot(snapshot.read_bytes(), limits=codec.SNAPSHOT_LIMITS)["replay"]["storage"]["obs"]
-    data = bytearray(snapshot.read_bytes())
-    data[data.index(obs.tobytes()[:64])] ^= 0x01
-    snapshot.write_bytes(bytes(data))
-
-
-DAMAGE = {
-    "replay snapshot: a flipped bit in its data": lambda run: flip_a_float(run / "replay_00000008.msgpack"),
-    "replay snapshot: truncated": lambda run: truncate(run / "replay_00000008.msgpack"),
-    "checkpoint: its .sha256 missing": lambda run: (run / "ckpt_00000008.pt.sha256").unlink(),
-    "checkpoint: truncated": lambda run: truncate(run / "ckpt_00000008.pt"),
-    "checkpoint: truncated, its .sha256 missing": lambda run: (truncate(run / "ckpt_00000008.pt"),
-                                                               (run / "ckpt_00000008.pt.sha256").unlink()),
-}
 
 
 def truncate(path: Path) -> None:
     path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
 
 
+# a role's newest file (generation 2) damaged or gone: the role starts from generation 1 (its manifest holds the
+# digests, a missing .sha256 beside it is no damage)
+DAMAGE = {
+    "learner: a flipped bit": lambda service: flip(service / "learner-000002.pt"),
+    "learner: truncated": lambda service: truncate(service / "learner-000002.pt"),
+    "learner: missing": lambda service: (service / "learner-000002.pt").unlink(),
+    "teachers: a flipped bit": lambda service: flip(service / "teacher_0-1-2-000002.pt"),
+    "icm: truncated": lambda service: truncate(service / "icm-000002.pt"),
+}
+
+
 @pytest.mark.parametrize("damage", list(DAMAGE))
-def test_an_inline_resume_refuses_a_damaged_checkpoint_or_snapshot_for_the_one_before(inline_run, tmp_path, damage,
-                                                                                      capsys):
-    from cmcl.loop.__main__ import restore_newest_good
-    from cmcl.loop.inline import InlineLoop
+def test_an_inline_resume_refuses_a_damaged_role_checkpoint_for_the_one_before(inline_run, tmp_path, damage,
+                                                                               capsys):
+    from cmcl.__main__ import main
 
     run = RunDirectory(shutil.copytree(inline_run, tmp_path / "run"))
-    DAMAGE[damage](run.checkpoints)
-    loop = InlineLoop(run.config(), run, progress=None)
-    restored = restore_newest_good(loop, run)
-    assert restored is not None and restored.name == "ckpt_00000004.pt" and loop.counters["episodes"] == 4
-    refused = capsys.readouterr().err.strip().splitlines()
-    assert len(refused) == 1 and refused[0].startswith("checkpoint refused: ") and "_00000008." in refused[0]
+    DAMAGE[damage](run.service_dir)
+    assert main(["resume", "--runner", "inline", str(run.path), "--more-episodes", "4", "--quiet", "--no-eval"]) == 0
+    out, err = capsys.readouterr()
+    refused = [line for line in err.splitlines() if line.startswith("checkpoint refused: ")]
+    assert len(refused) == 1 and "-000002.pt" in refused[0], err
+    role = damage.split(":")[0]
+    if role == "learner":
+        assert "from checkpoints/service/learner-000001.pt" in out, out
+    assert [r["episodes"] for r in run.rows("episode")] == list(range(1, 17)), "the run goes on from episode 12"
+
+
+def test_an_inline_resume_over_a_damaged_replay_snapshot_ends_in_one_line_naming_it(inline_run, tmp_path, capsys):
+    """The replay store keeps one snapshot (and its log): one that fails its digest cannot be replaced by an older
+    one, so the resume is refused naming the file, and the run is left as it was."""
+    from cmcl.__main__ import main
+
+    run = RunDirectory(shutil.copytree(inline_run, tmp_path / "run"))
+    snapshot = run.service_replay_dir / "snapshot-000002.msgpack"
+    flip(snapshot)
+    assert main(["resume", "--runner", "inline", str(run.path), "--more-episodes", "4", "--quiet", "--no-eval"]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.startswith("error: ") and err.count("\n") == 1, err
+    assert str(snapshot) in err
