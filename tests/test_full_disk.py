@@ -56,8 +56,8 @@ def test_an_inline_run_on_a_full_disk_ends_in_one_line_keeps_its_checkpoints_and
     o = shlex.quote(str(out))
     in_namespace(
         f"$CMCL train --runner inline {tiny} --set run.dir=$DISK/r --set run.episodes=16 "
-        f"--set run.checkpoint_every=8 --quiet --no-eval > {o}/first.out 2>&1 || exit 98; "
-        f"sha256sum $DISK/r/checkpoints/* > {o}/before.sha; fill 0; "
+        f"--quiet --no-eval > {o}/first.out 2>&1 || exit 98; "
+        f"find $DISK/r/checkpoints -type f -exec sha256sum {{}} + > {o}/before.sha; fill 0; "
         f"$CMCL resume $DISK/r --more-episodes 16 --quiet --no-eval > {o}/full.out 2> {o}/full.err; "
         f"echo $? > {o}/full.rc; sha256sum -c --quiet {o}/before.sha > {o}/kept.txt 2>&1; echo $? > {o}/kept.rc; "
         f"$CMCL evaluate $DISK/r --episodes 4 > {o}/eval.out 2> {o}/eval.err; echo $? > {o}/eval.rc; "
@@ -77,7 +77,8 @@ def test_an_inline_run_on_a_full_disk_ends_in_one_line_keeps_its_checkpoints_and
     assert f"learning curve: not written (cannot write {run}/learning_curve.png: {NO_ROOM})" in evaluated, evaluated
     resumed = (out / "room.out").read_text()
     assert (out / "room.rc").read_text().strip() == "0", resumed
-    assert f"resumed from {run}/checkpoints/ckpt_00000016.pt at episode 16" in resumed, resumed
+    assert f"resuming {run} from checkpoints/service/learner-000001.pt" in resumed and "done: 32 episodes" in resumed, \
+        resumed
 
 
 def test_a_service_run_on_a_full_disk_ends_in_one_line_and_resumes_once_there_is_room(tmp_path):
