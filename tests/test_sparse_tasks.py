@@ -324,5 +324,5 @@ def test_each_preset_trains_a_few_hundred_episodes_end_to_end(task, tmp_path):
     from cmcl.io.rundir import RunDirectory
 
     rows = list(RunDirectory.open(run_dir).rows("episode"))
-    assert len(rows) == 300
+    assert len(rows) >= 300  # whole batches of env.num_envs worlds: 304
     assert all("success" in r for r in rows[-10:])
