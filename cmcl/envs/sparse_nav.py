@@ -47,6 +47,7 @@ class NavParams:
 
     num_agents: int = 4
     agent_radius: float = 0.1
+    landmark_radius: float = 0.05  # for drawing only: landmarks do not collide (VACL's cover 0.15 = 0.1 + this)
     cover_radius: float = 0.15  # a landmark is covered when some agent's centre is closer than this
     agent_spawn: float = 3.0  # agents uniform in [-agent_spawn, agent_spawn]^2
     landmark_spawn: float = 3.0  # landmarks uniform in [-landmark_spawn, landmark_spawn]^2
@@ -60,7 +61,7 @@ class NavParams:
 
     def __post_init__(self) -> None:
         check_int("num_agents", self.num_agents, 1)
-        for name in ("agent_radius", "cover_radius", "agent_spawn", "landmark_spawn", "sensitivity"):
+        for name in ("agent_radius", "landmark_radius", "cover_radius", "agent_spawn", "landmark_spawn", "sensitivity"):
             check_float(name, getattr(self, name))
         for name in ("cover_reward", "collision_reward"):
             check_float(name, getattr(self, name), -np.inf)

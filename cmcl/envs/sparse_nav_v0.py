@@ -26,41 +26,27 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from mpe2._mpe_utils.core import Agent, Landmark
 
 from cmcl.envs import sparse_nav
-from cmcl.envs.pz_base import SparseParallelEnv
+from cmcl.envs.pz_base import SparseParallelEnv, agent_contacts
 from cmcl.envs.render import draw_world
 from cmcl.envs.sparse_nav import NavParams, sample_nav
+from cmcl.envs.sparse_spread_v0 import SparseSpreadEnv
 
 NAME = "sparse_nav_v0"
 
 
-class SparseNavEnv(SparseParallelEnv):
-    """The navigation variants of cmcl.envs.sparse_nav; construct through `parallel_env(...)`."""
+class SparseNavEnv(SparseSpreadEnv):
+    """The navigation variants of cmcl.envs.sparse_nav; construct through `parallel_env(...)`. Its world is built as
+    sparse_spread_v0's (agents, landmarks; `_build_world`); sampling, observations, rewards and walls are its own."""
 
     metadata = {**SparseParallelEnv.metadata, "name": NAME}
 
     def __init__(self, params: NavParams, render_mode: str | None = None) -> None:
-        self.params = params
+        self.params = params  # type: ignore[assignment]  (NavParams has the fields _build_world reads)
         self.obs_dims = (params.obs_dim,) * params.num_agents
-        super().__init__(params.episode_length, render_mode)
-
-    def _build_world(self) -> None:
-        p = self.params
-        self.world.agents = [Agent() for _ in range(p.num_agents)]
-        for i, agent in enumerate(self.world.agents):
-            agent.name = f"agent_{i}"
-            agent.size = p.agent_radius
-            agent.accel = p.sensitivity
-            agent.max_speed = None
-            agent.color = np.array([0.35, 0.35, 0.85])
-        self.world.landmarks = [Landmark() for _ in range(p.num_landmarks)]
-        for l, lm in enumerate(self.world.landmarks):
-            lm.name = f"landmark_{l}"
-            lm.collide = False
-            lm.size = 0.05
-            lm.color = np.array([0.25, 0.25, 0.25])
+        self.tags = None
+        SparseParallelEnv.__init__(self, params.episode_length, render_mode)
 
     def _sample(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         agents, landmarks = sample_nav(rng, 1, self.params)
@@ -95,14 +81,7 @@ class SparseNavEnv(SparseParallelEnv):
     def _score(self, wall_hit: np.ndarray) -> tuple[np.ndarray, list[dict[str, Any]]]:
         p, agents = self.params, self.world.agents
         n = len(agents)
-        collided = np.zeros(n, dtype=bool)
-        pairs = 0
-        for v in range(n):
-            for u in range(v + 1, n):
-                if np.sqrt(np.sum(np.square(agents[v].state.p_pos - agents[u].state.p_pos))) < \
-                        agents[v].size + agents[u].size:
-                    collided[v] = collided[u] = True
-                    pairs += 1
+        collided, pairs = agent_contacts(agents)
         covered = self.covered()
         team = float(p.team_reward(covered))
         rewards = team + np.where(collided, p.collision_reward, 0.0)
