@@ -29,7 +29,9 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
 * ``scale`` (issue 22): navigation with more agents, each cell of SCALE_CELLS (agent count x networks) with
   MADDPG, the full budget, progress rows every 200 episodes; the per-agent cells are the baseline;
 * ``own_envs`` (issue 23, item 6): environments no one here wrote (experiments.own_envs.OWN_ENVS) through
-  ``env.factory``, inline and on the embedded service, each with its own budget and settings.
+  ``env.factory``, inline and on the embedded service, each with its own budget and settings;
+* ``sparse_calibration`` (issue 56, docs/SPARSE_TASKS.md): uniform MADDPG and PER-MADDPG on each sparse task of
+  SPARSE_TASKS (its preset configs/<task>_maddpg.toml, through ``env.factory``), inline, the preset's budget.
 
 Runs are ordered seed outermost (seed k of every cell before any seed k+1), so a grid stopped part-way has
 balanced arms. A run's id names its summary file, so ids never change once results exist.
@@ -240,6 +242,25 @@ def own_env_runs(seed: int) -> list[Run]:
             for name, env in OWN_ENVS.items() for mode in ("inline", "service")]
 
 
+# issue 56's sparse tasks (docs/SPARSE_TASKS.md), shortest budget first: task -> its preset under configs/
+SPARSE_TASKS = {t: f"{t}_maddpg.toml" for t in ("push_box", "pass", "vacl_n4", "vacl_n8", "spmarl_n8")}
+SPARSE_ALGORITHMS = ("maddpg", "per")  # uniform MADDPG and PER-MADDPG (arms; --arms maddpg runs the first alone)
+
+
+def sparse_calibration_runs(seed: int) -> list[Run]:
+    """The sparse_calibration grid: every task of SPARSE_TASKS with each of SPARSE_ALGORITHMS at the preset's
+    budget (its run.episodes and run.max_seconds), id "sparse_calibration_<task>_<algorithm>_s<seed>"."""
+    runs = []
+    for task, config in SPARSE_TASKS.items():
+        preset = load_data(ROOT / "configs" / config)["run"]
+        for algorithm in SPARSE_ALGORITHMS:
+            runs.append(Run(f"sparse_calibration_{task}_{algorithm}_s{seed}", "sparse_calibration", "own_env",
+                            algorithm, None, seed, int(preset["episodes"]), arm=algorithm, config=config,
+                            max_seconds=float(preset["max_seconds"]), env=task,
+                            sets=(f"teams.agent.algorithm={algorithm}", "run.checkpoint_every=500")))
+    return runs
+
+
 GRIDS = {  # name -> results folder (its summaries/ and runs/)
     "spread": RESULTS / "reproduce", "tag": RESULTS / "reproduce", "winrate": RESULTS / "reproduce",
     "ablations": RESULTS / "reproduce", "curriculum": RESULTS / "curriculum",
@@ -248,6 +269,7 @@ GRIDS = {  # name -> results folder (its summaries/ and runs/)
     "screen": RESULTS / "screen", "confirm": RESULTS / "confirm", "make_run": RESULTS / "make_run",
     "schedule": RESULTS / "time_to_solve",
     "algorithms": RESULTS / "time_to_solve", "own_envs": RESULTS / "own_envs", "scale": RESULTS / "scale",
+    "sparse_calibration": RESULTS / "sparse_calibration",
 }
 
 
@@ -294,6 +316,8 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str] = PAPER_ALGOR
                 runs += ablation_runs(seed, budget)
             elif name == "own_envs":
                 runs += own_env_runs(seed)
+            elif name == "sparse_calibration":
+                runs += sparse_calibration_runs(seed)
             elif name == "scale":
                 runs += scale_runs(seed, budget)
             elif name in ("schedule", "algorithms"):

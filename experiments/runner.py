@@ -90,7 +90,7 @@ def command(run: Run, run_path: Path) -> list[str]:
         sets.append(f"run.max_seconds={run.max_seconds}")
     sets += run.sets
     config_file = ROOT / "configs" / (run.config or f"{run.task}_{run.algorithm}.toml")
-    config = [] if run.task == "own_env" else ["--config", str(config_file)]  # own envs: defaults and their sets
+    config = [] if run.task == "own_env" and run.config is None else ["--config", str(config_file)]  # own envs: sets
     set_flags = [a for s in sets for a in ("--set", s)]
     if run.stages:
         budgets = ["--stage-episodes", *map(str, run.stage_episodes)] if run.stage_episodes else []

@@ -30,6 +30,20 @@ from cmcl.envs.common import ARENA_HALF, CONTACT_FORCE, CONTACT_MARGIN, DAMPING,
 from cmcl.envs.render import draw_world
 
 
+def agent_contacts(agents: list) -> tuple[np.ndarray, int]:
+    """(bool[N] agents touching another agent, the number of agent pairs in contact): distance < r_v + r_u."""
+    n = len(agents)
+    collided = np.zeros(n, dtype=bool)
+    pairs = 0
+    for v in range(n):
+        for u in range(v + 1, n):
+            d = np.sqrt(np.sum(np.square(agents[v].state.p_pos - agents[u].state.p_pos)))
+            if d < agents[v].size + agents[u].size:
+                collided[v] = collided[u] = True
+                pairs += 1
+    return collided, pairs
+
+
 class WalledWorld(World):
     """mpe2's World, unchanged except that two discs at exactly the same point exert no contact force.
 

@@ -29,7 +29,7 @@ from mpe2._mpe_utils.core import Agent, Landmark
 
 from cmcl.envs import metrics
 from cmcl.envs.params import EPISODE_LENGTH, SpreadParams
-from cmcl.envs.pz_base import SparseParallelEnv
+from cmcl.envs.pz_base import SparseParallelEnv, agent_contacts
 from cmcl.envs.spawn import sample_agent_tags, sample_spread
 
 NAME = "sparse_spread_v0"
@@ -98,14 +98,7 @@ class SparseSpreadEnv(SparseParallelEnv):
     def _score(self, wall_hit: np.ndarray) -> tuple[np.ndarray, list[dict[str, Any]]]:
         p, agents = self.params, self.world.agents
         n = len(agents)
-        collided = np.zeros(n, dtype=bool)
-        pairs = 0
-        for v in range(n):
-            for u in range(v + 1, n):
-                d = np.sqrt(np.sum(np.square(agents[v].state.p_pos - agents[u].state.p_pos)))
-                if d < agents[v].size + agents[u].size:
-                    collided[v] = collided[u] = True
-                    pairs += 1
+        collided, pairs = agent_contacts(agents)
         covering = np.zeros(n, dtype=bool)
         covered = 0
         for lm in self.world.landmarks:
