@@ -47,7 +47,12 @@ def status_line(path: str | Path) -> str:
     summary, holder = run_dir.summary(), holder_of(run_dir.path)
     episodes = max(int(last.get("episodes", 0)), int(summary.get("episodes", 0)))
     elapsed = max(float(last.get("elapsed_s", 0.0)), float(summary.get("elapsed_s", 0.0)))
-    runner = summary.get("runner") or ("service" if run_dir.service_dir.is_dir() else "inline")
+    from cmcl.__main__ import runner_of  # (no torch, no Ray) the runner `resume` takes: a cut-off run's counters say it
+
+    try:
+        runner = runner_of(run_dir)
+    except ValueError:  # a start that failed before its first episode
+        runner = "inline"
     if holder is not None:
         state = f"running ({holder})"
     elif summary and float(summary.get("elapsed_s", 0.0)) >= float(last.get("elapsed_s", 0.0)):

@@ -223,13 +223,14 @@ def test_padding_carries_tagged_rows_to_more_agents():
 
 
 def test_a_short_tagged_training_run_and_its_evaluation(tmp_path, capsys):
-    from cmcl.evaluate import main as evaluate
     from cmcl.__main__ import main as cmcl
+    from cmcl.evaluate import main as evaluate
 
     run = tmp_path / "run"
-    assert cmcl(["train", "--runner", "inline", "--config", "configs/smoke.toml", "--set", f"run.dir={run}", "--set", "run.episodes=8",
-                  "--set", "env.num_agents=3", "--set", "env.agent_tags=true", "--set", "maddpg.networks=entity",
-                  "--set", "maddpg.warmup=64", "--set", "maddpg.batch_size=16", "--quiet"]) == 0
+    assert cmcl(["train", "--runner", "inline", "--config", "configs/smoke.toml", "--set", f"run.dir={run}",
+                 "--set", "run.episodes=8", "--set", "env.num_agents=3", "--set", "env.agent_tags=true",
+                 "--set", "maddpg.networks=entity", "--set", "maddpg.warmup=64", "--set", "maddpg.batch_size=16",
+                 "--quiet"]) == 0
     capsys.readouterr()
     assert "agent_tags = true" in (run / "config.toml").read_text()
     assert evaluate([str(run), "--episodes", "8", "--gif", str(tmp_path / "e.gif")]) == 0

@@ -68,9 +68,9 @@ def run_cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
                           timeout=timeout)
 
 
-def trained_run(tiny_config, path: Path, episodes: int = 4, algorithm: str = "maddpg") -> RunDirectory:
+def trained_run(tiny_config, path: Path, episodes: int = 4, algorithm: str = "maddpg", **sections) -> RunDirectory:
     """A finished tiny inline run in `path`, trained in this process, every role checkpointed at its end."""
-    return trained_inline_run(tiny_config(algorithm, dir=str(path), episodes=episodes))
+    return trained_inline_run(tiny_config(algorithm, dir=str(path), episodes=episodes, sections=sections))
 
 
 def same_tensors(a, b) -> bool:
@@ -164,7 +164,8 @@ def test_a_finished_run_is_said_so_on_resume_and_more_episodes_train_it_further(
     --more-episodes N it trains N episodes past those it did, its derived λ stride unchanged (said only where a rule
     reads λ); a multiplicative λ schedule, whose growth follows run.episodes, is refused naming it, the run
     untouched."""
-    run_dir = trained_run(tiny_config, tmp_path / "run", algorithm="acl")
+    # 3 teacher folds: each holds an episode of the 4 (a fold without one gets no fit steps yet)
+    run_dir = trained_run(tiny_config, tmp_path / "run", algorithm="acl", teachers={"num_folds": 3})
     policy, updates = run_dir.newest_policy().state, run_dir.summary()["updates"]
     again = run_cli("resume", str(run_dir.path), "--quiet", "--no-eval")
     assert again.returncode == 0, again.stdout + again.stderr
@@ -251,9 +252,10 @@ def test_either_runner_resumes_a_run_of_either(tmp_path, tiny_config, capsys):
     without starting Ray), and the inline runner goes on with a run the service wrote (its summary names the
     service, so a plain `resume` would start the service: --runner inline)."""
     run_dir = trained_run(tiny_config, tmp_path / "run")
-    config, opened, lock = open_run(RunRequest(runner="service", resume_dir=str(run_dir.path), quiet=True))
+    config, opened, lock = open_run(RunRequest(runner="service", resume_dir=str(run_dir.path), more_episodes=4,
+                                               quiet=True))
     lock.release()
-    assert opened.path == run_dir.path and config.run.episodes == 4 and capsys.readouterr().err == ""
+    assert opened.path == run_dir.path and config.run.episodes == 8
     run_dir.write_summary({**run_dir.summary(), "runner": "service"})
     assert runner_of(run_dir) == "service"
     assert main(["resume", str(run_dir.path), "--runner", "inline", "--more-episodes", "4", "--quiet",
@@ -357,7 +359,8 @@ def test_a_run_written_before_the_priority_tables_resumes_and_evaluates(tmp_path
     assert run_dir.config() == config
     resumed = main(["resume", str(path), "--more-episodes", "4", "--quiet", "--no-eval"])
     assert resumed == 0, capsys.readouterr()
-    assert "resumed from" in capsys.readouterr().out and [r["episodes"] for r in run_dir.rows("episode")][-1] == 8
+    assert f"resuming {path} from checkpoints/service/learner-000001.pt" in capsys.readouterr().out
+    assert [r["episodes"] for r in run_dir.rows("episode")][-1] == 8
     assert main(["evaluate", str(path), "--episodes", "4", "--no-gif"]) == 0, capsys.readouterr().err
     assert evaluation_json(capsys.readouterr().out)["policy"] == "trained"
     assert run_dir.config_path.read_text() == stored

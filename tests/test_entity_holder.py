@@ -287,8 +287,8 @@ def test_it_trains_inline_and_evaluation_rebuilds_the_same_model_while_the_other
     from cmcl.evaluate import load_policy
     from cmcl.evaluate import main as evaluate
     from cmcl.io.rundir import RunDirectory
-    from services.launch import train_in_process
     from cmcl.run_flags import check_warm_start
+    from services.launch import train_in_process
     from services.learner import Learner
     from tests.evaluation_output import evaluation_json
 

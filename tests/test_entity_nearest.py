@@ -83,8 +83,8 @@ def test_it_trains_inline_and_evaluation_and_warm_starts_rebuild_the_same_model(
     from cmcl.evaluate import load_policy
     from cmcl.evaluate import main as evaluate
     from cmcl.io.rundir import RunDirectory
-    from services.launch import train_in_process
     from cmcl.run_flags import check_warm_start
+    from services.launch import train_in_process
 
     # two rounds of the 16 worlds, two updates in the second (tests/test_scale_presets.py's smoke, k = 3)
     run = tmp_path / "run"

@@ -1,7 +1,7 @@
 """Your own environment (env.factory): loading and its errors, the vectorising adapter (padding, masks, bounds,
 episodes of any length, termination), whole-episode chunks with fold-keeping ids, and CI-sized training of mpe2's
 simple_spread, simple_speaker_listener and simple_tag, MaMuJoCo's 2-agent HalfCheetah (a physics environment) and
-the from-scratch example in the inline loop."""
+the from-scratch example on the inline runner (the service's roles in one process: services.launch.train_in_process)."""
 
 import numpy as np
 import pytest
@@ -11,8 +11,8 @@ from cmcl.envs.factory import EnvFactoryError
 from cmcl.episodes import EpisodeChunker, WorldEpisodes
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.policy import NumpyPolicy
-from cmcl.loop.inline import InlineLoop
 from cmcl.system import agent_layout, make_batched_env
+from tests.in_process import train_tiny
 
 REACH = "cmcl.envs.examples.reach:parallel_env"
 EARLY_EXIT = "tests.early_exit:parallel_env"  # agent_0 terminates after 2 steps, agent_1 truncates after 5
@@ -22,8 +22,7 @@ CONTINUOUS = "env.factory_kwargs={continuous_actions=true, max_cycles=25}"
 HALFCHEETAH = ["env.factory=gymnasium_robotics:mamujoco_v1.parallel_env",  # two agents of 3 joints each, Box(-1, 1)
                'env.factory_kwargs={scenario="HalfCheetah", agent_conf="2x3", max_episode_steps=25}']
 TINY = ["env.num_envs=4", "maddpg.batch_size=16", "maddpg.warmup=96", "maddpg.hidden=32", "replay.capacity=600",
-        "teachers.batch_size=16", "teachers.hidden=32", "teachers.num_folds=3", "icm.batch_size=16",
-        "run.log_every=8", "run.checkpoint_every=0"]
+        "teachers.batch_size=16", "teachers.hidden=32", "teachers.num_folds=3", "icm.batch_size=16"]
 
 
 class GreedyWalker:
@@ -164,45 +163,52 @@ def test_lock_step_worlds_give_the_lock_step_chunk_and_ids():
                                         ("speaker_listener", ["teams.speaker.algorithm=cmcl",
                                                               "teams.listener.algorithm=maddpg"]),
                                         ("tag", ["teams.adversary.algorithm=cmcl", "teams.agent.algorithm=per"])])
-def test_mpe2_environments_train_in_the_inline_loop(name, teams, tmp_path):
+def test_mpe2_environments_train_on_the_inline_runner(name, teams, tmp_path):
     cfg = config(MPE[name], CONTINUOUS, "run.episodes=16", *teams)
-    loop = InlineLoop(cfg, None, progress=None)
-    row = loop.run()
+    row, roles = train_tiny(cfg, tmp_path / "run")
     assert row["episodes"] >= 16 and row["env_steps"] == 16 * 25 and row["updates"] > 0
-    assert set(row["window"]["reward"]) == set(loop.layout.teams)
+    assert set(row["window"]["reward"]) == set(roles.learner.layout.teams)
     assert np.isfinite(list(row["window"]["reward"].values())).all()
 
 
-def test_a_physics_environment_outside_mpe_trains_in_the_inline_loop():
+def test_a_physics_environment_outside_mpe_trains_on_the_inline_runner(tmp_path):
     cfg = load_config(None, [*HALFCHEETAH, *TINY, "env.episode_length=25", "run.episodes=8"])
-    loop = InlineLoop(cfg, None, progress=None)
-    assert (loop.env.obs_dims, loop.env.act_dims, loop.layout.teams) == ((12, 12), (3, 3), {"agent": [0, 1]})
-    row = loop.run()
+    row, roles = train_tiny(cfg, tmp_path / "run")
+    worker = roles.rollout[0]
+    assert (worker.env.obs_dims, worker.env.act_dims, worker.layout.teams) == ((12, 12), (3, 3), {"agent": [0, 1]})
+    assert roles.learner.layout.teams == {"agent": [0, 1]}
     assert row["episodes"] >= 8 and row["env_steps"] == 8 * 25 and row["updates"] > 0
     assert np.isfinite(row["window"]["reward"]["agent"])
 
 
-def test_the_example_reports_success_and_its_terminations_reach_the_critic_target(tmp_path):
-    from cmcl.io.rundir import RunDirectory
+def test_the_example_reports_success_and_its_terminations_reach_the_critic_target(tmp_path, monkeypatch):
+    from services.rollout import RolloutWorker
 
-    cfg = config(REACH, "env.success_key=reached", "run.episodes=24", f"run.dir={tmp_path / 'reach'}")
-    loop = InlineLoop(cfg, RunDirectory.create(cfg.run.dir, cfg), progress=None)
-    loop.maddpg.act = GreedyWalker.act
-    row = loop.run()
+    monkeypatch.setattr(RolloutWorker, "_numpy_policy", lambda self, actor: GreedyWalker())  # every policy published
+    cfg = config(REACH, "env.success_key=reached", "run.episodes=24")
+    row, roles = train_tiny(cfg, tmp_path / "reach")
     assert row["window"]["success"] == 1.0
-    stored = loop.replay.storage
-    assert (stored.done[: loop.replay.size].sum(0) == row["episodes"]).all(), "one terminal row per episode"
-    resumed = InlineLoop(cfg, None, progress=None)
-    resumed.restore(loop.run_dir.latest_checkpoint())
-    assert resumed.counters == loop.counters
-    assert resumed.episodes.ids.min() > loop.episodes.ids.max(), "a resumed factory run starts new episodes"
+    replay = roles.replay.replay
+    stored, size = replay.storage, replay.size
+    assert (stored.done[:size].sum(0) == row["episodes"]).all(), "one terminal row per episode"
+    counted = {k: roles.replay.counters[k] for k in ("inserts", "episodes", "updates")}
+    rows, episodes = stored.id[:size].max(), stored.episode[:size].max()
+    again, resumed = train_tiny(cfg, tmp_path / "reach", resume=True)  # its budget done: restored, nothing more
+    assert {k: resumed.replay.counters[k] for k in counted} == counted and again["episodes"] == 24
+    more, resumed = train_tiny(cfg, tmp_path / "reach", episodes=32, resume=True)
+    assert more["episodes"] == 32 and more["window"]["success"] == 1.0
+    stored = resumed.replay.replay.storage
+    new = stored.id[: resumed.replay.replay.size] > rows
+    assert new.any() and (stored.episode[: resumed.replay.replay.size][new] > episodes).all(), \
+        "a resumed factory run starts new episodes"
 
 
 def test_evaluation_and_the_gif_work_for_a_factory_environment(tmp_path):
     from cmcl.evaluate import evaluate_policy, render_gif
+    from services.learner import Learner
 
     cfg = config(REACH, "env.success_key=reached")
-    maddpg = InlineLoop(cfg, None, progress=None).maddpg
+    maddpg = Learner(cfg, 0).maddpg  # the learner's untrained networks
     result = evaluate_policy(cfg, GreedyWalker(), episodes=20)
     assert result["success"] == 1.0 and result["episodes"] == 20, result
     random = evaluate_policy(cfg, None, episodes=20)
@@ -240,7 +246,7 @@ def test_the_rollout_worker_sends_whole_episodes_of_any_length_and_the_replay_ke
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["spread", "speaker_listener", "tag", "halfcheetah"])
-def test_each_environment_of_the_own_envs_grid_learns_above_the_random_policy(name):
+def test_each_environment_of_the_own_envs_grid_learns_above_the_random_policy(name, tmp_path):
     """The full run of the own_envs grid (experiments/own_envs.py), seed 0, inline: every team's held-out return
     (against random other teams when the teams compete) beats the random policy's by more than 5 on the same
     200 held-out episodes. A few minutes each on one free core (simple_tag, 6,000 episodes: about 10)."""
@@ -248,12 +254,11 @@ def test_each_environment_of_the_own_envs_grid_learns_above_the_random_policy(na
     from experiments.own_envs import OWN_ENVS
 
     env = OWN_ENVS[name]
-    cfg = load_config(None, [f"env.factory={env.factory}", *env.sets, f"run.episodes={env.budget}",
-                             "run.checkpoint_every=0", "run.seed=0"])
-    loop = InlineLoop(cfg, None, progress=None)
-    loop.run()
+    cfg = load_config(None, [f"env.factory={env.factory}", *env.sets, f"run.episodes={env.budget}", "run.seed=0"])
+    _, roles = train_tiny(cfg, tmp_path / "run")
     random = evaluate_policy(cfg, None, episodes=200, seed=0)["reward"]
     for team in random:  # competing teams against random opponents, cooperating ones together
         others = tuple(t for t in random if t != team) if env.competing else ()
-        trained = evaluate_policy(cfg, loop.maddpg, episodes=200, seed=0, random_teams=others)["reward"][team]
+        trained = evaluate_policy(cfg, roles.learner.maddpg, episodes=200, seed=0,
+                                  random_teams=others)["reward"][team]
         assert trained > random[team] + 5.0, (team, trained, random[team])

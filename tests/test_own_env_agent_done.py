@@ -6,8 +6,8 @@ agent_1 plays on until its truncation after 5."""
 import numpy as np
 
 from cmcl.learners.maddpg import MADDPG
-from cmcl.loop.inline import InlineLoop
 from cmcl.system import make_batched_env
+from tests.in_process import train_tiny
 from tests.test_own_env import EARLY_EXIT, config
 
 
@@ -37,10 +37,11 @@ def test_an_early_termination_cuts_only_that_agents_bootstrap():
     np.testing.assert_allclose(owner, y, rtol=1e-6)  # per-owner batches read each owner's own column
 
 
-def test_the_inline_loop_stores_each_agents_done():
-    loop = InlineLoop(config(EARLY_EXIT, "env.episode_length=5", "run.episodes=8"), None, progress=None)
-    loop.run()
-    rows = slice(0, loop.replay.size)
-    stored, step = loop.replay.storage.done[rows], np.round(loop.replay.storage.next_obs[rows, 1, 0] * 5)
+def test_a_run_stores_each_agents_done(tmp_path):
+    summary, roles = train_tiny(config(EARLY_EXIT, "env.episode_length=5", "run.episodes=8"), tmp_path / "run")
+    replay = roles.replay.replay
+    rows = slice(0, replay.size)
+    assert summary["episodes"] == 8 and replay.size == 8 * 5
+    stored, step = replay.storage.done[rows], np.round(replay.storage.next_obs[rows, 1, 0] * 5)
     np.testing.assert_array_equal(stored[:, 0], step >= 2)  # agent_0 from its termination at step 2 on
     assert not stored[:, 1].any()

@@ -1,14 +1,14 @@
 """env.factory environments with Discrete action spaces: Gumbel-softmax actors (ALGORITHM.md A17) whose logits cover
 each agent's n actions (padded and masked where agents differ), an int per agent for the env (start + argmax of the
-sample), and CI-sized training of mpe2's simple_spread with discrete actions in the inline loop."""
+sample), and CI-sized training of mpe2's simple_spread with discrete actions on the inline runner."""
 
 import numpy as np
 import pytest
 
 from cmcl.config import ConfigError
 from cmcl.learners.maddpg import MADDPG
-from cmcl.loop.inline import InlineLoop
 from cmcl.system import agent_layout, make_batched_env
+from tests.in_process import train_tiny
 from tests.test_own_env import EARLY_EXIT, MPE, config, torch_policy_actions
 
 DISCRETE = "env.factory_kwargs={continuous_actions=false, max_cycles=25}"
@@ -49,13 +49,15 @@ def test_agents_with_different_discrete_sizes_never_pick_a_padded_action():
     assert all(np.isfinite(v).all() for v in stats.values())
 
 
-def test_mpe2_spread_with_discrete_actions_trains_in_the_inline_loop():
+def test_mpe2_spread_with_discrete_actions_trains_on_the_inline_runner(tmp_path):
     cfg = config(MPE["spread"], DISCRETE, "run.episodes=16", "teams.agent.algorithm=cmcl")
-    loop = InlineLoop(cfg, None, progress=None)
-    assert loop.layout.discrete and loop.maddpg.discrete and loop.layout.act_dim == 5
-    row = loop.run()
+    row, roles = train_tiny(cfg, tmp_path / "run")
+    learner = roles.learner
+    assert learner.layout.discrete and learner.maddpg.discrete and learner.layout.act_dim == 5
+    assert isinstance(roles.rollout[0].policy, MADDPG) and roles.rollout[0].policy.discrete
     assert row["episodes"] >= 16 and row["env_steps"] == 16 * 25 and row["updates"] > 0
-    stored = loop.replay.storage.act[: loop.replay.size]
+    replay = roles.replay.replay
+    stored = replay.storage.act[: replay.size]
     np.testing.assert_allclose(stored.sum(-1), 1.0, atol=1e-5)  # the critic sees the Gumbel-softmax samples
     assert np.isfinite(row["window"]["reward"]["agent"])
 

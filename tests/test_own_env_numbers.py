@@ -13,7 +13,7 @@ import pytest
 from cmcl.config import load_config
 from cmcl.envs.factory import EnvFactoryError, load_factory
 from cmcl.envs.parallel_vector import CHECK_EVERY, ObservationError, VectorParallelEnv
-from cmcl.loop.inline import InlineLoop
+from tests.in_process import train_tiny
 from tests.test_own_env import TINY
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -92,22 +92,33 @@ def test_mpe2_observations_pass_the_full_check_at_every_step():
 
 
 # ----- item 8: λ follows the steps taken ---------------------------------------------------------------------------
+def probe_config(max_cycles):
+    return load_config(None, [f"env.factory={PROBE}", f"env.factory_kwargs={{max_cycles={max_cycles}}}",
+                              "env.episode_length=10", *TINY, "run.episodes=40", "run.smoothing_window=4"])
+
+
 def lambdas(max_cycles):
-    cfg = load_config(None, [f"env.factory={PROBE}", f"env.factory_kwargs={{max_cycles={max_cycles}}}",
-                             "env.episode_length=10", *TINY, "run.episodes=40", "run.smoothing_window=4"])
-    loop = InlineLoop(cfg, None, progress=None)
-    rows = []
-    while loop.counters["episodes"] < cfg.run.episodes:
-        rows += loop.env_step()
-    return [row["lambda"] for row in rows], loop.schedule.lam
+    """λ of the replay server after each rollout chunk (env.num_envs whole episodes) of the run's 40 episodes, the
+    roles driven by hand (no updates: λ follows the episodes stored)."""
+    from services.replay_server import ReplayServer
+    from services.rollout import RolloutWorker
+
+    cfg = probe_config(max_cycles)
+    replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
+    lams = []
+    while replay.counters["episodes"] < cfg.run.episodes:
+        assert replay.insert(worker.rollout(None)[0]).error is None
+        lams.append(replay.schedule.lam)
+    return lams
 
 
-def test_lambda_reaches_its_maximum_on_schedule_when_episodes_are_shorter_than_episode_length():
-    short, short_end = lambdas(5)  # every episode ends after 5 of the 10 budgeted steps
-    full, full_end = lambdas(10)
-    assert full_end == 1.0 and short_end == 1.0, "before: 0.568 (200 of the 400 budgeted steps taken)"
+def test_lambda_reaches_its_maximum_on_schedule_when_episodes_are_shorter_than_episode_length(tmp_path):
+    short, full = lambdas(5), lambdas(10)  # every episode ends after 5 of the 10 budgeted steps, or after 10
+    assert full[-1] == 1.0 and short[-1] == 1.0, "before: 0.568 (200 of the 400 budgeted steps taken)"
     assert short == full, "λ per episode does not depend on how long the episodes were"
-    assert 0.1 < short[len(short) // 4] < 1.0 and short[-1] == 1.0
+    assert len(short) == 40 // 4 and 0.1 < short[len(short) // 4] < 1.0
+    summary, roles = train_tiny(probe_config(5), tmp_path / "run")  # and a run of them ends at λ_max
+    assert summary["episodes"] == 40 and summary["lambda"] == roles.replay.schedule.lam == 1.0
 
 
 def test_the_replay_server_counts_whole_episodes_on_the_budget_clock():

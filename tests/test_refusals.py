@@ -198,27 +198,22 @@ def test_a_cluster_that_does_not_answer_is_one_line_within_seconds(tmp_path):
     assert not (tmp_path / "run").exists()
 
 
-def trained_run(tiny_config, path: Path, episodes: int = 4, every: int = 4):
-    """A tiny inline run in `path`, trained in this process, checkpointed every `every` episodes."""
-    from cmcl.io.rundir import RunDirectory
-    from cmcl.loop import InlineLoop
+def trained_run(tiny_config, path: Path, episodes: int = 4, algorithm: str = "maddpg"):
+    """A finished tiny inline run in `path`, trained in this process, every role checkpointed at its end."""
+    from tests.in_process import trained_inline_run
 
-    config = tiny_config("maddpg", dir=str(path), episodes=episodes, checkpoint_every=every, log_every=every)
-    run_dir = RunDirectory.create(path, config)
-    InlineLoop(config, run_dir, progress=None).run()
-    return run_dir
+    return trained_inline_run(tiny_config(algorithm, dir=str(path), episodes=episodes))
 
 
 def test_evaluate_refuses_episodes_that_do_not_fit_and_a_file_that_is_not_a_policy(tmp_path, tiny_config):
     """--episodes 10⁸ (one world each: 26.8 GiB asked of numpy, a traceback) and --checkpoint at a verified file
-    that is no policy (the run's replay snapshot: torch's UnpicklingError, a traceback) are one line each."""
-    run_dir = trained_run(tiny_config, tmp_path / "run")
+    that is no policy (the run's teacher checkpoint: a KeyError, a traceback) are one line each."""
+    run_dir = trained_run(tiny_config, tmp_path / "run", algorithm="cmcl")
     done = run_cli("evaluate", str(run_dir.path), "--episodes", "100000000", "--no-gif")
     assert_one_line_refusal(done, "--episodes = 100000000 needs about ", "this machine has available")
-    snapshot = run_dir.checkpoints / "replay_00000004.msgpack"
-    done = run_cli("evaluate", str(run_dir.path), "--checkpoint", str(snapshot), "--episodes", "4", "--no-gif")
-    assert_one_line_refusal(done, f"--checkpoint {snapshot} is not a policy checkpoint of this run "
-                                  "(UnpicklingError: Weights only load failed)")
+    (teacher,) = run_dir.service_dir.glob("teacher_*-000001.pt")
+    done = run_cli("evaluate", str(run_dir.path), "--checkpoint", str(teacher), "--episodes", "4", "--no-gif")
+    assert_one_line_refusal(done, f"--checkpoint {teacher} is not a policy checkpoint of this run (KeyError: ")
 
 
 def test_a_metrics_file_that_is_a_directory_is_named_by_every_command(tmp_path, tiny_config):
@@ -230,7 +225,7 @@ def test_a_metrics_file_that_is_a_directory_is_named_by_every_command(tmp_path, 
     assert_one_line_refusal(run_cli("resume", str(run_dir.path), "--more-episodes", "2", "--quiet"), named)
     assert_one_line_refusal(run_cli("train", "--runner", "inline", "--config", str(run_dir.config_path),
                                     "--overwrite", *QUICK), named)
-    assert run_dir.metrics_path.is_dir() and (run_dir.checkpoints / "ckpt_00000004.pt").is_file()
+    assert run_dir.metrics_path.is_dir() and (run_dir.service_dir / "learner-000001.pt").is_file()
 
 
 def test_evaluate_of_a_read_only_run_directory_only_reads_it(tmp_path, tiny_config):
@@ -253,15 +248,18 @@ def test_evaluate_of_a_read_only_run_directory_only_reads_it(tmp_path, tiny_conf
 
 def test_evaluate_says_when_it_falls_back_to_an_older_checkpoint(tmp_path, tiny_config):
     """The newest checkpoint bit-flipped: evaluate takes the one before, and says so, naming the refused file."""
-    run_dir = trained_run(tiny_config, tmp_path / "run", episodes=8, every=4)
-    newest = run_dir.checkpoints / "ckpt_00000008.pt"
+    from cmcl.__main__ import main
+
+    run_dir = trained_run(tiny_config, tmp_path / "run")  # the learner's checkpoint at 4 episodes, then at 8
+    assert main(["resume", str(run_dir.path), "--more-episodes", "4", "--quiet", "--no-eval"]) == 0
+    newest = run_dir.service_dir / "learner-000002.pt"
     data = bytearray(newest.read_bytes())
     data[100] ^= 0x01
     newest.write_bytes(bytes(data))
     done = run_cli("evaluate", str(run_dir.path), "--episodes", "4", "--no-gif")
     assert done.returncode == 0, done.stderr
     notes = [line for line in done.stderr.splitlines() if line.startswith("note: ")]
-    assert notes == [f"note: evaluating {run_dir.checkpoints / 'ckpt_00000004.pt'}, an older checkpoint: refused "
+    assert notes == [f"note: evaluating {run_dir.service_dir / 'learner-000001.pt'}, an older checkpoint: refused "
                      f"{newest}: SHA-256 differs from its checksum (corrupted)"], done.stderr
 
 

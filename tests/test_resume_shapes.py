@@ -5,7 +5,6 @@ traceback from its replay server's start."""
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -13,9 +12,8 @@ from pathlib import Path
 import pytest
 
 from cmcl.config import ConfigError
-from cmcl.io.rundir import RunDirectory
-from cmcl.loop import InlineLoop
 from cmcl.resume_shapes import check_resume_shapes
+from tests.in_process import trained_inline_run
 from tests.tiny import make_tiny_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,10 +43,8 @@ def test_a_setting_that_keeps_the_shapes_passes():
 @pytest.mark.parametrize("runner", ["inline", "service"])
 def test_the_resume_is_refused_in_one_line_before_anything_starts(runner, tmp_path):
     path = tmp_path / "run"
-    config = make_tiny_config("cmcl", dir=str(path), episodes=8, checkpoint_every=8, log_every=8)
-    InlineLoop(config, RunDirectory.create(path, config), progress=None).run()
-    if runner == "service":  # the config alone (a service run's folder before its first checkpoint): the service's
-        shutil.rmtree(path / "checkpoints")  # resume reaches the same check, before Ray
+    trained_inline_run(make_tiny_config("cmcl", dir=str(path), episodes=8))  # either runner resumes it: the
+    # service's resume reaches the same check, before Ray
     before = {p: p.read_bytes() for p in path.rglob("*") if p.is_file() and p.name != "run.lock"}
     done = subprocess.run([sys.executable, "-m", "cmcl", "resume", str(path), "--runner", runner, "--set",
                            "env.num_agents=3", "--more-episodes", "4", "--quiet", "--no-eval",

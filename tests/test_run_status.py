@@ -5,24 +5,20 @@ from __future__ import annotations
 import json
 import os
 
-from cmcl.__main__ import main
+from cmcl.__main__ import main, runner_of
 from cmcl.io.resume_hint import resume_command
-from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import RunLock
-from cmcl.loop import InlineLoop
+from tests.in_process import trained_inline_run
 from tests.tiny import make_tiny_config
 
 
 def trained(path, episodes=8):
-    config = make_tiny_config("maddpg", dir=str(path), episodes=episodes, checkpoint_every=4, log_every=4)
-    run_dir = RunDirectory.create(path, config)
-    InlineLoop(config, run_dir, progress=None).run()
-    run_dir.write_summary({"runner": "inline", "ended": "budget", "episodes": episodes,
-                           "elapsed_s": max(r["elapsed_s"] for r in run_dir.rows())})
-    return run_dir
+    """A finished tiny run of the inline runner (its summary.json written by the command)."""
+    return trained_inline_run(make_tiny_config("maddpg", dir=str(path), episodes=episodes))
 
 
 def status(capsys, *paths) -> tuple[int, list[str]]:
+    capsys.readouterr()  # (the training's own lines)
     code = main(["status", *map(str, paths)])
     return code, capsys.readouterr().out.splitlines()
 
@@ -36,10 +32,12 @@ def test_a_finished_a_running_and_a_cut_off_run_each_in_one_line_and_nothing_wri
         before |= {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in [held.path / "run.lock"]}
     assert code == 0 and len(lines) == 3, lines
     assert lines[0].startswith(f"{done.path} | inline | its budget done | 8 of 8 episodes | ")
-    assert "| last 8 episodes: cov " in lines[0] and lines[0].endswith("| newest checkpoint ckpt_00000008.pt")
+    assert "| last 8 episodes: cov " in lines[0] and lines[0].endswith("| newest checkpoint learner-000001.pt")
     assert lines[1].startswith(f"{held.path} | inline | running (pid {os.getpid()} on ") and "resume:" not in lines[1]
+    # without its summary its last checkpoint of the supervisor's counters names the runner, the one `resume` takes
+    assert runner_of(cut) == "inline"
     assert lines[2].startswith(f"{cut.path} | inline | cut off (no summary after its last row")
-    assert "newest checkpoint ckpt_00000008.pt" in lines[2]
+    assert "newest checkpoint learner-000001.pt" in lines[2]
     assert {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in tmp_path.rglob("*") if p.is_file()} == before
 
 

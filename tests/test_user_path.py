@@ -194,7 +194,7 @@ def make_run(run_dir: Path, *flags: str) -> Launched:
 
 def make_resume(run_dir: Path, counted: str, *flags: str) -> Launched:
     """The README's `make resume` of `run_dir` for 32 more episodes (it says so), finished with exit 0. `counted`:
-    the summary's count of episodes done ("episodes" inline, "episodes_logged" on the service)."""
+    the summary's count of episodes done ("episodes", or "episodes_logged": the episode rows logged)."""
     done = json.loads((run_dir / "summary.json").read_text())[counted]
     resumed = Launched(["make", "-s", "resume", f"RUN_DIR={run_dir}", "RESUME_EPISODES=32",
                         "RUN_ARGS=--no-eval " + " ".join(flags)])
@@ -223,7 +223,7 @@ def test_make_resume_trains_a_finished_run_for_more_episodes(tmp_path, tiny_conf
     """The README's `make resume` (the Makefile's target, through make) on a finished tiny inline run: `cmcl
     resume` finds the runner that wrote the run. The same target on `make run`'s service run is the extended test
     below; the service's resume itself stays in the default run (tests/test_service_ray.py)."""
-    config = tiny_config_file("maddpg", dir=str(tmp_path / "run"), episodes=4, checkpoint_every=4, log_every=4)
+    config = tiny_config_file("maddpg", dir=str(tmp_path / "run"), episodes=4)
     trained = subprocess.run([PY, "-m", "cmcl", "train", "--runner", "inline", "--config", str(config), "--quiet",
                               "--no-eval"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert trained.returncode == 0, trained.stderr
@@ -289,29 +289,33 @@ def test_sigkill_of_the_launcher_leaves_no_ray_process_and_resume_goes_on_from_t
 
 
 def test_inline_runner_stops_on_ctrl_c_refuses_a_second_writer_and_resumes(tmp_path):
+    """`python -m cmcl train --runner inline` (the service's roles in one process, no Ray) stopped by Ctrl-C mid-run:
+    exit 130, every role checkpointed (a checkpoint at the stop, before service.checkpoint_every_s), a resume hint;
+    a second writer is refused naming the first; `resume` goes on from the policy it had."""
     run_dir = tmp_path / "inline"
-    first = Launched([PY, "-m", "cmcl.loop", "--config", "configs/spread_maddpg.toml", "--set", f"run.dir={run_dir}",
-                      "--set", "run.episodes=100000", "--set", "run.checkpoint_every=0"])
-    first.progress_lines(3, min_updates=1)
-    second = subprocess.run([PY, "-m", "cmcl.loop", "--resume", str(run_dir)], cwd=ROOT, capture_output=True,
-                            text=True, timeout=120)
+    first = Launched([PY, "-m", "cmcl", "train", "--runner", "inline", "--config", "configs/spread_maddpg.toml",
+                      "--set", f"run.dir={run_dir}", "--set", "run.episodes=100000"])
+    first.progress_lines(2, min_updates=1)
+    second = subprocess.run([PY, "-m", "cmcl", "resume", str(run_dir)], cwd=ROOT, capture_output=True, text=True,
+                            timeout=120)
     assert second.returncode == 2 and f"is in use by pid {first.proc.pid}" in second.stderr, second.stderr
     os.killpg(first.proc.pid, signal.SIGINT)
     assert first.finish() == 130 and "Traceback" not in first.text, first.text
     assert resume_hint(first.text)[-3:] == ["cmcl", "resume", str(run_dir)]
+    assert not (run_dir / "ray_shutdown.log").exists() and not alive(first.seen), "no Ray, nothing left running"
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["ended"] == "SIGINT" and summary["runner"] == "inline"
-    stopped_at = summary["episodes"]
-    assert RunDirectory.open(run_dir).newest_policy().path.name == f"ckpt_{stopped_at:08d}.pt"
+    stopped_at, version = summary["episodes_logged"], learner_version(run_dir)
+    assert version > 0 and (run_dir / "checkpoints" / "service" / "replay" / "manifest.json").is_file()
 
-    again = subprocess.run([PY, "-m", "cmcl.loop", "--resume", str(run_dir), "--set",
-                            f"run.episodes={stopped_at + 40}", "--quiet"], cwd=ROOT, capture_output=True, text=True,
-                           timeout=300)
-    assert again.returncode == 0 and f"at episode {stopped_at}" in again.stdout, again.stdout + again.stderr
-    ended_at = json.loads((run_dir / "summary.json").read_text())["episodes"]
-    assert ended_at >= stopped_at + 40
+    again = subprocess.run([PY, "-m", "cmcl", "resume", str(run_dir), "--set", f"run.episodes={stopped_at + 40}",
+                            "--quiet"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0 and f"(policy version {version})" in again.stdout, again.stdout + again.stderr
+    assert "metrics: http" not in again.stdout and not (run_dir / "ray_shutdown.log").exists()
+    assert min(first_versions_after(run_dir, stopped_at)) >= version  # a fresh learner would publish version 0
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["runner"] == "inline" and summary["episodes_logged"] >= stopped_at + 40
     evaluated = subprocess.run([PY, "-m", "cmcl", "evaluate", str(run_dir), "--episodes", "20", "--no-gif"], cwd=ROOT,
                                capture_output=True, text=True, timeout=300)
     assert evaluated.returncode == 0, evaluated.stderr
-    assert Path(evaluation_json(evaluated.stdout)["checkpoint"]).name == \
-        f"ckpt_{ended_at:08d}.pt"
+    assert Path(evaluation_json(evaluated.stdout)["checkpoint"]) == RunDirectory.open(run_dir).newest_policy().path
