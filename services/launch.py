@@ -35,6 +35,7 @@ from cmcl.progress import TrainingDiverged
 from cmcl.run_flags import RunRequest, alias_parser, port_given_by, run_alias, train_in_run
 from cmcl.run_report import done_line, report_trained
 from cmcl.stopping import STOP_SIGNALS, StopSignals, exit_without_teardown
+from services.loopback import loopback_only
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -81,7 +82,8 @@ def check_cluster_reachable(address: str, timeout_s: float = JOIN_TIMEOUT_S) -> 
 
 
 def start_ray(address: str | None, num_cpus: int | None, metrics_export_port: int | None = None) -> None:
-    """Join `address`, or start an embedded Ray sized to this machine (no dashboard).
+    """Join `address` (the cluster's own network settings), or start an embedded Ray sized to this machine (no
+    dashboard), every server of it listening on 127.0.0.1 only (services/loopback.py).
 
     The embedded Ray's processes are started with SIGINT and SIGTERM blocked, a mask they inherit: a Ctrl-C in the
     terminal reaches the whole foreground process group, and it must stop the run through the launcher (drain,
@@ -99,6 +101,7 @@ def start_ray(address: str | None, num_cpus: int | None, metrics_export_port: in
             raise ConnectionError(f"cannot join the Ray cluster at --address {address}: {err}. Start one with "
                                   f"`ray start --head`, or omit --address for an embedded Ray") from None
         return
+    loopback_only()  # every server of the embedded Ray on 127.0.0.1 (services/loopback.py)
     signal.pthread_sigmask(signal.SIG_BLOCK, set(STOP_SIGNALS))
     try:
         ray.init(address="local", num_cpus=os.cpu_count() if num_cpus is None else num_cpus, include_dashboard=False,
