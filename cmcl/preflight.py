@@ -27,17 +27,20 @@ from cmcl.config import Config, ConfigError, TeamConfig
 CGROUP_MEMORY = Path("/sys/fs/cgroup")
 
 
-def preflight(config: Config, *, teams_given: bool = True, worker_processes: int = 1,
+def preflight(config: Config, *, teams_given: bool = True, length_given: bool = True, worker_processes: int = 1,
               check_memory: bool = True, notice: Callable[[str], None] = print) -> Config:
     """Build one world of `config`'s environment (an env.factory one also reset and stepped once), match the teams
     and check the memory; returns `config`, with the env's own teams when `teams_given` is false (no [teams] table
-    anywhere) and the factory env's teams differ from the default one ("agent"), said by `notice` in one line.
-    worker_processes: how many processes each step env.num_envs worlds (the service's rollout workers).
-    Raises ConfigError (one line, naming the key and the value)."""
+    anywhere) and the factory env's teams differ from the default one ("agent"), said by `notice` in one line, and,
+    for an env.factory, the env's own episode length when `length_given` is false (env.episode_length set nowhere;
+    `with_episode_length`). worker_processes: how many processes each step env.num_envs worlds (the service's
+    rollout workers). Raises ConfigError (one line, naming the key and the value)."""
     from cmcl.system import agent_layout
 
     env = built_env(config)
     try:
+        if config.env.factory:
+            config = with_episode_length(config, env, length_given, notice)
         if config.env.factory and not teams_given and set(env.teams) != set(config.teams):
             members = "; ".join(f"{team}: {', '.join(env.agent_ids[i] for i in idx)}"
                                 for team, idx in env.teams.items())
@@ -50,6 +53,28 @@ def preflight(config: Config, *, teams_given: bool = True, worker_processes: int
     finally:
         _close(env)
     return config
+
+
+def with_episode_length(config: Config, env: Any, given: bool, notice: Callable[[str], None]) -> Config:
+    """`config` with the episode length an env.factory run uses, said by `notice` in one line either way: the
+    env.episode_length set (`given`); else the env's own (`cmcl.envs.factory.declared_episode_length` of `env`'s first
+    world: max_cycles, max_steps, spec.max_episode_steps); else env.episode_length's default, the built-in tasks'
+    30 steps, at which longer episodes are cut."""
+    from cmcl.envs.factory import declared_episode_length
+
+    declared = declared_episode_length(env.envs[0])
+    length, factory = config.env.episode_length, config.env.factory
+    if given:
+        own = f"; the env's own {declared[1]} is {declared[0]}" if declared and declared[0] != length else ""
+        notice(f"episode length: {length} steps, as env.episode_length sets it{own}")
+        return config
+    if declared is None:
+        notice(f"episode length: {length} steps, env.episode_length's default: env.factory {factory!r} declares none "
+               "(no max_cycles, max_steps or spec.max_episode_steps), so longer episodes are cut at "
+               f"{length} steps; set env.episode_length to change it")
+        return config
+    notice(f"episode length: {declared[0]} steps, the env's own {declared[1]} (env.episode_length sets another)")
+    return dataclasses.replace(config, env=dataclasses.replace(config.env, episode_length=declared[0]))
 
 
 def built_env(config: Config) -> Any:

@@ -130,7 +130,8 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
     check_runner_keys(config, request.runner, file_data, overrides)  # keys only the other runner honours
     check_world_keys(config, file_data, overrides)  # the built-in worlds' keys, with env.factory
     config = checked(config, request, teams_given="teams" in data,  # the env built once (AEC, ...)
-                     port_given=port_given(config, file_data, overrides))
+                     port_given=port_given(config, file_data, overrides),
+                     length_given=key_given(file_data, overrides, "env", "episode_length"))
     from cmcl.carried_replay import check_carry_source  # numpy only: no torch, no Ray
 
     check_carry_source(config)  # before the warm start's shape check: it names the setting (env.agent_tags, ...)
@@ -151,29 +152,37 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
         raise
 
 
-def checked(config: Config, request: RunRequest, teams_given: bool = True, port_given: bool = True) -> Config:
+def checked(config: Config, request: RunRequest, teams_given: bool = True, port_given: bool = True,
+            length_given: bool = True) -> Config:
     """`config` after `cmcl.preflight.preflight`: the environment built and stepped once, the teams matched (the env's
     own, with default settings, when `teams_given` is false and they differ from the default team), the memory of
     the worlds (of every rollout worker on the service) and the replay checked, unless the run joins a cluster
     (--address: its nodes' memory is not this machine's); on the service, service.metrics_port free: a port the user
     gave (`port_given`) is refused when in use, the default one (9100, also node_exporter's) is then replaced by a
-    free one, said on stderr. Raises ConfigError."""
+    free one, said on stderr; an env.factory run whose env.episode_length is set nowhere (`length_given` false)
+    takes the env's own episode length (`cmcl.preflight.with_episode_length`). Raises ConfigError."""
     from cmcl.preflight import metrics_port_checked, preflight  # numpy and the env package: no torch, no Ray
 
     service = request.runner == "service"
     if service:  # the launcher serves it once Ray has started: a port in use is named before
         config = metrics_port_checked(config, port_given)
     workers = config.service.rollout_workers if service else 1
-    return preflight(config, teams_given=teams_given, worker_processes=workers, check_memory=not request.address)
+    return preflight(config, teams_given=teams_given, length_given=length_given, worker_processes=workers,
+                     check_memory=not request.address)
 
 
 def port_given(config: Config, file_data: Mapping[str, Any], overrides: tuple[str, ...]) -> bool:
     """Whether the user chose service.metrics_port: in the config file, by --set (or --metrics-port), or as a value
     other than the default (a resumed run's config.toml holds every key)."""
-    service = file_data.get("service", {})
     return (config.service.metrics_port != Config().service.metrics_port
-            or (isinstance(service, Mapping) and "metrics_port" in service)
-            or any(parse_override(text)[0] == ["service", "metrics_port"] for text in overrides))
+            or key_given(file_data, overrides, "service", "metrics_port"))
+
+
+def key_given(file_data: Mapping[str, Any], overrides: tuple[str, ...], section: str, key: str) -> bool:
+    """Whether `section.key` is set in the config file's tables (`file_data`) or by an override (--set)."""
+    table = file_data.get(section, {})
+    return ((isinstance(table, Mapping) and key in table)
+            or any(parse_override(text)[0] == [section, key] for text in overrides))
 
 
 def port_given_by(request: RunRequest, config: Config) -> bool:
