@@ -49,7 +49,8 @@ class ResumeMismatch(RunRequestError):
 class RunRequest:
     """What one training command asks for, whichever entry point parsed it.
 
-    runner: which runner trains; config_file: TOML experiment file (None: built-in CMCL defaults; ignored on resume);
+    runner: which runner trains; config_file: TOML experiment file (None: the built-in defaults, MADDPG on sparse
+    navigation; ignored on resume);
     overrides: "section.key=value" strings, in order; resume_dir: the run to continue (None: a new run in run.dir);
     overwrite: start over in a run.dir that holds a run; more_episodes: on resume, train this many episodes past
     those the run has done (run.episodes becomes their sum; a default λ schedule keeps its stride); quiet: no
@@ -287,7 +288,8 @@ def add_run_flags(parser: argparse.ArgumentParser, *, new_run: bool = True) -> N
     """Add the flags of a training run to `parser`. new_run=False leaves out --config and --overwrite (a resume
     reads the run's own config.toml and never starts over)."""
     if new_run:
-        parser.add_argument("--config", help="TOML experiment file (default: built-in CMCL defaults)")
+        parser.add_argument("--config",
+                            help="TOML experiment file (default: the built-in defaults, MADDPG on sparse navigation)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                         help="override one config value (repeatable)")
     if new_run:
