@@ -50,6 +50,9 @@ def preflight(config: Config, *, teams_given: bool = True, length_given: bool = 
             config = dataclasses.replace(config, teams={team: TeamConfig() for team in env.teams})
             notice(f"teams: no [teams] table, so each team of env.factory {config.env.factory!r} gets the default "
                    f"team settings (algorithm {TeamConfig().algorithm!r}): {members}")
+        rounded = rounded_episodes(config)
+        if rounded:
+            notice(f"note: {rounded}")
         layout = agent_layout(config, env)
         if check_memory:
             check_memory_fits(config, layout, worker_processes)
@@ -78,6 +81,20 @@ def with_episode_length(config: Config, env: Any, given: bool, notice: Callable[
         return config
     notice(f"episode length: {declared[0]} steps, the env's own {declared[1]} (env.episode_length sets another)")
     return dataclasses.replace(config, env=dataclasses.replace(config.env, episode_length=declared[0]))
+
+
+def rounded_episodes(config: Config) -> str:
+    """'' when run.episodes is a multiple of env.num_envs; else what the run plays instead: both runners play the
+    env.num_envs worlds' episodes together (a rollout chunk is one episode of each world), so a built-in task's run
+    ends at the next multiple, an env.factory's (episodes of their own lengths) up to env.num_envs − 1 past it."""
+    episodes, worlds = config.run.episodes, config.env.num_envs
+    if episodes % worlds == 0:
+        return ""
+    played = -(-episodes // worlds) * worlds
+    ends = (f"it ends after {played} episodes" if not config.env.factory else
+            f"it ends up to {worlds - 1} episodes past it")
+    return (f"run.episodes = {episodes} is not a multiple of env.num_envs = {worlds}, the worlds played at once: "
+            f"{ends} (set run.episodes = {played}, or env.num_envs, to make it exact)")
 
 
 def flattened_observations(env: Any) -> str:

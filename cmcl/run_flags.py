@@ -259,6 +259,12 @@ def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, Run
     with lock:
         try:
             code = train(config, run_dir, lock)
+            if code == 0 and request.no_eval:  # with an evaluation, cmcl.run_report.report_trained says it first
+                from cmcl.run_report import no_update_line
+
+                untrained = no_update_line(config, run_dir.summary())
+                if untrained:
+                    print(untrained)
             return code
         except EnvFactoryError as err:  # the user's environment, built or stepped: one line, no traceback
             print(f"error: {err}", file=sys.stderr)

@@ -20,12 +20,29 @@ def done_line(summary: dict[str, Any], stop_coverage: float) -> str:
             f"in {summary['elapsed_s']:.0f}s{resumed}{why}")
 
 
+def no_update_line(config: Config, summary: dict[str, Any]) -> str | None:
+    """The one line of a run that ended without a learner update (its `summary` counts 0 updates), naming the
+    warm-up and the env steps taken; None when it trained."""
+    if summary.get("updates", 1) != 0:
+        return None
+    m = config.maddpg
+    return (f"note: no learner update in this run: the first waits for maddpg.warmup = {m.warmup} transitions in the "
+            f"replay, then one every maddpg.update_every = {m.update_every} env steps, and the run took "
+            f"{summary.get('env_steps', 0)} env steps ({summary.get('episodes', 0)} episodes); the policy is the "
+            "untrained one. Raise run.episodes or lower maddpg.warmup")
+
+
 def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -> None:
     """Held-out evaluation of the run's newest verified policy (no exploration noise, worlds never trained on), a
-    GIF of one episode and the learning curve, all in the run directory; printed."""
+    GIF of one episode and the learning curve, all in the run directory; printed. A run without a learner update
+    says so first (`no_update_line`)."""
     from cmcl.evaluate import evaluate_policy, gif_line, load_policy
     from cmcl.io.plots import curve_line
     from cmcl.stalls import MissAnatomy
+
+    untrained = no_update_line(config, run_dir.summary())
+    if untrained:
+        print(untrained)
 
     if any(True for _ in run_dir.rows("episode")):
         window = min(config.run.smoothing_window, max(1, config.run.episodes // 10))
