@@ -127,7 +127,7 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
             raise
     file_data = load_data(request.config_file)
     data = apply_overrides(file_data, overrides)
-    config = config_from_dict(data)
+    config = config_from_file(data, file_data, request.config_file)
     check_runner_keys(config, request.runner, file_data, overrides)  # keys only the other runner honours
     check_world_keys(config, file_data, overrides)  # the built-in worlds' keys, with env.factory
     config = checked(config, request, teams_given="teams" in data,  # the env built once (AEC, ...)
@@ -150,6 +150,22 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
         raise
     except BaseException:
         lock.release()
+        raise
+
+
+def config_from_file(data: Mapping[str, Any], file_data: Mapping[str, Any], config_file: str | None) -> Config:
+    """`config_from_dict(data)` (the file's tables `file_data` with the overrides); a ConfigError that the file's
+    tables alone raise too names the file ('... (in configs/x.toml)'), one the overrides brought does not."""
+    try:
+        return config_from_dict(data)
+    except ConfigError as err:
+        if config_file is None:
+            raise
+        try:
+            config_from_dict(file_data)
+        except ConfigError as own:
+            if str(own) == str(err):
+                raise ConfigError(f"{err} (in {config_file})") from None
         raise
 
 

@@ -32,6 +32,24 @@ def no_update_line(config: Config, summary: dict[str, Any]) -> str | None:
             "untrained one. Raise run.episodes or lower maddpg.warmup")
 
 
+MEASURES = ("coverage", "success", "collisions", "wall_hits", "predator_win")  # an evaluation's named measures
+
+
+def measures_text(result: dict[str, Any], keys: tuple[str, ...] | list[str]) -> str:
+    """'coverage 0.512, success 0.100, return[agent] 12.3': the `keys` of an evaluation `result` (`evaluate_policy`),
+    then each team's return (any environment)."""
+    return ", ".join([*(f"{k} {result[k]:.3f}" for k in keys),
+                      *(f"return[{team}] {value:.1f}" for team, value in result["reward"].items())])
+
+
+def beside_random(trained: dict[str, Any], random: dict[str, Any], episodes: int) -> str:
+    """The held-out evaluation line: the policy's measures beside the random policy's on the same `episodes`
+    worlds (train's end and a standalone `evaluate` print it alike)."""
+    keys = [k for k in MEASURES if k in trained]
+    return (f"held-out evaluation ({episodes} new worlds, no exploration noise): {measures_text(trained, keys)}"
+            f"  | random policy: {measures_text(random, keys)}")
+
+
 def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -> None:
     """Held-out evaluation of the run's newest verified policy (no exploration noise, worlds never trained on), a
     GIF of one episode and the learning curve, all in the run directory; printed. A run without a learner update
@@ -53,14 +71,7 @@ def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -
         return
     policy = load_policy(config, checkpoint)
     trained, random = evaluate_policy(config, policy, episodes), evaluate_policy(config, None, episodes)
-    keys = [k for k in ("coverage", "success", "collisions", "wall_hits", "predator_win") if k in trained]
-
-    def measures(result: dict[str, Any]) -> str:  # the named measures, then each team's return (any environment)
-        return ", ".join([*(f"{k} {result[k]:.3f}" for k in keys),
-                          *(f"return[{team}] {value:.1f}" for team, value in result["reward"].items())])
-
-    print(f"held-out evaluation ({episodes} new worlds, no exploration noise): {measures(trained)}"
-          f"  | random policy: {measures(random)}")
+    print(beside_random(trained, random, episodes))
     if "misses" in trained:
         print("\n".join(MissAnatomy(**trained["misses"]).lines()))
     print(gif_line(config, policy, run_dir.path / "trained.gif"))
