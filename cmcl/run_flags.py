@@ -287,14 +287,33 @@ def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, Run
             code = 2
             return code
         except RunWriteError as err:  # a full disk, in either runner: what was written stays as it was
-            print(f"error: {write_failure_line(err, run_dir.path, resume_point(run_dir, request.runner))}",
-                  file=sys.stderr)
+            kept = resume_point(run_dir, request.runner)
+            record_write_failure(run_dir, request.runner, err, kept)
+            print(f"error: {write_failure_line(err, run_dir.path, kept)}", file=sys.stderr)
             code = 2
             return code
         finally:  # a new run that failed before its first episode leaves nothing that blocks the retry
             if code not in (0, 130, 143) and not request.resume_dir and run_dir.never_trained():
                 run_dir.discard_failed_start()
                 lock.discard()
+
+
+def record_write_failure(run_dir: RunDirectory, runner: Runner, err: RunWriteError, kept: str | None) -> None:
+    """Record in summary.json that the run stopped in order because `err`'s file could not be written (ended
+    "write_failure", the error, what a resume starts from: `kept`, None for nothing), with the episodes and training
+    seconds of its last metrics row, so that `status` tells this stop from a crash and a run with nothing to resume
+    may start again (`RunDirectory.stopped_before_a_checkpoint`). On a disk with no room left at all this write fails
+    too, and the run reads as cut off."""
+    last: dict[str, Any] = {}
+    try:
+        for row in run_dir.rows():
+            if row.get("kind") in ("episode", "progress"):
+                last = row
+        run_dir.write_summary({"runner": runner, "ended": "write_failure", "error": str(err), "resume_from": kept,
+                               "episodes": int(last.get("episodes", 0)),
+                               "elapsed_s": float(last.get("elapsed_s", 0.0))})
+    except (OSError, MetricsError):
+        pass
 
 
 def resume_point(run_dir: RunDirectory, runner: Runner) -> str | None:
