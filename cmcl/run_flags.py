@@ -11,17 +11,19 @@ This module imports neither a runner, torch nor Ray: `--help` stays fast and `cm
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import errno
 import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, get_args
 
-from cmcl.config import Config, ConfigError, apply_overrides, config_from_dict, load_data
+from cmcl.config import Config, ConfigError, apply_overrides, config_from_dict, dump_toml, load_data
 from cmcl.config.runners import Runner, check_runner_keys
 from cmcl.config.toml_io import parse_override
 from cmcl.config.world_keys import check_world_keys
 from cmcl.envs.factory import EnvFactoryError
+from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.metrics_log import MetricsError
 from cmcl.io.resume_hint import resume_command
 from cmcl.io.rundir import ForeignFolderError, RunDirectory
@@ -121,7 +123,9 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
                                      f"runner; resume it with {resume_command(request.resume_dir)}")
             run_dir.check_no_unverifiable_checkpoint()
             config = resumed_config(run_dir, overrides, request)
-            return checked(config, request, port_given=port_given_by(request, config)), run_dir, lock
+            ready = checked(config, request, port_given=port_given_by(request, config))
+            record_resume_settings(run_dir, config, request)
+            return ready, run_dir, lock
         except BaseException:
             lock.release()
             raise
@@ -240,6 +244,39 @@ def resumed_config(run_dir: RunDirectory, overrides: tuple[str, ...], request: R
         print(f"note: {run_dir.path} has done all its run.episodes = {config.run.episodes}: nothing to train. To "
               f"train further: {resume_command(run_dir.path)} --more-episodes N", file=sys.stderr)
     return config
+
+
+def flat_settings(data: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A nested config mapping (`Config.to_dict`) as {"section.key": value}, every table flattened
+    ("teams.agent.priority.alpha", "env.factory_kwargs.max_cycles")."""
+    flat: dict[str, Any] = {}
+    for key, value in data.items():
+        if isinstance(value, Mapping):
+            flat.update(flat_settings(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def record_resume_settings(run_dir: RunDirectory, config: Config, request: RunRequest) -> None:
+    """Write a resume's settings to the run's config.toml, which resume, status, evaluate and summary.json's
+    provenance read, so that a later plain resume keeps them; one line per changed key ("resume sets
+    maddpg.actor_lr: 0.001 -> 0.5"). The metrics flags (--metrics-port, --metrics-host) are this command's only:
+    the stored values stay unless a --set names them. Nothing is written when nothing changed."""
+    stored = run_dir.config()
+    flagged = {("service", "metrics_port"): "metrics_port", ("service", "metrics_host"): "metrics_host"}
+    service = config.service
+    for (section, key), field in flagged.items():
+        if not any(parse_override(text)[0] == [section, key] for text in request.overrides):
+            service = dataclasses.replace(service, **{field: getattr(stored.service, field)})
+    config = dataclasses.replace(config, service=service)
+    old, new = flat_settings(stored.to_dict()), flat_settings(config.to_dict())
+    changed = [key for key in new if old.get(key) != new[key]]
+    if not changed:
+        return
+    for key in changed:
+        print(f"resume sets {key}: {old.get(key)!r} -> {new[key]!r} (recorded in {run_dir.config_path.name})")
+    atomic_write_bytes(run_dir.config_path, dump_toml(config).encode())
 
 
 def check_warm_start(config: Config) -> None:
