@@ -116,7 +116,18 @@ def run(request: RunRequest) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """CLI entry point (see the module docstring for the verbs and the exit codes)."""
+    """CLI entry point (see the module docstring for the verbs and the exit codes); a Ctrl-C before a runner's own
+    stop handler is installed (imports, the checks of the run) ends it with one line, exit 130."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        from cmcl.run_flags import STARTUP_STOP
+
+        print(STARTUP_STOP, file=sys.stderr)
+        return 130
+
+
+def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
     if args.verb == "config":
         from cmcl.config.reference import config_command

@@ -39,6 +39,10 @@ SERVICE_ONLY_FLAGS = {"address": "--address", "num_cpus": "--num-cpus", "ray_met
                       "metrics_port": "--metrics-port", "metrics_host": "--metrics-host"}
 
 
+# the one line of a Ctrl-C during a command's start-up, before training began (exit 130)
+STARTUP_STOP = "stopped by SIGINT during start-up, before training began: nothing was trained, nothing to resume"
+
+
 class RunRequestError(ValueError):
     """A combination of flags no runner can honour (the message names the flag and its value)."""
 
@@ -304,6 +308,9 @@ def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, Run
     this command made it (`RunDirectory.discard_failed_start`)."""
     try:
         config, run_dir, lock = open_run(request)
+    except KeyboardInterrupt:  # a Ctrl-C while the run is checked (env, memory): nothing was made
+        print(STARTUP_STOP, file=sys.stderr)
+        return 130
     except (CheckpointError, ConfigError, EnvFactoryError, FileExistsError, FileNotFoundError, MetricsError,
             RunDirectoryInUse, RunRequestError, RunWriteError) as err:
         print(f"error: {err}", file=sys.stderr)
@@ -323,6 +330,10 @@ def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, Run
             print(f"error: {err}", file=sys.stderr)
             code = 2
             return code
+        except KeyboardInterrupt:  # a Ctrl-C before the runner's own stop handler (e.g. during Ray's start)
+            print(STARTUP_STOP, file=sys.stderr)
+            code = 130
+            return code
         except RunWriteError as err:  # a full disk, in either runner: what was written stays as it was
             kept = resume_point(run_dir, request.runner)
             record_write_failure(run_dir, request.runner, err, kept)
@@ -330,7 +341,8 @@ def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, Run
             code = 2
             return code
         finally:  # a new run that failed before its first episode leaves nothing that blocks the retry
-            if code not in (0, 130, 143) and not request.resume_dir and run_dir.never_trained():
+            if (code not in (0, 143) and not request.resume_dir and run_dir.never_trained()
+                    and (code != 130 or not run_dir.summary())):
                 run_dir.discard_failed_start()
                 lock.discard()
 
