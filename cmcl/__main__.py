@@ -1,4 +1,4 @@
-"""One entry point for both runners: `python -m cmcl train | resume | evaluate`, and the config reference.
+"""One entry point for both runners: `python -m cmcl train | resume | evaluate | stages | status | config`.
 
     python -m cmcl train [--runner service|inline] [--config F] [--set section.key=value ...] [--overwrite]
     python -m cmcl resume RUN_DIR [--more-episodes N] [--set ...]  (the runner that wrote RUN_DIR, by default)
@@ -47,7 +47,7 @@ RUNNER_ENTRIES = {"inline": ("services.launch", "run_launch"), "service": ("serv
 def build_parser() -> argparse.ArgumentParser:
     """The parser of `python -m cmcl`: one sub-command per verb; the run flags are those of cmcl/run_flags.py."""
     parser = argparse.ArgumentParser(prog="python -m cmcl", description=__doc__.split("\n")[0])
-    verbs = parser.add_subparsers(dest="verb", metavar="{train,resume,evaluate,stages,config}", required=True)
+    verbs = parser.add_subparsers(dest="verb", required=True)
     train = verbs.add_parser("train", help="train a new run", description="Train a new run in run.dir.")
     train.add_argument("--runner", choices=RUNNERS, default=DEFAULT_RUNNER,
                        help="service (Ray; default) or inline (one process, no Ray)")
@@ -82,6 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="one section, e.g. maddpg, or one key, e.g. maddpg.hidden or teams.agent.eta (default: "
                              "all)")
     config.add_argument("--markdown", action="store_true", help="Markdown tables (docs/CONFIG.md)")
+    verbs.metavar = "{" + ",".join(verbs.choices) + "}"  # every verb, in the usage line too
     return parser
 
 
@@ -119,7 +120,18 @@ def run(request: RunRequest) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """CLI entry point (see the module docstring for the verbs and the exit codes)."""
+    """CLI entry point (see the module docstring for the verbs and the exit codes); a Ctrl-C before a runner's own
+    stop handler is installed (imports, the checks of the run) ends it with one line, exit 130."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        from cmcl.run_flags import STARTUP_STOP
+
+        print(STARTUP_STOP, file=sys.stderr)
+        return 130
+
+
+def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
     if args.verb == "config":
         from cmcl.config.reference import config_command

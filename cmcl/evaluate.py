@@ -14,6 +14,8 @@ import argparse
 import errno
 import io
 import json
+import os
+import stat
 import sys
 import tempfile
 from dataclasses import asdict
@@ -31,6 +33,7 @@ from cmcl.io.rundir import PolicyCheckpoint, RunDirectory
 from cmcl.io.write_failure import RunWriteError
 from cmcl.learners.maddpg import MADDPG
 from cmcl.run_flags import add_evaluate_flags
+from cmcl.run_report import beside_random
 from cmcl.stalls import MissAnatomy, miss_anatomy
 from cmcl.stopping import exit_without_teardown
 from cmcl.system import build_maddpg, layout_of, make_batched_env, make_parallel_env, to_env_actions
@@ -99,10 +102,26 @@ def render_gif(config: Config, maddpg: MADDPG | None, path: str | Path, seed: in
     return Path(path)
 
 
+def headless_sdl() -> None:
+    """Before an environment's pygame renders off screen: SDL's dummy video and audio drivers (unless set), and a
+    private XDG_RUNTIME_DIR (mode 0700) when the one set is missing or not a folder of this user's, so that SDL
+    prints no "error: XDG_RUNTIME_DIR is invalid or not set" after a GIF that was written."""
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+    os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+    runtime = os.environ.get("XDG_RUNTIME_DIR", "")
+    try:
+        info = os.stat(runtime) if runtime else None
+    except OSError:
+        info = None
+    if info is None or not stat.S_ISDIR(info.st_mode) or info.st_uid != os.getuid() or info.st_mode & 0o077:
+        os.environ["XDG_RUNTIME_DIR"] = tempfile.mkdtemp(prefix="cmcl-xdg-")  # mkdtemp makes it 0700
+
+
 def gif_bytes(config: Config, maddpg: MADDPG | None, seed: int = 0, fps: int = 10) -> bytes:
     """One episode of the PettingZoo env with the policy (no noise; random if maddpg is None), encoded as a GIF."""
     from PIL import Image
 
+    headless_sdl()
     if config.env.factory:
         frames = _factory_frames(config, maddpg, seed)
     else:
@@ -121,7 +140,8 @@ def gif_line(config: Config, maddpg: MADDPG | None, path: str | Path, seed: int 
     try:
         encoded = gif_bytes(config, maddpg, seed)
     except Exception as err:  # noqa: BLE001 - any failure of the env's own render, reported, never fatal
-        return f"gif: none, the environment could not render here ({type(err).__name__}: {err})"
+        why = f"{type(err).__name__}: {err}" if str(err).strip() else f"{type(err).__name__}, raised without a message"
+        return f"gif: none, the environment could not render here ({why})"
     try:
         atomic_write_bytes(path, encoded)
     except RunWriteError as err:  # a full disk: the line says so, the evaluation before it stands
@@ -221,13 +241,19 @@ def evaluate_run(args: argparse.Namespace) -> int:
         return 2
     result = evaluate_policy(config, maddpg, args.episodes, args.seed)
     result["checkpoint"] = None if maddpg is None else str(getattr(checkpoint, "path", checkpoint))
+    random = None if maddpg is None else evaluate_policy(config, None, args.episodes, args.seed)
+    if random is not None:  # the baseline train prints too, on the same worlds
+        result["random_policy"] = {key: value for key, value in random.items() if key != "misses"}
     print(json.dumps(result, indent=2))
+    if random is not None:
+        print(beside_random(result, random, args.episodes), file=sys.stderr)  # stdout stays JSON
     if "misses" in result:
-        print("\n".join(MissAnatomy(**result["misses"]).lines()), file=sys.stderr)  # stdout stays JSON
-    writable = _writable(run.path)
+        print("\n".join(MissAnatomy(**result["misses"]).lines()), file=sys.stderr)
+    out_dir = _output_dir(run.path)
+    writable = out_dir != run.path or _writable(run.path)
     if not args.no_gif:
         if args.gif or writable:
-            print(gif_line(config, maddpg, args.gif or run.path / ("eval_random.gif" if args.random else "eval.gif"),
+            print(gif_line(config, maddpg, args.gif or out_dir / ("eval_random.gif" if args.random else "eval.gif"),
                            args.seed))
         else:
             print(f"gif: not written, {run.path} is read-only (pass --gif PATH to write it elsewhere)")
@@ -235,10 +261,24 @@ def evaluate_run(args: argparse.Namespace) -> int:
 
     if episode_rows:
         if writable:
-            print(curve_line([run.path], run.path / "learning_curve.png"))
+            print(curve_line([run.path], out_dir / "learning_curve.png"))
         else:
             print(f"learning curve: not written, {run.path} is read-only")
     return 0
+
+
+def _output_dir(run_path: Path) -> Path:
+    """Where evaluate writes its GIF and learning curve: the run directory, unless another process holds it (a run
+    training there, `cmcl.io.runlock`): then a new folder under the system's temporary directory, said on stderr."""
+    from cmcl.io.runlock import holder_of
+
+    holder = holder_of(run_path)
+    if holder is None:
+        return run_path
+    elsewhere = Path(tempfile.mkdtemp(prefix="cmcl-evaluate-"))
+    print(f"note: {run_path} is in use ({holder}), so evaluate writes nothing there: its GIF and learning curve go "
+          f"to {elsewhere}", file=sys.stderr)
+    return elsewhere
 
 
 def _writable(directory: Path) -> bool:

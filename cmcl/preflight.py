@@ -27,29 +27,90 @@ from cmcl.config import Config, ConfigError, TeamConfig
 CGROUP_MEMORY = Path("/sys/fs/cgroup")
 
 
-def preflight(config: Config, *, teams_given: bool = True, worker_processes: int = 1,
+def preflight(config: Config, *, teams_given: bool = True, length_given: bool = True, worker_processes: int = 1,
               check_memory: bool = True, notice: Callable[[str], None] = print) -> Config:
     """Build one world of `config`'s environment (an env.factory one also reset and stepped once), match the teams
     and check the memory; returns `config`, with the env's own teams when `teams_given` is false (no [teams] table
-    anywhere) and the factory env's teams differ from the default one ("agent"), said by `notice` in one line.
-    worker_processes: how many processes each step env.num_envs worlds (the service's rollout workers).
-    Raises ConfigError (one line, naming the key and the value)."""
+    anywhere) and the factory env's teams differ from the default one ("agent"), said by `notice` in one line, and,
+    for an env.factory, the env's own episode length when `length_given` is false (env.episode_length set nowhere;
+    `with_episode_length`). worker_processes: how many processes each step env.num_envs worlds (the service's
+    rollout workers). Raises ConfigError (one line, naming the key and the value)."""
     from cmcl.system import agent_layout
 
     env = built_env(config)
     try:
+        if config.env.factory:
+            config = with_episode_length(config, env, length_given, notice)
+            flattened = flattened_observations(env)
+            if flattened:
+                notice(f"note: {flattened}")
         if config.env.factory and not teams_given and set(env.teams) != set(config.teams):
             members = "; ".join(f"{team}: {', '.join(env.agent_ids[i] for i in idx)}"
                                 for team, idx in env.teams.items())
             config = dataclasses.replace(config, teams={team: TeamConfig() for team in env.teams})
             notice(f"teams: no [teams] table, so each team of env.factory {config.env.factory!r} gets the default "
                    f"team settings (algorithm {TeamConfig().algorithm!r}): {members}")
+        rounded = rounded_episodes(config)
+        if rounded:
+            notice(f"note: {rounded}")
         layout = agent_layout(config, env)
         if check_memory:
             check_memory_fits(config, layout, worker_processes)
     finally:
         _close(env)
     return config
+
+
+def with_episode_length(config: Config, env: Any, given: bool, notice: Callable[[str], None]) -> Config:
+    """`config` with the episode length an env.factory run uses, said by `notice` in one line either way: the
+    env.episode_length set (`given`); else the env's own (`cmcl.envs.factory.declared_episode_length` of `env`'s first
+    world: max_cycles, max_steps, spec.max_episode_steps); else env.episode_length's default, the built-in tasks'
+    30 steps, at which longer episodes are cut."""
+    from cmcl.envs.factory import declared_episode_length
+
+    declared = declared_episode_length(env.envs[0])
+    length, factory = config.env.episode_length, config.env.factory
+    if given:
+        own = f"; the env's own {declared[1]} is {declared[0]}" if declared and declared[0] != length else ""
+        notice(f"episode length: {length} steps, as env.episode_length sets it{own}")
+        return config
+    if declared is None:
+        notice(f"episode length: {length} steps, env.episode_length's default: env.factory {factory!r} declares none "
+               "(no max_cycles, max_steps or spec.max_episode_steps), so longer episodes are cut at "
+               f"{length} steps; set env.episode_length to change it")
+        return config
+    notice(f"episode length: {declared[0]} steps, the env's own {declared[1]} (env.episode_length sets another)")
+    return dataclasses.replace(config, env=dataclasses.replace(config.env, episode_length=declared[0]))
+
+
+def rounded_episodes(config: Config) -> str:
+    """'' when run.episodes is a multiple of env.num_envs; else what the run plays instead: both runners play the
+    env.num_envs worlds' episodes together (a rollout chunk is one episode of each world), so a built-in task's run
+    ends at the next multiple, an env.factory's (episodes of their own lengths) up to env.num_envs − 1 past it."""
+    episodes, worlds = config.run.episodes, config.env.num_envs
+    if episodes % worlds == 0:
+        return ""
+    played = -(-episodes // worlds) * worlds
+    ends = (f"it ends after {played} episodes" if not config.env.factory else
+            f"it ends up to {worlds - 1} episodes past it")
+    return (f"run.episodes = {episodes} is not a multiple of env.num_envs = {worlds}, the worlds played at once: "
+            f"{ends} (set run.episodes = {played}, or env.num_envs, to make it exact)")
+
+
+def flattened_observations(env: Any) -> str:
+    """'' when every agent of the env.factory `env` (a VectorParallelEnv) observes a vector; else one line saying
+    that observations of rank > 1 (images, grids) are flattened for the MLP networks, with the first such agent's
+    shape and width and how many agents have one."""
+    shapes = {agent: tuple(env.envs[0].observation_space(agent).shape) for agent in env.agent_ids}
+    ranked = [agent for agent, shape in shapes.items() if len(shape) > 1]
+    if not ranked:
+        return ""
+    first = ranked[0]
+    more = len(ranked) - 1
+    others = f" (and {more} more agent{'s' if more > 1 else ''} alike)" if more else ""
+    return (f"the observations of agent {first!r}{others} have shape {shapes[first]}: they are flattened to "
+            f"{int(np.prod(shapes[first])):,} inputs of the MLP networks, which see no image or grid structure "
+            "(no convolution; docs/OWN_ENVIRONMENT.md)")
 
 
 def built_env(config: Config) -> Any:
@@ -186,9 +247,27 @@ def bytes_per_world(config: Config) -> float:
     return traced_slope(build, 1, 3) if config.env.factory else traced_slope(build, 2, 66)  # a user env may be slow
 
 
+PROBE_BYTES = 64 * 2**20  # the most the measuring of a replay row allocates (bytes): wide observations get few rows
+
+
+def storage_bytes_per_row(layout: Any) -> int:
+    """Bytes one row of the replay's ring storage takes by its layout (cmcl.replay.storage), N = layout.num_agents:
+    obs and next_obs float32[N, obs_dim] each (both copies), act float32[N, act_dim], reward, done and the score
+    columns float32[N], their scored flags and `present` bool[N], five int64 counters; computed, never allocated."""
+    from cmcl.replay.storage import SCORE_COLUMNS
+
+    n = layout.num_agents
+    floats = n * (2 * layout.obs_dim + layout.act_dim + 2 + len(SCORE_COLUMNS))
+    return 4 * floats + n * (len(SCORE_COLUMNS) + 1) + 8 * 5
+
+
 def bytes_per_row(config: Config, layout: Any) -> float:
-    """Memory one row of `config`'s replay buffer takes (storage, priorities, indices)."""
+    """Memory one row of `config`'s replay buffer takes (storage, priorities, indices): measured on small buffers
+    whose storage stays within PROBE_BYTES, and never below `storage_bytes_per_row`."""
     from cmcl.system import build_replay
+
+    computed = storage_bytes_per_row(layout)
+    large = int(min(4608, max(16, PROBE_BYTES // computed)))
 
     def build(capacity: int) -> Any:
         maddpg = dataclasses.replace(config.maddpg, warmup=min(config.maddpg.warmup, capacity),
@@ -197,7 +276,7 @@ def bytes_per_row(config: Config, layout: Any) -> float:
                                     maddpg=maddpg)
         return build_replay(small, layout)
 
-    return traced_slope(build, 512, 4608)
+    return max(float(computed), traced_slope(build, max(8, large // 9), large))
 
 
 def size(amount: float) -> str:
@@ -227,14 +306,23 @@ def check_memory_fits(config: Config, layout: Any, worker_processes: int = 1) ->
     available = available_memory()
     if available is None:
         return
+    computed = storage_bytes_per_row(layout)  # before anything is measured: a probe of a huge row would not fit
+    refuse_unless_fits({"replay.capacity": (config.replay.capacity, computed * config.replay.capacity,
+                                            f"the replay buffer ({replay_row_text(layout, computed)})")}, available)
     per_world, per_row = bytes_per_world(config), bytes_per_row(config, layout)
     worlds = config.env.num_envs * worker_processes
     refuse_unless_fits({
         "env.num_envs": (config.env.num_envs, per_world * worlds,
                          f"its {worlds} worlds ({size(per_world)} each)"),
         "replay.capacity": (config.replay.capacity, per_row * config.replay.capacity,
-                            f"the replay buffer ({size(per_row)} per row)"),
+                            f"the replay buffer ({replay_row_text(layout, per_row)})"),
     }, available)
+
+
+def replay_row_text(layout: Any, row_bytes: float) -> str:
+    """'3.1 MiB per row: 2 agents × 403,200-wide observations, stored twice (obs, next_obs), float32'."""
+    return (f"{size(row_bytes)} per row: {layout.num_agents} agents × {layout.obs_dim:,}-wide observations, stored "
+            "twice (obs, next_obs), float32")
 
 
 def check_worlds_fit(config: Config, worlds: int, flag: str) -> None:

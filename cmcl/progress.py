@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from cmcl.replay.registry import COVERAGE_WAITS
+
 
 def window_mean(window: Sequence[dict[str, Any]], key: str) -> float | None:
     """Mean of rows[key] over the window (None when the window is empty or its rows lack `key`)."""
@@ -129,7 +131,8 @@ def progress_line(episodes: int, target: int, env_steps: int, updates: int, wind
     parts (the service adds buffer size, score age and weight lag), elapsed seconds (over every segment of a resumed
     run), the time left (`time_left`, with the wall-clock budget `max_seconds` of this command's `segment_s`, 0 =
     none) and `notes`: what is normal at this point
-    of the run (the sampling rules' `early_note` while λ < 0.5, cmcl.replay.registry)."""
+    of the run (the sampling rules' `early_note` while λ < 0.5, cmcl.replay.registry; its "cov may wait" only when
+    `window` has a coverage)."""
     parts = [f"ep {episodes}/{target}", f"steps {env_steps}", f"upd {updates}"]
     parts += [f"{label} {window[key]:.2f}" for key, label in WINDOW_KEYS if window.get(key) is not None]
     parts += [f"R[{t}] {v:.1f}" for t, v in window.get("reward", {}).items()]
@@ -138,7 +141,8 @@ def progress_line(episodes: int, target: int, env_steps: int, updates: int, wind
               f"{rates.get('env_steps_per_s', 0.0):.0f} st/s", *extra, f"{elapsed_s:.0f}s"]
     left = time_left(episodes, target, elapsed_s, max_seconds, segment_s, learning=updates > 0)
     parts += [left] if left else []
-    parts += list(notes) if lam is not None and lam < 0.5 else []
+    if lam is not None and lam < 0.5:  # a run without a coverage metric has no coverage to wait for
+        parts += [note if "coverage" in window else note.replace(COVERAGE_WAITS, "") for note in notes]
     return " | ".join(parts)
 
 

@@ -11,17 +11,19 @@ This module imports neither a runner, torch nor Ray: `--help` stays fast and `cm
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import errno
 import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, get_args
 
-from cmcl.config import Config, ConfigError, apply_overrides, config_from_dict, load_data
+from cmcl.config import Config, ConfigError, apply_overrides, config_from_dict, dump_toml, load_data
 from cmcl.config.runners import Runner, check_runner_keys
 from cmcl.config.toml_io import parse_override
 from cmcl.config.world_keys import check_world_keys
 from cmcl.envs.factory import EnvFactoryError
+from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.metrics_log import MetricsError
 from cmcl.io.resume_hint import resume_command
 from cmcl.io.rundir import ForeignFolderError, RunDirectory
@@ -40,6 +42,10 @@ SERVICE_ONLY_FLAGS = {"address": "--address", "num_cpus": "--num-cpus", "ray_met
 LAST_OWN_INLINE_FORMAT = "8dbaee8"
 
 
+# the one line of a Ctrl-C during a command's start-up, before training began (exit 130)
+STARTUP_STOP = "stopped by SIGINT during start-up, before training began: nothing was trained, nothing to resume"
+
+
 class RunRequestError(ValueError):
     """A combination of flags no runner can honour (the message names the flag and its value)."""
 
@@ -52,7 +58,8 @@ class ResumeMismatch(RunRequestError):
 class RunRequest:
     """What one training command asks for, whichever entry point parsed it.
 
-    runner: which runner trains; config_file: TOML experiment file (None: built-in CMCL defaults; ignored on resume);
+    runner: which runner trains; config_file: TOML experiment file (None: the built-in defaults, MADDPG on sparse
+    navigation; ignored on resume);
     overrides: "section.key=value" strings, in order; resume_dir: the run to continue (None: a new run in run.dir);
     overwrite: start over in a run.dir that holds a run; more_episodes: on resume, train this many episodes past
     those the run has done (run.episodes becomes their sum; a default λ schedule keeps its stride); quiet: no
@@ -124,17 +131,20 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
                                      f"{LAST_OWN_INLINE_FORMAT}`), or start a new run")
             run_dir.check_no_unverifiable_checkpoint()
             config = resumed_config(run_dir, overrides, request)
-            return checked(config, request, port_given=port_given_by(request, config)), run_dir, lock
+            ready = checked(config, request, port_given=port_given_by(request, config))
+            record_resume_settings(run_dir, config, request)
+            return ready, run_dir, lock
         except BaseException:
             lock.release()
             raise
     file_data = load_data(request.config_file)
     data = apply_overrides(file_data, overrides)
-    config = config_from_dict(data)
+    config = config_from_file(data, file_data, request.config_file)
     check_runner_keys(config, request.runner, file_data, overrides)  # keys only the other runner honours
     check_world_keys(config, file_data, overrides)  # the built-in worlds' keys, with env.factory
     config = checked(config, request, teams_given="teams" in data,  # the env built once (AEC, ...)
-                     port_given=port_given(config, file_data, overrides))
+                     port_given=port_given(config, file_data, overrides),
+                     length_given=key_given(file_data, overrides, "env", "episode_length"))
     from cmcl.carried_replay import check_carry_source  # numpy only: no torch, no Ray
 
     check_carry_source(config)  # before the warm start's shape check: it names the setting (env.agent_tags, ...)
@@ -155,29 +165,53 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
         raise
 
 
-def checked(config: Config, request: RunRequest, teams_given: bool = True, port_given: bool = True) -> Config:
+def config_from_file(data: Mapping[str, Any], file_data: Mapping[str, Any], config_file: str | None) -> Config:
+    """`config_from_dict(data)` (the file's tables `file_data` with the overrides); a ConfigError that the file's
+    tables alone raise too names the file ('... (in configs/x.toml)'), one the overrides brought does not."""
+    try:
+        return config_from_dict(data)
+    except ConfigError as err:
+        if config_file is None:
+            raise
+        try:
+            config_from_dict(file_data)
+        except ConfigError as own:
+            if str(own) == str(err):
+                raise ConfigError(f"{err} (in {config_file})") from None
+        raise
+
+
+def checked(config: Config, request: RunRequest, teams_given: bool = True, port_given: bool = True,
+            length_given: bool = True) -> Config:
     """`config` after `cmcl.preflight.preflight`: the environment built and stepped once, the teams matched (the env's
     own, with default settings, when `teams_given` is false and they differ from the default team), the memory of
     the worlds (of every rollout worker on the service) and the replay checked, unless the run joins a cluster
     (--address: its nodes' memory is not this machine's); on the service, service.metrics_port free: a port the user
     gave (`port_given`) is refused when in use, the default one (9100, also node_exporter's) is then replaced by a
-    free one, said on stderr. Raises ConfigError."""
+    free one, said on stderr; an env.factory run whose env.episode_length is set nowhere (`length_given` false)
+    takes the env's own episode length (`cmcl.preflight.with_episode_length`). Raises ConfigError."""
     from cmcl.preflight import metrics_port_checked, preflight  # numpy and the env package: no torch, no Ray
 
     service = request.runner == "service"
     if service:  # the launcher serves it once Ray has started: a port in use is named before
         config = metrics_port_checked(config, port_given)
     workers = config.service.rollout_workers if service else 1
-    return preflight(config, teams_given=teams_given, worker_processes=workers, check_memory=not request.address)
+    return preflight(config, teams_given=teams_given, length_given=length_given, worker_processes=workers,
+                     check_memory=not request.address)
 
 
 def port_given(config: Config, file_data: Mapping[str, Any], overrides: tuple[str, ...]) -> bool:
     """Whether the user chose service.metrics_port: in the config file, by --set (or --metrics-port), or as a value
     other than the default (a resumed run's config.toml holds every key)."""
-    service = file_data.get("service", {})
     return (config.service.metrics_port != Config().service.metrics_port
-            or (isinstance(service, Mapping) and "metrics_port" in service)
-            or any(parse_override(text)[0] == ["service", "metrics_port"] for text in overrides))
+            or key_given(file_data, overrides, "service", "metrics_port"))
+
+
+def key_given(file_data: Mapping[str, Any], overrides: tuple[str, ...], section: str, key: str) -> bool:
+    """Whether `section.key` is set in the config file's tables (`file_data`) or by an override (--set)."""
+    table = file_data.get(section, {})
+    return ((isinstance(table, Mapping) and key in table)
+            or any(parse_override(text)[0] == [section, key] for text in overrides))
 
 
 def port_given_by(request: RunRequest, config: Config) -> bool:
@@ -220,6 +254,39 @@ def resumed_config(run_dir: RunDirectory, overrides: tuple[str, ...], request: R
     return config
 
 
+def flat_settings(data: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A nested config mapping (`Config.to_dict`) as {"section.key": value}, every table flattened
+    ("teams.agent.priority.alpha", "env.factory_kwargs.max_cycles")."""
+    flat: dict[str, Any] = {}
+    for key, value in data.items():
+        if isinstance(value, Mapping):
+            flat.update(flat_settings(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def record_resume_settings(run_dir: RunDirectory, config: Config, request: RunRequest) -> None:
+    """Write a resume's settings to the run's config.toml, which resume, status, evaluate and summary.json's
+    provenance read, so that a later plain resume keeps them; one line per changed key ("resume sets
+    maddpg.actor_lr: 0.001 -> 0.5"). The metrics flags (--metrics-port, --metrics-host) are this command's only:
+    the stored values stay unless a --set names them. Nothing is written when nothing changed."""
+    stored = run_dir.config()
+    flagged = {("service", "metrics_port"): "metrics_port", ("service", "metrics_host"): "metrics_host"}
+    service = config.service
+    for (section, key), field in flagged.items():
+        if not any(parse_override(text)[0] == [section, key] for text in request.overrides):
+            service = dataclasses.replace(service, **{field: getattr(stored.service, field)})
+    config = dataclasses.replace(config, service=service)
+    old, new = flat_settings(stored.to_dict()), flat_settings(config.to_dict())
+    changed = [key for key in new if old.get(key) != new[key]]
+    if not changed:
+        return
+    for key in changed:
+        print(f"resume sets {key}: {old.get(key)!r} -> {new[key]!r} (recorded in {run_dir.config_path.name})")
+    atomic_write_bytes(run_dir.config_path, dump_toml(config).encode())
+
+
 def check_warm_start(config: Config) -> None:
     """Refuse a run.init_from whose policy this config cannot load (no run, no policy, other network shapes) with a
     ConfigError naming the field and the value, before the new run's directory exists."""
@@ -245,6 +312,9 @@ def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, Run
     this command made it (`RunDirectory.discard_failed_start`)."""
     try:
         config, run_dir, lock = open_run(request)
+    except KeyboardInterrupt:  # a Ctrl-C while the run is checked (env, memory): nothing was made
+        print(STARTUP_STOP, file=sys.stderr)
+        return 130
     except (CheckpointError, ConfigError, EnvFactoryError, FileExistsError, FileNotFoundError, MetricsError,
             RunDirectoryInUse, RunRequestError, RunWriteError) as err:
         print(f"error: {err}", file=sys.stderr)
@@ -253,20 +323,50 @@ def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, Run
     with lock:
         try:
             code = train(config, run_dir, lock)
+            if code == 0 and request.no_eval:  # with an evaluation, cmcl.run_report.report_trained says it first
+                from cmcl.run_report import no_update_line
+
+                untrained = no_update_line(config, run_dir.summary())
+                if untrained:
+                    print(untrained)
             return code
         except EnvFactoryError as err:  # the user's environment, built or stepped: one line, no traceback
             print(f"error: {err}", file=sys.stderr)
             code = 2
             return code
+        except KeyboardInterrupt:  # a Ctrl-C before the runner's own stop handler (e.g. during Ray's start)
+            print(STARTUP_STOP, file=sys.stderr)
+            code = 130
+            return code
         except RunWriteError as err:  # a full disk, in either runner: what was written stays as it was
-            print(f"error: {write_failure_line(err, run_dir.path, resume_point(run_dir, request.runner))}",
-                  file=sys.stderr)
+            kept = resume_point(run_dir, request.runner)
+            record_write_failure(run_dir, request.runner, err, kept)
+            print(f"error: {write_failure_line(err, run_dir.path, kept)}", file=sys.stderr)
             code = 2
             return code
         finally:  # a new run that failed before its first episode leaves nothing that blocks the retry
-            if code not in (0, 130, 143) and not request.resume_dir and run_dir.never_trained():
+            if (code not in (0, 143) and not request.resume_dir and run_dir.never_trained()
+                    and (code != 130 or not run_dir.summary())):
                 run_dir.discard_failed_start()
                 lock.discard()
+
+
+def record_write_failure(run_dir: RunDirectory, runner: Runner, err: RunWriteError, kept: str | None) -> None:
+    """Record in summary.json that the run stopped in order because `err`'s file could not be written (ended
+    "write_failure", the error, what a resume starts from: `kept`, None for nothing), with the episodes and training
+    seconds of its last metrics row, so that `status` tells this stop from a crash and a run with nothing to resume
+    may start again (`RunDirectory.stopped_before_a_checkpoint`). On a disk with no room left at all this write fails
+    too, and the run reads as cut off."""
+    last: dict[str, Any] = {}
+    try:
+        for row in run_dir.rows():
+            if row.get("kind") in ("episode", "progress"):
+                last = row
+        run_dir.write_summary({"runner": runner, "ended": "write_failure", "error": str(err), "resume_from": kept,
+                               "episodes": int(last.get("episodes", 0)),
+                               "elapsed_s": float(last.get("elapsed_s", 0.0))})
+    except (OSError, MetricsError):
+        pass
 
 
 def resume_point(run_dir: RunDirectory, runner: Runner) -> str | None:
@@ -282,7 +382,8 @@ def add_run_flags(parser: argparse.ArgumentParser, *, new_run: bool = True) -> N
     """Add the flags of a training run to `parser`. new_run=False leaves out --config and --overwrite (a resume
     reads the run's own config.toml and never starts over)."""
     if new_run:
-        parser.add_argument("--config", help="TOML experiment file (default: built-in CMCL defaults)")
+        parser.add_argument("--config",
+                            help="TOML experiment file (default: the built-in defaults, MADDPG on sparse navigation)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                         help="override one config value (repeatable)")
     if new_run:

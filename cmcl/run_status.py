@@ -19,13 +19,14 @@ named, not decoded: `evaluate` and `resume` verify them.
 
 from __future__ import annotations
 
+import shlex
 from collections import deque
 from pathlib import Path
 from typing import Any
 
 from cmcl.config import ConfigError
 from cmcl.io.metrics_log import MetricsError
-from cmcl.io.resume_hint import resume_command
+from cmcl.io.resume_hint import python_command, resume_command
 from cmcl.io.rundir import RunDirectory
 from cmcl.io.runlock import holder_of
 from cmcl.io.verified import VerifiedFile
@@ -33,7 +34,8 @@ from cmcl.io.verified import VerifiedFile
 RECENT = 100  # episodes the coverage and success are averaged over (the `cov` of the progress line, MA 0.9's window)
 ENDED = {"solved": "solved", "budget": "its budget done", "plateau": "stopped on a plateau",
          "SIGINT": "stopped by SIGINT", "SIGTERM": "stopped by SIGTERM", "diverged": "diverged",
-         "env_error": "stopped by an error of its environment"}
+         "env_error": "stopped by an error of its environment",
+         "write_failure": "stopped: a file of the run could not be written (a full disk?)"}
 
 
 def status_line(path: str | Path) -> str:
@@ -67,7 +69,10 @@ def status_line(path: str | Path) -> str:
         parts.append(f"last {len(recent)} episodes: cov {cov:.2f}, succ {succ:.2f}")
     newest = _newest_checkpoint(run_dir)
     parts.append(f"newest checkpoint {newest}" if newest else "no checkpoint yet")
-    if holder is None and episodes < target and summary.get("ended") != "solved":
+    if holder is None and run_dir.stopped_before_a_checkpoint():  # nothing to resume: as its error line said
+        parts.append(f"nothing to resume: make room, then start it again: {python_command()} -m cmcl train --config "
+                     f"{shlex.quote(str(run_dir.config_path))}")
+    elif holder is None and episodes < target and summary.get("ended") != "solved":
         parts.append(f"resume: {resume_command(run_dir.path)}")
     return " | ".join(parts)
 

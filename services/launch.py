@@ -19,6 +19,7 @@ import contextlib
 import os
 import signal
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -35,6 +36,7 @@ from cmcl.progress import TrainingDiverged
 from cmcl.run_flags import RunRequest, alias_parser, port_given_by, run_alias, train_in_run
 from cmcl.run_report import done_line, report_trained
 from cmcl.stopping import STOP_SIGNALS, StopSignals, exit_without_teardown
+from services.loopback import loopback_only
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -81,7 +83,8 @@ def check_cluster_reachable(address: str, timeout_s: float = JOIN_TIMEOUT_S) -> 
 
 
 def start_ray(address: str | None, num_cpus: int | None, metrics_export_port: int | None = None) -> None:
-    """Join `address`, or start an embedded Ray sized to this machine (no dashboard).
+    """Join `address` (the cluster's own network settings), or start an embedded Ray sized to this machine (no
+    dashboard), every server of it listening on 127.0.0.1 only (services/loopback.py).
 
     The embedded Ray's processes are started with SIGINT and SIGTERM blocked, a mask they inherit: a Ctrl-C in the
     terminal reaches the whole foreground process group, and it must stop the run through the launcher (drain,
@@ -99,6 +102,8 @@ def start_ray(address: str | None, num_cpus: int | None, metrics_export_port: in
             raise ConnectionError(f"cannot join the Ray cluster at --address {address}: {err}. Start one with "
                                   f"`ray start --head`, or omit --address for an embedded Ray") from None
         return
+    loopback_only()  # every server of the embedded Ray on 127.0.0.1 (services/loopback.py)
+    receiver = sigint_receiver()  # a Ctrl-C meanwhile interrupts ray.init (KeyboardInterrupt), within a second
     signal.pthread_sigmask(signal.SIG_BLOCK, set(STOP_SIGNALS))
     try:
         ray.init(address="local", num_cpus=os.cpu_count() if num_cpus is None else num_cpus, include_dashboard=False,
@@ -106,6 +111,26 @@ def start_ray(address: str | None, num_cpus: int | None, metrics_export_port: in
     except Exception as err:  # noqa: BLE001 - Ray raises bare Exception (e.g. "timed out during startup")
         raise ConnectionError(f"the embedded Ray did not start: {str(err).strip().splitlines()[0]} (its logs: "
                               "/tmp/ray/session_latest/logs)") from None
+    finally:
+        receiver.set()
+
+
+def sigint_receiver() -> threading.Event:
+    """Start a daemon thread that keeps SIGINT unblocked (SIGTERM blocked) and return the event that ends it. Made
+    before `start_ray` blocks both signals in the main thread, it is where the kernel delivers a Ctrl-C meanwhile;
+    Python then runs the SIGINT handler in the main thread, inside ray.init (KeyboardInterrupt: the command stops at
+    once, nothing to resume, and the reaper ends what Ray had started), while Ray's processes, which the main thread
+    starts, keep both signals blocked."""
+    ready, done = threading.Event(), threading.Event()
+
+    def receive() -> None:
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})  # SIGTERM waits for the launcher, as before
+        ready.set()
+        done.wait()
+
+    threading.Thread(target=receive, name="sigint-receiver", daemon=True).start()
+    ready.wait()
+    return done
 
 
 def stop_ray() -> None:

@@ -8,6 +8,7 @@ group under pytest 9.2: the group suffix it writes to `item._nodeid` is no longe
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,7 @@ from typing import Any
 import pytest
 
 from cmcl.config import Config, dump_toml
+from services.loopback import LOOPBACK_ENV, loopback_only
 from tests.tiny import make_tiny_config
 
 
@@ -41,9 +43,17 @@ def tiny_config_file(tiny_config, tmp_path) -> Callable[..., Path]:
 
 @pytest.fixture(scope="session")
 def ray_cluster():
-    """A real embedded Ray (2 CPUs, no dashboard) for the service tests; started once, shut down at the end."""
+    """A real embedded Ray (2 CPUs, no dashboard, every server on 127.0.0.1) for the service tests; started once,
+    shut down at the end."""
     ray = pytest.importorskip("ray")
     if not ray.is_initialized():
+        saved = {key: os.environ.get(key) for key in LOOPBACK_ENV}
+        loopback_only()  # as the launcher's embedded Ray: every server on 127.0.0.1
         ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+        for key, value in saved.items():  # Ray's processes have it; a test's own `ray start` (a cluster) must not
+            if value is None:
+                os.environ.pop(key)
+            else:
+                os.environ[key] = value
     yield ray
     ray.shutdown()

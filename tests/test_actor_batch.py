@@ -46,7 +46,8 @@ def test_actor_batch_is_a_team_setting_acting_on_the_prioritised_rules():
     for name in ALGORITHMS:
         team = TeamConfig(algorithm=name, actor_batch="uniform")
         assert team.uniform_actor == REGISTRY[name].prioritised == (name != "maddpg")  # maddpg: accepted, no effect
-    assert load_config(None, ['teams.agent.actor_batch="uniform"']).teams["agent"].uniform_actor
+    assert load_config(None, ['teams.agent.algorithm="per"',
+                              'teams.agent.actor_batch="uniform"']).teams["agent"].uniform_actor
     with pytest.raises(ConfigError, match="actor_batch"):
         load_config(None, ['teams.agent.actor_batch="critic"'])
 

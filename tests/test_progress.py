@@ -41,8 +41,9 @@ def test_the_line_says_the_time_left_and_what_is_normal_while_lambda_is_low():
     assert time_left(10_000, 20_000, 100.0, 300.0, segment_s=10.0) == "left ~100s"
     notes = early_notes(["cmcl", "cmcl", "maddpg"])
     assert len(notes) == 1 and "λ < 0.5" in notes[0] and early_notes(["maddpg", "per", "relo"]) == []
-    early = progress_line(1_000, 20_000, 25_000, 100, {}, 0.2, {}, 50.0, max_seconds=300.0, notes=notes)
-    late = progress_line(1_000, 20_000, 25_000, 100, {}, 0.6, {}, 50.0, max_seconds=300.0, notes=notes)
+    window = {"coverage": 0.3}  # a run with a coverage: the note's "cov may wait" stays
+    early = progress_line(1_000, 20_000, 25_000, 100, window, 0.2, {}, 50.0, max_seconds=300.0, notes=notes)
+    late = progress_line(1_000, 20_000, 25_000, 100, window, 0.6, {}, 50.0, max_seconds=300.0, notes=notes)
     assert early.endswith(f"50s | left ≤ 250s (budget) | {notes[0]}") and late.endswith("left ≤ 250s (budget)")
 
 

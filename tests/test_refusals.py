@@ -70,7 +70,7 @@ def test_a_users_env_with_its_own_team_names_trains_without_a_teams_table(tmp_pa
     assert done.returncode == 0, done.stdout + done.stderr
     notes = [line for line in done.stdout.splitlines() if line.startswith("teams:")]
     assert notes == ["teams: no [teams] table, so each team of env.factory 'tests.team_env:parallel_env' gets the "
-                     "default team settings (algorithm 'cmcl'): scout: scout_0, scout_1; walker: walker_0"]
+                     "default team settings (algorithm 'maddpg'): scout: scout_0, scout_1; walker: walker_0"]
     config = (run_dir / "config.toml").read_text()
     assert "[teams.scout]" in config and "[teams.walker]" in config and "[teams.agent]" not in config
 

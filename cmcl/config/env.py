@@ -76,7 +76,8 @@ class EnvConfig:
     factory: str = documented(
         "", "your own environment (docs/OWN_ENVIRONMENT.md): 'package.module:callable' returning a PettingZoo "
         "ParallelEnv, called with env.factory_kwargs; '' = the built-in env.task. Its episodes end when the env ends "
-        "them or at env.episode_length steps, whichever comes first; the world keys are then unused",
+        "them or at env.episode_length steps, whichever comes first (env.episode_length set nowhere: the env's own "
+        "max_cycles / max_steps / spec.max_episode_steps, else 30); the world keys are then unused",
         rule=rule("must look like 'package.module:callable' (or be empty for the built-in task)",
                   lambda v: v == "" or bool(FACTORY_PATTERN.match(v))))
     factory_kwargs: dict[str, Any] = documented(meaning="keyword arguments of env.factory (a table of scalars)",

@@ -68,7 +68,8 @@ class TeamConfig:
     sampling settings in [teams.<team>.priority]."""
 
     algorithm: AlgorithmName = documented(
-        "cmcl", "the team's algorithm, i.e. its replay's sampling rule (cmcl.replay.registry): " +
+        "maddpg", "the team's algorithm, i.e. its replay's sampling rule (cmcl.replay.registry; unnamed: MADDPG's "
+        "uniform replay, which no rule here has beaten, docs/RESULTS.md): " +
         "; ".join(f"'{name}' ({spec.summary})" for name, spec in REGISTRY.items()))
     eta: float = documented(0.5, "η, the curiosity weight in CI = KP + η·CP (eq. 8, A15); forced to 0 for acl",
                             rule=rule("must be >= 0", lambda v: v >= 0 and math.isfinite(v)))

@@ -9,6 +9,7 @@ cmcl.config.env, and the world parameters' own, cmcl.envs.params).
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import tomllib
 import types
 import typing
@@ -90,7 +91,10 @@ def _build(cls: type, data: Mapping[str, Any], prefix: str, built: Mapping[str, 
     names = {f.name for f in dataclasses.fields(cls)} - set(built)
     unknown = sorted(set(data) - names)
     if unknown:
-        raise ConfigError(f"unknown key {prefix}.{unknown[0]} (known: {sorted(names | set(flat_keys))})")
+        known = sorted(names | set(flat_keys))
+        near = difflib.get_close_matches(unknown[0], known, n=1)
+        guess = f"; did you mean {prefix}.{near[0]}?" if near else ""
+        raise ConfigError(f"unknown key {prefix}.{unknown[0]}{guess} (known: {known})")
     kwargs = {k: _coerce(f"{prefix}.{k}", v, hints[k]) for k, v in data.items()}
     try:
         return cls(**kwargs, **built)

@@ -159,6 +159,38 @@ def _action_bounds(act_space: Any, agent: str, factory: str) -> tuple[np.ndarray
     return low, high, None
 
 
+LENGTH_ATTRIBUTES = ("max_cycles", "max_steps", "max_episode_steps")  # where PettingZoo / Gymnasium envs keep theirs
+LENGTH_HOLDERS = ("aec_env", "unwrapped", "env", "single_agent_env")  # the wrapped envs searched, one level each
+
+
+def declared_episode_length(env: Any) -> tuple[int, str] | None:
+    """The episode length `env` declares itself, in steps, and where it was found ('max_cycles', 'spec.max_episode_
+    steps', ...): the first positive integer among LENGTH_ATTRIBUTES and `spec.max_episode_steps` of `env` and of the
+    envs it wraps (LENGTH_HOLDERS: a parallel wrapper's AEC env, `unwrapped`, a raw env's base env, MaMuJoCo's
+    single-agent env), searched breadth first; None when it declares none."""
+    seen, queue = set(), [env]
+    while queue:
+        candidate = queue.pop(0)
+        if candidate is None or id(candidate) in seen:
+            continue
+        seen.add(id(candidate))
+        found = [(_attribute(candidate, name), name) for name in LENGTH_ATTRIBUTES]
+        found.append((_attribute(_attribute(candidate, "spec"), "max_episode_steps"), "spec.max_episode_steps"))
+        for value, name in found:
+            if isinstance(value, int) and not isinstance(value, bool) and value > 0:
+                return value, name
+        queue.extend(_attribute(candidate, holder) for holder in LENGTH_HOLDERS)
+    return None
+
+
+def _attribute(obj: Any, name: str) -> Any:
+    """getattr(obj, name, None), also None when a property of the user's env raises."""
+    try:
+        return getattr(obj, name, None)
+    except Exception:  # noqa: BLE001 - the user's code: a raising property declares nothing
+        return None
+
+
 def teams_of(specs: list[AgentSpec]) -> dict[str, list[int]]:
     """Team name -> agent indices, teams in order of their first agent."""
     teams: dict[str, list[int]] = {}

@@ -82,6 +82,9 @@ class RunDirectory:
             raise ForeignFolderError(f"run.dir {str(run.path)!r} holds files that are not a run's "
                                      f"({', '.join(foreign[:4])}{', ...' if len(foreign) > 4 else ''}); nothing there "
                                      "is touched: choose a new or empty folder")
+        restart = run.config_path.exists() and not overwrite and run.stopped_before_a_checkpoint()
+        if restart:  # what the error line of its stop said: make room, then start the run again
+            overwrite = True
         if run.config_path.exists() and not overwrite and not run.never_trained():
             raise FileExistsError(
                 f"run.dir {str(run.path)!r} already holds a run: continue it with {resume_command(run.path)}, start "
@@ -109,6 +112,14 @@ class RunDirectory:
             elif entry.name not in START_LEFTOVERS or not entry.is_file():
                 return False
         return True
+
+    def stopped_before_a_checkpoint(self) -> bool:
+        """Whether this run stopped in order, by a file it could not write (summary.json: ended "write_failure"),
+        before anything a resume starts from was written (no policy checkpoint, no service replay): a new run may
+        start over in it without --overwrite, as that stop's line advised (cmcl.io.write_failure)."""
+        summary = self.summary()
+        return (summary.get("ended") == "write_failure" and summary.get("resume_from") is None
+                and not self.runners() and not any(self.service_replay_dir.glob("*")))
 
     def discard_failed_start(self) -> None:
         """Remove what a start that failed before its first episode left (only when `never_trained`; run.lock is the

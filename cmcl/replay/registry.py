@@ -75,7 +75,8 @@ class AlgorithmSpec:
         return not (self.sampler is UniformSampling and self.candidates == 1)
 
 
-KP_EXCLUDES = "normal while λ < 0.5: KP excludes the hardest rows, cov may wait"
+COVERAGE_WAITS = ", cov may wait"  # the part of KP_EXCLUDES a run without a coverage metric is not shown
+KP_EXCLUDES = "normal while λ < 0.5: KP excludes the hardest rows" + COVERAGE_WAITS
 
 
 def _acl_needs(team: Any) -> Needs:
