@@ -257,7 +257,7 @@ def sparse_calibration_runs(seed: int) -> list[Run]:
             runs.append(Run(f"sparse_calibration_{task}_{algorithm}_s{seed}", "sparse_calibration", "own_env",
                             algorithm, None, seed, int(preset["episodes"]), arm=algorithm, config=config,
                             max_seconds=float(preset["max_seconds"]), env=task,
-                            sets=(f"teams.agent.algorithm={algorithm}", "run.checkpoint_every=500")))
+                            sets=(f"teams.agent.algorithm={algorithm}",)))
     return runs
 
 

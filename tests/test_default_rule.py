@@ -15,8 +15,7 @@ from cmcl.progress import progress_line
 ROOT = Path(__file__).resolve().parents[1]
 REACH = "env.factory=cmcl.envs.examples.reach:parallel_env"
 TINY = ["env.num_envs=2", "maddpg.batch_size=16", "maddpg.warmup=32", "maddpg.hidden=16", "replay.capacity=600",
-        "teachers.batch_size=16", "teachers.hidden=16", "teachers.num_folds=3", "icm.batch_size=16",
-        "run.checkpoint_every=0"]
+        "teachers.batch_size=16", "teachers.hidden=16", "teachers.num_folds=3", "icm.batch_size=16"]
 
 
 def train(run_dir: Path, *overrides: str) -> str:
@@ -41,8 +40,8 @@ def test_the_built_in_task_without_a_rule_is_maddpg():
 
 
 def test_cmcls_hint_waits_for_coverage_only_where_the_run_has_one(tmp_path):
-    out = train(tmp_path / "run", REACH, "teams.agent.algorithm=cmcl", "run.episodes=2000", "run.max_seconds=3",
-                "run.log_every=2")  # λ's ramp spans 2,000 episodes: every line of the 3 s has λ < 0.5
+    # λ's ramp spans 2,000 episodes: every line of the 3 s has λ < 0.5
+    out = train(tmp_path / "run", REACH, "teams.agent.algorithm=cmcl", "run.episodes=2000", "run.max_seconds=3")
     lines = [line for line in out.splitlines() if line.startswith("ep ")]
     assert lines and all("KP excludes the hardest rows" in line for line in lines), out
     assert "cov may wait" not in out

@@ -55,7 +55,7 @@ def parallel_env():
 def test_a_slow_envs_evaluation_is_shown_and_bounded(tmp_path):
     (tmp_path / "slow_env.py").write_text(SLOW_ENV)
     sets = ["env.factory=slow_env:parallel_env", "env.num_envs=2", "maddpg.warmup=32", "maddpg.batch_size=16",
-            "maddpg.hidden=16", "replay.capacity=600", "run.episodes=2", "run.checkpoint_every=2",
+            "maddpg.hidden=16", "replay.capacity=600", "run.episodes=2",
             "run.max_seconds=20", f"run.dir={tmp_path / 'run'}"]  # a 20 s budget: the evaluation's bound is 10 s
     env = {**os.environ, "PYTHONPATH": os.pathsep.join((str(tmp_path), str(ROOT)))}
     done = subprocess.run([sys.executable, "-m", "cmcl", "train", "--runner", "inline",

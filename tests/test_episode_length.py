@@ -15,7 +15,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["env.num_envs=2", "maddpg.batch_size=16", "maddpg.warmup=32", "maddpg.hidden=16", "replay.capacity=600",
-        "run.episodes=2", "run.checkpoint_every=0"]
+        "run.episodes=2"]
 
 NO_LENGTH_ENV = '''
 import numpy as np

@@ -22,7 +22,7 @@ from tests.evaluation_output import evaluation_json
 ROOT = Path(__file__).resolve().parents[1]
 REACH = ["--set", "env.factory=cmcl.envs.examples.reach:parallel_env", "--set", "env.success_key=reached"]
 TINY = [arg for text in ("env.num_envs=2", "maddpg.batch_size=16", "maddpg.warmup=32", "maddpg.hidden=16",
-                         "replay.capacity=600", "run.episodes=8", "run.checkpoint_every=4")
+                         "replay.capacity=600", "run.episodes=8")
         for arg in ("--set", text)]
 
 

@@ -62,7 +62,7 @@ def test_grid_observations_are_flattened_said_in_one_line(tmp_path):
     pytest.importorskip("pettingzoo.sisl", reason="PettingZoo's SISL envs (pettingzoo[sisl]) are not installed")
     done = train("env.factory=pettingzoo.sisl.pursuit_v5:parallel_env", "env.factory_kwargs={max_cycles=6}",
                  "env.num_envs=2", "maddpg.warmup=16", "maddpg.batch_size=8", "replay.capacity=200",
-                 "run.episodes=2", "run.checkpoint_every=0", f"run.dir={tmp_path / 'run'}")
+                 "run.episodes=2", f"run.dir={tmp_path / 'run'}")
     assert done.returncode == 0, done.stderr
     out = done.stdout + done.stderr
     assert ("note: the observations of agent 'pursuer_0' (and 7 more agents alike) have shape (7, 7, 3): they are "

@@ -12,8 +12,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 FILE_LIMIT = 48 * 1024  # bytes any one file may grow to (RLIMIT_FSIZE): metrics.jsonl outgrows it within seconds
-TINY = ["env.num_envs=2", "maddpg.batch_size=16", "maddpg.warmup=32", "maddpg.hidden=16", "replay.capacity=600",
-        "run.checkpoint_every=0", "run.log_every=2", "teams.agent.algorithm=maddpg"]
+TINY = ["env.num_envs=2", "maddpg.batch_size=16", "maddpg.warmup=32", "maddpg.hidden=16", "replay.capacity=600", "teams.agent.algorithm=maddpg"]
 
 
 def limit_file_size() -> None:

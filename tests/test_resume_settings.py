@@ -12,7 +12,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["env.factory=cmcl.envs.examples.reach:parallel_env", "env.num_envs=2", "maddpg.warmup=32",
-        "maddpg.batch_size=16", "maddpg.hidden=16", "replay.capacity=600", "run.checkpoint_every=4"]
+        "maddpg.batch_size=16", "maddpg.hidden=16", "replay.capacity=600"]
 
 
 def cmcl(*args: str) -> subprocess.CompletedProcess:
