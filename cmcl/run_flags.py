@@ -132,7 +132,11 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
             run_dir.check_no_unverifiable_checkpoint()
             config = resumed_config(run_dir, overrides, request)
             ready = checked(config, request, port_given=port_given_by(request, config))
-            record_resume_settings(run_dir, config, request)
+            try:
+                record_resume_settings(run_dir, config, request)
+            except RunWriteError as err:  # a full disk: the one line of every write failure, before any training
+                kept = resume_point(run_dir, request.runner)
+                raise ConfigError(write_failure_line(err, run_dir.path, kept)) from None
             return ready, run_dir, lock
         except BaseException:
             lock.release()
