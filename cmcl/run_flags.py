@@ -135,7 +135,7 @@ def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
             try:
                 record_resume_settings(run_dir, config, request)
             except RunWriteError as err:  # a full disk: the one line of every write failure, before any training
-                kept = resume_point(run_dir, request.runner)
+                kept = resume_point(run_dir)
                 raise ConfigError(write_failure_line(err, run_dir.path, kept)) from None
             return ready, run_dir, lock
         except BaseException:
@@ -343,7 +343,7 @@ def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, Run
             code = 130
             return code
         except RunWriteError as err:  # a full disk, in either runner: what was written stays as it was
-            kept = resume_point(run_dir, request.runner)
+            kept = resume_point(run_dir)
             record_write_failure(run_dir, request.runner, err, kept)
             print(f"error: {write_failure_line(err, run_dir.path, kept)}", file=sys.stderr)
             code = 2
@@ -373,13 +373,13 @@ def record_write_failure(run_dir: RunDirectory, runner: Runner, err: RunWriteErr
         pass
 
 
-def resume_point(run_dir: RunDirectory, runner: Runner) -> str | None:
+def resume_point(run_dir: RunDirectory) -> str | None:
     """What a resume of `run_dir` starts from, said when a file of the run could not be written: its last checkpoint;
-    a service run without a policy checkpoint yet resumes from its replay alone (services.launch.resume_notice); None
-    when there is nothing to resume from."""
+    a run without a policy checkpoint yet resumes from its replay alone (either runner: services.launch.resume_notice);
+    None when there is nothing to resume from."""
     if run_dir.runners():
         return "its last checkpoint"
-    return "its replay (no policy checkpoint yet)" if runner == "service" else None
+    return "its replay (no policy checkpoint yet)" if any(run_dir.service_replay_dir.glob("*")) else None
 
 
 def add_run_flags(parser: argparse.ArgumentParser, *, new_run: bool = True) -> None:
