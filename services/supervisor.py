@@ -362,8 +362,9 @@ class Supervisor:
         self.run_dir.log(self.progress_row())  # the rows end at the final cut
         if self.progress is not None:
             self.progress(self.progress_line())
+        now = time.perf_counter()  # one instant: elapsed_s = the earlier segments' + segment_s
         return {**dataclasses.asdict(self.status), **self.status.counters(), **self.view.rates,
                 **self.tallies(), "solved": self.solved, "plateau": self.learning_progress.plateaued,
                 "stopped": self.stopped, "episodes_logged": self.episodes_logged,
-                "window": window_summary(self.window), "elapsed_s": self.clock.elapsed(),
-                "segment_s": self.clock.segment()}
+                "window": window_summary(self.window), "elapsed_s": self.clock.elapsed(now),
+                "segment_s": self.clock.segment(now)}
