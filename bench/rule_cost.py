@@ -1,4 +1,4 @@
-"""Cost per update of every registered sampling rule, in one process, against MADDPG's in the same process (issue 36).
+"""Cost per update of every registered sampling rule, in one process, against MADDPG's in the same process.
 
 For each rule of the registry (cmcl.replay.registry), the service's roles of the default navigation preset with
 `teams.agent.algorithm=<rule>` built in this process (as `--runner inline` runs them: bench/learner_throughput.py

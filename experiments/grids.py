@@ -30,7 +30,7 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
   MADDPG, the full budget, progress rows every 200 episodes; the per-agent cells are the baseline;
 * ``own_envs`` (issue 23, item 6): environments no one here wrote (experiments.own_envs.OWN_ENVS) through
   ``env.factory``, inline and on the embedded service, each with its own budget and settings;
-* ``sparse_calibration`` (issue 56, docs/SPARSE_TASKS.md): uniform MADDPG and PER-MADDPG on each sparse task of
+* ``sparse_calibration`` (docs/SPARSE_TASKS.md): uniform MADDPG and PER-MADDPG on each sparse task of
   SPARSE_TASKS (its preset configs/<task>_maddpg.toml, through ``env.factory``), inline, the preset's budget.
 
 Runs are ordered seed outermost (seed k of every cell before any seed k+1), so a grid stopped part-way has
@@ -242,7 +242,7 @@ def own_env_runs(seed: int) -> list[Run]:
             for name, env in OWN_ENVS.items() for mode in ("inline", "service")]
 
 
-# issue 56's sparse tasks (docs/SPARSE_TASKS.md), shortest budget first: task -> its preset under configs/
+# the sparse tasks (docs/SPARSE_TASKS.md), shortest budget first: task -> its preset under configs/
 SPARSE_TASKS = {t: f"{t}_maddpg.toml" for t in ("push_box", "pass", "vacl_n4", "vacl_n8", "spmarl_n8")}
 SPARSE_ALGORITHMS = ("maddpg", "per")  # uniform MADDPG and PER-MADDPG (arms; --arms maddpg runs the first alone)
 

@@ -1,4 +1,4 @@
-"""The roles compute what the step functions they call compute (issue 8), and the service's two teacher layouts
+"""The roles compute what the step functions they call compute, and the service's two teacher layouts
 agree.
 
 There is one implementation of each step (cmcl.replay.buffer_steps, cmcl.learners.network_steps); these tests check

@@ -1,5 +1,4 @@
-"""CMAE's two sparse coordination grids, Push-Box and Pass, as PettingZoo ParallelEnvs with Discrete(5) actions
-(issue 56).
+"""CMAE's two sparse coordination grids, Push-Box and Pass, as PettingZoo ParallelEnvs with Discrete(5) actions.
 
 Sources (Liu et al., "Cooperative Exploration for Multi-Agent Deep Reinforcement Learning", ICML 2021):
 IouJenLiu/CMAE env/push_box.py (`PushBox`) and env/rooms.py (`Rooms`), at the settings of env/env_factory.py

@@ -1,4 +1,4 @@
-"""All-or-nothing and gated sparse navigation (issue 56): the world parameters, the initial states and the batched
+"""All-or-nothing and gated sparse navigation: the world parameters, the initial states and the batched
 numpy twin of `cmcl.envs.sparse_nav_v0` (the PettingZoo ParallelEnv the runs train through `env.factory`).
 
 Two variants of cooperative navigation from the curriculum literature, where uniform replay has no dense signal:

@@ -1,4 +1,4 @@
-"""All-or-nothing (VACL) and gated (SPMARL) sparse navigation as a PettingZoo ParallelEnv on mpe2's World (issue 56).
+"""All-or-nothing (VACL) and gated (SPMARL) sparse navigation as a PettingZoo ParallelEnv on mpe2's World.
 
 The rules, their sources (jiayu-ch15/Variational-Automatic-Curriculum-Learning envs/mpe/scenarios/simple_spread.py;
 wenshuaizhao/spmarl envs/mpe/scenarios/simple_spread.py) and where this differs from them: `cmcl.envs.sparse_nav`,
