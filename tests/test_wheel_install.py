@@ -5,12 +5,14 @@ The fresh environment gets the wheel alone (`--no-deps`); its dependencies (torc
 interpreter's, reached through one `.pth` line naming this environment's site-packages, so the test needs no network
 and no second copy of torch. A path line in a `.pth` file adds that folder to sys.path without running the `.pth`
 files inside it, so this checkout's editable install is not seen: `cmcl` must come from the wheel, and the test
-checks that it does.
+checks that it does. The wheel is built from a copy of the tracked source files, so that setuptools' build folder
+is not left in the checkout.
 """
 
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 import sysconfig
@@ -27,8 +29,12 @@ def _run(argv: list[str], cwd: Path, timeout: float = 240) -> subprocess.Complet
 
 
 def test_wheel_installs_and_trains_in_a_fresh_venv(tmp_path: Path):
-    wheels = tmp_path / "wheels"
-    built = _run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--no-build-isolation", "-q",
+    source, wheels = tmp_path / "source", tmp_path / "wheels"
+    tracked = _run(["git", "ls-files", "pyproject.toml", "README.md", *PACKAGES], cwd=ROOT).stdout.split()
+    for name in tracked:
+        (source / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(ROOT / name, source / name)
+    built = _run([sys.executable, "-m", "pip", "wheel", str(source), "--no-deps", "--no-build-isolation", "-q",
                   "-w", str(wheels)], cwd=tmp_path)
     assert built.returncode == 0, built.stderr[-2000:]
     (wheel,) = wheels.glob("cmcl_service-*.whl")
