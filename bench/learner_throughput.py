@@ -25,12 +25,12 @@ import torch
 from torch import nn
 
 from cmcl.config import load_config
-from cmcl.learners.icm import ICM
+from cmcl.scorers.icm import ICM
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.network_steps import curiosity_values, fit_teachers, teacher_errors
-from cmcl.learners.teachers import TeacherEnsemble
+from cmcl.scorers.teachers import TeacherEnsemble
 from cmcl.replay.buffer_steps import fold_draw_indices
-from cmcl.replay.difficulty import cross_validated_difficulty
+from cmcl.scorers.difficulty import cross_validated_difficulty
 
 ROOT = Path(__file__).resolve().parents[1]
 N, OD, AD, S, K, M = 4, 18, 2, 128, 5, 5000
@@ -242,11 +242,11 @@ class FilledRoles:
     of learner updates it ran."""
 
     def __init__(self, config):
-        from services.icm import ICMWorker
+        from services.scorers.icm import ICMWorker
         from services.learner import Learner
         from services.replay_server import ReplayServer
         from services.rollout import RolloutWorker
-        from services.teachers import TeacherWorker
+        from services.scorers.teachers import TeacherWorker
 
         self.config = config
         cfg = config.to_dict()

@@ -14,11 +14,11 @@ from typing import Any
 
 from cmcl.config import Config
 from cmcl.io.rundir import RunDirectory
-from services.icm import ICMWorker
+from services.scorers.icm import ICMWorker
 from services.learner import Learner
 from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
-from services.teachers import TeacherWorker
+from services.scorers.teachers import TeacherWorker
 
 ROLLOUT_RESOURCE_SHARE = 0.01  # units of service.rollout_resource each rollout worker requires
 

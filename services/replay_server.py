@@ -1,7 +1,7 @@
 """Replay server: owns the buffer, folds, score columns, λ, every sampler and the rate limiters.
 
 Where it sits: the hub of the flow, and a shell: dedupe, pacing and status around the replay side of Algorithm 1's
-steps (`cmcl.replay.buffer_steps`) and its scoring state (`cmcl.replay.scoring.ScoringState`: stamps, teacher
+steps (`cmcl.replay.buffer_steps`) and its scoring state (`cmcl.scorers.scoring.ScoringState`: stamps, teacher
 errors, insertion times and the rule that picks the rows to rescore), the same the inline loop uses. Rollout
 `Chunk`s come in (`insert`, validated by `cmcl.io.records.check_chunk`, idempotent by writer / incarnation / seq);
 teachers and the ICM ask for work (`teacher_work`, `icm_work`) and send scores back keyed by (slot, generation),
@@ -11,7 +11,7 @@ every `service.recompute_every` inserts. λ advances with the env steps accepted
 
 Distributed deviation from §3.8 (ALGORITHM.md §3.9), measured by `cmcl_teacher_score_age_updates`: teacher k
 scores rows of the other folds asynchronously; c_j is (K−1)·mean over the blind teachers that have scored j so
-far (`cmcl.replay.difficulty.DifficultyTable`); new rows sit at ε_p until a teacher has scored them.
+far (`cmcl.scorers.difficulty.DifficultyTable`); new rows sit at ε_p until a teacher has scored them.
 Every method returns (or ends with) a `ReplayStatus` the supervisor uses to pace its calls.
 """
 
@@ -39,7 +39,7 @@ from cmcl.replay import buffer_steps
 from cmcl.replay.curriculum import unplayed_steps
 from cmcl.replay.dedupe import InsertLedger
 from cmcl.replay.pacing import pacing_from_config
-from cmcl.replay.scoring import ScoringState
+from cmcl.scorers.scoring import ScoringState
 from cmcl.replay.snapshot import rng_state, set_rng_state
 from cmcl.system import beta_is, build_replay, build_schedule, layout_of
 from services.common import actor_setup, new_incarnation

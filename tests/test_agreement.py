@@ -23,11 +23,11 @@ from cmcl.replay import buffer_steps
 from cmcl.replay.registry import ALGORITHMS, REGISTRY
 from cmcl.system import beta_is
 from services.common import actor_setup
-from services.icm import ICMWorker
+from services.scorers.icm import ICMWorker
 from services.learner import Learner
 from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
-from services.teachers import TeacherWorker
+from services.scorers.teachers import TeacherWorker
 from tests.in_process import in_process_config
 
 # every registered rule and its controls: the agreement holds for each (issue 36)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from cmcl.learners.icm import ICM
+from cmcl.scorers.icm import ICM
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.nets import joint_input
 

@@ -12,12 +12,12 @@ import pytest
 from cmcl.config import config_from_dict
 from cmcl.messages import LearnerFeedback, ReplayStatus
 from services.call_budget import calls_to_issue
-from services.icm import ICMWorker
+from services.scorers.icm import ICMWorker
 from services.learner import Learner
 from services.placement import teacher_groups
 from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
-from services.teachers import TeacherWorker
+from services.scorers.teachers import TeacherWorker
 from tests.in_process import in_process_config, roles
 
 

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from cmcl.learners import network_steps
-from cmcl.learners.teachers import TeacherEnsemble
+from cmcl.scorers.teachers import TeacherEnsemble
 from cmcl.learners.weights import load_published
 from cmcl.messages import TeacherScores, TeacherWork
 from cmcl.system import build_maddpg, build_teachers, layout_of

@@ -5,7 +5,7 @@ Where it sits: one `ScoringState` beside the `ReplayBuffer` of the replay server
 scheduler runs it. Scores come in through `write_difficulty` (teacher errors, eqs. 10–11),
 `write_curiosity` (ρ, eq. 18) and `write_online_td` (ACL td_self's |δ|); each writes the buffer's score column and
 stamps the rows with the learner update the score was made at. The buffer's columns hold the scores; this object
-holds the stamps, the teachers' per-fold errors (`cmcl.replay.difficulty.DifficultyTable`) and the insertion times.
+holds the stamps, the teachers' per-fold errors (`cmcl.scorers.difficulty.DifficultyTable`) and the insertion times.
 
 The rescoring rule (`rows_to_score`): the rows whose score from the given scorers is oldest, never-scored rows first.
 The replay server asks it for the rows of one teacher group (a teacher never scores its own fold, eq. 9) or of the
@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from cmcl.replay.buffer import ReplayBuffer
-from cmcl.replay.difficulty import DifficultyTable, ScoreStamps
+from cmcl.scorers.difficulty import DifficultyTable, ScoreStamps
 
 
 def oldest_first(candidates: np.ndarray, stamps: np.ndarray, count: int) -> np.ndarray:
