@@ -19,8 +19,8 @@ from cmcl.replay.curriculum import CurriculumSchedule, default_growth
 from cmcl.replay.registry import REGISTRY
 
 if TYPE_CHECKING:  # torch-backed classes load lazily: the replay server and rollout workers never need torch
-    from cmcl.scorers.icm import ICM
     from cmcl.learners.maddpg import MADDPG
+    from cmcl.scorers.icm import ICM
     from cmcl.scorers.teachers import TeacherEnsemble
 
 CONTROL_STREAM = 21  # entropy word of the permuted control's seed stream (issue 21), see `control_seed`

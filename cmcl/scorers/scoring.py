@@ -30,6 +30,12 @@ from cmcl.replay.buffer import ReplayBuffer
 from cmcl.scorers.difficulty import DifficultyTable, ScoreStamps
 
 
+def online_critics_score(layout: Any) -> bool:
+    """Whether some agent's difficulty is the online critics' |δ| (ACL td_self) of a `cmcl.system.AgentLayout`: the
+    learner then hosts the online critics' scorer."""
+    return "td_abs" in layout.difficulty_source
+
+
 def oldest_first(candidates: np.ndarray, stamps: np.ndarray, count: int) -> np.ndarray:
     """Up to `count` of candidates int64[M] whose stamps float[M] are oldest (never scored, −1, first), sorted by
     slot."""
@@ -74,7 +80,7 @@ class ScoringState:
     def for_layout(cls, layout: Any, capacity: int, num_folds: int) -> ScoringState:
         """The scoring state of a `cmcl.system.AgentLayout`."""
         return cls(capacity, num_folds, layout.teacher_agents, layout.icm_agents,
-                   online_td="td_abs" in layout.difficulty_source)
+                   online_td=online_critics_score(layout))
 
     # ------------------------------------------------------------------ insertion and sampling times
     def inserted(self, slots: np.ndarray, updates: int) -> None:
@@ -142,6 +148,12 @@ class ScoringState:
             if asked:
                 parts.append(stamps.stamps(valid, gens).astype(np.float64))
         return valid, np.concatenate(parts, axis=1).min(axis=1)
+
+    def unscored(self, replay: ReplayBuffer, folds: Sequence[int] = (), curiosity: bool = False,
+                 online_td: bool = False) -> int:
+        """How many valid rows one of the given scorers has not scored in their current content (a row in the
+        online critics' case is sampled only once it has: ALGORITHM.md A11)."""
+        return int((self.score_stamps(replay, folds, curiosity, online_td)[1] < 0).sum())
 
     def rows_to_score(self, replay: ReplayBuffer, count: int, folds: Sequence[int] = (), curiosity: bool = False,
                       online_td: bool = False, every_unscored: bool = False) -> np.ndarray:
