@@ -53,14 +53,14 @@ class RecordingCalls:
 
     def __init__(self, calls: Any, replay: Any):
         self.calls, self.replay, self.FAILED = calls, replay, calls.FAILED
-        self.log: list[tuple[str, Any]] = []
+        self.log: list[Any] = []  # refs of the sample replies and of the Scores / feedback arguments, in order
 
     def submit(self, handle: Any, method: str, *args: Any, returns: int = 1, retry: bool = False) -> Any:
         out = self.calls.submit(handle, method, *args, returns=returns, retry=retry)
         if handle is self.replay and method == "sample":
-            self.log.append(("sample", out[0]))
+            self.log.append(out[0])
         elif handle is self.replay and method in ("write", "learner_result"):
-            self.log.append(("scores", args[0]))
+            self.log.append(args[0])
         return out
 
     def wait(self, refs: Any, timeout: float) -> list[Any]:
@@ -71,7 +71,7 @@ class RecordingCalls:
 
     def outcome(self) -> Outcome:
         out = Outcome()
-        for what, ref in self.log:
+        for ref in self.log:
             value = self.calls.get(ref)
             if isinstance(value, LearnerBatch):
                 out.events.append(("sample", value.slots.ravel(), value.generations.ravel()))
