@@ -36,7 +36,7 @@ NOT_BOTH_RUNNERS = {"metrics_port"}  # the service's own metrics endpoint
 
 def case_id(case: tuple[str, str, str]) -> str:
     rule, transform, variant = case
-    return "-".join([rule, *([transform] if transform != "none" else []), *([variant] if variant != "teachers" else [])])
+    return "-".join([rule, *[part for part, plain in ((transform, "none"), (variant, "teachers")) if part != plain]])
 
 
 def case_config(case: tuple[str, str, str]):
@@ -52,8 +52,9 @@ def case_config(case: tuple[str, str, str]):
 def expected_columns(config) -> set[str]:
     """The score columns the rule's scorers write (its needs, as the layout of the config has them)."""
     layout = layout_of(config)
-    return ({DIFFICULTY} if layout.teacher_agents.size else set()) | ({CURIOSITY} if layout.icm_agents.size else set()) \
-        | ({ONLINE_TD} if ONLINE_TD in layout.difficulty_source else set())
+    scorers = ((DIFFICULTY, layout.teacher_agents.size), (CURIOSITY, layout.icm_agents.size),
+               (ONLINE_TD, ONLINE_TD in layout.difficulty_source))
+    return {column for column, present in scorers if present}
 
 
 def progress_keys(directory) -> set[str]:
