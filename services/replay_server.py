@@ -4,9 +4,10 @@ Where it sits: the hub of the flow, and a shell: dedupe, pacing and status aroun
 steps (`cmcl.replay.buffer_steps`) and its scoring state (`cmcl.scorers.scoring.ScoringState`: stamps, teacher
 errors, insertion times and the rule that picks the rows to rescore), the same the inline loop uses. Rollout
 `Chunk`s come in (`insert`, validated by `cmcl.io.records.check_chunk`, idempotent by writer / incarnation / seq);
-teachers and the ICM ask for work (`teacher_work`, `icm_work`) and send scores back keyed by (slot, generation),
-stale ones dropped (`write_teacher_scores`, `write_curiosity`); the learner receives prioritized `LearnerBatch`es
-(`sample`) and returns |δ| (`learner_result`). Priorities are recomputed in bulk when λ or scores changed, at most
+every scorer (a teacher group, the ICM, the online critics the learner hosts) gets its `ScoreWork` from one `work`
+and sends its `Scores` back to one `write`, keyed by (slot, generation), stale ones dropped; the learner receives
+prioritized `LearnerBatch`es (`sample`) and returns |δ| (`learner_result`). Under ACL td_self no update is handed
+out while a row is unscored by the online critics (`status`; ALGORITHM.md A11: score at insertion). Priorities are recomputed in bulk when λ or scores changed, at most
 every `service.recompute_every` inserts. λ advances with the env steps accepted here.
 
 Distributed deviation from §3.8 (ALGORITHM.md §3.9), measured by `cmcl_teacher_score_age_updates`: teacher k

@@ -3,8 +3,9 @@
 Where it sits: the only process that talks to every actor. It never pulls transition data: chunks, batches,
 work and scores travel between actors as object refs owned by this process (so they survive the death of the
 actor that produced them); it `ray.get`s only small typed statuses and metrics reports. Data flows one way:
-rollout -> replay -> learner, teachers / ICM read the replay and write scores back, weights go out once per
-version. Pacing comes from the replay server's `cmcl.replay.pacing.Pacing`, reported in every reply
+rollout -> replay -> learner, and the scorers (`Roles.scorers`: the teacher groups, the ICM, the online critics
+the learner hosts) each in one chain, `ReplayServer.work` -> the role's `score` -> `ReplayServer.write`; weights go
+out once per version. Pacing comes from the replay server's `cmcl.replay.pacing.Pacing`, reported in every reply
 (`ReplayStatus`) and turned into calls by `services.call_budget`. What a failed or hung call does (counts,
 restarts, the end of the run) is services.failures. The actors themselves are started by
 services.placement.create_roles.

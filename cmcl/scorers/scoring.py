@@ -11,6 +11,8 @@ The rescoring rule (`rows_to_score`): the rows whose score from the given scorer
 The replay server asks it for the rows of one teacher group (a teacher never scores its own fold, eq. 9) or of the
 ICM, `service.score_rows_per_call` per call, and, for the online critics the learner hosts (ACL td_self), every
 never-scored row topped up to that many with the oldest scores (§3.8's periodic rescoring, spread over the calls).
+The online critics score each chunk when it is inserted, and `unscored` holds the learner's updates while a row
+waits for them (A11: score at insertion), so a td_self row is never sampled on its provisional priority.
 Oldest first rather than a cursor walking the slots: the asynchronous teacher groups of the service cannot share a
 cursor, and a cursor would spend rescoring on rows that were scored at insertion a few updates ago while older
 scores wait. Either way a full buffer of |D| rows is rescored every |D| / rows updates at most.
