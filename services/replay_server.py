@@ -7,8 +7,9 @@ errors, insertion times and the rule that picks the rows to rescore), the same t
 every scorer (a teacher group, the ICM, the online critics the learner hosts) gets its `ScoreWork` from one `work`
 and sends its `Scores` back to one `write`, keyed by (slot, generation), stale ones dropped; the learner receives
 prioritized `LearnerBatch`es (`sample`) and returns |δ| (`learner_result`). Under ACL td_self no update is handed
-out while a row is unscored by the online critics (`status`; ALGORITHM.md A11: score at insertion). Priorities are recomputed in bulk when λ or scores changed, at most
-every `service.recompute_every` inserts. λ advances with the env steps accepted here.
+out while a row is unscored by the online critics (`status`; ALGORITHM.md A11: score at insertion). Priorities are
+recomputed in bulk when λ or scores changed, at most every `service.recompute_every` inserts. λ advances with the
+env steps accepted here.
 
 Distributed deviation from §3.8 (ALGORITHM.md §3.9), measured by `cmcl_teacher_score_age_updates`: teacher k
 scores rows of the other folds asynchronously; c_j is (K−1)·mean over the blind teachers that have scored j so
