@@ -25,12 +25,13 @@ import torch
 from torch import nn
 
 from cmcl.config import load_config
-from cmcl.learners.icm import ICM
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.network_steps import curiosity_values, fit_teachers, teacher_errors
-from cmcl.learners.teachers import TeacherEnsemble
+from cmcl.messages import CURIOSITY, DIFFICULTY, Scorer
 from cmcl.replay.buffer_steps import fold_draw_indices
-from cmcl.replay.difficulty import cross_validated_difficulty
+from cmcl.scorers.difficulty import cross_validated_difficulty
+from cmcl.scorers.icm import ICM
+from cmcl.scorers.teachers import TeacherEnsemble
 
 ROOT = Path(__file__).resolve().parents[1]
 N, OD, AD, S, K, M = 4, 18, 2, 128, 5, 5000
@@ -242,11 +243,11 @@ class FilledRoles:
     of learner updates it ran."""
 
     def __init__(self, config):
-        from services.icm import ICMWorker
         from services.learner import Learner
         from services.replay_server import ReplayServer
         from services.rollout import RolloutWorker
-        from services.teachers import TeacherWorker
+        from services.scorers.icm import ICMWorker
+        from services.scorers.teachers import TeacherWorker
 
         self.config = config
         cfg = config.to_dict()
@@ -275,14 +276,14 @@ class FilledRoles:
         if self.teacher is not None:
             self.owed["teacher"] += self.teacher_calls
             while self.owed["teacher"] >= 1:
-                work, _ = self.replay.teacher_work(self.folds, s.fit_steps_per_call)
-                self.replay.write_teacher_scores(self.teacher.step(work, self.published)[0])
+                work, _ = self.replay.work(Scorer(DIFFICULTY, tuple(self.folds)), s.fit_steps_per_call)
+                self.replay.write(self.teacher.score(work, self.published)[0])
                 self.owed["teacher"] -= 1
         if self.icm is not None:
             self.owed["icm"] += self.icm_calls
             while self.owed["icm"] >= 1:
-                work, _ = self.replay.icm_work(s.fit_steps_per_call)
-                self.replay.write_curiosity(self.icm.step(work)[0])
+                work, _ = self.replay.work(Scorer(CURIOSITY), s.fit_steps_per_call)
+                self.replay.write(self.icm.score(work)[0])
                 self.owed["icm"] -= 1
         return s.updates_per_call
 

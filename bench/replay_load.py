@@ -27,7 +27,7 @@ import psutil
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from cmcl.config import load_config  # noqa: E402
-from cmcl.messages import CuriosityScores, LearnerFeedback, TeacherScores  # noqa: E402
+from cmcl.messages import CURIOSITY, DIFFICULTY, LearnerFeedback, Scorer, Scores  # noqa: E402
 from services.replay_server import ReplayServer  # noqa: E402
 from services.rollout import RolloutWorker  # noqa: E402
 
@@ -81,17 +81,18 @@ def drive(server: ReplayServer, chunks: list, seconds: float, snapshot_every: fl
                            LearnerFeedback(batch.slots, batch.generations, td))
         for fold, allowed in enumerate(status.teacher_allowed):
             if allowed >= cfg.service.fit_steps_per_call:
-                work, _ = timed(latencies, "teacher_work", server.teacher_work, [fold], cfg.service.fit_steps_per_call)
+                work, _ = timed(latencies, "teacher_work", server.work, Scorer(DIFFICULTY, (fold,)),
+                                cfg.service.fit_steps_per_call)
                 if work is not None:
                     errors = rng.random((work.score.slots.size, len(layout.teacher_agents), 1)).astype(np.float32)
-                    timed(latencies, "teacher_scores", server.write_teacher_scores,
-                          TeacherScores((fold,), work.score.slots, work.score.generations, errors, work.updates))
+                    timed(latencies, "teacher_scores", server.write,
+                          Scores(work.scorer, work.score.slots, work.score.generations, errors, work.updates))
         if status.icm_allowed >= cfg.service.fit_steps_per_call:
-            work, _ = timed(latencies, "icm_work", server.icm_work, cfg.service.fit_steps_per_call)
+            work, _ = timed(latencies, "icm_work", server.work, Scorer(CURIOSITY), cfg.service.fit_steps_per_call)
             if work is not None:
                 rho = rng.random((work.score.slots.size, len(layout.icm_agents))).astype(np.float32)
-                timed(latencies, "curiosity_scores", server.write_curiosity,
-                      CuriosityScores(work.score.slots, work.score.generations, rho, work.updates))
+                timed(latencies, "curiosity_scores", server.write,
+                      Scores(work.scorer, work.score.slots, work.score.generations, rho, work.updates))
         if server.store is not None and now - last_snap >= snapshot_every:
             timed(latencies, "snapshot", server.snapshot)
             last_snap = now

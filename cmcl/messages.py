@@ -1,9 +1,11 @@
 """Typed messages between the roles of Algorithm 1 (numpy only): what each stage hands to the next.
 
-Where it sits: the data flow rollout -> replay -> learner, and replay -> teachers / ICM -> replay. The inline loop
-passes these objects between function calls; the service passes them between actors as Ray object refs. Producers
-build them; the replay server checks what arrives (`check_*` here and `cmcl.io.records.check_chunk`) and refuses a
-message that does not fit its buffer, naming the field and the value, before anything is stored.
+Where it sits: the data flow rollout -> replay -> learner, and replay -> scorers -> replay (one `ScoreWork` out and
+one `Scores` back for every scorer: the teachers, the ICM, the online critics the learner hosts). The in-process
+scheduler passes these objects between calls; the service passes them between actors as Ray object refs. Producers
+build them; the replay server checks what arrives (`check_feedback`, `check_scores` here and
+`cmcl.io.records.check_chunk`) and refuses a message that does not fit its buffer, naming the field and the value,
+before anything is stored.
 
 Shapes: n minibatches per call, N agents, S rows per minibatch, od / ad obs and action widths, M scored rows,
 A_t / A_c teacher / curiosity agents, F folds hosted by one teacher actor, T rows of a chunk.
@@ -104,9 +106,10 @@ class LearnerBatch:
     # LaBER under the permuted control: the order int64[n, N, S] in which each owner's candidates' fresh |δ| are read
     # to pick (a permutation of 0..S−1 for the control's agents, the identity for the others; else None)
     select_order: np.ndarray | None = None
-    # ACL td_self: rows the learner's online critics score after its updates (every row they have not scored yet,
-    # then the oldest of their scores), the scorer the learner hosts; else None
-    score: Rows | None = None
+    # ACL td_self: the online critics' work (a ScoreWork of the ONLINE_TD scorer the learner hosts, no fit rows): with
+    # minibatches, the oldest of their scores, scored after the updates; without (count 0), the rows they have not
+    # scored yet, scored before anything samples them (ALGORITHM.md A11); else None
+    score: ScoreWork | None = None
 
     @property
     def count(self) -> int:
@@ -123,8 +126,8 @@ class LearnerBatch:
 @dataclass(frozen=True)
 class LearnerFeedback:
     """Learner -> replay: |δ| float32[n, N, S] of each sampled (slot, generation), |y − Q_target| when a rule asks
-    for it (ReLo; else None), the online critics' scores of the rows it was asked to score (`online_td`: Rows whose
-    rows["td_abs"] is float32[M, N]; ACL td_self), and the last losses per agent."""
+    for it (ReLo; else None), the online critics' Scores of the rows it was asked to score (`scores`: values
+    float32[M, N]; ACL td_self), and the last losses per agent. n = 0 when the batch held only rows to score."""
 
     slots: np.ndarray
     generations: np.ndarray
@@ -132,56 +135,55 @@ class LearnerFeedback:
     losses: dict[str, Any] = field(default_factory=dict)
     incarnation: str = ""  # the learner actor's incarnation id
     target_td_abs: np.ndarray | None = None
-    # the online critics' |y − Q_v(s, a)| float32[M, N] of LearnerBatch.score's rows (ACL td_self), with their
-    # slots and generations int64[M]; else None
-    online_td: Rows | None = None
+    # the online critics' |y − Q_v(s, a)| of LearnerBatch.score's rows (ACL td_self); else None
+    scores: Scores | None = None
+
+
+DIFFICULTY, CURIOSITY, ONLINE_TD = "difficulty", "curiosity", "td_abs"  # the score columns scorers write
 
 
 @dataclass(frozen=True)
-class TeacherWork:
-    """Replay -> teacher actor hosting `folds`: fit rows [steps, B, F, S, ...] of slots fit_slots int64[steps, B, F, S]
-    (fit[:, :, i] all from fold folds[i]; B = 1, one batch shared by the agents, or A_t under teachers.fit_batch =
-    "per_agent") and the rows to score (of other folds), at learner update `updates`."""
+class Scorer:
+    """Which scorer: the score column it writes (DIFFICULTY: a group of K-fold teachers, eqs. 10-11; CURIOSITY: the
+    ICM, eq. 18; ONLINE_TD: the learner's online critics, ACL td_self) and, for a teacher group, the folds it hosts
+    (a teacher never scores its own fold, eq. 9)."""
 
-    folds: tuple[int, ...]
+    column: str
+    folds: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class ScoreWork:
+    """Replay -> a scorer: rows to fit and rows to score, at learner update `updates` (the update clock).
+
+    fit: rows [steps, ...] to fit ({} when the scorer fits elsewhere: the online critics train in the learner's
+    updates): a teacher group's [steps, B, F, S, N, ·] (fit[:, :, i] all from fold folds[i]; B = 1, one batch shared
+    by the agents, or A_t under teachers.fit_batch = "per_agent"), the ICM's [steps, S, N, ·] (obs, act, next_obs);
+    fit_slots int64 of fit's leading shape (None without fit rows); score: the rows to score, M of them."""
+
+    scorer: Scorer
     fit: dict[str, np.ndarray]
-    fit_slots: np.ndarray
+    fit_slots: np.ndarray | None
     score: Rows
     updates: int
 
 
 @dataclass(frozen=True)
-class TeacherScores:
-    """Teacher actor -> replay: errors float32[M, A_t, F] (eq. 10) of the teachers of `folds` on the scored rows."""
+class Scores:
+    """A scorer -> replay: the values of one score column for the scored (slot, generation) pairs.
 
-    folds: tuple[int, ...]
+    slots / generations int64[M]; values float32[M, A] (A: the agents of the column: A_c for curiosity, N for the
+    online critics) or, for a teacher group, its errors float32[M, A_t, F] over its F folds (eq. 10); stamp: the
+    learner update the work was handed out at; loss: the scorer's last fit loss; incarnation: the sending actor's
+    process life ("" when none)."""
+
+    scorer: Scorer
     slots: np.ndarray
     generations: np.ndarray
-    errors: np.ndarray
-    updates: int
+    values: np.ndarray
+    stamp: int
     loss: float = 0.0
-    incarnation: str = ""  # the teacher actor's incarnation id ("" inline)
-
-
-@dataclass(frozen=True)
-class CuriosityWork:
-    """Replay -> ICM actor: uniform fit rows [steps, S, N, ·] and the rows to score."""
-
-    fit: dict[str, np.ndarray]
-    score: Rows
-    updates: int
-
-
-@dataclass(frozen=True)
-class CuriosityScores:
-    """ICM actor -> replay: ρ float32[M, A_c] (eq. 18) of the scored rows."""
-
-    slots: np.ndarray
-    generations: np.ndarray
-    rho: np.ndarray
-    updates: int
-    loss: float = 0.0
-    incarnation: str = ""  # the ICM actor's incarnation id ("" inline)
+    incarnation: str = ""
 
 
 def _check_rows(name: str, slots: np.ndarray, generations: np.ndarray, values: np.ndarray, width: tuple[int, ...]
@@ -203,23 +205,21 @@ def _check_incarnation(name: str, incarnation: Any) -> None:
         raise MessageError(f"{name}.incarnation must be a string of at most 64 characters, got {incarnation!r:.80}")
 
 
-def check_teacher_scores(msg: Any, num_teacher_agents: int, num_folds: int) -> TeacherScores:
-    """The message if it is a TeacherScores of A_t agents over valid folds; MessageError otherwise."""
-    if not isinstance(msg, TeacherScores):
-        raise MessageError(f"teacher scores must be a TeacherScores, got {type(msg).__name__}")
-    if not msg.folds or any(not 0 <= f < num_folds for f in msg.folds):
-        raise MessageError(f"TeacherScores.folds must lie in 0..{num_folds - 1}, got {list(msg.folds)}")
-    _check_incarnation("TeacherScores", msg.incarnation)
-    _check_rows("TeacherScores.errors", msg.slots, msg.generations, msg.errors, (num_teacher_agents, len(msg.folds)))
-    return msg
-
-
-def check_curiosity_scores(msg: Any, num_curiosity_agents: int) -> CuriosityScores:
-    """The message if it is a CuriosityScores of A_c agents; MessageError otherwise."""
-    if not isinstance(msg, CuriosityScores):
-        raise MessageError(f"curiosity scores must be a CuriosityScores, got {type(msg).__name__}")
-    _check_incarnation("CuriosityScores", msg.incarnation)
-    _check_rows("CuriosityScores.rho", msg.slots, msg.generations, msg.rho, (num_curiosity_agents,))
+def check_scores(msg: Any, width: dict[str, int], num_folds: int) -> Scores:
+    """The message if it is a Scores of a known column (`width`: its agents A per column) whose values have that
+    column's shape ([M, A], a teacher group's [M, A_t, F] over valid folds); MessageError otherwise."""
+    if not isinstance(msg, Scores):
+        raise MessageError(f"scores must be a Scores, got {type(msg).__name__}")
+    scorer = msg.scorer
+    if not isinstance(scorer, Scorer) or scorer.column not in width:
+        raise MessageError(f"Scores.scorer must be a Scorer of a column in {sorted(width)}, got {scorer!r:.80}")
+    _check_incarnation("Scores", msg.incarnation)
+    shape: tuple[int, ...] = (width[scorer.column],)
+    if scorer.column == DIFFICULTY:
+        if not scorer.folds or any(not 0 <= f < num_folds for f in scorer.folds):
+            raise MessageError(f"Scores.scorer.folds must lie in 0..{num_folds - 1}, got {list(scorer.folds)}")
+        shape = (*shape, len(scorer.folds))
+    _check_rows(f"Scores.values ({scorer.column})", msg.slots, msg.generations, msg.values, shape)
     return msg
 
 
@@ -236,9 +236,6 @@ def check_feedback(msg: Any, num_agents: int) -> LearnerFeedback:
     if msg.target_td_abs is not None:
         _check_rows("LearnerFeedback.target_td_abs", np.ravel(msg.slots), np.ravel(msg.generations),
                     np.ravel(msg.target_td_abs), ())
-    if msg.online_td is not None:
-        _check_rows("LearnerFeedback.online_td", msg.online_td.slots, msg.online_td.generations,
-                    msg.online_td.rows.get("td_abs"), (num_agents,))
     return msg
 
 

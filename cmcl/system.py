@@ -19,9 +19,9 @@ from cmcl.replay.curriculum import CurriculumSchedule, default_growth
 from cmcl.replay.registry import REGISTRY
 
 if TYPE_CHECKING:  # torch-backed classes load lazily: the replay server and rollout workers never need torch
-    from cmcl.learners.icm import ICM
     from cmcl.learners.maddpg import MADDPG
-    from cmcl.learners.teachers import TeacherEnsemble
+    from cmcl.scorers.icm import ICM
+    from cmcl.scorers.teachers import TeacherEnsemble
 
 CONTROL_STREAM = 21  # entropy word of the permuted control's seed stream (issue 21), see `control_seed`
 DISCRETE_ACT_DIM = 5  # MPE's discrete action: no-op, +x, -x, +y, -y
@@ -235,7 +235,7 @@ def build_teachers(config: Config, layout: AgentLayout, seed: int, num_folds: in
     hosting some folds), or None when no team uses teachers."""
     if layout.teacher_agents.size == 0:
         return None
-    from cmcl.learners.teachers import TeacherEnsemble
+    from cmcl.scorers.teachers import TeacherEnsemble
 
     t = config.teachers
     _require_entity_layout(layout, "teachers.networks", t.network_kind)
@@ -253,7 +253,7 @@ def build_icm(config: Config, layout: AgentLayout, seed: int) -> ICM | None:
     """Per-agent ICMs of every curiosity-using agent, or None when no team uses curiosity."""
     if layout.icm_agents.size == 0:
         return None
-    from cmcl.learners.icm import ICM
+    from cmcl.scorers.icm import ICM
 
     c = config.icm
     _require_entity_layout(layout, "icm.networks", c.networks)

@@ -29,14 +29,17 @@ def _calls(room: int, per_call: int, in_flight: int) -> int:
 
 def calls_to_issue(status: ReplayStatus, in_flight: Mapping[tuple[str, int], int], config: Config,
                    rollout_workers: int, teacher_groups: Sequence[Sequence[int]], icm: bool,
-                   rollouts: bool = True) -> Counter[tuple[str, int]]:
-    """Calls to submit per (role, actor index), role in rollout / learner / teacher / icm.
+                   rollouts: bool = True, online_critics: bool = False) -> Counter[tuple[str, int]]:
+    """Calls to submit per (role, actor index), role in rollout / learner / teacher / icm / online.
 
     status: the replay server's newest (allowances, episodes stored so far); in_flight: calls in flight per
     (role, index); teacher_groups: the folds of each teacher actor; icm: whether there is an ICM actor;
-    rollouts=False: no rollout calls (the episode target is reached). A rollout call is one chunk of env.num_envs
-    whole episodes (env.num_envs × env.episode_length transitions) and never collects more than run.episodes; a
-    learner call is service.updates_per_call updates; a teacher / ICM call service.fit_steps_per_call fit steps.
+    rollouts=False: no rollout calls (the episode target is reached); online_critics: the learner hosts the
+    online critics' scorer (ACL td_self), given one call when the updates wait for scores and none is in flight
+    (rows it has not scored: carried or restored ones; the supervisor has it score every chunk at insertion). A
+    rollout call is one chunk of env.num_envs whole episodes (env.num_envs × env.episode_length transitions) and
+    never collects more than run.episodes; a learner call is service.updates_per_call updates; a teacher / ICM call
+    service.fit_steps_per_call fit steps.
     """
     svc, env = config.service, config.env
     calls: Counter[tuple[str, int]] = Counter()
@@ -60,6 +63,8 @@ def calls_to_issue(status: ReplayStatus, in_flight: Mapping[tuple[str, int], int
     if icm:
         busy = in_flight.get(("icm", 0), 0)
         calls[("icm", 0)] = _calls(status.icm_allowed - steps * busy, steps, busy)
+    if online_critics:
+        calls[("online", 0)] = int(status.updates_held_by == "scores" and not in_flight.get(("online", 0), 0))
     return calls
 
 

@@ -17,6 +17,7 @@ from typing import Any
 from cmcl.config import Config
 from cmcl.io.write_failure import RunWriteError
 from services.health import (
+    WORK_KINDS,
     CallWatch,
     RecoveryClock,
     actor_key,
@@ -62,7 +63,7 @@ class Failures:
         self._count(role)
         if own_death:
             self.recovery.failed(actor_key(kind, index))
-        if kind in ("rollout", "learner", "teacher", "icm"):
+        if kind in WORK_KINDS:
             inflight[(kind, index)] -= 1
         import ray  # failures only happen on the Ray scheduler (services.calls)
 

@@ -15,7 +15,11 @@ from typing import Any
 
 # the actor that runs a tracked call, by the call's kind (every other kind is a call of the replay server)
 OWNER = {"rollout_report": "rollout", "chunk": "rollout", "learner_report": "learner", "feedback": "learner",
-         "teacher_report": "teacher", "teacher_scores": "teacher", "icm_report": "icm", "icm_scores": "icm"}
+         "teacher_report": "teacher", "teacher_scores": "teacher", "icm_report": "icm", "icm_scores": "icm",
+         "online_scores": "learner"}
+# the kinds of the replay server's replies that end a chain of work given to a role (its slot in the supervisor's
+# calls in flight); "online": the online critics' scores, the learner's (ACL td_self)
+WORK_KINDS = ("rollout", "learner", "teacher", "icm", "online")
 
 
 ARGUMENT_LOST = "input arguments for this task could not be computed"  # Ray's text: an argument's producer died
@@ -33,8 +37,8 @@ def owner(kind: str) -> str:
 def failed_role(kind: str, err: Exception) -> tuple[str, bool]:
     """(the role whose actor failed a call of `kind`, whether that actor itself died). A replay-server call whose
     argument (a chunk, feedback, scores) could not be computed failed because the producer died, not the replay."""
-    if kind in ("rollout", "learner", "teacher", "icm") and ARGUMENT_LOST in str(err):
-        return kind, False
+    if kind in WORK_KINDS and ARGUMENT_LOST in str(err):
+        return ("learner" if kind == "online" else kind), False
     return owner(kind), True
 
 

@@ -18,7 +18,7 @@ from cmcl.learners import network_steps
 from cmcl.learners.assignment import STATS as ASSIGNMENT_STATS
 from cmcl.learners.warm_start import warm_start_from_config
 from cmcl.learners.weights import published_weights
-from cmcl.messages import LearnerBatch, LearnerFeedback, Rows
+from cmcl.messages import ONLINE_TD, LearnerBatch, LearnerFeedback, Scorer, Scores, ScoreWork
 from cmcl.system import build_maddpg, layout_of
 from services.common import actor_setup, load_state, new_incarnation, save_state
 from services.report_schema import LearnerReport, Report
@@ -79,16 +79,26 @@ class Learner:
         slots, generations = np.stack([p[0] for p in picked]), np.stack([p[1] for p in picked])
         td = np.stack([p[2] for p in picked]).astype(np.float32)
         target = np.stack([p[3] for p in picked]).astype(np.float32) if self.maddpg.target_scores else None
-        online_td = None
-        if batch.score is not None:  # ACL td_self: the online critics score the rows they were given, after the
-            # updates (the scorer this role hosts)
-            td_rows = network_steps.online_td_abs(self.maddpg, batch.score.rows)  # [M, N]
-            online_td = Rows({"td_abs": td_rows.astype(np.float32)}, batch.score.slots, batch.score.generations)
+        # ACL td_self: the online critics score the rows they were given, after the updates (the scorer this role
+        # hosts; the rows it has never scored come through `score`, before anything samples them)
+        scores = self.score(batch.score)[0] if batch.score is not None else None
         self.version += 1
         self.losses = {f"agent_{a}": last_losses(stats, a) for a in range(self.layout.num_agents)}
         self.busy_s += time.perf_counter() - started
         self.busy_cpu_s += time.thread_time() - started_cpu
-        return LearnerFeedback(slots, generations, td, self.losses, self.incarnation, target, online_td), self.report()
+        return LearnerFeedback(slots, generations, td, self.losses, self.incarnation, target, scores), self.report()
+
+    scorer = Scorer(ONLINE_TD)  # the scorer this role hosts: the online critics, writing the td_abs column (td_self)
+
+    def score(self, work: ScoreWork | None, published: dict[str, Any] | None = None
+              ) -> tuple[Scores | None, Report]:
+        """The online critics' |y − Q_v(s, a)| float32[M, N] of work.score's rows, as Scores (ACL td_self; no fit:
+        the critics train in `update`); the role's own weights, so `published` is not needed."""
+        if work is None:
+            return None, self.report()
+        td_rows = network_steps.online_td_abs(self.maddpg, work.score.rows).astype(np.float32)  # [M, N]
+        return Scores(self.scorer, work.score.slots, work.score.generations, td_rows, work.updates, 0.0,
+                      self.incarnation), self.report()
 
     def publish(self) -> dict[str, Any]:
         """The current weights with their version (the supervisor puts this in the object store)."""

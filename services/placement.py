@@ -14,11 +14,14 @@ from typing import Any
 
 from cmcl.config import Config
 from cmcl.io.rundir import RunDirectory
-from services.icm import ICMWorker
+from cmcl.messages import CURIOSITY, DIFFICULTY, ONLINE_TD, Scorer
+from cmcl.scorers.scoring import online_critics_score
+from cmcl.system import layout_of
 from services.learner import Learner
 from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
-from services.teachers import TeacherWorker
+from services.scorers.icm import ICMWorker
+from services.scorers.teachers import TeacherWorker
 
 ROLLOUT_RESOURCE_SHARE = 0.01  # units of service.rollout_resource each rollout worker requires
 
@@ -50,9 +53,23 @@ def required_cpus(config: Config, cluster_cpus: float | None = None) -> float:
     return total
 
 
+@dataclass(frozen=True)
+class ScorerRole:
+    """One scorer as the supervisor drives it: its calls' kind ("teacher", "icm", "online": the online critics the
+    learner hosts) and actor index, the actor's handle, the Scorer it is (`ReplayServer.work`'s argument) and whether
+    its `score` call takes the learner's published weights (the teachers' regression targets)."""
+
+    kind: str
+    index: int
+    handle: Any
+    scorer: Scorer
+    weights: bool = False
+
+
 @dataclass
 class Roles:
-    """Handles of every actor, plus how to make a replacement for a rollout worker."""
+    """Handles of every actor, plus how to make a replacement for a rollout worker. `online_critics`: the learner
+    hosts the online critics' scorer (ACL td_self)."""
 
     replay: Any
     learner: Any
@@ -61,6 +78,17 @@ class Roles:
     icm: Any | None
     teacher_groups: list[list[int]]
     make_rollout: Callable[[int], Any] = field(repr=False, default=None)
+    online_critics: bool = False
+
+    @property
+    def scorers(self) -> list[ScorerRole]:
+        """Every scorer of the run, in the order their calls are issued: the teacher groups, the ICM, the online
+        critics."""
+        teachers = [ScorerRole("teacher", k, t, Scorer(DIFFICULTY, tuple(folds)), weights=True)
+                    for k, (t, folds) in enumerate(zip(self.teachers, self.teacher_groups, strict=True))]
+        icm = [ScorerRole("icm", 0, self.icm, Scorer(CURIOSITY))] if self.icm is not None else []
+        online = [ScorerRole("online", 0, self.learner, Scorer(ONLINE_TD))] if self.online_critics else []
+        return [*teachers, *icm, *online]
 
 
 def resumed_episodes(run_dir: RunDirectory) -> int:
@@ -118,4 +146,5 @@ def create_roles(config: Config, run_dir: RunDirectory, in_process: bool = False
     return Roles(replay=actor(ReplayServer, s.replay_cpus)(cfg, str(paths["replay"]), seed),
                  learner=actor(Learner, s.learner_cpus)(cfg, seed, str(paths["learner"])),
                  rollout=[make_rollout(w) for w in range(s.rollout_workers)], teachers=teachers, icm=icm,
-                 teacher_groups=groups if teachers else [], make_rollout=make_rollout)
+                 teacher_groups=groups if teachers else [], make_rollout=make_rollout,
+                 online_critics=online_critics_score(layout_of(config)))

@@ -1,7 +1,7 @@
 """The replay server's metrics report: buffer, λ, difficulty / priority distributions, score age and coverage.
 
 Where it sits: `services.replay_server.ReplayServer.report` builds it every few seconds from its own parts, passed
-in typed (the buffer, its `cmcl.replay.scoring.ScoringState`, a `ReplayTallies` of its counters); the supervisor
+in typed (the buffer, its `cmcl.scorers.scoring.ScoringState`, a `ReplayTallies` of its counters); the supervisor
 applies the Report to the Prometheus metrics (`services.metrics`). Read-only: the server passes the per-row priority
 terms it has just recomputed at the current λ. Arrays are uniform subsamples of at most REPORT_SAMPLES rows, drawn
 with the server's own generator.
@@ -18,7 +18,7 @@ import numpy as np
 
 from cmcl.diagnostics import buffer_branch_shares, ess_fraction, replay_sampling_diagnostics
 from cmcl.replay.buffer import ReplayBuffer
-from cmcl.replay.scoring import ScoringState
+from cmcl.scorers.scoring import ScoringState
 from services.report_schema import CurriculumReport, FitReport, ReplayReport, Report
 
 REPORT_SAMPLES = 512

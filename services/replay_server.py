@@ -1,17 +1,19 @@
 """Replay server: owns the buffer, folds, score columns, λ, every sampler and the rate limiters.
 
 Where it sits: the hub of the flow, and a shell: dedupe, pacing and status around the replay side of Algorithm 1's
-steps (`cmcl.replay.buffer_steps`) and its scoring state (`cmcl.replay.scoring.ScoringState`: stamps, teacher
+steps (`cmcl.replay.buffer_steps`) and its scoring state (`cmcl.scorers.scoring.ScoringState`: stamps, teacher
 errors, insertion times and the rule that picks the rows to rescore), the same the inline loop uses. Rollout
 `Chunk`s come in (`insert`, validated by `cmcl.io.records.check_chunk`, idempotent by writer / incarnation / seq);
-teachers and the ICM ask for work (`teacher_work`, `icm_work`) and send scores back keyed by (slot, generation),
-stale ones dropped (`write_teacher_scores`, `write_curiosity`); the learner receives prioritized `LearnerBatch`es
-(`sample`) and returns |δ| (`learner_result`). Priorities are recomputed in bulk when λ or scores changed, at most
-every `service.recompute_every` inserts. λ advances with the env steps accepted here.
+every scorer (a teacher group, the ICM, the online critics the learner hosts) gets its `ScoreWork` from one `work`
+and sends its `Scores` back to one `write`, keyed by (slot, generation), stale ones dropped; the learner receives
+prioritized `LearnerBatch`es (`sample`) and returns |δ| (`learner_result`). Under ACL td_self no update is handed
+out while a row is unscored by the online critics (`status`; ALGORITHM.md A11: score at insertion). Priorities are
+recomputed in bulk when λ or scores changed, at most every `service.recompute_every` inserts. λ advances with the
+env steps accepted here.
 
 Distributed deviation from §3.8 (ALGORITHM.md §3.9), measured by `cmcl_teacher_score_age_updates`: teacher k
 scores rows of the other folds asynchronously; c_j is (K−1)·mean over the blind teachers that have scored j so
-far (`cmcl.replay.difficulty.DifficultyTable`); new rows sit at ε_p until a teacher has scored them.
+far (`cmcl.scorers.difficulty.DifficultyTable`); new rows sit at ε_p until a teacher has scored them.
 Every method returns (or ends with) a `ReplayStatus` the supervisor uses to pace its calls.
 """
 
@@ -26,25 +28,31 @@ import numpy as np
 from cmcl.io import codec, records
 from cmcl.io.durable import ReplayStore
 from cmcl.messages import (
+    CURIOSITY,
     CURIOSITY_KEY,
-    CuriosityWork,
+    DIFFICULTY,
+    ONLINE_TD,
+    ROW_KEYS,
     MessageError,
     ReplayStatus,
-    TeacherWork,
-    check_curiosity_scores,
+    Scorer,
+    Scores,
+    ScoreWork,
     check_feedback,
-    check_teacher_scores,
+    check_scores,
 )
 from cmcl.replay import buffer_steps
 from cmcl.replay.curriculum import unplayed_steps
 from cmcl.replay.dedupe import InsertLedger
 from cmcl.replay.pacing import pacing_from_config
-from cmcl.replay.scoring import ScoringState
 from cmcl.replay.snapshot import rng_state, set_rng_state
+from cmcl.scorers.scoring import ScoringState
 from cmcl.system import beta_is, build_replay, build_schedule, layout_of
 from services.common import actor_setup, new_incarnation
 from services.replay_report import REPORT_SAMPLES, ReplayTallies, replay_report
 from services.report_schema import Report
+
+ONLINE_CRITICS = Scorer(ONLINE_TD)  # the scorer the learner hosts (ACL td_self)
 
 
 class ReplayServer:
@@ -61,6 +69,11 @@ class ReplayServer:
         self.pacing = pacing_from_config(cfg, asynchronous=True)  # the rate limits, with the service's slack
         k, cap = cfg.teachers.num_folds, cfg.replay.capacity
         self.scoring = ScoringState.for_layout(self.layout, cap, k)  # score stamps, teacher errors, insertion times
+        # the agents A of each score column a scorer of this run writes (`write` checks Scores against them)
+        self.score_widths = {c: int(n) for c, n in ((DIFFICULTY, self.layout.teacher_agents.size),
+                                                    (CURIOSITY, self.layout.icm_agents.size),
+                                                    (ONLINE_TD, self.layout.num_agents * self.scoring.online_td))
+                             if n}
         self.ledger = InsertLedger()  # which (writer:incarnation, seq) chunks are stored
         self.logged_rows = 0  # transitions in the durable log since the last snapshot
         self.counters = {"inserts": 0, "samples": 0, "updates": 0, "episodes": 0, "icm_steps": 0,
@@ -101,8 +114,12 @@ class ReplayServer:
         # a fold served with others (one stacked teacher: teacher_work) gets no work while one of them holds no row
         # (fewer episodes than folds): its fit steps are not owed yet, else the run's end waits for them forever
         counts[[f for f, group in self.fold_groups.items() if (counts[list(group)] == 0).any()]] = 0
-        return ReplayStatus(**dataclasses.asdict(self.pacing.status(counts)),
-                            size=self.replay.size, env_steps=self.counters["inserts"],
+        pacing = dataclasses.asdict(self.pacing.status(counts))
+        if self.scoring.online_td and pacing["allowed_updates"] and self.scoring.unscored(self.replay, online_td=True):
+            # ACL td_self: a row is scored by the online critics before it can be sampled (ALGORITHM.md A11: score
+            # at insertion; the supervisor has them score every chunk it inserts): no update until they have
+            pacing.update(allowed_updates=0, updates_held_by="scores")
+        return ReplayStatus(**pacing, size=self.replay.size, env_steps=self.counters["inserts"],
                             episodes=self.counters["episodes"], updates=self.counters["updates"],
                             lam=self.schedule.lam, incarnation=self.incarnation)
 
@@ -196,12 +213,10 @@ class ReplayServer:
         self.scoring.sampled(batch.slots, self.counters["updates"], self.rng, REPORT_SAMPLES)
         if self.config.icm.intrinsic_reward_coef > 0:  # each row's ρ as the ICM scorer last wrote it (0 before)
             batch.rows[CURIOSITY_KEY] = self.replay.storage.scores["curiosity"][batch.slots]
-        if self.scoring.online_td:  # the learner's online critics score (A11) every row they have not, then the
-            # oldest of their scores, after this call's updates (the scorer the learner hosts)
-            rows = self.scoring.rows_to_score(self.replay, self.config.service.score_rows_per_call, online_td=True,
-                                              every_unscored=True)
-            batch = dataclasses.replace(batch, score=buffer_steps.score_rows(self.replay, rows))
         self._event("updates", n)
+        if self.scoring.online_td:  # the online critics the learner hosts rescore the oldest of their scores after
+            # this call's updates (every row was scored before it could be sampled: `status`)
+            batch = dataclasses.replace(batch, score=self.work(ONLINE_CRITICS, 0)[0])
         return batch, self.status()
 
     def learner_result(self, result: Any) -> ReplayStatus:
@@ -211,16 +226,15 @@ class ReplayServer:
             return self.status()
         try:
             feedback = check_feedback(result, self.layout.num_agents)
+            if feedback.scores is not None:
+                check_scores(feedback.scores, {ONLINE_TD: self.layout.num_agents}, self.config.teachers.num_folds)
         except MessageError as err:
             return self._reject("bad_feedback", str(err))
         stale, scores_changed = buffer_steps.apply_learner_feedback(self.replay, self.layout, feedback)
-        if feedback.online_td is not None:
-            scored = feedback.online_td
-            _, stale_scores = self.scoring.write_online_td(self.replay, scored.slots, scored.generations,
-                                                           scored.rows["td_abs"], self.counters["updates"])
-            stale, scores_changed = stale + stale_scores, True
         self._count_stale(stale)
         self.dirty = self.dirty or scores_changed
+        if feedback.scores is not None:  # the online critics' scores (ACL td_self), the scorer the learner hosts
+            self._write(feedback.scores)
         return self.status()
 
     def _count_stale(self, n: int) -> None:
@@ -228,69 +242,74 @@ class ReplayServer:
         ICM or the learner held it), so counted apart from refused input."""
         self.stale_scores += max(0, int(n))
 
-    # ------------------------------------------------------------------ replay -> teachers / ICM
-    def teacher_work(self, folds: list[int], steps: int) -> tuple[TeacherWork | None, ReplayStatus]:
-        """For the teacher actor hosting `folds`: fit rows [steps, B, F, S] drawn from each fold only (B = 1, or one
-        batch per teacher agent under teachers.fit_batch = "per_agent"), and the
-        rows (of other folds) whose score from these teachers is oldest, to score."""
-        cfg = self.config
-        folds = [int(f) for f in folds]
-        self.fold_groups.update((f, tuple(folds)) for f in folds)
-        steps = min(int(steps), self.pacing.teacher_steps_allowed(folds))
-        if steps < 1 or (self.replay.storage.fold_counts()[folds] == 0).any():
-            return None, self.status()
-        draws = buffer_steps.teacher_fit_draws(cfg.teachers.fit_batch, self.layout.teacher_agents)
-        fit = buffer_steps.fold_batch_slots(self.replay, folds, cfg.teachers.batch_size, self.rng, draws, steps)
-        score = self.scoring.rows_to_score(self.replay, cfg.service.score_rows_per_call, folds=folds)
-        self._event("teacher_steps", steps, folds)
-        return TeacherWork(tuple(folds), buffer_steps.rows_at(self.replay, fit), fit,
-                           buffer_steps.score_rows(self.replay, score), self.counters["updates"]), self.status()
+    # ------------------------------------------------------------------ replay -> scorers -> replay
+    def work(self, scorer: Scorer, steps: int) -> tuple[ScoreWork | None, ReplayStatus]:
+        """A scorer's next work (None when its pacing allows no fit step yet): fit rows for up to `steps` fit steps
+        and the rows whose score from it is oldest (`ScoringState.rows_to_score`), never-scored first.
 
-    def write_teacher_scores(self, scores: Any) -> ReplayStatus:
-        """Errors e[M, A_t, F] of the teachers of `folds` -> c of the rows (eq. 11 over the blind teachers)."""
+        A teacher group (DIFFICULTY, scorer.folds): fit rows [steps, B, F, S] drawn from each fold only (B = 1, or
+        one batch per teacher agent under teachers.fit_batch = "per_agent"), rows of other folds to score. The ICM
+        (CURIOSITY): uniform fit rows [steps, S] (obs, act, next_obs). The online critics (ONLINE_TD, the learner's:
+        `sample` hands their work out): no fit rows; every row they have not scored, topped up with the oldest."""
+        cfg, count = self.config, self.config.service.score_rows_per_call
+        if not isinstance(scorer, Scorer) or scorer.column not in self.score_widths:
+            raise MessageError(f"work: scorer must be a Scorer of a column in {sorted(self.score_widths)}, got "
+                               f"{scorer!r:.80}")
+        if scorer.column == ONLINE_TD:
+            rows = self.scoring.rows_to_score(self.replay, count, online_td=True, every_unscored=True)
+            return ScoreWork(scorer, {}, None, buffer_steps.score_rows(self.replay, rows),
+                             self.counters["updates"]), self.status()
+        if scorer.column == DIFFICULTY:
+            folds = [int(f) for f in scorer.folds]
+            self.fold_groups.update((f, tuple(folds)) for f in folds)
+            steps = min(int(steps), self.pacing.teacher_steps_allowed(folds))
+            if steps < 1 or (self.replay.storage.fold_counts()[folds] == 0).any():
+                return None, self.status()
+            draws = buffer_steps.teacher_fit_draws(cfg.teachers.fit_batch, self.layout.teacher_agents)
+            fit = buffer_steps.fold_batch_slots(self.replay, folds, cfg.teachers.batch_size, self.rng, draws, steps)
+            rows = self.scoring.rows_to_score(self.replay, count, folds=folds)
+            keys, event = ROW_KEYS, ("teacher_steps", steps, folds)
+        else:
+            steps = min(int(steps), self.pacing.icm_steps_allowed())
+            if steps < 1:
+                return None, self.status()
+            fit = buffer_steps.uniform_slots(self.replay, (steps, cfg.icm.batch_size), self.rng)
+            rows = self.scoring.rows_to_score(self.replay, count, curiosity=True)
+            keys, event = ("obs", "act", "next_obs"), ("icm_steps", steps, ())
+        self._event(*event)
+        return ScoreWork(scorer, buffer_steps.rows_at(self.replay, fit, keys), fit,
+                         buffer_steps.score_rows(self.replay, rows), self.counters["updates"]), self.status()
+
+    def write(self, scores: Any) -> ReplayStatus:
+        """A scorer's Scores, validated, into its score column (stale (slot, generation) pairs dropped and counted):
+        teacher errors e[M, A_t, F] -> c of the rows (eq. 11 over the blind teachers), ρ[M, A_c] (eq. 18), the online
+        critics' |δ|[M, N]. None (a scorer given no work) changes nothing."""
         if scores is None:
             return self.status()
         try:
-            msg = check_teacher_scores(scores, len(self.layout.teacher_agents), self.config.teachers.num_folds)
+            msg = check_scores(scores, self.score_widths, self.config.teachers.num_folds)
         except MessageError as err:
             return self._reject("bad_scores", str(err))
-        fresh = self.replay.storage.fresh_mask(msg.slots, msg.generations)
-        row_fold = self.replay.storage.fold[msg.slots[fresh]]
-        _, stale = self.scoring.write_difficulty(self.replay, msg.slots, msg.generations, msg.folds, msg.errors,
-                                                 msg.updates)
-        self._count_stale(stale)
-        for f in msg.folds:
-            self.teacher_scores[f] += int((row_fold != f).sum())
-            self.losses[f"teacher_{f}"] = float(msg.loss)
-        self.dirty = True
+        self._write(msg)
         return self.status()
 
-    def icm_work(self, steps: int) -> tuple[CuriosityWork | None, ReplayStatus]:
-        """Uniform fit rows [steps, S] and the rows with the oldest curiosity score."""
-        cfg = self.config
-        steps = min(int(steps), self.pacing.icm_steps_allowed())
-        if steps < 1:
-            return None, self.status()
-        fit = buffer_steps.uniform_slots(self.replay, (steps, cfg.icm.batch_size), self.rng)
-        score = self.scoring.rows_to_score(self.replay, cfg.service.score_rows_per_call, curiosity=True)
-        self._event("icm_steps", steps)
-        return CuriosityWork(buffer_steps.rows_at(self.replay, fit, ("obs", "act", "next_obs")),
-                             buffer_steps.score_rows(self.replay, score), self.counters["updates"]), self.status()
-
-    def write_curiosity(self, scores: Any) -> ReplayStatus:
-        """ρ[M, A_c] (eq. 18) for (slot, generation) pairs from the ICM actor."""
-        if scores is None:
-            return self.status()
-        try:
-            msg = check_curiosity_scores(scores, len(self.layout.icm_agents))
-        except MessageError as err:
-            return self._reject("bad_scores", str(err))
-        accepted, stale = self.scoring.write_curiosity(self.replay, msg.slots, msg.generations, msg.rho, msg.updates)
+    def _write(self, msg: Scores) -> None:
+        """Store a checked Scores in its column and count it (`write`, and the learner's in `learner_result`)."""
+        column, s, g = msg.scorer.column, msg.slots, msg.generations
+        if column == DIFFICULTY:
+            row_fold = self.replay.storage.fold[s[self.replay.storage.fresh_mask(s, g)]]
+            _, stale = self.scoring.write_difficulty(self.replay, s, g, msg.scorer.folds, msg.values, msg.stamp)
+            for f in msg.scorer.folds:
+                self.teacher_scores[f] += int((row_fold != f).sum())
+                self.losses[f"teacher_{f}"] = float(msg.loss)
+        elif column == CURIOSITY:
+            accepted, stale = self.scoring.write_curiosity(self.replay, s, g, msg.values, msg.stamp)
+            self.counters["icm_scores"] += accepted
+            self.losses["icm"] = float(msg.loss)
+        else:
+            _, stale = self.scoring.write_online_td(self.replay, s, g, msg.values, msg.stamp)
         self._count_stale(stale)
-        self.counters["icm_scores"] += accepted
-        self.losses["icm"] = float(msg.loss)
         self.dirty = True
-        return self.status()
 
     # ------------------------------------------------------------------ observability and state
     def report(self) -> Report:

@@ -3,8 +3,9 @@
 Where it sits: the only process that talks to every actor. It never pulls transition data: chunks, batches,
 work and scores travel between actors as object refs owned by this process (so they survive the death of the
 actor that produced them); it `ray.get`s only small typed statuses and metrics reports. Data flows one way:
-rollout -> replay -> learner, teachers / ICM read the replay and write scores back, weights go out once per
-version. Pacing comes from the replay server's `cmcl.replay.pacing.Pacing`, reported in every reply
+rollout -> replay -> learner, and the scorers (`Roles.scorers`: the teacher groups, the ICM, the online critics
+the learner hosts) each in one chain, `ReplayServer.work` -> the role's `score` -> `ReplayServer.write`; weights go
+out once per version. Pacing comes from the replay server's `cmcl.replay.pacing.Pacing`, reported in every reply
 (`ReplayStatus`) and turned into calls by `services.call_budget`. What a failed or hung call does (counts,
 restarts, the end of the run) is services.failures. The actors themselves are started by
 services.placement.create_roles.
@@ -36,7 +37,7 @@ from services.calls import InProcessCalls, RayCalls
 from services.failures import Failures, end_if_write_failure
 from services.health import actor_key
 from services.metrics import ServiceMetrics
-from services.placement import Roles
+from services.placement import Roles, ScorerRole
 from services.progress_view import ProgressView
 from services.report_schema import Report
 from services.run_tallies import add_tallies, tallies
@@ -45,7 +46,7 @@ from services.run_tallies import add_tallies, tallies
 # caller's calls in submission order, so a replay call still waiting for its argument would hold up every
 # call queued behind it (samples, work for teachers) and serialise the whole pipeline.
 FORWARD = {"chunk": ("insert", "rollout"), "feedback": ("learner_result", "learner"),
-           "teacher_scores": ("write_teacher_scores", "teacher"), "icm_scores": ("write_curiosity", "icm")}
+           "teacher_scores": ("write", "teacher"), "icm_scores": ("write", "icm"), "online_scores": ("write", "online")}
 REPORT_EVERY_S = 2.0
 
 
@@ -100,7 +101,7 @@ class Supervisor:
         killed in its first insert) is still counted as a restart when its new incarnation reports."""
         r = self.roles
         handles = [("replay_report", r.replay), ("learner_report", r.learner),
-                   *(("teacher_report", t) for t in r.teachers), *([("icm_report", r.icm)] if r.icm else [])]
+                   *((f"{s.kind}_report", s.handle) for s in r.scorers if s.kind != "online")]
         refs = [self.calls.submit(h, "report") for _, h in handles]
         for (kind, _), report in zip(handles, map(self.calls.get, refs), strict=True):
             self._apply_metrics(kind, report)
@@ -123,7 +124,7 @@ class Supervisor:
             self.replay_failed = False
         r, svc, submit = self.roles, self.config.service, self.calls.submit
         calls = calls_to_issue(self.status, self.inflight, self.config, len(r.rollout),
-                               r.teacher_groups, r.icm is not None, rollouts)
+                               r.teacher_groups, r.icm is not None, rollouts, r.online_critics)
         for w, worker in enumerate(r.rollout):
             for _ in range(calls[("rollout", w)]):
                 chunk_ref, report = submit(worker, "rollout", self.weights, returns=2)
@@ -136,19 +137,18 @@ class Supervisor:
             self._track(report, "learner_report")
             self._track(feedback, "feedback")
             self.inflight[("learner", 0)] += 1
-        for k, (teacher, folds) in enumerate(zip(r.teachers, r.teacher_groups, strict=True)):
-            for _ in range(calls[("teacher", k)]):
-                work, _ = submit(r.replay, "teacher_work", folds, svc.fit_steps_per_call, returns=2)
-                scores, report = submit(teacher, "step", work, self.weights, returns=2)
-                self._track(report, "teacher_report", k)
-                self._track(scores, "teacher_scores", k)
-                self.inflight[("teacher", k)] += 1
-        for _ in range(calls[("icm", 0)]):
-            work, _ = submit(r.replay, "icm_work", svc.fit_steps_per_call, returns=2)
-            scores, report = submit(r.icm, "step", work, returns=2)
-            self._track(report, "icm_report")
-            self._track(scores, "icm_scores")
-            self.inflight[("icm", 0)] += 1
+        for role in r.scorers:
+            for _ in range(calls[(role.kind, role.index)]):
+                self._score(role)
+
+    def _score(self, role: ScorerRole) -> None:
+        """One scorer's chain: the replay server's `work` for it -> its `score` -> (forwarded once ready) `write`."""
+        r, submit = self.roles, self.calls.submit
+        work, _ = submit(r.replay, "work", role.scorer, self.config.service.fit_steps_per_call, returns=2)
+        scores, report = submit(role.handle, "score", work, *([self.weights] if role.weights else []), returns=2)
+        self._track(report, "learner_report" if role.kind == "online" else f"{role.kind}_report", role.index)
+        self._track(scores, f"{role.kind}_scores", role.index)
+        self.inflight[(role.kind, role.index)] += 1
 
     # ------------------------------------------------------------------ replies
     def _collect(self, timeout: float) -> None:
@@ -160,6 +160,8 @@ class Supervisor:
             self.failures.watch.done(ref)
             if kind in FORWARD:  # data for the replay server, now ready: hand over the ref, never the data
                 self._track(self.calls.submit(self.roles.replay, FORWARD[kind][0], ref), FORWARD[kind][1], index)
+                if kind == "chunk" and self.roles.online_critics:  # ACL td_self: the online critics score the rows
+                    self._score(self.roles.scorers[-1])  # at insertion, before they can be sampled (ALGORITHM.md A11)
                 continue
             try:
                 value = self.calls.get(ref)
@@ -251,7 +253,7 @@ class Supervisor:
 
         `fresh=True` drains every call still in flight and asks the replay server for its status now.
         """
-        if any(n for (role, _), n in self.inflight.items() if role in ("learner", "teacher", "icm")):
+        if any(n for (role, _), n in self.inflight.items() if role in ("learner", "teacher", "icm", "online")):
             return False
         if fresh:
             self._settle()

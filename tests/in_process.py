@@ -1,11 +1,11 @@
 """The service's roles built in-process, without Ray, for the tests that drive them by hand chunk by chunk
 (tests/test_service_inprocess_flow.py, tests/test_service_inprocess_restart.py, tests/test_agreement.py)."""
 
-from services.icm import ICMWorker
 from services.learner import Learner
 from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
-from services.teachers import TeacherWorker
+from services.scorers.icm import ICMWorker
+from services.scorers.teachers import TeacherWorker
 from tests.tiny import make_tiny_config
 
 # The roles are driven by hand here, chunk by chunk, on the tiny service config with: a 360-row buffer (3 chunks of

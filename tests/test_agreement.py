@@ -18,16 +18,16 @@ import torch
 
 from cmcl.config import TeamConfig
 from cmcl.learners.network_steps import choose_minibatch, learner_update
-from cmcl.messages import LearnerFeedback
+from cmcl.messages import CURIOSITY, DIFFICULTY, LearnerFeedback, Scorer
 from cmcl.replay import buffer_steps
 from cmcl.replay.registry import ALGORITHMS, REGISTRY
 from cmcl.system import beta_is
 from services.common import actor_setup
-from services.icm import ICMWorker
 from services.learner import Learner
 from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
-from services.teachers import TeacherWorker
+from services.scorers.icm import ICMWorker
+from services.scorers.teachers import TeacherWorker
 from tests.in_process import in_process_config
 
 # every registered rule and its controls: the agreement holds for each (issue 36)
@@ -76,18 +76,18 @@ def test_one_stacked_teacher_scores_and_prioritises_as_one_teacher_per_fold(algo
     k = cfg["teachers"]["num_folds"]
     published = Learner(cfg, 0).publish()  # the learner's target nets, as published at its version 0
     stacked = TeacherWorker(cfg, list(range(k)), 0)
-    work, _ = one.teacher_work(list(range(k)), 1)
-    one.write_teacher_scores(stacked.step(without_fit(work), published)[0])
+    work, _ = one.work(Scorer(DIFFICULTY, tuple(range(k))), 1)
+    one.write(stacked.score(without_fit(work), published)[0])
     for fold in range(k):  # every teacher scores the rows of the other folds
-        work, _ = per_fold.teacher_work([fold], 1)
+        work, _ = per_fold.work(Scorer(DIFFICULTY, (fold,)), 1)
         assert work.score.slots.size == (per_fold.replay.storage.fold[:360] != fold).sum()
-        scores, _ = one_fold_of(cfg, stacked, fold).step(without_fit(work), published)
-        per_fold.write_teacher_scores(scores)
+        scores, _ = one_fold_of(cfg, stacked, fold).score(without_fit(work), published)
+        per_fold.write(scores)
     if algorithm == "cmcl":
         icm = ICMWorker(cfg, 0)
         for server in (per_fold, one):
-            work, _ = server.icm_work(1)
-            server.write_curiosity(icm.step(without_fit(work))[0])
+            work, _ = server.work(Scorer(CURIOSITY), 1)
+            server.write(icm.score(without_fit(work))[0])
     ours, theirs = one.replay.storage, per_fold.replay.storage
     for column in ("difficulty", "curiosity"):
         np.testing.assert_array_equal(ours.scored[column], theirs.scored[column])
@@ -171,9 +171,9 @@ def test_per_agent_teacher_fit_batches_are_drawn_one_per_teacher_agent():
     server, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
     for _ in range(3):
         server.insert(worker.rollout(None)[0])
-    work, _ = server.teacher_work([0], 1)
+    work, _ = server.work(Scorer(DIFFICULTY, (0,)), 1)
     a_t = len(server.layout.teacher_agents)
     assert a_t > 1 and work.fit_slots.shape[:3] == (1, a_t, 1)
     teacher = TeacherWorker(cfg, [0], 0)
-    scores, _ = teacher.step(work, Learner(cfg, 0).publish())
-    assert scores is not None and np.isfinite(scores.errors).all()
+    scores, _ = teacher.score(work, Learner(cfg, 0).publish())
+    assert scores is not None and np.isfinite(scores.values).all()

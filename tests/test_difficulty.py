@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from cmcl.replay.difficulty import DifficultyTable, ScoreStamps
+from cmcl.scorers.difficulty import DifficultyTable, ScoreStamps
 
 K, A = 4, 2
 

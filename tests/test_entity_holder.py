@@ -20,6 +20,7 @@ from cmcl.config import ConfigError, load_config
 from cmcl.envs.entities import spread_layout
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.weights import published_weights
+from cmcl.messages import CURIOSITY, DIFFICULTY, Scorer
 
 ROOT = Path(__file__).resolve().parents[1]
 N8 = "configs/spread_n8.toml"
@@ -261,10 +262,10 @@ def test_every_service_role_reads_the_margin():
     published = learner.publish()
     chunk, _ = worker.rollout(published)
     assert worker.version == published["version"] and worker.policy.holder and np.isfinite(chunk.act).all()
-    work, _ = replay.teacher_work([0], 2)
-    assert np.isfinite(teachers[0].step(work, published)[0].errors).all()
-    work, _ = replay.icm_work(2)
-    assert np.isfinite(icm.step(work)[0].rho).all()
+    work, _ = replay.work(Scorer(DIFFICULTY, (0,)), 2)
+    assert np.isfinite(teachers[0].score(work, published)[0].values).all()
+    work, _ = replay.work(Scorer(CURIOSITY), 2)
+    assert np.isfinite(icm.score(work)[0].values).all()
 
 
 def test_a_state_records_it_and_one_of_the_other_value_is_refused_in_one_line():

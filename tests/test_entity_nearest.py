@@ -143,8 +143,8 @@ def test_with_k_the_teachers_and_the_icm_ignore_an_entity_beyond_it_and_without_
     import torch
 
     from cmcl.envs.entities import spread_layout
-    from cmcl.learners.icm import ICM
-    from cmcl.learners.teachers import TeacherEnsemble
+    from cmcl.scorers.icm import ICM
+    from cmcl.scorers.teachers import TeacherEnsemble
 
     n, act_dim, rows = 4, 2, 16
     layout = spread_layout(n)

@@ -5,7 +5,7 @@ import io
 import numpy as np
 import torch
 
-from cmcl.learners.icm import ICM
+from cmcl.scorers.icm import ICM
 
 torch.set_num_threads(1)
 

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from cmcl.envs.entities import spread_layout
-from cmcl.learners.icm import ICM
+from cmcl.scorers.icm import ICM
 from tests.test_entity_nets import spread_obs, world
 
 torch.set_num_threads(1)

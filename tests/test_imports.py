@@ -27,7 +27,7 @@ def test_cmcl_does_not_import_ray_or_prometheus():
 
 def test_replay_stage_and_batched_envs_never_load_torch():
     """The replay server and continuous-action rollout workers import only these: no torch in their processes."""
-    extra = ("cmcl.envs.batched, cmcl.messages, cmcl.progress, cmcl.io.records, cmcl.io.durable, "
+    extra = ("cmcl.envs.batched, cmcl.messages, cmcl.scorers.scoring, cmcl.progress, cmcl.io.records, cmcl.io.durable, "
              "cmcl.learners.policy, cmcl.system")
     assert loaded_after_importing("cmcl.replay", extra, ("torch",)) == []
     assert loaded_after_importing("cmcl.learners", "", ("torch",)) == ["torch"], "the check can see torch"

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from cmcl.learners.icm import ICM
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.nets import joint_input
+from cmcl.scorers.icm import ICM
 
 torch.set_num_threads(1)
 

@@ -1,12 +1,15 @@
-"""The online critic is a scorer the learner hosts (ACL td_self, docs/DESIGN.md "Scorers"): every row the buffer
-holds gets its |δ| from the learner's online critics, on the inline runner and on the service alike (both schedule
-the same roles: services.calls). Before, the service's td_self rows kept their provisional priority for good."""
+"""The online critic is a scorer the learner hosts (ACL td_self): every row the buffer holds gets its |δ| from the
+learner's online critics, on the inline runner and on the service alike (both schedule the same roles:
+services.calls), and no row is sampled before they have scored it (ALGORITHM.md A11: score at insertion)."""
 
 import numpy as np
+import pytest
 
 from cmcl.config import config_from_dict
 from cmcl.io.rundir import RunDirectory
+from cmcl.messages import ONLINE_TD
 from services.launch import train_in_process
+from tests.recording_calls import recorded_run
 
 
 def td_self_config(tiny_config, tmp_path):
@@ -26,6 +29,20 @@ def test_every_stored_row_is_scored_by_the_online_critics(tiny_config, tmp_path)
     assert (stamp >= 0).all(), f"{int((stamp < 0).sum())} of {valid.size} rows never scored by the online critics"
     td = replay.storage.scores["td_abs"][valid]
     assert replay.storage.scored["td_abs"][valid].all() and np.isfinite(td).all() and (td > 0).any()
+
+
+@pytest.mark.parametrize("in_process", [True, False], ids=["in_process", "ray_service"])
+def test_no_row_of_a_td_self_run_is_sampled_before_the_online_critics_scored_it(in_process, tiny_config, tmp_path,
+                                                                               request):
+    """The sampled (slot, generation) pairs and the online critics' Scores, read from the messages of a real run
+    in the replay server's order: every sampled row had its online |δ| before it was sampled."""
+    if not in_process:
+        request.getfixturevalue("ray_cluster")
+    summary, outcome = recorded_run(td_self_config(tiny_config, tmp_path), tmp_path / "run", in_process)
+    sampled = set(outcome.sampled())
+    assert summary["updates"] > 0 and len(sampled) > 100 and ONLINE_TD in outcome.columns
+    early = outcome.sampled_before_scored(ONLINE_TD)
+    assert not early, f"{len(early)} of {len(sampled)} sampled rows were not scored yet, e.g. {sorted(early)[:3]}"
 
 
 def test_curiosity_as_an_intrinsic_reward_reaches_the_learner_on_the_inline_runner(tiny_config, tmp_path):

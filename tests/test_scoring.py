@@ -1,11 +1,11 @@
 """The scoring state and the one rescoring rule of the replay server, whichever runner schedules it
-(cmcl.replay.scoring; ALGORITHM.md §3.8, §3.9, A11)."""
+(cmcl.scorers.scoring; ALGORITHM.md §3.8, §3.9, A11)."""
 
 import numpy as np
 import pytest
 
 from cmcl.replay.buffer import ReplayBuffer
-from cmcl.replay.scoring import ScoringState, oldest_first
+from cmcl.scorers.scoring import ScoringState, oldest_first
 
 pytestmark = pytest.mark.filterwarnings("error")
 N, K, CAP = 2, 3, 30

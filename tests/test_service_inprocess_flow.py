@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 
 from cmcl.config import config_from_dict
-from cmcl.messages import LearnerFeedback, ReplayStatus
+from cmcl.messages import CURIOSITY, DIFFICULTY, LearnerFeedback, ReplayStatus, Scorer
 from services.call_budget import calls_to_issue
-from services.icm import ICMWorker
 from services.learner import Learner
 from services.placement import teacher_groups
 from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
-from services.teachers import TeacherWorker
+from services.scorers.icm import ICMWorker
+from services.scorers.teachers import TeacherWorker
 from tests.in_process import in_process_config, roles
 
 
@@ -31,14 +31,14 @@ def test_one_round_of_the_data_flow_reaches_every_role():
     assert status.size == 360 and status.episodes == 12 and report.rollout.episodes == 12
     lam0 = status.lam
     for k, teacher in enumerate(teachers):
-        work, _ = replay.teacher_work([k], 2)
+        work, _ = replay.work(Scorer(DIFFICULTY, (k,)), 2)
         assert (replay.replay.storage.fold[work.score.slots] != k).all(), "teacher k scores other folds only"
-        scores, _ = teacher.step(work, published)
-        replay.write_teacher_scores(scores)
+        scores, _ = teacher.score(work, published)
+        replay.write(scores)
     scored = replay.replay.storage.scored["difficulty"][:360]
     assert scored.all(), "after all K teachers scored, every row has a difficulty"
-    work, _ = replay.icm_work(2)
-    replay.write_curiosity(icm.step(work)[0])
+    work, _ = replay.work(Scorer(CURIOSITY), 2)
+    replay.write(icm.score(work)[0])
     assert replay.replay.storage.scored["curiosity"][:200].any()
     batch, status = replay.sample(4)
     assert batch.rows["obs"].shape == (4, 4, 16, 4, 18)
@@ -61,7 +61,7 @@ def test_teacher_fit_batches_come_only_from_its_own_fold():
         replay.insert(worker.rollout(None)[0])
     folds = replay.replay.storage.fold
     for k in range(3):
-        work, _ = replay.teacher_work([k], 2)
+        work, _ = replay.work(Scorer(DIFFICULTY, (k,)), 2)
         assert work.fit["obs"].shape[:4] == (2, 1, 1, 16) and work.fit_slots.shape == (2, 1, 1, 16)
         assert (folds[work.fit_slots] == k).all()
         assert (folds[work.score.slots] != k).all()
@@ -101,13 +101,13 @@ def test_one_actor_can_host_every_fold_without_leaking_a_rows_own_fold(shared):
     assert teacher.teachers.net.layers[1].weight.shape[0] == (3 if shared else 12)  # per fold, or per (agent, fold)
     for _ in range(3):
         replay.insert(worker.rollout(None)[0])
-    work, _ = replay.teacher_work([0, 1, 2], 2)
+    work, _ = replay.work(Scorer(DIFFICULTY, (0, 1, 2)), 2)
     folds = replay.replay.storage.fold
     assert work.fit["obs"].shape[:4] == (2, 1, 3, 16)
     assert (folds[work.fit_slots] == np.arange(3)[None, None, :, None]).all(), "fit batch i comes from fold i"
-    scores, _ = teacher.step(work, learner.publish())
-    assert scores.errors.shape == (360, 4, 3)  # [M, A_t, F]
-    replay.write_teacher_scores(scores)
+    scores, _ = teacher.score(work, learner.publish())
+    assert scores.values.shape == (360, 4, 3)  # [M, A_t, F]
+    replay.write(scores)
     rows = np.arange(360)
     stamps = replay.scoring.difficulty.stamps(rows, replay.replay.generations(rows))
     assert (stamps[rows, folds[rows]] == -1).all(), "no row is scored by its own fold's teacher"
@@ -150,14 +150,14 @@ def test_every_reply_carries_its_actors_incarnation_and_a_bad_one_is_refused():
         replay.insert(chunk)
     feedback, report = learner.update(replay.sample(2)[0])
     assert feedback.incarnation == report.incarnation == learner.incarnation
-    scores, report = teachers[0].step(replay.teacher_work([0], 2)[0], learner.publish())
+    scores, report = teachers[0].score(replay.work(Scorer(DIFFICULTY, (0,)), 2)[0], learner.publish())
     assert scores.incarnation == report.incarnation == teachers[0].incarnation
-    curiosity, report = icm.step(replay.icm_work(2)[0])
+    curiosity, report = icm.score(replay.work(Scorer(CURIOSITY), 2)[0])
     assert curiosity.incarnation == report.incarnation == icm.incarnation
     assert replay.status().incarnation == replay.incarnation
     assert len({worker.incarnation, learner.incarnation, teachers[0].incarnation, icm.incarnation}) == 4
-    refused = replay.write_teacher_scores(dataclasses.replace(scores, incarnation=["not", "a", "string"]))
-    assert refused.error.startswith("bad_scores: TeacherScores.incarnation must be a string")
+    refused = replay.write(dataclasses.replace(scores, incarnation=["not", "a", "string"]))
+    assert refused.error.startswith("bad_scores: Scores.incarnation must be a string")
     refused = replay.learner_result(dataclasses.replace(feedback, incarnation="x" * 65))
     assert refused.error.startswith("bad_feedback: LearnerFeedback.incarnation")
     assert replay.rejected["bad_scores"] == 1 and replay.rejected["bad_feedback"] == 1
@@ -204,11 +204,11 @@ def test_entity_networks_run_through_every_role(nearest):
     assert "encoder.entity.weight" in published["weights"]["target_critic"]
     chunk, _ = worker.rollout(published)
     assert worker.version == published["version"] and np.isfinite(chunk.act).all()
-    work, _ = replay.teacher_work([0], 2)
-    scores, _ = teachers[0].step(work, published)
-    assert np.isfinite(scores.errors).all()
-    work, _ = replay.icm_work(2)
-    assert np.isfinite(icm.step(work)[0].rho).all()
+    work, _ = replay.work(Scorer(DIFFICULTY, (0,)), 2)
+    scores, _ = teachers[0].score(work, published)
+    assert np.isfinite(scores.values).all()
+    work, _ = replay.work(Scorer(CURIOSITY), 2)
+    assert np.isfinite(icm.score(work)[0].values).all()
 
 
 def test_a_teacher_actor_hosts_entity_teachers():
@@ -219,6 +219,6 @@ def test_a_teacher_actor_hosts_entity_teachers():
     assert teacher.teachers.networks == "entity" and teacher.teachers.num_folds == 3
     for _ in range(3):
         replay.insert(worker.rollout(None)[0])
-    work, _ = replay.teacher_work([0, 1, 2], 2)
-    scores, _ = teacher.step(work, learner.publish())
-    assert scores.errors.shape == (360, 4, 3) and np.isfinite(scores.errors).all()
+    work, _ = replay.work(Scorer(DIFFICULTY, (0, 1, 2)), 2)
+    scores, _ = teacher.score(work, learner.publish())
+    assert scores.values.shape == (360, 4, 3) and np.isfinite(scores.values).all()

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cmcl.io.durable import ReplayStore, StoreError
+from cmcl.messages import DIFFICULTY, Scorer
 from services.learner import Learner
 from services.replay_server import ReplayServer
 from services.rollout import RolloutWorker
@@ -19,8 +20,8 @@ def test_snapshot_restores_buffer_scores_counters_and_dedupe(tmp_path):
     for _ in range(3):
         chunk, _ = worker.rollout(None)
         replay.insert(chunk)
-    scores, _ = teachers[0].step(replay.teacher_work([0], 2)[0], learner.publish())
-    replay.write_teacher_scores(scores)
+    scores, _ = teachers[0].score(replay.work(Scorer(DIFFICULTY, (0,)), 2)[0], learner.publish())
+    replay.write(scores)
     replay.sample(2)
     replay.store = ReplayStore(tmp_path / "replay")
     replay.snapshot()
@@ -74,7 +75,7 @@ def test_no_acknowledged_chunk_is_lost_across_a_restart(tmp_path):
     replay.snapshot()
     replay.insert(chunks[2])  # acknowledged after the snapshot: only in the log
     replay.sample(3)
-    replay.teacher_work([1], 2)
+    replay.work(Scorer(DIFFICULTY, (1,)), 2)
     restored = ReplayServer(cfg, store_dir=store)  # a crash: a new process on the same store
     assert restored.resumed and restored.counters["restored_records"] == 3  # a chunk, 3 updates, 2 fit steps
     assert (restored.counters["updates"], restored.teacher_steps) == (3, [0, 2, 0]), "counters never go back"

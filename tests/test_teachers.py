@@ -9,9 +9,9 @@ import torch
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.nets import joint_input
 from cmcl.learners.network_steps import teacher_fit_batch
-from cmcl.learners.teachers import TeacherEnsemble
 from cmcl.replay.buffer_steps import fold_draw_indices
-from cmcl.replay.difficulty import cross_validated_difficulty
+from cmcl.scorers.difficulty import cross_validated_difficulty
+from cmcl.scorers.teachers import TeacherEnsemble
 
 torch.set_num_threads(1)
 

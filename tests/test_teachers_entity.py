@@ -7,7 +7,7 @@ import torch
 from cmcl.envs.entities import spread_layout
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.nets import joint_input
-from cmcl.learners.teachers import TeacherEnsemble
+from cmcl.scorers.teachers import TeacherEnsemble
 from tests.test_teachers import fold_batch_indices, make_fit_batch
 
 torch.set_num_threads(1)

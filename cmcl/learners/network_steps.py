@@ -22,13 +22,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from cmcl.learners.icm import ICM
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.nets import joint_input
-from cmcl.learners.teachers import TeacherEnsemble
 from cmcl.messages import ACTOR_PREFIX, CURIOSITY_KEY, LearnerBatch
 from cmcl.replay.priority import EPS_P
 from cmcl.replay.rules.laber import select_candidates
+from cmcl.scorers.icm import ICM
+from cmcl.scorers.teachers import TeacherEnsemble
 
 
 def agent_major(rows: dict[str, np.ndarray], agents: np.ndarray, key: str) -> np.ndarray:

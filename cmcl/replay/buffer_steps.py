@@ -10,7 +10,7 @@ side of each step (networks) is `cmcl.learners.network_steps`. Numpy only.
   learner feedback ......... apply_learner_feedback      <- LearnerFeedback (per-row losses to each sampler)
   teacher fit rows ......... fold_batch_slots            -> slots [steps, B, F, S] from each fold only (eq. 9)
   ICM fit rows ............. uniform_slots               -> slots, drawn uniformly (§3.4)
-  rows to (re)score, scores written back: the scoring state, `cmcl.replay.scoring.ScoringState`
+  rows to (re)score, scores written back: the scoring state, `cmcl.scorers.scoring.ScoringState`
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ one batch per fold from that fold only (`cmcl.replay.buffer_steps.fold_batch_slo
 `cmcl.learners.network_steps.fit_teachers` regresses every teacher on the learner's TD targets
 (``MADDPG.td_targets``, the learner's TARGET nets, never the teachers) with :meth:`TeacherEnsemble.fit_step` (eq. 9).
 Scoring runs :meth:`TeacherEnsemble.errors` on buffer rows (eq. 10, `cmcl.learners.network_steps.teacher_errors`)
-and `cmcl.replay.difficulty` turns the errors into c_{v,j}
+and `cmcl.scorers.difficulty` turns the errors into c_{v,j}
 (eq. 11: the sum over the K-1 teachers that never saw j); ``cmcl.replay.priority`` normalises c and computes KP.
 
 All A x K teachers are ONE :class:`~cmcl.learners.nets.StackedMLP` with A*K members, member index ``a*K + i`` for agent

@@ -5,12 +5,14 @@ Where it sits: one `ScoringState` beside the `ReplayBuffer` of the replay server
 scheduler runs it. Scores come in through `write_difficulty` (teacher errors, eqs. 10–11),
 `write_curiosity` (ρ, eq. 18) and `write_online_td` (ACL td_self's |δ|); each writes the buffer's score column and
 stamps the rows with the learner update the score was made at. The buffer's columns hold the scores; this object
-holds the stamps, the teachers' per-fold errors (`cmcl.replay.difficulty.DifficultyTable`) and the insertion times.
+holds the stamps, the teachers' per-fold errors (`cmcl.scorers.difficulty.DifficultyTable`) and the insertion times.
 
 The rescoring rule (`rows_to_score`): the rows whose score from the given scorers is oldest, never-scored rows first.
 The replay server asks it for the rows of one teacher group (a teacher never scores its own fold, eq. 9) or of the
 ICM, `service.score_rows_per_call` per call, and, for the online critics the learner hosts (ACL td_self), every
 never-scored row topped up to that many with the oldest scores (§3.8's periodic rescoring, spread over the calls).
+The online critics score each chunk when it is inserted, and `unscored` holds the learner's updates while a row
+waits for them (A11: score at insertion), so a td_self row is never sampled on its provisional priority.
 Oldest first rather than a cursor walking the slots: the asynchronous teacher groups of the service cannot share a
 cursor, and a cursor would spend rescoring on rows that were scored at insertion a few updates ago while older
 scores wait. Either way a full buffer of |D| rows is rescored every |D| / rows updates at most.
@@ -27,7 +29,13 @@ from typing import Any
 import numpy as np
 
 from cmcl.replay.buffer import ReplayBuffer
-from cmcl.replay.difficulty import DifficultyTable, ScoreStamps
+from cmcl.scorers.difficulty import DifficultyTable, ScoreStamps
+
+
+def online_critics_score(layout: Any) -> bool:
+    """Whether some agent's difficulty is the online critics' |δ| (ACL td_self) of a `cmcl.system.AgentLayout`: the
+    learner then hosts the online critics' scorer."""
+    return "td_abs" in layout.difficulty_source
 
 
 def oldest_first(candidates: np.ndarray, stamps: np.ndarray, count: int) -> np.ndarray:
@@ -74,7 +82,7 @@ class ScoringState:
     def for_layout(cls, layout: Any, capacity: int, num_folds: int) -> ScoringState:
         """The scoring state of a `cmcl.system.AgentLayout`."""
         return cls(capacity, num_folds, layout.teacher_agents, layout.icm_agents,
-                   online_td="td_abs" in layout.difficulty_source)
+                   online_td=online_critics_score(layout))
 
     # ------------------------------------------------------------------ insertion and sampling times
     def inserted(self, slots: np.ndarray, updates: int) -> None:
@@ -142,6 +150,12 @@ class ScoringState:
             if asked:
                 parts.append(stamps.stamps(valid, gens).astype(np.float64))
         return valid, np.concatenate(parts, axis=1).min(axis=1)
+
+    def unscored(self, replay: ReplayBuffer, folds: Sequence[int] = (), curiosity: bool = False,
+                 online_td: bool = False) -> int:
+        """How many valid rows one of the given scorers has not scored in their current content (a row in the
+        online critics' case is sampled only once it has: ALGORITHM.md A11)."""
+        return int((self.score_stamps(replay, folds, curiosity, online_td)[1] < 0).sum())
 
     def rows_to_score(self, replay: ReplayBuffer, count: int, folds: Sequence[int] = (), curiosity: bool = False,
                       online_td: bool = False, every_unscored: bool = False) -> np.ndarray:

@@ -1,8 +1,8 @@
 """ICM actor: trains every curiosity-using agent's ICM on uniform replay batches and scores buffer rows with ρ.
 
-Where it sits: replay -> ICM -> curiosity scores back to replay (ALGORITHM.md §3.4, distributed as in §3.9). The shell
-around `cmcl.learners.network_steps.fit_icm` / `curiosity_values`, the same functions the inline loop calls. It needs no
-policy weights: the ICM models (o, a, o') only.
+Where it sits: replay -> ICM -> curiosity scores back to replay (ALGORITHM.md §3.4, distributed as in §3.9), one of
+the scorers: a `ScoreWork` in, `Scores` out. The shell around `cmcl.learners.network_steps.fit_icm` /
+`curiosity_values`. It needs no policy weights: the ICM models (o, a, o') only.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from cmcl.learners import network_steps
-from cmcl.messages import CuriosityScores, CuriosityWork
+from cmcl.messages import CURIOSITY, Scorer, Scores, ScoreWork
 from cmcl.system import build_icm, layout_of
 from services.common import actor_setup, load_state, new_incarnation, save_state
 from services.report_schema import Report
@@ -35,8 +35,12 @@ class ICMWorker:
         if state is not None:
             self.icm.load_state_dict(state["icm"])
 
-    def step(self, work: CuriosityWork | None) -> tuple[CuriosityScores | None, Report]:
-        """Fit on work.fit ([steps, S, N, ·] rows), then return ρ float32[M, A_c] of the work.score rows."""
+    scorer = Scorer(CURIOSITY)  # this scorer: the ICM, writing the curiosity column
+
+    def score(self, work: ScoreWork | None, published: dict[str, Any] | None = None
+              ) -> tuple[Scores | None, Report]:
+        """Fit on work.fit ([steps, S, N, ·] rows), then return Scores with ρ float32[M, A_c] (eq. 18) of the
+        work.score rows. `published` (the learner's weights) is not needed: the ICM models (o, a, o') only."""
         if work is None:
             return None, self.report()
         agents = self.layout.icm_agents
@@ -44,8 +48,8 @@ class ICMWorker:
         if out:
             self.loss = float(np.mean(out["inverse_loss"]) + np.mean(out["forward_loss"]))
         rho = network_steps.curiosity_values(self.icm, work.score.rows, agents)
-        return CuriosityScores(work.score.slots, work.score.generations, rho, work.updates, self.loss,
-                               self.incarnation), self.report()
+        return Scores(self.scorer, work.score.slots, work.score.generations, rho, work.updates, self.loss,
+                      self.incarnation), self.report()
 
     def report(self) -> Report:
         """Metrics report (steps / scores are counted by the replay server)."""

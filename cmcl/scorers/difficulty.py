@@ -1,6 +1,6 @@
 """Cross-validated difficulty c of eq. (11): the K teachers' latest errors on each row, summed over the blind ones.
 
-Where it sits: between the teachers and the replay's "difficulty" score column. Teachers (`cmcl.learners.teachers`)
+Where it sits: between the teachers and the replay's "difficulty" score column. Teachers (`cmcl.scorers.teachers`)
 return per-teacher errors e_{a,j,i} (eq. 10); a `DifficultyTable` keeps the latest error of every teacher i on every
 buffer slot j, keyed by the slot's generation, and turns them into c_{a,j} over the teachers that never saw j
 (i != f(j), eq. 11) and have scored j. The inline loop records all K teachers at once, which gives the plain sum

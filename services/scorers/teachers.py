@@ -1,7 +1,8 @@
 """Teacher actor: fits the fold-k critics of every teacher-using agent (for its folds k) and scores other folds.
 
-Where it sits: replay -> teachers -> scores back to replay (ALGORITHM.md §3.2, distributed as in §3.9). The shell
-around `cmcl.learners.network_steps.fit_teachers` / `teacher_errors`, the same functions the inline loop calls.
+Where it sits: replay -> teachers -> scores back to replay (ALGORITHM.md §3.2, distributed as in §3.9), one of the
+scorers: a `ScoreWork` in, `Scores` out. The shell around `cmcl.learners.network_steps.fit_teachers` /
+`teacher_errors`.
 Teacher k never sees rows outside fold k when fitting; its errors count only for rows outside fold k (the replay
 server's `DifficultyTable`). Regression targets come from the learner's published target actor and target critic (never
 from a teacher). One fit batch per step is shared by all of this fold's agents (`teachers.fit_batch="shared"`), or
@@ -15,9 +16,9 @@ from typing import Any
 import numpy as np
 
 from cmcl.learners import network_steps
-from cmcl.learners.teachers import TeacherEnsemble
 from cmcl.learners.weights import load_published
-from cmcl.messages import TeacherScores, TeacherWork
+from cmcl.messages import DIFFICULTY, Scorer, Scores, ScoreWork
+from cmcl.scorers.teachers import TeacherEnsemble
 from cmcl.system import build_maddpg, build_teachers, layout_of
 from services.common import actor_setup, load_state, new_incarnation, save_state
 from services.report_schema import Report
@@ -48,11 +49,15 @@ class TeacherWorker:
             self.teachers.load_state_dict(state["teachers"])
             self.steps, self.scores = int(state["steps"]), int(state["scores"])
 
-    def step(self, work: TeacherWork | None, published: dict[str, Any] | None
-             ) -> tuple[TeacherScores | None, Report]:
+    @property
+    def scorer(self) -> Scorer:
+        """This scorer: the teachers of its folds, writing the difficulty column."""
+        return Scorer(DIFFICULTY, tuple(self.folds))
+
+    def score(self, work: ScoreWork | None, published: dict[str, Any] | None) -> tuple[Scores | None, Report]:
         """Fit on work.fit ([steps, B, F, S, ...]: rows of each hosted fold), then score the work.score rows.
 
-        Returns (TeacherScores with errors float32[M, A_t, F], metrics report).
+        Returns (Scores with values = errors float32[M, A_t, F] (eq. 10), metrics report).
         """
         if work is None or published is None:
             return None, self.report()
@@ -67,8 +72,8 @@ class TeacherWorker:
         errors = network_steps.teacher_errors(self.teachers, work.score.rows, agents, self.targets,
                                               self.layout.teacher_error_squared)
         self.scores += int(errors.shape[0])
-        return TeacherScores(tuple(self.folds), work.score.slots, work.score.generations, errors, work.updates,
-                             self.loss, self.incarnation), self.report()
+        return Scores(self.scorer, work.score.slots, work.score.generations, errors, work.updates, self.loss,
+                      self.incarnation), self.report()
 
     def report(self) -> Report:
         """Metrics report of this teacher (its weight version; steps / scores are reported by the replay)."""
