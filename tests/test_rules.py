@@ -185,6 +185,7 @@ def test_laber_minibatch_is_picked_by_the_current_critic_and_other_agents_take_t
     from cmcl.learners.maddpg import MADDPG
     from cmcl.learners.network_steps import choose_minibatch
     from cmcl.messages import LearnerBatch
+    from cmcl.replay.rules.laber import select_candidates
 
     torch.manual_seed(0)
     n, m, b, od, ad = 2, 4, 8, 3, 2
@@ -198,7 +199,7 @@ def test_laber_minibatch_is_picked_by_the_current_critic_and_other_agents_take_t
     slots = np.arange(n * s).reshape(1, n, s)
     batch = LearnerBatch(rows, np.ones((1, n, s), np.float32), slots, slots + 1000, rng.random((1, n, b)))
     maddpg = MADDPG(n, od, ad, hidden=16, seed=0)
-    picked, chosen, gens = choose_minibatch(maddpg, batch, 0, True, [True, False])
+    picked, chosen, gens = choose_minibatch(maddpg, batch, 0, True, [True, False], select_candidates)
     td = maddpg.td_abs(batch.minibatch(0, True)).astype(np.float64) + EPS_P
     cdf = np.cumsum(td[0]) / td[0].sum()
     expected = np.minimum(np.searchsorted(cdf, batch.select_u[0, 0], side="right"), s - 1)

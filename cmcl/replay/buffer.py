@@ -67,6 +67,11 @@ class ReplayBuffer:
         return [s.alpha for s in self.sampling]
 
     @property
+    def difficulty_transform(self) -> list[str]:
+        """Each agent's sampling control ("none" | "permuted" | "reversed"), as its sampler was built."""
+        return [s.control for s in self.sampling]
+
+    @property
     def recomputes(self) -> bool:
         """Whether `recompute_priorities` has anything to rebuild (the runners call it before each update)."""
         return bool(self.recomputing)
@@ -229,21 +234,23 @@ class ReplayBuffer:
 
         Keys: "format", "storage" (see `TransitionStorage.state_dict`), "lam" (float, −1.0 = never recomputed),
         "algorithms" {str(agent): algorithm}, "sampling" {str(agent): that agent's sampling distribution's state},
-        "alpha" [float] * N and "control_rng" (the permuted control's PCG64 state, its 128-bit integers as decimal
-        strings for msgpack).
+        "alpha" [float] * N, "difficulty_transform" [str] * N and "control_rng" (the permuted control's PCG64 state,
+        its 128-bit integers as decimal strings for msgpack).
         """
         return {
             "format": STATE_FORMAT, "storage": self.storage.state_dict(),
             "lam": -1.0 if self.lam is None else self.lam,
             "algorithms": {str(a): algo for a, algo in enumerate(self.algorithms)},
             "sampling": {str(a): s.state_dict() for a, s in enumerate(self.sampling)},
-            "alpha": list(self.alpha), "control_rng": rng_state(self.control_rng),
+            "alpha": list(self.alpha), "difficulty_transform": self.difficulty_transform,
+            "control_rng": rng_state(self.control_rng),
         }
 
     def load_state_dict(self, state: dict) -> None:
         """Restore from `state_dict()` output (or a snapshot of an older format, `cmcl.replay.snapshot`);
-        everything is validated before anything changes (a snapshot is a file read back). Algorithms and alpha must
-        equal this buffer's samplers' (they come from the run config); each sampler checks its own state."""
+        everything is validated before anything changes (a snapshot is a file read back). Algorithms, alpha and the
+        controls must equal this buffer's samplers' (they come from the run config); each sampler checks its own
+        state."""
         n = self.storage.n_agents
         state = upgrade_state(state, n)
         algorithms = [state["algorithms"].get(str(a)) for a in range(n)]
@@ -253,6 +260,11 @@ class ReplayBuffer:
         alphas = [float(a) for a in alpha] if isinstance(alpha, Sequence) else [float(alpha)] * n  # older: one float
         if alphas != self.alpha:
             raise ValueError(f"alpha in state ({state['alpha']!r}) differs from this buffer ({self.alpha!r})")
+        transform = state.get("difficulty_transform", "none")  # older snapshots: one transform for every agent
+        transform = [transform] * n if isinstance(transform, str) else list(transform)
+        if transform != self.difficulty_transform:
+            raise ValueError(f"difficulty_transform in state ({transform!r}) differs from this buffer "
+                             f"({self.difficulty_transform!r})")
         control_rng = np.random.default_rng()
         if "control_rng" in state:
             set_rng_state(control_rng, state["control_rng"])

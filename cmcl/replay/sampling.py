@@ -4,7 +4,8 @@ Where it sits: each rule's file under cmcl/replay/rules/ builds its agents' samp
 agent, cmcl.system.build_samplers) and `cmcl.replay.buffer.ReplayBuffer` receives them built. The buffer never asks
 what kind a sampler is; it calls the protocol on every one of them:
 
-  algorithm, alpha, permuted          the rule's name, α_s of eq. 20, whether the permuted control shuffles it
+  algorithm, alpha, control, permuted the rule's name, α_s of eq. 20, its sampling control ("none" | "permuted" |
+                                      "reversed"), whether the buffer shuffles its recomputed column
   added(slots)                        new slots int64[k] were written (their initial priority)
   feedback(storage, agent, slots, generations, scores) -> (accepted, scores_changed)
                                       the learner's per-row scores of the agent's sampled rows (float[k] each:
@@ -67,6 +68,11 @@ class SamplerArgs:
     floor: float = 0.0
 
 
+def control_of(args: SamplerArgs) -> str:
+    """The sampling control a sampler is built under (`difficulty_transform`): "permuted", "reversed" or "none"."""
+    return "permuted" if args.permuted else "reversed" if args.reversed_difficulty else "none"
+
+
 class UniformSampling:
     """MADDPG's sampling: every valid slot equally likely, IS weights of 1 (no state)."""
 
@@ -79,6 +85,7 @@ class UniformSampling:
         """Nothing to hold but the rule's name and α_s (written in the buffer's state)."""
         self.algorithm = "" if args is None else args.algorithm
         self.alpha = 1.0 if args is None else float(args.alpha)
+        self.control = "none" if args is None else control_of(args)
 
     def added(self, slots: np.ndarray) -> None:
         """New slots int64[k] were written: nothing to do."""
@@ -121,6 +128,7 @@ class _ProportionalSampling:
     def __init__(self, args: SamplerArgs):
         self.sampler = PrioritySampler(args.capacity, args.alpha, args.backend)
         self.algorithm, self.alpha, self.eps = args.algorithm, float(args.alpha), float(args.eps)
+        self.control = control_of(args)
         self.agent, self.permuted = int(args.agent), bool(args.permuted)
         self.floor = float(args.floor)
         self.recomputes = self.permuted  # whether `recompute` returns priorities (the buffer then calls it)
