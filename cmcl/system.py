@@ -1,8 +1,8 @@
 """Builds the learning system of one run from its Config: worlds, agent layout, MADDPG, replay, teachers, ICM, λ.
 
 Where it sits: the single place that maps typed config sections onto the constructors of the pure classes.
-`cmcl.loop` (inline, Algorithm 1) and the Ray service shells in `services/` both call it, so that the two
-modes run identical components with identical settings.
+The roles of both schedulers (services/) call it, so that the two modes run identical components with identical
+settings. Each agent's sampler is built by its team's rule (`build_samplers`); the buffer receives them.
 """
 
 from __future__ import annotations

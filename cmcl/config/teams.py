@@ -6,7 +6,9 @@ into sampling probabilities with (ALGORITHM.md §5). Every field is declared wit
 unit=..., rule=...)` (cmcl.field_docs), as in cmcl.config.learning; each `__post_init__` runs the rules
 (`check_fields`) and raises `ConfigError` naming the key and the value. A team's derived settings (α_s, η, IS
 weights, what its rule needs) come from the algorithm registry (cmcl.replay.registry.REGISTRY); which teams a task has
-is cmcl.config.env's `TASK_TEAMS`. Reads nothing but its own fields and the registry.
+is cmcl.config.env's `TASK_TEAMS`. A team's rule's own options (its `Rule.options`, cmcl.replay.rules.contract) are
+keys of the team's table, built into `TeamConfig.options` and range-checked here, once, with the team's path in the
+message ("teams.agent.candidates must be >= 2, got 1"). Reads nothing but its own fields and the registry.
 """
 
 from __future__ import annotations
