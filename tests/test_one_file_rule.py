@@ -141,3 +141,14 @@ def test_the_rule_and_its_option_appear_in_the_config_reference(recency, capsys)
     assert "(algorithm = 'recency' only)" in out and "must be > 0" in out
     assert main(["config", "teams.agent.algorithm"]) == 0
     assert "'recency'" in capsys.readouterr().out
+
+
+def test_a_rule_file_that_is_missing_or_takes_a_packaged_rules_name_is_refused(tmp_path):
+    with pytest.raises(ConfigError, match=r"replay\.rule_files: '.*nowhere\.py' is not a file"):
+        load_config(None, [f"replay.rule_files={str(tmp_path / 'nowhere.py')!r}"])
+    shadow = tmp_path / "shadow.py"
+    shadow.write_text(RULE_FILE.replace('Rule("recency"', 'Rule("per"'))
+    with pytest.raises(ConfigError, match=r"names its rule 'per', a rule of cmcl/replay/rules/"):
+        load_config(None, [f"replay.rule_files={str(shadow)!r}"])
+    assert REGISTRY["per"].sampling == "per"  # the packaged rule is still the one registered
+    sys.modules.pop("cmcl_rule_file_shadow", None)

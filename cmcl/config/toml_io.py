@@ -118,6 +118,10 @@ def _build_team(data: Any, prefix: str) -> TeamConfig:
     rule = REGISTRY.get(data.get("algorithm", TeamConfig.algorithm)) if isinstance(data.get("algorithm", ""), str) \
         else None
     option_names = [f.name for f in dataclasses.fields(rule.options)] if rule is not None else []
+    shadowed = sorted(set(option_names) & {f.name for f in dataclasses.fields(TeamConfig)})
+    if shadowed:
+        raise ConfigError(f"{prefix}.{shadowed[0]}: rule {rule.name!r} declares an option of that name, which is a "
+                          "key of every team's table; the rule must name its option otherwise")
     rest = {k: v for k, v in data.items() if k != "priority" and k not in option_names}
     priority = _build(PriorityConfig, data.get("priority", {}), f"{prefix}.priority")
     options = None if rule is None else _build(rule.options, {k: data[k] for k in option_names if k in data}, prefix)
@@ -161,7 +165,10 @@ def config_from_dict(data: Mapping[str, Any]) -> Config:
     for path in sections["replay"].rule_paths:  # rules kept in files of their own, registered before the teams
         if not Path(path).is_file():
             raise ConfigError(f"replay.rule_files: {path!r} is not a file")
-        register_file(path)
+        try:
+            register_file(path)
+        except ValueError as err:
+            raise ConfigError(str(err)) from None
     teams_data = data.get("teams")
     if teams_data is None:  # a factory env without team tables: one team "agent" (agent_0, agent_1, ...)
         teams_data = {name: {} for name in default_teams(sections["env"])}

@@ -63,6 +63,9 @@ def register_file(path: str | Path) -> Rule:
         module = importlib.util.module_from_spec(spec)
         sys.modules[name] = module
         spec.loader.exec_module(module)
+    if module.RULE.name in ALGORITHMS:
+        raise ValueError(f"replay.rule_files: {str(path)!r} names its rule {module.RULE.name!r}, a rule of "
+                         f"cmcl/replay/rules/ ({list(ALGORITHMS)}); give it a name of its own")
     return register(module.RULE)
 
 
