@@ -26,6 +26,9 @@ import numpy as np
 
 from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.priority import curiosity_priority, kfold_priority, normalise_curiosity, normalise_difficulty
+from cmcl.replay.registry import build_sampler
+from cmcl.replay.sampling import SamplerArgs
+from cmcl.replay.storage import TransitionStorage
 
 N, S, ALPHA, BETA, EPS, ETA = 4, 128, 0.6, 0.4, 1e-6, 0.5
 CAPACITIES = (5_000, 100_000, 1_000_000)
@@ -115,8 +118,9 @@ class Reference:
 # ----------------------------------------------------------------------------- ours
 def build_ours(capacity: int, backend: str, scores: dict, algorithm: str) -> ReplayBuffer:
     """A full buffer (tiny obs/act so 1M rows stay small) with the given score columns."""
-    rb = ReplayBuffer(capacity=capacity, n_agents=N, obs_dim=1, act_dim=1, algorithms=algorithm, backend=backend,
-                      alpha=ALPHA, eps=EPS, eta=ETA)
+    samplers = [build_sampler(algorithm, SamplerArgs(capacity=capacity, alpha=ALPHA, backend=backend, eps=EPS, agent=a,
+                                                     eta=ETA)) for a in range(N)]
+    rb = ReplayBuffer(TransitionStorage(capacity=capacity, n_agents=N, obs_dim=1, act_dim=1), samplers)
     step = 100_000
     for start in range(0, capacity, step):
         t = min(step, capacity - start)

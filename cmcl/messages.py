@@ -124,17 +124,27 @@ class LearnerBatch:
 
 
 @dataclass(frozen=True)
+class RuleScore:
+    """One per-row learner score a sampling rule asks for beyond |δ| (its cmcl.replay.rules.contract.LearnerScore,
+    e.g. ReLo's "target_td_abs" |y − Q_target|): its name and values float32[n, N, S] >= 0, one per sampled row."""
+
+    name: str
+    values: np.ndarray
+
+
+@dataclass(frozen=True)
 class LearnerFeedback:
-    """Learner -> replay: |δ| float32[n, N, S] of each sampled (slot, generation), |y − Q_target| when a rule asks
-    for it (ReLo; else None), the online critics' Scores of the rows it was asked to score (`scores`: values
-    float32[M, N]; ACL td_self), and the last losses per agent. n = 0 when the batch held only rows to score."""
+    """Learner -> replay: |δ| float32[n, N, S] of each sampled (slot, generation), the rules' own learner scores of
+    the same rows (`rule_scores`: one RuleScore per score some team's rule asks for), the online critics' Scores of
+    the rows it was asked to score (`scores`: values float32[M, N]; ACL td_self), and the last losses per agent.
+    n = 0 when the batch held only rows to score."""
 
     slots: np.ndarray
     generations: np.ndarray
     td_abs: np.ndarray
     losses: dict[str, Any] = field(default_factory=dict)
     incarnation: str = ""  # the learner actor's incarnation id
-    target_td_abs: np.ndarray | None = None
+    rule_scores: tuple[RuleScore, ...] = ()
     # the online critics' |y − Q_v(s, a)| of LearnerBatch.score's rows (ACL td_self); else None
     scores: Scores | None = None
 
@@ -233,9 +243,13 @@ def check_feedback(msg: Any, num_agents: int) -> LearnerFeedback:
         raise MessageError(f"LearnerFeedback.slots / generations must be [n, N={num_agents}, S], got "
                            f"{np.shape(msg.slots)} and {np.shape(msg.generations)}")
     _check_rows("LearnerFeedback.td_abs", np.ravel(msg.slots), np.ravel(msg.generations), np.ravel(msg.td_abs), ())
-    if msg.target_td_abs is not None:
-        _check_rows("LearnerFeedback.target_td_abs", np.ravel(msg.slots), np.ravel(msg.generations),
-                    np.ravel(msg.target_td_abs), ())
+    for score in msg.rule_scores:
+        if not isinstance(score, RuleScore) or np.shape(score.values) != shape:
+            raise MessageError(f"LearnerFeedback.rule_scores must hold RuleScores of shape {shape}, got "
+                               f"{type(score).__name__} {getattr(score, 'name', '')!r} of shape "
+                               f"{np.shape(getattr(score, 'values', None))}")
+        _check_rows(f"LearnerFeedback.rule_scores[{score.name!r}]", np.ravel(msg.slots), np.ravel(msg.generations),
+                    np.ravel(score.values), ())
     return msg
 
 

@@ -1,12 +1,13 @@
 """Builds the learning system of one run from its Config: worlds, agent layout, MADDPG, replay, teachers, ICM, λ.
 
 Where it sits: the single place that maps typed config sections onto the constructors of the pure classes.
-`cmcl.loop` (inline, Algorithm 1) and the Ray service shells in `services/` both call it, so that the two
-modes run identical components with identical settings.
+The roles of both schedulers (services/) call it, so that the two modes run identical components with identical
+settings. Each agent's sampler is built by its team's rule (`build_samplers`); the buffer receives them.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -16,7 +17,9 @@ from cmcl.config import Config, ConfigError, PriorityConfig
 from cmcl.envs.entities import EntityLayout, entity_layout
 from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.curriculum import CurriculumSchedule, default_growth
-from cmcl.replay.registry import REGISTRY
+from cmcl.replay.rules.contract import LearnerScore
+from cmcl.replay.sampling import SamplerArgs
+from cmcl.replay.storage import TransitionStorage
 
 if TYPE_CHECKING:  # torch-backed classes load lazily: the replay server and rollout workers never need torch
     from cmcl.learners.maddpg import MADDPG
@@ -53,12 +56,16 @@ class AgentLayout:
     # u, the uniform floor of each agent's prioritised rule (its team's `priority.uniform_floor`), length N
     floor: tuple[float, ...] = ()
     priority: tuple[PriorityConfig, ...] = ()
-    # the learner's per-row losses some agent's rule asks back ("td_abs", "target_td_abs"; cmcl.replay.registry.Needs)
+    # the learner's per-row scores some agent's rule asks back ("td_abs" and the rules' own; their Needs)
     learner_scores: tuple[str, ...] = ()
-    # LaBER: each learner minibatch is drawn as `candidates` × batch rows, and the agents marked in `select` pick
-    # theirs among them by fresh |δ| (cmcl.replay.rules.laber); the others take their first batch-size draws
+    # the scores the learner computes for the rules after each update, beyond |δ| (each rule's `learner_scores`)
+    rule_scores: tuple[LearnerScore, ...] = ()
+    # a learner-side pick (LaBER): each learner minibatch is drawn as `candidates` × batch rows, and the agents
+    # marked in `select` pick theirs among them with their rule's `pick` by fresh |δ|; the others take their first
+    # batch-size draws
     candidates: int = 1
     select: tuple[bool, ...] = ()
+    pick: Callable[..., tuple[np.ndarray, np.ndarray]] | None = None
     # the agents whose actor trains on a uniform minibatch of its own, drawn apart from the critic's (their team's
     # actor_batch = "uniform" under a prioritised rule, TeamConfig.uniform_actor), length N
     uniform_actor: tuple[bool, ...] = ()
@@ -161,8 +168,9 @@ def agent_layout(config: Config, env) -> AgentLayout:
             if needs.icm:
                 icm.append(agent)
             learner_scores.update(needs.learner_scores)
-            select[agent] = REGISTRY[spec.algorithm].candidates > 1
+            select[agent] = spec.rule.pick is not None
             uniform_actor[agent] = spec.uniform_actor
+    teams = [config.teams[t] for t in env.teams]
     act_dim = DISCRETE_ACT_DIM if config.maddpg.discrete else env.act_dim
     discrete = config.maddpg.discrete or bool(getattr(env, "discrete", False))
     mask = getattr(env, "act_mask", None)
@@ -174,7 +182,9 @@ def agent_layout(config: Config, env) -> AgentLayout:
                        floor=tuple(p.uniform_floor for p in priority), priority=tuple(priority),
                        learner_scores=tuple(sorted(learner_scores)), select=tuple(select),
                        uniform_actor=tuple(uniform_actor),
-                       candidates=max((REGISTRY[config.teams[t].algorithm].candidates for t in env.teams), default=1),
+                       candidates=max((t.rule.candidates(t.options) for t in teams), default=1),
+                       pick=next((t.rule.pick for t in teams if t.rule.pick is not None), None),
+                       rule_scores=tuple({s.name: s for t in teams for s in t.rule.learner_scores}.values()),
                        teacher_agents=np.asarray(sorted(teacher), dtype=np.int64),
                        icm_agents=np.asarray(sorted(icm), dtype=np.int64),
                        act_mask=None if mask is None or mask.all() else mask.copy(), discrete=discrete,
@@ -203,24 +213,34 @@ def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
     return MADDPG(layout.num_agents, layout.obs_dim, layout.act_dim, hidden=m.hidden, actor_lr=m.actor_lr,
                   critic_lr=m.critic_lr, gamma=m.gamma, tau=m.tau, grad_clip=m.grad_clip, discrete=layout.discrete,
                   seed=seed, act_mask=layout.act_mask, networks=m.network_kind, entity_layout=layout.entities,
-                  entity_pool=m.entity_pool, target_scores="target_td_abs" in layout.learner_scores,
+                  entity_pool=m.entity_pool, target_scores=any(s.target_critic for s in layout.rule_scores),
                   entity_nearest=m.entity_nearest, assignment_loss=m.assignment_loss, entity_holder=m.entity_holder,
                   holder_rule=m.holder_rule)
 
 
+def build_samplers(config: Config, layout: AgentLayout) -> list:
+    """One sampler per agent, built by its team's rule (`Rule.sampler`) from the agent's settings (its team's
+    priority table, α_s, η, difficulty source) and the team's rule options; validated at config load, not here."""
+    r, samplers = config.replay, []
+    for a, team in enumerate(layout.team_of):
+        spec, p = config.teams[team], layout.priority[a]
+        args = SamplerArgs(capacity=r.capacity, alpha=layout.alpha[a], backend=r.backend, eps=r.priority_eps, agent=a,
+                           algorithm=layout.algorithms[a], eta=layout.eta[a],
+                           difficulty_source=layout.difficulty_source[a], difficulty_norm=p.difficulty_norm,
+                           difficulty_squared=p.difficulty_error == "squared", cp_input=p.cp_input,
+                           lam_max=config.curriculum.lam_max, reversed_difficulty=p.difficulty_transform == "reversed",
+                           permuted=p.difficulty_transform == "permuted", floor=layout.floor[a])
+        samplers.append(spec.rule.sampler(args, spec.options))
+    return samplers
+
+
 def build_replay(config: Config, layout: AgentLayout) -> ReplayBuffer:
-    """Replay storage with one sampling distribution per agent, its team's algorithm's, with its team's priority
-    settings (IS β is passed at sample time)."""
-    r, p = config.replay, layout.priority
-    return ReplayBuffer(capacity=r.capacity, n_agents=layout.num_agents, obs_dim=layout.obs_dim,
-                        act_dim=layout.act_dim, n_folds=config.teachers.num_folds, algorithms=list(layout.algorithms),
-                        alpha=list(layout.alpha), eps=r.priority_eps, backend=r.backend, eta=list(layout.eta),
-                        difficulty_norm=[a.difficulty_norm for a in p], cp_input=[a.cp_input for a in p],
-                        difficulty_source=list(layout.difficulty_source), floor=list(layout.floor),
-                        difficulty_squared=[a.difficulty_error == "squared" for a in p],
-                        min_size=max(1, config.maddpg.warmup), lam_max=config.curriculum.lam_max,
-                        difficulty_transform=[a.difficulty_transform for a in p],
-                        control_seed=control_seed(config.run.seed))
+    """Replay storage with one sampling distribution per agent, its team's rule's (`build_samplers`; IS β is passed
+    at sample time)."""
+    storage = TransitionStorage(capacity=config.replay.capacity, n_agents=layout.num_agents, obs_dim=layout.obs_dim,
+                                act_dim=layout.act_dim, n_folds=config.teachers.num_folds)
+    return ReplayBuffer(storage, build_samplers(config, layout), min_size=max(1, config.maddpg.warmup),
+                        lam_max=config.curriculum.lam_max, control_seed=control_seed(config.run.seed))
 
 
 def control_seed(seed: int) -> np.random.SeedSequence:

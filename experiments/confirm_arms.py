@@ -41,7 +41,7 @@ def has_permuted_control(algorithm: str) -> bool:
     |δ|) has those |δ| shuffled across its candidates (cmcl.replay.rules.laber.candidate_orders). Uniform replay
     has neither."""
     args = SamplerArgs(capacity=1, alpha=1.0, backend="cdf", eps=EPS_P, algorithm=algorithm, permuted=True)
-    return bool(build_sampler(algorithm, args).recomputes) or spec_of(algorithm).candidates > 1
+    return bool(build_sampler(algorithm, args).recomputes) or spec_of(algorithm).pick is not None
 
 
 def confirm_arms(chosen: Sequence[str]) -> dict[str, list[str]]:

@@ -92,7 +92,7 @@ def screen_table(runs: list[dict[str, Any]]) -> str:
                   + "; ".join(f"{ARM_LABEL[r['arm']]} seed {r['seed']} (area {r['auc_coverage']:.3f})"
                               for r in outside) + ".")
     pickers = [ARM_LABEL[arm] for arm, sets in SCREEN_ARMS.items()
-               if spec_of(rule_algorithm(sets)).candidates > 1 and arm_runs(runs, arm)]
+               if spec_of(rule_algorithm(sets)).pick is not None and arm_runs(runs, arm)]
     if not pickers:
         return table
     return table + (f"\n\nESS is that of the buffer's draw; for {', '.join(pickers)} that is the uniform candidate "

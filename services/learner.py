@@ -18,7 +18,7 @@ from cmcl.learners import network_steps
 from cmcl.learners.assignment import STATS as ASSIGNMENT_STATS
 from cmcl.learners.warm_start import warm_start_from_config
 from cmcl.learners.weights import published_weights
-from cmcl.messages import ONLINE_TD, LearnerBatch, LearnerFeedback, Scorer, Scores, ScoreWork
+from cmcl.messages import ONLINE_TD, LearnerBatch, LearnerFeedback, RuleScore, Scorer, Scores, ScoreWork
 from cmcl.system import build_maddpg, layout_of
 from services.common import actor_setup, load_state, new_incarnation, save_state
 from services.report_schema import LearnerReport, Report
@@ -61,8 +61,8 @@ class Learner:
     def update(self, batch: LearnerBatch | None) -> tuple[LearnerFeedback | None, Report]:
         """Run one MADDPG update per minibatch of `batch` ([n, N, S, ...] arrays); None does nothing.
 
-        Returns (feedback for the replay server: |δ| float32[n, N, S] of each sampled row, and |y − Q_target| when
-        a rule asks for it, metrics report).
+        Returns (feedback for the replay server: |δ| float32[n, N, S] of each sampled row, and the rules' own
+        learner scores of them, metrics report).
         """
         if batch is None:
             return None, self.report()
@@ -72,13 +72,14 @@ class Learner:
         stats: dict[str, Any] = {}
         for i in range(batch.count):
             minibatch, slots, generations = network_steps.choose_minibatch(self.maddpg, batch, i, use_weights,
-                                                                           self.layout.select)
+                                                                           self.layout.select, self.layout.pick)
             stats = network_steps.learner_update(self.maddpg, minibatch, self.layout.icm_agents,
                                                  self.config.icm.intrinsic_reward_coef)
-            picked.append((slots, generations, stats["td_abs"], stats.get("target_td_abs")))
+            picked.append((slots, generations, stats["td_abs"],
+                           network_steps.rule_scores(self.layout.rule_scores, stats, minibatch)))
         slots, generations = np.stack([p[0] for p in picked]), np.stack([p[1] for p in picked])
         td = np.stack([p[2] for p in picked]).astype(np.float32)
-        target = np.stack([p[3] for p in picked]).astype(np.float32) if self.maddpg.target_scores else None
+        own = tuple(RuleScore(s.name, np.stack([p[3][s.name] for p in picked])) for s in self.layout.rule_scores)
         # ACL td_self: the online critics score the rows they were given, after the updates (the scorer this role
         # hosts; the rows it has never scored come through `score`, before anything samples them)
         scores = self.score(batch.score)[0] if batch.score is not None else None
@@ -86,7 +87,7 @@ class Learner:
         self.losses = {f"agent_{a}": last_losses(stats, a) for a in range(self.layout.num_agents)}
         self.busy_s += time.perf_counter() - started
         self.busy_cpu_s += time.thread_time() - started_cpu
-        return LearnerFeedback(slots, generations, td, self.losses, self.incarnation, target, scores), self.report()
+        return LearnerFeedback(slots, generations, td, self.losses, self.incarnation, own, scores), self.report()
 
     scorer = Scorer(ONLINE_TD)  # the scorer this role hosts: the online critics, writing the td_abs column (td_self)
 

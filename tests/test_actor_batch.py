@@ -13,10 +13,11 @@ from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.network_steps import choose_minibatch
 from cmcl.messages import ACTOR_PREFIX
 from cmcl.replay.agent_padding import pad_rows
-from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.buffer_steps import sample_owner_batches
 from cmcl.replay.registry import ALGORITHMS, REGISTRY
+from cmcl.replay.rules.laber import select_candidates
 from cmcl.system import layout_of
+from tests.buffers import make_buffer
 from tests.in_process import train_tiny
 from tests.test_agent_padding import BIG, SMALL, small_rows, twin_learners
 from tests.test_maddpg import joint_rows, owner_batch, params, same
@@ -107,14 +108,14 @@ def test_a_laber_owner_whose_actor_follows_the_rule_trains_it_on_its_picked_rows
     batch = sample_owner_batches(rb, 1, 8, rngs, [0.0] * N, 4, (True, False, True))
     assert batch.slots.shape == (1, N, 32) and batch.actor.slots.shape == (1, N, 8)
     maddpg = MADDPG(N, rb.storage.obs_dim, rb.storage.act_dim, hidden=16, seed=0)
-    minibatch, slots, _ = choose_minibatch(maddpg, batch, 0, True, (True, True, False))
+    minibatch, slots, _ = choose_minibatch(maddpg, batch, 0, True, (True, True, False), select_candidates)
     np.testing.assert_array_equal(minibatch["actor_obs"][[0, 2]], batch.actor.rows["obs"][0, [0, 2]])
     np.testing.assert_array_equal(minibatch["actor_obs"][1], minibatch["obs"][1])  # the pick, not the candidates
     np.testing.assert_array_equal(minibatch["obs"][1], rb.get(slots[1])["obs"])
 
 
 def test_carried_rows_give_the_actor_rows_their_agents_presence():
-    replay = ReplayBuffer(capacity=64, n_agents=4, obs_dim=BIG.obs_dim, act_dim=2, n_folds=2, algorithms="per")
+    replay = make_buffer(capacity=64, n_agents=4, obs_dim=BIG.obs_dim, act_dim=2, n_folds=2, algorithms="per")
     padded = pad_rows(small_rows(m=8), np.ones((8, 2), bool), SMALL, BIG)
     replay.add(padded["obs"], padded["act"], padded["rew"], padded["next_obs"], padded["done"], np.arange(8),
                present=padded["present"])

@@ -8,8 +8,8 @@ import torch
 from cmcl.envs.entities import spread_layout
 from cmcl.learners.maddpg import MADDPG
 from cmcl.replay.agent_padding import pad_rows
-from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.buffer_steps import sample_owner_batches
+from tests.buffers import make_buffer
 from tests.test_maddpg import joint_rows, owner_batch
 
 torch.set_num_threads(1)
@@ -102,7 +102,7 @@ def test_a_mixed_batch_counts_an_owner_only_on_rows_it_is_present_in():
 
 
 def test_the_storage_keeps_the_agent_mask_through_a_snapshot_and_the_learner_batches_carry_it():
-    replay = ReplayBuffer(capacity=64, n_agents=4, obs_dim=BIG.obs_dim, act_dim=2, n_folds=2)
+    replay = make_buffer(capacity=64, n_agents=4, obs_dim=BIG.obs_dim, act_dim=2, n_folds=2)
     rows = small_rows(m=8)
     padded = pad_rows(rows, np.ones((8, 2), bool), SMALL, BIG)
     replay.add(padded["obs"], padded["act"], padded["rew"], padded["next_obs"], padded["done"], np.arange(8),
@@ -112,7 +112,7 @@ def test_the_storage_keeps_the_agent_mask_through_a_snapshot_and_the_learner_bat
     batch = sample_owner_batches(replay, 1, 4, rngs, [0.0] * 4)
     assert batch.minibatch(0, False)["present"].shape == (4, 4, 4)
     state = replay.state_dict()
-    again = ReplayBuffer(capacity=64, n_agents=4, obs_dim=BIG.obs_dim, act_dim=2, n_folds=2)
+    again = make_buffer(capacity=64, n_agents=4, obs_dim=BIG.obs_dim, act_dim=2, n_folds=2)
     again.load_state_dict(state)
     np.testing.assert_array_equal(again.storage.present[:8], padded["present"])
     assert again.storage.absent_rows == 8

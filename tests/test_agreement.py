@@ -17,8 +17,8 @@ import pytest
 import torch
 
 from cmcl.config import TeamConfig
-from cmcl.learners.network_steps import choose_minibatch, learner_update
-from cmcl.messages import CURIOSITY, DIFFICULTY, LearnerFeedback, Scorer
+from cmcl.learners.network_steps import choose_minibatch, learner_update, rule_scores
+from cmcl.messages import CURIOSITY, DIFFICULTY, LearnerFeedback, RuleScore, Scorer
 from cmcl.replay import buffer_steps
 from cmcl.replay.registry import ALGORITHMS, REGISTRY
 from cmcl.system import beta_is
@@ -139,22 +139,23 @@ def test_the_roles_batch_feedback_and_priorities_are_the_step_functions(algorith
     maddpg = copy.deepcopy(learner.maddpg)
     feedback, _ = learner.update(batch)
     minibatch, slots, generations = choose_minibatch(maddpg, drawn, 0, any(layout.importance_weights),
-                                                     layout.select)
+                                                     layout.select, layout.pick)
     np.testing.assert_array_equal(feedback.slots[0], slots)  # the rows trained on, picked alike
     if batch.select_u is None:  # the feedback is about the critic's rows, never the actors' own
         np.testing.assert_array_equal(feedback.slots, batch.slots)
     stats = learner_update(maddpg, minibatch)
     np.testing.assert_allclose(feedback.td_abs[0], stats["td_abs"], rtol=1e-6)
-    target = stats.get("target_td_abs")
-    assert (feedback.target_td_abs is None) == (target is None) == ("target_td_abs" not in layout.learner_scores)
-    if target is not None:
-        np.testing.assert_allclose(feedback.target_td_abs[0], target, rtol=1e-6)
+    own = rule_scores(layout.rule_scores, stats, minibatch)  # the rules' own learner scores (ReLo's target |δ|)
+    assert [s.name for s in feedback.rule_scores] == list(own) == [s.name for s in layout.rule_scores]
+    for score in feedback.rule_scores:
+        np.testing.assert_allclose(score.values[0], own[score.name], rtol=1e-6)
     for part in ("critic", "actor"):
         for name, value in maddpg.state_dict()[part].items():
             torch.testing.assert_close(learner.maddpg.state_dict()[part][name], value)
     server.learner_result(feedback)
     buffer_steps.apply_learner_feedback(direct, layout, LearnerFeedback(
-        slots[None], generations[None], stats["td_abs"][None], target_td_abs=None if target is None else target[None]))
+        slots[None], generations[None], stats["td_abs"][None],
+        rule_scores=tuple(RuleScore(name, values[None]) for name, values in own.items())))
     if direct.recomputes:  # both rebuild at the same λ, the permuted control from the same state
         direct.control_rng = copy.deepcopy(server.replay.control_rng)
         direct.recompute_priorities(0.4)

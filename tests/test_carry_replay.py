@@ -52,7 +52,8 @@ def test_a_stages_run_two_to_four_starts_the_second_stage_with_the_first_stages_
 
 @pytest.mark.parametrize(("overrides", "message"), [
     (("maddpg.networks='per_agent'", "teams.agent.algorithm='maddpg'"), "maddpg.networks = 'entity'"),
-    (("maddpg.networks='entity'", "teams.agent.algorithm='cmcl'"), "every team's algorithm to be 'maddpg' or 'per'")])
+    (("maddpg.networks='entity'", "teams.agent.algorithm='cmcl'"),
+     r"every team's rule to mask absent agents, one of \['maddpg', 'per'\]")])
 def test_carry_replay_without_entity_networks_or_with_scoring_teachers_is_refused(overrides, message):
     with pytest.raises(ConfigError, match=f"run.carry_replay needs {message}.*got True"):
         load_config(None, ("run.carry_replay=true", *overrides))

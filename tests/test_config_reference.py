@@ -13,6 +13,7 @@ from cmcl.config.env import WORLD_KEYS
 from cmcl.config.reference import MARKDOWN_COMMAND, reference
 from cmcl.envs.params import SpreadParams, TagParams
 from cmcl.field_docs import MEANING
+from cmcl.replay.registry import REGISTRY
 
 ROOT = Path(__file__).resolve().parents[1]
 # every section of a run but [env] (its worlds' keys are flat), by its dataclass, and the teams' tables (a team's
@@ -32,9 +33,12 @@ def test_every_dataclass_field_appears_with_a_meaning():
     with a non-empty meaning and allowed range, and nothing else is."""
     docs = reference()
     assert list(docs) == ["env", *SECTIONS]
+    # a team's table also holds every registered rule's own options (Rule.options), each marked as that rule's
+    rule_options = [f.name for rule in REGISTRY.values() for f in dataclasses.fields(rule.options)]
     for name, cls in SECTIONS.items():
         assert [k.key for k in docs[name].keys] == [f.name for f in dataclasses.fields(cls)
-                                                    if not dataclasses.is_dataclass(getattr(cls(), f.name))], name
+                                                    if not dataclasses.is_dataclass(getattr(cls(), f.name))] + (
+            rule_options if name == "teams" else []), name
     env_fields = [f.name for f in dataclasses.fields(EnvConfig) if f.name not in TASKS]
     assert sorted(k.key for k in docs["env"].keys) == sorted([*env_fields, *WORLD_KEYS])
     for cls in [*SECTIONS.values(), EnvConfig, SpreadParams, TagParams]:

@@ -159,7 +159,7 @@ def test_the_permuted_control_shuffles_exactly_the_rules_said_to_have_one(algori
     shuffled; LaBER, whose priorities are the learner's fresh |δ| of its candidates, has them shuffled across the
     candidates at each pick (tests/test_laber_permuted.py); uniform replay has nothing to shuffle. So a LaBER
     selection is confirmed with its permuted control like the others."""
-    picks_among_candidates = spec_of(algorithm).candidates > 1
+    picks_among_candidates = spec_of(algorithm).pick is not None
     assert has_permuted_control(algorithm) == (priorities_shuffled(algorithm) or picks_among_candidates)
     assert has_permuted_control(algorithm) == (algorithm != "maddpg")
     if picks_among_candidates:

@@ -48,7 +48,7 @@ def laber_picks(transform: str, count: int = 300) -> dict[str, np.ndarray]:
     candidates = np.stack([own_abs_rew(batch.rows["rew"][i]) for i in range(count)])  # [count, N, m·B]
     picked, seen = [], []
     for i in range(count):
-        minibatch, _, _ = choose_minibatch(RewardCritic(), batch, i, True, ALL)
+        minibatch, _, _ = choose_minibatch(RewardCritic(), batch, i, True, ALL, select_candidates)
         picked.append(own_abs_rew(minibatch["rew"]))
         p = candidates[i] + EPS_P  # as choose_minibatch adds it
         seen.append(p.mean(1, keepdims=True) / minibatch["is_weights"])

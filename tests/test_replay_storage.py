@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from cmcl.io import codec
-from cmcl.replay.buffer import ReplayBuffer
 from cmcl.replay.sampler import BACKENDS
+from tests.buffers import make_buffer
 
 pytestmark = pytest.mark.filterwarnings("error")
 N, OD, AD = 3, 4, 2
@@ -22,7 +22,7 @@ def chunk(t, episode, rng, n=N):
 
 def filled(capacity=300, episodes=12, ep_len=30, seed=0, **kw):
     """A ReplayBuffer of N agents (`kw`: its other arguments) holding `episodes` random episodes of `ep_len` steps."""
-    rb = ReplayBuffer(capacity=capacity, n_agents=N, obs_dim=OD, act_dim=AD, **kw)
+    rb = make_buffer(capacity=capacity, n_agents=N, obs_dim=OD, act_dim=AD, **kw)
     rng = np.random.default_rng(seed)
     for e in range(episodes):
         rb.add(*chunk(ep_len, e, rng))
@@ -40,7 +40,7 @@ def scored_buffer(backend="cdf", algorithms=("acl", "cmcl", "maddpg"), **kw):
 
 
 def test_add_layout_ids_generations_folds():
-    rb = ReplayBuffer(capacity=10, n_agents=N, obs_dim=OD, act_dim=AD, n_folds=3)
+    rb = make_buffer(capacity=10, n_agents=N, obs_dim=OD, act_dim=AD, n_folds=3)
     rng = np.random.default_rng(0)
     c = chunk(4, 7, rng)
     slots = rb.add(*c, policy_version=5)
@@ -59,7 +59,7 @@ def test_add_layout_ids_generations_folds():
 
 
 def test_chunk_longer_than_capacity_keeps_last():
-    rb = ReplayBuffer(capacity=5, n_agents=N, obs_dim=OD, act_dim=AD)
+    rb = make_buffer(capacity=5, n_agents=N, obs_dim=OD, act_dim=AD)
     rng = np.random.default_rng(1)
     rb.add(*chunk(2, 0, rng))
     c = chunk(12, 1, rng)
@@ -72,7 +72,7 @@ def test_chunk_longer_than_capacity_keeps_last():
 
 def test_fold_balance_after_wraparound():  # property 10
     ep_len, k = 30, 5
-    rb = ReplayBuffer(capacity=5000, n_agents=1, obs_dim=1, act_dim=1, n_folds=k)
+    rb = make_buffer(capacity=5000, n_agents=1, obs_dim=1, act_dim=1, n_folds=k)
     z3, z2 = np.zeros((ep_len, 1, 1)), np.zeros((ep_len, 1))
     for e in range(800):  # 24 000 transitions, ~5 wraparounds
         rb.add(z3, z3, z2, z3, np.zeros(ep_len), np.full(ep_len, e))
@@ -132,7 +132,7 @@ def test_update_scores_drops_stale():
     assert np.array_equal(rb.storage.scores["difficulty"][slots[5:]], vals[5:])
     assert rb.update_scores("curiosity", [31, 32], rb.generations([31, 32]), [1.0, 2.0], agents=[2]) == 2
     assert rb.storage.scores["curiosity"][[31, 32], 2].tolist() == [1.0, 2.0]
-    empty = ReplayBuffer(capacity=10, n_agents=N, obs_dim=OD, act_dim=AD)
+    empty = make_buffer(capacity=10, n_agents=N, obs_dim=OD, act_dim=AD)
     assert empty.update_scores("td_abs", [3], [0], np.ones((1, N))) == 0  # never-written slot
     for kwargs, match in [({"values": -np.ones((10, N))}, "values must be >= 0"),
                           ({"values": np.ones((10, N - 1))}, "values has shape"),
@@ -157,7 +157,7 @@ def test_state_dict_round_trip_through_codec(backend):
     rb.add(*chunk(45, 10, np.random.default_rng(3)))
     rb.recompute_priorities(0.4)
     snap = codec.decode_snapshot(codec.encode_snapshot(rb.state_dict()))
-    other = ReplayBuffer(capacity=300, n_agents=N, obs_dim=OD, act_dim=AD, algorithms=["per", "cmcl", "maddpg"],
+    other = make_buffer(capacity=300, n_agents=N, obs_dim=OD, act_dim=AD, algorithms=["per", "cmcl", "maddpg"],
                          backend=backend)
     other.load_state_dict(snap)
     assert other.lam == 0.4 and other.sampling[0].max_priority == rb.sampling[0].max_priority
@@ -180,7 +180,7 @@ def test_load_state_dict_rejects_and_leaves_buffer_untouched():
     good = rb.state_dict()
     probs = rb.probabilities(0, rb.valid_slots())
     with pytest.raises(ValueError, match="algorithms"):
-        ReplayBuffer(capacity=300, n_agents=N, obs_dim=OD, act_dim=AD, algorithms="per").load_state_dict(good)
+        make_buffer(capacity=300, n_agents=N, obs_dim=OD, act_dim=AD, algorithms="per").load_state_dict(good)
     bad = rb.state_dict()
     bad["storage"]["fold"] = (bad["storage"]["fold"] + 1) % 5
     with pytest.raises(ValueError, match="fold"):
@@ -218,7 +218,7 @@ def test_loads_a_format_1_snapshot():
 
     old = codec.read_snapshot(Path(__file__).parent / "fixtures" / "replay_format1.msgpack")
     assert "format" not in old["replay"] and old["replay"]["modes"]["2"] == "uniform"
-    rb = ReplayBuffer(capacity=60, n_agents=N, obs_dim=2, act_dim=1, algorithms=["per", "cmcl", "maddpg"],
+    rb = make_buffer(capacity=60, n_agents=N, obs_dim=2, act_dim=1, algorithms=["per", "cmcl", "maddpg"],
                       alpha=[0.6, 1.0, 1.0])
     rb.load_state_dict(old["replay"])
     s = rb.valid_slots()

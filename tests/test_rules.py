@@ -1,7 +1,7 @@
 """The sampling-rule registry and the rules beyond the paper's four (issue 36): ReLo, the reducible held-out loss,
 held-out learning progress, and the uniform floor every prioritised rule can take. Pure numpy, no Ray."""
 
-import re
+import ast
 from pathlib import Path
 
 import numpy as np
@@ -42,14 +42,48 @@ def test_a_team_reads_what_it_needs_from_the_registry():
         TeamConfig(algorithm="per", priority=PriorityConfig(uniform_floor=1.0))
 
 
-def test_no_algorithm_name_is_compared_as_a_string_outside_the_registry():
-    """What an algorithm does is read from its spec: the core and the services never branch on a name."""
-    names = "|".join(ALGORITHMS)
-    pattern = re.compile(rf"""(==|!=)\s*["']({names})["']|["']({names})["']\s*(==|!=)""")
-    offenders = [f"{path.relative_to(ROOT)}:{i}" for folder in ("cmcl", "services")
-                 for path in (ROOT / folder).rglob("*.py") if path.name != "registry.py"
+def _names_in(node: ast.AST, names: set[str]) -> bool:
+    """Whether `node` is a rule's name as a string literal, or a set / tuple / list (or a set(...) / frozenset(...) /
+    tuple(...) of one) holding one."""
+    if isinstance(node, ast.Constant):
+        return isinstance(node.value, str) and node.value in names
+    if isinstance(node, ast.Set | ast.Tuple | ast.List):
+        return any(_names_in(e, names) for e in node.elts)
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in ("set", "frozenset", "tuple",
+                                                                                           "list"):
+        return any(_names_in(a, names) for a in node.args)
+    return False
+
+
+def name_comparisons(source: str, names: set[str]) -> list[int]:
+    """The lines of `source` that compare something with a rule's name: any comparison (==, !=, in, not in, is,
+    <=, ...) one of whose sides is a name or a collection of names, and a `match` case on a name."""
+    lines = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Compare) and any(_names_in(side, names) for side in (node.left, *node.comparators)):
+            lines.append(node.lineno)
+        elif isinstance(node, ast.MatchValue) and _names_in(node.value, names):
+            lines.append(node.lineno)
+    return sorted(lines)
+
+
+def test_the_guard_catches_every_form_of_comparing_a_name():
+    forms = ['a == "per"', '"cmcl" != a', 'a in ("maddpg", "per")', 'a not in ["acl"]', 'set(x) <= {"maddpg", "per"}',
+             'a in frozenset({"laber"})', 'a is "relo"', 'match a:\n    case "lp":\n        pass']
+    for form in forms:
+        assert name_comparisons(form, set(ALGORITHMS)), form
+    assert name_comparisons('a == "uniform" or state["maddpg"] or f("per")', set(ALGORITHMS)) == []
+
+
+def test_no_algorithm_name_is_compared_outside_the_registry_and_the_rule_files():
+    """What a rule does is read from its Rule (its capabilities): the core and the services never branch on a
+    name, in any form of comparison (AST-based, `name_comparisons`). A rule's own file may name itself."""
+    names = set(ALGORITHMS)
+    offenders = [f"{path.relative_to(ROOT)}:{line}" for folder in ("cmcl", "services")
+                 for path in sorted((ROOT / folder).rglob("*.py")) if path.name != "registry.py"
                  and path.name != "snapshot.py"  # the format-1 upgrade reads the old files' mode names
-                 for i, line in enumerate(path.read_text().splitlines(), 1) if pattern.search(line)]
+                 and not (path.parent.name == "rules" and path.stem in names)
+                 for line in name_comparisons(path.read_text(), names)]
     assert offenders == []
 
 
@@ -185,6 +219,7 @@ def test_laber_minibatch_is_picked_by_the_current_critic_and_other_agents_take_t
     from cmcl.learners.maddpg import MADDPG
     from cmcl.learners.network_steps import choose_minibatch
     from cmcl.messages import LearnerBatch
+    from cmcl.replay.rules.laber import select_candidates
 
     torch.manual_seed(0)
     n, m, b, od, ad = 2, 4, 8, 3, 2
@@ -198,7 +233,7 @@ def test_laber_minibatch_is_picked_by_the_current_critic_and_other_agents_take_t
     slots = np.arange(n * s).reshape(1, n, s)
     batch = LearnerBatch(rows, np.ones((1, n, s), np.float32), slots, slots + 1000, rng.random((1, n, b)))
     maddpg = MADDPG(n, od, ad, hidden=16, seed=0)
-    picked, chosen, gens = choose_minibatch(maddpg, batch, 0, True, [True, False])
+    picked, chosen, gens = choose_minibatch(maddpg, batch, 0, True, [True, False], select_candidates)
     td = maddpg.td_abs(batch.minibatch(0, True)).astype(np.float64) + EPS_P
     cdf = np.cumsum(td[0]) / td[0].sum()
     expected = np.minimum(np.searchsorted(cdf, batch.select_u[0, 0], side="right"), s - 1)

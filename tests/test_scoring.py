@@ -6,13 +6,14 @@ import pytest
 
 from cmcl.replay.buffer import ReplayBuffer
 from cmcl.scorers.scoring import ScoringState, oldest_first
+from tests.buffers import make_buffer
 
 pytestmark = pytest.mark.filterwarnings("error")
 N, K, CAP = 2, 3, 30
 
 
 def buffer_with(rows: int, episode_len: int = 5) -> ReplayBuffer:
-    rb = ReplayBuffer(capacity=CAP, n_agents=N, obs_dim=1, act_dim=1, n_folds=K, algorithms="cmcl")
+    rb = make_buffer(capacity=CAP, n_agents=N, obs_dim=1, act_dim=1, n_folds=K, algorithms="cmcl")
     z = np.zeros((rows, N, 1), np.float32)
     rb.add(z, z, np.zeros((rows, N), np.float32), z, np.zeros(rows, np.float32), np.arange(rows) // episode_len)
     return rb

@@ -17,7 +17,7 @@ from cmcl.config.run_and_service import RunConfig, ServiceConfig
 from cmcl.config.teams import TeamConfig
 from cmcl.holder_rules import SEATED_RADIUS
 from cmcl.replay.curriculum import default_stride
-from cmcl.replay.registry import ALGORITHMS
+from cmcl.replay.registry import ALGORITHMS, REGISTRY
 
 
 @dataclass(frozen=True)
@@ -83,10 +83,11 @@ class Config:
         _require(self.env.task == "spread" and not self.env.factory, "run.carry_replay", True,
                  why.format("env.task = 'spread' (its rows of fewer agents are padded into its entity layout)",
                             f"env.task = {self.env.task!r}" + (" with env.factory" if self.env.factory else "")))
-        algorithms = sorted({team.algorithm for team in self.teams.values()})
-        _require(set(algorithms) <= {"maddpg", "per"}, "run.carry_replay", True,
-                 why.format("every team's algorithm to be 'maddpg' or 'per' (the teachers, the ICM and ACL's "
-                            "online critic do not mask absent agents when they score rows)", f"{algorithms}"))
+        unmasked = sorted({team.algorithm for team in self.teams.values() if not team.rule.masks_absent_agents})
+        masking = [name for name, rule in REGISTRY.items() if rule.masks_absent_agents]
+        _require(not unmasked, "run.carry_replay", True,
+                 why.format(f"every team's rule to mask absent agents, one of {masking} (the teachers, the ICM and "
+                            "ACL's online critic do not mask them when they score rows)", f"{unmasked}"))
 
     def _check_assignment_loss(self) -> None:
         """maddpg.assignment_loss's needs (cmcl.learners.assignment): the entity actor's attention over the entity
@@ -117,8 +118,11 @@ class Config:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict (TOML/JSON friendly; None values dropped) with the keys a TOML file uses (the [env]
-        world parameters flat, EnvConfig.to_dict); `config_from_dict` reads it back to an equal Config."""
-        return _drop_none({**dataclasses.asdict(self), "env": self.env.to_dict()})
+        world parameters flat, EnvConfig.to_dict; each team's rule options as keys of its table);
+        `config_from_dict` reads it back to an equal Config."""
+        teams = {name: {**{k: v for k, v in dataclasses.asdict(team).items() if k != "options"},
+                        **dataclasses.asdict(team.options)} for name, team in self.teams.items()}
+        return _drop_none({**dataclasses.asdict(self), "env": self.env.to_dict(), "teams": teams})
 
 
 def _drop_none(value: Any) -> Any:

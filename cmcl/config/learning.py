@@ -155,9 +155,18 @@ class ReplayConfig:
     backend: Literal["cdf", "sumtree"] = documented(
         "cdf", "the samplers' structure (cmcl.replay.sampler): 'cdf' (inverse CDF) or 'sumtree' (a vectorised sum "
         "tree); both draw from the same distribution")
+    rule_files: str = documented(
+        "", "sampling rules kept in Python files of their own outside cmcl/replay/rules/ (each defining RULE, a "
+        "cmcl.replay.rules.contract.Rule), paths separated by ':'; each is registered at config load, in every "
+        "process of the run, before the teams' tables are read; '' = none")
 
     def __post_init__(self) -> None:
         check_fields(self, "replay")
+
+    @property
+    def rule_paths(self) -> list[str]:
+        """The paths of `rule_files`, in order."""
+        return [p for p in self.rule_files.split(":") if p]
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ from cmcl.config.runners import IN_ONE_PROCESS, SERVICE_ONLY
 from cmcl.config.teams import PriorityConfig, TeamConfig
 from cmcl.config.toml_io import _toml_value, type_requirement
 from cmcl.field_docs import MEANING, RULE, UNIT
+from cmcl.replay.registry import REGISTRY
 
 MARKDOWN_COMMAND = "python -m cmcl config --markdown > docs/CONFIG.md"
 
@@ -95,6 +96,16 @@ def _section(table: str, owner: Any) -> SectionDoc:
     return SectionDoc(table, _summary(type(owner)), tuple(keys))
 
 
+def _rule_option_keys() -> tuple[KeyDoc, ...]:
+    """The keys each registered rule adds to its team's table (its `Rule.options` fields), said to be its own."""
+    keys = []
+    for name, rule in REGISTRY.items():
+        options = rule.options()
+        keys += [_key_doc(options, f, f.name, note=f"(algorithm = '{name}' only) ")
+                 for f in dataclasses.fields(options)]
+    return tuple(keys)
+
+
 def _env_section(env: EnvConfig) -> SectionDoc:
     """[env]: its own fields, with `spread` and `tag` written as their worlds' flat keys (WORLD_KEYS)."""
     keys = []
@@ -118,7 +129,8 @@ def reference() -> dict[str, SectionDoc]:
         if f.name == "env":
             sections["env"] = _env_section(config.env)
         elif f.name == "teams":
-            sections["teams"] = _section("teams.<team>", TeamConfig())
+            team = _section("teams.<team>", TeamConfig())
+            sections["teams"] = dataclasses.replace(team, keys=team.keys + _rule_option_keys())
             sections["teams.priority"] = _section("teams.<team>.priority", PriorityConfig())
         else:
             sections[f.name] = _section(f.name, getattr(config, f.name))

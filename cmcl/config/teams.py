@@ -6,23 +6,37 @@ into sampling probabilities with (ALGORITHM.md §5). Every field is declared wit
 unit=..., rule=...)` (cmcl.field_docs), as in cmcl.config.learning; each `__post_init__` runs the rules
 (`check_fields`) and raises `ConfigError` naming the key and the value. A team's derived settings (α_s, η, IS
 weights, what its rule needs) come from the algorithm registry (cmcl.replay.registry.REGISTRY); which teams a task has
-is cmcl.config.env's `TASK_TEAMS`. Reads nothing but its own fields and the registry.
+is cmcl.config.env's `TASK_TEAMS`. A team's rule's own options (its `Rule.options`, cmcl.replay.rules.contract) are
+keys of the team's table, built into `TeamConfig.options` and range-checked here, once, with the team's path in the
+message ("teams.agent.candidates must be >= 2, got 1"). Reads nothing but its own fields and the registry.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
-from cmcl.config.checks import OPTIONAL_ALPHA, check_fields, rule
+from cmcl.config.checks import OPTIONAL_ALPHA, ConfigError, check_fields, rule
 from cmcl.field_docs import documented
-from cmcl.replay.registry import REGISTRY, AlgorithmName
+from cmcl.replay.registry import ALGORITHMS, REGISTRY
 
 # α_s of eq. 20 when nothing sets it (ALGORITHM.md A8, revised 2026-12): each registered algorithm's default
 # (cmcl.replay.registry: "proportional to the K-fold priority" for ACL and CMCL, Schaul's 0.6 for PER-MADDPG and ReLo)
 DEFAULT_ALPHA = {name: spec.default_alpha for name, spec in REGISTRY.items()}
 __all__ = ["DEFAULT_ALPHA", "PriorityConfig", "TeamConfig"]
+
+
+class _Registered:
+    """`teams.<team>.algorithm`'s range: a registered rule (read when checked, so a rule file registered at config
+    load, replay.rule_files, is one)."""
+
+    @property
+    def why(self) -> str:
+        return f"must be one of {list(REGISTRY)}"
+
+    def ok(self, value: Any, section: Any) -> bool:
+        return value in REGISTRY
 
 
 @dataclass(frozen=True)
@@ -67,10 +81,12 @@ class TeamConfig:
     """Which algorithm a team of agents learns with (ALGORITHM.md §5): one [teams.<team>] table per team, its
     sampling settings in [teams.<team>.priority]."""
 
-    algorithm: AlgorithmName = documented(
+    algorithm: str = documented(
         "maddpg", "the team's algorithm, i.e. its replay's sampling rule (cmcl.replay.registry; unnamed: MADDPG's "
         "uniform replay, which no rule here has beaten, docs/RESULTS.md): " +
-        "; ".join(f"'{name}' ({spec.summary})" for name, spec in REGISTRY.items()))
+        "; ".join(f"'{name}' ({REGISTRY[name].summary})" for name in ALGORITHMS) +
+        ". A rule's own options are keys of this table too (teams.<team>.<option>, listed below with their rule)",
+        rule=_Registered())
     eta: float = documented(0.5, "η, the curiosity weight in CI = KP + η·CP (eq. 8, A15); forced to 0 for acl",
                             rule=rule("must be >= 0", lambda v: v >= 0 and math.isfinite(v)))
     is_correction: bool | None = documented(None, "importance-sampling weights on the critic loss; unset: the "
@@ -89,26 +105,41 @@ class TeamConfig:
         "whose critic's minibatch is already uniform")
     priority: PriorityConfig = documented(
         factory=PriorityConfig, meaning="the team's sampling settings: the [teams.<team>.priority] table")
+    options: Any = documented(
+        None, "the rule's own options (its `Rule.options` dataclass, cmcl.replay.rules.contract), written as keys of "
+        "the team's table; unset: the rule's defaults")
 
     def __post_init__(self) -> None:
         check_fields(self, "team")
+        own = REGISTRY[self.algorithm].options
+        if self.options is None:
+            object.__setattr__(self, "options", own())
+        elif type(self.options) is not own:
+            raise ConfigError(f"team.options must be {own.__name__} (algorithm {self.algorithm!r}), got "
+                              f"{type(self.options).__name__}")
+        check_fields(self.options, "team")
+
+    @property
+    def rule(self):
+        """This team's sampling rule (cmcl.replay.rules.contract.Rule)."""
+        return REGISTRY[self.algorithm]
 
     def effective_alpha(self) -> float:
         """α_s this team samples with: its priority.alpha, else its algorithm's default (DEFAULT_ALPHA, from the
         registry)."""
         alpha = self.priority.alpha
-        return DEFAULT_ALPHA[self.algorithm] if alpha is None else alpha
+        return self.rule.default_alpha if alpha is None else alpha
 
     @property
     def uniform_actor(self) -> bool:
         """Whether this team's actor trains on a uniform minibatch of its own (actor_batch = "uniform" under a rule
         that does not already draw the critic's uniformly)."""
-        return self.actor_batch == "uniform" and REGISTRY[self.algorithm].prioritised
+        return self.actor_batch == "uniform" and self.rule.prioritised
 
     @property
     def needs(self):
         """What this team's sampling rule needs (cmcl.replay.registry.Needs: teachers, icm, learner scores)."""
-        return REGISTRY[self.algorithm].needs(self)
+        return self.rule.needs(self)
 
     @property
     def uses_teachers(self) -> bool:
@@ -123,9 +154,9 @@ class TeamConfig:
     @property
     def effective_eta(self) -> float:
         """η as used in the priority: 0 for every algorithm whose rule has no η (all but CMCL)."""
-        return self.eta if REGISTRY[self.algorithm].uses_eta else 0.0
+        return self.eta if self.rule.uses_eta else 0.0
 
     @property
     def importance_weights(self) -> bool:
         """Whether IS weights correct this team's critic loss (its algorithm's default unless is_correction)."""
-        return REGISTRY[self.algorithm].importance_weights if self.is_correction is None else self.is_correction
+        return self.rule.importance_weights if self.is_correction is None else self.is_correction

@@ -22,6 +22,7 @@ from cmcl.config.env import TASK_TEAMS, TASKS, WORLD_KEYS, EnvConfig, WorldKey
 from cmcl.config.experiment import Config
 from cmcl.config.moved import migrate_moved, refuse_moved
 from cmcl.config.teams import PriorityConfig, TeamConfig
+from cmcl.replay.registry import REGISTRY, register_file
 
 _SECTIONS = {f.name: f for f in dataclasses.fields(Config) if f.name != "teams"}
 
@@ -109,12 +110,23 @@ _CHECK_NAMES = {TeamConfig: "team.", PriorityConfig: "priority."}
 
 
 def _build_team(data: Any, prefix: str) -> TeamConfig:
-    """TeamConfig from one [teams.<team>] table, its [teams.<team>.priority] table built first."""
+    """TeamConfig from one [teams.<team>] table: its [teams.<team>.priority] table and the options of its rule (the
+    table's keys that are fields of the rule's `Rule.options`, cmcl.replay.rules.contract) built first; their range
+    checks run in TeamConfig's."""
     if not isinstance(data, Mapping):
         raise ConfigError(f"{prefix} must be a table, got {data!r}")
-    rest = {k: v for k, v in data.items() if k != "priority"}
+    rule = REGISTRY.get(data.get("algorithm", TeamConfig.algorithm)) if isinstance(data.get("algorithm", ""), str) \
+        else None
+    option_names = [f.name for f in dataclasses.fields(rule.options)] if rule is not None else []
+    shadowed = sorted(set(option_names) & {f.name for f in dataclasses.fields(TeamConfig)})
+    if shadowed:
+        raise ConfigError(f"{prefix}.{shadowed[0]}: rule {rule.name!r} declares an option of that name, which is a "
+                          "key of every team's table; the rule must name its option otherwise")
+    rest = {k: v for k, v in data.items() if k != "priority" and k not in option_names}
     priority = _build(PriorityConfig, data.get("priority", {}), f"{prefix}.priority")
-    return _build(TeamConfig, rest, prefix, built={"priority": priority}, flat_keys=("priority",))
+    options = None if rule is None else _build(rule.options, {k: data[k] for k in option_names if k in data}, prefix)
+    return _build(TeamConfig, rest, prefix, built={"priority": priority, "options": options},
+                  flat_keys=("priority", *option_names))
 
 
 def _build_env(data: Mapping[str, Any], prefix: str = "env") -> EnvConfig:
@@ -150,6 +162,13 @@ def config_from_dict(data: Mapping[str, Any]) -> Config:
     refuse_moved(data)
     sections = {name: _build_env(data.get(name, {})) if name == "env" else
                 _build(f.default_factory, data.get(name, {}), name) for name, f in _SECTIONS.items()}
+    for path in sections["replay"].rule_paths:  # rules kept in files of their own, registered before the teams
+        if not Path(path).is_file():
+            raise ConfigError(f"replay.rule_files: {path!r} is not a file")
+        try:
+            register_file(path)
+        except ValueError as err:
+            raise ConfigError(str(err)) from None
     teams_data = data.get("teams")
     if teams_data is None:  # a factory env without team tables: one team "agent" (agent_0, agent_1, ...)
         teams_data = {name: {} for name in default_teams(sections["env"])}

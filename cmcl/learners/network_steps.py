@@ -4,10 +4,11 @@ Where it sits: one implementation, two runners. `cmcl.loop` calls these on its o
 teacher and ICM actors call the same functions on theirs (`services/learner.py`, `teachers.py`, `icm.py`). The
 replay side (what is drawn, what is written back) is `cmcl.replay.buffer_steps`.
 
-  learner minibatch .. choose_minibatch    the batch's own, or LaBER's pick among m·B candidates by fresh |δ|
-                                           (shuffled across them under the permuted control);
+  learner minibatch .. choose_minibatch    the batch's own, or a rule's learner-side pick among m·B candidates by
+                                           fresh |δ| (LaBER's; shuffled across them under the permuted control);
                                            with the actors' own uniform rows when actor_batch = "uniform"
   learner update ..... learner_update      minibatch [N, S, ...] -> MADDPG step (eqs. 4–6), |δ| [N, S]
+  rules' scores ...... rule_scores         the rules' own per-row learner scores of the update [N, S] each
   teacher fit ........ fit_teachers        rows [steps, B, F, S, ...] -> Adam steps of the fold teachers (eq. 9)
   teacher scores ..... teacher_errors      rows [M, ...] -> e [M, A_t, K'] (eq. 10)
   ICM fit ............ fit_icm             rows [steps, S, ...] -> Adam steps of L_I, L_F (eqs. 13–17)
@@ -26,7 +27,7 @@ from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.nets import joint_input
 from cmcl.messages import ACTOR_PREFIX, CURIOSITY_KEY, LearnerBatch
 from cmcl.replay.priority import EPS_P
-from cmcl.replay.rules.laber import select_candidates
+from cmcl.replay.rules.contract import LearnerScore
 from cmcl.scorers.icm import ICM
 from cmcl.scorers.teachers import TeacherEnsemble
 
@@ -53,14 +54,22 @@ def learner_update(maddpg: MADDPG, minibatch: dict[str, np.ndarray], icm_agents:
     return maddpg.update(minibatch)
 
 
-def choose_minibatch(maddpg: MADDPG, batch: LearnerBatch, i: int, importance_weights: bool, select: Sequence[bool]
-                     ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+def rule_scores(scores: Sequence[LearnerScore], stats: dict[str, Any], minibatch: dict[str, np.ndarray]
+                ) -> dict[str, np.ndarray]:
+    """The rules' own learner scores of one update ({name: float32[N, S]}, each `LearnerScore.of(stats,
+    minibatch)`; stats: `learner_update`'s, minibatch: the rows it trained on)."""
+    return {score.name: np.asarray(score.of(stats, minibatch), dtype=np.float32) for score in scores}
+
+
+def choose_minibatch(maddpg: MADDPG, batch: LearnerBatch, i: int, importance_weights: bool, select: Sequence[bool],
+                     pick: Any = None) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
     """The i-th minibatch of `batch` as `learner_update` takes it, with its slots and generations int64[N, B] (the
     critic's rows: the ones the feedback is about).
 
-    Without candidates (`batch.select_u` None) it is the batch's own. With LaBER's m·B candidates per owner, the
-    agents marked in `select` pick B of them ∝ the current critic's |δ| + ε (one no-grad pass,
-    `cmcl.replay.rules.laber.select_candidates`), their critic weighted by LaBER-mean's weights; the others take
+    Without candidates (`batch.select_u` None) it is the batch's own. With m·B candidates per owner, the agents
+    marked in `select` pick B of them with their rule's learner-side `pick` (cmcl.replay.rules.contract.Rule.pick,
+    `AgentLayout.pick`; LaBER's: ∝ the current critic's |δ| + ε after one no-grad pass, their critic weighted by
+    LaBER-mean's weights, cmcl.replay.rules.laber.select_candidates); the others take
     their first B draws (i.i.d. from their own sampler) with their own IS weights. Under the permuted control
     (`batch.select_order`, drawn by the buffer for the control's agents, the identity for the others) an agent picks
     with its candidates' |δ| + ε read in that order: shuffled across its candidates. With the actors' own rows
@@ -74,7 +83,7 @@ def choose_minibatch(maddpg: MADDPG, batch: LearnerBatch, i: int, importance_wei
     u = batch.select_u[i]  # [N, B]
     n, b = u.shape
     order = None if batch.select_order is None else batch.select_order[i]  # [N, m·B]
-    idx, weights = select_candidates(maddpg.td_abs(mb).astype(np.float64) + EPS_P, u, order)
+    idx, weights = pick(maddpg.td_abs(mb).astype(np.float64) + EPS_P, u, order)
     picking = np.asarray(select, dtype=bool)
     idx[~picking] = np.arange(b)
     picked = {k: np.take_along_axis(v, idx.reshape(n, b, *([1] * (v.ndim - 2))), axis=1) for k, v in mb.items()}

@@ -1,13 +1,14 @@
 """Replay buffer: joint-transition storage plus one sampling distribution per agent (ALGORITHM.md §3.1, §3.6, §5,
 A9, A11).
 
-Where it sits in the flow: the inline loop (or the replay server actor) owns one `ReplayBuffer`. Rollouts
-`add` chunks; teachers / ICM return scores through `update_scores`, the learner its per-row losses through
-`feedback`; after λ or scores change, `recompute_priorities(lam)` rebuilds the priority column of every agent whose
-sampler recomputes, in bulk; the learner calls `sample(agent, S, rng)` per agent.
+Where it sits in the flow: the replay server owns one `ReplayBuffer`. Rollouts `add` chunks; teachers / ICM
+return scores through `update_scores`, the learner its per-row scores through `feedback`; after λ or scores
+change, `recompute_priorities(lam)` rebuilds the priority column of every agent whose sampler recomputes, in bulk;
+the learner's minibatches are drawn by `sample(agent, S, rng)` per agent.
 
-Each agent samples from the sampler of its algorithm (the registry, `cmcl.replay.registry`, builds it once at
-construction); the buffer only calls the sampler protocol of `cmcl.replay.sampling`, never asks its kind.
+`ReplayBuffer(storage, samplers)`: the samplers arrive built, one per agent, by each agent's rule
+(cmcl.system.build_samplers, from a config validated at load); the buffer only calls the sampler protocol of
+`cmcl.replay.sampling` on them, never builds them, asks their kind, or checks their settings again.
 """
 
 from __future__ import annotations
@@ -17,10 +18,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from cmcl.replay.priority import DIFFICULTY_TRANSFORMS, EPS_P, LAM_MAX, kfold_priority, permute_priorities
-from cmcl.replay.registry import build_sampler
-from cmcl.replay.sampler import BACKENDS
-from cmcl.replay.sampling import LEARNER_SCORES, SamplerArgs
+from cmcl.replay.priority import LAM_MAX, kfold_priority, permute_priorities
 from cmcl.replay.snapshot import STATE_FORMAT, rng_state, set_rng_state, upgrade_state
 from cmcl.replay.storage import TransitionStorage
 
@@ -29,92 +27,49 @@ class ReplayNotReady(RuntimeError):
     """Sampling was requested before the buffer holds `min_size` transitions."""
 
 
-def _per_agent(name: str, value, n: int) -> list:
-    """Broadcast a scalar (or validate a length-n sequence) to a list of n values."""
-    if isinstance(value, str) or not isinstance(value, Sequence | np.ndarray):
-        return [value] * n
-    vals = list(value)
-    if len(vals) != n:
-        raise ValueError(f"{name} must be a scalar or have one entry per agent ({n}), got {len(vals)}")
-    return vals
-
-
 class ReplayBuffer:
     """Storage + one sampling distribution per agent.
 
     Args:
-        capacity, n_agents, obs_dim, act_dim, n_folds: storage layout (see `cmcl.replay.storage`).
-        algorithms: one algorithm for all agents or one per agent (names of cmcl.replay.registry.REGISTRY; the teams'
-            `algorithm` in the config).
-        alpha: sampling exponent α_s of eq. 20, scalar or per agent (A8: 1 for acl / cmcl, 0.6 for per; the
-            config resolves each team's, cmcl.config.TeamConfig.effective_alpha). eps: priority floor ε_p.
-            backend: "cdf" or "sumtree".
-        eta: curiosity weight η (scalar or per agent; used by "cmcl" agents only).
-        The next four are scalar or per agent (each agent's team's [teams.<team>.priority], cmcl.system):
-        difficulty_norm: "rank" (A1, revised) or "max". cp_input: "std" or "raw".
-        difficulty_transform: sampling control (issue 21): "none"; "reversed" (ĉ -> 1 − ĉ, the anti-curriculum of
-            acl / cmcl agents); "permuted" (each recompute shuffles the agent's priority column across the valid
-            rows, `cmcl.replay.priority.permute_priorities`, with a Generator seeded by `control_seed` and carried
-            in `state_dict`, so a resumed run draws the same permutations; all permuted columns in one draw). The
-            same generator, `control_rng`, draws the orders in which LaBER agents under the control read their
-            candidates' |δ| (`cmcl.replay.buffer_steps.sample_owner_batches`).
-        difficulty_squared: the teachers' held-out error is a squared TD error (rules comparing it with δ).
-        difficulty_source: "difficulty" (teachers) or "td_abs" (ACL td_self), scalar or per agent.
+        storage: the transition storage (`cmcl.replay.storage.TransitionStorage`, empty or loaded).
+        samplers: one built sampler per agent of the storage (the protocol of cmcl.replay.sampling), in agent order.
         min_size: transitions required before `sample` works (e.g. 3840 warm-up). lam_max: cap on λ.
-        floor: uniform floor u of each agent's prioritised rule, scalar or per agent (0 = none).
+        control_seed: seeds `control_rng`, the permuted control's generator (carried in `state_dict`, so a resumed
+            run draws the same permutations): it shuffles the recomputed column of every sampler whose `permuted`
+            is set across the valid rows (`cmcl.replay.priority.permute_priorities`, all permuted columns in one
+            draw), and draws the orders in which the agents picking among candidates under the control read their
+            candidates' |δ| (`cmcl.replay.buffer_steps.sample_owner_batches`).
     """
 
-    def __init__(self, *, capacity: int = 5000, n_agents: int, obs_dim: int, act_dim: int, n_folds: int = 5,
-                 algorithms="maddpg", alpha=1.0, eps: float = EPS_P, backend: str = "cdf", eta=0.5,
-                 difficulty_norm="rank", cp_input="std",
-                 difficulty_source="difficulty", min_size: int = 1, lam_max: float = LAM_MAX,
-                 difficulty_transform="none", control_seed: int | np.random.SeedSequence = 0,
-                 floor=0.0, difficulty_squared=True) -> None:
-        self.storage = TransitionStorage(capacity=capacity, n_agents=n_agents, obs_dim=obs_dim,
-                                         act_dim=act_dim, n_folds=n_folds)
-        if backend not in BACKENDS:
-            raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-        if not (np.isfinite(eps) and eps > 0):
-            raise ValueError(f"eps must be finite and > 0, got {eps!r}")
-        if int(min_size) != min_size or min_size < 1:
-            raise ValueError(f"min_size must be an integer >= 1, got {min_size!r}")
-        n = self.storage.n_agents
-        norms, cp_inputs = _per_agent("difficulty_norm", difficulty_norm, n), _per_agent("cp_input", cp_input, n)
-        transforms = _per_agent("difficulty_transform", difficulty_transform, n)
-        squared = [bool(v) for v in _per_agent("difficulty_squared", difficulty_squared, n)]
-        for name, values, allowed in (("difficulty_norm", norms, ("max", "rank")),
-                                      ("cp_input", cp_inputs, ("std", "raw")),
-                                      ("difficulty_transform", transforms, DIFFICULTY_TRANSFORMS)):
-            if any(v not in allowed for v in values):
-                raise ValueError(f"{name} must be one of {allowed} (or one per agent), got {values!r}")
-        self.alpha: list[float] = [float(a) for a in _per_agent("alpha", alpha, n)]  # α_s per agent
-        etas = [float(e) for e in _per_agent("eta", eta, n)]
-        for name, vals in (("alpha", self.alpha), ("eta", etas)):
-            if any(not (np.isfinite(v) and v >= 0) for v in vals):
-                raise ValueError(f"{name} must be finite and >= 0, got {vals}")
-        self.algorithms: list[str] = list(_per_agent("algorithms", algorithms, n))
-        sources = _per_agent("difficulty_source", difficulty_source, n)
-        self.eps, self.backend = float(eps), backend
-        self.difficulty_transform: list[str] = list(transforms)  # per agent
-        # draws the permuted control's permutations: of the priority columns, and of LaBER's candidates
+    def __init__(self, storage: TransitionStorage, samplers: Sequence, *, min_size: int = 1,
+                 lam_max: float = LAM_MAX, control_seed: int | np.random.SeedSequence = 0) -> None:
+        self.storage = storage
+        self.sampling = list(samplers)
         self.control_rng = np.random.default_rng(control_seed)
         self.min_size, self.lam_max = int(min_size), float(lam_max)
         self.lam: float | None = None  # λ of the last recompute
-        floors = [float(f) for f in _per_agent("floor", floor, n)]
-        self.sampling = [
-            build_sampler(algo, SamplerArgs(
-                capacity=self.capacity, alpha=self.alpha[a], backend=backend, eps=self.eps, agent=a, eta=etas[a],
-                difficulty_source=sources[a], difficulty_norm=norms[a], difficulty_squared=squared[a],
-                cp_input=cp_inputs[a], lam_max=self.lam_max, reversed_difficulty=transforms[a] == "reversed",
-                permuted=transforms[a] == "permuted", floor=floors[a]))
-            for a, algo in enumerate(self.algorithms)]
         self._index_recomputing()
 
     def _index_recomputing(self) -> None:
         """The agents whose sampler recomputes its priorities (`recomputes`), and those among them that also give
-        the curriculum's per-row terms (`terms`: ACL / CMCL, for the diagnostics)."""
+        the curriculum's per-row terms (`has_terms`: ACL / CMCL, for the diagnostics)."""
         self.recomputing = [(a, s) for a, s in enumerate(self.sampling) if s.recomputes]
-        self.curriculum = [(a, s) for a, s in self.recomputing if hasattr(s, "terms")]
+        self.curriculum = [(a, s) for a, s in self.recomputing if s.has_terms]
+
+    @property
+    def algorithms(self) -> list[str]:
+        """Each agent's rule name, as its sampler says (written in the state)."""
+        return [s.algorithm for s in self.sampling]
+
+    @property
+    def alpha(self) -> list[float]:
+        """α_s of eq. 20 per agent, as its sampler holds it."""
+        return [s.alpha for s in self.sampling]
+
+    @property
+    def difficulty_transform(self) -> list[str]:
+        """Each agent's sampling control ("none" | "permuted" | "reversed"), as its sampler was built."""
+        return [s.control for s in self.sampling]
 
     @property
     def recomputes(self) -> bool:
@@ -174,23 +129,16 @@ class ReplayBuffer:
 
     # ------------------------------------------------------------------ priorities
     def feedback(self, agent: int, slots, generations, scores: dict[str, np.ndarray]) -> tuple[int, bool]:
-        """The learner's per-row losses of one agent's sampled rows, to that agent's sampler (`feedback`).
+        """The learner's per-row scores of one agent's sampled rows, to that agent's sampler (`feedback`).
 
-        Args: agent index; slots int[M]; generations int[M] (stale pairs are dropped); scores {name: float[M]}
-        for names in LEARNER_SCORES (finite, >= 0 after abs). Returns (accepted count, whether a score column
-        changed, i.e. a recompute is due).
+        Args: agent index; slots int[M]; generations int[M] (stale pairs are dropped); scores {name: float[M]}:
+        "td_abs" and the rule's own learner scores (checked at the message boundary, cmcl.messages.check_feedback),
+        passed on as float64 magnitudes. Returns (accepted count, whether a score column changed, i.e. a recompute
+        is due).
         """
-        self._check_agent(agent)
         s = self.storage.check_slots(slots)
         gens = np.asarray(generations, dtype=np.int64).reshape(-1)
-        clean = {}
-        for name, values in scores.items():
-            if name not in LEARNER_SCORES:
-                raise ValueError(f"learner scores must be named in {LEARNER_SCORES}, got {name!r}")
-            v = np.abs(np.asarray(values, dtype=np.float64)).reshape(-1)
-            if v.shape != s.shape or not np.all(np.isfinite(v)):
-                raise ValueError(f"{name} must be finite with shape {s.shape}, got {np.shape(values)}")
-            clean[name] = v
+        clean = {name: np.abs(np.asarray(values, dtype=np.float64)).reshape(-1) for name, values in scores.items()}
         return self.sampling[agent].feedback(self.storage, int(agent), s, gens, clean)
 
     def update_priorities(self, agent: int, slots, td_abs, generations=None) -> int:
@@ -212,25 +160,25 @@ class ReplayBuffer:
         terms only (read-only: the samplers, λ and the permuted control's generator are left as they are, and
         "priority" is the unpermuted one), for diagnostics that must not change the run.
         Returns: None, or {"agents": int64[A'], "c_hat", "kp", "cp", "priority": float64[size, A'],
-        "scored": bool[size, A']} for the A' ACL / CMCL agents ("priority" is what the samplers hold, permuted
-        under the permuted control; c_hat and kp are the rows' own).
+        "scored": bool[size, A']} for the A' agents whose sampler has curriculum terms (`has_terms`: ACL / CMCL;
+        "priority" is what the samplers hold, permuted under the permuted control; c_hat and kp are the rows' own).
         """
         kfold_priority(0.0, lam, self.lam_max)  # validates lam before anything changes
-        agents = [a for a, _ in self.curriculum]
         size = self.storage.size
+        agents = [a for a, _ in self.curriculum]
         terms = [sampling.terms(self.storage, lam) for _, sampling in self.curriculum]  # vectorised per agent
         out = {key: np.stack([t[i] for t in terms], axis=1) if terms else np.zeros((size, 0), bool if i == 4 else float)
                for i, key in enumerate(("c_hat", "kp", "cp", "priority", "scored"))}
         out["agents"] = np.asarray(agents, dtype=np.int64)
         if not apply:
             return out
-        # the curriculum's columns first (from their terms), then every other recomputing sampler's
-        others = [(a, s) for a, s in self.recomputing if not hasattr(s, "terms")]
+        # the columns from curriculum terms first, then every other recomputing sampler's
         columns = [(a, s, out["priority"][:, i]) for i, (a, s) in enumerate(self.curriculum)]
-        columns += [(a, s, p) for a, s in others if (p := s.recompute(self.storage, lam)) is not None]
+        columns += [(a, s, p) for a, s in self.recomputing if not s.has_terms
+                    and (p := s.recompute(self.storage, lam)) is not None]
         if columns:
             priority = np.stack([p for _, _, p in columns], axis=1)
-            shuffled = [i for i, (a, _, _) in enumerate(columns) if self.difficulty_transform[a] == "permuted"]
+            shuffled = [i for i, (_, sampling, _) in enumerate(columns) if sampling.permuted]
             if len(shuffled) == len(columns):
                 priority = permute_priorities(priority, self.control_rng)
             elif shuffled:
@@ -253,14 +201,9 @@ class ReplayBuffer:
 
     def probabilities(self, agent: int, slots) -> np.ndarray:
         """P_v(j) for valid slots int[k] -> float64[k]."""
-        self._check_agent(agent)
         return self.sampling[agent].probabilities(self.storage.check_slots(slots), self.storage.size)
 
     # ------------------------------------------------------------------ sampling
-    def _check_agent(self, agent: int) -> None:
-        if int(agent) != agent or not 0 <= agent < self.storage.n_agents:
-            raise ValueError(f"agent must be an index in [0, {self.storage.n_agents}), got {agent!r}")
-
     def sample(self, agent: int, batch_size: int, rng: np.random.Generator,
                beta: float) -> tuple[np.ndarray, np.ndarray]:
         """Draw `batch_size` i.i.d. slots for one agent from its own distribution.
@@ -269,14 +212,9 @@ class ReplayBuffer:
         all ones for uniform agents or β = 0 (β_IS: the runners pass their annealed value, ALGORITHM.md §3.7).
         Raises ReplayNotReady below `min_size` transitions.
         """
-        self._check_agent(agent)
-        if int(batch_size) != batch_size or batch_size < 1:
-            raise ValueError(f"batch_size must be an integer >= 1, got {batch_size!r}")
         size = self.storage.size
         if size < self.min_size:
             raise ReplayNotReady(f"replay holds {size} transitions; sampling needs at least {self.min_size}")
-        if not (np.isfinite(beta) and beta >= 0):
-            raise ValueError(f"beta must be finite and >= 0, got {beta!r}")
         return self.sampling[agent].sample(int(batch_size), size, rng, float(beta))
 
     def sample_all(self, batch_size: int, rngs, beta) -> tuple[np.ndarray, np.ndarray]:
@@ -285,8 +223,8 @@ class ReplayBuffer:
         Returns (slots int64[N, S], is_weights float32[N, S]). beta: β_IS, scalar or per agent.
         """
         n = self.storage.n_agents
-        gens = _per_agent("rngs", rngs, n) if isinstance(rngs, Sequence) else [rngs] * n
-        betas = _per_agent("beta", beta, n)
+        gens = list(rngs) if isinstance(rngs, Sequence) else [rngs] * n
+        betas = list(beta) if isinstance(beta, Sequence | np.ndarray) else [beta] * n
         pairs = [self.sample(a, batch_size, gens[a], betas[a]) for a in range(n)]
         return np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
 
@@ -296,34 +234,34 @@ class ReplayBuffer:
 
         Keys: "format", "storage" (see `TransitionStorage.state_dict`), "lam" (float, −1.0 = never recomputed),
         "algorithms" {str(agent): algorithm}, "sampling" {str(agent): that agent's sampling distribution's state},
-        "alpha" [float] * N, "eps", "backend", "difficulty_transform" [str] * N and "control_rng" (the permuted
-        control's PCG64 state, its 128-bit integers as decimal strings for msgpack).
+        "alpha" [float] * N, "difficulty_transform" [str] * N and "control_rng" (the permuted control's PCG64 state,
+        its 128-bit integers as decimal strings for msgpack).
         """
         return {
             "format": STATE_FORMAT, "storage": self.storage.state_dict(),
             "lam": -1.0 if self.lam is None else self.lam,
             "algorithms": {str(a): algo for a, algo in enumerate(self.algorithms)},
             "sampling": {str(a): s.state_dict() for a, s in enumerate(self.sampling)},
-            "alpha": list(self.alpha), "eps": self.eps, "backend": self.backend,
-            "difficulty_transform": list(self.difficulty_transform), "control_rng": rng_state(self.control_rng),
+            "alpha": list(self.alpha), "difficulty_transform": self.difficulty_transform,
+            "control_rng": rng_state(self.control_rng),
         }
 
     def load_state_dict(self, state: dict) -> None:
         """Restore from `state_dict()` output (or a snapshot of an older format, `cmcl.replay.snapshot`);
-        everything is validated before anything changes. Algorithms, alpha and eps must equal this buffer's
-        (they come from the run config)."""
+        everything is validated before anything changes (a snapshot is a file read back). Algorithms, alpha and the
+        controls must equal this buffer's samplers' (they come from the run config); each sampler checks its own
+        state."""
         n = self.storage.n_agents
         state = upgrade_state(state, n)
         algorithms = [state["algorithms"].get(str(a)) for a in range(n)]
         if algorithms != self.algorithms:
             raise ValueError(f"algorithms in state {algorithms} differ from this buffer's {self.algorithms}")
-        alphas = [float(a) for a in _per_agent("alpha in state", state["alpha"], n)]  # older snapshots: one float
+        alpha = state["alpha"]
+        alphas = [float(a) for a in alpha] if isinstance(alpha, Sequence) else [float(alpha)] * n  # older: one float
         if alphas != self.alpha:
             raise ValueError(f"alpha in state ({state['alpha']!r}) differs from this buffer ({self.alpha!r})")
-        if float(state["eps"]) != self.eps:
-            raise ValueError(f"eps in state ({state['eps']!r}) differs from this buffer ({self.eps!r})")
-        # older snapshots: one transform for every agent
-        transform = list(_per_agent("difficulty_transform in state", state.get("difficulty_transform", "none"), n))
+        transform = state.get("difficulty_transform", "none")  # older snapshots: one transform for every agent
+        transform = [transform] * n if isinstance(transform, str) else list(transform)
         if transform != self.difficulty_transform:
             raise ValueError(f"difficulty_transform in state ({transform!r}) differs from this buffer "
                              f"({self.difficulty_transform!r})")

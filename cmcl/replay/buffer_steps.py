@@ -90,9 +90,10 @@ def actor_slots(replay: ReplayBuffer, critic: np.ndarray, rngs: Sequence[np.rand
 
 
 def apply_learner_feedback(replay: ReplayBuffer, layout: Any, feedback: LearnerFeedback) -> tuple[int, bool]:
-    """The learner's per-row losses of every sampled row, to each agent's sampler (`ReplayBuffer.feedback`): PER
-    and ReLo set their priorities from them, ACL td_self and the reducible held-out rule write the "td_abs" column.
-    Only the scores the layout's rules ask for are passed (`layout.learner_scores`).
+    """The learner's per-row scores of every sampled row (|δ| and the rules' own, `LearnerFeedback.rule_scores`), to
+    each agent's sampler (`ReplayBuffer.feedback`): PER and ReLo set their priorities from them, ACL td_self and the
+    reducible held-out rule write the "td_abs" column. Only the scores the layout's rules ask for are passed
+    (`layout.learner_scores`).
 
     Stale (slot, generation) pairs are dropped. Returns (stale pairs dropped, whether a score column changed,
     i.e. priorities need a recompute).
@@ -100,7 +101,8 @@ def apply_learner_feedback(replay: ReplayBuffer, layout: Any, feedback: LearnerF
     stale, scores_changed = 0, False
     if not layout.learner_scores:
         return stale, scores_changed
-    columns = {name: np.asarray(getattr(feedback, name)) for name in layout.learner_scores}
+    given = {"td_abs": feedback.td_abs, **{score.name: score.values for score in feedback.rule_scores}}
+    columns = {name: np.asarray(given[name]) for name in layout.learner_scores}
     for agent in range(layout.num_agents):
         s = feedback.slots[:, agent].reshape(-1)
         g = feedback.generations[:, agent].reshape(-1)

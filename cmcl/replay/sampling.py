@@ -1,13 +1,17 @@
 """The sampling distributions of replay, behind one closed protocol (ALGORITHM.md §3.6, §5, A8, A9, A11).
 
-Where it sits: `cmcl.replay.buffer.ReplayBuffer` holds one sampler per agent, built from the agent's algorithm by the
-registry (`cmcl.replay.registry`: one spec per algorithm names its sampler class; as Dopamine has one replay class per
-sampling distribution). The buffer never asks what kind a sampler is; it calls the protocol on every one of them:
+Where it sits: each rule's file under cmcl/replay/rules/ builds its agents' samplers (`Rule.sampler`, one per
+agent, cmcl.system.build_samplers) and `cmcl.replay.buffer.ReplayBuffer` receives them built. The buffer never asks
+what kind a sampler is; it calls the protocol on every one of them:
 
+  algorithm, alpha, control, permuted the rule's name, α_s of eq. 20, its sampling control ("none" | "permuted" |
+                                      "reversed"), whether the buffer shuffles its recomputed column
   added(slots)                        new slots int64[k] were written (their initial priority)
   feedback(storage, agent, slots, generations, scores) -> (accepted, scores_changed)
-                                      the learner's per-row losses of the agent's sampled rows (LearnerScores
-                                      columns: "td_abs" |y − Q|, "target_td_abs" |y − Q_target|, float[k])
+                                      the learner's per-row scores of the agent's sampled rows (float[k] each:
+                                      "td_abs" |y − Q| and the rule's own, cmcl.replay.rules.contract.LearnerScore)
+  has_terms, terms(storage, lam)      whether it has the curriculum's per-row terms, and (when it has) them:
+                                      (c_hat, kp, cp, p, scored) float64[size]; p is then its recomputed column
   recompute(storage, lam) -> p | None the raw priority column float64[size] rebuilt from the score columns at λ
                                       (None: nothing to rebuild; `recomputes` says which samplers rebuild); the
                                       buffer applies the permuted control across all returned columns and hands
@@ -17,15 +21,10 @@ sampling distribution). The buffer never asks what kind a sampler is; it calls t
   diagnostics() -> dict               scalars for metrics (e.g. PER's running maximum)
   state_dict() / load_state_dict(state, size)
 
-  uniform ........ UniformSampling:     P(j) = 1/|D|; IS weights 1.
-  per ............ PrioritizedSampling: p = |δ| + ε_p from feedback; new slots at the running maximum priority
-                                        (starts at 1.0), which each feedback raises.
-  acl, cmcl ...... CurriculumSampling:  p = KP(ĉ, λ) [+ η·CP(ρ̂)] + ε_p recomputed from the score columns
-                                        (`terms`, eqs. 8, 12, 19); a row not yet scored gets the
-                                        mean sampling weight of the scored rows (`provisional_priority`, A11).
-  other rules .... cmcl/replay/rules/, one file each (cmcl.replay.registry registers them).
-Prioritized draws use P(j) = p_j^α / Σ_k p_k^α (eq. 20) from a `cmcl.replay.sampler.PrioritySampler` (cdf or sum
-tree backend, vectorised), mixed with a uniform floor u when one is set: P_u(j) = (1 − u)·P(j) + u/|D|.
+Here: `UniformSampling` (P(j) = 1/|D|, IS weights 1: maddpg's, and the actors' own uniform minibatches) and
+`_ProportionalSampling`, the base of every prioritised rule: draws P(j) = p_j^α / Σ_k p_k^α (eq. 20) from a
+`cmcl.replay.sampler.PrioritySampler` (cdf or sum tree backend, vectorised), mixed with a uniform floor u when one
+is set: P_u(j) = (1 − u)·P(j) + u/|D|. The rules' own samplers are in their files.
 """
 
 from __future__ import annotations
@@ -34,17 +33,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cmcl.replay.priority import curriculum_priority, provisional_priority
+from cmcl.replay.priority import provisional_priority
 from cmcl.replay.sampler import PrioritySampler, importance_weights
 from cmcl.replay.storage import TransitionStorage
 
 DIFFICULTY_SOURCES = ("difficulty", "td_abs")  # "td_abs" = ACL's td_self variant (§5)
-LEARNER_SCORES = ("td_abs", "target_td_abs")  # per-row learner losses a sampler can ask for (cmcl.replay.registry)
 
 
 @dataclass(frozen=True)
 class SamplerArgs:
-    """What a sampler is built from (cmcl.replay.registry builds one per agent from the config).
+    """What a sampler is built from (cmcl.system.build_samplers builds one per agent from the config).
 
     capacity: buffer slots. alpha: α_s of eq. 20. backend: "cdf" | "sumtree". eps: ε_p. agent: the agent index.
     algorithm: its registry name. eta: η (CMCL). difficulty_source: "difficulty" | "td_abs". difficulty_norm:
@@ -70,14 +68,24 @@ class SamplerArgs:
     floor: float = 0.0
 
 
+def control_of(args: SamplerArgs) -> str:
+    """The sampling control a sampler is built under (`difficulty_transform`): "permuted", "reversed" or "none"."""
+    return "permuted" if args.permuted else "reversed" if args.reversed_difficulty else "none"
+
+
 class UniformSampling:
     """MADDPG's sampling: every valid slot equally likely, IS weights of 1 (no state)."""
 
     name = "uniform"  # the sampling distribution's name in the metrics ("sampling.modes")
     recomputes = False  # `recompute` never returns priorities
+    permuted = False  # uniform draws carry no priority to shuffle
+    has_terms = False  # no curriculum terms
 
     def __init__(self, args: SamplerArgs | None = None):
-        """Nothing to hold; `args` is accepted so that every sampler is built alike."""
+        """Nothing to hold but the rule's name and α_s (written in the buffer's state)."""
+        self.algorithm = "" if args is None else args.algorithm
+        self.alpha = 1.0 if args is None else float(args.alpha)
+        self.control = "none" if args is None else control_of(args)
 
     def added(self, slots: np.ndarray) -> None:
         """New slots int64[k] were written: nothing to do."""
@@ -115,13 +123,13 @@ class _ProportionalSampling:
     (under the permuted control they return their priorities from `recompute`, for the buffer to shuffle)."""
 
     name = ""
+    has_terms = False  # the curriculum's per-row terms (cmcl.replay.rules.acl's sampler has them)
 
     def __init__(self, args: SamplerArgs):
         self.sampler = PrioritySampler(args.capacity, args.alpha, args.backend)
-        self.eps = float(args.eps)
+        self.algorithm, self.alpha, self.eps = args.algorithm, float(args.alpha), float(args.eps)
+        self.control = control_of(args)
         self.agent, self.permuted = int(args.agent), bool(args.permuted)
-        if not (np.isfinite(args.floor) and 0.0 <= args.floor < 1.0):
-            raise ValueError(f"floor must lie in [0, 1), got {args.floor!r}")
         self.floor = float(args.floor)
         self.recomputes = self.permuted  # whether `recompute` returns priorities (the buffer then calls it)
 
@@ -188,94 +196,3 @@ class _ProportionalSampling:
         if np.any(staged.p[size:] != 0):
             raise ValueError(f"sampler priorities on slots beyond size {size}")
         self.sampler = staged
-
-
-class PrioritizedSampling(_ProportionalSampling):
-    """PER (Schaul et al.): p = |δ| + ε_p from the learner's TD errors; new slots at the running maximum."""
-
-    name = "per"
-
-    def __init__(self, args: SamplerArgs):
-        super().__init__(args)
-        self.max_priority = 1.0  # the PER rule: starts at 1.0, raised by every update
-
-    def initial_priority(self, slots: np.ndarray) -> float:
-        return self.max_priority
-
-    def priority_of(self, scores: dict[str, np.ndarray]) -> np.ndarray:
-        """The raw priority of rows from their learner scores (float[k] each): |δ| + ε_p."""
-        return scores["td_abs"] + self.eps
-
-    def feedback(self, storage: TransitionStorage, agent: int, slots: np.ndarray, generations: np.ndarray,
-                 scores: dict[str, np.ndarray]) -> tuple[int, bool]:
-        """|δ| into the agent's "td_abs" score column, and p = `priority_of` for the fresh slots (stale ones are
-        dropped), raising the running maximum. Returns (accepted, False: no curriculum column changed)."""
-        td = scores["td_abs"]
-        accepted = storage.update_scores("td_abs", slots, generations, td.astype(np.float32), agents=[agent])
-        ok = storage.fresh_mask(slots, generations)
-        self.update_priorities(slots[ok], {k: v[ok] for k, v in scores.items()})
-        return accepted, False
-
-    def update_priorities(self, slots: np.ndarray, scores: dict[str, np.ndarray]) -> None:
-        """p = `priority_of(scores)` for fresh slots int64[k], and raise the running maximum."""
-        if slots.size:
-            p = self.priority_of(scores)
-            self.sampler.update(slots, p)
-            self.max_priority = max(self.max_priority, float(p.max()))
-
-    def diagnostics(self) -> dict:
-        return {**super().diagnostics(), "max_priority": self.max_priority}
-
-    def state_dict(self) -> dict:
-        return {**super().state_dict(), "max_priority": self.max_priority}
-
-    def load_state_dict(self, state: dict, size: int) -> None:
-        maxp = float(state["max_priority"])
-        if not (np.isfinite(maxp) and maxp > 0):
-            raise ValueError(f"max_priority must be finite and > 0, got {maxp!r}")
-        super().load_state_dict(state, size)
-        self.max_priority = maxp
-
-
-class CurriculumSampling(_ProportionalSampling):
-    """ACL / CMCL: the curriculum index of eq. 8 over agent `agent`'s score columns, recomputed at each λ.
-
-    From SamplerArgs: eta (CMCL's η; ACL has η = 0), difficulty_source ("difficulty": teachers, "td_abs": ACL
-    td_self, whose |δ| arrives as feedback), difficulty_norm, cp_input, lam_max, reversed_difficulty.
-    """
-
-    def __init__(self, args: SamplerArgs):
-        super().__init__(args)
-        if args.difficulty_source not in DIFFICULTY_SOURCES:
-            raise ValueError(f"difficulty_source must be in {DIFFICULTY_SOURCES}, got {args.difficulty_source!r}")
-        self.name = args.algorithm
-        self.eta = float(args.eta)  # 0 for every rule without η (the registry's build_sampler sees to it)
-        self.difficulty_source, self.difficulty_norm = args.difficulty_source, args.difficulty_norm
-        self.cp_input = args.cp_input
-        self.lam_max, self.reversed_difficulty = float(args.lam_max), bool(args.reversed_difficulty)
-        self.recomputes = True
-
-    def initial_priority(self, slots: np.ndarray) -> float:
-        return self.held_mean_priority(slots)
-
-    def feedback(self, storage: TransitionStorage, agent: int, slots: np.ndarray, generations: np.ndarray,
-                 scores: dict[str, np.ndarray]) -> tuple[int, bool]:
-        """ACL td_self: the learner's |δ| into the "td_abs" column its difficulty comes from (a column changed);
-        the teachers' variants take no feedback."""
-        if self.difficulty_source != "td_abs":
-            return int(np.size(slots)), False
-        return storage.update_scores("td_abs", slots, generations, scores["td_abs"][:, None], agents=[agent]), True
-
-    def terms(self, storage: TransitionStorage, lam: float) -> tuple[np.ndarray, ...]:
-        """(c_hat, kp, cp, p, has_difficulty) float64[size] (bool for the last) of this agent over the valid rows
-        at λ, from its score columns (`cmcl.replay.priority.curriculum_priority`); read-only."""
-        size, a, col = storage.size, self.agent, self.difficulty_source
-        return curriculum_priority(storage.scores[col][:size, a], storage.scored[col][:size, a],
-                                   storage.scores["curiosity"][:size, a], storage.scored["curiosity"][:size, a],
-                                   lam, self.eta, eps=self.eps, difficulty_norm=self.difficulty_norm,
-                                   cp_input=self.cp_input, lam_max=self.lam_max,
-                                   reversed_difficulty=self.reversed_difficulty, alpha=self.sampler.alpha)
-
-    def recompute(self, storage: TransitionStorage, lam: float) -> np.ndarray:
-        """p = CI + ε_p of eq. 8 over the valid rows at λ (`terms`)."""
-        return self.terms(storage, lam)[3]

@@ -1,16 +1,16 @@
-"""LaBER, large batch experience replay (Lahire et al., ICML 2022; issue 36, rule c): priorities computed fresh.
+"""laber: LaBER, large batch experience replay (Lahire et al., ICML 2022), priorities computed fresh.
 
 PER samples by a |δ| computed when a row was last sampled, minutes and thousands of updates ago. LaBER draws a
 uniform candidate batch of m·B rows, scores every candidate with the current critic (|δ| of this update's targets)
 and picks the B rows of the update from the candidates with probability ∝ |δ| (+ ε), correcting with
 LaBER-mean's weights w_j = mean(p) / p_j on the critic loss. So no row is sampled by a stale score.
 
-Here: the buffer's side is uniform (`LargeBatchSampling`; the registry's spec says `candidates` = m, and the
-runners then draw m·B rows and one uniform number per picked row, `LearnerBatch.select_u`, from the same sampler
-streams in both runners); the learner's side is `select_candidates`, called by
+Here: the buffer's side is uniform (`LargeBatchSampling`; the rule's `candidates` is m, `teams.<team>.candidates`,
+and the runners then draw m·B rows and one uniform number per picked row, `LearnerBatch.select_u`, from the same sampler
+streams in both runners); the learner's side is the rule's `pick`, `select_candidates`, called by
 `cmcl.learners.network_steps.choose_minibatch` after one no-grad critic pass over the candidates.
 
-The permuted control (`teams.<team>.priority.difficulty_transform = "permuted"`, issue 21) acts on the pick: the
+The permuted control (`teams.<team>.priority.difficulty_transform = "permuted"`) acts on the pick: the
 buffer draws, for each of the control's agents, a permutation of its m·B candidates (`candidate_orders`, from the
 buffer's `control_rng`: the control's own seeded stream, saved with the buffer's state, so the candidates and
 `select_u` are the draws of the run without the control), and the agent picks with the fresh |δ| + ε of its
@@ -20,11 +20,24 @@ spread of the IS weights, but which candidate gets which |δ| carries no informa
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from cmcl.field_docs import documented
+from cmcl.replay.rules.contract import Range, Rule
 from cmcl.replay.sampling import UniformSampling
 
-CANDIDATES = 4  # m: candidates per picked row (LaBER's m = 4 in most of its experiments)
+CANDIDATES = 4  # m's default: candidates per picked row (LaBER's m = 4 in most of its experiments)
+
+
+@dataclass(frozen=True)
+class LargeBatchOptions:
+    """laber's own keys in its team's table (teams.<team>.candidates)."""
+
+    candidates: int = documented(CANDIDATES, "m of laber: the learner draws m·B uniform candidate rows per agent "
+                                 "and picks the B of its minibatch among them ∝ their fresh |δ|",
+                                 rule=Range("must be >= 2", lambda v: v >= 2))
 
 
 class LargeBatchSampling(UniformSampling):
@@ -68,3 +81,8 @@ def select_candidates(priority: np.ndarray, u: np.ndarray, order: np.ndarray | N
     idx = np.minimum((cdf[:, None, :] <= np.asarray(u)[:, :, None]).sum(-1), p.shape[1] - 1)  # first cdf > u
     chosen = np.take_along_axis(p, idx, axis=1)
     return idx.astype(np.int64), (p.mean(1, keepdims=True) / chosen).astype(np.float32)
+
+
+RULE = Rule("laber", "LaBER: each minibatch picked ∝ fresh |δ| among m·B uniform candidates (Lahire et al.)",
+            lambda args, options: LargeBatchSampling(args), "laber", 1.0, True, options=LargeBatchOptions,
+            draws_uniformly=True, candidates=lambda options: options.candidates, pick=select_candidates)

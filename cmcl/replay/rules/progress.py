@@ -1,4 +1,4 @@
-"""Held-out learning progress with staleness (issue 36, rule a): where the teachers' error on a row is changing.
+"""lp: held-out learning progress with staleness, where the teachers' error on a row is changing.
 
 Learning-progress curricula (ALP-GMM, Portelas et al. 2019; SPMARL, ICML 2025) sample where a competence measure
 moves. Here the measure is a row's held-out error ē_j (the teachers not fitted on its fold, its difficulty column),
@@ -9,20 +9,32 @@ distribution so that rows whose score is old get revisited:
 
     P_score(j) ∝ rank(progress_j)/(M' − 1) + ε_p     (rows without a progress value yet: the mean of the others)
     P_stale(j) ∝ draws − last_drawn_j                (draws since the row was last sampled, or since it was written)
-    P(j) = (1 − ρ)·P_score(j) + ρ·P_stale(j),  ρ = STALENESS (PLR's default 0.1)
+    P(j) = (1 − ρ)·P_score(j) + ρ·P_stale(j),  ρ = teams.<team>.staleness (PLR's default 0.1)
 
 The sampler holds P as its raw priorities (sampled with α = 1: the registry's default for this rule).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from cmcl.field_docs import documented
+from cmcl.replay.rules.contract import Needs, Range, Rule
 from cmcl.replay.rules.reducible import rank01
 from cmcl.replay.sampling import SamplerArgs, _ProportionalSampling
 from cmcl.replay.storage import TransitionStorage
 
-STALENESS = 0.1  # ρ, the staleness mix (PLR's default staleness_coef)
+STALENESS = 0.1  # ρ's default (PLR's default staleness_coef)
+
+
+@dataclass(frozen=True)
+class ProgressOptions:
+    """lp's own keys in its team's table (teams.<team>.staleness)."""
+
+    staleness: float = documented(STALENESS, "ρ, the staleness mix of lp: P = (1 − ρ)·P_score + ρ·P_stale "
+                                  "(PLR's staleness_coef)", rule=Range("must lie in [0, 1]", lambda v: 0 <= v <= 1))
 
 
 class HeldOutProgressSampling(_ProportionalSampling):
@@ -31,8 +43,9 @@ class HeldOutProgressSampling(_ProportionalSampling):
 
     name = "lp"
 
-    def __init__(self, args: SamplerArgs):
+    def __init__(self, args: SamplerArgs, staleness: float = STALENESS):
         super().__init__(args)
+        self.staleness = float(staleness)  # ρ
         cap = args.capacity
         self.last_error = np.zeros(cap)  # ē_j at the previous recompute
         self.seen = np.zeros(cap, bool)  # ē_j has been seen once
@@ -66,7 +79,7 @@ class HeldOutProgressSampling(_ProportionalSampling):
             score[~has] = score[has].mean()
         age = (self.draws - self.last_drawn[:size]).astype(np.float64)
         stale = age / age.sum() if age.sum() > 0 else np.full(size, 1.0 / max(size, 1))
-        return (1.0 - STALENESS) * score / score.sum() + STALENESS * stale + self.eps
+        return (1.0 - self.staleness) * score / score.sum() + self.staleness * stale + self.eps
 
     def sample(self, n: int, size: int, rng: np.random.Generator, beta: float) -> tuple[np.ndarray, np.ndarray]:
         slots, weights = super().sample(n, size, rng, beta)
@@ -93,3 +106,8 @@ class HeldOutProgressSampling(_ProportionalSampling):
         self.last_error, self.progress = arrays["last_error"].astype(np.float64), arrays["progress"].astype(np.float64)
         self.seen, self.has_progress = arrays["seen"].astype(bool), arrays["has_progress"].astype(bool)
         self.last_drawn, self.draws = arrays["last_drawn"].astype(np.int64), draws
+
+
+RULE = Rule("lp", "held-out learning progress: rank |Δē| mixed with staleness (PLR)",
+            lambda args, options: HeldOutProgressSampling(args, options.staleness), "lp", options=ProgressOptions,
+            needs=lambda team: Needs(teachers=True))

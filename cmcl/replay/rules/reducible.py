@@ -1,4 +1,4 @@
-"""Reducible held-out loss (issue 36, rule b): RHO-LOSS (Mindermann et al., ICML 2022) with the K-fold teachers as
+"""rho: the reducible held-out loss, RHO-LOSS (Mindermann et al., ICML 2022) with the K-fold teachers as
 the holdout model.
 
 RHO-LOSS trains on the points whose training loss most exceeds the loss of a model that never saw them
@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from cmcl.replay.priority import provisional_priority
+from cmcl.replay.rules.contract import Needs, Rule
 from cmcl.replay.sampling import SamplerArgs, _ProportionalSampling
 from cmcl.replay.storage import TransitionStorage
 
@@ -62,3 +63,8 @@ class HeldOutReducibleSampling(_ProportionalSampling):
             if not both.all():
                 p[~both] = provisional_priority(p[both], self.sampler.alpha)
         return p
+
+
+RULE = Rule("rho", "reducible held-out loss: rank(δ² − ē), ē the teachers' held-out error (RHO-LOSS)",
+            lambda args, options: HeldOutReducibleSampling(args), "rho",
+            needs=lambda team: Needs(teachers=True, learner_scores=("td_abs",)))
