@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import signal
 import sys
 from pathlib import Path
 from typing import Any
@@ -123,10 +124,12 @@ def tune_command(args: argparse.Namespace) -> int:
     except ConnectionError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    previous = signal.getsignal(signal.SIGINT)  # Tune installs its own (a Ctrl-C stops the sweep in order)
     try:
         grid = _fit(settings, dimensions, trials, resume=bool(args.resume), quiet=args.quiet)
         return _report(settings, dimensions, grid)
     finally:
+        signal.signal(signal.SIGINT, previous)
         if owned:
             from services.launch import stderr_to, stop_ray
 
@@ -167,9 +170,10 @@ def _fit(settings: SweepSettings, dimensions: list[Dimension], trials: int, resu
     if resume and tune.Tuner.can_restore(str(path)):
         return tune.Tuner.restore(str(path), trainable, resume_unfinished=True, resume_errored=True).fit()
     objective, config = OBJECTIVES[settings.objective], settings.base_config()
-    time_attr, max_t = ("training_s", settings.budget_s) if settings.budget_s else ("episodes", config.run.episodes)
-    scheduler = ASHAScheduler(time_attr=time_attr, metric="training_ma", mode="max", max_t=max_t,
-                              grace_period=max_t * GRACE_FRACTION, reduction_factor=REDUCTION_FACTOR)
+    time_attr, budget = ("training_s", settings.budget_s) if settings.budget_s else ("episodes", config.run.episodes)
+    # max_t past the budget: a trial's own budget ends it (summary "budget"), not the scheduler
+    scheduler = ASHAScheduler(time_attr=time_attr, metric="training_ma", mode="max", max_t=2 * budget,
+                              grace_period=budget * GRACE_FRACTION, reduction_factor=REDUCTION_FACTOR)
     searcher = OptunaSearch(metric="objective", mode=objective.mode, seed=config.run.seed)
     tuner = tune.Tuner(trainable, param_space={d.key: d.domain() for d in dimensions},
                        tune_config=tune.TuneConfig(search_alg=searcher, scheduler=scheduler, num_samples=trials,
