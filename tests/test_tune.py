@@ -21,7 +21,7 @@ import pytest
 
 from cmcl.__main__ import main
 from cmcl.config import load_config
-from services.sweep_trial import FINISHED, STOPPED
+from services.sweep_trial import FINISHED, HELD_OUT_EPISODES, STOPPED, SweepSettings, run_trial
 
 # navigation with 2 agents (random coverage about 0.06), a target a short run can reach, 8-episode averages
 SECTIONS = {"env": {"num_agents": 2}}
@@ -136,3 +136,52 @@ def test_a_sweep_stopped_by_sigint_resumes_each_trial_from_its_run(ray_cluster, 
             assert summary["elapsed_s"] > summary["segment_s"] + 0.5
             assert summary["episodes"] > stopped[row["trial"]]["episodes"]
     assert any(r["trial"] in stopped and r["ended"] in FINISHED for r in rows)
+
+
+def trial_settings(tiny_config_file, tmp_path, objective: str, budget_s: float, **run) -> SweepSettings:
+    config_file = tiny_config_file("maddpg", sections=SECTIONS, **run)
+    return SweepSettings(str(config_file), (), objective, 1.0, budget_s, str(tmp_path / "sweep"))
+
+
+def test_a_trial_reports_each_progress_row_and_ends_with_its_held_out_score(tiny_config_file, tmp_path):
+    """One trial's run without Tune (`run_trial` with a list for Tune's report): one report per progress row the
+    run wrote, then the last, whose objective is the held-out evaluation of the run's newest policy."""
+    from cmcl.evaluate import evaluate_policy, load_policy
+    from cmcl.io.rundir import RunDirectory
+
+    settings = trial_settings(tiny_config_file, tmp_path, "held_out_coverage", 0.0, episodes=120)
+    reports: list[dict] = []
+    last = run_trial({"maddpg.actor_lr": 0.003}, settings, "t0", reports.append)
+    run_dir = RunDirectory(settings.run_path("t0"))
+    progress = list(run_dir.rows("progress"))
+    assert len(reports) == len(progress) + 1 and reports[-1] == last
+    assert [r["training_s"] for r in reports[:-1]] == [row["elapsed_s"] for row in progress]
+    config = run_dir.config()
+    assert config.maddpg.actor_lr == 0.003 and run_dir.summary()["ended"] == "budget"
+    held_out = evaluate_policy(config, load_policy(config, run_dir.newest_policy()), HELD_OUT_EPISODES)
+    assert last["objective"] == last["held_out_coverage"] == held_out["coverage"]
+    assert last["episodes"] == 120
+
+
+def test_a_trial_the_sweep_stops_ends_in_order_and_a_restored_sweep_resumes_its_run(tiny_config_file, tmp_path):
+    """Tune stops a trial by raising SystemExit from its report: the run drains, checkpoints and writes its summary,
+    then the trial ends; run again (a restored sweep's unfinished trial) it resumes that run, not a new one."""
+    from cmcl.io.rundir import RunDirectory
+
+    settings = trial_settings(tiny_config_file, tmp_path, "seconds_to_coverage", 6.0, episodes=100_000)
+
+    def stop_at_the_first_report(_metrics: dict) -> None:
+        raise SystemExit(0)
+
+    with pytest.raises(SystemExit):
+        run_trial({"maddpg.hidden": 16}, settings, "t1", stop_at_the_first_report)
+    run_dir = RunDirectory(settings.run_path("t1"))
+    stopped = run_dir.summary()
+    assert stopped["ended"] == STOPPED and run_dir.newest_policy() is not None
+    reports: list[dict] = []
+    last = run_trial({"maddpg.hidden": 16}, settings, "t1", reports.append)
+    summary = run_dir.summary()
+    assert summary["ended"] == "budget" and summary["episodes"] > stopped["episodes"]
+    assert summary["elapsed_s"] == pytest.approx(stopped["elapsed_s"] + summary["segment_s"], abs=0.5)
+    assert last["objective"] == 6.0 and last["training_s"] >= 6.0  # never reached coverage 1: its budget
+    assert run_dir.config().maddpg.hidden == 16
