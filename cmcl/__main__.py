@@ -1,10 +1,12 @@
-"""One entry point for both runners: `python -m cmcl train | resume | evaluate | stages | status | config`.
+"""One entry point for both runners: `python -m cmcl train | resume | evaluate | stages | status | tune | config`.
 
     python -m cmcl train [--runner service|inline] [--config F] [--set section.key=value ...] [--overwrite]
     python -m cmcl resume RUN_DIR [--more-episodes N] [--set ...]  (the runner that wrote RUN_DIR, by default)
     python -m cmcl evaluate RUN_DIR [--episodes 100] [--checkpoint PATH] [--random] [--no-gif]
     python -m cmcl stages --agents 2 4 8 [--stage-episodes E E E] [train's flags]   (cmcl/agent_stages.py)
     python -m cmcl status RUN_DIR [RUN_DIR ...]   (where each run stands, one line each: cmcl/run_status.py)
+    python -m cmcl tune --config F --search KEY=DISTRIBUTION ... --trials N --out DIR [--resume DIR]
+                                                 (a sweep on Ray Tune, one inline run per trial: services/tune.py)
     python -m cmcl config [SECTION | SECTION.KEY] [--markdown]   (every config key: meaning, unit, default, range;
                                                                  docs/CONFIG.md)
 
@@ -42,6 +44,7 @@ DEFAULT_RUNNER = "service"
 # Each runner's entry function, imported only when that runner runs: `cmcl/` never imports Ray, and `--help`
 # imports no torch.
 RUNNER_ENTRIES = {"inline": ("services.launch", "run_launch"), "service": ("services.launch", "run_launch")}
+TUNE_FLAGS, TUNE_ENTRY = ("services.tune", "add_tune_flags"), ("services.tune", "tune_command")  # Ray: a sweep's
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -75,6 +78,11 @@ def build_parser() -> argparse.ArgumentParser:
                               description="One line per run folder, read from its files alone (nothing written, no "
                                           "Ray): cmcl/run_status.py.")
     status.add_argument("run_dirs", nargs="+", metavar="DIR", help="run folders, e.g. runs/*")
+    tune = verbs.add_parser("tune", help="a sweep on Ray Tune: Optuna proposes settings, ASHA stops trials early",
+                            description="Sweep config keys on Ray Tune (Optuna search, ASHA scheduler), one inline "
+                                        "run per trial in OUT/runs/; a results table and the best settings as --set "
+                                        "flags at the end (services/tune.py).")
+    getattr(importlib.import_module(TUNE_FLAGS[0]), TUNE_FLAGS[1])(tune)
     config = verbs.add_parser("config", help="every config key: its meaning, unit, default and allowed range",
                               description="Print every key of a run configuration (or of SECTION) with its meaning, "
                                           "unit, default and allowed range (cmcl/config/reference.py).")
@@ -141,6 +149,8 @@ def _main(argv: list[str] | None) -> int:
         from cmcl.run_status import status_command
 
         return status_command(args.run_dirs)
+    if args.verb == "tune":
+        return getattr(importlib.import_module(TUNE_ENTRY[0]), TUNE_ENTRY[1])(args)
     if args.verb == "evaluate":
         from cmcl.evaluate import evaluate_run
 
