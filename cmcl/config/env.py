@@ -19,8 +19,9 @@ import typing
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from cmcl.config.checks import AT_LEAST_1, check_fields, rule
+from cmcl.config.checks import AT_LEAST_1, _require, check_fields, rule
 from cmcl.envs.params import EPISODE_LENGTH, SpreadParams, TagParams
+from cmcl.envs.twins import TWINS
 from cmcl.field_docs import documented
 
 TaskName = Literal["spread", "tag"]
@@ -87,9 +88,15 @@ class EnvConfig:
     success_key: str = documented("", "the env's per-agent `info` key read as episode success: the mean over agents "
                                   "of each one's last value, an agent that left early counting with its own ('': none)")
     coverage_key: str = documented("", "likewise for coverage in [0, 1] (what run.stop_coverage watches)")
+    twin: bool = documented(
+        False, "step env.factory's batched numpy twin (cmcl.envs.twins: the sparse navigation worlds') instead of "
+        "env.num_envs copies of its ParallelEnv; the same dynamics, rewards and success on the same seed and actions "
+        "(tests/test_sparse_tasks.py), vectorised; needs an env.factory that has one")
 
     def __post_init__(self) -> None:
         check_fields(self, "env")
+        _require(not self.twin or self.factory in TWINS, "env.twin", self.twin,
+                 f"needs an env.factory that has a batched twin ({sorted(TWINS)}); env.factory = {self.factory!r}")
 
     @property
     def world(self) -> SpreadParams | TagParams:
