@@ -103,7 +103,8 @@ def create_roles(config: Config, run_dir: RunDirectory, in_process: bool = False
     resumed_at = resumed_episodes(run_dir)
 
     def make_rollout(w: int):
-        return actor(RolloutWorker, s.rollout_cpus, rollout_resources)(cfg, w, seed * 1000 + w, resumed_at)
+        return actor(RolloutWorker, s.rollout_cpus, rollout_resources)(cfg, w, seed * 1000 + w, resumed_at,
+                                                                     str(paths["teacher"] / f"rollout_{w}.json"))
 
     teams = config.teams.values()
     groups = teacher_groups(config, available)

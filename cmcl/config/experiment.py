@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from cmcl.config.checks import _require
-from cmcl.config.env import TASK_TEAMS, TASKS, EnvConfig
+from cmcl.config.env import TASK_TEAMS, TASKS, EnvConfig, TaskCurriculumConfig
 from cmcl.config.learning import CurriculumConfig, ICMConfig, MADDPGConfig, ReplayConfig, TeacherConfig
 from cmcl.config.run_and_service import RunConfig, ServiceConfig
 from cmcl.config.teams import TeamConfig
@@ -25,6 +25,7 @@ class Config:
     """The whole run: one section per component plus one TeamConfig per team of the task."""
 
     env: EnvConfig = field(default_factory=EnvConfig)
+    task_curriculum: TaskCurriculumConfig = field(default_factory=TaskCurriculumConfig)
     maddpg: MADDPGConfig = field(default_factory=MADDPGConfig)
     replay: ReplayConfig = field(default_factory=ReplayConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
@@ -45,6 +46,7 @@ class Config:
             _require(set(self.teams) == set(expected), "teams", sorted(self.teams),
                      f"must name exactly the teams of task {self.env.task!r}: {list(expected)}")
             object.__setattr__(self, "teams", {name: self.teams[name] for name in expected})
+        self.task_curriculum.check_world(self.env)
         _require(self.maddpg.warmup <= self.replay.capacity, "maddpg.warmup", self.maddpg.warmup,
                  f"must not exceed replay.capacity ({self.replay.capacity})")
         _require(self.maddpg.batch_size <= max(self.maddpg.warmup, 1) or self.maddpg.warmup == 0,
