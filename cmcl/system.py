@@ -163,7 +163,7 @@ def agent_layout(config: Config, env) -> AgentLayout:
             source[agent] = needs.difficulty_source
             if needs.teachers:
                 teacher.append(agent)
-            if needs.icm:
+            if needs.icm or config.icm.intrinsic_reward_coef > 0:  # ρ as a reward: every agent's ICM trains
                 icm.append(agent)
             learner_scores.update(needs.learner_scores)
             select[agent] = REGISTRY[spec.algorithm].candidates > 1

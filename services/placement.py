@@ -45,7 +45,7 @@ def required_cpus(config: Config, cluster_cpus: float | None = None) -> float:
     total = s.rollout_workers * s.rollout_cpus + s.learner_cpus + s.replay_cpus
     if any(t.uses_teachers for t in teams):
         total += len(teacher_groups(config, cluster_cpus)) * s.teacher_cpus
-    if any(t.uses_icm for t in teams):
+    if config.trains_icm:
         total += s.icm_cpus
     return total
 
@@ -114,7 +114,7 @@ def create_roles(config: Config, run_dir: RunDirectory, in_process: bool = False
             cfg, folds, seed * 1000 + 100 + i, str(paths["teacher"] / f"teacher_{'-'.join(map(str, folds))}.pt"))
             for i, folds in enumerate(groups)]
     icm = None
-    if any(t.uses_icm for t in teams):
+    if config.trains_icm:
         icm = actor(ICMWorker, s.icm_cpus)(cfg, seed * 1000 + 200, str(paths["icm"]))
     return Roles(replay=actor(ReplayServer, s.replay_cpus)(cfg, str(paths["replay"]), seed),
                  learner=actor(Learner, s.learner_cpus)(cfg, seed, str(paths["learner"])),

@@ -62,10 +62,6 @@ class Config:
                  "maddpg.holder_rule", self.maddpg.holder_rule, f"needs env.cover_radius = {SEATED_RADIUS} "
                  f"(an agent within it of a landmark sits there; env.cover_radius = {self.env.spread.cover_radius} "
                  "here)")
-        _require(self.icm.intrinsic_reward_coef == 0 or any(t.uses_icm for t in self.teams.values()),
-                 "icm.intrinsic_reward_coef", self.icm.intrinsic_reward_coef,
-                 "> 0 needs a team whose rule trains the ICM (algorithm 'cmcl'): ρ is the ICM scorer's; "
-                 f"teams' algorithms here: {sorted({t.algorithm for t in self.teams.values()})}")
         if self.run.stop_progress > 0 and self.run.progress_signal == "coverage":
             has_coverage = bool(self.env.coverage_key) if self.env.factory else self.env.task == "spread"
             _require(has_coverage, "run.progress_signal", "coverage",
@@ -105,6 +101,12 @@ class Config:
         _require(self.env.task == "spread" and not self.env.factory, key, value,
                  why.format("a task with landmarks, env.task = 'spread'",
                             f"env.task = {self.env.task!r}" + (" with env.factory" if self.env.factory else "")))
+
+    @property
+    def trains_icm(self) -> bool:
+        """Whether the run has an ICM role: a team's sampling rule needs curiosity (CMCL's CP), or ρ is a reward
+        (icm.intrinsic_reward_coef > 0: every agent is then a curiosity agent, cmcl.system.agent_layout)."""
+        return self.icm.intrinsic_reward_coef > 0 or any(t.uses_icm for t in self.teams.values())
 
     @property
     def total_env_steps(self) -> int:
