@@ -58,3 +58,26 @@ def test_the_learner_trains_on_reward_plus_the_decayed_weight_times_rho(tiny_con
     assert a.tolist() == list(range(config.env.spread.num_agents))  # uniform sampling: every agent's ICM
     expected = batch.rows["rew"][0][a, :, a] + 2.0 * weight * batch.rows["curiosity"][0][a, :, a]
     np.testing.assert_allclose(recorder.minibatch["rew"][a, :, a], expected, rtol=1e-5)
+
+
+@pytest.mark.parametrize("frozen", [False, True])
+def test_a_frozen_icm_scores_with_its_random_networks_and_never_fits(frozen):
+    """icm.frozen, the intrinsic reward's control: the same ICM role scores ρ, its networks stay at their
+    initialisation (an unfrozen one's change with its first fit step)."""
+    import torch
+
+    from services.icm import ICMWorker
+    from services.replay_server import ReplayServer
+    from services.rollout import RolloutWorker
+    from tests.in_process import in_process_config
+
+    cfg = in_process_config("maddpg", icm={"intrinsic_reward_coef": 1.0, "frozen": frozen})
+    replay, worker, icm = ReplayServer(cfg), RolloutWorker(cfg, 0, 0), ICMWorker(cfg, 0)
+    for _ in range(3):
+        replay.insert(worker.rollout(None)[0])
+    before = [p.detach().clone() for p in icm.icm.parameters()]
+    work, _ = replay.icm_work(2)
+    scores, _ = icm.step(work)
+    assert scores.rho.shape[1] == 4 and np.isfinite(scores.rho).all() and (scores.rho > 0).all()
+    same = all(torch.equal(b, p) for b, p in zip(before, icm.icm.parameters(), strict=True))
+    assert same == frozen

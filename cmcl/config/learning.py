@@ -242,6 +242,10 @@ class ICMConfig:
     intrinsic_reward_decay_updates: int = documented(
         100_000, "the decay's length: learner updates (all agents at once, maddpg.updates) until the linear weight "
         "reaches 0, or over which the exponential one falls by e", unit="learner updates", rule=AT_LEAST_1)
+    frozen: bool = documented(
+        False, "never fit the ICM: ρ is the forward error of its randomly initialised networks (the intrinsic "
+        "reward's control arm: a reward of the same kind from a random network, without curiosity's information; "
+        "docs/SPARSE_TASKS.md). The fit steps are still paced and counted, their batches unused")
     steps_per_update: float = documented(0.5, "ICM fit steps per learner update, inline and in the service "
                                          "(§3.8: 1)", unit="fit steps per update", rule=POSITIVE)
     networks: Literal["per_agent", "entity"] = documented(
