@@ -145,3 +145,32 @@ def test_the_service_runner_trains_a_curriculum(tmp_path, ray_cluster):
     assert summary["episodes"] >= 24 and summary["reports_rejected"] == {}
     stages = _stage_rows(tmp_path / "run")
     assert stages[0] == 0 and stages[-1] == 1
+
+
+@pytest.mark.parametrize("task", ["vacl_n4", "push_box"])
+@pytest.mark.parametrize("kind", ["curriculum", "intrinsic"])
+def test_each_screen_preset_is_its_tasks_maddpg_preset_plus_one_section(task, kind):
+    from cmcl.config import load_data
+
+    base, data = (load_data(ROOT / "configs" / f"{task}_{k}.toml") for k in ("maddpg", kind))
+    section = "task_curriculum" if kind == "curriculum" else "icm"
+    assert set(data) == set(base) | {section} and data["env"] == base["env"] and data["teams"] == base["teams"]
+    assert data["run"]["max_seconds"] == base["run"]["max_seconds"]
+    config = load_config(ROOT / "configs" / f"{task}_{kind}.toml")
+    assert config.task_curriculum.enabled == (kind == "curriculum")
+    assert config.trains_icm == (kind == "intrinsic")
+    if kind == "curriculum":  # the last stage is the source task, the one held out
+        setting = config.task_curriculum.param
+        assert config.task_curriculum.stages[-1] == {"spawn_scale": 1.0, "push_cells": 6}[setting]
+
+
+def test_the_sparse_screen_grid_has_every_candidate_on_both_tasks_per_seed():
+    from experiments.grids import SPARSE_SCREEN, grid
+
+    runs = grid(["sparse_screen"], [0, 1, 2])
+    assert len(runs) == 3 * 2 * len(SPARSE_SCREEN)
+    assert [r.seed for r in runs] == sorted(r.seed for r in runs)
+    for r in runs:
+        config = load_config(ROOT / "configs" / r.config, list(r.sets))  # every candidate loads
+        assert r.algorithm == "maddpg" and all(t.algorithm == "maddpg" for t in config.teams.values())
+        assert r.max_seconds == 1800
