@@ -122,6 +122,8 @@ def built_env(config: Config) -> Any:
     factory = config.env.factory
     if not factory:
         return make_batched_env(config, num_envs=1, seed=0)
+    # the checks are of the factory's own env (its spaces, max_cycles, teams), whose twin (env.twin) steps the same
+    config = dataclasses.replace(config, env=dataclasses.replace(config.env, twin=False))
     try:
         env = make_batched_env(config, num_envs=1, seed=0)
     except EnvFactoryError as err:

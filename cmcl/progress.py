@@ -34,9 +34,11 @@ def solved(window: Sequence[dict[str, Any]], run: Any) -> bool:
     return mean is not None and mean >= run.stop_coverage
 
 
-EPISODE_STATS = ("coverage", "success", "collisions", "wall_hits", "captures")  # per-episode env statistics
-REPORTED_STATS = ("coverage", "success")  # the ones the metrics report carries (services.metrics schema)
-WINDOW_KEYS = (("coverage", "cov"), ("success", "succ"), ("predator_win", "win"))  # window means and their labels
+# per-episode env statistics, and the task curriculum's stage of the episode (cmcl.task_curriculum)
+EPISODE_STATS = ("coverage", "success", "collisions", "wall_hits", "captures", "task_stage")
+REPORTED_STATS = ("coverage", "success", "task_stage")  # the ones the metrics report carries (services.metrics schema)
+# window means and their labels (task_stage: the mean task curriculum stage of the window's episodes)
+WINDOW_KEYS = (("coverage", "cov"), ("success", "succ"), ("predator_win", "win"), ("task_stage", "stage"))
 
 
 def finished_episodes(episode: dict[str, np.ndarray], teams: dict[str, list[int]],

@@ -108,9 +108,14 @@ class AgentLayout:
 def make_batched_env(config: Config, num_envs: int | None = None, seed: Any = None, auto_reset: bool = True,
                      render_mode: str | None = None):
     """The batched numpy twin of config.env.task stepping `num_envs` (default config.env.num_envs) worlds, or for
-    `env.factory` that many copies of the user's environment behind the same interface (render_mode: theirs only)."""
+    `env.factory` that many copies of the user's environment behind the same interface (render_mode: theirs only),
+    or with env.twin the factory's own batched twin (cmcl.envs.twins)."""
     env = config.env
     b = env.num_envs if num_envs is None else num_envs
+    if env.twin and render_mode is None:  # the factory's vectorised twin (cmcl.envs.twins); drawing needs its env
+        from cmcl.envs.twins import twin_for
+
+        return twin_for(env.factory)(env.factory_kwargs, b, env.episode_length, seed, auto_reset)
     if env.factory:
         from cmcl.envs.factory import load_factory
         from cmcl.envs.parallel_vector import VectorParallelEnv
@@ -165,7 +170,7 @@ def agent_layout(config: Config, env) -> AgentLayout:
             source[agent] = needs.difficulty_source
             if needs.teachers:
                 teacher.append(agent)
-            if needs.icm:
+            if needs.icm or config.icm.intrinsic_reward_coef > 0:  # ρ as a reward: every agent's ICM trains
                 icm.append(agent)
             learner_scores.update(needs.learner_scores)
             select[agent] = spec.rule.pick is not None

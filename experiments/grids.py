@@ -32,6 +32,9 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
   ``env.factory``, inline and on the embedded service, each with its own budget and settings;
 * ``sparse_calibration`` (docs/SPARSE_TASKS.md): uniform MADDPG and PER-MADDPG on each sparse task of
   SPARSE_TASKS (its preset configs/<task>_maddpg.toml, through ``env.factory``), inline, the preset's budget.
+* ``sparse_screen`` (docs/SPARSE_TASKS.md, its screen protocol): the task-curriculum and intrinsic-reward candidates
+  of SPARSE_SCREEN on vacl_n4 and push_box (presets configs/<task>_curriculum.toml, <task>_intrinsic.toml), uniform
+  MADDPG sampling, inline, the preset's budget, seeds 0, 1, 2.
 
 Runs are ordered seed outermost (seed k of every cell before any seed k+1), so a grid stopped part-way has
 balanced arms. A run's id names its summary file, so ids never change once results exist.
@@ -261,6 +264,33 @@ def sparse_calibration_runs(seed: int) -> list[Run]:
     return runs
 
 
+# the sparse screen (docs/SPARSE_TASKS.md, "Screen protocol"): candidate -> (its preset configs/<task>_<kind>.toml,
+# --set overrides), on each task of SPARSE_SCREEN_TASKS, at the preset's budget, the seeds SPARSE_SCREEN_SEEDS
+SPARSE_SCREEN_TASKS = ("vacl_n4", "push_box")
+SPARSE_SCREEN = {
+    "curriculum": ("curriculum", ()),
+    "curriculum_progress": ("curriculum", ("task_curriculum.advance=progress", "task_curriculum.level=0.05")),
+    "curriculum_nomix": ("curriculum", ("task_curriculum.mix=0.0",)),
+    "intrinsic": ("intrinsic", ()),
+    "intrinsic_strong": ("intrinsic", ("icm.intrinsic_reward_coef=1.0",)),
+}
+SPARSE_SCREEN_SEEDS = (0, 1, 2)
+
+
+def sparse_screen_runs(seed: int) -> list[Run]:
+    """The sparse_screen grid: every candidate of SPARSE_SCREEN on every task of SPARSE_SCREEN_TASKS at its preset's
+    budget, id "sparse_screen_<task>_<candidate>_s<seed>"."""
+    runs = []
+    for task in SPARSE_SCREEN_TASKS:
+        for candidate, (kind, sets) in SPARSE_SCREEN.items():
+            config = f"{task}_{kind}.toml"
+            preset = load_data(ROOT / "configs" / config)["run"]
+            runs.append(Run(f"sparse_screen_{task}_{candidate}_s{seed}", "sparse_screen", "own_env", "maddpg", None,
+                            seed, int(preset["episodes"]), arm=candidate, config=config,
+                            max_seconds=float(preset["max_seconds"]), env=task, sets=sets))
+    return runs
+
+
 GRIDS = {  # name -> results folder (its summaries/ and runs/)
     "spread": RESULTS / "reproduce", "tag": RESULTS / "reproduce", "winrate": RESULTS / "reproduce",
     "ablations": RESULTS / "reproduce", "curriculum": RESULTS / "curriculum",
@@ -269,7 +299,7 @@ GRIDS = {  # name -> results folder (its summaries/ and runs/)
     "screen": RESULTS / "screen", "confirm": RESULTS / "confirm", "make_run": RESULTS / "make_run",
     "schedule": RESULTS / "time_to_solve",
     "algorithms": RESULTS / "time_to_solve", "own_envs": RESULTS / "own_envs", "scale": RESULTS / "scale",
-    "sparse_calibration": RESULTS / "sparse_calibration",
+    "sparse_calibration": RESULTS / "sparse_calibration", "sparse_screen": RESULTS / "sparse_screen",
 }
 
 
@@ -318,6 +348,8 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str] = PAPER_ALGOR
                 runs += own_env_runs(seed)
             elif name == "sparse_calibration":
                 runs += sparse_calibration_runs(seed)
+            elif name == "sparse_screen":
+                runs += sparse_screen_runs(seed)
             elif name == "scale":
                 runs += scale_runs(seed, budget)
             elif name in ("schedule", "algorithms"):

@@ -74,7 +74,7 @@ class Learner:
             minibatch, slots, generations = network_steps.choose_minibatch(self.maddpg, batch, i, use_weights,
                                                                            self.layout.select, self.layout.pick)
             stats = network_steps.learner_update(self.maddpg, minibatch, self.layout.icm_agents,
-                                                 self.config.icm.intrinsic_reward_coef)
+                                                 self.config.icm.intrinsic_coef(self.maddpg.updates))
             picked.append((slots, generations, stats["td_abs"],
                            network_steps.rule_scores(self.layout.rule_scores, stats, minibatch)))
         slots, generations = np.stack([p[0] for p in picked]), np.stack([p[1] for p in picked])

@@ -48,7 +48,7 @@ def required_cpus(config: Config, cluster_cpus: float | None = None) -> float:
     total = s.rollout_workers * s.rollout_cpus + s.learner_cpus + s.replay_cpus
     if any(t.uses_teachers for t in teams):
         total += len(teacher_groups(config, cluster_cpus)) * s.teacher_cpus
-    if any(t.uses_icm for t in teams):
+    if config.trains_icm:
         total += s.icm_cpus
     return total
 
@@ -131,7 +131,8 @@ def create_roles(config: Config, run_dir: RunDirectory, in_process: bool = False
     resumed_at = resumed_episodes(run_dir)
 
     def make_rollout(w: int):
-        return actor(RolloutWorker, s.rollout_cpus, rollout_resources)(cfg, w, seed * 1000 + w, resumed_at)
+        return actor(RolloutWorker, s.rollout_cpus, rollout_resources)(cfg, w, seed * 1000 + w, resumed_at,
+                                                                     str(paths["teacher"] / f"rollout_{w}.json"))
 
     teams = config.teams.values()
     groups = teacher_groups(config, available)
@@ -141,7 +142,7 @@ def create_roles(config: Config, run_dir: RunDirectory, in_process: bool = False
             cfg, folds, seed * 1000 + 100 + i, str(paths["teacher"] / f"teacher_{'-'.join(map(str, folds))}.pt"))
             for i, folds in enumerate(groups)]
     icm = None
-    if any(t.uses_icm for t in teams):
+    if config.trains_icm:
         icm = actor(ICMWorker, s.icm_cpus)(cfg, seed * 1000 + 200, str(paths["icm"]))
     return Roles(replay=actor(ReplayServer, s.replay_cpus)(cfg, str(paths["replay"]), seed),
                  learner=actor(Learner, s.learner_cpus)(cfg, seed, str(paths["learner"])),

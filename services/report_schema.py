@@ -131,6 +131,7 @@ class FinishedEpisodes(_Section):
     success: np.ndarray | None = None  # arr in [0, 1]: all landmarks covered (spread)
     reward: Mapping[str, np.ndarray] | None = None  # {team label: arr}: team episode return
     win: Mapping[str, np.ndarray] | None = None  # {team label: arr in [0, 1]}: episode won (tag)
+    task_stage: np.ndarray | None = None  # arr >= 0: the task curriculum stage it was played at (cmcl.task_curriculum)
 
 
 @dataclass(frozen=True)
@@ -284,8 +285,10 @@ def _parse_learner(section: Any) -> LearnerReport:
 def _parse_finished(section: Any) -> FinishedEpisodes:
     """Validate ``rollout.finished``."""
     path = "rollout.finished"
-    section = _mapping(path, section, {"coverage", "success", "reward", "win"})
+    section = _mapping(path, section, {"coverage", "success", "reward", "win", "task_stage"})
     values = {key: _array(f"{path}.{key}", section[key], 0, 1) for key in ("coverage", "success") if key in section}
+    if "task_stage" in section:
+        values["task_stage"] = _array(f"{path}.task_stage", section["task_stage"], 0, None)
     for key, lo, hi in (("reward", None, None), ("win", 0, 1)):
         if key in section:
             values[key] = _labelled(f"{path}.{key}", section[key], lambda p, v, lo=lo, hi=hi: _array(p, v, lo, hi))

@@ -5,19 +5,28 @@ version)`; the chunk goes, as an object ref owned by the supervisor, straight to
 steps the B worlds until B episodes have finished (each world ends and restarts its episodes on its own) and
 sends B complete episodes (`cmcl.episodes.EpisodeChunker`), so the replay server can give each a global episode id
 (and hence a fold). For the built-in twins that is one lock-step episode of every world, as before.
+
+With [task_curriculum] (cmcl.task_curriculum) the worker owns the curriculum of its worlds: it sets each world's
+stage at its episode boundaries, reports the stage of every finished episode (`task_stage`) and saves the
+curriculum's state with its checkpoint (`save`, read back when the worker is built: a resumed or restarted worker
+goes on at its stage).
 """
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from cmcl.episodes import EpisodeChunker
+from cmcl.io.atomic import atomic_write_bytes
 from cmcl.learners.policy import NumpyPolicy, numpy_policy
 from cmcl.messages import Chunk
 from cmcl.progress import REPORTED_STATS, finished_episodes
 from cmcl.system import agent_layout, build_maddpg, make_batched_env, to_env_actions
+from cmcl.task_curriculum import TaskCurriculum
 from services.common import actor_setup, new_incarnation, restarted_actor
 from services.report_schema import FinishedEpisodes, Report, RolloutReport
 
@@ -25,17 +34,27 @@ from services.report_schema import FinishedEpisodes, Report, RolloutReport
 class RolloutWorker:
     """One worker: B worlds of the configured task and a copy of the online actors."""
 
-    def __init__(self, config: Any, worker_id: int, seed: int, resumed_at: int = 0):
+    def __init__(self, config: Any, worker_id: int, seed: int, resumed_at: int = 0, state_path: str | None = None):
         """resumed_at: the episodes the run had stored when this segment began (0: a new run); a resumed run's worlds
-        are then not its first segment's again."""
+        are then not its first segment's again. state_path: the worker's checkpoint (its task curriculum's state,
+        JSON), loaded when it exists."""
         parsed = actor_setup(config, uses_torch=False)
         self.worker_id, self.incarnation = int(worker_id), new_incarnation()
         # a restarted worker must not replay its predecessor's worlds: its incarnation is mixed into the seed (a
         # first incarnation's worlds are the seed's own, so that one process's runs repeat exactly)
         entropy = [int(seed), int(worker_id), *([int(resumed_at)] if resumed_at else []),
                    *([int(self.incarnation, 16)] if restarted_actor() else [])]
-        env_seed, noise_seed, net_seed = np.random.SeedSequence(entropy).spawn(3)
+        sequence = np.random.SeedSequence(entropy)
+        env_seed, noise_seed, net_seed = sequence.spawn(3)
         self.env = make_batched_env(parsed, seed=np.random.default_rng(env_seed), auto_reset=True)
+        self.state_path = Path(state_path) if state_path else None
+        self.curriculum: TaskCurriculum | None = None
+        if parsed.task_curriculum.enabled:
+            self.curriculum = TaskCurriculum(parsed.task_curriculum, self.env.num_envs,
+                                             np.random.default_rng(sequence.spawn(1)[0]))
+            if self.state_path is not None and self.state_path.exists():
+                self.curriculum.load_state(json.loads(self.state_path.read_text())["task_curriculum"])
+            self.curriculum.start(self.env)
         self.layout = agent_layout(parsed, self.env)
         # continuous actors run in numpy (no torch in this process); the discrete variant (maddpg.discrete, or a
         # factory env with Discrete actions: known once the env is built) keeps torch's MADDPG
@@ -73,7 +92,11 @@ class RolloutWorker:
             self.chunker.add(self.obs, a, r, info["final_obs"], info["terminated"], ended)
             self.env_steps += b
             if ended.any():
-                finished.append(info["episode"])
+                episode = info["episode"]
+                if self.curriculum is not None:
+                    stages = self.curriculum.episodes_ended(self.env, ended, episode)
+                    episode = {**episode, "task_stage": stages.astype(np.float64)}
+                finished.append(episode)
             self.obs = next_obs
         self.episodes += sum(len(e["return"]) for e in finished)
         chunk = self.chunker.pop(b, self.worker_id, self.incarnation, self.seq, max(self.version, 0))
@@ -81,6 +104,12 @@ class RolloutWorker:
         episode = {k: np.concatenate([e[k] for e in finished]) for k in finished[0]} if finished \
             else {"return": np.zeros((0, self.env.num_agents))}
         return chunk, self._report(episode)
+
+    def save(self) -> None:
+        """Write the worker's checkpoint (its task curriculum's state) atomically to state_path; nothing without a
+        task curriculum or a path."""
+        if self.curriculum is not None and self.state_path is not None:
+            atomic_write_bytes(self.state_path, json.dumps({"task_curriculum": self.curriculum.state()}).encode())
 
     def _numpy_policy(self, actor: dict[str, np.ndarray]) -> NumpyPolicy:
         """The numpy twin of the actor weights `actor`, reading the entities the learner's actor reads (its nearest

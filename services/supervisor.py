@@ -237,6 +237,8 @@ class Supervisor:
         """The progress row of metrics.jsonl (services.progress_view) with the learner's last losses per agent
         ("critic_loss", "actor_loss": lists over agents in index order) once it has reported them."""
         row = self.view.row(self.status, self.last_replay_report)
+        if self.window and "task_stage" in self.window[-1]:  # the task curriculum's newest stage (cmcl.task_curriculum)
+            row["task_stage"] = int(max(r["task_stage"] for r in self.window))
         return {**row, **{f"{kind}_loss": losses for kind, losses in self.last_losses.items()}}
 
     def progress_line(self) -> str:
@@ -285,6 +287,7 @@ class Supervisor:
         r = self.roles
         submit = self.calls.submit
         saves = {"learner": [submit(r.learner, "save")], "replay": [submit(r.replay, "snapshot")],
+                 "rollout": [submit(w, "save") for w in r.rollout],  # the task curriculum's stage, if any
                  "teacher": [submit(t, "save") for t in r.teachers], "icm": [submit(r.icm, "save")] if r.icm else []}
         for role, refs in saves.items():
             for ref in refs:

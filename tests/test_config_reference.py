@@ -92,8 +92,8 @@ def test_one_section_is_printed_and_an_unknown_one_is_refused_in_one_line(capsys
     assert main(["config", "nonsense"]) == 2
     captured = capsys.readouterr()
     assert captured.out == ""
-    assert captured.err == ("error: unknown section or key 'nonsense' (sections: env, maddpg, replay, curriculum, "
-                            "teachers, icm, run, service, teams, teams.priority; a key: SECTION.KEY, e.g. "
+    assert captured.err == ("error: unknown section or key 'nonsense' (sections: env, task_curriculum, maddpg, replay, "
+                            "curriculum, teachers, icm, run, service, teams, teams.priority; a key: SECTION.KEY, e.g. "
                             "maddpg.hidden or teams.agent.eta)\n")
 
 

@@ -72,12 +72,12 @@ class RecordingMADDPG:
         return {}
 
 
-def test_an_intrinsic_reward_without_an_icm_is_refused_in_one_line(tiny_config):
-    import pytest
-
-    from cmcl.config import ConfigError
+def test_an_intrinsic_reward_under_uniform_sampling_trains_an_icm_for_every_agent(tiny_config):
+    """MADDPG's uniform sampling with icm.intrinsic_reward_coef > 0 (docs/SPARSE_TASKS.md): every agent is a
+    curiosity agent, so the run has an ICM role to score ρ."""
+    from cmcl.system import layout_of
 
     data = tiny_config("maddpg").to_dict()
     data["icm"]["intrinsic_reward_coef"] = 1.0
-    with pytest.raises(ConfigError, match=r"^icm.intrinsic_reward_coef .*needs a team whose rule trains the ICM"):
-        config_from_dict(data)
+    config = config_from_dict(data)
+    assert config.trains_icm and layout_of(config).icm_agents.tolist() == list(range(config.env.spread.num_agents))

@@ -18,7 +18,7 @@ Errors: any unknown key, wrong type or out-of-range value raises `ConfigError` n
 """
 
 from cmcl.config.checks import ConfigError
-from cmcl.config.env import TASK_TEAMS, TASKS, EnvConfig
+from cmcl.config.env import TASK_TEAMS, TASKS, EnvConfig, TaskCurriculumConfig
 from cmcl.config.experiment import Config, preset
 from cmcl.config.learning import CurriculumConfig, ICMConfig, MADDPGConfig, ReplayConfig, TeacherConfig
 from cmcl.config.run_and_service import RunConfig, ServiceConfig
@@ -37,5 +37,5 @@ from cmcl.replay.registry import ALGORITHMS
 __all__ = ["ALGORITHMS", "DEFAULT_ALPHA", "TASKS", "TASK_TEAMS", "ConfigError",
            "CurriculumConfig", "ICMConfig", "MADDPGConfig", "PriorityConfig", "ReplayConfig", "RunConfig",
            "ServiceConfig", "TeacherConfig", "TeamConfig",
-           "Config", "EnvConfig", "apply_overrides", "config_from_dict", "dump_toml", "load_config",
-           "load_data", "load_stored_config", "parse_override", "preset"]
+           "Config", "EnvConfig", "TaskCurriculumConfig", "apply_overrides", "config_from_dict", "dump_toml",
+           "load_config", "load_data", "load_stored_config", "parse_override", "preset"]

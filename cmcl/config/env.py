@@ -19,8 +19,10 @@ import typing
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from cmcl.config.checks import AT_LEAST_1, check_fields, rule
+from cmcl.config.checks import AT_LEAST_1, PROBABILITY, ConfigError, _require, check_fields, rule
 from cmcl.envs.params import EPISODE_LENGTH, SpreadParams, TagParams
+from cmcl.envs.twins import TWINS
+from cmcl.envs.world_settings import setting_of
 from cmcl.field_docs import documented
 
 TaskName = Literal["spread", "tag"]
@@ -87,9 +89,15 @@ class EnvConfig:
     success_key: str = documented("", "the env's per-agent `info` key read as episode success: the mean over agents "
                                   "of each one's last value, an agent that left early counting with its own ('': none)")
     coverage_key: str = documented("", "likewise for coverage in [0, 1] (what run.stop_coverage watches)")
+    twin: bool = documented(
+        False, "step env.factory's batched numpy twin (cmcl.envs.twins: the sparse navigation worlds') instead of "
+        "env.num_envs copies of its ParallelEnv; the same dynamics, rewards and success on the same seed and actions "
+        "(tests/test_sparse_tasks.py), vectorised; needs an env.factory that has one")
 
     def __post_init__(self) -> None:
         check_fields(self, "env")
+        _require(not self.twin or self.factory in TWINS, "env.twin", self.twin,
+                 f"needs an env.factory that has a batched twin ({sorted(TWINS)}); env.factory = {self.factory!r}")
 
     @property
     def world(self) -> SpreadParams | TagParams:
@@ -101,3 +109,55 @@ class EnvConfig:
         world = {key: getattr(getattr(self, home.task), home.name) for key, home in WORLD_KEYS.items()}
         rest = {k: v for k, v in dataclasses.asdict(self).items() if k not in TASKS}
         return {"task": rest.pop("task"), **world, **rest}
+
+
+Advance = Literal["success", "coverage", "progress", "fixed"]
+ADVANCES: tuple[str, ...] = typing.get_args(Advance)
+
+
+@dataclass(frozen=True)
+class TaskCurriculumConfig:
+    """[task_curriculum]: a curriculum over one of the world's own settings (cmcl.task_curriculum; the generalisation
+    of the agent-count stages, cmcl.agent_stages). Each rollout worker gives each of its worlds, at the world's
+    episode boundaries, the value of the current stage (or, with `mix`, of an earlier one), and moves to the next
+    stage when the advance rule fires on its own episodes of the current stage. Off while `param` is ''."""
+
+    param: str = documented(
+        "", "the world setting the stages change (cmcl.envs.world_settings: navigation's spawn_scale, cover_radius, "
+        "gate; Push-Box's push_cells; Pass's switch_reach), '' = no task curriculum; needs env.factory of a sparse "
+        "task")
+    stages: tuple[float, ...] = documented(
+        meaning="its values, easiest first (the last is the target task: the source's value); at least 2",
+        factory=tuple, unit="the setting's own")
+    advance: Advance = documented(
+        "success", "when a stage ends: 'success' / 'coverage' when the moving average of the training success / "
+        "coverage of its last `window` episodes reaches `level`; 'progress' when that average has risen above 0 and "
+        "then changes by less than `level` from one window of `window` episodes to the next (a plateau); 'fixed' "
+        "after every `window` episodes (the control arm: the same stages on a fixed schedule)")
+    level: float = documented(0.8, "the advance rule's threshold (success / coverage: a rate in [0, 1]; progress: "
+                              "the change of that rate between windows)", rule=PROBABILITY)
+    window: int = documented(200, "episodes per window of the advance rule (episodes of the current stage, per "
+                             "rollout worker)", unit="episodes", rule=AT_LEAST_1)
+    mix: float = documented(0.0, "the share of episodes drawn at a uniformly chosen earlier stage (VACL's solved set "
+                            "beside its active one); 0 = every episode at the current stage", rule=PROBABILITY)
+
+    def __post_init__(self) -> None:
+        check_fields(self, "task_curriculum")
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.param)
+
+    def check_world(self, env: EnvConfig) -> None:
+        """Refuse, naming the key and the value, a param the task of `env` cannot set or a stage out of its range."""
+        if not self.enabled:
+            _require(not self.stages, "task_curriculum.stages", list(self.stages), "needs task_curriculum.param")
+            return
+        try:
+            setting = setting_of(env.factory, self.param, "task_curriculum.param")
+            _require(len(self.stages) >= 2, "task_curriculum.stages", list(self.stages),
+                     "must hold at least 2 values, easiest first")
+            for i, value in enumerate(self.stages):
+                setting.check(value, f"task_curriculum.stages[{i}]")
+        except ValueError as err:
+            raise ConfigError(str(err)) from None

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from cmcl.config.checks import _require
-from cmcl.config.env import TASK_TEAMS, TASKS, EnvConfig
+from cmcl.config.env import TASK_TEAMS, TASKS, EnvConfig, TaskCurriculumConfig
 from cmcl.config.learning import CurriculumConfig, ICMConfig, MADDPGConfig, ReplayConfig, TeacherConfig
 from cmcl.config.run_and_service import RunConfig, ServiceConfig
 from cmcl.config.teams import TeamConfig
@@ -25,6 +25,7 @@ class Config:
     """The whole run: one section per component plus one TeamConfig per team of the task."""
 
     env: EnvConfig = field(default_factory=EnvConfig)
+    task_curriculum: TaskCurriculumConfig = field(default_factory=TaskCurriculumConfig)
     maddpg: MADDPGConfig = field(default_factory=MADDPGConfig)
     replay: ReplayConfig = field(default_factory=ReplayConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
@@ -45,6 +46,7 @@ class Config:
             _require(set(self.teams) == set(expected), "teams", sorted(self.teams),
                      f"must name exactly the teams of task {self.env.task!r}: {list(expected)}")
             object.__setattr__(self, "teams", {name: self.teams[name] for name in expected})
+        self.task_curriculum.check_world(self.env)
         _require(self.maddpg.warmup <= self.replay.capacity, "maddpg.warmup", self.maddpg.warmup,
                  f"must not exceed replay.capacity ({self.replay.capacity})")
         _require(self.maddpg.batch_size <= max(self.maddpg.warmup, 1) or self.maddpg.warmup == 0,
@@ -60,10 +62,6 @@ class Config:
                  "maddpg.holder_rule", self.maddpg.holder_rule, f"needs env.cover_radius = {SEATED_RADIUS} "
                  f"(an agent within it of a landmark sits there; env.cover_radius = {self.env.spread.cover_radius} "
                  "here)")
-        _require(self.icm.intrinsic_reward_coef == 0 or any(t.uses_icm for t in self.teams.values()),
-                 "icm.intrinsic_reward_coef", self.icm.intrinsic_reward_coef,
-                 "> 0 needs a team whose rule trains the ICM (algorithm 'cmcl'): ρ is the ICM scorer's; "
-                 f"teams' algorithms here: {sorted({t.algorithm for t in self.teams.values()})}")
         if self.run.stop_progress > 0 and self.run.progress_signal == "coverage":
             has_coverage = bool(self.env.coverage_key) if self.env.factory else self.env.task == "spread"
             _require(has_coverage, "run.progress_signal", "coverage",
@@ -104,6 +102,12 @@ class Config:
         _require(self.env.task == "spread" and not self.env.factory, key, value,
                  why.format("a task with landmarks, env.task = 'spread'",
                             f"env.task = {self.env.task!r}" + (" with env.factory" if self.env.factory else "")))
+
+    @property
+    def trains_icm(self) -> bool:
+        """Whether the run has an ICM role: a team's sampling rule needs curiosity (CMCL's CP), or ρ is a reward
+        (icm.intrinsic_reward_coef > 0: every agent is then a curiosity agent, cmcl.system.agent_layout)."""
+        return self.icm.intrinsic_reward_coef > 0 or any(t.uses_icm for t in self.teams.values())
 
     @property
     def total_env_steps(self) -> int:

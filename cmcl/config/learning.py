@@ -12,6 +12,7 @@ cmcl.config.teams, [run] and [service] cmcl.config.run_and_service, [env] cmcl.c
 
 from __future__ import annotations
 
+import math
 import typing
 from dataclasses import dataclass
 from typing import Literal
@@ -241,7 +242,19 @@ class ICMConfig:
     intrinsic_reward_coef: float = documented(
         0.0, "weight of the curiosity ρ added to each curiosity agent's reward in the learner's minibatches: the "
         "row's ρ as the ICM scorer last scored it (0 until it has; both runners); 0 (A6): curiosity feeds the "
-        "priority only", rule=AT_LEAST_0)
+        "priority only. > 0 makes every agent a curiosity agent (the ICM role trains for all of them), whatever its "
+        "team's sampling rule: MADDPG's uniform sampling with curiosity as a reward is algorithm 'maddpg' with this "
+        "> 0 (docs/SPARSE_TASKS.md)", rule=AT_LEAST_0)
+    intrinsic_reward_decay: Literal["none", "linear", "exponential"] = documented(
+        "none", "how the weight falls over the learner's updates t: 'none' = coef throughout; 'linear' = coef · max(0, "
+        "1 − t / intrinsic_reward_decay_updates); 'exponential' = coef · exp(−t / intrinsic_reward_decay_updates)")
+    intrinsic_reward_decay_updates: int = documented(
+        100_000, "the decay's length: learner updates (all agents at once, maddpg.updates) until the linear weight "
+        "reaches 0, or over which the exponential one falls by e", unit="learner updates", rule=AT_LEAST_1)
+    frozen: bool = documented(
+        False, "never fit the ICM: ρ is the forward error of its randomly initialised networks (the intrinsic "
+        "reward's control arm: a reward of the same kind from a random network, without curiosity's information; "
+        "docs/SPARSE_TASKS.md). The fit steps are still paced and counted, their batches unused")
     steps_per_update: float = documented(0.5, "ICM fit steps per learner update, inline and in the service "
                                          "(§3.8: 1)", unit="fit steps per update", rule=POSITIVE)
     networks: Literal["per_agent", "entity"] = documented(
@@ -251,3 +264,12 @@ class ICMConfig:
 
     def __post_init__(self) -> None:
         check_fields(self, "icm")
+
+    def intrinsic_coef(self, updates: int) -> float:
+        """The weight of ρ in the reward at learner update `updates` (intrinsic_reward_decay's schedule)."""
+        c, t, length = self.intrinsic_reward_coef, float(updates), float(self.intrinsic_reward_decay_updates)
+        if self.intrinsic_reward_decay == "linear":
+            return c * max(0.0, 1.0 - t / length)
+        if self.intrinsic_reward_decay == "exponential":
+            return c * math.exp(-t / length)
+        return c

@@ -41,6 +41,8 @@ def type_requirement(hint: Any) -> str:
         return type_requirement(inner[0]) + (" (or unset)" if len(inner) < len(typing.get_args(hint)) else "")
     if origin is dict:
         return "must be a table"
+    if origin is tuple:
+        return f"must be an array (each entry {type_requirement(typing.get_args(hint)[0])})"
     return _TYPE_REQUIREMENTS[hint]
 
 
@@ -76,6 +78,9 @@ def _coerce(key: str, value: Any, hint: Any) -> Any:
     if hint is Any:
         _require(isinstance(value, bool | int | float | str), key, value, type_requirement(hint))
         return value
+    if origin is tuple:  # an array of scalars, e.g. task_curriculum.stages = [0.1, 0.3, 1.0]
+        _require(isinstance(value, list | tuple), key, value, type_requirement(hint))
+        return tuple(_coerce(f"{key}[{i}]", v, typing.get_args(hint)[0]) for i, v in enumerate(value))
     raise ConfigError(f"{key}: unsupported field type {hint!r}")
 
 
@@ -286,5 +291,7 @@ def _toml_value(value: Any) -> str:
         return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
     if isinstance(value, Mapping):  # an inline table; keys quoted (agent ids may hold any character)
         return "{" + ", ".join(f"{_toml_value(str(k))} = {_toml_value(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
     return repr(value)
 

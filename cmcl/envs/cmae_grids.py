@@ -43,6 +43,7 @@ class _GridEnv(ParallelEnv):
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "is_parallelizable": True}
     extra_obs = 0
+    SETTINGS: tuple[str, ...] = ()  # the attributes `set_setting` may change (cmcl.envs.world_settings)
 
     def __init__(self, grid_size: int, max_cycles: int = 300, render_mode: str | None = None) -> None:
         self.grid_size, self.max_cycles, self.render_mode = int(grid_size), int(max_cycles), render_mode
@@ -52,6 +53,7 @@ class _GridEnv(ParallelEnv):
         self._act_space = spaces.Discrete(5)
         self.pos = np.zeros((2, 2), np.int64)  # [agent, (x, y)]
         self.steps = 0
+        self.settings: dict[str, float] = {}  # world settings the next reset applies (`set_setting`)
 
     def observation_space(self, agent: str) -> spaces.Space:
         return self._obs_space
@@ -59,7 +61,18 @@ class _GridEnv(ParallelEnv):
     def action_space(self, agent: str) -> spaces.Space:
         return self._act_space
 
+    def set_setting(self, name: str, value: float) -> None:
+        """World setting `name` (cmcl.envs.world_settings: Push-Box's push_cells, Pass's switch_reach) = `value`
+        from the next reset on."""
+        if name not in self.SETTINGS:
+            raise ValueError(f"world setting {name!r}: this grid's are {list(self.SETTINGS)}")
+        self.settings[name] = float(value)
+
     def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        for name, value in ((options or {}).get("settings") or {}).items():
+            self.set_setting(name, value)
+        for name, value in self.settings.items():
+            setattr(self, name, type(getattr(self, name))(value))
         self.pos = self._start()
         self.steps = 0
         self.agents = list(self.possible_agents)
@@ -138,14 +151,19 @@ class PushBoxEnv(_GridEnv):
     metadata = {**_GridEnv.metadata, "name": "push_box_v0"}
     extra_obs = 2
     BOX_RADIUS = 1  # a 3 x 3 box
+    SETTINGS = ("push_cells",)
 
     def __init__(self, grid_size: int = 15, max_cycles: int = 300, render_mode: str | None = None) -> None:
         super().__init__(grid_size, max_cycles, render_mode)
         self.box = np.zeros(2, np.int64)
+        self.box_start = np.zeros(2, np.int64)
+        # cells the box must move from its start (along x or y) to solve the task; the source's: centre to border
+        self.push_cells = self.grid_size // 2 - self.BOX_RADIUS
 
     def _start(self) -> np.ndarray:
         half = self.grid_size // 2
         self.box = np.array([half, half])
+        self.box_start = self.box.copy()
         return np.array([[4 + half, 4 + half], [2 + half, 2 + half]])
 
     def _extra(self) -> np.ndarray:
@@ -186,7 +204,8 @@ class PushBoxEnv(_GridEnv):
 
     def _solved(self) -> bool:
         r, g, (x, y) = self.BOX_RADIUS, self.grid_size, self.box
-        return x - r == 0 or x + r == g - 1 or y - r == 0 or y + r == g - 1
+        moved = int(np.abs(self.box - self.box_start).max()) >= self.push_cells
+        return moved or x - r == 0 or x + r == g - 1 or y - r == 0 or y + r == g - 1
 
 
 class PassEnv(_GridEnv):
@@ -194,6 +213,7 @@ class PassEnv(_GridEnv):
 
     metadata = {**_GridEnv.metadata, "name": "pass_v0"}
     extra_obs = 1
+    SETTINGS = ("switch_reach",)
 
     def __init__(self, grid_size: int = 30, max_cycles: int = 300, render_mode: str | None = None) -> None:
         super().__init__(grid_size, max_cycles, render_mode)

@@ -216,6 +216,12 @@ class VectorParallelEnv:
                 self._over[world] = True
         return self._obs.copy(), rewards, ended, info
 
+    def set_world_settings(self, name: str, idx: np.ndarray, values: np.ndarray) -> None:
+        """World setting `name` = values float64[M] for the worlds idx int64[M] from each one's next reset on, through
+        each copy's own `set_setting` (the sparse tasks', cmcl.envs.world_settings)."""
+        for world, value in zip(np.asarray(idx).tolist(), np.asarray(values).tolist(), strict=True):
+            self.envs[world].set_setting(name, value)
+
     # ----- state -----------------------------------------------------------------------------------
     def get_state(self) -> dict[str, np.ndarray]:
         """An arbitrary environment cannot be saved: {} (a resumed run starts new episodes, see `set_state`)."""

@@ -85,12 +85,13 @@ class NavParams:
         """[vel(2), pos(2), per landmark ([covered], dx, dy), other agents' rel pos (2(N-1))]."""
         return 4 + self.landmark_width * self.num_landmarks + 2 * (self.num_agents - 1)
 
-    def team_reward(self, covered: np.ndarray) -> np.ndarray:
-        """The shared reward of worlds whose landmarks are `covered` (bool[..., L]) -> float64[...]."""
+    def team_reward(self, covered: np.ndarray, gate: np.ndarray | None = None) -> np.ndarray:
+        """The shared reward of worlds whose landmarks are `covered` (bool[..., L]) -> float64[...]; `gate`
+        (landmarks, broadcast against [...]): each world's own gate, default this world's."""
         count = np.sum(covered, axis=-1)
         if self.rule == "all_or_nothing":
             return np.where(count == self.num_landmarks, self.cover_reward, 0.0)
-        return np.where(count >= self.gate, self.cover_reward * count, 0.0)
+        return np.where(count >= (self.gate if gate is None else gate), self.cover_reward * count, 0.0)
 
 
 VARIANTS = {
@@ -108,12 +109,29 @@ def variant(name: str, **fields: Any) -> NavParams:
     return replace(VARIANTS[name], **fields)
 
 
-def sample_nav(rng: np.random.Generator, n: int, p: NavParams) -> tuple[np.ndarray, np.ndarray]:
+def sample_nav(rng: np.random.Generator, n: int, p: NavParams, scale: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
     """Initial state of n worlds: (agents float64[n, N, 2], landmarks float64[n, L, 2]), each uniform in its square
-    (overlaps allowed, as in the sources)."""
-    agents = rng.uniform(-p.agent_spawn, p.agent_spawn, (n, p.num_agents, 2))
-    landmarks = rng.uniform(-p.landmark_spawn, p.landmark_spawn, (n, p.num_landmarks, 2))
+    (overlaps allowed, as in the sources); `scale` float64[n]: each world's spawn_scale (its squares' half-widths
+    times it; cmcl.envs.world_settings), default 1. The draws are the same whatever the scale."""
+    a, lm = p.agent_spawn, p.landmark_spawn
+    if scale is not None:
+        a, lm = a * scale[:, None, None], lm * scale[:, None, None]
+    agents = rng.uniform(-a, a, (n, p.num_agents, 2))
+    landmarks = rng.uniform(-lm, lm, (n, p.num_landmarks, 2))
     return agents, landmarks
+
+
+def nav_settings(p: NavParams, name: str, value: float) -> dict[str, Any]:
+    """The NavParams fields that world setting `name` = `value` (cmcl.envs.world_settings) changes in `p`, the
+    variant's own world: spawn_scale scales both spawn squares."""
+    if name == "spawn_scale":
+        return {"agent_spawn": p.agent_spawn * value, "landmark_spawn": p.landmark_spawn * value}
+    if name == "gate":
+        return {"gate": int(value)}
+    if name == "cover_radius":
+        return {"cover_radius": float(value)}
+    raise ValueError(f"world setting {name!r}: navigation's are spawn_scale, cover_radius, gate")
 
 
 class BatchedSparseNav(BatchedWorld):
@@ -148,10 +166,32 @@ class BatchedSparseNav(BatchedWorld):
         self._covered = np.zeros((num_l, b), bool)
         self._collided = np.zeros((n, b), bool)
         self._touches = np.empty((n, b), dt)
+        # each world's settings in force (cmcl.envs.world_settings) and the ones its next reset takes
+        self._settings = {"spawn_scale": np.ones(b), "cover_radius": np.full(b, p.cover_radius, dt),
+                          "gate": np.full(b, p.gate, np.int64)}
+        self._next_settings = {k: v.copy() for k, v in self._settings.items()}
+        self._resetting = np.arange(b)
         self.reset()
 
+    def set_world_settings(self, name: str, idx: np.ndarray, values: np.ndarray) -> None:
+        """World setting `name` (spawn_scale, cover_radius, gate) = values float64[M] for the worlds idx int64[M],
+        from each one's next reset on."""
+        if name not in self._next_settings:
+            raise ValueError(f"world setting {name!r}: navigation's are {sorted(self._next_settings)}")
+        self._next_settings[name][idx] = values
+
+    def world_settings(self) -> dict[str, np.ndarray]:
+        """Copies of each world's settings in force: spawn_scale float64[B], cover_radius [B], gate int64[B]."""
+        return {k: v.copy() for k, v in self._settings.items()}
+
+    def _reset_worlds(self, idx: np.ndarray) -> None:
+        for key, value in self._settings.items():
+            value[idx] = self._next_settings[key][idx]
+        self._resetting = idx
+        super()._reset_worlds(idx)
+
     def _sample(self, rng: np.random.Generator, count: int) -> tuple[np.ndarray, np.ndarray]:
-        return sample_nav(rng, count, self.params)
+        return sample_nav(rng, count, self.params, self._settings["spawn_scale"][self._resetting])
 
     def _observe(self) -> None:
         np.copyto(self._o_vel, self._vel)
@@ -159,7 +199,7 @@ class BatchedSparseNav(BatchedWorld):
         rel = self._o_lm
         np.subtract(self._lm[None], self._pos[:, None], out=rel)
         np.sqrt(np.square(rel[:, :, 0]) + np.square(rel[:, :, 1]), out=self._d)
-        np.less(self._d.min(axis=0), self.params.cover_radius, out=self._covered)
+        np.less(self._d.min(axis=0), self._settings["cover_radius"], out=self._covered)
         if self._o_bit is not None:
             np.copyto(self._o_bit, self._covered[None])
         np.take(self._pos, self._others, axis=0, out=self._o_oth)
@@ -170,7 +210,7 @@ class BatchedSparseNav(BatchedWorld):
         np.copyto(self._pcontact_f, self._pcontact)
         np.matmul(self._touch, self._pcontact_f, out=self._touches)
         np.greater(self._touches, 0.5, out=self._collided)
-        team = p.team_reward(self._covered.T)  # [B]
+        team = p.team_reward(self._covered.T, self._settings["gate"])  # [B]
         np.copyto(self._rew, team[None] + np.where(self._collided, p.collision_reward, 0.0))
         count = self._covered.sum(axis=0)
         s = self._stats

@@ -23,6 +23,7 @@ mpe2's World without walls; episodes last `episode_length` steps (truncations, n
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -30,7 +31,7 @@ import numpy as np
 from cmcl.envs import sparse_nav
 from cmcl.envs.pz_base import SparseParallelEnv, agent_contacts
 from cmcl.envs.render import draw_world
-from cmcl.envs.sparse_nav import NavParams, sample_nav
+from cmcl.envs.sparse_nav import NavParams, nav_settings, sample_nav
 from cmcl.envs.sparse_spread_v0 import SparseSpreadEnv
 
 NAME = "sparse_nav_v0"
@@ -44,9 +45,28 @@ class SparseNavEnv(SparseSpreadEnv):
 
     def __init__(self, params: NavParams, render_mode: str | None = None) -> None:
         self.params = params  # type: ignore[assignment]  (NavParams has the fields _build_world reads)
+        self.variant_params = params  # the world the settings (set_setting) are applied to
+        self.settings: dict[str, float] = {}  # world settings the next reset takes (cmcl.envs.world_settings)
         self.obs_dims = (params.obs_dim,) * params.num_agents
         self.tags = None
         SparseParallelEnv.__init__(self, params.episode_length, render_mode)
+
+    def set_setting(self, name: str, value: float) -> None:
+        """World setting `name` (spawn_scale, cover_radius, gate; cmcl.envs.world_settings) = `value` from the next
+        reset on."""
+        nav_settings(self.variant_params, name, value)  # refuses an unknown name
+        self.settings[name] = float(value)
+
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        """Start an episode at the world settings given so far (`set_setting`, or options={"settings": {name:
+        value}})."""
+        for name, value in ((options or {}).get("settings") or {}).items():
+            self.set_setting(name, value)
+        fields: dict[str, Any] = {}
+        for name, value in self.settings.items():
+            fields.update(nav_settings(self.variant_params, name, value))
+        self.params = replace(self.variant_params, **fields)  # type: ignore[assignment]
+        return super().reset(seed, options)
 
     def _sample(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         agents, landmarks = sample_nav(rng, 1, self.params)

@@ -43,7 +43,8 @@ def learner_update(maddpg: MADDPG, minibatch: dict[str, np.ndarray], icm_agents:
 
     minibatch: obs [N, S, N, od], act, rew [N, S, N], next_obs, done [N, S, N], optional is_weights [N, S] and
     curiosity [N, S, N] (the rows' stored ρ). With intrinsic_reward_coef > 0 (ablation A6's reverse): r_v += coef·ρ_v
-    on each curiosity agent's (icm_agents) own rows.
+    on each curiosity agent's (icm_agents) own rows; the caller passes coef(t), the weight at this update
+    (cmcl.config.ICMConfig.intrinsic_coef: icm.intrinsic_reward_decay).
     Returns the MADDPG stats (critic_loss [N], actor_loss [N], td_abs [N, S], ...).
     """
     rho = minibatch.pop(CURIOSITY_KEY, None)

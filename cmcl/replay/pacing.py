@@ -157,7 +157,7 @@ def pacing_from_config(config: Any, asynchronous: bool = False) -> Pacing:
         ratio = config.teachers.steps_per_update
         slack = slack_for(ratio, sample_chunk=fit_chunk) + extra_slack
         teachers = [RateLimiter(ratio, slack=slack) for _ in range(config.teachers.num_folds)]
-    if any(t.uses_icm for t in teams):
+    if config.trains_icm:
         ratio = config.icm.steps_per_update
         icm = RateLimiter(ratio, slack=slack_for(ratio, sample_chunk=fit_chunk) + extra_slack)
     return Pacing(learner, teachers, icm)

@@ -44,7 +44,7 @@ class ICMWorker:
         if work is None:
             return None, self.report()
         agents = self.layout.icm_agents
-        out = network_steps.fit_icm(self.icm, work.fit, agents)
+        out = {} if self.config.icm.frozen else network_steps.fit_icm(self.icm, work.fit, agents)
         if out:
             self.loss = float(np.mean(out["inverse_loss"]) + np.mean(out["forward_loss"]))
         rho = network_steps.curiosity_values(self.icm, work.score.rows, agents)

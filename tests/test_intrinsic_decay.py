@@ -1,0 +1,83 @@
+"""Curiosity as an intrinsic reward with a decaying weight (icm.intrinsic_reward_decay, ICMConfig.intrinsic_coef):
+the schedule's values, and the reward the learner role trains on at update t is the row's reward plus coef(t)·ρ
+(ρ the ICM scorer stored), on a tiny inline run of uniform MADDPG with curiosity as its reward (the service runs the
+same Learner role: services.calls)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from cmcl.config import ConfigError, ICMConfig, config_from_dict
+from cmcl.io.rundir import RunDirectory
+from services.launch import train_in_process
+
+
+def test_the_weight_decays_linearly_or_exponentially_over_learner_updates():
+    linear = ICMConfig(intrinsic_reward_coef=0.4, intrinsic_reward_decay="linear", intrinsic_reward_decay_updates=100)
+    assert [linear.intrinsic_coef(t) for t in (0, 25, 100, 500)] == pytest.approx([0.4, 0.3, 0.0, 0.0])
+    expo = ICMConfig(intrinsic_reward_coef=0.4, intrinsic_reward_decay="exponential",
+                     intrinsic_reward_decay_updates=100)
+    assert expo.intrinsic_coef(100) == pytest.approx(0.4 / math.e)
+    assert ICMConfig(intrinsic_reward_coef=0.4).intrinsic_coef(10**6) == 0.4
+    with pytest.raises(ConfigError, match=r"^icm.intrinsic_reward_decay_updates must be >= 1, got 0$"):
+        ICMConfig(intrinsic_reward_decay_updates=0)
+
+
+class RecordingMADDPG:
+    """The learner's real MADDPG, recording the minibatch each update is given (named so; everything else is the
+    MADDPG's own)."""
+
+    def __init__(self, inner):
+        self.inner, self.minibatch = inner, None
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def update(self, minibatch):
+        self.minibatch = minibatch
+        return self.inner.update(minibatch)
+
+
+@pytest.mark.parametrize("decay,at,weight", [("linear", 300, 0.5), ("exponential", 600, math.exp(-1.0))])
+def test_the_learner_trains_on_reward_plus_the_decayed_weight_times_rho(tiny_config, tmp_path, decay, at, weight):
+    data = tiny_config("maddpg", service=True, dir=str(tmp_path / "run")).to_dict()
+    data["icm"].update(intrinsic_reward_coef=2.0, intrinsic_reward_decay=decay, intrinsic_reward_decay_updates=600)
+    config = config_from_dict(data)
+    summary, roles = train_in_process(config, RunDirectory.create(config.run.dir, config))
+    assert roles.icm is not None and summary["updates"] > 0
+    batch, _ = roles.replay.sample(1)
+    assert batch is not None and np.any(batch.rows["curiosity"] > 0)
+    learner = roles.learner
+    learner.maddpg.updates = at
+    learner.maddpg = recorder = RecordingMADDPG(learner.maddpg)
+    learner.update(batch)
+    a = learner.layout.icm_agents
+    assert a.tolist() == list(range(config.env.spread.num_agents))  # uniform sampling: every agent's ICM
+    expected = batch.rows["rew"][0][a, :, a] + 2.0 * weight * batch.rows["curiosity"][0][a, :, a]
+    np.testing.assert_allclose(recorder.minibatch["rew"][a, :, a], expected, rtol=1e-5)
+
+
+@pytest.mark.parametrize("frozen", [False, True])
+def test_a_frozen_icm_scores_with_its_random_networks_and_never_fits(frozen):
+    """icm.frozen, the intrinsic reward's control: the same ICM role scores ρ, its networks stay at their
+    initialisation (an unfrozen one's change with its first fit step)."""
+    import torch
+
+    from services.icm import ICMWorker
+    from services.replay_server import ReplayServer
+    from services.rollout import RolloutWorker
+    from tests.in_process import in_process_config
+
+    cfg = in_process_config("maddpg", icm={"intrinsic_reward_coef": 1.0, "frozen": frozen})
+    replay, worker, icm = ReplayServer(cfg), RolloutWorker(cfg, 0, 0), ICMWorker(cfg, 0)
+    for _ in range(3):
+        replay.insert(worker.rollout(None)[0])
+    before = [p.detach().clone() for p in icm.icm.parameters()]
+    work, _ = replay.icm_work(2)
+    scores, _ = icm.step(work)
+    assert scores.rho.shape[1] == 4 and np.isfinite(scores.rho).all() and (scores.rho > 0).all()
+    same = all(torch.equal(b, p) for b, p in zip(before, icm.icm.parameters(), strict=True))
+    assert same == frozen
