@@ -33,7 +33,15 @@ from cmcl.learners.entity_holder import require_holder_rule
 from cmcl.learners.maddpg_batch import actor_rows, owner_batch
 from cmcl.learners.maddpg_checkpoint import MADDPGCheckpoint
 from cmcl.learners.maddpg_policy import MADDPGPolicy
-from cmcl.learners.nets import as_tensor, clip_grad_norm_per_member_, joint_input, make_adam, soft_update_
+from cmcl.learners.nets import (
+    adam_step_,
+    as_tensor,
+    clip_grad_norm_per_member_,
+    drop_grads_,
+    joint_input,
+    make_adam,
+    soft_update_,
+)
 from cmcl.learners.networks import build_networks, network_kind
 from cmcl.learners.normalised_td import normalised_td_error
 
@@ -213,10 +221,11 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
             self.last_target_td = (target_delta if presence is None else target_delta * presence.own).abs()
         loss = row_mean(delta.pow(2), w, presence)  # [N]
         unexplained = normalised_td_error(y, delta.detach(), presence)
-        self.critic_opt.zero_grad(set_to_none=True)
+        params = list(self.critic.parameters())
+        drop_grads_(params)
         self._total(loss, presence).backward()
-        norms = self._clip(self.critic.parameters())
-        self.critic_opt.step()
+        norms = self._clip(params)
+        adam_step_(self.critic_opt)
         return loss.detach(), delta.detach(), norms, unexplained
 
     def _actor_step(self, obs: torch.Tensor, act: torch.Tensor, presence: AgentPresence | None = None
@@ -242,10 +251,10 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
             loss = loss + self.logit_l2 * l2
         total = loss if self.assignment is None else loss + self.assignment.loss(logits, own_obs, count)
         params = list(self.actor.parameters())
-        self.actor_opt.zero_grad(set_to_none=True)
+        drop_grads_(params)
         self._total(total, presence).backward(inputs=params)
         norms = self._clip(params)
-        self.actor_opt.step()
+        adam_step_(self.actor_opt)
         return loss.detach(), norms
 
     def _total(self, loss: torch.Tensor, presence: AgentPresence | None = None) -> torch.Tensor:

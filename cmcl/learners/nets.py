@@ -32,6 +32,8 @@ from torch import nn
 
 __all__ = [
     "StackedLinear",
+    "adam_step_",
+    "drop_grads_",
     "make_adam",
     "StackedMLP",
     "as_tensor",
@@ -52,6 +54,42 @@ def make_adam(params: Iterable[torch.Tensor], lr: float) -> torch.optim.Adam:
         return torch.optim.Adam(params, lr=lr, fused=True)
     except (RuntimeError, TypeError):  # older torch without fused CPU Adam
         return torch.optim.Adam(params, lr=lr)
+
+
+def adam_step_(opt: torch.optim.Adam) -> None:
+    """``opt.step()`` with the same arithmetic and the same state, without torch.optim's per-step Python overhead.
+
+    Once every parameter with a gradient has its Adam state (the first step, taken by ``opt.step()``, made it), a
+    fused Adam of one parameter group is its two kernels: step counts + 1 (``torch._foreach_add_``), then
+    ``torch._fused_adam_`` over every (parameter, grad, exp_avg, exp_avg_sq) — exactly what ``opt.step()`` runs
+    (torch.optim.adam._fused_adam), so the updates are bit-identical and ``opt.state_dict()`` is unchanged. Any
+    other optimiser state (no fused kernel, several groups, amsgrad, decoupled decay, grad scaling, step hooks)
+    takes ``opt.step()`` itself.
+    """
+    group = opt.param_groups[0]
+    if (len(opt.param_groups) != 1 or not group.get("fused") or group["amsgrad"] or group["decoupled_weight_decay"]
+            or getattr(opt, "grad_scale", None) is not None or getattr(opt, "found_inf", None) is not None
+            or opt._optimizer_step_pre_hooks or opt._optimizer_step_post_hooks):
+        opt.step()
+        return
+    params = [p for p in group["params"] if p.grad is not None]
+    states = [opt.state.get(p) for p in params]
+    if not params or not all(states):
+        opt.step()
+        return
+    steps = [st["step"] for st in states]
+    torch._foreach_add_(steps, 1)
+    beta1, beta2 = group["betas"]
+    torch._fused_adam_(params, [p.grad for p in params], [st["exp_avg"] for st in states],
+                       [st["exp_avg_sq"] for st in states], [], steps, amsgrad=False, lr=group["lr"], beta1=beta1,
+                       beta2=beta2, weight_decay=group["weight_decay"], eps=group["eps"], maximize=group["maximize"],
+                       grad_scale=None, found_inf=None)
+
+
+def drop_grads_(params: Iterable[torch.Tensor]) -> None:
+    """Every parameter's gradient set to None: ``opt.zero_grad(set_to_none=True)`` over them, without its overhead."""
+    for p in params:
+        p.grad = None
 
 
 def as_tensor(x: np.ndarray | torch.Tensor, dtype: torch.dtype = torch.float32) -> torch.Tensor:
@@ -226,9 +264,9 @@ def clip_grad_norm_per_member_(params: Iterable[torch.Tensor], max_norm: float, 
         return torch.zeros(0)
     members, groups = max(g.shape[0] for g in grads), min(g.shape[0] for g in grads)
     # a gradient with leading axis L = r*G viewed as [r, G, -1]: slice [:, i] is everything of group i
-    sq = torch.stack([g.reshape(g.shape[0] // groups, groups, -1).pow(2).sum((0, 2)) for g in grads]).sum(0)  # [G]
+    views = [g.view(g.shape[0] // groups, groups, -1) for g in grads]
+    sq = torch.stack([s.sum((0, 2)) for s in torch._foreach_mul(views, views)]).sum(0)  # [G]; g·g is g.pow(2)
     norms = sq.sqrt()
-    coef = (max_norm / (norms + eps)).clamp(max=1.0)
-    for g in grads:
-        g.view(g.shape[0] // groups, groups, -1).mul_(coef.view(1, groups, 1))
-    return norms.repeat(members // groups)
+    coef = (max_norm / (norms + eps)).clamp_(max=1.0).view(1, groups, 1)
+    torch._foreach_mul_(views, [coef] * len(views))
+    return norms if members == groups else norms.repeat(members // groups)
