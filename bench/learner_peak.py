@@ -13,12 +13,18 @@ Variants (each on its own copy of the same networks, rounds interleaved so that 
 - bf16: the critic and actor steps under `torch.autocast("cpu", dtype=torch.bfloat16)` (where the CPU reports
   bf16 support);
 - compile: the actor and critic modules (and their targets) wrapped by `torch.compile` (inductor; compile time is
-  left out: warm-up rounds run first).
+  left out: warm-up rounds run first);
+- compile_step: the whole critic step and the whole actor step (forward, backward, clip, Adam) each wrapped by
+  `torch.compile` (mode `--compile-mode`, default "default"; "max-autotune-no-cudagraphs" also tunes the GEMMs).
 "Trains the same" is read off a copy per variant: after `--check` updates on the same minibatches from the same
 seed, the largest |Δ| of any critic weight against base's copy (0 means bit-identical).
 
     python bench/learner_peak.py [--config configs/spread_maddpg.toml] [--rounds 7] [--updates 50] [--check 20]
-                                 [--variants base threads2 bf16 compile]
+                                 [--variants base threads2 bf16 compile compile_step] [--compile-mode MODE]
+    python bench/learner_peak.py --profile [--updates 50] [--top 30]
+
+`--profile` runs `--updates` updates of base under `torch.profiler` (record_shapes) instead and prints the top ops by
+self CPU time per update, then the same split by input shapes, then the share of the matmul kernels (baddbmm, bmm).
 
 It also times the update's own typical product (one baddbmm of the minibatch's size) alone: the rate a single
 kernel reaches at that size, the realistic ceiling for an update made of such products.
@@ -44,7 +50,8 @@ from cmcl.config import load_config
 from cmcl.system import build_maddpg, layout_of
 
 ROOT = Path(__file__).resolve().parents[1]
-VARIANTS = ("base", "threads2", "bf16", "compile")
+VARIANTS = ("base", "threads2", "bf16", "compile", "compile_step")
+MATMULS = ("aten::baddbmm", "aten::bmm", "aten::mm", "aten::addmm", "aten::matmul")
 
 
 def has_bf16() -> bool:
@@ -99,9 +106,12 @@ def update_flop(maddpg, batch) -> int:
     return int(counter.get_total_flops())
 
 
-def variant(name: str, maddpg) -> tuple[object, Callable[[dict], object], int]:
+def variant(name: str, maddpg, compile_mode: str = "default") -> tuple[object, Callable[[dict], object], int]:
     """(its own copy of the networks, one update of it, its intra-op threads)."""
     m = copy.deepcopy(maddpg)
+    if name == "compile_step":  # the whole steps, backward and optimiser included (graph breaks where torch needs)
+        for attr in ("_critic_step", "_actor_step"):
+            setattr(m, attr, torch.compile(getattr(m, attr), mode=None if compile_mode == "default" else compile_mode))
     if name == "bf16":  # the critic and actor steps under autocast, their outputs back in float32
         for attr in ("_critic_step", "_actor_step"):
             setattr(m, attr, _autocast_bf16(getattr(m, attr)))
@@ -120,6 +130,31 @@ def _autocast_bf16(step: Callable) -> Callable:
     return run
 
 
+def profile_updates(maddpg, batches: list[dict], updates: int, top: int) -> None:
+    """Print the top ops of `updates` updates of a copy of `maddpg` by self CPU time (µs per update, calls per
+    update), then split by input shapes, then the matmul kernels' share of the profiled time."""
+    from torch.profiler import ProfilerActivity, profile
+
+    m = copy.deepcopy(maddpg)
+    for batch in batches[:3]:
+        m.update(batch)
+    with profile(activities=[ProfilerActivity.CPU], record_shapes=True) as prof:
+        for i in range(updates):
+            m.update(batches[i % len(batches)])
+    for by_shape in (False, True):
+        events = sorted(prof.key_averages(group_by_input_shape=by_shape), key=lambda e: -e.self_cpu_time_total)
+        print(f"top {top} ops{' by input shapes' if by_shape else ''} (self CPU µs per update, calls per update):")
+        for e in events[:top]:
+            shapes = f"  {str(e.input_shapes)[:90]}" if by_shape else ""
+            print(f"  {e.key[:55]:<55} {e.self_cpu_time_total / updates:9.1f} {e.count / updates:7.1f}{shapes}")
+    events = prof.key_averages()
+    total = sum(e.self_cpu_time_total for e in events)
+    mm = sum(e.self_cpu_time_total for e in events if e.key in MATMULS)
+    ops = sum(e.count for e in events if e.key.startswith("aten::"))
+    print(f"profiled: {total / updates / 1e3:.3f} ms per update (profiler overhead included), matmul kernels "
+          f"{mm / updates / 1e3:.3f} ms ({mm / total:.0%}), {ops / updates:.0f} aten calls per update")
+
+
 def max_weight_gap(a, b) -> float:
     """The largest |Δ| between the critic weights of two copies."""
     pa = dict(getattr(a.critic, "_orig_mod", a.critic).named_parameters())
@@ -134,11 +169,17 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--updates", type=int, default=50, help="updates per round")
     p.add_argument("--check", type=int, default=20, help="updates of the same-training check")
     p.add_argument("--variants", nargs="+", choices=VARIANTS, default=list(VARIANTS))
+    p.add_argument("--compile-mode", default="default", help="torch.compile mode of compile_step")
+    p.add_argument("--profile", action="store_true", help="profile base's updates instead of timing the variants")
+    p.add_argument("--top", type=int, default=30, help="ops printed by --profile")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
     config = load_config(args.config, ["run.dir=unused"])
     layout = layout_of(config)
     maddpg = build_maddpg(config, layout, seed=0)
+    if args.profile:
+        profile_updates(maddpg, [minibatch(config, layout, seed) for seed in range(8)], args.updates, args.top)
+        return
     names = [v for v in args.variants if v != "bf16" or has_bf16()]
     skipped = sorted(set(args.variants) - set(names))
     batches = [minibatch(config, layout, seed) for seed in range(8)]
@@ -150,7 +191,7 @@ def main(argv: list[str] | None = None) -> None:
     runs, failed = {}, {}
     for name in names:
         try:
-            m, step, threads = variant(name, maddpg)
+            m, step, threads = variant(name, maddpg, args.compile_mode)
             torch.set_num_threads(threads)
             for batch in batches[:3]:  # warm-up (compilation)
                 step(batch)
@@ -171,7 +212,7 @@ def main(argv: list[str] | None = None) -> None:
 
     gaps = {}
     for name in runs:  # the same training: fresh copies, the same minibatches
-        ref, (m, step, threads) = copy.deepcopy(maddpg), variant(name, maddpg)
+        ref, (m, step, threads) = copy.deepcopy(maddpg), variant(name, maddpg, args.compile_mode)
         torch.set_num_threads(threads)
         for i in range(args.check):
             ref.update(batches[i % len(batches)])

@@ -146,6 +146,12 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         self._own_mask = torch.eye(n, dtype=torch.bool).view(n, 1, n, 1)  # [owner, 1, agent, 1]
         self.act_mask = None if act_mask is None else torch.as_tensor(act_mask, dtype=torch.float32).view(n, 1, -1)
 
+    @staticmethod
+    def _owners_own(x: torch.Tensor) -> torch.Tensor:
+        """Each owner's own column of per-owner rows, as a view (no copy): x [N, S, N, ...] -> [N, S, ...], row v being
+        x[v, :, v] (owner v's own reward, done or observation)."""
+        return x.diagonal(0, 0, 2).movedim(-1, 0)
+
     # ------------------------------------------------------------------ targets
     def _q(self, net: nn.Module, x: torch.Tensor, members: torch.Tensor | None = None,
            count: torch.Tensor | None = None) -> torch.Tensor:
@@ -171,10 +177,10 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
                 d = torch.zeros(rew.shape[0]) if done is None else done
                 d = d.T[ag] if d.dim() == 2 else d.unsqueeze(0)  # each agent's own done [A, M] (or the row's)
                 return r + self.gamma * (1.0 - d) * q
-            owners = torch.arange(len(ag))
-            r = rew[owners, :, ag] if rew.dim() == 3 else rew  # owner's own reward [A, S]
+            own = self._owners_own if agents is None else (lambda t: t[torch.arange(len(ag)), :, ag])
+            r = own(rew) if rew.dim() == 3 else rew  # owner's own reward [A, S]
             d = torch.zeros_like(r) if done is None else done
-            d = d[owners, :, ag] if d.dim() == 3 else d  # owner's own done [A, S]
+            d = own(d) if d.dim() == 3 else d  # owner's own done [A, S]
             return r + self.gamma * (1.0 - d) * q
 
     def td_targets(
@@ -236,7 +242,7 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         Returns (loss [N], pre-clip grad norm [N]). Only actor parameters receive gradients. With the assignment
         term (`assignment`), the step minimises loss + β · CE (cmcl.learners.assignment); the loss returned is eq. 4's.
         """
-        own_obs = obs[self._agents, :, self._agents]  # [N, S, obs_dim]
+        own_obs = self._owners_own(obs)  # [N, S, obs_dim]
         count = None if presence is None else presence.count
         out, logits = (None, None) if self.assignment is None else self.actor.act_and_attend(own_obs, count=count)
         pi, raw = self._policy(self.actor, own_obs, True, count, out)  # [N, S, act_dim]
