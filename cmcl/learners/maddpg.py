@@ -293,8 +293,7 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         obs, act, rew, next_obs, done, w, presence = owner_batch(batch, self.num_agents, self.networks)
         c_loss, delta, c_norm, unexplained = self._critic_step(obs, act, rew, next_obs, done, w, presence)
         a_loss, a_norm = self._actor_step(*actor_rows(batch, obs, act, presence, self.num_agents))
-        soft_update_(self.target_critic, self.critic, self.tau)
-        soft_update_(self.target_actor, self.actor, self.tau)
+        soft_update_((self.target_critic, self.target_actor), (self.critic, self.actor), self.tau)
         self.updates += 1
         return {
             "critic_loss": c_loss.numpy(),

@@ -237,9 +237,13 @@ class StackedMLP(nn.Module):
 
 
 @torch.no_grad()
-def soft_update_(target: nn.Module, source: nn.Module, tau: float) -> None:
-    """Polyak update in place (eq. 6): theta' <- tau * theta + (1 - tau) * theta' for every (stacked) parameter."""
-    torch._foreach_lerp_(list(target.parameters()), list(source.parameters()), tau)
+def soft_update_(target: nn.Module | Sequence[nn.Module], source: nn.Module | Sequence[nn.Module], tau: float) -> None:
+    """Polyak update in place (eq. 6): theta' <- tau * theta + (1 - tau) * theta' for every (stacked) parameter;
+    one module or matching sequences of modules (every pair's parameters in one ``torch._foreach_lerp_``)."""
+    targets = [target] if isinstance(target, nn.Module) else list(target)
+    sources = [source] if isinstance(source, nn.Module) else list(source)
+    torch._foreach_lerp_([p for t in targets for p in t.parameters()], [p for s in sources for p in s.parameters()],
+                         tau)
 
 
 @torch.no_grad()
