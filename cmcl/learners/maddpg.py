@@ -206,24 +206,27 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
 
     # ------------------------------------------------------------------ update
     def _td_errors(self, obs: torch.Tensor, act: torch.Tensor, rew: torch.Tensor, next_obs: torch.Tensor,
-                   done: torch.Tensor, presence: AgentPresence | None
+                   done: torch.Tensor, presence: AgentPresence | None, x: torch.Tensor | None = None
                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """TD targets y [N, S] and errors y − Q_v(s, a) [N, S] of the current critic (eq. 5; not masked by presence)
-        on per-owner rows, and the rows' present-agent counts int64[N, S] (None: all present)."""
+        on per-owner rows, and the rows' present-agent counts int64[N, S] (None: all present); x: the rows' joint
+        input joint_input(obs, act) float32[N, S, in] when the caller has built it, else None."""
         count = None if presence is None else presence.count
         y = self._td_targets_t(rew, next_obs, done, None, count)
-        return y, y - self._q(self.critic, joint_input(obs, act), None, count), count
+        x = joint_input(obs, act) if x is None else x
+        return y, y - self._q(self.critic, x, None, count), count
 
     def _critic_step(self, obs, act, rew, next_obs, done, w, presence: AgentPresence | None = None
                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """One batched critic step on (y − Q_v(s, a))² (eq. 5), over the rows where owner v is present. Returns
         (loss [N], delta [N, S] (0 where the owner is absent), grad norm [N], normalised TD error [N]:
         cmcl.learners.normalised_td)."""
-        y, delta, count = self._td_errors(obs, act, rew, next_obs, done, presence)  # [N, S], [N, S]
+        x = joint_input(obs, act)  # [N, S, in], built once for the critic and (ReLo) the target critic
+        y, delta, count = self._td_errors(obs, act, rew, next_obs, done, presence, x)  # [N, S], [N, S]
         delta = delta if presence is None else delta * presence.own
         if self.target_scores:  # the same target against the target critic, before the step moves it (ReLo)
             with torch.no_grad():
-                target_delta = y - self._q(self.target_critic, joint_input(obs, act), None, count)
+                target_delta = y - self._q(self.target_critic, x, None, count)
             self.last_target_td = (target_delta if presence is None else target_delta * presence.own).abs()
         loss = row_mean(delta.pow(2), w, presence)  # [N]
         unexplained = normalised_td_error(y, delta.detach(), presence)
