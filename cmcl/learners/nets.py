@@ -140,6 +140,10 @@ class StackedLinear(nn.Module):
         if members is not None:
             w = w if w.shape[0] == 1 else w[members]
             b = b if b.shape[0] == 1 else b[members]
+        if x.dim() == 2 and w.shape[0] == m and b.shape[0] == m and not x.requires_grad:
+            # shared rows (data, not a graph's output), per-member weights: one baddbmm on a view, the same numbers
+            # as matmul's, which would copy x m times and add the bias in another pass
+            x = x.expand(m, *x.shape)
         if x.dim() == 3 and w.shape[0] == x.shape[0] and b.shape[0] == x.shape[0]:
             return torch.baddbmm(b.unsqueeze(1), x, w)
         out = torch.matmul(x, w) + b.unsqueeze(1)  # [B, in] or [m, B, in] @ [m or 1, in, out]

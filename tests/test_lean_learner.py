@@ -1,5 +1,6 @@
-"""The learner's lean optimiser step (cmcl.learners.nets.adam_step_, drop_grads_) and gradient clip are torch.optim's
-and the previous clip's arithmetic bit for bit, with the same optimiser state (checkpoints load as before)."""
+"""The learner's lean paths are the previous arithmetic bit for bit: the optimiser step (cmcl.learners.nets.adam_step_,
+drop_grads_) is torch.optim's with the same optimiser state (checkpoints load as before), the gradient clip is the
+previous clip, and shared rows through per-member weights (one baddbmm on a view) give matmul's numbers."""
 
 import copy
 
@@ -82,3 +83,15 @@ def test_the_clip_is_the_previous_clip_bit_for_bit():
         assert torch.equal(norms, old.repeat(4 // old.shape[0]))
         for p, g in zip(net.parameters(), grads, strict=True):
             assert torch.equal(p.grad, g)
+
+
+def test_shared_rows_through_per_member_weights_give_matmuls_numbers():
+    for members, rows in ((4, 1024), (20, 300), (1, 77)):
+        net = StackedMLP(members, 80, (64, 64), 1, seed=members)
+        x = torch.randn(rows, 80, generator=torch.Generator().manual_seed(rows))
+        with torch.no_grad():
+            h = x
+            for k, layer in enumerate(net.layers):  # the previous path: matmul broadcast, then the bias
+                h = torch.matmul(h, layer.weight) + layer.bias.unsqueeze(1)
+                h = h.relu() if k < len(net.layers) - 1 else h
+            assert torch.equal(net(x), h)
