@@ -1,7 +1,8 @@
 """One MADDPG update against the core's own matmul peak: achieved GFLOP/s, and what each change tried does to it.
 
 The peak is measured here, in this run, on this core: the best of a few float32 `torch.mm` of 1024 x 1024 x 1024 with
-one thread (and bfloat16 where the CPU has it), 2·n³ FLOP each. One update is `MADDPG.update` as the learner calls it,
+one thread (and bfloat16 where the CPU has it), 2·n³ FLOP each, by the thread's CPU time (on a shared machine the
+wall clock would count the waits for the core). One update is `MADDPG.update` as the learner calls it,
 built from a preset (`cmcl.system.build_maddpg`), on a random minibatch of the preset's shape (obs float32[N, S, N,
 od], ...; S = maddpg.batch_size); its FLOP are counted once by `torch.utils.flop_counter.FlopCounterMode` (matmuls,
 forward and backward: the work a perfect kernel could not avoid), and its time is the median of interleaved rounds.
@@ -29,8 +30,11 @@ self CPU time per update, then the same split by input shapes, then the share of
 It also times the update's own typical product (one baddbmm of the minibatch's size) alone: the rate a single
 kernel reaches at that size, the realistic ceiling for an update made of such products.
 
-Prints one row per variant (ms per update, GFLOP/s, share of the float32 peak, speed over base, max |Δ|) and a last
-line ``base / peak: X`` (the fraction of the measured float32 matmul peak one update achieves).
+Prints one row per variant (ms per update, GFLOP/s, share of the float32 peak, speed over base; then the same by CPU
+time: CPU ms per update (this process's CPU time, every thread, so threads2's counts both: on a shared machine the
+time the update itself ran, without the waits for the core), its GFLOP/s and share of the peak; max |Δ|), base's rate
+by CPU time, and a last line ``base / peak: X`` (the fraction of the measured float32
+matmul peak one update achieves, by wall clock).
 """
 
 from __future__ import annotations
@@ -64,26 +68,28 @@ def has_bf16() -> bool:
 
 
 def matmul_peak(dtype: torch.dtype, n: int = 1024, reps: int = 5) -> float:
-    """GFLOP/s of the best of `reps` n x n x n matmuls of `dtype` on one thread (2·n³ FLOP each)."""
+    """GFLOP/s of the best of `reps` n x n x n matmuls of `dtype` on one thread (2·n³ FLOP each), each timed by this
+    thread's CPU time (a shared core's waits left out)."""
     a, b = torch.randn(n, n).to(dtype), torch.randn(n, n).to(dtype)
     torch.mm(a, b)  # warm-up
     best = float("inf")
     for _ in range(reps):
-        t0 = time.perf_counter()
+        t0 = time.thread_time()
         torch.mm(a, b)
-        best = min(best, time.perf_counter() - t0)
+        best = min(best, time.thread_time() - t0)
     return 2 * n**3 / best / 1e9
 
 
 def small_matmul_rate(members: int, rows: int, width: int, reps: int = 2000) -> float:
     """GFLOP/s of the update's own typical product, float32 baddbmm [members, rows, width] x [members, width, width]
-    on one thread, the median of `reps` calls: what one kernel achieves at this size (call overhead included)."""
+    on one thread, the median of `reps` calls by this thread's CPU time: what one kernel achieves at this size (call
+    overhead included)."""
     x, w, b = torch.randn(members, rows, width), torch.randn(members, width, width), torch.randn(members, 1, width)
     times = []
     for _ in range(reps):
-        t0 = time.perf_counter()
+        t0 = time.thread_time()
         torch.baddbmm(b, x, w)
-        times.append(time.perf_counter() - t0)
+        times.append(time.thread_time() - t0)
     return 2 * members * rows * width * width / statistics.median(times) / 1e9
 
 
@@ -201,13 +207,15 @@ def main(argv: list[str] | None = None) -> None:
         finally:
             torch.set_num_threads(1)
     seconds: dict[str, list[float]] = {name: [] for name in runs}
+    cpu: dict[str, list[float]] = {name: [] for name in runs}  # CPU seconds of this process (all its threads)
     for _ in range(args.rounds):
         for name, (_, step, threads) in runs.items():
             torch.set_num_threads(threads)
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             for i in range(args.updates):
                 step(batches[i % len(batches)])
             seconds[name].append((time.perf_counter() - t0) / args.updates)
+            cpu[name].append((time.process_time() - c0) / args.updates)
             torch.set_num_threads(1)
 
     gaps = {}
@@ -228,18 +236,21 @@ def main(argv: list[str] | None = None) -> None:
     print(f"the update's own size of product (baddbmm [{n}, {s}, {config.maddpg.hidden}] x [{n}, "
           f"{config.maddpg.hidden}, {config.maddpg.hidden}]): {small:.1f} GFLOP/s ({small / peak32:.1%} of the "
           f"float32 peak)")
-    print(f"{'variant':<10} {'ms/update':>10} {'GFLOP/s':>9} {'of fp32 peak':>13} {'vs base':>8} {'max |Δw|':>10}")
+    print(f"{'variant':<12} {'ms/update':>10} {'GFLOP/s':>9} {'of fp32 peak':>13} {'vs base':>8} {'CPU ms':>8} "
+          f"{'CPU GFLOP/s':>12} {'of peak':>8} {'max |Δw|':>10}")
     base = statistics.median(seconds["base"]) if "base" in seconds else None
     for name in runs:
-        t = statistics.median(seconds[name])
+        t, c = statistics.median(seconds[name]), statistics.median(cpu[name])
         speed = f"{base / t:7.2f}x" if base else "      -"
-        print(f"{name:<10} {1e3 * t:10.3f} {flop / t / 1e9:9.2f} {flop / t / 1e9 / peak32:12.1%} {speed:>8} "
-              f"{gaps[name]:10.2e}")
+        print(f"{name:<12} {1e3 * t:10.3f} {flop / t / 1e9:9.2f} {flop / t / 1e9 / peak32:12.1%} {speed:>8} "
+              f"{1e3 * c:8.3f} {flop / c / 1e9:12.2f} {flop / c / 1e9 / peak32:7.1%} {gaps[name]:10.2e}")
     for name, why in failed.items():
         print(f"{name:<10} failed: {why}")
     for name in skipped:
         print(f"{name:<10} skipped: this CPU has no bfloat16 support")
     if base:
+        by_cpu = flop / statistics.median(cpu["base"]) / 1e9
+        print(f"base by CPU time: {by_cpu:.2f} GFLOP/s ({by_cpu / peak32:.1%} of the peak)")
         print(f"base / peak: {flop / base / 1e9 / peak32:.3f}")
 
 
