@@ -95,3 +95,46 @@ def test_shared_rows_through_per_member_weights_give_matmuls_numbers():
                 h = torch.matmul(h, layer.weight) + layer.bias.unsqueeze(1)
                 h = h.relu() if k < len(net.layers) - 1 else h
             assert torch.equal(net(x), h)
+
+
+def _random_batch(rng, n: int = 3, s: int = 16, od: int = 6, ad: int = 2) -> dict:
+    return {"obs": rng.normal(size=(n, s, n, od)).astype("float32"),
+            "act": rng.uniform(-1, 1, size=(n, s, n, ad)).astype("float32"),
+            "rew": rng.normal(size=(n, s, n)).astype("float32"),
+            "next_obs": rng.normal(size=(n, s, n, od)).astype("float32"),
+            "is_weights": rng.uniform(0.5, 1.0, size=(n, s)).astype("float32")}
+
+
+def test_the_actor_step_by_hand_is_autograds_step_bit_for_bit(monkeypatch):
+    import numpy as np
+
+    from cmcl.learners import actor_grad
+    from cmcl.learners.maddpg import MADDPG
+
+    by_hand, by_autograd = MADDPG(3, 6, 2, hidden=16, seed=4), MADDPG(3, 6, 2, hidden=16, seed=4)
+    assert actor_grad.supports(by_hand.actor, by_hand.critic)
+    supports = actor_grad.supports
+    for step in range(6):
+        batch = _random_batch(np.random.default_rng(step))
+        if step % 2:  # the actors' own rows (actor_batch = "uniform")
+            extra = _random_batch(np.random.default_rng(100 + step), s=8)
+            batch |= {"actor_obs": extra["obs"], "actor_act": extra["act"]}
+        out = by_hand.update(batch)
+        monkeypatch.setattr(actor_grad, "supports", lambda actor, critic: False)
+        ref = by_autograd.update(batch)
+        monkeypatch.setattr(actor_grad, "supports", supports)
+        for key in ref:
+            assert np.array_equal(out[key], ref[key], equal_nan=True), key
+    for part in ("actor", "critic", "target_actor", "target_critic"):
+        a, b = getattr(by_hand, part).state_dict(), getattr(by_autograd, part).state_dict()
+        assert all(torch.equal(a[k], b[k]) for k in a), part
+    a, b = by_hand.actor_opt.state_dict()["state"], by_autograd.actor_opt.state_dict()["state"]
+    assert all(torch.equal(a[i]["exp_avg_sq"], b[i]["exp_avg_sq"]) for i in a)
+
+
+def test_the_actor_step_by_hand_takes_only_plain_per_agent_networks():
+    from cmcl.learners import actor_grad
+    from cmcl.learners.maddpg import MADDPG
+
+    assert not actor_grad.supports(*(lambda m: (m.actor, m.critic))(MADDPG(3, 6, 2, share_parameters=True)))
+    assert not actor_grad.supports(*(lambda m: (m.actor, m.critic))(MADDPG(3, 6, 5, discrete=True)))

@@ -27,6 +27,7 @@ import torch
 from torch import nn
 
 from cmcl.envs.entities import EntityLayout
+from cmcl.learners import actor_grad
 from cmcl.learners.agent_presence import AgentPresence, row_mean
 from cmcl.learners.assignment import AssignmentTerm
 from cmcl.learners.entity_holder import require_holder_rule
@@ -244,8 +245,18 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
 
         Returns (loss [N], pre-clip grad norm [N]). Only actor parameters receive gradients. With the assignment
         term (`assignment`), the step minimises loss + β · CE (cmcl.learners.assignment); the loss returned is eq. 4's.
+        Per-agent MLPs with continuous actions take the gradient from cmcl.learners.actor_grad (the same numbers).
         """
         own_obs = self._owners_own(obs)  # [N, S, obs_dim]
+        params = list(self.actor.parameters())
+        if (presence is None and self.act_mask is None and self.assignment is None and not self.discrete
+                and actor_grad.supports(self.actor, self.critic)):  # the same step without autograd's bookkeeping
+            loss, grads = actor_grad.actor_loss_and_grads(self.actor, self.critic, obs, act, own_obs, self._own_mask)
+            for p, g in zip(params, grads, strict=True):
+                p.grad = g
+            norms = self._clip(params)
+            adam_step_(self.actor_opt)
+            return loss, norms
         count = None if presence is None else presence.count
         out, logits = (None, None) if self.assignment is None else self.actor.act_and_attend(own_obs, count=count)
         pi, raw = self._policy(self.actor, own_obs, True, count, out)  # [N, S, act_dim]
@@ -259,7 +270,6 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
             l2 = raw.pow(2).mean((1, 2)) if presence is None else row_mean(raw.pow(2).mean(2), None, presence)
             loss = loss + self.logit_l2 * l2
         total = loss if self.assignment is None else loss + self.assignment.loss(logits, own_obs, count)
-        params = list(self.actor.parameters())
         drop_grads_(params)
         self._total(total, presence).backward(inputs=params)
         norms = self._clip(params)
