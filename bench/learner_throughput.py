@@ -302,15 +302,16 @@ def inline_update_seconds(rounds: int = 7, updates: int = 32) -> tuple[dict[str,
 
     A CMCL update here is everything the roles do per update at the defaults: the teacher and ICM fit steps due at
     their ratios with their scoring calls, the priority recompute of the sampling, the MADDPG step (`FilledRoles`).
+    Seconds are this process's CPU seconds (one thread: the time the roles ran, without a shared core's waits).
     """
     loops = {name: filled_loop(name) for name in ("maddpg", "cmcl")}
     seconds: dict[str, list[float]] = {name: [] for name in loops}
     for _ in range(rounds):
         for name, loop in loops.items():
-            t0, done = time.perf_counter(), 0
+            t0, done = time.process_time(), 0
             while done < updates:
                 done += loop.update()
-            seconds[name].append((time.perf_counter() - t0) / done)
+            seconds[name].append((time.process_time() - t0) / done)
     return {name: statistics.median(v) for name, v in seconds.items()}, loops["cmcl"]
 
 
@@ -318,7 +319,8 @@ def cmcl_vs_maddpg_cost(rounds: int = 7, updates: int = 32) -> float:
     """Median seconds of one learner update of CMCL over one of MADDPG (`inline_update_seconds`)."""
     per, cmcl = inline_update_seconds(rounds, updates)
     s = cmcl.config.service
-    print(f"one update at the defaults: maddpg {1e3 * per['maddpg']:.2f} ms, cmcl {1e3 * per['cmcl']:.2f} ms "
+    print(f"one update at the defaults (CPU time): maddpg {1e3 * per['maddpg']:.2f} ms, "
+          f"cmcl {1e3 * per['cmcl']:.2f} ms "
           f"(teachers {cmcl.config.teachers.steps_per_update:g} / ICM "
           f"{cmcl.config.icm.steps_per_update:g} steps per update, calls of {s.updates_per_call} updates / "
           f"{s.fit_steps_per_call} fit steps / {s.score_rows_per_call} rows scored)")

@@ -27,13 +27,22 @@ import torch
 from torch import nn
 
 from cmcl.envs.entities import EntityLayout
+from cmcl.learners import actor_grad
 from cmcl.learners.agent_presence import AgentPresence, row_mean
 from cmcl.learners.assignment import AssignmentTerm
 from cmcl.learners.entity_holder import require_holder_rule
 from cmcl.learners.maddpg_batch import actor_rows, owner_batch
 from cmcl.learners.maddpg_checkpoint import MADDPGCheckpoint
 from cmcl.learners.maddpg_policy import MADDPGPolicy
-from cmcl.learners.nets import as_tensor, clip_grad_norm_per_member_, joint_input, make_adam, soft_update_
+from cmcl.learners.nets import (
+    adam_step_,
+    as_tensor,
+    clip_grad_norm_per_member_,
+    drop_grads_,
+    joint_input,
+    make_adam,
+    soft_update_,
+)
 from cmcl.learners.networks import build_networks, network_kind
 from cmcl.learners.normalised_td import normalised_td_error
 
@@ -138,6 +147,12 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         self._own_mask = torch.eye(n, dtype=torch.bool).view(n, 1, n, 1)  # [owner, 1, agent, 1]
         self.act_mask = None if act_mask is None else torch.as_tensor(act_mask, dtype=torch.float32).view(n, 1, -1)
 
+    @staticmethod
+    def _owners_own(x: torch.Tensor) -> torch.Tensor:
+        """Each owner's own column of per-owner rows, as a view (no copy): x [N, S, N, ...] -> [N, S, ...], row v being
+        x[v, :, v] (owner v's own reward, done or observation)."""
+        return x.diagonal(0, 0, 2).movedim(-1, 0)
+
     # ------------------------------------------------------------------ targets
     def _q(self, net: nn.Module, x: torch.Tensor, members: torch.Tensor | None = None,
            count: torch.Tensor | None = None) -> torch.Tensor:
@@ -163,10 +178,10 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
                 d = torch.zeros(rew.shape[0]) if done is None else done
                 d = d.T[ag] if d.dim() == 2 else d.unsqueeze(0)  # each agent's own done [A, M] (or the row's)
                 return r + self.gamma * (1.0 - d) * q
-            owners = torch.arange(len(ag))
-            r = rew[owners, :, ag] if rew.dim() == 3 else rew  # owner's own reward [A, S]
+            own = self._owners_own if agents is None else (lambda t: t[torch.arange(len(ag)), :, ag])
+            r = own(rew) if rew.dim() == 3 else rew  # owner's own reward [A, S]
             d = torch.zeros_like(r) if done is None else done
-            d = d[owners, :, ag] if d.dim() == 3 else d  # owner's own done [A, S]
+            d = own(d) if d.dim() == 3 else d  # owner's own done [A, S]
             return r + self.gamma * (1.0 - d) * q
 
     def td_targets(
@@ -192,31 +207,35 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
 
     # ------------------------------------------------------------------ update
     def _td_errors(self, obs: torch.Tensor, act: torch.Tensor, rew: torch.Tensor, next_obs: torch.Tensor,
-                   done: torch.Tensor, presence: AgentPresence | None
+                   done: torch.Tensor, presence: AgentPresence | None, x: torch.Tensor | None = None
                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """TD targets y [N, S] and errors y − Q_v(s, a) [N, S] of the current critic (eq. 5; not masked by presence)
-        on per-owner rows, and the rows' present-agent counts int64[N, S] (None: all present)."""
+        on per-owner rows, and the rows' present-agent counts int64[N, S] (None: all present); x: the rows' joint
+        input joint_input(obs, act) float32[N, S, in] when the caller has built it, else None."""
         count = None if presence is None else presence.count
         y = self._td_targets_t(rew, next_obs, done, None, count)
-        return y, y - self._q(self.critic, joint_input(obs, act), None, count), count
+        x = joint_input(obs, act) if x is None else x
+        return y, y - self._q(self.critic, x, None, count), count
 
     def _critic_step(self, obs, act, rew, next_obs, done, w, presence: AgentPresence | None = None
                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """One batched critic step on (y − Q_v(s, a))² (eq. 5), over the rows where owner v is present. Returns
         (loss [N], delta [N, S] (0 where the owner is absent), grad norm [N], normalised TD error [N]:
         cmcl.learners.normalised_td)."""
-        y, delta, count = self._td_errors(obs, act, rew, next_obs, done, presence)  # [N, S], [N, S]
+        x = joint_input(obs, act)  # [N, S, in], built once for the critic and (ReLo) the target critic
+        y, delta, count = self._td_errors(obs, act, rew, next_obs, done, presence, x)  # [N, S], [N, S]
         delta = delta if presence is None else delta * presence.own
         if self.target_scores:  # the same target against the target critic, before the step moves it (ReLo)
             with torch.no_grad():
-                target_delta = y - self._q(self.target_critic, joint_input(obs, act), None, count)
+                target_delta = y - self._q(self.target_critic, x, None, count)
             self.last_target_td = (target_delta if presence is None else target_delta * presence.own).abs()
         loss = row_mean(delta.pow(2), w, presence)  # [N]
         unexplained = normalised_td_error(y, delta.detach(), presence)
-        self.critic_opt.zero_grad(set_to_none=True)
+        params = list(self.critic.parameters())
+        drop_grads_(params)
         self._total(loss, presence).backward()
-        norms = self._clip(self.critic.parameters())
-        self.critic_opt.step()
+        norms = self._clip(params)
+        adam_step_(self.critic_opt)
         return loss.detach(), delta.detach(), norms, unexplained
 
     def _actor_step(self, obs: torch.Tensor, act: torch.Tensor, presence: AgentPresence | None = None
@@ -226,8 +245,18 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
 
         Returns (loss [N], pre-clip grad norm [N]). Only actor parameters receive gradients. With the assignment
         term (`assignment`), the step minimises loss + β · CE (cmcl.learners.assignment); the loss returned is eq. 4's.
+        Per-agent MLPs with continuous actions take the gradient from cmcl.learners.actor_grad (the same numbers).
         """
-        own_obs = obs[self._agents, :, self._agents]  # [N, S, obs_dim]
+        own_obs = self._owners_own(obs)  # [N, S, obs_dim]
+        params = list(self.actor.parameters())
+        if (presence is None and self.act_mask is None and self.assignment is None and not self.discrete
+                and actor_grad.supports(self.actor, self.critic)):  # the same step without autograd's bookkeeping
+            loss, grads = actor_grad.actor_loss_and_grads(self.actor, self.critic, obs, act, own_obs, self._own_mask)
+            for p, g in zip(params, grads, strict=True):
+                p.grad = g
+            norms = self._clip(params)
+            adam_step_(self.actor_opt)
+            return loss, norms
         count = None if presence is None else presence.count
         out, logits = (None, None) if self.assignment is None else self.actor.act_and_attend(own_obs, count=count)
         pi, raw = self._policy(self.actor, own_obs, True, count, out)  # [N, S, act_dim]
@@ -241,11 +270,10 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
             l2 = raw.pow(2).mean((1, 2)) if presence is None else row_mean(raw.pow(2).mean(2), None, presence)
             loss = loss + self.logit_l2 * l2
         total = loss if self.assignment is None else loss + self.assignment.loss(logits, own_obs, count)
-        params = list(self.actor.parameters())
-        self.actor_opt.zero_grad(set_to_none=True)
+        drop_grads_(params)
         self._total(total, presence).backward(inputs=params)
         norms = self._clip(params)
-        self.actor_opt.step()
+        adam_step_(self.actor_opt)
         return loss.detach(), norms
 
     def _total(self, loss: torch.Tensor, presence: AgentPresence | None = None) -> torch.Tensor:
@@ -278,8 +306,7 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         obs, act, rew, next_obs, done, w, presence = owner_batch(batch, self.num_agents, self.networks)
         c_loss, delta, c_norm, unexplained = self._critic_step(obs, act, rew, next_obs, done, w, presence)
         a_loss, a_norm = self._actor_step(*actor_rows(batch, obs, act, presence, self.num_agents))
-        soft_update_(self.target_critic, self.critic, self.tau)
-        soft_update_(self.target_actor, self.actor, self.tau)
+        soft_update_((self.target_critic, self.target_actor), (self.critic, self.actor), self.tau)
         self.updates += 1
         return {
             "critic_loss": c_loss.numpy(),

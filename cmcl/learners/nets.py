@@ -32,6 +32,8 @@ from torch import nn
 
 __all__ = [
     "StackedLinear",
+    "adam_step_",
+    "drop_grads_",
     "make_adam",
     "StackedMLP",
     "as_tensor",
@@ -52,6 +54,42 @@ def make_adam(params: Iterable[torch.Tensor], lr: float) -> torch.optim.Adam:
         return torch.optim.Adam(params, lr=lr, fused=True)
     except (RuntimeError, TypeError):  # older torch without fused CPU Adam
         return torch.optim.Adam(params, lr=lr)
+
+
+def adam_step_(opt: torch.optim.Adam) -> None:
+    """``opt.step()`` with the same arithmetic and the same state, without torch.optim's per-step Python overhead.
+
+    Once every parameter with a gradient has its Adam state (the first step, taken by ``opt.step()``, made it), a
+    fused Adam of one parameter group is its two kernels: step counts + 1 (``torch._foreach_add_``), then
+    ``torch._fused_adam_`` over every (parameter, grad, exp_avg, exp_avg_sq) — exactly what ``opt.step()`` runs
+    (torch.optim.adam._fused_adam), so the updates are bit-identical and ``opt.state_dict()`` is unchanged. Any
+    other optimiser state (no fused kernel, several groups, amsgrad, decoupled decay, grad scaling, step hooks)
+    takes ``opt.step()`` itself.
+    """
+    group = opt.param_groups[0]
+    if (len(opt.param_groups) != 1 or not group.get("fused") or group["amsgrad"] or group["decoupled_weight_decay"]
+            or getattr(opt, "grad_scale", None) is not None or getattr(opt, "found_inf", None) is not None
+            or opt._optimizer_step_pre_hooks or opt._optimizer_step_post_hooks):
+        opt.step()
+        return
+    params = [p for p in group["params"] if p.grad is not None]
+    states = [opt.state.get(p) for p in params]
+    if not params or not all(states):
+        opt.step()
+        return
+    steps = [st["step"] for st in states]
+    torch._foreach_add_(steps, 1)
+    beta1, beta2 = group["betas"]
+    torch._fused_adam_(params, [p.grad for p in params], [st["exp_avg"] for st in states],
+                       [st["exp_avg_sq"] for st in states], [], steps, amsgrad=False, lr=group["lr"], beta1=beta1,
+                       beta2=beta2, weight_decay=group["weight_decay"], eps=group["eps"], maximize=group["maximize"],
+                       grad_scale=None, found_inf=None)
+
+
+def drop_grads_(params: Iterable[torch.Tensor]) -> None:
+    """Every parameter's gradient set to None: ``opt.zero_grad(set_to_none=True)`` over them, without its overhead."""
+    for p in params:
+        p.grad = None
 
 
 def as_tensor(x: np.ndarray | torch.Tensor, dtype: torch.dtype = torch.float32) -> torch.Tensor:
@@ -102,6 +140,10 @@ class StackedLinear(nn.Module):
         if members is not None:
             w = w if w.shape[0] == 1 else w[members]
             b = b if b.shape[0] == 1 else b[members]
+        if x.dim() == 2 and w.shape[0] == m and b.shape[0] == m and not x.requires_grad:
+            # shared rows (data, not a graph's output), per-member weights: one baddbmm on a view, the same numbers
+            # as matmul's, which would copy x m times and add the bias in another pass
+            x = x.expand(m, *x.shape)
         if x.dim() == 3 and w.shape[0] == x.shape[0] and b.shape[0] == x.shape[0]:
             return torch.baddbmm(b.unsqueeze(1), x, w)
         out = torch.matmul(x, w) + b.unsqueeze(1)  # [B, in] or [m, B, in] @ [m or 1, in, out]
@@ -199,9 +241,13 @@ class StackedMLP(nn.Module):
 
 
 @torch.no_grad()
-def soft_update_(target: nn.Module, source: nn.Module, tau: float) -> None:
-    """Polyak update in place (eq. 6): theta' <- tau * theta + (1 - tau) * theta' for every (stacked) parameter."""
-    torch._foreach_lerp_(list(target.parameters()), list(source.parameters()), tau)
+def soft_update_(target: nn.Module | Sequence[nn.Module], source: nn.Module | Sequence[nn.Module], tau: float) -> None:
+    """Polyak update in place (eq. 6): theta' <- tau * theta + (1 - tau) * theta' for every (stacked) parameter;
+    one module or matching sequences of modules (every pair's parameters in one ``torch._foreach_lerp_``)."""
+    targets = [target] if isinstance(target, nn.Module) else list(target)
+    sources = [source] if isinstance(source, nn.Module) else list(source)
+    torch._foreach_lerp_([p for t in targets for p in t.parameters()], [p for s in sources for p in s.parameters()],
+                         tau)
 
 
 @torch.no_grad()
@@ -226,9 +272,9 @@ def clip_grad_norm_per_member_(params: Iterable[torch.Tensor], max_norm: float, 
         return torch.zeros(0)
     members, groups = max(g.shape[0] for g in grads), min(g.shape[0] for g in grads)
     # a gradient with leading axis L = r*G viewed as [r, G, -1]: slice [:, i] is everything of group i
-    sq = torch.stack([g.reshape(g.shape[0] // groups, groups, -1).pow(2).sum((0, 2)) for g in grads]).sum(0)  # [G]
+    views = [g.view(g.shape[0] // groups, groups, -1) for g in grads]
+    sq = torch.stack([s.sum((0, 2)) for s in torch._foreach_mul(views, views)]).sum(0)  # [G]; g·g is g.pow(2)
     norms = sq.sqrt()
-    coef = (max_norm / (norms + eps)).clamp(max=1.0)
-    for g in grads:
-        g.view(g.shape[0] // groups, groups, -1).mul_(coef.view(1, groups, 1))
-    return norms.repeat(members // groups)
+    coef = (max_norm / (norms + eps)).clamp_(max=1.0).view(1, groups, 1)
+    torch._foreach_mul_(views, [coef] * len(views))
+    return norms if members == groups else norms.repeat(members // groups)

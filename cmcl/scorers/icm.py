@@ -26,7 +26,7 @@ import torch.nn.functional as F
 
 from cmcl.envs.entities import EntityLayout
 from cmcl.learners.entity_nets import EntityFeatures
-from cmcl.learners.nets import StackedMLP, as_tensor, clip_grad_norm_per_member_, make_adam
+from cmcl.learners.nets import StackedMLP, adam_step_, as_tensor, clip_grad_norm_per_member_, drop_grads_, make_adam
 from cmcl.learners.state_check import require_same_shapes
 
 __all__ = ["ICM"]
@@ -134,11 +134,12 @@ class ICM:
         self._check(o, a, o2)
         inv, fwd = self._losses(o, a, o2)
         total = ((1.0 - self.beta) * inv + self.beta * fwd).sum()
-        self.opt.zero_grad(set_to_none=True)
+        params = self.parameters()
+        drop_grads_(params)
         total.backward()
         if self.grad_clip is not None:
-            clip_grad_norm_per_member_(self.parameters(), self.grad_clip)
-        self.opt.step()
+            clip_grad_norm_per_member_(params, self.grad_clip)
+        adam_step_(self.opt)
         self.steps += 1
         inv_np, fwd_np = inv.detach().numpy(), fwd.detach().numpy()
         return {"inverse_loss": inv_np, "forward_loss": fwd_np, "total": float(total.detach())}

@@ -30,7 +30,7 @@ import torch
 
 from cmcl.envs.entities import EntityLayout
 from cmcl.learners.entity_nets import EntityCritic
-from cmcl.learners.nets import StackedMLP, as_tensor, clip_grad_norm_per_member_, make_adam
+from cmcl.learners.nets import StackedMLP, adam_step_, as_tensor, clip_grad_norm_per_member_, drop_grads_, make_adam
 from cmcl.learners.networks import network_kind
 from cmcl.learners.state_check import require_same_shapes
 
@@ -119,11 +119,12 @@ class TeacherEnsemble:
         else:
             pred = self.net(x_t.reshape(a_n * k_n, s_n, -1)).squeeze(-1)  # [A*K, S]
         loss = (pred - y_t.reshape(a_n * k_n, s_n)).pow(2).mean(1)  # [A*K]
-        self.opt.zero_grad(set_to_none=True)
+        params = list(self.net.parameters())
+        drop_grads_(params)
         loss.sum().backward()
         if self.grad_clip is not None:
-            clip_grad_norm_per_member_(self.net.parameters(), self.grad_clip)
-        self.opt.step()
+            clip_grad_norm_per_member_(params, self.grad_clip)
+        adam_step_(self.opt)
         self.steps += 1
         return loss.detach().reshape(a_n, k_n).numpy()
 
