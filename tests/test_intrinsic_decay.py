@@ -66,9 +66,9 @@ def test_a_frozen_icm_scores_with_its_random_networks_and_never_fits(frozen):
     initialisation (an unfrozen one's change with its first fit step)."""
     import torch
 
-    from services.icm import ICMWorker
     from services.replay_server import ReplayServer
     from services.rollout import RolloutWorker
+    from services.scorers.icm import ICMWorker
     from tests.in_process import in_process_config
 
     cfg = in_process_config("maddpg", icm={"intrinsic_reward_coef": 1.0, "frozen": frozen})
