@@ -14,7 +14,7 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
   episodes so that the summary holds the sampling distribution's ESS and reward-row shares over training;
 * ``curriculum_hard``: the same arms on the calibrated harder navigation of configs/spread_hard.toml;
 * ``curriculum_tag``: the same arms as the predators of sparse predator-prey (configs/tag_<algorithm>.toml), the
-  prey MADDPG (the paper's Fig. 12 at the issue-21 defaults);
+  prey MADDPG (the paper's Fig. 12 at the rank-difficulty defaults);
 * ``screen``: candidate sampling rules of the registry (cmcl.replay.registry) on the harder task, MADDPG and
   PER-MADDPG beside them for reference, in two rounds: every arm at seed 100, then MADDPG and round one's three best
   candidates at seeds 101-102 (experiments.screen_arms);
