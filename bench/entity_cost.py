@@ -1,4 +1,4 @@
-"""What one MADDPG update costs with entity networks against the paper's per-agent networks (issue 38).
+"""What one MADDPG update costs with entity networks against the paper's per-agent networks.
 
 One `MADDPG.update` on a per-owner minibatch [N, S, N, ...] of random rows (S = 128 by default), per-agent
 (`maddpg.networks = "per_agent"`) and entity networks (`"entity"`, cmcl.learners.entity_nets) built side by side in
@@ -6,7 +6,7 @@ this process and timed in interleaved rounds (the machine is shared: absolute ti
 measure). Printed: median ms per update of each, ``ratio: X`` = entity / per-agent, and the same ratio of the
 entity learner on the previous ops (`entity_reference`: `EntityEncoder.fused = False`, StackedLinear + relu_ and
 the advanced-indexing critic views instead of cmcl.learners.entity_ops / entity_views; the same numbers to float32's
-last bits) and as it ran before issue 38 (`before_issue_38`: those ops and the old actor step).
+last bits) and as it ran before the fused entity kernels (`before_issue_38`: those ops and the old actor step).
 ``--nearest K`` adds the entity networks that read only the K nearest entities of each kind
 (maddpg.entity_nearest, off by default); ``--assignment BETA`` the entity learner with maddpg.assignment_loss = BETA
 (cmcl.learners.assignment: the per-row assignment solver and the auxiliary loss in the actor step; off by default);
@@ -75,7 +75,7 @@ def reference_ops(m: MADDPG) -> MADDPG:
 
 
 def before_issue_38(m: MADDPG) -> MADDPG:
-    """The entity learner as it ran before issue 38: the actor step's Q on the joint input (pi written into the
+    """The entity learner before the fused kernels: the actor step's Q on the joint input (pi written into the
     joint action, the backward pass through every entity slot); the same numbers (tests/test_entity_nets.py)."""
     own_mask = torch.eye(m.num_agents, dtype=torch.bool).view(m.num_agents, 1, m.num_agents, 1)
 

@@ -1,4 +1,4 @@
-"""The holder rule swapped under trained policies, without training (issue 38, maddpg.holder_rule).
+"""The holder rule swapped under trained policies, without training (maddpg.holder_rule).
 
 Runs trained with the holder margin under the "nearest" rule (every other agent counts as holding a landmark) are
 evaluated on the same held-out worlds as `python -m cmcl evaluate RUN --episodes 200` (seed 0), once as trained and

@@ -1,4 +1,4 @@
-"""What the agent-count curriculum's learning-progress signals look like, stage by stage (issue 38, run.stop_progress).
+"""What the agent-count curriculum's learning-progress signals look like, stage by stage (run.stop_progress).
 
 `run.stop_progress` ends a stage once the learning progress of `run.progress_signal` (cmcl/learning_progress.py)
 stays below the threshold for `run.progress_patience` windows. The old signal, the relative change of the mean

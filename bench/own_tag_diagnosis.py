@@ -1,4 +1,4 @@
-"""Why mpe2 simple_tag_v3 is or is not learned (issue 23): one inline MADDPG run at the own_envs grid's settings
+"""Why mpe2 simple_tag_v3 is or is not learned: one inline MADDPG run at the own_envs grid's settings
 (experiments/own_envs.py, OWN_ENVS["tag"]) plus any `--set` overrides, then each team's return split into its parts.
 
 mpe2's simple_tag pays every adversary +10 per step for each (adversary, good agent) pair in contact, so the

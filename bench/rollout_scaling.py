@@ -1,4 +1,4 @@
-"""Rollout scaling on a slow environment (issue 23, item 8): env steps/s with 1, 2 and 4 rollout workers, and on a
+"""Rollout scaling on a slow environment: env steps/s with 1, 2 and 4 rollout workers, and on a
 2-node cluster that workers on both nodes contribute.
 
 1. Per-step cost of each environment of the own_envs grid (experiments.own_envs.OWN_ENVS): CPU microseconds per

@@ -65,7 +65,7 @@ def parameter_counts(loop: FilledRoles) -> tuple[int, int]:
 def update_cost(algorithm: str, agents: list[int], rounds: int, updates: int, networks: list[str],
                 before: bool = False) -> None:
     """Median ms per update for every (N, network kind) cell, interleaved, and the ratio to the first
-    cell (the smallest N with the first kind); `before`: also the entity learner as it ran before issue 38
+    cell (the smallest N with the first kind); `before`: also the entity learner before the fused kernels
     (bench.entity_cost.before_issue_38: the same numbers, the old actor step), as kind "entity_before"."""
     cells = {(n, kind): filled_loop(algorithm, overrides(n, kind)) for n in agents for kind in networks}
     if before:
@@ -141,7 +141,7 @@ def main() -> None:
                         help="network kinds (NETWORKS; with --learn, two processes can split them)")
     parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "scale"))
     parser.add_argument("--before-issue-38", action="store_true",
-                        help="cost: also time the entity learner as it ran before issue 38 (bench/entity_cost.py)")
+                        help="cost: also time the entity learner before the fused kernels (bench/entity_cost.py)")
     args = parser.parse_args()
     if args.learn:
         learn(args.algorithm, args.agents, args.seeds, args.learn, Path(args.out), args.networks)

@@ -1,4 +1,4 @@
-"""Where the seconds of a `make run` go (issue 39): the CPU each role of the service uses, and the learner's time split.
+"""Where the seconds of a `make run` go: the CPU each role of the service uses, and the learner's time split.
 
 First, in this process and before Ray starts, one inline MADDPG update and one inline CMCL update are timed
 (`inline_update_seconds` of bench/learner_throughput.py: the default presets' filled loops, interleaved rounds,

@@ -1,5 +1,5 @@
 """A curriculum over the number of agents: train N_1 < N_2 < ... agents in turn, each stage starting from the
-networks the stage before it ended with (issue 22; EPC, Long et al. 2020, and SPMARL, Zhao et al. 2025).
+networks the stage before it ended with (EPC, Long et al. 2020, and SPMARL, Zhao et al. 2025).
 
     python -m cmcl stages --agents 2 4 8 --config configs/spread_maddpg.toml --set maddpg.networks=entity \
         [--stage-episodes 3000 3000 14000] [--set run.stop_progress=0.02] [--runner inline|service]

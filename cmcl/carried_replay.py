@@ -1,4 +1,4 @@
-"""A new run's start from the replay rows of the run it warm-starts from (`run.carry_replay`; issue 22), both runners.
+"""A new run's start from the replay rows of the run it warm-starts from (`run.carry_replay`), both runners.
 
 Where it sits: a new run with run.init_from and run.carry_replay (the agent-count stages, cmcl.agent_stages, set
 both for every stage after the first). After the warm start, the inline runner (cmcl/loop/__main__.py) and the

@@ -8,7 +8,7 @@ them in its progress rows (`metrics.jsonl`, keys "sampling" for every agent and 
 agents); the replay server can report `replay_sampling_diagnostics` (a pure function of the buffer).
 Used to tell a curriculum that reweights the buffer from one that has collapsed onto a few rows or to uniform.
 
-Reward-bearing row (issue 21): a row whose reward for that agent is > 0. In sparse navigation only C2 = +4 (the agent
+Reward-bearing row: a row whose reward for that agent is > 0. In sparse navigation only C2 = +4 (the agent
 covers a landmark, §6.1) is positive; C1 = −1 (collision, wall) is not counted. In predator-prey it is a capture
 for a predator (D1 = +5); a prey never has one.
 """

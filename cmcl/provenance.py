@@ -1,4 +1,4 @@
-"""Provenance of a result: which code, which settings and which machine produced it (issue 35).
+"""Provenance of a result: which code, which settings and which machine produced it.
 
 Every run summary (`RunDirectory.write_summary`), every grid summary (`experiments.runner`) and the bench scripts'
 outputs carry `provenance(...)`:

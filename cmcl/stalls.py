@@ -1,4 +1,4 @@
-"""Where a navigation policy misses landmarks, and how long a run sat on a plateau (issue 21, the stall analysis).
+"""Where a navigation policy misses landmarks, and how long a run sat on a plateau (the stall analysis).
 
 Where it sits: read-only analysis. `cmcl.evaluate` calls `miss_anatomy` on the final step of its held-out worlds
 (sparse navigation only) and prints it; the experiment report calls `plateau_episodes` on a run's episode rows.

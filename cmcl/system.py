@@ -26,7 +26,7 @@ if TYPE_CHECKING:  # torch-backed classes load lazily: the replay server and rol
     from cmcl.scorers.icm import ICM
     from cmcl.scorers.teachers import TeacherEnsemble
 
-CONTROL_STREAM = 21  # entropy word of the permuted control's seed stream (issue 21), see `control_seed`
+CONTROL_STREAM = 21  # entropy word of the permuted control's seed stream, see `control_seed`
 DISCRETE_ACT_DIM = 5  # MPE's discrete action: no-op, +x, -x, +y, -y
 
 

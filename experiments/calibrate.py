@@ -1,4 +1,4 @@
-"""Calibrate a harder sparse navigation task (issue 21, item 3): MADDPG inline on candidate variants within the
+"""Calibrate a harder sparse navigation task: MADDPG inline on candidate variants within the
 paper's description, one seed each, one run at a time, until one reaches a 100-episode moving-average coverage of
 about 0.5 around the middle of its budget (neither at floor nor at ceiling).
 

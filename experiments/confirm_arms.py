@@ -1,4 +1,4 @@
-"""The confirmation's arms (issue 36; protocol in docs/RESULTS.md, "the confirmation's protocol"), derived from the
+"""The confirmation's arms (protocol in docs/RESULTS.md, "the confirmation's protocol"), derived from the
 screen: the rules the screen's committed summaries select (`screen_choice`, by experiments.screen_table.selection),
 each with its permuted control, then MADDPG (`confirm_arms`); ConfirmNotReady while the screen has no selection or a
 selected rule has no permuted control. Its seeds come in two halves: after the interim look at INTERIM_SEEDS, a rule

@@ -1,4 +1,4 @@
-"""The confirmation of issue 36 (protocol in docs/RESULTS.md, "the confirmation's protocol"): the rules the screen
+"""The rule confirmation (protocol in docs/RESULTS.md, "the confirmation's protocol"): the rules the screen
 selected, MADDPG and each rule's permuted control on the harder task, 20 seeds per arm, or 10 for a rule the interim
 look stopped (experiments.confirm_arms.stopped_at_interim).
 

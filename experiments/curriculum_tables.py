@@ -1,4 +1,4 @@
-"""The tables of the curriculum grids (issue 21; the protocol of docs/RESULTS.md): per arm the learning measures,
+"""The tables of the curriculum grids (the protocol of docs/RESULTS.md): per arm the learning measures,
 the stalls and the sampling distribution over training; then the pre-registered tests, one primary comparison
 unadjusted and every other one Holm-corrected. Navigation grids are measured on coverage, the predator-prey grid on
 the predators' win (an episode with a capture): TaskMeasures names the fields of each."""
@@ -16,7 +16,7 @@ from experiments.provenance import cell_versions
 from experiments.stats import TIMES, detectable, difference, fmt, fmt_time, holm, logrank_p, spread
 
 ALPHA = 0.05  # the level of the protocol's tests: the primary's, and the Holm family's
-STALL = (0.65, 0.85)  # final MA coverage of a run stuck at about three landmarks of four (issue 21)
+STALL = (0.65, 0.85)  # final MA coverage of a run stuck at about three landmarks of four
 
 
 @dataclass(frozen=True)

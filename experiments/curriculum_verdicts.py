@@ -1,6 +1,6 @@
 """The verdicts of a navigation curriculum grid's protocol, drawn from its tests (experiments.curriculum_tables), as
 the table docs/RESULTS.md prints under the grid's tests (block curriculumhardverdicts: the harder task's grid, the
-grid re-run at one commit for issue 35). One row per question of the protocol: the primary (CMCL − MADDPG in the area
+grid re-run at one commit). One row per question of the protocol: the primary (CMCL − MADDPG in the area
 under the training coverage curve, Welch), the paper's Fig. 8b (CMCL against PER-MADDPG and ACL), whether CMCL ends
 better or reaches MA 0.9 sooner, and the two controls (the curriculum's information: the permuted control; its
 direction: the anti-curriculum), each judged at the level its test is judged at (the primary unadjusted, the rest by

@@ -8,27 +8,27 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
 * ``winrate``: CMCL predators against ACL prey and against PER-MADDPG prey (Fig. 13);
 * ``ablations``: CMCL on navigation with one setting changed at a time (ABLATIONS; the unchanged CMCL runs of
   ``spread`` are their reference);
-* ``curriculum`` (issue 21, the pre-registered protocol of docs/RESULTS.md): navigation N=4 with the arms of
+* ``curriculum`` (the pre-registered protocol of docs/RESULTS.md): navigation N=4 with the arms of
   CURRICULUM_ARMS -- maddpg, per, acl, cmcl, and CMCL's two controls, ``cmcl_permuted`` (its priorities shuffled
   across rows: same ESS, no information) and ``cmcl_anti`` (difficulty reversed) -- progress rows every 200
   episodes so that the summary holds the sampling distribution's ESS and reward-row shares over training;
 * ``curriculum_hard``: the same arms on the calibrated harder navigation of configs/spread_hard.toml;
 * ``curriculum_tag``: the same arms as the predators of sparse predator-prey (configs/tag_<algorithm>.toml), the
-  prey MADDPG (the paper's Fig. 12 at the issue-21 defaults);
-* ``screen`` (issue 36): candidate sampling rules of the registry (cmcl.replay.registry) on the harder task, MADDPG and
+  prey MADDPG (the paper's Fig. 12 at the rank-difficulty defaults);
+* ``screen``: candidate sampling rules of the registry (cmcl.replay.registry) on the harder task, MADDPG and
   PER-MADDPG beside them for reference, in two rounds: every arm at seed 100, then MADDPG and round one's three best
   candidates at seeds 101-102 (experiments.screen_arms);
-* ``confirm`` (issue 36): the rules the screen's committed summaries select (experiments.screen_table.selection),
+* ``confirm``: the rules the screen's committed summaries select (experiments.screen_table.selection),
   MADDPG and each selected rule's permuted control, on the harder task, seeds 0-19 with an interim look after seeds
   0-9; its arms (experiments.confirm_arms) refuse to exist (ConfirmNotReady) while the screen has no selection;
-* ``make_run`` (issue 35): the exact `make run` (MAKE_RUN), one run per seed; run it with --jobs 1 on an idle
+* ``make_run``: the exact `make run` (MAKE_RUN), one run per seed; run it with --jobs 1 on an idle
   machine;
 * ``schedule``: time to solve navigation with MADDPG inline, maddpg.update_every x maddpg.batch_size, each run
   stopped once its 100-episode moving-average coverage reaches 0.95 or after 900 s of training;
 * ``algorithms``: time to solve with each algorithm, inline and on the embedded service, same stops;
-* ``scale`` (issue 22): navigation with more agents, each cell of SCALE_CELLS (agent count x networks) with
+* ``scale``: navigation with more agents, each cell of SCALE_CELLS (agent count x networks) with
   MADDPG, the full budget, progress rows every 200 episodes; the per-agent cells are the baseline;
-* ``own_envs`` (issue 23, item 6): environments no one here wrote (experiments.own_envs.OWN_ENVS) through
+* ``own_envs``: environments no one here wrote (experiments.own_envs.OWN_ENVS) through
   ``env.factory``, inline and on the embedded service, each with its own budget and settings;
 * ``sparse_calibration`` (docs/SPARSE_TASKS.md): uniform MADDPG and PER-MADDPG on each sparse task of
   SPARSE_TASKS (its preset configs/<task>_maddpg.toml, through ``env.factory``), inline, the preset's budget.
@@ -81,8 +81,8 @@ HARD_SETTING_GRIDS: dict[str, dict[str, list[str]]] = {
     },
     "curriculum_eta": {"cmcl_eta1": ["teams.agent.eta=1.0"]},
 }
-# The screen of issue 36: its arms (arm -> --set overrides), references, rounds and seeds are experiments.screen_arms's.
-# The confirmation of issue 36 (protocol in docs/RESULTS.md, "the confirmation's protocol"): its arms come from the
+# The rule screen: its arms (arm -> --set overrides), references, rounds and seeds are experiments.screen_arms's.
+# The rule confirmation (protocol in docs/RESULTS.md, "the confirmation's protocol"): its arms come from the
 # screen's selection, its seeds (CONFIRM_SEEDS) and interim look from experiments.confirm_arms.
 
 ABLATIONS = {  # name -> (config file, --set overrides, episode budget or None for the grid's) of CMCL variants
@@ -102,7 +102,7 @@ ABLATIONS = {  # name -> (config file, --set overrides, episode budget or None f
 
 @dataclass(frozen=True)
 class ScaleCell:
-    """One cell of the scale grid (issue 22): N agents and N landmarks, MADDPG. config: a file under configs/; sets:
+    """One cell of the scale grid: N agents and N landmarks, MADDPG. config: a file under configs/; sets:
     its --set overrides; stages: the agent counts of an agent-count curriculum (python -m cmcl stages: each stage
     starts from the networks of the one before), () for one run; stage_episodes: episodes per stage; budget: episodes
     of the run (of its last stage's run, for stages), None for the grid's --episodes."""
@@ -115,12 +115,12 @@ class ScaleCell:
 
 
 NO_CAP = "run.max_seconds=0"  # the presets' wall-clock caps off: every seed gets the same episodes, whatever the load
-NO_HOLDER = "maddpg.entity_holder=false"  # the presets' holder margin (on since issue 38): off, as these cells ran
+NO_HOLDER = "maddpg.entity_holder=false"  # the presets' holder margin (on in the presets): off, as these cells ran
 # The first four cells ran first (one seed): entity networks cost 6x more per update at N = 8 (docs/RESULTS.md), so
 # they trained for a wall-clock budget, 45 min or 15 min per stage (2 -> 4 -> 8), the "progress" cell also ended once
-# the critics' TD-error learning progress stayed below 5% for three 500-episode windows (the rule before issue 38,
+# the critics' TD-error learning progress stayed below 5% for three 500-episode windows (the old default,
 # run.progress_signal = critic_loss; it never fired: docs/RESULTS.md). The later cells fill the
-# table of issue 22's point 4 at equal episodes: N = 4 and N = 16 with the presets' entity networks
+# agent-count curriculum's table at equal episodes: N = 4 and N = 16 with the presets' entity networks
 # (configs/spread_n8.toml, configs/spread_n16.toml), N = 16 with the paper's per-agent networks, and N = 16 trained
 # from scratch for the 3,040 episodes the preset trains after its N = 8 stage.
 SCALE_CELLS: dict[str, ScaleCell] = {
@@ -144,7 +144,7 @@ SCALE_CELLS: dict[str, ScaleCell] = {
     "n16_entity_long": ScaleCell("spread_n16.toml", ("run.init_from=", NO_CAP, NO_HOLDER), budget=9_808),
 }
 
-# `make run` measured, not remembered (issue 35): the Makefile's run target, one run per seed, one at a time, on an
+# `make run` measured, not remembered: the Makefile's run target, one run per seed, one at a time, on an
 # otherwise idle machine: the service, configs/spread_maddpg.toml (uniform replay; configs/spread_cmcl.toml until
 # 2026-12-05), stop at a 100-episode moving-average coverage of 0.9 or after 300 s of training, or at the Makefile's
 # RUN_EPISODES (MAKE_RUN_EPISODES; the config's 20,000 until 2026-12-06, which a fast machine used up in ~150 s) (the

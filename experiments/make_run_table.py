@@ -1,4 +1,4 @@
-"""`make run` measured (issue 35): the README's table of the make_run grid's summaries, one row per seed, and the
+"""`make run` measured: the README's table of the make_run grid's summaries, one row per seed, and the
 tally under it. Every number the README gives of `make run` comes from here (tests/test_make_run_table.py checks
 the README's block against the committed summaries).
 

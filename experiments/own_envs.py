@@ -1,4 +1,4 @@
-"""The own-environment grid (issue 23, item 6): environments no one here wrote, trained through `env.factory` on
+"""The own-environment grid: environments no one here wrote, trained through `env.factory` on
 both runners, each against the random policy on the same held-out episodes.
 
 OWN_ENVS names each environment with the settings it trains with (the same for both runners and every seed); its

@@ -1,4 +1,4 @@
-"""Which code a grid's result ran, and whether a comparison's runs may be tested together (issue 35).
+"""Which code a grid's result ran, and whether a comparison's runs may be tested together.
 
 Writing: `run_provenance` is the "provenance" of a grid summary: `cmcl.provenance.provenance` of this checkout and of
 the run's resolved config, with the commit, dirtiness and any change during the run taken from the training process's

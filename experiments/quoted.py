@@ -1,4 +1,4 @@
-"""The numbers README.md and docs/LEARNING.md quote from the grids (issue 35), as the sentences and tables that hold
+"""The numbers README.md and docs/LEARNING.md quote from the grids, as the sentences and tables that hold
 them, drawn from the committed summaries by the statistics of docs/RESULTS.md's tables (experiments.stats, tables,
 curriculum_tables). `python -m experiments report --update README.md` and `--update docs/LEARNING.md` write them into
 their marked blocks; tests/test_quoted_numbers.py regenerates both pages and fails on any difference.

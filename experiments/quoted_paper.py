@@ -123,9 +123,9 @@ def tag_summary(tag: list[dict[str, Any]], curriculum_tag: list[dict[str, Any]])
         arms = [sum(r["arm"] == a for r in curriculum_tag) for a in {r["arm"] for r in curriculum_tag}]
         said = (f"in the {AREA_NAME[t.key]} against MADDPG, CMCL {verdict(t)}" if t.testable else
                 f"its primary comparison (CMCL − MADDPG) is {untested(t)}")
-        text += (f" Predator-prey was re-run at the issue-21 defaults (grid `curriculum_tag`: {len(arms)} arms × "
-                 f"{span(arms, 0)} seeds, {len(curriculum_tag)} runs, MADDPG prey; {SECTION['curriculum_tag']}): "
-                 f"{said}.")
+        text += (" Predator-prey was re-run at the rank-difficulty defaults (grid `curriculum_tag`: "
+                 f"{len(arms)} arms × {span(arms, 0)} seeds, {len(curriculum_tag)} runs, MADDPG prey; "
+                 f"{SECTION['curriculum_tag']}): {said}.")
     return text
 
 

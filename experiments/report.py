@@ -17,7 +17,7 @@ the text between them (a block whose markers the page lacks is only printed):
   while a curriculum grid has no summary; the stalls blocks from `python -m experiments stalls FOLDER`;
 * timetosolve: the schedule and algorithms grids (bench/results/time_to_solve), printed only;
 * ownenvs: the own_envs grid (bench/results/own_envs), each environment against the random policy;
-* screen, screenselect: the screen of sampling rules (bench/results/screen, issue 36) and its selection rule;
+* screen, screenselect: the screen of sampling rules (bench/results/screen) and its selection rule;
   confirm, confirmtests: the confirmation of the rules the screen selected (bench/results/confirm), its two Holm
   families and the goal's verdict per rule; "no runs yet" while it has no summary; confirmdecision: README.md's
   sentence on the recommended curriculum and what `make run` trains, from the same summaries;

@@ -1,4 +1,4 @@
-"""Grids re-run at one commit (issue 35): the harder task's curriculum grid, whose first runs mixed code versions, and
+"""Grids re-run at one commit: the harder task's curriculum grid, whose first runs mixed code versions, and
 the λ-stride and η grids whose tests set their arms beside its MADDPG and CMCL runs. Each is re-run from a worktree
 at RERUN_COMMIT into a folder of its own (`python -m experiments run NAME --seeds 0 … 9 --out
 bench/results/NAME_<commit>`), and the report reads that folder in place of the grid's first one once it holds every

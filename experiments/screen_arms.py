@@ -1,4 +1,4 @@
-"""The screen's arms (issue 36; protocol in docs/RESULTS.md, "Sampling rules that help: the screen"): the candidate
+"""The screen's arms (protocol in docs/RESULTS.md, "Sampling rules that help: the screen"): the candidate
 sampling rules and their references with their overrides, the screen's seeds, the permuted control's key and the rule
 an arm's overrides name.
 
@@ -17,7 +17,7 @@ from collections.abc import Sequence
 # confirmation's controls (experiments.confirm_arms) and the curriculum grids' cmcl_permuted arm (experiments.grids)
 # take it from here.
 PERMUTED_CONTROL = "teams.<team>.priority.difficulty_transform=permuted"
-# The screen of issue 36 (protocol in docs/RESULTS.md, "Sampling rules that help: the screen"): candidate sampling
+# The screen of sampling rules (protocol in docs/RESULTS.md, "Sampling rules that help: the screen"): candidate sampling
 # rules on the harder task in two rounds (below), every setting the harder grid's but the team's rule; MADDPG and
 # PER-MADDPG beside them for reference (not candidates). arm -> --set overrides.
 SCREEN_ARMS: dict[str, list[str]] = {

@@ -1,4 +1,4 @@
-"""The screen of sampling rules (issue 36; protocol in docs/RESULTS.md, "Sampling rules that help: the screen"):
+"""The screen of sampling rules (protocol in docs/RESULTS.md, "Sampling rules that help: the screen"):
 one row per arm with its learning measures, the manipulation check and the code it ran, then the selection rule
 applied. The screen makes no claim: it only picks the candidates of the confirmation.
 

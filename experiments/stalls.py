@@ -1,4 +1,4 @@
-"""The stall analysis of a curriculum grid (issue 21): how long each run sat at about three landmarks of four, what
+"""The stall analysis of a curriculum grid: how long each run sat at about three landmarks of four, what
 its agents did there, and what the curriculum was doing, from the run directories the grid trained in.
 
     python -m experiments stalls GRID_FOLDER        (e.g. bench/results/curriculum; reads GRID_FOLDER/runs/*)

@@ -169,7 +169,7 @@ class Supervisor:
                 # propagates from submit)
                 if isinstance(getattr(err, "cause", None), EnvFactoryError):  # the user's env (an observation that
                     if self.env_error is None:  # does not fit its space, a crash): a retry meets it again; the run
-                        raise err.cause from None  # is checkpointed, then the CLI says it in one line (item 5)
+                        raise err.cause from None  # is checkpointed, then the CLI says it in one line
                     continue  # another worker's, while the run is being kept: said once
                 end_if_write_failure(err)  # a full disk
                 self.replay_failed |= self.failures.call_failed(kind, index, err, self.inflight) == ("replay", True)

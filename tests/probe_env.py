@@ -1,4 +1,4 @@
-"""A ParallelEnv written to probe the adapter's edges (issue 37 items 6-8): agents that leave early with their own
+"""A ParallelEnv written to probe the adapter's edges: agents that leave early with their own
 success, observations that do not fit their declared Box, episodes shorter than env.episode_length.
 
 `leave_at[i]`: the step after which agent_i terminates and leaves (the episode ends when the last one has left, or at
@@ -6,7 +6,7 @@ success, observations that do not fit their declared Box, episodes shorter than 
 `fault_at` (0 = the reset) for agent_0: "short" shape (1,) for the declared (2,), "long" (3,), "wide" int64 values
 ±60 for Box(-1, 1), "nan", "text" (a string array); observations are otherwise (t / max_cycles, -t / max_cycles).
 `crash_after`: the number of episodes this copy plays whole; at step `fault_at` of the next one its step raises
-RuntimeError("probe crash") (0 = never; issue 37 item 5).
+RuntimeError("probe crash") (0 = never).
 """
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""A team's actor_batch (issue 36; actor prioritised replay, Saglam et al., JAIR 2023): under "uniform" the actor
+"""A team's actor_batch (actor prioritised replay, Saglam et al., JAIR 2023): under "uniform" the actor
 trains on a minibatch drawn uniformly from the buffer, apart from the critic's prioritised one; under "rule" (the
 default) on the critic's, exactly as before. The agreement of the two runners is in tests/test_agreement.py."""
 

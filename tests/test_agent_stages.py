@@ -110,7 +110,7 @@ def test_the_readme_stages_command_runs_on_the_service(tmp_path):
 
 
 def test_a_stage_ends_when_its_coverage_stops_progressing(tmp_path, tiny_config_file):
-    """run.stop_progress with the default signal, the change of the training coverage (issue 38): with an enormous
+    """run.stop_progress with the default signal, the change of the training coverage: with an enormous
     threshold the first stage ends after patience + 1 windows of episodes, far before its budget; the last stage, the
     target task, trains its whole budget."""
     root = tmp_path / "cur"

@@ -30,7 +30,7 @@ from services.scorers.icm import ICMWorker
 from services.scorers.teachers import TeacherWorker
 from tests.in_process import in_process_config
 
-# every registered rule and its controls: the agreement holds for each (issue 36)
+# every registered rule and its controls: the agreement holds for each
 TEACHER_RULES = [a for a in ALGORITHMS if REGISTRY[a].needs(TeamConfig(algorithm=a)).teachers]
 CONTROLS = ("none", "permuted", "reversed")
 

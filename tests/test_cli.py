@@ -203,7 +203,7 @@ def test_more_episodes_is_refused_negative_or_without_a_run(request_args, named)
 @pytest.mark.parametrize("value", ["0", "-1"])
 @pytest.mark.parametrize("command", ["python -m cmcl train", "python -m services.launch"])
 def test_num_cpus_must_be_a_positive_integer(command, value, tmp_path, capsys):
-    """Issue 37: 0 silently meant all cores and -1 was a traceback from Ray."""
+    """Bad worker counts are refused: 0 silently meant all cores and -1 was a traceback from Ray."""
     from services.launch import main as launch
 
     flags = ["--num-cpus", value, "--config", str(tmp_path / "absent.toml"), "--set", f"run.dir={tmp_path / 'run'}"]

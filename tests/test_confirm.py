@@ -1,4 +1,4 @@
-"""The confirmation of issue 36: its arms derived from the screen's summaries by the screen's selection rule, its
+"""The rule confirmation: its arms derived from the screen's summaries by the screen's selection rule, its
 refusal while the screen has no selection, the permuted control of each rule, the interim look after seeds 0-9, and
 its tables and goal verdicts.
 
@@ -262,7 +262,7 @@ def test_the_readme_sentence_says_no_verdict_until_complete_then_what_make_run_t
 
 
 def test_make_run_trains_what_the_committed_confirmation_recommends():
-    """The protocol's "Then": `make run` trains the rule that met the goal, else uniform replay (issue 36)."""
+    """The protocol's "Then": `make run` trains the rule that met the goal, else uniform replay."""
     from cmcl.config import load_config
     from experiments.grids import GRIDS, MAKE_RUN
     from experiments.run_spec import ROOT

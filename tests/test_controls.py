@@ -1,4 +1,4 @@
-"""Issue 21's sampling controls and defaults: the permuted control (same probabilities, no information), the
+"""The sampling controls and defaults: the permuted control (same probabilities, no information), the
 anti-curriculum (ĉ -> 1 − ĉ), the per-algorithm α_s (A8) and rank difficulty (A1), and the reward-row diagnostics."""
 
 import numpy as np

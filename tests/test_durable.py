@@ -1,4 +1,4 @@
-"""Exactly-once inserts, the durable replay store, and bad bytes at the chunk boundary (issue 9)."""
+"""Exactly-once inserts, the durable replay store, and bad bytes at the chunk boundary."""
 
 import dataclasses
 import hashlib

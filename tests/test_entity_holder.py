@@ -1,4 +1,4 @@
-"""maddpg.entity_holder (issue 38): each landmark's holder margin as one more entity feature of the entity networks.
+"""maddpg.entity_holder: each landmark's holder margin as one more entity feature of the entity networks.
 
 The margin's values on hand-built views (torch and its numpy twin), the twins' agreement, that only a landmark's
 nearest other agent sets it; the setting loads, is refused in one line where it cannot apply, leaves every input width
@@ -25,7 +25,7 @@ from cmcl.messages import CURIOSITY, DIFFICULTY, Scorer
 ROOT = Path(__file__).resolve().parents[1]
 N8 = "configs/spread_n8.toml"
 HOLDER = "maddpg.entity_holder=true"
-OFF = "maddpg.entity_holder=false"  # the N = 8 preset has it on (issue 38)
+OFF = "maddpg.entity_holder=false"  # the N = 8 preset has it on
 TYPES = slice(2, 4)  # navigation's type one-hot (landmark, agent) after the 2 raw features
 REFUSED = "maddpg.entity_holder = true and this config has false"
 

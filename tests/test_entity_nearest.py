@@ -1,4 +1,4 @@
-"""maddpg.entity_nearest (issue 38): the entity actor and critic read only the k nearest entities of each kind.
+"""maddpg.entity_nearest: the entity actor and critic read only the k nearest entities of each kind.
 
 The setting loads, reaches entity teachers and an entity ICM too, is refused in one line where it cannot apply,
 reaches the learner of either runner and the rollout workers' numpy actor, trains inline, and its checkpoints say k,

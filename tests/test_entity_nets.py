@@ -263,7 +263,7 @@ def test_dense_is_stacked_linear_and_relu_with_its_gradients(onednn, monkeypatch
 @pytest.mark.parametrize("pool", POOLS)
 @pytest.mark.parametrize("task", ["spread", "tag"])
 def test_the_fused_ops_give_the_reference_ops_numbers_and_gradients(pool, task):
-    """Issue 38's kernels (entity_ops.dense, CriticViews.gather) against the reference ops: actions, Q (joint
+    """The fused entity kernels (entity_ops.dense, CriticViews.gather) against the reference ops: actions, Q (joint
     path and q_own_action) and every parameter's gradient within 1e-5, with and without absent agents."""
     layout = spread_layout(5) if task == "spread" else tag_layout(TagParams())
     n, s = layout.num_agents, 7

@@ -1,4 +1,4 @@
-"""maddpg.holder_rule "seated" (issue 38): an agent seated on a landmark (within the cover radius of its nearest one)
+"""maddpg.holder_rule "seated": an agent seated on a landmark (within the cover radius of its nearest one)
 holds only that landmark, so a landmark it covers beside its own reads as held by the nearest agent seated nowhere
 else. Its values on hand-built views (torch, the networks' slot path and the numpy twin), the three agreeing on random
 views, "nearest" unchanged, and the entity actor and its numpy twin acting alike under it."""

@@ -1,4 +1,4 @@
-"""The permuted control on LaBER (issues 21, 36): under `teams.<team>.priority.difficulty_transform = "permuted"` a
+"""The permuted control on LaBER: under `teams.<team>.priority.difficulty_transform = "permuted"` a
 LaBER agent picks its minibatch with its candidates' fresh |δ| shuffled across them by a permutation the buffer
 draws from its `control_rng` (cmcl.replay.rules.laber.candidate_orders). Here: the manipulation check on the pick,
 the permutations restored on resume, and nothing drawn without the control. The two runners' agreement under the

@@ -70,7 +70,7 @@ def test_each_algorithm_runs_and_learns_from_its_own_priorities(algorithm, tmp_p
 
 
 def test_eight_agents_with_shared_networks_run_and_resume_their_weights(tmp_path, tiny_config):
-    """Scale (issue 11): N = 8 navigation with one shared actor and critic and one teacher per fold; the
+    """Scale: N = 8 navigation with one shared actor and critic and one teacher per fold; the
     learner's and the teachers' weights change, every row is scored, and a checkpoint restores them."""
     data = tiny_config("cmcl", dir=str(tmp_path / "n8")).to_dict()
     data["env"]["num_agents"], data["maddpg"]["share_parameters"] = 8, True

@@ -1,4 +1,4 @@
-"""`make run` measured, not remembered (issue 35): the README's table is the make_run grid's committed summaries."""
+"""`make run` measured, not remembered: the README's table is the make_run grid's committed summaries."""
 
 import re
 

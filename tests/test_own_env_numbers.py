@@ -1,4 +1,4 @@
-"""Numbers that were silently wrong on your own environment (issue 37 items 6-8, 11), each on a real PettingZoo env:
+"""Numbers that were silently wrong on your own environment, each on a real PettingZoo env:
 success and coverage when agents leave early, observations that do not fit their declared space, λ's schedule on
 episodes shorter than env.episode_length, and an AEC env given as the factory. tests/probe_env.py is the probe."""
 

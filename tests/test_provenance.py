@@ -1,4 +1,4 @@
-"""Every result records the code it ran, and the report never tests runs of mixed code (issue 35)."""
+"""Every result records the code it ran, and the report never tests runs of mixed code."""
 
 import json
 import subprocess

@@ -1,4 +1,4 @@
-"""The numbers README.md and docs/LEARNING.md quote from the grids are the report's (issue 35): regenerating both
+"""The numbers README.md and docs/LEARNING.md quote from the grids are the report's: regenerating both
 pages from the committed summaries, as `python -m experiments report --update README.md` and `--update
 docs/LEARNING.md` do, changes nothing; a number typed into a block by hand is caught; and the sentences say what the
 tests say (withdrawn for mixed code, "not shown" at p >= alpha)."""

@@ -1,4 +1,4 @@
-"""Bad input meets one line, not a traceback (issue 37, "refusals that are tracebacks"): each case runs the command as
+"""Bad input meets one line, not a traceback ("refusals that are tracebacks"): each case runs the command as
 a user runs it (a subprocess) and expects exit 2, exactly one line on stderr naming the key, flag or file and its
 value, and nothing left in the run directory that would block the corrected command.
 

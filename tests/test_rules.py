@@ -1,4 +1,4 @@
-"""The sampling-rule registry and the rules beyond the paper's four (issue 36): ReLo, the reducible held-out loss,
+"""The sampling-rule registry and the rules beyond the paper's four: ReLo, the reducible held-out loss,
 held-out learning progress, and the uniform floor every prioritised rule can take. Pure numpy, no Ray."""
 
 import ast

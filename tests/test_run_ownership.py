@@ -91,7 +91,7 @@ def test_after_training_the_first_signal_exits_at_once():
 
 
 def test_a_torn_last_metrics_line_is_ignored_and_set_aside_and_a_corrupt_one_before_it_refused(tmp_path, capsys):
-    """Issue 37: a last line torn by a full disk (EFBIG) made resume and evaluate crash with JSONDecodeError."""
+    """A last line torn by a full disk (EFBIG) made resume and evaluate crash with JSONDecodeError."""
     from cmcl.config import load_config
     from cmcl.run_flags import RunRequest, resumed_config, train_in_run
 
@@ -122,7 +122,7 @@ def test_a_torn_last_metrics_line_is_ignored_and_set_aside_and_a_corrupt_one_bef
 
 def test_a_lock_held_by_a_child_of_a_dead_holder_names_the_live_process(tmp_path, monkeypatch):
     """The holder the lock file names has died, but a child that inherited its descriptor (the launcher's Ray
-    reaper) still holds the lock: the refusal names that live process, not only the dead pid (issue 37 item 15)."""
+    reaper) still holds the lock: the refusal names that live process, not only the dead pid."""
     from cmcl.io import runlock
 
     monkeypatch.setattr(runlock, "DEAD_HOLDER_WAIT_S", 0.2)

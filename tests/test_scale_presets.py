@@ -1,4 +1,4 @@
-"""The presets for more agents (issues 22, 38): configs/spread_n8.toml, spread_n16.toml and spread_n32.toml.
+"""The presets for more agents: configs/spread_n8.toml, spread_n16.toml and spread_n32.toml.
 
 Default run: each preset trains a few updates inline with its own networks, and the N = 16 and N = 32 presets, whose
 networks start from an N = 8 run, name `run.init_from` when that run does not exist.

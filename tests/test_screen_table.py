@@ -1,4 +1,4 @@
-"""The screen's table and selection rule (issue 36): the manipulation check, the two rounds (every arm at seed 100,
+"""The screen's table and selection rule: the manipulation check, the two rounds (every arm at seed 100,
 then MADDPG and round one's three best candidates that acted), the ranking, the gate against MADDPG, and no
 selection from an incomplete screen or from runs of mixed code.
 

@@ -1,4 +1,4 @@
-"""The pieces of bench/service_breakdown.py's breakdown (issue 39): which role a process is, CPU over a window, the
+"""The pieces of bench/service_breakdown.py's breakdown: which role a process is, CPU over a window, the
 learner's time split; and the instrumentation it reads: the pacing's reason for holding the learner back, the
 supervisor's HeldClock, the learner's busy seconds in its report and on the metrics endpoint."""
 

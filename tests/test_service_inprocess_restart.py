@@ -109,7 +109,7 @@ def test_a_torn_log_tail_is_cut_and_a_bad_snapshot_refused(tmp_path):
 
 
 def test_a_corrupt_frame_costs_only_its_own_transitions_and_the_log_is_moved_aside(tmp_path, capsys):
-    """Issue 37: one flipped byte in the first frame used to truncate the log there and lose every chunk after."""
+    """One flipped byte in the first frame used to truncate the log there and lose every chunk after."""
     cfg = in_process_config("maddpg")  # capacity 360: two chunks of 120 stay in the log
     store = tmp_path / "replay"
     replay, worker = ReplayServer(cfg, store_dir=str(store)), RolloutWorker(cfg, 0, 0)

@@ -1,4 +1,4 @@
-"""Issue 56's sparse tasks: VACL's all-or-nothing and SPMARL's gated navigation (cmcl.envs.sparse_nav, its
+"""The sparse tasks: VACL's all-or-nothing and SPMARL's gated navigation (cmcl.envs.sparse_nav, its
 ParallelEnv cmcl.envs.sparse_nav_v0 and batched twin), CMAE's Push-Box and Pass (cmcl.envs.cmae_grids), their
 presets and the sparse_calibration grid.
 

@@ -74,7 +74,7 @@ def test_a_checkpoint_without_its_digest_file_or_with_a_bad_one_is_refused(tmp_p
 
 @pytest.mark.parametrize("manifest", ["missing", "unreadable"])
 def test_a_lost_manifest_is_rebuilt_from_the_files_and_never_costs_a_generation(tmp_path, manifest):
-    """Issue 37: with the manifest gone, resume used to start afresh and its first save wrote generation 1 and
+    """With the manifest gone, resume used to start afresh and its first save wrote generation 1 and
     deleted the intact generations 2 and 3."""
     vf = VerifiedFile(tmp_path / "learner.pt")
     for i in (1, 2, 3):

@@ -2,7 +2,7 @@
 
 Where it sits: every command (`python -m cmcl train | resume | evaluate` and its aliases) builds a `Config` with
 `load_config(path, overrides)` and hands each component its section. Defaults are the paper's Table 1 values
-and the resolutions of ../shared/ALGORITHM.md §5 (each [R] choice is an option here with that default).
+and the resolutions of ALGORITHM.md §5 (each [R] choice is an option here with that default).
 
 Layout: the section dataclasses, each field's range check in its own metadata: `learning` ([maddpg], [replay],
 [curriculum], [teachers], [icm]), `teams` ([teams.<team>] and [teams.<team>.priority]), `run_and_service` ([run],

@@ -2,7 +2,7 @@
 
 What the base learner, the replay buffer, the curriculum factor λ, the K-fold teacher critics and the curiosity
 module are built with, one frozen, self-validating dataclass per section. Every field has the paper's Table 1 value
-or the resolution of ../shared/ALGORITHM.md §5 as its default and is declared with `documented(default, meaning,
+or the resolution of ALGORITHM.md §5 as its default and is declared with `documented(default, meaning,
 unit=..., rule=...)` (cmcl.field_docs): its meaning, unit and range check live there, once, and
 `python -m cmcl config` / docs/CONFIG.md print them. Each `__post_init__` runs the rules (`check_fields`) and raises
 `ConfigError` naming the full key (e.g. ``maddpg.gamma``) and the value. The teams' sections are
@@ -79,7 +79,7 @@ class MADDPGConfig:
         False, "one actor and one critic network for all agents, each with its own first-layer bias (an agent-id "
         "embedding, cmcl.learners.nets); for N = 8 / 16 (bench/scale.py). False = the paper's per-agent networks")
     networks: NetworkKind | None = documented(
-        None, "the networks' kind (issue 22): 'per_agent' (one actor and critic per agent, the paper's), 'shared' "
+        None, "the networks' kind: 'per_agent' (one actor and critic per agent, the paper's), 'shared' "
         "(the same as share_parameters = true) or 'entity' (one attention actor and one permutation-invariant "
         "critic for all agents over the observation's entities, a parameter count independent of N: "
         "cmcl.learners.entity_nets; built-in tasks only). Unset: 'shared' if share_parameters else 'per_agent'")
@@ -99,7 +99,7 @@ class MADDPGConfig:
         "entity", unit="entities per kind",
         rule=AT_LEAST_0)
     entity_holder: bool = documented(
-        False, "navigation only (issue 38, the crowding of two agents on one landmark): every entity row of the "
+        False, "navigation only (the crowding of two agents on one landmark): every entity row of the "
         "entity networks gets one more feature, the landmark's holder margin, the distance from it to the nearest "
         "other present agent minus the viewer's own distance to it (< 0: another agent holds it; 0 for agents; +2, "
         "more than any agent leaves, with no other agent; cmcl.learners.entity_holder), computed before "
@@ -110,7 +110,7 @@ class MADDPGConfig:
         "layers' shapes differ). False = off; on in the presets configs/spread_n8.toml, spread_n16.toml and "
         "spread_n32.toml")
     holder_rule: Literal["nearest", "seated"] = documented(
-        "nearest", "which other agents count as holding a landmark in maddpg.entity_holder's margin (issue 38; "
+        "nearest", "which other agents count as holding a landmark in maddpg.entity_holder's margin ("
         "cmcl.learners.entity_holder): 'nearest', every other present agent; 'seated', an agent within 0.1 (the "
         "default cover radius) of its nearest landmark counts for that landmark only, so a landmark it covers beside "
         "its own reads as held by the nearest agent not seated elsewhere (at N = 16 most unfinished worlds have "
@@ -120,7 +120,7 @@ class MADDPGConfig:
     assignment_loss: float = documented(
         0.0, "weight β of an auxiliary cross-entropy on the entity actor's attention over landmarks toward the "
         "landmark a minimum-total-distance assignment of agents to landmarks gives this agent, added to the actor "
-        "loss (issue 38; cmcl.learners.assignment); needs maddpg.networks = 'entity', maddpg.entity_pool "
+        "loss (cmcl.learners.assignment); needs maddpg.networks = 'entity', maddpg.entity_pool "
         "'attention' or 'relational' (with 'attention' a landmark's logit sees the agent and that landmark only, "
         "not the other agents), maddpg.entity_nearest = 0 and env.task = 'spread'. 0 = off", rule=FINITE_AT_LEAST_0)
 

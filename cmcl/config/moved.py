@@ -6,7 +6,7 @@ directory written before the move stores the old keys in its config.toml; `RunDi
 the experiments' measures) reads it through `load_stored_config`, which moves them first (`migrate_moved`), so a
 stored run resumes and evaluates with exactly the settings it trained with.
 
-The moves (issue 36): the settings a team's sampler uses are one table per team, [teams.<team>.priority]
+The moves: the settings a team's sampler uses are one table per team, [teams.<team>.priority]
 (cmcl.config.teams.PriorityConfig). A global old key applies to every team: migrated, its value goes to each
 team's table; a team's own old key (teams.<team>.alpha) goes to that team's table and wins over the global one
 (replay.alpha), as its precedence was.

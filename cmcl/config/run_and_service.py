@@ -49,7 +49,7 @@ class RunConfig:
         "coverage", "what stop_progress reads (cmcl.learning_progress): 'coverage' = the absolute change of the "
         "mean final-step coverage (spread, or env.coverage_key); 'normalised_td' = the relative change of the "
         "critics' mean squared TD error over the variance of their TD targets (1 - R^2); 'critic_loss' = the "
-        "relative change of the mean critic loss (the rule before issue 38: the loss grows with the value scale, "
+        "relative change of the mean critic loss (the old default: the loss grows with the value scale, "
         "so it stays high after coverage is flat)")
     progress_window: int = documented(500, "episodes per learning-progress window (run.stop_progress)",
                                       unit="episodes", rule=AT_LEAST_1)
@@ -62,7 +62,7 @@ class RunConfig:
     carry_replay: bool = documented(
         False, "with init_from, also start with that run's replay rows (its newest checkpoint's buffer), padded to "
         "this run's agent count (cmcl.replay.agent_padding: absent agents zero and masked per row), so that the "
-        "buffer holds rows of both counts (issue 22's agent curriculum: `python -m cmcl stages ... --set "
+        "buffer holds rows of both counts (the agent-count curriculum: `python -m cmcl stages ... --set "
         "run.carry_replay=true`). Needs maddpg.networks = 'entity', task spread and algorithms maddpg or per; "
         "either runner. Off: an empty buffer")
 

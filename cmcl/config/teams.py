@@ -41,14 +41,14 @@ class _Registered:
 
 @dataclass(frozen=True)
 class PriorityConfig:
-    """What one team's sampler turns scores into sampling probabilities with (issue 36): one [teams.<team>.priority]
+    """What one team's sampler turns scores into sampling probabilities with: one [teams.<team>.priority]
     table per team; each agent's sampler reads its own team's (cmcl.system.agent_layout)."""
 
     alpha: float | None = documented(
         None, "the team's sampling exponent α_s (eq. 20, A8); unset: its algorithm's default "
         "(cmcl.replay.registry: 0.6 for per and relo, 1 for the others)", rule=OPTIONAL_ALPHA)
     uniform_floor: float = documented(
-        0.0, "u, the uniform floor of a prioritised rule: P = (1 − u)·P_rule + u/|D| (issue 36); 0 = the rule alone; "
+        0.0, "u, the uniform floor of a prioritised rule: P = (1 − u)·P_rule + u/|D|; 0 = the rule alone; "
         "no effect on maddpg", rule=rule("must lie in [0, 1)", lambda v: math.isfinite(v) and 0 <= v < 1))
     difficulty_norm: Literal["max", "rank"] = documented(
         "rank", "ĉ of §3.3 (A1, revised 2026-12), for acl / cmcl: 'rank' = percentile over the buffer, "
@@ -56,7 +56,7 @@ class PriorityConfig:
         "min(1, c / max c), the earlier default, which puts the heavy-tailed c at ĉ ≈ 0.05 (every row on KP's "
         "rising branch: near-uniform sampling, ESS >= 0.9)")
     difficulty_transform: Literal["none", "permuted", "reversed"] = documented(
-        "none", "sampling controls (issue 21), to tell 'the curriculum helps' from 'sampling is just different': "
+        "none", "sampling controls, to tell 'the curriculum helps' from 'sampling is just different': "
         "'none' = the rule; 'reversed' = anti-curriculum, ĉ → 1 − ĉ before KP (eq. 12; acl / cmcl); 'permuted' = "
         "at each recompute the priority column of each of the team's agents is shuffled across the buffer's rows "
         "by a seeded permutation (cmcl.replay.priority.permute_priorities): the same multiset of probabilities, "
@@ -101,7 +101,7 @@ class TeamConfig:
     actor_batch: Literal["rule", "uniform"] = documented(
         "rule", "the rows the actor step trains on: 'rule' = the critic's minibatch, drawn by the team's rule; "
         "'uniform' = a minibatch of its own drawn uniformly from the buffer, apart from the critic's, without IS "
-        "weights (actor prioritised replay, Saglam et al. 2023; issue 36); accepted and without effect on maddpg, "
+        "weights (actor prioritised replay, Saglam et al. 2023); accepted and without effect on maddpg, "
         "whose critic's minibatch is already uniform")
     priority: PriorityConfig = documented(
         factory=PriorityConfig, meaning="the team's sampling settings: the [teams.<team>.priority] table")

@@ -5,7 +5,7 @@ the parity tests use the PettingZoo versions (`cmcl.envs.sparse_spread_v0`, `cmc
 built on mpe2's World). `cmcl.envs.state` copies a world state between the two; `cmcl.envs.metrics`
 holds coverage / success / predator-win. Your own environment (`env.factory`): `cmcl.envs.factory` loads and
 checks it, `cmcl.envs.parallel_vector` steps M copies of it behind the twins' interface, `cmcl.envs.examples` holds
-one written from scratch (docs/OWN_ENVIRONMENT.md). Issue 56's sparse tasks (docs/SPARSE_TASKS.md), trained through
+one written from scratch (docs/OWN_ENVIRONMENT.md). The sparse tasks (docs/SPARSE_TASKS.md), trained through
 `env.factory`: `cmcl.envs.sparse_nav_v0` (VACL, SPMARL navigation; twin `cmcl.envs.sparse_nav`), `cmcl.envs.cmae_grids`.
 Submodules are imported on demand so that a rollout worker does not pay for pettingzoo and mpe2.
 """

@@ -1,4 +1,4 @@
-"""Entity view of the built-in tasks' flat observations: the agent's own features plus typed entities (issue 22).
+"""Entity view of the built-in tasks' flat observations: the agent's own features plus typed entities.
 
 Where it sits: the envs keep emitting the flat MPE observation (parity with mpe2; the replay stores it unchanged).
 The entity networks (`cmcl.learners.entity_nets`) read it through an :class:`EntityLayout`, which says, for every
@@ -9,7 +9,7 @@ agent, which flat columns are its own features and which are each entity's featu
 
 An entity row is ``[raw features (P), type one-hot (T)]`` (F = P + T); a raw feature the agent does not observe
 (an obstacle's or a predator's velocity in tag) is 0. The mask marks present entities; it is all True for a built-in
-world of one size. Rows of several agent counts share one padded buffer (issue 22's agent curriculum,
+world of one size. Rows of several agent counts share one padded buffer (the agent-count curriculum,
 `run.carry_replay`, cmcl.replay.agent_padding): a row holding only the first n of the N agents masks, in every
 agent's view, the entities that exist only with more agents (`needs_agents`, `present_mask`). The layouts:
 

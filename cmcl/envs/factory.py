@@ -27,7 +27,7 @@ class EnvFactoryError(ValueError):
 
 
 class EnvCrashed(EnvFactoryError):
-    """The user's environment raised while it was reset or stepped during training (issue 37 item 5): the runners
+    """The user's environment raised while it was reset or stepped during training: the runners
     checkpoint, write the summary and exit with this one line; `resume` goes on from the checkpoint."""
 
 

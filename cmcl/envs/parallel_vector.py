@@ -143,7 +143,7 @@ class VectorParallelEnv:
             observations, infos = self.envs[world].reset(seed=int(self._rng.integers(SEED_RANGE)))
         except EnvFactoryError:
             raise
-        except Exception as err:  # noqa: BLE001 - the user's code: whatever it raises ends the run, kept (item 5)
+        except Exception as err:  # noqa: BLE001 - the user's code: whatever it raises ends the run, kept
             raise EnvCrashed(crash_text(self.factory, f"reset of world {world}", err)) from err
         self._t[world], self._returns[world], self._over[world] = 0, 0.0, False
         self._write_obs(self._obs, world, observations, full=True)

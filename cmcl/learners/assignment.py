@@ -1,4 +1,4 @@
-"""A landmark-assignment signal for the entity actor (issue 38, `maddpg.assignment_loss`; off by default).
+"""A landmark-assignment signal for the entity actor (`maddpg.assignment_loss`; off by default).
 
 Where it sits: with `maddpg.assignment_loss` = β > 0, :class:`cmcl.learners.maddpg.MADDPG`'s actor step adds
 β · CE_v to owner v's actor loss (eq. 4), CE_v the mean over v's rows of the cross-entropy of the entity actor's

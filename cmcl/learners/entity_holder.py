@@ -1,4 +1,4 @@
-"""The holder margin (maddpg.entity_holder, issue 38): one more entity feature of navigation's entity networks that
+"""The holder margin (maddpg.entity_holder): one more entity feature of navigation's entity networks that
 says, for every landmark, whether another agent holds it.
 
 Why: at N = 8 the entity networks cover ~0.87 of the landmarks but rarely all of them; in nearly every unfinished

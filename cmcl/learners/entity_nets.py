@@ -81,7 +81,7 @@ class EntityEncoder(nn.Module):
 
     ``fused`` (True): the layers of one group run as fused GEMM + bias + ReLU kernels (cmcl.learners.entity_ops.dense)
     and an entity critic gathers its inputs with CriticViews.gather; False: the reference ops (StackedLinear, the
-    advanced-indexing views), the same numbers to float32's last bits (issue 38; bench/entity_cost.py times both).
+    advanced-indexing views), the same numbers to float32's last bits (bench/entity_cost.py times both).
     """
 
     fused = True

@@ -1,4 +1,4 @@
-"""The entity networks' layers of one group as one fused GEMM + bias + ReLU kernel (issue 38, docs/PERFORMANCE.md):
+"""The entity networks' layers of one group as one fused GEMM + bias + ReLU kernel (docs/PERFORMANCE.md):
 the numbers of StackedLinear + relu_ to float32's last bits (tests/test_entity_nets.py compares them).
 
 Where it sits: cmcl.learners.entity_nets runs every layer through :func:`dense` (the heads through :func:`mlp`)

@@ -9,7 +9,7 @@ entity critic appends it to either view's rows (cmcl.learners.entity_holder.with
 :meth:`CriticViews.gather` builds them with one concatenation and two gathers: every row's values sit side by
 side in one table [obs of every agent | actions | the layout's constants | 0], and a per-agent index table picks
 the columns of each own and entity feature (the same values copied, so bit-identical to
-:meth:`CriticViews.reference`, the advanced-indexing version it replaces, which runs ~3x slower: issue 38,
+:meth:`CriticViews.reference`, the advanced-indexing version it replaces, which runs ~3x slower:
 docs/PERFORMANCE.md).
 """
 
@@ -79,7 +79,7 @@ class CriticViews(nn.Module):
 
     def reference(self, obs: torch.Tensor, act: torch.Tensor, agent: torch.Tensor, count: torch.Tensor | None
                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """:meth:`gather`'s values by advanced indexing (the code before issue 38's rewrite)."""
+        """:meth:`gather`'s values by advanced indexing (the code before the fused gather)."""
         g, r, n, od = obs.shape
         rows = g * r
         ag = agent.reshape(rows)

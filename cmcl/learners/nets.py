@@ -13,7 +13,7 @@ Parameter sharing (``StackedMLP(share=True)``): every layer holds ONE weight ``[
 layer, one bias ``[1, out]``, broadcast to all members; only the first layer's bias stays per member. That bias is
 exactly a learned agent-id embedding (W·[x; onehot(m)] = W_x·x + b_m), so members share one network yet can still
 tell who they are. The member count then barely changes the parameter count (N·hidden extra), which is the
-point at N = 8 or 16 (issue 11's scale study).
+point at N = 8 or 16 (the scale study).
 
 Grouped sharing (``StackedMLP(share=True, share_groups=G)``): G networks instead of one; member m uses network
 ``m % G``. With the teachers' layout (member ``a*K + i`` for agent a and fold i) and G = K, each fold keeps its own

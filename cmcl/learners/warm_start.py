@@ -6,7 +6,7 @@ afresh: the optimisers' moments, the exploration noise, the update counter, the 
 run.carry_replay: cmcl.carried_replay), the teachers, the ICM and every counter of the run. The networks must
 have the same shapes, so a run with other agent counts or network settings is refused, naming the tensor and both
 shapes; networks whose parameter count does not depend on the number of agents can carry weights from N agents to
-another N (the agent-count curriculum of issue 22), and from one maddpg.entity_nearest to another (the same weights
+another N (the agent-count curriculum), and from one maddpg.entity_nearest to another (the same weights
 then read other entities: a deliberate transfer, as between agent counts; a resume or an evaluation of a checkpoint
 under another k is refused instead, cmcl.learners.maddpg_checkpoint). A run of another maddpg.entity_holder is
 refused, naming that setting (its entity layers take one input more or fewer)."""

@@ -1,4 +1,4 @@
-"""Rows of a smaller agent count in the replay of a larger one (issue 22, point 3; `run.carry_replay`).
+"""Rows of a smaller agent count in the replay of a larger one (`run.carry_replay`).
 
 Where it sits: a run that warm-starts from a run with fewer agents (`python -m cmcl stages`, each stage from the one
 before) may also start with that run's replay rows (cmcl.carried_replay reads them); this module puts them

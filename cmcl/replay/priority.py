@@ -19,7 +19,7 @@ import numpy as np
 EPS_P = 1e-6  # ε_p: priority floor keeping every transition reachable
 LAM_MAX = 1.0  # largest admissible curriculum factor (KP is undefined above 1)
 STD_EPS = 1e-8  # added to the std in curiosity normalisation
-# sampling controls (issue 21; config teams.<team>.priority.difficulty_transform): "none" = the method,
+# sampling controls (config teams.<team>.priority.difficulty_transform): "none" = the method,
 # "reversed" = anti-curriculum (ĉ -> 1 − ĉ before KP), "permuted" = priorities shuffled across rows
 # (`permute_priorities`)
 DIFFICULTY_TRANSFORMS = ("none", "permuted", "reversed")
@@ -235,7 +235,7 @@ def curriculum_priority(difficulty: np.ndarray, has_difficulty: np.ndarray, curi
 
 
 def permute_priorities(p: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """The permuted control (issue 21): each column of p float[M, A] shuffled across its M rows by an independent
+    """The permuted control: each column of p float[M, A] shuffled across its M rows by an independent
     permutation from `rng` -> float64[M, A]. Every column keeps its multiset of values, so P of eq. 20 has the same
     multiset of probabilities and the same effective sample size, but which row gets which priority carries no
     information about the row. One vectorised call (`Generator.permuted`), no Python loop over rows.
