@@ -76,8 +76,8 @@ def test_a_frozen_icm_scores_with_its_random_networks_and_never_fits(frozen):
     for _ in range(3):
         replay.insert(worker.rollout(None)[0])
     before = [p.detach().clone() for p in icm.icm.parameters()]
-    work, _ = replay.icm_work(2)
-    scores, _ = icm.step(work)
-    assert scores.rho.shape[1] == 4 and np.isfinite(scores.rho).all() and (scores.rho > 0).all()
+    work, _ = replay.work(icm.scorer, 2)
+    scores, _ = icm.score(work)
+    assert scores.values.shape[1] == 4 and np.isfinite(scores.values).all() and (scores.values > 0).all()
     same = all(torch.equal(b, p) for b, p in zip(before, icm.icm.parameters(), strict=True))
     assert same == frozen

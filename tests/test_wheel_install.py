@@ -12,6 +12,7 @@ is not left in the checkout.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -25,7 +26,9 @@ PACKAGES = {"cmcl", "services", "experiments"}  # what the wheel may install at 
 
 
 def _run(argv: list[str], cwd: Path, timeout: float = 240) -> subprocess.CompletedProcess:
-    return subprocess.run(argv, cwd=cwd, capture_output=True, text=True, timeout=timeout)
+    """`argv` run in `cwd` without a PYTHONPATH (a user's shell has none; a checkout on it would shadow the wheel)."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    return subprocess.run(argv, cwd=cwd, capture_output=True, text=True, timeout=timeout, env=env)
 
 
 def test_wheel_installs_and_trains_in_a_fresh_venv(tmp_path: Path):
