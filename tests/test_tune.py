@@ -105,7 +105,7 @@ def test_a_two_trial_sweep_leaves_each_run_and_prints_the_table_and_the_best_set
 
 
 # kept out of `make test`: once in two full runs here, no stopped trial went on to finish after the resume (the
-# assertion that one does); the single-trial stop-and-resume test below covers the same path in the default run
+# assertion that one does); the single-trial stop-and-resume test of this file covers the same path by default
 @pytest.mark.extended
 def test_a_sweep_stopped_by_sigint_resumes_each_trial_from_its_run(ray_cluster, tiny_config_file, tmp_path, capsys):
     """Ctrl-C as Tune takes it (its SIGINT handler in this process's main thread, sent once a trial has written a
