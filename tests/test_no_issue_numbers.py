@@ -1,11 +1,14 @@
-"""No tracked file cites a tracker's issue number in code, and none points outside the repository at ../shared.
+"""No tracked file cites a tracker's issue number in code, and none points at the spec folder outside the
+repository (the one beside the checkout, which a user's clone does not have).
 
 What is checked, over `git ls-files` (.py, .md, .toml):
-* a .py file never says "issue N" (the word, then a number, with or without "#"): a comment cites the spec section
-  (ALGORITHM.md §X, DESIGN.md §X) or says why in words. Identifiers that merely contain digits after "issue" inside a
-  word (`before_issue_38`, `time_to_solve_issue8`: names of stored results and flags) are not citations;
-* no file names "../shared" or "/work/shared": the specification lives in docs/ALGORITHM.md and docs/DESIGN.md.
-The tests of the patterns at the end show each check fails on the text it is meant to catch.
+* a .py file never cites an issue by number (the word, then a number, with or without "#": the pattern ISSUE): a
+  comment cites the spec section (ALGORITHM.md §X, DESIGN.md §X) or says why in words. Identifiers that merely hold
+  digits after the word inside a longer name (names of stored results and of a bench flag) are not citations;
+* no file names the outside spec folder (the pattern SHARED): the specification lives in docs/ALGORITHM.md and
+  docs/DESIGN.md.
+The tests of the patterns at the end show each check fails on the text it is meant to catch; their examples are
+built from pieces, so that this file does not itself hold what it forbids.
 """
 
 from __future__ import annotations
