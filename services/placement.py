@@ -87,8 +87,12 @@ class Roles:
         teachers = [ScorerRole("teacher", k, t, Scorer(DIFFICULTY, tuple(folds)), weights=True)
                     for k, (t, folds) in enumerate(zip(self.teachers, self.teacher_groups, strict=True))]
         icm = [ScorerRole("icm", 0, self.icm, Scorer(CURIOSITY))] if self.icm is not None else []
-        online = [ScorerRole("online", 0, self.learner, Scorer(ONLINE_TD))] if self.online_critics else []
-        return [*teachers, *icm, *online]
+        return [*teachers, *icm, *([self.online] if self.online_critics else [])]
+
+    @property
+    def online(self) -> ScorerRole:
+        """The online critics' scorer, hosted by the learner (ACL td_self; a run uses it only with online_critics)."""
+        return ScorerRole("online", 0, self.learner, Scorer(ONLINE_TD))
 
 
 def resumed_episodes(run_dir: RunDirectory) -> int:

@@ -161,7 +161,7 @@ class Supervisor:
             if kind in FORWARD:  # data for the replay server, now ready: hand over the ref, never the data
                 self._track(self.calls.submit(self.roles.replay, FORWARD[kind][0], ref), FORWARD[kind][1], index)
                 if kind == "chunk" and self.roles.online_critics:  # ACL td_self: the online critics score the rows
-                    self._score(self.roles.scorers[-1])  # at insertion, before they can be sampled (ALGORITHM.md A11)
+                    self._score(self.roles.online)  # at insertion, before they can be sampled (ALGORITHM.md A11)
                 continue
             try:
                 value = self.calls.get(ref)
