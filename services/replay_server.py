@@ -13,7 +13,8 @@ env steps accepted here.
 
 Distributed deviation from §3.8 (ALGORITHM.md §3.9), measured by `cmcl_teacher_score_age_updates`: teacher k
 scores rows of the other folds asynchronously; c_j is (K−1)·mean over the blind teachers that have scored j so
-far (`cmcl.scorers.difficulty.DifficultyTable`); new rows sit at ε_p until a teacher has scored them.
+far (`cmcl.scorers.difficulty.DifficultyTable`); a row no teacher has scored yet samples at the
+provisional priority (`cmcl.replay.priority.provisional_priority`; ε_p while no row is scored).
 Every method returns (or ends with) a `ReplayStatus` the supervisor uses to pace its calls.
 """
 
