@@ -28,6 +28,7 @@ from experiments.grids import (
     EPISODES,
     GRIDS,
     SCALE_CELLS,
+    SPARSE_TASKS,
     grid,
     prefix_reference_runs,
 )
@@ -51,6 +52,9 @@ SEEDS = [0, 1, 2, 3, 4]  # a grid's seeds unless --seeds names others (alone, th
 ARMS = list(dict.fromkeys([*CURRICULUM_ARMS, *SCREEN_ARMS,
                            *(f"{arm}{PERMUTED}" for arm, sets in SCREEN_ARMS.items()
                              if arm not in SCREEN_REFERENCES and has_permuted_control(rule_algorithm(sets)))]))
+
+
+SPARSE_GRIDS = ("sparse_calibration", "sparse_screen")  # the grids whose runs --tasks selects
 
 
 def has_arms(run: Run) -> bool:
@@ -84,7 +88,8 @@ def selected_runs(args: argparse.Namespace, every: list[Run] | None = None) -> l
     runs = [r for r in (grid(*grid_args(args)) if every is None else every)
             if (r.ablation is None or r.ablation in args.ablations)
             and (args.arms is None or r.arm in args.arms or not has_arms(r))
-            and (r.arm not in SCALE_CELLS or r.arm in args.cells) and r.mode in args.modes]
+            and (r.arm not in SCALE_CELLS or r.arm in args.cells) and r.mode in args.modes
+            and (args.tasks is None or r.env in args.tasks or r.grid not in SPARSE_GRIDS)]
     return runs + prefix_reference_runs(runs, args.episodes)
 
 
@@ -187,6 +192,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="paper grids: only these of the paper's four algorithms")
     p.add_argument("--modes", nargs="+", choices=["inline", "service"], default=["inline", "service"],
                    help="algorithms grid: only these runners")
+    p.add_argument("--tasks", nargs="+", choices=list(SPARSE_TASKS), default=None,
+                   help="sparse grids (sparse_calibration, sparse_screen): only these tasks (default: all)")
     p.add_argument("--episodes", type=int, default=EPISODES, help="budget of every run (the paper: 20,000)")
     p.add_argument("--screen", type=Path, default=None,
                    help="confirm grid: the screen's results folder that selects its arms (default: the screen's)")

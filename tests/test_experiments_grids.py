@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from cmcl.io.rundir import RunDirectory
+from experiments.__main__ import build_parser, selected_runs
 from experiments.grids import ABLATIONS, GRIDS, grid, prefix_reference_runs
 from experiments.measures import summarise
 from experiments.run_spec import ROOT, Run
@@ -187,8 +188,6 @@ def test_an_own_env_run_trains_from_its_settings_and_is_measured_per_team_agains
 
 def test_the_command_line_filters_curriculum_arms_with_arms_and_scale_cells_with_cells(tmp_path):
     """`--arms` names curriculum arms and `--cells` scale cells; neither filters the other grid's runs away."""
-    from experiments.__main__ import build_parser, selected_runs
-
     scale = selected_runs(build_parser().parse_args(["run", "scale", "--seeds", "0", "1", "--arms", "cmcl"]))
     assert [r.id for r in scale][:2] == ["scale_n8_per_agent_s0", "scale_n8_entity_s0"] and len(scale) == 18
     cells = selected_runs(build_parser().parse_args(["run", "scale", "--seeds", "0", "1", "--cells", "n16_entity"]))
@@ -255,3 +254,12 @@ def test_the_make_run_grid_runs_the_makefiles_command():
     trains = tomllib.loads((ROOT / config).read_text())["teams"]["agent"]["algorithm"]
     assert run.algorithm == trains and run.id == f"make_run_{trains}_s3"
     assert "run.stop_coverage=0.9" in cmd and "run.max_seconds=300.0" in cmd and "run.seed=3" in cmd
+
+
+def test_tasks_selects_the_sparse_grids_runs_by_task_and_leaves_other_grids_whole():
+    args = build_parser().parse_args(["run", "sparse_calibration", "make_run", "--arms", "maddpg", "--tasks",
+                                      "vacl_n4", "--seeds", "0", "1", "--out", "x"])
+    runs = selected_runs(args)
+    sparse = [r for r in runs if r.grid == "sparse_calibration"]
+    assert [r.id for r in sparse] == ["sparse_calibration_vacl_n4_maddpg_s0", "sparse_calibration_vacl_n4_maddpg_s1"]
+    assert len([r for r in runs if r.grid == "make_run"]) == 2
