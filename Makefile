@@ -44,7 +44,7 @@ resume: install
 	$(BIN)/python -m cmcl resume $(RUN_DIR) --more-episodes $(RESUME_EPISODES) $(RUN_ARGS) $(STOPPED_IS_OK)
 
 demo: install
-	$(BIN)/python -m cmcl.demo
+	$(BIN)/python -m cmcl.run.demo
 
 # The live-dashboard tests need a real Prometheus and a real Chromium (Debian packages). As root with apt-get they
 # are installed when missing; elsewhere a note is printed and those tests skip, saying why.

@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 from service_throughput import steady_rates  # noqa: E402
 
 from cmcl.config import ServiceConfig, load_config  # noqa: E402
-from cmcl.io.rundir import RunDirectory  # noqa: E402
+from cmcl.run.rundir import RunDirectory  # noqa: E402
 
 NEVER_S = 1e9  # a cadence no run reaches: one checkpoint, at the end
 

@@ -20,7 +20,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from cmcl.provenance import provenance  # noqa: E402
+from cmcl.run.provenance import provenance  # noqa: E402
 from services.fingerprint import fingerprint  # noqa: E402
 
 CASES = {  # name -> (config file, extra overrides)

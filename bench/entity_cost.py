@@ -1,17 +1,18 @@
 """What one MADDPG update costs with entity networks against the paper's per-agent networks.
 
 One `MADDPG.update` on a per-owner minibatch [N, S, N, ...] of random rows (S = 128 by default), per-agent
-(`maddpg.networks = "per_agent"`) and entity networks (`"entity"`, cmcl.learners.entity_nets) built side by side in
+(`maddpg.networks = "per_agent"`) and entity networks (`"entity"`, cmcl.learners.entity.nets) built side by side in
 this process and timed in interleaved rounds (the machine is shared: absolute times are noisy, the ratio is the
 measure). Printed: median ms per update of each, ``ratio: X`` = entity / per-agent, and the same ratio of the
 entity learner on the previous ops (`entity_reference`: `EntityEncoder.fused = False`, StackedLinear + relu_ and
-the advanced-indexing critic views instead of cmcl.learners.entity_ops / entity_views; the same numbers to float32's
+the advanced-indexing critic views instead of cmcl.learners.entity.ops / entity_views; the same numbers to float32's
 last bits) and as it ran before the fused entity kernels (`before_issue_38`: those ops and the old actor step).
 ``--nearest K`` adds the entity networks that read only the K nearest entities of each kind
 (maddpg.entity_nearest, off by default); ``--assignment BETA`` the entity learner with maddpg.assignment_loss = BETA
-(cmcl.learners.assignment: the per-row assignment solver and the auxiliary loss in the actor step; off by default);
+(cmcl.learners.entity.assignment: the per-row assignment solver and the auxiliary loss in the actor step; off by
+default);
 ``--holder`` the entity learner with maddpg.entity_holder (every landmark's holder margin as one more entity feature,
-cmcl.learners.entity_holder; off by default), and with it under maddpg.holder_rule = "seated" (an agent seated on a
+cmcl.learners.entity.holder; off by default), and with it under maddpg.holder_rule = "seated" (an agent seated on a
 landmark holds only that one).
 ``--profile`` also prints where an update spends its time (torch.profiler, by phase and by op).
 
@@ -33,7 +34,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from cmcl.envs.entities import spread_layout  # noqa: E402
-from cmcl.learners.entity_nets import EntityEncoder  # noqa: E402
+from cmcl.learners.entity.nets import EntityEncoder  # noqa: E402
 from cmcl.learners.maddpg import MADDPG  # noqa: E402
 from cmcl.learners.nets import joint_input  # noqa: E402
 
@@ -66,7 +67,7 @@ def learners(n: int, nearest: int, assignment: float = 0.0, holder: bool = False
 
 def reference_ops(m: MADDPG) -> MADDPG:
     """The entity learner on the reference ops (``EntityEncoder.fused = False``: StackedLinear, einsum, softmax) instead
-    of the fused kernels of cmcl.learners.entity_ops; the same numbers to float32's last bits."""
+    of the fused kernels of cmcl.learners.entity.ops; the same numbers to float32's last bits."""
     for net in (m.actor, m.critic, m.target_actor, m.target_critic):
         for module in net.modules():
             if isinstance(module, EntityEncoder):

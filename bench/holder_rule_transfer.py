@@ -3,9 +3,9 @@
 Runs trained with the holder margin under the "nearest" rule (every other agent counts as holding a landmark) are
 evaluated on the same held-out worlds as `python -m cmcl evaluate RUN --episodes 200` (seed 0), once as trained and
 once with the actor reading the margin under the "seated" rule (an agent seated on a landmark holds only that one,
-cmcl.learners.entity_holder). The weights are the run's; only the feature changes, so this says whether the trained
+cmcl.learners.entity.holder). The weights are the run's; only the feature changes, so this says whether the trained
 policies already act on a landmark whose only holder sits on another landmark, before any training under the rule.
-Per run and rule: coverage, success and the miss anatomy (cmcl.stalls: worlds with an uncovered landmark, and worlds
+Per run and rule: coverage, success and the miss anatomy (cmcl.run.stalls: worlds with an uncovered landmark, and worlds
 with every landmark covered but not each by an agent of its own).
 
 Run:  .venv/bin/python bench/holder_rule_transfer.py RUN [RUN ...] [--episodes 200] [--out FILE.json]
@@ -23,9 +23,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from cmcl.evaluate import evaluate_policy, load_policy  # noqa: E402
-from cmcl.io.rundir import RunDirectory  # noqa: E402
-from cmcl.provenance import provenance  # noqa: E402
+from cmcl.run.evaluate import evaluate_policy, load_policy  # noqa: E402
+from cmcl.run.provenance import provenance  # noqa: E402
+from cmcl.run.rundir import RunDirectory  # noqa: E402
 
 RULES = ("nearest", "seated")
 

@@ -27,8 +27,8 @@ from torch import nn
 from cmcl.config import load_config
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.network_steps import curiosity_values, fit_teachers, teacher_errors
-from cmcl.messages import CURIOSITY, DIFFICULTY, Scorer
 from cmcl.replay.buffer_steps import fold_draw_indices
+from cmcl.replay.messages import CURIOSITY, DIFFICULTY, Scorer
 from cmcl.scorers.difficulty import cross_validated_difficulty
 from cmcl.scorers.icm import ICM
 from cmcl.scorers.teachers import TeacherEnsemble
@@ -243,11 +243,11 @@ class FilledRoles:
     of learner updates it ran."""
 
     def __init__(self, config):
-        from services.learner import Learner
-        from services.replay_server import ReplayServer
-        from services.rollout import RolloutWorker
-        from services.scorers.icm import ICMWorker
-        from services.scorers.teachers import TeacherWorker
+        from services.roles.icm import ICMWorker
+        from services.roles.learner import Learner
+        from services.roles.replay_server import ReplayServer
+        from services.roles.rollout import RolloutWorker
+        from services.roles.teachers import TeacherWorker
 
         self.config = config
         cfg = config.to_dict()

@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 
 from cmcl.config import load_config
-from cmcl.evaluate import evaluate_policy, load_policy
-from cmcl.io.plots import plot_learning_curves
-from cmcl.io.rundir import RunDirectory
-from cmcl.provenance import provenance
+from cmcl.run.evaluate import evaluate_policy, load_policy
+from cmcl.run.plots import plot_learning_curves
+from cmcl.run.provenance import provenance
+from cmcl.run.rundir import RunDirectory
 from services.launch import train_in_process
 
 

@@ -20,9 +20,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from learning_evidence import run_one, summarise  # noqa: E402
 
 from cmcl.config import load_config  # noqa: E402
-from cmcl.evaluate import evaluate_policy, load_policy  # noqa: E402
-from cmcl.io.rundir import RunDirectory  # noqa: E402
-from cmcl.provenance import provenance  # noqa: E402
+from cmcl.run.evaluate import evaluate_policy, load_policy  # noqa: E402
+from cmcl.run.provenance import provenance  # noqa: E402
+from cmcl.run.rundir import RunDirectory  # noqa: E402
 
 
 def run_service_one(task: str, algorithm: str, seed: int, episodes: int, out: Path, overrides: list[str]) -> dict:

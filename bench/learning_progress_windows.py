@@ -1,6 +1,6 @@
 """What the agent-count curriculum's learning-progress signals look like, stage by stage (run.stop_progress).
 
-`run.stop_progress` ends a stage once the learning progress of `run.progress_signal` (cmcl/learning_progress.py)
+`run.stop_progress` ends a stage once the learning progress of `run.progress_signal` (cmcl/progress/learning.py)
 stays below the threshold for `run.progress_patience` windows. The old signal, the relative change of the mean
 critic loss LP_k = |δ̄_k − δ̄_{k−1}| / δ̄_{k−1}, never fired at 0.05 over three 500-episode windows: the critic loss
 grows with the value scale. This runs the stages with the rule off (`python -m cmcl stages`, inline, the scale
@@ -33,9 +33,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from cmcl.io.checkpoint_files import load_checkpoint  # noqa: E402
-from cmcl.io.rundir import RunDirectory  # noqa: E402
-from cmcl.learning_progress import SIGNALS, LearningProgress  # noqa: E402
-from cmcl.provenance import provenance  # noqa: E402
+from cmcl.progress.learning import SIGNALS, LearningProgress  # noqa: E402
+from cmcl.run.provenance import provenance  # noqa: E402
+from cmcl.run.rundir import RunDirectory  # noqa: E402
 
 SETTINGS = ["maddpg.networks=entity", "run.stop_progress=0", "run.max_seconds=0"]  # the n8_entity_stages cell, rule off
 THRESHOLDS = {"critic_loss": (0.05, 0.1, 0.2), "normalised_td": (0.02, 0.05, 0.1, 0.2),

@@ -32,9 +32,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from cmcl.config import Config, load_config  # noqa: E402
-from cmcl.evaluate import EVAL_SEED_OFFSET  # noqa: E402
-from cmcl.io.rundir import RunDirectory  # noqa: E402
 from cmcl.learners.maddpg import MADDPG  # noqa: E402
+from cmcl.run.evaluate import EVAL_SEED_OFFSET  # noqa: E402
+from cmcl.run.rundir import RunDirectory  # noqa: E402
 from cmcl.system import make_batched_env  # noqa: E402
 from experiments.own_envs import OWN_ENVS  # noqa: E402
 

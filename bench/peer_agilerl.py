@@ -72,7 +72,7 @@ from peer_agilerl_loop import (  # noqa: E402
 )
 from peer_envs import ENVS, PeerEnv, eval_seeds, heldout_evaluation, random_policy  # noqa: E402
 
-from cmcl.provenance import provenance  # noqa: E402
+from cmcl.run.provenance import provenance  # noqa: E402
 
 
 def first_ma_crossing(values: list[float], times: list[float], window: int, threshold: float):

@@ -62,7 +62,7 @@ from benchmarl.experiment.callback import Callback  # noqa: E402
 from peer_envs import ENVS, ForwardingWrapper  # noqa: E402
 from torchrl.envs.libs.pettingzoo import PettingZooWrapper  # noqa: E402
 
-from cmcl.provenance import provenance  # noqa: E402
+from cmcl.run.provenance import provenance  # noqa: E402
 
 ENV = ENVS["sparse_spread"]
 MA_WINDOW = 100

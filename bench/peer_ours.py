@@ -34,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(1, str(Path(__file__).resolve().parents[1]))
 from peer_envs import ENVS, PeerEnv, Policy, eval_seeds, heldout_evaluation, random_policy  # noqa: E402
 
-from cmcl.provenance import provenance  # noqa: E402
+from cmcl.run.provenance import provenance  # noqa: E402
 
 NUM_ENVS = 16  # env.num_envs, our default and AgileRL's yaml value: worlds stepped at once
 
@@ -58,8 +58,8 @@ def trained_policy(run_dir: Path, env_spec: PeerEnv) -> Policy:
     import torch
 
     from cmcl.envs.factory import describe
-    from cmcl.evaluate import load_policy
-    from cmcl.io.rundir import RunDirectory
+    from cmcl.run.evaluate import load_policy
+    from cmcl.run.rundir import RunDirectory
 
     torch.set_num_threads(1)
     run = RunDirectory.open(run_dir)

@@ -29,11 +29,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from cmcl.config import config_from_dict, preset  # noqa: E402
-from cmcl.io.rundir import RunDirectory  # noqa: E402
-from services.faults import sigkill_actor  # noqa: E402
-from services.metrics import ServiceMetrics  # noqa: E402
-from services.placement import create_roles  # noqa: E402
-from services.supervisor import Supervisor  # noqa: E402
+from cmcl.run.rundir import RunDirectory  # noqa: E402
+from services.observability.metrics import ServiceMetrics  # noqa: E402
+from services.runtime.placement import create_roles  # noqa: E402
+from services.runtime.supervisor import Supervisor  # noqa: E402
+from tests.faults import sigkill_actor  # noqa: E402
 
 SMALL = {"env": {"num_envs": 4}, "maddpg": {"batch_size": 16, "warmup": 96, "hidden": 32},
          "replay": {"capacity": 600}, "teachers": {"batch_size": 16, "hidden": 32, "num_folds": 3},

@@ -27,9 +27,9 @@ import psutil
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from cmcl.config import load_config  # noqa: E402
-from cmcl.messages import CURIOSITY, DIFFICULTY, LearnerFeedback, Scorer, Scores  # noqa: E402
-from services.replay_server import ReplayServer  # noqa: E402
-from services.rollout import RolloutWorker  # noqa: E402
+from cmcl.replay.messages import CURIOSITY, DIFFICULTY, LearnerFeedback, Scorer, Scores  # noqa: E402
+from services.roles.replay_server import ReplayServer  # noqa: E402
+from services.roles.rollout import RolloutWorker  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

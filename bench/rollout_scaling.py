@@ -4,8 +4,8 @@
 1. Per-step cost of each environment of the own_envs grid (experiments.own_envs.OWN_ENVS): CPU microseconds per
    world step of the vectorising adapter (16 copies, uniform random actions), in this process (CPU time, so a
    loaded machine does not inflate it).
-2. On the slowest: the service's rollout workers (services.rollout.RolloutWorker as Ray actors, each with
-   `service.rollout_cpus` as `services.placement` starts them) on an embedded Ray of this machine's cores, with
+2. On the slowest: the service's rollout workers (services.roles.rollout.RolloutWorker as Ray actors, each with
+   `service.rollout_cpus` as `services.runtime.placement` starts them) on an embedded Ray of this machine's cores, with
    1, 2 and 4 workers, each keeping one `rollout` call in flight for `--seconds`; env steps/s from the workers'
    cumulative counters (after one warm-up call each) and the ratio against the 1-worker run of the same process.
    Only the rollout side runs (the chunks are dropped, no learner): this measures what more workers add to
@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from cmcl.config import Config, load_config
-from cmcl.provenance import provenance
+from cmcl.run.provenance import provenance
 from cmcl.system import make_batched_env
 from experiments.own_envs import OWN_ENVS
 
@@ -64,8 +64,8 @@ def rollout_rate(config: Config, workers: int, seconds: float, cpus: float) -> d
     import psutil
     import ray
 
-    from services.faults import actor_entry
-    from services.rollout import RolloutWorker
+    from services.roles.rollout import RolloutWorker
+    from tests.faults import actor_entry
 
     cls = ray.remote(num_cpus=cpus, max_restarts=0)(RolloutWorker)
     actors = [cls.remote(config.to_dict(), w, 1000 + w) for w in range(workers)]

@@ -28,8 +28,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.learner_throughput import filled_loop  # noqa: E402
-from cmcl.provenance import provenance  # noqa: E402
 from cmcl.replay.registry import ALGORITHMS  # noqa: E402
+from cmcl.run.provenance import provenance  # noqa: E402
 
 # an option of a rule -> (the rule, its overrides): measured beside the rules, its ratio to the rule printed too
 OPTIONS = {"per+uniform_actor": ("per", ['teams.agent.actor_batch="uniform"'])}

@@ -36,15 +36,15 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.learner_throughput import FilledRoles, filled_loop  # noqa: E402
-from cmcl.io.rundir import RunDirectory  # noqa: E402
-from cmcl.provenance import provenance  # noqa: E402
+from cmcl.run.provenance import provenance  # noqa: E402
+from cmcl.run.rundir import RunDirectory  # noqa: E402
 from experiments.measures import WINDOW, first_reaching  # noqa: E402
 
 NETWORKS = {  # network kind -> (maddpg.networks, teachers.share_parameters)
     "own": ("per_agent", False),  # per-agent actors, critics and (agent, fold) teachers: the paper's
     "shared": ("shared", False),  # one actor and one critic for all agents
     "shared_teachers": ("shared", True),  # ... and one teacher per fold for all agents
-    "entity": ("entity", False),  # entity actor and critic (cmcl.learners.entity_nets); per-agent teachers
+    "entity": ("entity", False),  # entity actor and critic (cmcl.learners.entity.nets); per-agent teachers
 }
 
 

@@ -48,7 +48,7 @@ sys.path.insert(0, str(ROOT))
 
 from bench.breakdown_sampling import Sampler, core_shares, cpu_between  # noqa: E402
 from bench.breakdown_table import print_summary, print_table  # noqa: E402
-from cmcl.provenance import LoadSampler, provenance  # noqa: E402
+from cmcl.run.provenance import LoadSampler, provenance  # noqa: E402
 
 DEFAULT_SECONDS = 120
 DEFAULT_OUT = "bench/results/service_breakdown/make_run.json"
@@ -73,7 +73,7 @@ GROUPS = (("learner", "learner"), ("teachers", "scoring (teachers + ICM)"), ("IC
 def role_of_process(cmdline: str, actor_roles: dict[int, str], pid: int) -> str:
     """The role label of a process: its actor role when its pid was asked (`actor_roles`), else by its command
     line: an actor's title (ray::Learner.update -> "learner"), one of Ray's own processes (RAY_PROCESSES), the
-    reaper (services.reaper), else "other Ray worker" (ray::...) or "other: <first word>"."""
+    reaper (services.runtime.reaper), else "other Ray worker" (ray::...) or "other: <first word>"."""
     if pid in actor_roles:
         return actor_roles[pid]
     if cmdline.startswith("ray::"):
@@ -83,7 +83,7 @@ def role_of_process(cmdline: str, actor_roles: dict[int, str], pid: int) -> str:
     for fragment, label in RAY_PROCESSES:
         if fragment in cmdline:
             return label
-    if "services.reaper" in cmdline:
+    if "services.runtime.reaper" in cmdline:
         return "reaper"
     if cmdline.startswith("ray::"):
         return "other Ray worker"
@@ -136,7 +136,7 @@ def run_service(config: Any, run: Any, seconds: float) -> tuple[Sampler, dict[in
     endpoint, the roles, the supervisor), sampled by a `Sampler` until the budget ends. Returns (sampler, actor
     roles, run summary)."""
     from services import launch
-    from services.reaper import start_reaper
+    from services.runtime.reaper import start_reaper
 
     watched: dict[str, Any] = {}
 
@@ -221,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from cmcl.config import load_config
     from cmcl.config.toml_io import dump_toml
-    from cmcl.io.rundir import RunDirectory
+    from cmcl.run.rundir import RunDirectory
 
     torch.set_num_threads(1)
     load_before = os.getloadavg()

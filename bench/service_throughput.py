@@ -1,5 +1,5 @@
 """The two runners in one run: the in-process runner (`--runner inline`: the service's roles called in this
-process, services.calls.InProcessCalls) against the Ray service (each role an actor), env-steps/s and learner
+process, services.runtime.calls.InProcessCalls) against the Ray service (each role an actor), env-steps/s and learner
 updates/s on the same config, same machine, same ratio, and the ratio of their update rates.
 
 Both are the same supervisor loop: one update per `maddpg.update_every` world steps after the same warm-up (the
@@ -26,7 +26,7 @@ from pathlib import Path
 import psutil
 
 from cmcl.config import load_config
-from cmcl.io.rundir import RunDirectory
+from cmcl.run.rundir import RunDirectory
 
 DEFAULT_EPISODES = 2000
 MIN_WINDOW_S = 20.0  # a shorter measured window is warm-up / catch-up dominated: main says so

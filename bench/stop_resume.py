@@ -26,8 +26,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from cmcl.io.rundir import RunDirectory  # noqa: E402
-from services.reaper import descendants, process_table  # noqa: E402
+from cmcl.run.rundir import RunDirectory  # noqa: E402
+from services.runtime.reaper import descendants, process_table  # noqa: E402
 
 WINDOW = 100
 

@@ -3,34 +3,30 @@
     python -m cmcl train [--runner service|inline] [--config F] [--set section.key=value ...] [--overwrite]
     python -m cmcl resume RUN_DIR [--more-episodes N] [--set ...]  (the runner that wrote RUN_DIR, by default)
     python -m cmcl evaluate RUN_DIR [--episodes 100] [--checkpoint PATH] [--random] [--no-gif]
-    python -m cmcl stages --agents 2 4 8 [--stage-episodes E E E] [train's flags]   (cmcl/agent_stages.py)
-    python -m cmcl status RUN_DIR [RUN_DIR ...]   (where each run stands, one line each: cmcl/run_status.py)
+    python -m cmcl stages --agents 2 4 8 [--stage-episodes E E E] [train's flags]   (cmcl/run/agent_stages.py)
+    python -m cmcl status RUN_DIR [RUN_DIR ...]   (where each run stands, one line each: cmcl/run/status.py)
     python -m cmcl tune --config F --search KEY=DISTRIBUTION ... --trials N --out DIR [--resume DIR]
-                                                 (a sweep on Ray Tune, one inline run per trial: services/tune.py)
+                                                 (a sweep on Ray Tune, one inline run per trial:
+                                                 services/sweeps/tune.py)
     python -m cmcl config [SECTION | SECTION.KEY] [--markdown]   (every config key: meaning, unit, default, range;
                                                                  docs/CONFIG.md)
 
 The default runner of `train` is the service on an embedded Ray: the system this project is about, what `make run`
 starts, and the one that ends with the held-out evaluation and the GIF. `--runner inline` trains in this process
 without Ray (Algorithm 1, the reference the service is measured against). Both write one run-directory layout
-(cmcl/io/rundir.py), so `resume` and `evaluate` find the run's newest verified policy themselves.
-`python -m cmcl.loop`, `python -m services.launch` and `python -m cmcl.evaluate` remain, as aliases with the same
-flags (cmcl/run_flags.py). Exit codes: 0 done, 2 bad arguments / config / run directory, 130 / 143 stopped by
+(cmcl/run/rundir.py), so `resume` and `evaluate` find the run's newest verified policy themselves.
+`python -m cmcl.loop`, `python -m services.launch` and `python -m cmcl.run.evaluate` remain, as aliases with the same
+flags (cmcl/run/flags.py). Exit codes: 0 done, 2 bad arguments / config / run directory, 130 / 143 stopped by
 SIGINT / SIGTERM after a checkpoint.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import importlib
-import json
-import shlex
 import sys
 
-from cmcl.io.resume_hint import python_command
-from cmcl.io.rundir import RunDirectory
-from cmcl.run_flags import (
+from cmcl.run.flags import (
     RUNNERS,
     RunRequest,
     RunRequestError,
@@ -38,17 +34,20 @@ from cmcl.run_flags import (
     add_run_flags,
     request_from,
 )
-from cmcl.stopping import exit_without_teardown
+from cmcl.run.rundir import RunDirectory
+from cmcl.run.status import runner_of, status_command
+from cmcl.run.stopping import exit_without_teardown
 
 DEFAULT_RUNNER = "service"
 # Each runner's entry function, imported only when that runner runs: `cmcl/` never imports Ray, and `--help`
 # imports no torch.
 RUNNER_ENTRIES = {"inline": ("services.launch", "run_launch"), "service": ("services.launch", "run_launch")}
-TUNE_FLAGS, TUNE_ENTRY = ("services.tune", "add_tune_flags"), ("services.tune", "tune_command")  # Ray: a sweep's
+# the sweep's flags and entry (they import Ray)
+TUNE_FLAGS, TUNE_ENTRY = ("services.sweeps.tune", "add_tune_flags"), ("services.sweeps.tune", "tune_command")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The parser of `python -m cmcl`: one sub-command per verb; the run flags are those of cmcl/run_flags.py."""
+    """The parser of `python -m cmcl`: one sub-command per verb; the run flags are those of cmcl/run/flags.py."""
     parser = argparse.ArgumentParser(prog="python -m cmcl", description=__doc__.split("\n")[0])
     verbs = parser.add_subparsers(dest="verb", required=True)
     train = verbs.add_parser("train", help="train a new run", description="Train a new run in run.dir.")
@@ -65,7 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_evaluate_flags(evaluate)
     stages = verbs.add_parser("stages", help="a curriculum over the number of agents: one run per agent count",
                               description="Train navigation with N_1 < N_2 < ... agents in turn, each stage starting "
-                                          "from the networks of the one before (cmcl/agent_stages.py); rerun the "
+                                          "from the networks of the one before (cmcl/run/agent_stages.py); rerun the "
                                           "same command to go on after a stop.")
     stages.add_argument("--agents", type=int, nargs="+", required=True, metavar="N", help="agent counts, increasing")
     stages.add_argument("--stage-episodes", type=int, nargs="+", default=None, metavar="E",
@@ -76,12 +75,12 @@ def build_parser() -> argparse.ArgumentParser:
     status = verbs.add_parser("status", help="where each run stands: running, ended or cut off, episodes, seconds, "
                                              "coverage, newest checkpoint",
                               description="One line per run folder, read from its files alone (nothing written, no "
-                                          "Ray): cmcl/run_status.py.")
+                                          "Ray): cmcl/run/status.py.")
     status.add_argument("run_dirs", nargs="+", metavar="DIR", help="run folders, e.g. runs/*")
     tune = verbs.add_parser("tune", help="a sweep on Ray Tune: Optuna proposes settings, ASHA stops trials early",
                             description="Sweep config keys on Ray Tune (Optuna search, ASHA scheduler), one inline "
                                         "run per trial in OUT/runs/; a results table and the best settings as --set "
-                                        "flags at the end (services/tune.py).")
+                                        "flags at the end (services/sweeps/tune.py).")
     getattr(importlib.import_module(TUNE_FLAGS[0]), TUNE_FLAGS[1])(tune)
     config = verbs.add_parser("config", help="every config key: its meaning, unit, default and allowed range",
                               description="Print every key of a run configuration (or of SECTION) with its meaning, "
@@ -92,33 +91,6 @@ def build_parser() -> argparse.ArgumentParser:
     config.add_argument("--markdown", action="store_true", help="Markdown tables (docs/CONFIG.md)")
     verbs.metavar = "{" + ",".join(verbs.choices) + "}"  # every verb, in the usage line too
     return parser
-
-
-def runner_of(run_dir: RunDirectory) -> str:
-    """The runner that wrote `run_dir`: the one its summary.json names, else the one its last checkpoint of the
-    supervisor's counters names (a run cut off before its summary), else the service if it holds a checkpoint
-    (both runners write and resume the same checkpoints; one of the inline runner's own format of earlier versions is
-    refused by cmcl.run_flags.open_run). Raises RunRequestError when none of these tells."""
-    summary = run_dir.summary()
-    if summary.get("runner") in RUNNERS:
-        return summary["runner"]
-    counters = run_dir.supervisor_counters  # a run cut off before its summary: its last checkpoint names it
-    if counters.exists():
-        with contextlib.suppress(ValueError, OSError):
-            runner = json.loads(counters.read_text()).get("runner")
-            if runner in RUNNERS:
-                return runner
-    if "inline" in run_dir.runners():
-        return "inline"
-    if run_dir.runners() or run_dir.service_dir.is_dir():
-        return "service"
-    if run_dir.never_trained():  # a start that failed before its first episode (e.g. of older code) left it
-        config = shlex.quote(str(run_dir.config_path))
-        raise RunRequestError(f"cannot tell which runner wrote {str(run_dir.path)!r}: it never trained (only the "
-                              f"config of a start that failed); start it with {python_command()} -m cmcl train "
-                              f"--config {config}, or pass --runner {' or --runner '.join(RUNNERS)}")
-    raise RunRequestError(f"cannot tell which runner wrote {str(run_dir.path)!r} (no checkpoint, no summary.json); "
-                          f"pass --runner {' or --runner '.join(RUNNERS)}")
 
 
 def run(request: RunRequest) -> int:
@@ -133,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _main(argv)
     except KeyboardInterrupt:
-        from cmcl.run_flags import STARTUP_STOP
+        from cmcl.run.flags import STARTUP_STOP
 
         print(STARTUP_STOP, file=sys.stderr)
         return 130
@@ -146,17 +118,15 @@ def _main(argv: list[str] | None) -> int:
 
         return config_command(args.section, args.markdown)
     if args.verb == "status":
-        from cmcl.run_status import status_command
-
         return status_command(args.run_dirs)
     if args.verb == "tune":
         return getattr(importlib.import_module(TUNE_ENTRY[0]), TUNE_ENTRY[1])(args)
     if args.verb == "evaluate":
-        from cmcl.evaluate import evaluate_run
+        from cmcl.run.evaluate import evaluate_run
 
         return evaluate_run(args)
     if args.verb == "stages":
-        from cmcl.agent_stages import run_stages
+        from cmcl.run.agent_stages import run_stages
 
         try:
             base = request_from(args, args.runner)

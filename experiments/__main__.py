@@ -19,8 +19,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from cmcl.provenance import code_state
 from cmcl.replay.registry import PAPER_ALGORITHMS
+from cmcl.run.provenance import code_state
 from experiments.confirm_arms import CONFIRM_SEEDS, has_permuted_control
 from experiments.grids import (
     ABLATIONS,

@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from cmcl.config import load_config
-from cmcl.evaluate import evaluate_policy
 from cmcl.io.atomic import atomic_write_bytes
-from cmcl.io.rundir import RunDirectory
+from cmcl.run.evaluate import evaluate_policy
+from cmcl.run.rundir import RunDirectory
 from experiments.grids import RESULTS
 from experiments.measures import WINDOW
 from experiments.run_spec import ROOT

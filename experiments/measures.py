@@ -4,7 +4,7 @@ Training curves are the per-episode rows of the run (`RunDirectory.rows("episode
 at which the trailing WINDOW-episode moving average of the final-step coverage (predator-prey: of the predators'
 win, an episode with a capture) reaches x; the area under a training curve is its mean over the run's episodes.
 Held-out: the final weights (or those of the checkpoint at episode `upto`) without exploration noise on HELD_OUT
-worlds the run never saw (`cmcl.evaluate.evaluate_policy`, seeded by the run's seed).
+worlds the run never saw (`cmcl.run.evaluate.evaluate_policy`, seeded by the run's seed).
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.evaluate import evaluate_policy, load_policy
-from cmcl.io.plots import episode_series
-from cmcl.io.rundir import RunDirectory
+from cmcl.run.evaluate import evaluate_policy, load_policy
+from cmcl.run.plots import episode_series
+from cmcl.run.rundir import RunDirectory
 from experiments.own_envs import own_env_measures
 from experiments.run_spec import Run
 
@@ -118,7 +118,7 @@ def stage_cost(run_dir: RunDirectory) -> dict[str, Any]:
 def sampling_over_training(progress: list[dict[str, Any]], upto: int | None = None) -> dict[str, Any]:
     """The sampling distribution over training from a run's progress rows (up to episode `upto`): per row, the mean
     over the agents that do not sample uniformly of the ESS fraction and of the reward-bearing rows' share in the
-    sampled minibatch (expected under P) and in the buffer (cmcl.diagnostics.sampling_diagnostics), λ and, for
+    sampled minibatch (expected under P) and in the buffer (cmcl.replay.diagnostics.sampling_diagnostics), λ and, for
     ACL / CMCL, the sampling mass on KP's excluded branch. Returns {"sampling_curve": {column: [rows]}, "ess_mean",
     "ess_first_quarter" (rows in the first quarter of the run's episodes), "reward_rows_sampled_mean",
     "reward_rows_buffer_mean"}; a run whose agents all sample uniformly has ESS 1 and sampled = buffer shares."""

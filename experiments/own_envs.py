@@ -5,7 +5,7 @@ OWN_ENVS names each environment with the settings it trains with (the same for b
 runs are built by experiments.grids.own_env_runs, measured by `own_env_measures` and shown by `own_env_table`
 (the `ownenvs` block of docs/RESULTS.md).
 
-A team's return is the sum over the team's agents of their episode returns (cmcl.evaluate.evaluate_policy), the
+A team's return is the sum over the team's agents of their episode returns (cmcl.run.evaluate.evaluate_policy), the
 mean over HELD_OUT held-out episodes. With more than one team each team also plays against uniformly random
 other teams ("vs random others"); the table shows it for competing teams only (`OwnEnv.competing`): both teams of
 simple_tag learn against each other, so the joint return alone does not say that either learned, and a team that
@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cmcl.evaluate import evaluate_policy
+from cmcl.run.evaluate import evaluate_policy
 
 if TYPE_CHECKING:
     from cmcl.config import Config
@@ -76,7 +76,7 @@ def own_env_measures(config: Config, policy: MADDPG, series: dict[str, np.ndarra
     """The own-env measures of one run: held-out return per team (`held_out` from evaluate_policy), the random
     policy's on the same `episodes` held-out worlds (same `seed`), each team against random others when there are
     several, held-out success / coverage when the env provides them, and the last 100 training episodes' mean
-    return per team. series: the run's per-episode columns (cmcl.io.plots.episode_series)."""
+    return per team. series: the run's per-episode columns (cmcl.run.plots.episode_series)."""
     random = evaluate_policy(config, None, episodes=episodes, seed=seed)
     teams = list(held_out["reward"])
     out: dict[str, Any] = {"held_out_return": held_out["reward"], "random_return": random["reward"],

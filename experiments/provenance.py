@@ -1,7 +1,7 @@
 """Which code a grid's result ran, and whether a comparison's runs may be tested together.
 
-Writing: `run_provenance` is the "provenance" of a grid summary: `cmcl.provenance.provenance` of this checkout and of
-the run's resolved config, with the commit, dirtiness and any change during the run taken from the training process's
+Writing: `run_provenance` is the "provenance" of a grid summary: `cmcl.run.provenance.provenance` of this checkout and
+of the run's resolved config, with the commit, dirtiness and any change during the run taken from the training process's
 own summary (it recorded the code when its run opened; the grid's process may have started earlier), the load over its
 training (`LoadSampler`), the commits its run directory's segments recorded (`segment_commits`: a run resumed across a
 code change has two), when the summary was written (`measured_utc`, "YYYY-MM-DD HH:MM", from 2026-12-05), and
@@ -24,8 +24,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from cmcl.io.rundir import RunDirectory
-from cmcl.provenance import provenance
+from cmcl.run.provenance import provenance
+from cmcl.run.rundir import RunDirectory
 from experiments.run_spec import ROOT, Run
 
 # Keys only the later experiments/measures.py writes: a summary without provenance that has them ran later code.

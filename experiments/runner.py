@@ -7,12 +7,12 @@ it, `remaining_budget`: run.max_seconds is each command's); any other run starts
 --runner inline|service ... --overwrite`: a folder without a checkpoint holds nothing worth keeping). Both runners
 keep the same cadences: a progress row every 2 s, a checkpoint every service.checkpoint_every_s seconds. A folder
 holding the inline runner's checkpoints of before 8dbaee8 (checkpoints/ckpt_*.pt) is refused by the resume in one
-line (cmcl.run_flags.open_run): the run is reported failed, and the grid goes on.
+line (cmcl.run.flags.open_run): the run is reported failed, and the grid goes on.
 
 Children die with the runner: each is started with PR_SET_PDEATHSIG = SIGKILL (Linux prctl, set in the child
 before exec), so a runner killed by any signal, SIGKILL included, leaves no orphan training that a rerun's resume
 would race on the same run directory. A service run's own Ray processes are reaped by the launcher's reaper
-(services/reaper.py) when the launcher dies. A failed run is reported and the grid goes on; a rerun retries it.
+(services/runtime/reaper.py) when the launcher dies. A failed run is reported and the grid goes on; a rerun retries it.
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
-from cmcl.io.rundir import RunDirectory
-from cmcl.provenance import LoadSampler
+from cmcl.run.provenance import LoadSampler
+from cmcl.run.rundir import RunDirectory
 from experiments.measures import summarise
 from experiments.provenance import run_provenance
 from experiments.run_spec import ROOT, Run
@@ -75,7 +75,7 @@ def command(run: Run, run_path: Path) -> list[str]:
     # inline: no evaluation at the end (the summary makes its own, experiments.measures); the service's runs keep
     # make run's command as it is
     runner_flags = ["--no-eval"] if run.mode == "inline" else ["--metrics-port", "0"]
-    if run_path.exists() and not run.stages:  # (the stages command resumes by itself: cmcl/agent_stages.py)
+    if run_path.exists() and not run.stages:  # (the stages command resumes by itself: cmcl/run/agent_stages.py)
         if RunDirectory.open(run_path).runners():  # a checkpoint exists: resumed on the run's own runner
             budget = max_seconds_of(run)
             left = [] if not budget else ["--set", f"run.max_seconds={remaining_budget(run_path, budget)!r}"]

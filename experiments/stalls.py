@@ -8,14 +8,14 @@ directories are not), and the report turns them into the per-arm table of docs/R
 
 Per run:
 * `plateau_episodes`: episodes whose 100-episode moving average of coverage lies in [0.65, 0.85]
-  (`cmcl.stalls.on_plateau`), and `plateau_middle`, the episode in the middle of that time;
+  (`cmcl.run.stalls.on_plateau`), and `plateau_middle`, the episode in the middle of that time;
 * `early`: means over the progress rows while λ < 0.5 (the only time KP excludes any row, ALGORITHM.md A1) of the
   sampling ESS and the share of reward-bearing rows sampled and in the buffer (averaged over agents), and of what
   the learner was trained on then (`early_learner`, rows from episode WARM_UP on): the critic's loss on its sampled
   minibatches, their Q (minus the actor's loss, eq. 4: the mean Q of the actor's own actions on those rows), and
   for the curriculum arms the mean normalised difficulty ĉ of the sampled rows against the buffer's;
 * `at_plateau` (runs with a plateau of at least MIN_PLATEAU episodes): the held-out anatomy of the misses
-  (`cmcl.stalls.miss_anatomy`, 200 worlds) of the checkpoint nearest `plateau_middle` (`policy_checkpoints`: a run
+  (`cmcl.run.stalls.miss_anatomy`, 200 worlds) of the checkpoint nearest `plateau_middle` (`policy_checkpoints`: a run
   of the service's format keeps only the learner's last two checkpoints, so for it that is one of the end's), the
   agent most often on no
   landmark, and the curriculum's state at the progress row nearest that episode (λ, ESS, that agent's and the
@@ -30,11 +30,11 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.evaluate import evaluate_policy, load_policy
 from cmcl.io.atomic import atomic_write_bytes
-from cmcl.io.rundir import RunDirectory
-from cmcl.provenance import provenance
-from cmcl.stalls import MissAnatomy, on_plateau
+from cmcl.run.evaluate import evaluate_policy, load_policy
+from cmcl.run.provenance import provenance
+from cmcl.run.rundir import RunDirectory
+from cmcl.run.stalls import MissAnatomy, on_plateau
 from experiments.stats import fmt
 from experiments.store import ResultsStore
 
@@ -99,14 +99,14 @@ def analyse_run(run_path: Path, arm: str) -> dict[str, Any] | None:
 def policy_checkpoints(run: RunDirectory) -> dict[int, Any]:
     """The run's policy checkpoints that pass their checks, by the episode each was written at: the learner's
     verified generations (the service's format, which both runners write: the newest and the one before it,
-    services/learner.py; each placed at the last episode row acted with its weight version or an older one), and
+    services/roles/learner.py; each placed at the last episode row acted with its weight version or an older one), and
     those of the inline runner's own format of before 8dbaee8 (ckpt_<episodes>.pt, read as files)."""
     import io
 
     import torch
 
-    from cmcl.io.rundir import PolicyCheckpoint
     from cmcl.io.verified import VerifiedFile
+    from cmcl.run.rundir import PolicyCheckpoint
 
     found: dict[int, Any] = dict(run.inline_checkpoints())
     learner, below = VerifiedFile(run.service_dir / "learner.pt"), None

@@ -1,5 +1,5 @@
 """A training fingerprint: sha256s of a short, deterministic training of one configuration by the inline runner
-(the service's roles called in one process: services.calls.InProcessCalls).
+(the service's roles called in one process: services.runtime.calls.InProcessCalls).
 
 Two code versions that print the same fingerprint for a configuration trained it bit-identically over the
 prefix (the episode rows of metrics.jsonl without wall-clock fields, and the final MADDPG weights; the progress rows
@@ -45,7 +45,7 @@ def fingerprint(config_path: str | None, overrides: list[str], episodes: int = E
     import torch
 
     from cmcl.config import load_config
-    from cmcl.io.rundir import RunDirectory
+    from cmcl.run.rundir import RunDirectory
     from services.launch import train_in_process
 
     torch.set_num_threads(1)

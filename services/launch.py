@@ -2,13 +2,13 @@
 
 `python -m cmcl train` (the default runner) and `python -m cmcl resume DIR` (a run the service wrote) call
 `run_launch`; `python -m services.launch` is their alias and the cluster command of the deploy files, with the
-same flags (cmcl/run_flags.py) and `--resume DIR`:
+same flags (cmcl/run/flags.py) and `--resume DIR`:
 
     python -m services.launch [--config F] [--set section.key=value ...] [--address auto]
                               [--metrics-port P] [--metrics-host H] [--resume DIR] [--num-cpus N]
 
 Where it sits: the entry point. It validates the config, starts (or joins) Ray, opens the Prometheus endpoint,
-creates every role (services.placement.create_roles) and runs the supervisor loop until run.episodes episodes
+creates every role (services.runtime.placement.create_roles) and runs the supervisor loop until run.episodes episodes
 (or run.max_seconds), then checkpoints, writes the learning curve and shuts down cleanly.
 """
 
@@ -29,18 +29,18 @@ from cmcl.config import Config
 from cmcl.envs.factory import EnvFactoryError
 from cmcl.io.durable import ReplayStore, StoreError
 from cmcl.io.resume_hint import resume_command
-from cmcl.io.rundir import RunDirectory
-from cmcl.io.runlock import RunLock
 from cmcl.io.write_failure import RunWriteError
-from cmcl.progress import TrainingDiverged
-from cmcl.run_flags import RunRequest, alias_parser, port_given_by, run_alias, train_in_run
-from cmcl.run_report import done_line, report_trained
-from cmcl.stopping import STOP_SIGNALS, StopSignals, exit_without_teardown
-from services.loopback import loopback_only
+from cmcl.progress.rows import TrainingDiverged
+from cmcl.run.flags import RunRequest, alias_parser, port_given_by, run_alias, train_in_run
+from cmcl.run.report import done_line, report_trained
+from cmcl.run.rundir import RunDirectory
+from cmcl.run.runlock import RunLock
+from cmcl.run.stopping import STOP_SIGNALS, StopSignals, exit_without_teardown
+from services.runtime.loopback import loopback_only
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The alias's flags: those of every training command (cmcl/run_flags.py) and `--resume DIR`."""
+    """The alias's flags: those of every training command (cmcl/run/flags.py) and `--resume DIR`."""
     return alias_parser("python -m services.launch", __doc__.split("\n")[0])
 
 
@@ -84,7 +84,7 @@ def check_cluster_reachable(address: str, timeout_s: float = JOIN_TIMEOUT_S) -> 
 
 def start_ray(address: str | None, num_cpus: int | None, metrics_export_port: int | None = None) -> None:
     """Join `address` (the cluster's own network settings), or start an embedded Ray sized to this machine (no
-    dashboard), every server of it listening on 127.0.0.1 only (services/loopback.py).
+    dashboard), every server of it listening on 127.0.0.1 only (services/runtime/loopback.py).
 
     The embedded Ray's processes are started with SIGINT and SIGTERM blocked, a mask they inherit: a Ctrl-C in the
     terminal reaches the whole foreground process group, and it must stop the run through the launcher (drain,
@@ -102,7 +102,7 @@ def start_ray(address: str | None, num_cpus: int | None, metrics_export_port: in
             raise ConnectionError(f"cannot join the Ray cluster at --address {address}: {err}. Start one with "
                                   f"`ray start --head`, or omit --address for an embedded Ray") from None
         return
-    loopback_only()  # every server of the embedded Ray on 127.0.0.1 (services/loopback.py)
+    loopback_only()  # every server of the embedded Ray on 127.0.0.1 (services/runtime/loopback.py)
     receiver = sigint_receiver()  # a Ctrl-C meanwhile interrupts ray.init (KeyboardInterrupt), within a second
     signal.pthread_sigmask(signal.SIG_BLOCK, set(STOP_SIGNALS))
     try:
@@ -181,15 +181,15 @@ def run_service(config: Config, run_dir: RunDirectory, *, resume: bool = False, 
                 in_process: bool = False) -> dict[str, Any]:
     """Run the roles of `config` under the supervisor; returns its final summary. On the Ray already initialised
     (each role an actor, the metrics served on service.metrics_port), or with `in_process` the same roles as plain
-    objects in this process (`--runner inline`: services.calls.InProcessCalls; no Ray, no metrics endpoint). `stop`
-    is polled between rounds of work (see `Supervisor`); `started(supervisor, roles)`, if given, is called once both
-    exist, before the supervisor runs (a bench watching the run: bench/service_breakdown.py). `port_fallback`: the
-    user did not choose service.metrics_port (cmcl.run_flags.port_given), so a port taken since the check before Ray
+    objects in this process (`--runner inline`: services.runtime.calls.InProcessCalls; no Ray, no metrics endpoint).
+    `stop` is polled between rounds of work (see `Supervisor`); `started(supervisor, roles)`, if given, is called once
+    both exist, before the supervisor runs (a bench watching the run: bench/service_breakdown.py). `port_fallback`: the
+    user did not choose service.metrics_port (cmcl.run.flags.port_given), so a port taken since the check before Ray
     (another run starting beside this one) is replaced by a free one, said in a note, rather than refused."""
-    from services.calls import InProcessCalls, RayCalls
-    from services.metrics import ServiceMetrics
-    from services.placement import create_roles
-    from services.supervisor import Supervisor
+    from services.observability.metrics import ServiceMetrics
+    from services.runtime.calls import InProcessCalls, RayCalls
+    from services.runtime.placement import create_roles
+    from services.runtime.supervisor import Supervisor
 
     metrics = ServiceMetrics(seed=config.run.seed)
     port = None if in_process else serve_metrics(metrics, config, port_fallback)
@@ -230,7 +230,7 @@ def serve_metrics(metrics: Any, config: Config, port_fallback: bool) -> int:
     host, port = config.service.metrics_host, config.service.metrics_port
     try:
         return metrics.serve(port, host)
-    except OSError as err:  # taken since the check before Ray (cmcl.preflight.metrics_port_checked)
+    except OSError as err:  # taken since the check before Ray (cmcl.run.preflight.metrics_port_checked)
         if not port_fallback:
             raise OSError(f"service.metrics_port = {port} cannot be bound on {host} ({err.strerror or err}): pass "
                           "--metrics-port 0 for a free port, or another port") from None
@@ -270,7 +270,7 @@ def run_launch(request: RunRequest) -> int:
 def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: RunLock) -> int:
     """Train until done or stopped, then report; the lock is held. The service starts (or joins) Ray and shuts it
     down quietly at the end; the inline runner (`request.runner == "inline"`) runs the same roles in this process."""
-    from services.placement import InfeasibleResources
+    from services.runtime.placement import InfeasibleResources
 
     in_process = request.runner == "inline"
     if request.resume_dir:
@@ -278,11 +278,11 @@ def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: Ru
         damage = ReplayStore(run_dir.service_replay_dir).recover_log()
         if damage is not None:
             print(f"replay log of {run_dir.path}: {damage}", file=sys.stderr)
-    elif config.run.init_from:  # the learner loads it (services/learner.py); checked by open_run
-        from cmcl.learners.warm_start import warm_start_source  # torch: imported only when needed
+    elif config.run.init_from:  # the learner loads it (services/roles/learner.py); checked by open_run
+        from cmcl.run.warm_start import warm_start_source  # torch: imported only when needed
 
         print(f"actors and critics initialised from {warm_start_source(config.run.init_from).path}")
-        if config.run.carry_replay:  # the replay server reads them when it starts (services/replay_server.py)
+        if config.run.carry_replay:  # the replay server reads them when it starts (services/roles/replay_server.py)
             print(f"replay: starts with the rows of {config.run.init_from}")
     stop = StopSignals(notice=print)
     try:
@@ -296,7 +296,7 @@ def _launch(request: RunRequest, config: Config, run_dir: RunDirectory, lock: Ru
             summary = run_service(config, run_dir, resume=bool(request.resume_dir),
                                   progress=None if request.quiet else print, stop=lambda: stop.requested,
                                   port_fallback=not port_given_by(request, config), in_process=in_process)
-        except RunWriteError:  # a full disk (a role's file, the metrics, the counters): cmcl.run_flags.train_in_run
+        except RunWriteError:  # a full disk (a role's file, the metrics, the counters): cmcl.run.flags.train_in_run
             raise  # names the file and what a resume starts from
         except (InfeasibleResources, OSError, StoreError) as err:  # StoreError: a replay snapshot that fails its
             print(f"error: {err}", file=sys.stderr)  # checks (cmcl.io.durable), kept as it is
@@ -325,7 +325,7 @@ def _start_embedded_or_join(request: RunRequest, lock: RunLock, stop: StopSignal
     --address; then the stop signals. Returns 2 after a one-line error when Ray cannot be had, else None."""
     import ray
 
-    from services.reaper import start_reaper
+    from services.runtime.reaper import start_reaper
 
     if not request.address and not ray.is_initialized():
         start_reaper(keep_fds=(lock.fd,))

@@ -45,7 +45,7 @@ def main() -> dict:
     from ray._private.authentication.authentication_utils import is_token_auth_enabled
 
     from services.launch import start_ray, stop_ray
-    from services.reaper import process_table
+    from services.runtime.reaper import process_table
 
     start_ray(None, 1)
     try:

@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 
 from cmcl.config import Config, dump_toml
-from services.loopback import LOOPBACK_ENV, loopback_only
+from services.runtime.loopback import LOOPBACK_ENV, loopback_only
 from tests.tiny import make_tiny_config
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import re
 
-from services.report_schema import ROLES
+from services.observability.report_schema import ROLES
 
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--window-size=1500,1900",
                   "--virtual-time-budget=20000"]

@@ -1,11 +1,11 @@
 """The service's roles built in-process, without Ray, for the tests that drive them by hand chunk by chunk
 (tests/test_service_inprocess_flow.py, tests/test_service_inprocess_restart.py, tests/test_agreement.py)."""
 
-from services.learner import Learner
-from services.replay_server import ReplayServer
-from services.rollout import RolloutWorker
-from services.scorers.icm import ICMWorker
-from services.scorers.teachers import TeacherWorker
+from services.roles.icm import ICMWorker
+from services.roles.learner import Learner
+from services.roles.replay_server import ReplayServer
+from services.roles.rollout import RolloutWorker
+from services.roles.teachers import TeacherWorker
 from tests.tiny import make_tiny_config
 
 # The roles are driven by hand here, chunk by chunk, on the tiny service config with: a 360-row buffer (3 chunks of
@@ -36,7 +36,7 @@ def train_tiny(config, directory, episodes=None, resume=False, **run):
     into `directory`: a new run, or with `resume` the run already there, continued to `episodes` (its stored
     config's otherwise). `run`: further run-section values of a new run. Returns (summary, roles)."""
     from cmcl.config import config_from_dict
-    from cmcl.io.rundir import RunDirectory
+    from cmcl.run.rundir import RunDirectory
     from services.launch import train_in_process
 
     if resume:
@@ -58,7 +58,7 @@ def trained_inline_run(config):
 
     from cmcl.__main__ import main
     from cmcl.config import dump_toml
-    from cmcl.io.rundir import RunDirectory
+    from cmcl.run.rundir import RunDirectory
 
     path = Path(config.run.dir)
     file = path.with_name(f"{path.name}.toml")

@@ -20,11 +20,11 @@ from pathlib import Path
 import ray
 from ray.cluster_utils import Cluster
 
-from cmcl.io.rundir import RunDirectory
-from services.faults import actor_entry
-from services.metrics import ServiceMetrics
-from services.placement import create_roles
-from services.supervisor import Supervisor
+from cmcl.run.rundir import RunDirectory
+from services.observability.metrics import ServiceMetrics
+from services.runtime.placement import create_roles
+from services.runtime.supervisor import Supervisor
+from tests.faults import actor_entry
 from tests.test_service_ray import samples, value
 from tests.tiny import make_tiny_config
 

@@ -1,6 +1,6 @@
 """A scheduler that records what a real run's roles hand the replay server, read from the messages themselves.
 
-`RecordingCalls` wraps the run's own scheduler (services.calls.InProcessCalls or RayCalls; installed through
+`RecordingCalls` wraps the run's own scheduler (services.runtime.calls.InProcessCalls or RayCalls; installed through
 `services.launch.run_service`'s `started` hook, so the run is otherwise untouched) and notes, in the order the
 supervisor submits them, every `sample` reply of the replay server and every `Scores` it is given (`write`, and the
 online critics' inside `learner_result`'s LearnerFeedback). The replay server runs one caller's calls in submission
@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.messages import LearnerBatch, LearnerFeedback, Scores
+from cmcl.replay.messages import LearnerBatch, LearnerFeedback, Scores
 
 
 @dataclass
@@ -86,7 +86,7 @@ def recorded_run(config: Any, directory: Any, in_process: bool) -> tuple[dict[st
     """Train `config` into a new run directory `directory` on one scheduler (in this process, or on the Ray already
     initialised), recording it. Returns (the supervisor's summary, what it sampled and scored)."""
     from cmcl.config import config_from_dict
-    from cmcl.io.rundir import RunDirectory
+    from cmcl.run.rundir import RunDirectory
     from services.launch import run_service
 
     data = config.to_dict()

@@ -11,9 +11,9 @@ import torch
 from cmcl.config import ConfigError, TeamConfig, config_from_dict, load_config
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.network_steps import choose_minibatch
-from cmcl.messages import ACTOR_PREFIX
 from cmcl.replay.agent_padding import pad_rows
 from cmcl.replay.buffer_steps import sample_owner_batches
+from cmcl.replay.messages import ACTOR_PREFIX
 from cmcl.replay.registry import ALGORITHMS, REGISTRY
 from cmcl.replay.rules.laber import select_candidates
 from cmcl.system import layout_of

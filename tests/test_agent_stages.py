@@ -1,4 +1,4 @@
-"""python -m cmcl stages (cmcl/agent_stages.py): the plan of an agent-count curriculum, what is refused before any
+"""python -m cmcl stages (cmcl/run/agent_stages.py): the plan of an agent-count curriculum, what is refused before any
 stage trains, and how a rerun goes on from a stopped stage."""
 
 from __future__ import annotations
@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 
 from cmcl.__main__ import main
-from cmcl.agent_stages import plan_stages, stage_finished, stage_request
 from cmcl.config import ConfigError
-from cmcl.io.rundir import RunDirectory
-from cmcl.run_flags import RunRequest
+from cmcl.run.agent_stages import plan_stages, stage_finished, stage_request
+from cmcl.run.flags import RunRequest
+from cmcl.run.rundir import RunDirectory
 
 
 def test_the_plan_chains_each_stage_to_the_one_before(tiny_config, tmp_path):

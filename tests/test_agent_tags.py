@@ -13,7 +13,7 @@ from cmcl.envs.batched import BatchedSparseSpread
 from cmcl.envs.entities import ABSENT, entity_layout, spread_layout
 from cmcl.envs.params import SpreadParams
 from cmcl.envs.state import get_world_state, set_world_state
-from cmcl.learners.entity_nets import EntityActor, EntityCritic
+from cmcl.learners.entity.nets import EntityActor, EntityCritic
 from cmcl.learners.nets import joint_input
 from cmcl.replay.agent_padding import pad_rows
 
@@ -194,8 +194,8 @@ def test_entity_networks_read_the_tags_and_keep_their_size_for_any_n():
 @pytest.mark.parametrize("pool", ["attention", "mean", "relational"])
 def test_numpy_entity_policy_matches_the_torch_actor_on_tagged_observations(pool):
     from cmcl.learners.maddpg import MADDPG
-    from cmcl.learners.policy import NumpyEntityPolicy, numpy_policy
     from cmcl.learners.weights import published_weights
+    from cmcl.rollout.policy import NumpyEntityPolicy, numpy_policy
 
     n = 5
     layout = spread_layout(n, agent_tags=True)
@@ -224,7 +224,7 @@ def test_padding_carries_tagged_rows_to_more_agents():
 
 def test_a_short_tagged_training_run_and_its_evaluation(tmp_path, capsys):
     from cmcl.__main__ import main as cmcl
-    from cmcl.evaluate import main as evaluate
+    from cmcl.run.evaluate import main as evaluate
 
     run = tmp_path / "run"
     assert cmcl(["train", "--runner", "inline", "--config", "configs/smoke.toml", "--set", f"run.dir={run}",

@@ -18,16 +18,16 @@ import torch
 
 from cmcl.config import TeamConfig
 from cmcl.learners.network_steps import choose_minibatch, learner_update, rule_scores
-from cmcl.messages import CURIOSITY, DIFFICULTY, LearnerFeedback, RuleScore, Scorer
 from cmcl.replay import buffer_steps
+from cmcl.replay.messages import CURIOSITY, DIFFICULTY, LearnerFeedback, RuleScore, Scorer
 from cmcl.replay.registry import ALGORITHMS, REGISTRY
 from cmcl.system import beta_is
-from services.common import actor_setup
-from services.learner import Learner
-from services.replay_server import ReplayServer
-from services.rollout import RolloutWorker
-from services.scorers.icm import ICMWorker
-from services.scorers.teachers import TeacherWorker
+from services.roles.icm import ICMWorker
+from services.roles.learner import Learner
+from services.roles.replay_server import ReplayServer
+from services.roles.rollout import RolloutWorker
+from services.roles.teachers import TeacherWorker
+from services.runtime.common import actor_setup
 from tests.in_process import in_process_config
 
 # every registered rule and its controls: the agreement holds for each

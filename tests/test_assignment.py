@@ -1,4 +1,4 @@
-"""The landmark-assignment signal (maddpg.assignment_loss, cmcl.learners.assignment): the assignment on hand-made
+"""The landmark-assignment signal (maddpg.assignment_loss, cmcl.learners.entity.assignment): the assignment on hand-made
 geometries, its reading of the observation, the loss wired into the actor step (and absent when off), the refusals."""
 
 import itertools
@@ -12,8 +12,8 @@ from cmcl.config.runners import check_runner_keys
 from cmcl.envs.batched_spread import BatchedSparseSpread
 from cmcl.envs.entities import spread_layout, tag_layout
 from cmcl.envs.params import SpreadParams, TagParams
-from cmcl.learners import assignment
-from cmcl.learners.assignment import AssignmentTerm, assigned_landmark, assignment_targets
+from cmcl.learners.entity import assignment
+from cmcl.learners.entity.assignment import AssignmentTerm, assigned_landmark, assignment_targets
 from cmcl.learners.maddpg import MADDPG
 
 torch.set_num_threads(1)
@@ -204,7 +204,7 @@ def test_the_setting_reaches_the_learner_of_either_runner():
 
 
 def test_both_runners_report_the_terms_stats(tmp_path, tiny_config):
-    from services.learner import last_losses
+    from services.roles.learner import last_losses
     from tests.in_process import train_tiny
 
     config = tiny_config("maddpg", episodes=6, service=True,

@@ -9,7 +9,7 @@ import pytest
 from cmcl.__main__ import main
 from cmcl.config import ConfigError, load_config
 from cmcl.io.durable import ReplayStore
-from cmcl.io.rundir import RunDirectory
+from cmcl.run.rundir import RunDirectory
 
 
 def newest_storage(run_dir):
@@ -80,8 +80,8 @@ def test_the_service_replay_server_starts_with_the_rows_of_the_run_before_and_re
                                                                                                  tiny_config):
     """The service runner's side, in-process: a new replay server carries the rows of the run before from its replay
     store, snapshots them (a restart restores them, it does not carry them twice), and the learner trains on them."""
-    from services.learner import Learner
-    from services.replay_server import ReplayServer
+    from services.roles.learner import Learner
+    from services.roles.replay_server import ReplayServer
     from tests.test_agent_padding import small_rows
 
     def config(n, **run):

@@ -25,12 +25,12 @@ import pytest
 from cmcl.__main__ import build_parser, main, runner_of
 from cmcl.config import config_from_dict
 from cmcl.config.toml_io import _toml_value
-from cmcl.evaluate import build_parser as evaluate_alias_parser
 from cmcl.io.resume_hint import python_command
-from cmcl.io.rundir import RunDirectory
-from cmcl.io.runlock import LOCK_NAME
 from cmcl.io.verified import VerifiedFile
-from cmcl.run_flags import LAST_OWN_INLINE_FORMAT, RunRequest, open_run, request_from
+from cmcl.run.evaluate import build_parser as evaluate_alias_parser
+from cmcl.run.flags import LAST_OWN_INLINE_FORMAT, RunRequest, open_run, request_from
+from cmcl.run.rundir import RunDirectory
+from cmcl.run.runlock import LOCK_NAME
 from services.launch import build_parser as launch_alias_parser
 from tests.evaluation_output import evaluation_json
 from tests.in_process import trained_inline_run
@@ -130,7 +130,7 @@ def test_train_runs_the_inline_runner_to_its_budget(tmp_path, tiny_config_file):
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["runner"] == "inline" and summary["ended"] == "budget" and summary["episodes"] == 8
     assert (run_dir / "learning_curve.png").stat().st_size > 0
-    # the end of the run as the service's (cmcl.run_report): the done line, the held-out evaluation, the GIF
+    # the end of the run as the service's (cmcl.run.report): the done line, the held-out evaluation, the GIF
     assert f"done: 8 episodes, {summary['env_steps']} env steps, {summary['updates']} updates in " in trained.stdout
     assert "held-out evaluation (200 new worlds, no exploration noise): coverage " in trained.stdout
     assert f"gif: {run_dir / 'trained.gif'}" in trained.stdout and (run_dir / "trained.gif").stat().st_size > 0
@@ -194,7 +194,7 @@ def test_a_finished_run_is_said_so_on_resume_and_more_episodes_train_it_further(
     ({"more_episodes": 5}, "--more-episodes 5 trains a run further: give the run"),
 ])
 def test_more_episodes_is_refused_negative_or_without_a_run(request_args, named):
-    from cmcl.run_flags import RunRequestError
+    from cmcl.run.flags import RunRequestError
 
     with pytest.raises(RunRequestError, match=named):
         RunRequest(runner="inline", **request_args)

@@ -9,7 +9,7 @@ import pytest
 
 from cmcl.io import codec, records
 from cmcl.io.codec import CodecError, Limits
-from cmcl.messages import Chunk
+from cmcl.replay.messages import Chunk
 
 T, N, OD, AD = 6, 2, 3, 2
 

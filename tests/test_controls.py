@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from cmcl.config import ConfigError, load_config, preset
-from cmcl.diagnostics import buffer_diagnostics, ess_fraction, replay_sampling_diagnostics, sampling_diagnostics
 from cmcl.io import codec
 from cmcl.replay.buffer import ReplayBuffer
+from cmcl.replay.diagnostics import buffer_diagnostics, ess_fraction, replay_sampling_diagnostics, sampling_diagnostics
 from cmcl.replay.priority import EPS_P, permute_priorities
 from cmcl.system import agent_layout, build_replay, make_batched_env
 from tests.buffers import make_buffer

@@ -10,7 +10,7 @@ import tomllib
 from pathlib import Path
 
 from cmcl.config import load_config
-from cmcl.progress import progress_line
+from cmcl.progress.rows import progress_line
 
 ROOT = Path(__file__).resolve().parents[1]
 REACH = "env.factory=cmcl.envs.examples.reach:parallel_env"

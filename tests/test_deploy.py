@@ -1,8 +1,8 @@
 """Static checks of deploy/ and docker-compose.yml: no Docker engine, Grafana or cluster needed.
 
 The compose file, Prometheus config, Grafana provisioning, dashboard and KubeRay manifests must parse and agree
-with each other and with services/metrics.py. The two promtool tests run only where `promtool` is installed
-(`apt-get install prometheus`); elsewhere they are skipped.
+with each other and with services/observability/metrics.py. The two promtool tests run only where `promtool` is
+installed (`apt-get install prometheus`); elsewhere they are skipped.
 """
 
 import copy
@@ -18,7 +18,7 @@ import pytest
 import yaml
 from jsonschema import Draft7Validator
 
-from services.metrics import ServiceMetrics
+from services.observability.metrics import ServiceMetrics
 
 ROOT = Path(__file__).resolve().parents[1]
 DEPLOY = ROOT / "deploy"

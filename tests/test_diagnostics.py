@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from cmcl.diagnostics import buffer_branch_shares, curriculum_diagnostics, ess_fraction
+from cmcl.replay.diagnostics import buffer_branch_shares, curriculum_diagnostics, ess_fraction
 from cmcl.replay.priority import sampling_probabilities
 
 

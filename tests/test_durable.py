@@ -12,8 +12,8 @@ import pytest
 
 from cmcl.io import codec, records
 from cmcl.io.durable import FRAME, LEGACY_FRAME, ReplayStore, StoreError, frame, read_frames
-from cmcl.messages import Chunk
 from cmcl.replay.dedupe import InsertLedger
+from cmcl.replay.messages import Chunk
 from tests.test_codec import make_chunk
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,6 +1,6 @@
 """The evaluation at the end of `train`, as a new user meets it (subprocesses): a line when it starts, naming
 --no-eval; on an env.factory environment its progress while it runs and a time bound that fits the env's step cost
-(cmcl.run_report.bounded_evaluation), so a slow environment is evaluated on fewer worlds instead of for minutes."""
+(cmcl.run.report.bounded_evaluation), so a slow environment is evaluated on fewer worlds instead of for minutes."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from cmcl.run_report import pooled
+from cmcl.run.report import pooled
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -20,7 +20,7 @@ from cmcl.config import ConfigError, load_config
 from cmcl.envs.entities import spread_layout
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.weights import published_weights
-from cmcl.messages import CURIOSITY, DIFFICULTY, Scorer
+from cmcl.replay.messages import CURIOSITY, DIFFICULTY, Scorer
 
 ROOT = Path(__file__).resolve().parents[1]
 N8 = "configs/spread_n8.toml"
@@ -31,13 +31,13 @@ REFUSED = "maddpg.entity_holder = true and this config has false"
 
 
 def _torch_margin(entities: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    from cmcl.learners.entity_nets import holder_margin
+    from cmcl.learners.entity.nets import holder_margin
 
     return holder_margin(torch.from_numpy(entities), torch.from_numpy(mask), TYPES).numpy()
 
 
 def _numpy_margin(entities: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    from cmcl.learners.policy import holder_margin
+    from cmcl.rollout.policy import holder_margin
 
     return holder_margin(entities, mask, TYPES)
 
@@ -94,7 +94,7 @@ def test_the_torch_and_numpy_twins_agree_and_read_only_positions_and_types():
 
 def test_the_margin_from_the_layouts_slots_is_the_generic_margin():
     """The networks' fast path (landmark x agent distances in the layout's static slots) gives the generic margin."""
-    from cmcl.learners.entity_holder import holder_margin, holder_margin_of_slots, holder_slots
+    from cmcl.learners.entity.holder import holder_margin, holder_margin_of_slots, holder_slots
 
     layout = spread_layout(5)
     rng = np.random.default_rng(7)
@@ -113,7 +113,7 @@ def test_the_margin_from_the_layouts_slots_is_the_generic_margin():
 @pytest.mark.parametrize("pool", ["attention", "mean", "relational"])
 @pytest.mark.parametrize("noise", [0.0, 0.1])
 def test_the_numpy_actor_acts_as_the_learners_actor(noise, pool, nearest):
-    from cmcl.learners.policy import numpy_policy
+    from cmcl.rollout.policy import numpy_policy
 
     for layout in (spread_layout(5), spread_layout(5, agent_tags=True), spread_layout(2)):
         n, od = layout.num_agents, layout.obs_dim
@@ -129,7 +129,7 @@ def test_the_numpy_actor_acts_as_the_learners_actor(noise, pool, nearest):
 @pytest.mark.parametrize("nearest", [0, 2])
 def test_the_numpy_actor_acts_as_the_learners_actor_on_rows_of_fewer_agents(nearest):
     """Rows carried from fewer agents (run.carry_replay): the absent agents hold no landmark."""
-    from cmcl.learners.policy import numpy_policy
+    from cmcl.rollout.policy import numpy_policy
 
     layout = spread_layout(5)
     maddpg = MADDPG(5, layout.obs_dim, seed=1, networks="entity", entity_layout=layout, entity_nearest=nearest,
@@ -146,8 +146,8 @@ def test_the_numpy_actor_acts_as_the_learners_actor_on_rows_of_fewer_agents(near
 def test_the_numpy_actor_refuses_weights_of_the_other_setting_and_the_margin_outside_navigation():
     from cmcl.envs.entities import tag_layout
     from cmcl.envs.params import TagParams
-    from cmcl.learners.entity_nets import EntityActor
-    from cmcl.learners.policy import numpy_policy
+    from cmcl.learners.entity.nets import EntityActor
+    from cmcl.rollout.policy import numpy_policy
 
     layout = spread_layout(3)
     for holder in (False, True):
@@ -163,7 +163,7 @@ def test_the_numpy_actor_refuses_weights_of_the_other_setting_and_the_margin_out
 
 @pytest.mark.parametrize("counted", [False, True])
 def test_the_critics_entity_rows_end_with_the_margin_of_the_agents_view_in_both_views(counted):
-    from cmcl.learners.entity_nets import EntityCritic, holder_margin
+    from cmcl.learners.entity.nets import EntityCritic, holder_margin
 
     n, act_dim, rows = 4, 2, 24
     layout = spread_layout(n)
@@ -234,7 +234,7 @@ def test_off_by_default_on_in_the_n8_preset_off_no_width_changes_on_every_entity
 
 def test_the_rollout_workers_numpy_actor_reads_the_margin():
     from cmcl.system import build_maddpg
-    from services.rollout import RolloutWorker
+    from services.roles.rollout import RolloutWorker
 
     worker = RolloutWorker(load_config(N8, [HOLDER, "env.num_envs=2"]).to_dict(), worker_id=0, seed=1)
     maddpg = build_maddpg(worker.config, worker.layout, seed=0)
@@ -246,7 +246,7 @@ def test_the_rollout_workers_numpy_actor_reads_the_margin():
 def test_every_service_role_reads_the_margin():
     """The service's roles in-process (tests/in_process.py): the rollout worker's numpy actor, the learner, the
     teachers (and their target networks) and the entity ICM read the margin; one round of the data flow runs."""
-    from cmcl.learners.policy import NumpyEntityPolicy
+    from cmcl.rollout.policy import NumpyEntityPolicy
     from tests.in_process import in_process_config, roles
 
     cfg = in_process_config("cmcl", maddpg={"networks": "entity", "entity_holder": True},
@@ -285,12 +285,12 @@ def test_a_state_records_it_and_one_of_the_other_value_is_refused_in_one_line():
 
 
 def test_it_trains_inline_and_evaluation_rebuilds_the_same_model_while_the_other_value_is_refused(tmp_path, capsys):
-    from cmcl.evaluate import load_policy
-    from cmcl.evaluate import main as evaluate
-    from cmcl.io.rundir import RunDirectory
-    from cmcl.run_flags import check_warm_start
+    from cmcl.run.evaluate import load_policy
+    from cmcl.run.evaluate import main as evaluate
+    from cmcl.run.flags import check_warm_start
+    from cmcl.run.rundir import RunDirectory
     from services.launch import train_in_process
-    from services.learner import Learner
+    from services.roles.learner import Learner
     from tests.evaluation_output import evaluation_json
 
     # two rounds of the 16 worlds, two updates in the second (tests/test_entity_nearest.py's smoke)

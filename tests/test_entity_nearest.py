@@ -41,7 +41,7 @@ def test_the_default_reads_every_entity_and_the_setting_reaches_the_learner_of_e
 def test_the_rollout_workers_numpy_actor_reads_the_same_entities():
     from cmcl.learners.weights import published_weights
     from cmcl.system import build_maddpg
-    from services.rollout import RolloutWorker
+    from services.roles.rollout import RolloutWorker
 
     worker = RolloutWorker(load_config(N8, [NEAREST, "env.num_envs=2"]).to_dict(), worker_id=0, seed=1)
     actor = published_weights(build_maddpg(worker.config, worker.layout, seed=0))["actor"]
@@ -80,10 +80,10 @@ def test_the_command_line_refuses_it_for_other_networks_with_exit_2(tmp_path):
 
 
 def test_it_trains_inline_and_evaluation_and_warm_starts_rebuild_the_same_model(tmp_path, capsys):
-    from cmcl.evaluate import load_policy
-    from cmcl.evaluate import main as evaluate
-    from cmcl.io.rundir import RunDirectory
-    from cmcl.run_flags import check_warm_start
+    from cmcl.run.evaluate import load_policy
+    from cmcl.run.evaluate import main as evaluate
+    from cmcl.run.flags import check_warm_start
+    from cmcl.run.rundir import RunDirectory
     from services.launch import train_in_process
 
     # two rounds of the 16 worlds, two updates in the second (tests/test_scale_presets.py's smoke, k = 3)

@@ -1,4 +1,4 @@
-"""Entity actor and PIC-style critic (cmcl.learners.entity_nets): invariances, parameter counts, gradients."""
+"""Entity actor and PIC-style critic (cmcl.learners.entity.nets): invariances, parameter counts, gradients."""
 
 import copy
 
@@ -9,7 +9,7 @@ import torch
 from cmcl.envs.entities import spread_layout, tag_layout
 from cmcl.envs.params import TagParams
 from cmcl.learners import entity_ops
-from cmcl.learners.entity_nets import POOLS, EntityActor, EntityCritic, EntityEncoder
+from cmcl.learners.entity.nets import POOLS, EntityActor, EntityCritic, EntityEncoder
 from cmcl.learners.nets import StackedLinear, joint_input
 
 

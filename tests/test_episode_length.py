@@ -1,7 +1,7 @@
 """An env.factory run's episode length as a new user meets it (subprocesses of `python -m cmcl train`): the env's own
 (max_cycles, max_steps, spec.max_episode_steps) when env.episode_length is set nowhere, else the one set, and
 env.episode_length's default only when the env declares none; one line names the length used either way, and the
-run's config.toml holds it (cmcl.preflight.with_episode_length)."""
+run's config.toml holds it (cmcl.run.preflight.with_episode_length)."""
 
 from __future__ import annotations
 

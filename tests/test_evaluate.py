@@ -7,7 +7,7 @@ from PIL import Image
 
 from cmcl.config import load_config, preset
 from cmcl.envs.examples.reach import Reach
-from cmcl.evaluate import evaluate_policy, gif_line, main, render_gif
+from cmcl.run.evaluate import evaluate_policy, gif_line, main, render_gif
 from cmcl.system import agent_layout, build_maddpg, make_batched_env
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cmcl.io.rundir import RunDirectory
+from cmcl.run.rundir import RunDirectory
 from experiments.__main__ import build_parser, selected_runs
 from experiments.grids import ABLATIONS, GRIDS, grid, prefix_reference_runs
 from experiments.measures import summarise

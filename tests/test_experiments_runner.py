@@ -11,11 +11,11 @@ from dataclasses import asdict
 
 import pytest
 
-from cmcl.io.rundir import RunDirectory
+from cmcl.run.rundir import RunDirectory
 from experiments.run_spec import ROOT, Run
 from experiments.runner import command, run_grid
 from experiments.store import ResultsStore
-from services.reaper import descendants, process_table
+from services.runtime.reaper import descendants, process_table
 
 # the tiny settings as overrides (tests/tiny.py), with a checkpoint every second (both runners checkpoint on a clock)
 TINY = ("env.num_envs=4", "maddpg.batch_size=16", "maddpg.warmup=96", "maddpg.hidden=32", "replay.capacity=600",

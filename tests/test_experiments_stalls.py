@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from cmcl.io.rundir import RunDirectory
+from cmcl.run.rundir import RunDirectory
 from experiments.labels import ARM_LABEL
 from experiments.stalls import MIN_PLATEAU, analyse_folder, analyse_run, load_stalls, stall_table
 from experiments.store import ResultsStore
@@ -88,7 +88,7 @@ def test_the_early_learner_measures_average_the_rows_after_warm_up_while_lambda_
 @pytest.mark.extended
 @pytest.mark.xfail(strict=True, raises=TypeError, reason="the learner measures (`early_learner`) read the inline "
                    "loop's progress rows' critic_loss / actor_loss / difficulty columns; the service's progress rows "
-                   "(services/progress_view.py, both runners now) carry none of them")
+                   "(services/observability/progress_view.py, both runners now) carry none of them")
 def test_a_record_written_before_the_learner_measures_gets_them_and_keeps_the_rest(tmp_path, monkeypatch):
     import experiments.stalls as stalls
 
@@ -129,7 +129,7 @@ def test_the_early_learner_table_has_a_row_per_arm_and_skips_records_without_the
 def test_the_plateau_anatomy_reads_the_learners_checkpoints_of_the_service_format(tmp_path):
     """Both runners write the learner's verified generations (checkpoints/service/learner-*.pt): the anatomy's
     checkpoint is one of them, placed at the last episode acted with its weights or older ones."""
-    from cmcl.evaluate import load_policy
+    from cmcl.run.evaluate import load_policy
     from experiments.stalls import policy_checkpoints
 
     config = make_tiny_config("maddpg", service=True, sections=ONE_UPDATE_PER_STEP, dir=str(tmp_path / "run"))

@@ -13,10 +13,10 @@ from pathlib import Path
 
 import pytest
 
-import cmcl.evaluate as evaluate_module
+import cmcl.run.evaluate as evaluate_module
 from cmcl.__main__ import build_parser
 from cmcl.config import load_config
-from cmcl.io.runlock import RunLock
+from cmcl.run.runlock import RunLock
 from tests.evaluation_output import evaluation_json
 
 ROOT = Path(__file__).resolve().parents[1]

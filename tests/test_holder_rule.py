@@ -10,9 +10,9 @@ import pytest
 import torch
 
 from cmcl.envs.entities import spread_layout
-from cmcl.learners.entity_holder import holder_margin, holder_margin_of_slots, holder_slots
-from cmcl.learners.policy import HOLDER_ALONE
-from cmcl.learners.policy import holder_margin as numpy_margin
+from cmcl.learners.entity.holder import holder_margin, holder_margin_of_slots, holder_slots
+from cmcl.rollout.policy import HOLDER_ALONE
+from cmcl.rollout.policy import holder_margin as numpy_margin
 
 TYPES = slice(2, 4)  # navigation's type one-hot (landmark, agent) after the 2 raw features
 
@@ -71,8 +71,8 @@ def test_the_slot_path_the_generic_path_and_the_numpy_twin_agree_on_random_views
 
 def test_the_entity_actor_and_its_numpy_twin_act_alike_under_the_seated_rule():
     from cmcl.learners.maddpg import MADDPG
-    from cmcl.learners.policy import numpy_policy
     from cmcl.learners.weights import published_weights
+    from cmcl.rollout.policy import numpy_policy
 
     layout = spread_layout(5)
     maddpg = MADDPG(5, layout.obs_dim, seed=2, networks="entity", entity_layout=layout, entity_holder=True)
@@ -93,7 +93,7 @@ def test_an_unknown_rule_is_refused_not_read_as_nearest():
     v = view((0.5, 0.0, "l"), (0.6, 0.0, "a"))[None]
     with pytest.raises(ValueError, match="maddpg.holder_rule must be one of"):
         numpy_margin(v, np.ones((1, 2), bool), TYPES, "claimed")
-    from cmcl.learners.entity_holder import with_holder
+    from cmcl.learners.entity.holder import with_holder
     with pytest.raises(ValueError, match="maddpg.holder_rule must be one of"):
         with_holder(torch.from_numpy(v), torch.ones(1, 2, dtype=torch.bool), TYPES, rule="claimed")
 
@@ -138,7 +138,7 @@ def test_every_service_role_reads_the_margin_by_the_rule():
 
 def test_a_state_records_the_rule_a_resume_under_the_other_is_refused_and_a_warm_start_may_change_it():
     from cmcl.learners.maddpg import MADDPG
-    from cmcl.learners.warm_start import warm_start_
+    from cmcl.run.warm_start import warm_start_
 
     layout = spread_layout(3)
 
@@ -162,8 +162,8 @@ def test_a_state_records_the_rule_a_resume_under_the_other_is_refused_and_a_warm
 
 def test_it_trains_inline_and_evaluation_rebuilds_the_rule(tmp_path):
     from cmcl.config import load_config
-    from cmcl.evaluate import load_policy
-    from cmcl.io.rundir import RunDirectory
+    from cmcl.run.evaluate import load_policy
+    from cmcl.run.rundir import RunDirectory
     from services.launch import train_in_process
 
     run = tmp_path / "run"
@@ -186,7 +186,7 @@ def test_the_configs_holder_rules_are_the_learners_and_the_seated_radius_is_the_
 
     from cmcl.config.learning import MADDPGConfig
     from cmcl.envs.params import SpreadParams
-    from cmcl.holder_rules import HOLDER_RULES, SEATED_RADIUS
+    from cmcl.learners.entity.holder_rules import HOLDER_RULES, SEATED_RADIUS
 
     hints = typing.get_type_hints(MADDPGConfig)
     assert typing.get_args(hints["holder_rule"]) == HOLDER_RULES

@@ -27,8 +27,8 @@ def test_cmcl_does_not_import_ray_or_prometheus():
 
 def test_replay_stage_and_batched_envs_never_load_torch():
     """The replay server and continuous-action rollout workers import only these: no torch in their processes."""
-    extra = ("cmcl.envs.batched, cmcl.messages, cmcl.scorers.scoring, cmcl.progress, cmcl.io.records, cmcl.io.durable, "
-             "cmcl.learners.policy, cmcl.system")
+    extra = ("cmcl.envs.batched, cmcl.replay.messages, cmcl.scorers.scoring, cmcl.progress.rows, cmcl.io.records, "
+             "cmcl.io.durable, cmcl.rollout.policy, cmcl.system")
     assert loaded_after_importing("cmcl.replay", extra, ("torch",)) == []
     assert loaded_after_importing("cmcl.learners", "", ("torch",)) == ["torch"], "the check can see torch"
 
@@ -45,8 +45,8 @@ def test_the_training_commands_load_no_torch_before_the_run_directory_is_taken()
 
 
 def test_a_command_ends_with_its_exit_status_its_output_flushed_and_no_teardown():
-    """cmcl.stopping.exit_without_teardown, the last step of every training and evaluation command."""
-    code = ("import atexit, sys\nfrom cmcl.stopping import exit_without_teardown\n"
+    """cmcl.run.stopping.exit_without_teardown, the last step of every training and evaluation command."""
+    code = ("import atexit, sys\nfrom cmcl.run.stopping import exit_without_teardown\n"
             "atexit.register(lambda: print('teardown ran'))\n"
             "print('the last line', end='')\nprint('and its error', end='', file=sys.stderr)\n"
             "exit_without_teardown(130)\n")

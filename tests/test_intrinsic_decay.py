@@ -1,7 +1,7 @@
 """Curiosity as an intrinsic reward with a decaying weight (icm.intrinsic_reward_decay, ICMConfig.intrinsic_coef):
 the schedule's values, and the reward the learner role trains on at update t is the row's reward plus coef(t)·ρ
 (ρ the ICM scorer stored), on a tiny inline run of uniform MADDPG with curiosity as its reward (the service runs the
-same Learner role: services.calls)."""
+same Learner role: services.runtime.calls)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from cmcl.config import ConfigError, ICMConfig, config_from_dict
-from cmcl.io.rundir import RunDirectory
+from cmcl.run.rundir import RunDirectory
 from services.launch import train_in_process
 
 
@@ -66,9 +66,9 @@ def test_a_frozen_icm_scores_with_its_random_networks_and_never_fits(frozen):
     initialisation (an unfrozen one's change with its first fit step)."""
     import torch
 
-    from services.replay_server import ReplayServer
-    from services.rollout import RolloutWorker
-    from services.scorers.icm import ICMWorker
+    from services.roles.icm import ICMWorker
+    from services.roles.replay_server import ReplayServer
+    from services.roles.rollout import RolloutWorker
     from tests.in_process import in_process_config
 
     cfg = in_process_config("maddpg", icm={"intrinsic_reward_coef": 1.0, "frozen": frozen})

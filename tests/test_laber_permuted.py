@@ -152,8 +152,8 @@ def test_the_replay_servers_sample_draws_the_controls_orders_only_under_the_cont
     """The replay server's `sample` (the learner's batches of both runners: the inline runner calls the same server
     in-process) draws each minibatch's orders from its buffer's control generator; without the control it draws
     none."""
-    from services.replay_server import ReplayServer
-    from services.rollout import RolloutWorker
+    from services.roles.replay_server import ReplayServer
+    from services.roles.rollout import RolloutWorker
     from tests.in_process import in_process_config
 
     cfg = in_process_config("laber", service={"score_rows_per_call": 360})

@@ -19,8 +19,8 @@ from pathlib import Path
 import pytest
 
 from cmcl.config import load_config
-from cmcl.evaluate import evaluate_policy
-from cmcl.io.rundir import RunDirectory
+from cmcl.run.evaluate import evaluate_policy
+from cmcl.run.rundir import RunDirectory
 from services.launch import train_in_process
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"

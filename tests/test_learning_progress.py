@@ -1,4 +1,4 @@
-"""cmcl.learning_progress: the windowed learning progress of the critic loss, the normalised TD error and the
+"""cmcl.progress.learning: the windowed learning progress of the critic loss, the normalised TD error and the
 coverage, the plateau rule run.stop_progress applies to the one run.progress_signal names, its checkpoint state (and
 an old one's), the learner's normalised TD error, and the inline runner (the supervisor in one process) ending a run
 by it."""
@@ -14,9 +14,9 @@ import torch
 from cmcl.__main__ import main as cmcl
 from cmcl.config import ConfigError
 from cmcl.config.run_and_service import PROGRESS_SIGNALS
-from cmcl.io.rundir import RunDirectory
 from cmcl.learners.maddpg import MADDPG
-from cmcl.learning_progress import SIGNALS, LearningProgress, agent_mean
+from cmcl.progress.learning import SIGNALS, LearningProgress, agent_mean
+from cmcl.run.rundir import RunDirectory
 
 
 def feed(progress: LearningProgress, window_means: list[float], per_window: int = 3) -> None:

@@ -11,10 +11,10 @@ import torch
 
 from cmcl.__main__ import main as cmcl
 from cmcl.config import config_from_dict
-from cmcl.io.rundir import RunDirectory
-from cmcl.io.runlock import LOCK_NAME
+from cmcl.run.rundir import RunDirectory
+from cmcl.run.runlock import LOCK_NAME
 from services.launch import train_in_process
-from services.placement import create_roles
+from services.runtime.placement import create_roles
 
 # The tests' runs on top of the shared tiny service config (tests/conftest.py, tests/tiny.py: calls of 8 learner
 # updates, 3 teacher folds): one update per env step after the warm-up.
@@ -115,7 +115,7 @@ def test_predator_prey_pits_cmcl_predators_against_per_prey(tmp_path, tiny_confi
 def test_resume_restores_what_the_run_saved_and_continues_it(tmp_path, tiny_config):
     """A run stopped at episode 8: its roles, built again from the run directory, hold the saved weights, replay
     rows and counters; resumed to 12 episodes it counts as a run of 12 straight would, its episode rows numbered on.
-    (Not to the bit: a resumed rollout worker starts new worlds, services/rollout.py.)"""
+    (Not to the bit: a resumed rollout worker starts new worlds, services/roles/rollout.py.)"""
     # an explicit λ stride: the default one depends on run.episodes, which differs between the two runs
     straight = tiny_config("cmcl", dir=str(tmp_path / "straight"), episodes=12, sections={
         **INLINE_SECTIONS, "curriculum": {"stride": 1e-3}})
@@ -169,7 +169,7 @@ def test_resuming_under_other_network_settings_names_them_and_keeps_the_run(tmp_
     assert main(["resume", config.run.dir, "--set", changed, "--set", "run.episodes=8"]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
-    # named before anything starts (cmcl.resume_shapes), the setting alone (not run.episodes), with both shapes
+    # named before anything starts (cmcl.run.resume_shapes), the setting alone (not run.episodes), with both shapes
     assert err.startswith(f"error: resume --set {changed}: the run's checkpoints hold other shapes ("), err
     if "share_parameters" in changed:
         assert f"({changed.split('.')[0]} " in err and " in them, (" in err and " with these settings)" in err

@@ -1,6 +1,6 @@
 """A local service run listens on the loopback interface only: the launcher and every process below it (the
 embedded Ray's GCS, raylet, agents, and the actors' workers), listed from the kernel's socket table while the run
-trains, and the tests' session Ray likewise (services/loopback.py)."""
+trains, and the tests' session Ray likewise (services/runtime/loopback.py)."""
 
 from __future__ import annotations
 

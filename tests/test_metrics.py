@@ -1,4 +1,4 @@
-"""services/metrics.py: the one Prometheus endpoint, fed by actor reports (no Ray needed).
+"""services/observability/metrics.py: the one Prometheus endpoint, fed by actor reports (no Ray needed).
 
 Every test that serves HTTP shuts its server down; values are read back over HTTP or from the exposition text
 and parsed with prometheus-client's own parser.
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
-from services.metrics import DEFAULT_MAX_SAMPLES, ReportError, ServiceMetrics
+from services.observability.metrics import DEFAULT_MAX_SAMPLES, ReportError, ServiceMetrics
 
 REQUIRED = {
     "cmcl_replay_size", "cmcl_replay_capacity", "cmcl_replay_inserts_total", "cmcl_replay_samples_total",

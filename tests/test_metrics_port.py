@@ -1,6 +1,6 @@
-"""The service's metrics port (cmcl.preflight.metrics_port_checked, cmcl.run_flags.port_given): a port the user chose
-is refused when in use; the default one (9100, also Prometheus node_exporter's default) in use is replaced by a free
-port with a note, so that `make run` does not fail on a machine that runs node_exporter (before, 2026-12-06: it
+"""The service's metrics port (cmcl.run.preflight.metrics_port_checked, cmcl.run.flags.port_given): a port the user
+chose is refused when in use; the default one (9100, also Prometheus node_exporter's default) in use is replaced by a
+free port with a note, so that `make run` does not fail on a machine that runs node_exporter (before, 2026-12-06: it
 ended in "service.metrics_port = 9100 is in use ... pass --metrics-port 0", which `make run` cannot pass without
 RUN_ARGS)."""
 
@@ -12,8 +12,8 @@ from dataclasses import replace
 import pytest
 
 from cmcl.config import Config, ConfigError
-from cmcl.preflight import metrics_port_checked
-from cmcl.run_flags import port_given
+from cmcl.run.flags import port_given
+from cmcl.run.preflight import metrics_port_checked
 from tests.tiny import make_tiny_config
 
 
@@ -62,7 +62,7 @@ def test_a_port_taken_after_the_check_falls_back_only_when_the_user_did_not_choo
                                                                                      ray_cluster):
     """Two runs started together (found by hand 2026-12-06: two `make run`s): both pass the check before Ray, the
     first binds 9100, the second's bind failed ("cannot be bound ... pass --metrics-port 0", exit 2)."""
-    from cmcl.io.rundir import RunDirectory
+    from cmcl.run.rundir import RunDirectory
     from services.launch import run_service
 
     config = make_tiny_config("maddpg", service=True, dir=str(tmp_path / "run"), episodes=4)
@@ -77,7 +77,7 @@ def test_a_port_taken_after_the_check_falls_back_only_when_the_user_did_not_choo
 
 
 def test_the_request_says_whether_the_port_was_chosen(tmp_path):
-    from cmcl.run_flags import RunRequest, port_given_by
+    from cmcl.run.flags import RunRequest, port_given_by
 
     chosen = tmp_path / "chosen.toml"
     chosen.write_text("[service]\nmetrics_port = 9100\n")

@@ -1,6 +1,7 @@
 """No run that trains nothing without a word (subprocesses of `python -m cmcl train`): a run that ends with 0 learner
 updates says so in one line naming the warm-up and the env steps it took; a run.episodes that the batch of worlds
-rounds up is said with the count played; the README's inline smoke command trains (cmcl.run_report, cmcl.preflight)."""
+rounds up is said with the count played; the README's inline smoke command trains (cmcl.run.report,
+cmcl.run.preflight)."""
 
 from __future__ import annotations
 

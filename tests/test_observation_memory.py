@@ -1,7 +1,7 @@
 """Observations a new user's environment brings (subprocesses of `python -m cmcl train`): a replay too large for this
 machine (cooperative_pong_v6's 280×480×3 images) is refused in one line naming replay.capacity and the size, before
 anything is allocated, and observations of rank > 1 (pursuit_v5's 7×7×3 grids) are flattened for the MLP networks,
-said in one line (cmcl.preflight)."""
+said in one line (cmcl.run.preflight)."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from cmcl.preflight import available_memory, storage_bytes_per_row
 from cmcl.replay.storage import TransitionStorage
+from cmcl.run.preflight import available_memory, storage_bytes_per_row
 
 ROOT = Path(__file__).resolve().parents[1]
 

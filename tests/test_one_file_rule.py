@@ -13,10 +13,10 @@ import pytest
 
 from cmcl.__main__ import main
 from cmcl.config import ConfigError, load_config
-from cmcl.io.rundir import RunDirectory
 from cmcl.replay.registry import REGISTRY
+from cmcl.run.rundir import RunDirectory
 from services.launch import run_service
-from services.replay_server import ReplayServer
+from services.roles.replay_server import ReplayServer
 from tests.in_process import train_tiny
 from tests.tiny import tiny_overrides
 

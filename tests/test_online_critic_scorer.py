@@ -1,13 +1,13 @@
 """The online critic is a scorer the learner hosts (ACL td_self): every row the buffer holds gets its |δ| from the
 learner's online critics, on the inline runner and on the service alike (both schedule the same roles:
-services.calls), and no row is sampled before they have scored it (ALGORITHM.md A11: score at insertion)."""
+services.runtime.calls), and no row is sampled before they have scored it (ALGORITHM.md A11: score at insertion)."""
 
 import numpy as np
 import pytest
 
 from cmcl.config import config_from_dict
-from cmcl.io.rundir import RunDirectory
-from cmcl.messages import ONLINE_TD
+from cmcl.replay.messages import ONLINE_TD
+from cmcl.run.rundir import RunDirectory
 from services.launch import train_in_process
 from tests.recording_calls import recorded_run
 
@@ -47,7 +47,7 @@ def test_no_row_of_a_td_self_run_is_sampled_before_the_online_critics_scored_it(
 
 def test_curiosity_as_an_intrinsic_reward_reaches_the_learner_on_the_inline_runner(tiny_config, tmp_path):
     """icm.intrinsic_reward_coef > 0: the learner's minibatch rewards of each curiosity agent are its rows' reward
-    plus coef × the ρ the ICM scorer stored for them (the same roles on the service: services.calls)."""
+    plus coef × the ρ the ICM scorer stored for them (the same roles on the service: services.runtime.calls)."""
     from cmcl.learners.network_steps import learner_update
 
     config = config_from_dict({**tiny_config("cmcl", service=True, dir=str(tmp_path / "run")).to_dict(),

@@ -1,7 +1,7 @@
 """A run stopped in order by a file it could not write, before its first checkpoint, as a new user meets it
 (subprocesses; the file-size limit of `ulimit -f` stands in for a full disk): `status` calls it that stop, not a
 crash, offers no resume of a run with nothing to resume, and the run starts again without --overwrite, as the
-error line advised (cmcl.run_flags.record_write_failure, cmcl.io.rundir.RunDirectory.stopped_before_a_checkpoint)."""
+error line advised (cmcl.run.flags.record_write_failure, cmcl.run.rundir.RunDirectory.stopped_before_a_checkpoint)."""
 
 from __future__ import annotations
 

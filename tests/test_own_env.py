@@ -8,9 +8,9 @@ import pytest
 
 from cmcl.config import ConfigError, load_config
 from cmcl.envs.factory import EnvFactoryError
-from cmcl.episodes import EpisodeChunker, WorldEpisodes
 from cmcl.learners.maddpg import MADDPG
-from cmcl.learners.policy import NumpyPolicy
+from cmcl.rollout.episodes import EpisodeChunker, WorldEpisodes
+from cmcl.rollout.policy import NumpyPolicy
 from cmcl.system import agent_layout, make_batched_env
 from tests.in_process import train_tiny
 
@@ -182,7 +182,7 @@ def test_a_physics_environment_outside_mpe_trains_on_the_inline_runner(tmp_path)
 
 
 def test_the_example_reports_success_and_its_terminations_reach_the_critic_target(tmp_path, monkeypatch):
-    from services.rollout import RolloutWorker
+    from services.roles.rollout import RolloutWorker
 
     monkeypatch.setattr(RolloutWorker, "_numpy_policy", lambda self, actor: GreedyWalker())  # every policy published
     cfg = config(REACH, "env.success_key=reached", "run.episodes=24")
@@ -204,8 +204,8 @@ def test_the_example_reports_success_and_its_terminations_reach_the_critic_targe
 
 
 def test_evaluation_and_the_gif_work_for_a_factory_environment(tmp_path):
-    from cmcl.evaluate import evaluate_policy, render_gif
-    from services.learner import Learner
+    from cmcl.run.evaluate import evaluate_policy, render_gif
+    from services.roles.learner import Learner
 
     cfg = config(REACH, "env.success_key=reached")
     maddpg = Learner(cfg, 0).maddpg  # the learner's untrained networks
@@ -218,8 +218,8 @@ def test_evaluation_and_the_gif_work_for_a_factory_environment(tmp_path):
 
 
 def test_the_rollout_worker_sends_whole_episodes_of_any_length_and_the_replay_keeps_their_folds():
-    from services.replay_server import ReplayServer
-    from services.rollout import RolloutWorker
+    from services.roles.replay_server import ReplayServer
+    from services.roles.rollout import RolloutWorker
 
     cfg = config(REACH, "env.success_key=reached", "env.episode_length=12").to_dict()
     worker, server = RolloutWorker(cfg, 0, 0), ReplayServer(cfg)
@@ -250,7 +250,7 @@ def test_each_environment_of_the_own_envs_grid_learns_above_the_random_policy(na
     """The full run of the own_envs grid (experiments/own_envs.py), seed 0, inline: every team's held-out return
     (against random other teams when the teams compete) beats the random policy's by more than 5 on the same
     200 held-out episodes. A few minutes each on one free core (simple_tag, 6,000 episodes: about 10)."""
-    from cmcl.evaluate import evaluate_policy
+    from cmcl.run.evaluate import evaluate_policy
     from experiments.own_envs import OWN_ENVS
 
     env = OWN_ENVS[name]

@@ -63,7 +63,7 @@ def test_mpe2_spread_with_discrete_actions_trains_on_the_inline_runner(tmp_path)
 
 
 def test_the_rollout_worker_acts_with_gumbel_softmax_samples_for_a_discrete_env():
-    from services.rollout import RolloutWorker
+    from services.roles.rollout import RolloutWorker
 
     worker = RolloutWorker(config(MPE["spread"], DISCRETE, "env.num_envs=2").to_dict(), 0, 0)
     chunk, _ = worker.rollout(None)

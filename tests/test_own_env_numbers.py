@@ -100,8 +100,8 @@ def probe_config(max_cycles):
 def lambdas(max_cycles):
     """λ of the replay server after each rollout chunk (env.num_envs whole episodes) of the run's 40 episodes, the
     roles driven by hand (no updates: λ follows the episodes stored)."""
-    from services.replay_server import ReplayServer
-    from services.rollout import RolloutWorker
+    from services.roles.replay_server import ReplayServer
+    from services.roles.rollout import RolloutWorker
 
     cfg = probe_config(max_cycles)
     replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
@@ -122,8 +122,8 @@ def test_lambda_reaches_its_maximum_on_schedule_when_episodes_are_shorter_than_e
 
 
 def test_the_replay_server_counts_whole_episodes_on_the_budget_clock():
-    from services.replay_server import ReplayServer
-    from services.rollout import RolloutWorker
+    from services.roles.replay_server import ReplayServer
+    from services.roles.rollout import RolloutWorker
     from tests.tiny import make_tiny_config
 
     cfg = make_tiny_config("cmcl", service=True, sections={

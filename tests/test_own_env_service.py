@@ -6,7 +6,7 @@ Ray."""
 import pytest
 
 from cmcl.config import load_config
-from cmcl.io.rundir import RunDirectory
+from cmcl.run.rundir import RunDirectory
 from services.launch import run_service
 from tests.tiny import tiny_overrides
 

@@ -1,9 +1,9 @@
-"""services/placement.py: the Ray placement policy (teacher folds per actor, CPU budget) without a cluster."""
+"""services/runtime/placement.py: the Ray placement policy (teacher folds per actor, CPU budget) without a cluster."""
 
 import pytest
 
 from cmcl.config import load_config, preset
-from services.placement import required_cpus, teacher_groups
+from services.runtime.placement import required_cpus, teacher_groups
 
 
 def test_teacher_actor_groups():

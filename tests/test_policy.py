@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from cmcl.learners.maddpg import MADDPG
-from cmcl.learners.policy import NumpyPolicy, numpy_policy
 from cmcl.learners.weights import load_published, published_weights
+from cmcl.rollout.policy import NumpyPolicy, numpy_policy
 
 
 @pytest.mark.parametrize("share", [False, True])
@@ -54,7 +54,7 @@ def entity_layouts():
 @pytest.mark.parametrize("pool", ["attention", "mean", "relational"])
 @pytest.mark.parametrize("noise", [0.0, 0.1])
 def test_numpy_entity_policy_matches_maddpg_act(noise, pool, nearest):
-    from cmcl.learners.policy import NumpyEntityPolicy
+    from cmcl.rollout.policy import NumpyEntityPolicy
 
     for layout in entity_layouts():
         n, od = layout.num_agents, layout.obs_dim
@@ -97,7 +97,7 @@ def test_the_nearest_picks_agree_with_the_learners_including_ties():
     import torch
 
     from cmcl.learners import entity_nets
-    from cmcl.learners.policy import nearest_entities
+    from cmcl.rollout.policy import nearest_entities
 
     types = slice(2, 4)
     rng = np.random.default_rng(5)

@@ -2,7 +2,7 @@
 
 from types import SimpleNamespace
 
-from cmcl.progress import solved, window_mean
+from cmcl.progress.rows import solved, window_mean
 
 RUN = SimpleNamespace(stop_coverage=0.9, smoothing_window=4)
 
@@ -27,7 +27,7 @@ def test_off_or_without_coverage_never_stops():
 
 
 def test_the_line_says_the_time_left_and_what_is_normal_while_lambda_is_low():
-    from cmcl.progress import progress_line, time_left
+    from cmcl.progress.rows import progress_line, time_left
     from cmcl.replay.registry import early_notes
 
     assert time_left(1_000, 20_000, 50.0, 300.0) == "left ≤ 250s (budget)"  # the budget ends first
@@ -48,7 +48,7 @@ def test_the_line_says_the_time_left_and_what_is_normal_while_lambda_is_low():
 
 
 def test_the_line_shows_lambda_only_when_a_rule_of_the_run_reads_it():
-    from cmcl.progress import progress_line
+    from cmcl.progress.rows import progress_line
     from cmcl.replay.registry import uses_lambda
 
     assert uses_lambda(["maddpg", "cmcl"]) and uses_lambda(["acl"])

@@ -1,12 +1,12 @@
-"""The sampling part of both runners' progress lines (cmcl.progress.sampling_parts, its inline and service callers):
-ESS and the reward rows sampled against the buffer, averaged over the agents that do not sample uniformly."""
+"""The sampling part of both runners' progress lines (cmcl.progress.rows.sampling_parts, its inline and service
+callers): ESS and the reward rows sampled against the buffer, averaged over the agents that do not sample uniformly."""
 
 import pytest
 
-from cmcl.messages import ReplayStatus
-from cmcl.progress import row_sampling_parts, sampling_parts
-from services.progress_view import replay_parts
-from services.report_schema import ReplayReport, Report
+from cmcl.progress.rows import row_sampling_parts, sampling_parts
+from cmcl.replay.messages import ReplayStatus
+from services.observability.progress_view import replay_parts
+from services.observability.report_schema import ReplayReport, Report
 
 
 def test_the_part_averages_over_the_agents_that_do_not_sample_uniformly():
@@ -40,7 +40,7 @@ def test_the_service_line_shows_the_same_parts_from_the_replay_report():
 
 def test_the_service_progress_row_carries_the_sampling_entry_in_the_inline_rows_shape():
     from experiments.measures import sampling_over_training
-    from services.progress_view import sampling_row
+    from services.observability.progress_view import sampling_row
 
     replay = ReplayReport(agent_sampling_ess={"1": 0.5, "0": 1.0}, reward_rows_sampled={"0": 0.2, "1": 0.01},
                           reward_rows_buffer={"0": 0.2, "1": 0.1}, kp_branches={"rising": 0.5, "falling": 0.3,
@@ -72,8 +72,8 @@ def test_the_service_line_says_what_is_owed_once_every_episode_is_collected():
     instead of "left ~0s"."""
     from dataclasses import replace
 
-    from cmcl.run_clock import RunClock
-    from services.progress_view import ProgressView
+    from cmcl.progress.clock import RunClock
+    from services.observability.progress_view import ProgressView
 
     status = ReplayStatus(allowed_updates=0, allowed_inserts=0, update_deficit=373.4, scoring_deficit=45.0,
                           teacher_allowed=(), icm_allowed=0, updates_held_by="env_steps", size=500, env_steps=900,

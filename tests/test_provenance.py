@@ -8,8 +8,8 @@ import pytest
 
 import experiments.__main__ as experiments_cli
 from cmcl.config import load_config
-from cmcl.io.rundir import RunDirectory
-from cmcl.provenance import SIMD, LoadSampler, code_at_start, code_state, cpu, provenance
+from cmcl.run.provenance import SIMD, LoadSampler, code_at_start, code_state, cpu, provenance
+from cmcl.run.rundir import RunDirectory
 from experiments.curriculum_tables import curriculum_tests
 from experiments.provenance import cell_versions, code_version
 

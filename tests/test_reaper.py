@@ -1,4 +1,4 @@
-"""The reaper's view of the process table (services/reaper.py): a process that has exited is not running, even
+"""The reaper's view of the process table (services/runtime/reaper.py): a process that has exited is not running, even
 while it is a zombie waiting for its parent to read its status; one that runs is, with its parent and start time."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from services.reaper import descendants, process_table
+from services.runtime.reaper import descendants, process_table
 
 
 def state(pid: int) -> str:

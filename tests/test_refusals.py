@@ -138,7 +138,7 @@ def test_a_folder_of_the_users_that_holds_no_run_is_refused_and_left_as_it_was(r
 def test_a_start_that_fails_before_its_first_episode_leaves_nothing(tmp_path, capsys):
     """Whatever ends a new run before its first episode (an error exit, an exception), its config.toml, run.lock,
     empty checkpoints/ and the directory the command made are removed; a directory that existed is kept."""
-    from cmcl.run_flags import RunRequest, train_in_run
+    from cmcl.run.flags import RunRequest, train_in_run
 
     def fails(config, run_dir, lock):
         assert run_dir.config_path.is_file() and run_dir.checkpoints.is_dir()

@@ -1,10 +1,11 @@
-"""services/report_schema.py: the metrics report schema as dataclasses; parse_report validates, to_dict inverts."""
+"""services/observability/report_schema.py: the metrics report schema as dataclasses; parse_report validates, to_dict
+inverts."""
 
 import numpy as np
 import pytest
 
-from services.metrics import HISTOGRAMS, ServiceMetrics
-from services.report_schema import (
+from services.observability.metrics import HISTOGRAMS, ServiceMetrics
+from services.observability.report_schema import (
     SAMPLE_KEYS,
     CurriculumReport,
     FitReport,

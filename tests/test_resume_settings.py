@@ -1,6 +1,6 @@
 """A resume's --set overrides and --more-episodes are recorded, as a new user meets them (subprocesses): one line per
 changed key (old -> new), the run's config.toml rewritten, which a later plain resume, status, evaluate and
-summary.json's provenance read; a refused resume changes nothing (cmcl.run_flags.record_resume_settings)."""
+summary.json's provenance read; a refused resume changes nothing (cmcl.run.flags.record_resume_settings)."""
 
 from __future__ import annotations
 

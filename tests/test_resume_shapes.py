@@ -1,5 +1,5 @@
 """A resume whose --set changes what the run's checkpoints hold is refused before anything starts, in one line naming
-the key (cmcl.resume_shapes). Before (found by hand 2026-12-06): `resume DIR --set env.num_agents=3` ended the
+the key (cmcl.run.resume_shapes). Before (found by hand 2026-12-06): `resume DIR --set env.num_agents=3` ended the
 inline runner in "alpha in state must be a scalar or have one entry per agent (3), got 4" and the service in a
 traceback from its replay server's start."""
 
@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from cmcl.config import ConfigError
-from cmcl.resume_shapes import check_resume_shapes
+from cmcl.run.resume_shapes import check_resume_shapes
 from tests.in_process import trained_inline_run
 from tests.tiny import make_tiny_config
 

@@ -1,9 +1,10 @@
 """A rollout worker's worlds: the seed's own in a new run (one process's runs repeat exactly), other worlds in each
-resumed segment (services.placement.resumed_episodes), and other worlds again after a Ray restart (its incarnation)."""
+resumed segment (services.runtime.placement.resumed_episodes), and other worlds again after a Ray restart (its
+incarnation)."""
 
 import numpy as np
 
-from services.rollout import RolloutWorker
+from services.roles.rollout import RolloutWorker
 from tests.in_process import in_process_config
 
 

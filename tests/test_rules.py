@@ -218,7 +218,7 @@ def test_laber_minibatch_is_picked_by_the_current_critic_and_other_agents_take_t
 
     from cmcl.learners.maddpg import MADDPG
     from cmcl.learners.network_steps import choose_minibatch
-    from cmcl.messages import LearnerBatch
+    from cmcl.replay.messages import LearnerBatch
     from cmcl.replay.rules.laber import select_candidates
 
     torch.manual_seed(0)

@@ -14,10 +14,10 @@ import pytest
 import torch
 
 from cmcl.io.checkpoint_files import save_torch_atomic
-from cmcl.io.rundir import RunDirectory
-from cmcl.io.runlock import LOCK_NAME, RunDirectoryInUse, RunLock
 from cmcl.io.verified import VerifiedFile
-from cmcl.stopping import StopSignals
+from cmcl.run.rundir import RunDirectory
+from cmcl.run.runlock import LOCK_NAME, RunDirectoryInUse, RunLock
+from cmcl.run.stopping import StopSignals
 
 
 def test_a_second_writer_is_refused_naming_the_holder_and_may_take_over_once_released(tmp_path):
@@ -28,7 +28,7 @@ def test_a_second_writer_is_refused_naming_the_holder_and_may_take_over_once_rel
 
 
 def test_a_lock_left_by_a_killed_process_does_not_block(tmp_path):
-    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from cmcl.io.runlock import RunLock; "
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from cmcl.run.runlock import RunLock; "
                                f"RunLock.acquire({str(tmp_path)!r}); print('held', flush=True); time.sleep(600)"],
                               stdout=subprocess.PIPE, text=True)
     assert holder.stdout.readline().strip() == "held"
@@ -93,7 +93,7 @@ def test_after_training_the_first_signal_exits_at_once():
 def test_a_torn_last_metrics_line_is_ignored_and_set_aside_and_a_corrupt_one_before_it_refused(tmp_path, capsys):
     """A last line torn by a full disk (EFBIG) made resume and evaluate crash with JSONDecodeError."""
     from cmcl.config import load_config
-    from cmcl.run_flags import RunRequest, resumed_config, train_in_run
+    from cmcl.run.flags import RunRequest, resumed_config, train_in_run
 
     run = RunDirectory.create(tmp_path / "run", load_config(None, ("run.episodes=3",)))
     for episode in (1, 2, 3):
@@ -113,7 +113,7 @@ def test_a_torn_last_metrics_line_is_ignored_and_set_aside_and_a_corrupt_one_bef
     code = train_in_run(RunRequest(runner="inline", resume_dir=str(run.path)), lambda *a: 0)
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and f"{run.metrics_path} line 2: not a JSON object" in err, err
-    from cmcl.evaluate import main as evaluate
+    from cmcl.run.evaluate import main as evaluate
 
     assert evaluate([str(run.path), "--random", "--episodes", "1", "--no-gif"]) == 2, "refused before any work"
     err = capsys.readouterr().err
@@ -126,7 +126,7 @@ def test_a_lock_held_by_a_child_of_a_dead_holder_names_the_live_process(tmp_path
     from cmcl.io import runlock
 
     monkeypatch.setattr(runlock, "DEAD_HOLDER_WAIT_S", 0.2)
-    script = ("import subprocess, sys; from cmcl.io.runlock import RunLock; lock = RunLock.acquire(sys.argv[1]); "
+    script = ("import subprocess, sys; from cmcl.run.runlock import RunLock; lock = RunLock.acquire(sys.argv[1]); "
               "child = subprocess.Popen(['sleep', '60'], pass_fds=(lock.fd,), stdout=subprocess.DEVNULL, "
               "stderr=subprocess.DEVNULL); print(child.pid, flush=True)")
     parent = subprocess.run([sys.executable, "-c", script, str(tmp_path / "run")], capture_output=True, text=True,

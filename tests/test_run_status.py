@@ -1,4 +1,4 @@
-"""`python -m cmcl status` (cmcl/run_status.py): one line per run folder, read from its files alone."""
+"""`python -m cmcl status` (cmcl/run/status.py): one line per run folder, read from its files alone."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import os
 
 from cmcl.__main__ import main, runner_of
 from cmcl.io.resume_hint import resume_command
-from cmcl.io.runlock import RunLock
+from cmcl.run.runlock import RunLock
 from tests.in_process import trained_inline_run
 from tests.tiny import make_tiny_config
 

@@ -1,10 +1,10 @@
-"""A service run's tallies over its segments (services.run_tallies), without Ray: a resumed run adds the earlier
-segments' counts, seconds and recovery times to its own."""
+"""A service run's tallies over its segments (services.observability.run_tallies), without Ray: a resumed run adds the
+earlier segments' counts, seconds and recovery times to its own."""
 
 from cmcl.config import Config
-from services.call_budget import HeldClock
-from services.failures import Failures
-from services.run_tallies import add_tallies, tallies
+from services.observability.run_tallies import add_tallies, tallies
+from services.runtime.call_budget import HeldClock
+from services.runtime.failures import Failures
 
 
 def segment(failed: dict[str, int], recovered: dict[str, list[float]], held: float, checkpoints: list[float]):

@@ -1,8 +1,8 @@
 """Which runner honours which key (cmcl/config/runners.py) and the keys removed when the two runners became one
 (cmcl/config/moved.py REMOVED).
 
-Both runners schedule the same roles (services.calls), so every key is read by both but the service's Ray-only ones
-(SERVICE_ONLY: restarts, call timeouts, CPU requests, the metrics endpoint): those are refused on the inline
+Both runners schedule the same roles (services.runtime.calls), so every key is read by both but the service's Ray-only
+ones (SERVICE_ONLY: restarts, call timeouts, CPU requests, the metrics endpoint): those are refused on the inline
 runner's command line in one line naming the key, the runner and the value (exit 2, nothing made), and not read
 there from a config file. Every other service.* key (service.updates_per_call, ...) is accepted inline. A removed
 key (run.log_every, run.checkpoint_every, teachers.rescore_rows_per_update) is refused in one line naming what does
@@ -22,7 +22,7 @@ from cmcl.__main__ import main
 from cmcl.config import Config, ConfigError, apply_overrides, config_from_dict, load_config, load_data
 from cmcl.config.moved import REMOVED
 from cmcl.config.runners import SERVICE_ONLY, check_runner_keys
-from cmcl.io.rundir import RunDirectory
+from cmcl.run.rundir import RunDirectory
 from services.launch import main as launch_main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -109,7 +109,7 @@ def test_a_removed_key_is_refused_in_one_line_naming_what_does_its_work_now(key,
 
 
 def test_what_the_removed_keys_say_does_their_work_is_what_does_it():
-    from services.supervisor import REPORT_EVERY_S
+    from services.runtime.supervisor import REPORT_EVERY_S
 
     assert f"every {REPORT_EVERY_S:g} s" in REMOVED[("run", "log_every")]
     assert "service.checkpoint_every_s" in REMOVED[("run", "checkpoint_every")]

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from cmcl.config import load_config
-from cmcl.io.rundir import RunDirectory
+from cmcl.run.rundir import RunDirectory
 from services.launch import train_in_process
 from tests.evaluation_output import evaluation_json
 

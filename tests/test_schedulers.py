@@ -1,6 +1,6 @@
 """One runner, two schedulers: every registered rule (cmcl.replay.registry.REGISTRY), its permuted control where the
 rule's sampling has priorities to permute, and ACL's td_self variant, trained on one seed by the in-process scheduler
-(services.calls.InProcessCalls) and by the Ray service (RayCalls), recorded from the run's own messages
+(services.runtime.calls.InProcessCalls) and by the Ray service (RayCalls), recorded from the run's own messages
 (tests/recording_calls.py).
 
 In process the run is one deterministic sequence: two runs sample and score exactly the same (slot, generation)
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from cmcl.config import config_from_dict
-from cmcl.messages import CURIOSITY, DIFFICULTY, ONLINE_TD
+from cmcl.replay.messages import CURIOSITY, DIFFICULTY, ONLINE_TD
 from cmcl.replay.registry import REGISTRY
 from cmcl.replay.sampling import UniformSampling
 from cmcl.system import layout_of
@@ -58,7 +58,7 @@ def expected_columns(config) -> set[str]:
 
 
 def progress_keys(directory) -> set[str]:
-    from cmcl.io.rundir import RunDirectory
+    from cmcl.run.rundir import RunDirectory
 
     return {key for row in RunDirectory.open(directory).rows("progress") for key in row}
 

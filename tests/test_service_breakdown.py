@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from bench.breakdown_sampling import core_shares, cpu_between
-from cmcl.messages import ReplayStatus
+from cmcl.replay.messages import ReplayStatus
 from cmcl.replay.pacing import Pacing
 from cmcl.replay.ratelimit import RateLimiter
-from services.call_budget import HeldClock
-from services.metrics import ServiceMetrics
-from services.report_schema import LearnerReport, Report, parse_report
+from services.observability.metrics import ServiceMetrics
+from services.observability.report_schema import LearnerReport, Report, parse_report
+from services.runtime.call_budget import HeldClock
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 from service_breakdown import group_of, learner_split, role_of_process  # noqa: E402
@@ -33,7 +33,7 @@ def test_processes_are_named_by_their_role():
     assert role_of_process("ray::RuntimeEnvAgent", {}, 7) == "runtime env agent"
     assert role_of_process("python -u /venv/.../ray/_private/log_monitor.py --x", {}, 7) == "log monitor"
     assert role_of_process("ray::IDLE", {}, 7) == "idle Ray workers"
-    assert role_of_process("/venv/bin/python -m services.reaper 42", {}, 7) == "reaper"
+    assert role_of_process("/venv/bin/python -m services.runtime.reaper 42", {}, 7) == "reaper"
     assert role_of_process("ray::SomethingElse", {}, 7) == "other Ray worker"
     assert role_of_process("/usr/bin/sleep 3", {}, 7) == "other: sleep"
     assert [group_of(r) for r in ("teachers (folds 0,1)", "ICM", "rollout worker 1", "raylet", "driver (supervisor)")] \

@@ -15,12 +15,12 @@ from pathlib import Path
 import pytest
 
 from cmcl.io import codec
-from cmcl.io.rundir import RunDirectory
-from services.faults import actor_entry, sigkill_actor
-from services.health import ServiceFailed
-from services.metrics import ServiceMetrics
-from services.placement import create_roles
-from services.supervisor import Supervisor
+from cmcl.run.rundir import RunDirectory
+from services.observability.metrics import ServiceMetrics
+from services.runtime.health import ServiceFailed
+from services.runtime.placement import create_roles
+from services.runtime.supervisor import Supervisor
+from tests.faults import actor_entry, sigkill_actor
 from tests.test_service_ray import samples, value
 from tests.tiny import make_tiny_config
 

@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 
 from cmcl.config import config_from_dict
-from cmcl.messages import CURIOSITY, DIFFICULTY, LearnerFeedback, ReplayStatus, Scorer
-from services.call_budget import calls_to_issue
-from services.learner import Learner
-from services.placement import teacher_groups
-from services.replay_server import ReplayServer
-from services.rollout import RolloutWorker
-from services.scorers.icm import ICMWorker
-from services.scorers.teachers import TeacherWorker
+from cmcl.replay.messages import CURIOSITY, DIFFICULTY, LearnerFeedback, ReplayStatus, Scorer
+from services.roles.icm import ICMWorker
+from services.roles.learner import Learner
+from services.roles.replay_server import ReplayServer
+from services.roles.rollout import RolloutWorker
+from services.roles.teachers import TeacherWorker
+from services.runtime.call_budget import calls_to_issue
+from services.runtime.placement import teacher_groups
 from tests.in_process import in_process_config, roles
 
 
@@ -190,7 +190,7 @@ def test_entity_networks_run_through_every_role(nearest):
     """maddpg.networks = "entity": the rollout worker acts with the numpy entity actor, the learner and the
     teachers' target networks load what the learner publishes; icm.networks = "entity" scores curiosity. With
     maddpg.entity_nearest = k every role's actor and critic read the k nearest entities of each kind."""
-    from cmcl.learners.policy import NumpyEntityPolicy
+    from cmcl.rollout.policy import NumpyEntityPolicy
 
     cfg = in_process_config("cmcl", maddpg={"networks": "entity", "entity_nearest": nearest},
                             service={"score_rows_per_call": 360}, icm={"networks": "entity"})

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from cmcl.io.durable import ReplayStore, StoreError
-from cmcl.messages import DIFFICULTY, Scorer
-from services.learner import Learner
-from services.replay_server import ReplayServer
-from services.rollout import RolloutWorker
+from cmcl.replay.messages import DIFFICULTY, Scorer
+from services.roles.learner import Learner
+from services.roles.replay_server import ReplayServer
+from services.roles.rollout import RolloutWorker
 from tests.in_process import in_process_config, roles
 
 

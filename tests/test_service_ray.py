@@ -8,11 +8,11 @@ import urllib.request
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
-from cmcl.io.rundir import RunDirectory
+from cmcl.run.rundir import RunDirectory
 from services.launch import run_service
-from services.metrics import ServiceMetrics
-from services.placement import InfeasibleResources, create_roles
-from services.supervisor import Supervisor
+from services.observability.metrics import ServiceMetrics
+from services.runtime.placement import InfeasibleResources, create_roles
+from services.runtime.supervisor import Supervisor
 from tests.tiny import make_tiny_config
 
 pytestmark = pytest.mark.ray

@@ -321,7 +321,7 @@ def test_each_preset_trains_a_few_hundred_episodes_end_to_end(task, tmp_path):
                            "--set", "run.max_seconds=0", "--set", f"run.dir={run_dir}", "--quiet", "--no-eval"],
                           cwd=ROOT, capture_output=True, text=True, timeout=1800)
     assert done.returncode == 0, done.stderr[-2000:]
-    from cmcl.io.rundir import RunDirectory
+    from cmcl.run.rundir import RunDirectory
 
     rows = list(RunDirectory.open(run_dir).rows("episode"))
     assert len(rows) >= 300  # whole batches of env.num_envs worlds: 304

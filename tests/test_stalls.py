@@ -1,9 +1,9 @@
-"""cmcl.stalls: the final-step anatomy of missed landmarks and the plateau measure, on hand-built worlds."""
+"""cmcl.run.stalls: the final-step anatomy of missed landmarks and the plateau measure, on hand-built worlds."""
 
 import numpy as np
 import pytest
 
-from cmcl.stalls import MISS_CLASSES, MissAnatomy, miss_anatomy, moving_average, plateau_episodes
+from cmcl.run.stalls import MISS_CLASSES, MissAnatomy, miss_anatomy, moving_average, plateau_episodes
 
 LANDMARKS = np.array([[[-0.3, -0.3], [0.3, -0.3], [-0.3, 0.3], [0.3, 0.3]]])  # [1, 4, 2]
 R, AGENT_R = 0.1, 0.05

@@ -1,7 +1,7 @@
 """Ctrl-C while a service run starts, as a new user meets it (a subprocess in its own process group, SIGINT to the
 group as a terminal sends it): once the embedded Ray's first process exists (ray.init under way), the command ends
 within seconds with one line, exit 130, no run directory to resume and no process of that Ray left
-(services.launch.sigint_receiver, cmcl.run_flags.STARTUP_STOP)."""
+(services.launch.sigint_receiver, cmcl.run.flags.STARTUP_STOP)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import os
 import signal
 import time
 
-from cmcl.run_flags import STARTUP_STOP
-from services.reaper import descendants, process_table
+from cmcl.run.flags import STARTUP_STOP
+from services.runtime.reaper import descendants, process_table
 from tests.test_user_path import PY, Launched, wait_until_gone
 
 STOP_WITHIN_S = 5.0  # the bound asserted on this shared 2-core machine; an idle one stops in well under 1 s

@@ -1,5 +1,5 @@
-"""The task curriculum over a world setting (cmcl.task_curriculum, [task_curriculum]): the rollout worker's stage
-advances when its episodes' success crosses the level (a real navigation twin whose stage-0 cover radius makes
+"""The task curriculum over a world setting (cmcl.rollout.task_curriculum, [task_curriculum]): the rollout worker's
+stage advances when its episodes' success crosses the level (a real navigation twin whose stage-0 cover radius makes
 every episode a success: the signal is controlled through the world, the role is the real one), the rules' windows,
 the mix of earlier stages, one-line errors at config load, and tiny runs of both runners with a resume that keeps
 the stage."""
@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from cmcl.config import ConfigError, TaskCurriculumConfig, load_config
-from cmcl.io.rundir import RunDirectory
-from cmcl.task_curriculum import TaskCurriculum
-from services.rollout import RolloutWorker
+from cmcl.rollout.task_curriculum import TaskCurriculum
+from cmcl.run.rundir import RunDirectory
+from services.roles.rollout import RolloutWorker
 from tests.in_process import train_tiny
 from tests.tiny import tiny_overrides
 

@@ -1,4 +1,4 @@
-"""`python -m cmcl tune` (services/tune.py): real sweeps on Ray Tune of real inline runs of the tiny config.
+"""`python -m cmcl tune` (services/sweeps/tune.py): real sweeps on Ray Tune of real inline runs of the tiny config.
 
 A 2-trial sweep on the session's embedded Ray (Optuna search, ASHA): each trial leaves its run directory with a
 summary and provenance, the objective agrees with the trial's own metrics.jsonl, the table and the best settings are
@@ -21,7 +21,7 @@ import pytest
 
 from cmcl.__main__ import main
 from cmcl.config import load_config
-from services.sweep_trial import FINISHED, HELD_OUT_EPISODES, STOPPED, SweepSettings, run_trial
+from services.sweeps.trial import FINISHED, HELD_OUT_EPISODES, STOPPED, SweepSettings, run_trial
 
 # navigation with 2 agents (random coverage about 0.06), a target a short run can reach, 8-episode averages
 SECTIONS = {"env": {"num_agents": 2}}
@@ -149,8 +149,8 @@ def trial_settings(tiny_config_file, tmp_path, objective: str, budget_s: float, 
 def test_a_trial_reports_each_progress_row_and_ends_with_its_held_out_score(tiny_config_file, tmp_path):
     """One trial's run without Tune (`run_trial` with a list for Tune's report): one report per progress row the
     run wrote, then the last, whose objective is the held-out evaluation of the run's newest policy."""
-    from cmcl.evaluate import evaluate_policy, load_policy
-    from cmcl.io.rundir import RunDirectory
+    from cmcl.run.evaluate import evaluate_policy, load_policy
+    from cmcl.run.rundir import RunDirectory
 
     settings = trial_settings(tiny_config_file, tmp_path, "held_out_coverage", 0.0, episodes=120)
     reports: list[dict] = []
@@ -169,7 +169,7 @@ def test_a_trial_reports_each_progress_row_and_ends_with_its_held_out_score(tiny
 def test_a_trial_the_sweep_stops_ends_in_order_and_a_restored_sweep_resumes_its_run(tiny_config_file, tmp_path):
     """Tune stops a trial by raising SystemExit from its report: the run drains, checkpoints and writes its summary,
     then the trial ends; run again (a restored sweep's unfinished trial) it resumes that run, not a new one."""
-    from cmcl.io.rundir import RunDirectory
+    from cmcl.run.rundir import RunDirectory
 
     settings = trial_settings(tiny_config_file, tmp_path, "seconds_to_coverage", 6.0, episodes=100_000)
 

@@ -1,6 +1,6 @@
 """The README's commands run as a user runs them: subprocesses, real signals, a real embedded Ray, a tiny budget.
 
-- `make run` ends with the held-out evaluation line and writes the GIF; `python -m cmcl.evaluate RUN_DIR` then
+- `make run` ends with the held-out evaluation line and writes the GIF; `python -m cmcl.run.evaluate RUN_DIR` then
   finds the service's policy by itself, as it does an inline run's.
 - The service runs through the one entry point (`python -m cmcl train --runner service`, `python -m cmcl resume`),
   and through its own command (`python -m services.launch`), which is an alias with the same flags.
@@ -29,8 +29,8 @@ from pathlib import Path
 
 import pytest
 
-from cmcl.io.rundir import RunDirectory
-from services.reaper import descendants, process_table
+from cmcl.run.rundir import RunDirectory
+from services.runtime.reaper import descendants, process_table
 from tests.evaluation_output import evaluation_json
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -9,9 +9,9 @@ import pytest
 import torch
 
 from cmcl.io.checkpoint_files import load_checkpoint, save_torch_atomic
-from cmcl.io.rundir import RunDirectory
 from cmcl.io.verified import CheckpointError, VerifiedFile
-from services.common import load_state, save_state
+from cmcl.run.rundir import RunDirectory
+from services.runtime.common import load_state, save_state
 
 
 def flip(path, at=0.5):
@@ -106,7 +106,7 @@ def test_a_new_save_numbers_above_a_corrupt_newest_and_deletes_only_after_it_ver
 def test_a_resume_over_checkpoint_files_that_cannot_be_verified_is_refused_naming_them(tmp_path, capsys):
     """Files written before digest files existed, their manifest lost: refused, never started afresh over."""
     from cmcl.config import load_config
-    from cmcl.run_flags import RunRequest, train_in_run
+    from cmcl.run.flags import RunRequest, train_in_run
 
     run = RunDirectory.create(tmp_path / "run", load_config(None))
     learner = VerifiedFile(run.service_paths()["learner"])

@@ -1,4 +1,4 @@
-"""run.init_from: a new run's actors and critics start from another run's newest policy (cmcl.learners.warm_start),
+"""run.init_from: a new run's actors and critics start from another run's newest policy (cmcl.run.warm_start),
 on the command line (the inline runner: the service's roles in one process) and in the learner itself; bad sources
 are refused before the new run's directory exists, naming the field and the value."""
 
@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from cmcl.__main__ import main as cmcl
-from cmcl.io.rundir import RunDirectory
-from cmcl.learners.warm_start import WARM_PARTS
+from cmcl.run.rundir import RunDirectory
+from cmcl.run.warm_start import WARM_PARTS
 
 NO_UPDATES = ["--set", "maddpg.warmup=600"]  # 4 episodes fill 120 rows, fewer than the warm-up: no update, weights stay
 
@@ -51,7 +51,7 @@ def test_a_warm_started_run_begins_with_the_source_networks_and_fresh_optimisers
 def test_the_service_learner_warm_starts_a_fresh_run_only(tmp_path, source_run, tiny_config):
     """The learner actor's class, constructed in-process: fresh, it loads the source; restoring its own checkpoint,
     the checkpoint wins."""
-    from services.learner import Learner
+    from services.roles.learner import Learner
 
     config = tiny_config("maddpg", service=True, dir=str(tmp_path / "svc"), init_from=str(source_run))
     learner = Learner(config, seed=3, checkpoint_path=str(tmp_path / "learner.pt"))

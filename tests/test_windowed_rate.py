@@ -1,8 +1,8 @@
-"""cmcl.windowed_rate: counters' growth per second over a trailing window (the service's rates)."""
+"""cmcl.progress.rates: counters' growth per second over a trailing window (the service's rates)."""
 
 import pytest
 
-from cmcl.windowed_rate import WindowedRate
+from cmcl.progress.rates import WindowedRate
 
 
 def test_the_first_mark_has_nothing_to_compare_with():

@@ -117,10 +117,10 @@ ADVANCES: tuple[str, ...] = typing.get_args(Advance)
 
 @dataclass(frozen=True)
 class TaskCurriculumConfig:
-    """[task_curriculum]: a curriculum over one of the world's own settings (cmcl.task_curriculum; the generalisation
-    of the agent-count stages, cmcl.agent_stages). Each rollout worker gives each of its worlds, at the world's
-    episode boundaries, the value of the current stage (or, with `mix`, of an earlier one), and moves to the next
-    stage when the advance rule fires on its own episodes of the current stage. Off while `param` is ''."""
+    """[task_curriculum]: a curriculum over one of the world's own settings (cmcl.rollout.task_curriculum; the
+    generalisation of the agent-count stages, cmcl.run.agent_stages). Each rollout worker gives each of its worlds, at
+    the world's episode boundaries, the value of the current stage (or, with `mix`, of an earlier one), and moves to the
+    next stage when the advance rule fires on its own episodes of the current stage. Off while `param` is ''."""
 
     param: str = documented(
         "", "the world setting the stages change (cmcl.envs.world_settings: navigation's spawn_scale, cover_radius, "

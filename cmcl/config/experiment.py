@@ -15,7 +15,7 @@ from cmcl.config.env import TASK_TEAMS, TASKS, EnvConfig, TaskCurriculumConfig
 from cmcl.config.learning import CurriculumConfig, ICMConfig, MADDPGConfig, ReplayConfig, TeacherConfig
 from cmcl.config.run_and_service import RunConfig, ServiceConfig
 from cmcl.config.teams import TeamConfig
-from cmcl.holder_rules import SEATED_RADIUS
+from cmcl.learners.entity.holder_rules import SEATED_RADIUS
 from cmcl.replay.curriculum import default_stride
 from cmcl.replay.registry import ALGORITHMS, REGISTRY
 
@@ -88,8 +88,8 @@ class Config:
                             "ACL's online critic do not mask them when they score rows)", f"{unmasked}"))
 
     def _check_assignment_loss(self) -> None:
-        """maddpg.assignment_loss's needs (cmcl.learners.assignment): the entity actor's attention over the entity
-        slots (entity networks, a pool with attention) and landmarks to assign (the navigation task)."""
+        """maddpg.assignment_loss's needs (cmcl.learners.entity.assignment): the entity actor's attention over the
+        entity slots (entity networks, a pool with attention) and landmarks to assign (the navigation task)."""
         key, value, why = "maddpg.assignment_loss", self.maddpg.assignment_loss, "> 0 needs {} ({} here)"
         _require(self.maddpg.network_kind == "entity", key, value,
                  why.format("maddpg.networks = 'entity'", f"maddpg.networks = {self.maddpg.network_kind!r}"))

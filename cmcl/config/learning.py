@@ -82,19 +82,19 @@ class MADDPGConfig:
         None, "the networks' kind: 'per_agent' (one actor and critic per agent, the paper's), 'shared' "
         "(the same as share_parameters = true) or 'entity' (one attention actor and one permutation-invariant "
         "critic for all agents over the observation's entities, a parameter count independent of N: "
-        "cmcl.learners.entity_nets; built-in tasks only). Unset: 'shared' if share_parameters else 'per_agent'")
+        "cmcl.learners.entity.nets; built-in tasks only). Unset: 'shared' if share_parameters else 'per_agent'")
     entity_pool: Literal["attention", "mean", "relational"] = documented(
         "attention", "how every entity network of the run (learner, teachers.networks and icm.networks = "
         "'entity') pools its entities: 'attention' (one head from the agent's own embedding, plus a mean), 'mean' "
         "(the mean only, about half the cost per update) or 'relational' ('attention' after one round of "
         "self-attention among the entities, so that a landmark's embedding can say another agent holds it: "
-        "cmcl.learners.entity_nets)")
+        "cmcl.learners.entity.nets)")
     entity_nearest: int = documented(
         0, "k > 0: the learner's entity actor and critic read only the k nearest present entities of each kind "
         "(navigation: landmarks, other agents; predator-prey: obstacles, predators, prey), closest first, so each "
         "agent's view has T·k entity rows instead of E (T kinds, E slots; E = 63 at N = 32), which is what the "
-        "entity networks' cost grows with (cmcl.learners.entity_nets.nearest_entities). Rollout workers' numpy "
-        "actor picks the same entities (cmcl.learners.policy); entity teachers (teachers.networks = 'entity') and "
+        "entity networks' cost grows with (cmcl.learners.entity.nets.nearest_entities). Rollout workers' numpy "
+        "actor picks the same entities (cmcl.rollout.policy); entity teachers (teachers.networks = 'entity') and "
         "an entity ICM (icm.networks = 'entity') read the same k. Needs maddpg.networks = 'entity'. 0 = every "
         "entity", unit="entities per kind",
         rule=AT_LEAST_0)
@@ -102,7 +102,7 @@ class MADDPGConfig:
         False, "navigation only (the crowding of two agents on one landmark): every entity row of the "
         "entity networks gets one more feature, the landmark's holder margin, the distance from it to the nearest "
         "other present agent minus the viewer's own distance to it (< 0: another agent holds it; 0 for agents; +2, "
-        "more than any agent leaves, with no other agent; cmcl.learners.entity_holder), computed before "
+        "more than any agent leaves, with no other agent; cmcl.learners.entity.holder), computed before "
         "maddpg.entity_nearest's pick. The learner's actor and critic, rollout workers' numpy actor, entity teachers "
         "and an entity ICM read it; it costs one more input of the entity layer and the N × (N − 1) landmark-to-agent "
         "distances of each view (1.18x the entity update at N = 8, docs/PERFORMANCE.md). Needs maddpg.networks = "
@@ -111,7 +111,7 @@ class MADDPGConfig:
         "spread_n32.toml")
     holder_rule: Literal["nearest", "seated"] = documented(
         "nearest", "which other agents count as holding a landmark in maddpg.entity_holder's margin ("
-        "cmcl.learners.entity_holder): 'nearest', every other present agent; 'seated', an agent within 0.1 (the "
+        "cmcl.learners.entity.holder): 'nearest', every other present agent; 'seated', an agent within 0.1 (the "
         "default cover radius) of its nearest landmark counts for that landmark only, so a landmark it covers beside "
         "its own reads as held by the nearest agent not seated elsewhere (at N = 16 most unfinished worlds have "
         "every landmark covered but not each by an agent of its own, one agent on two). Needs maddpg.entity_holder = "
@@ -120,7 +120,7 @@ class MADDPGConfig:
     assignment_loss: float = documented(
         0.0, "weight β of an auxiliary cross-entropy on the entity actor's attention over landmarks toward the "
         "landmark a minimum-total-distance assignment of agents to landmarks gives this agent, added to the actor "
-        "loss (cmcl.learners.assignment); needs maddpg.networks = 'entity', maddpg.entity_pool "
+        "loss (cmcl.learners.entity.assignment); needs maddpg.networks = 'entity', maddpg.entity_pool "
         "'attention' or 'relational' (with 'attention' a landmark's logit sees the agent and that landmark only, "
         "not the other agents), maddpg.entity_nearest = 0 and env.task = 'spread'. 0 = off", rule=FINITE_AT_LEAST_0)
 
@@ -213,7 +213,7 @@ class TeacherConfig:
         "(cmcl.learners.nets, grouped sharing); the folds stay separate. For N = 8 / 16 (bench/scale.py). False = "
         "per-(agent, fold) networks")
     networks: NetworkKind | None = documented(
-        None, "the teachers' kind, as maddpg.networks: 'entity' = one entity critic (cmcl.learners.entity_nets) per "
+        None, "the teachers' kind, as maddpg.networks: 'entity' = one entity critic (cmcl.learners.entity.nets) per "
         "fold for all agents, its parameter count independent of N; unset: 'shared' if share_parameters else "
         "'per_agent'")
 
@@ -259,7 +259,7 @@ class ICMConfig:
                                          "(§3.8: 1)", unit="fit steps per update", rule=POSITIVE)
     networks: Literal["per_agent", "entity"] = documented(
         "per_agent", "'per_agent': one encoder, inverse and forward model per curiosity agent; 'entity': one of "
-        "each for all of them, the encoder over the observation's entities (cmcl.learners.entity_nets), a size "
+        "each for all of them, the encoder over the observation's entities (cmcl.learners.entity.nets), a size "
         "independent of N")
 
     def __post_init__(self) -> None:

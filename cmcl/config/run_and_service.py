@@ -18,7 +18,7 @@ from cmcl.field_docs import documented
 
 __all__ = ["PROGRESS_SIGNALS", "RunConfig", "ServiceConfig"]
 
-ProgressSignal = Literal["critic_loss", "normalised_td", "coverage"]  # cmcl.learning_progress.SIGNALS
+ProgressSignal = Literal["critic_loss", "normalised_td", "coverage"]  # cmcl.progress.learning.SIGNALS
 PROGRESS_SIGNALS: tuple[str, ...] = typing.get_args(ProgressSignal)
 
 
@@ -28,7 +28,7 @@ class RunConfig:
 
     episodes: int = documented(20000, "training budget", unit="episodes", rule=AT_LEAST_1)
     dir: str = documented("runs/default", "the run directory (config, metrics, checkpoints, evaluation; "
-                          "cmcl.io.rundir)", unit="path", rule=rule("must be a non-empty path", bool))
+                          "cmcl.run.rundir)", unit="path", rule=rule("must be a non-empty path", bool))
     seed: int = documented(0, "seed of the run's random generators (worlds, networks, sampling)", rule=AT_LEAST_0)
     smoothing_window: int = documented(100, "window of the curves' and progress lines' moving averages",
                                        unit="episodes", rule=AT_LEAST_1)
@@ -39,14 +39,14 @@ class RunConfig:
                                     "(0: none); a resumed run gets it again, and its elapsed_s goes on over every "
                                     "segment", unit="seconds", rule=FINITE_AT_LEAST_0)
     stop_progress: float = documented(
-        0.0, "stop early once learning stops progressing (cmcl.learning_progress): the learning progress of "
+        0.0, "stop early once learning stops progressing (cmcl.progress.learning): the learning progress of "
         "progress_signal between consecutive windows of progress_window episodes stays below this for "
         "progress_patience windows (0: off). With the default signal, coverage, it is an absolute change of the "
         "window's mean coverage (0.02 separated a rising from a flat stage in bench/learning_progress_windows.py, "
         "one seed). The agent-count curriculum (python -m cmcl stages) ends its stages by it",
         unit="change of coverage (coverage); relative change (critic_loss, normalised_td)", rule=FINITE_AT_LEAST_0)
     progress_signal: ProgressSignal = documented(
-        "coverage", "what stop_progress reads (cmcl.learning_progress): 'coverage' = the absolute change of the "
+        "coverage", "what stop_progress reads (cmcl.progress.learning): 'coverage' = the absolute change of the "
         "mean final-step coverage (spread, or env.coverage_key); 'normalised_td' = the relative change of the "
         "critics' mean squared TD error over the variance of their TD targets (1 - R^2); 'critic_loss' = the "
         "relative change of the mean critic loss (the old default: the loss grows with the value scale, "
@@ -57,7 +57,7 @@ class RunConfig:
                                         unit="windows", rule=AT_LEAST_1)
     init_from: str = documented(
         "", "a run directory whose newest policy initialises this new run's actors and critics "
-        "(cmcl.learners.warm_start; same network shapes required); '' = random initial weights. A resumed run "
+        "(cmcl.run.warm_start; same network shapes required); '' = random initial weights. A resumed run "
         "ignores it (its checkpoint wins)", unit="path")
     carry_replay: bool = documented(
         False, "with init_from, also start with that run's replay rows (its newest checkpoint's buffer), padded to "
@@ -85,7 +85,7 @@ class ServiceConfig:
     teacher_actors: int = documented(
         0, "actors sharing the K teacher folds: K = one fold each, 1 = all folds stacked in one actor; 0 = "
         "automatic: K when the cluster has at least 2K CPUs, else 1 (on 2 cores one stacked actor is 1.4x faster "
-        "than K); placement policy: services.placement.teacher_groups", unit="actors", rule=AT_LEAST_0)
+        "than K); placement policy: services.runtime.placement.teacher_groups", unit="actors", rule=AT_LEAST_0)
     updates_per_call: int = documented(16, "learner updates per learner call (batches sampled per replay call)",
                                        unit="updates", rule=AT_LEAST_1)
     fit_steps_per_call: int = documented(8, "teacher / ICM fit steps per call", unit="fit steps", rule=AT_LEAST_1)

@@ -1,10 +1,10 @@
 """Config keys that only the service runner honours, and the check, at load time, that a run sets none its runner
 ignores.
 
-Where it sits: `cmcl.run_flags.open_run` calls `check_runner_keys` once the runner is known (`python -m cmcl train
+Where it sits: `cmcl.run.flags.open_run` calls `check_runner_keys` once the runner is known (`python -m cmcl train
 --runner inline|service`, default the service; `python -m services.launch` the service; `resume` the runner that
-wrote the run), before the run directory is made. Both runners schedule the same roles (services.calls: Ray actors,
-or the same objects in this process), so every other key is read by both.
+wrote the run), before the run directory is made. Both runners schedule the same roles (services.runtime.calls: Ray
+actors, or the same objects in this process), so every other key is read by both.
 
 The table (`RUNNER_ONLY`): the service's Ray-only keys. In one process there is no actor to place, reserve CPUs
 for, restart or time out, and no metrics endpoint:
@@ -20,7 +20,7 @@ not honour is then
     requests).
 A resumed run's stored config.toml was checked when the run started: only the resume's own overrides are checked.
 
-The service-only flags of cmcl.run_flags (SERVICE_ONLY_FLAGS) are another idea, kept apart from this table: they are
+The service-only flags of cmcl.run.flags (SERVICE_ONLY_FLAGS) are another idea, kept apart from this table: they are
 flags of the command, refused from the request before any config is read, and three of them (--address, --num-cpus,
 --ray-metrics-port) name no config key, while the two that do (--metrics-port, --metrics-host) reach this check as
 the service.* overrides they stand for.

@@ -10,7 +10,7 @@ key given explicitly, with a value other than its default, is
   * named in a one-line note on stderr when it comes from the config file (a file may describe the built-in world
     too).
 
-Where it sits: `cmcl.run_flags.open_run` (a new run: the file's keys and the overrides) and `resumed_config` (a
+Where it sits: `cmcl.run.flags.open_run` (a new run: the file's keys and the overrides) and `resumed_config` (a
 resume: its overrides) call `check_world_keys`, beside `check_runner_keys`, before the run directory changes.
 """
 

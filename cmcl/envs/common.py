@@ -66,7 +66,8 @@ class IntAtLeast:
 
 @dataclass(frozen=True)
 class FloatIn:
-    """The range rule of a real world parameter (cmcl.field_docs): `check_float(name, value, low, high, low_open)`."""
+    """The range rule of a real world parameter (cmcl.field_docs): `check_float(name, value, low, high,
+    low_open)`."""
 
     low: float = 0.0
     high: float = math.inf

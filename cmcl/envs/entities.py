@@ -1,7 +1,7 @@
 """Entity view of the built-in tasks' flat observations: the agent's own features plus typed entities.
 
 Where it sits: the envs keep emitting the flat MPE observation (parity with mpe2; the replay stores it unchanged).
-The entity networks (`cmcl.learners.entity_nets`) read it through an :class:`EntityLayout`, which says, for every
+The entity networks (`cmcl.learners.entity.nets`) read it through an :class:`EntityLayout`, which says, for every
 agent, which flat columns are its own features and which are each entity's features:
 
     split(obs float32[..., N, obs_dim]) -> own float32[..., N, S], entities float32[..., N, E, F], mask bool[..., N, E]

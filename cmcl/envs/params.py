@@ -7,9 +7,9 @@ build or take these objects; none of them lists the fields again.
 
 Units: lengths in arena units (the arena is the square [-0.5, 0.5]^2, side 1), speeds in arena units per unit
 time (dt = 0.1), rewards per agent and step. Each field is declared with its meaning, unit and range rule
-(cmcl.field_docs.documented; `python -m cmcl config env` prints them). Each `__post_init__` runs the rules and raises
-ValueError naming the field and the value ("agent_radius must be ..., got 0.7"); the message starts with the field
-name.
+(cmcl.field_docs.documented; `python -m cmcl config env` prints them). Each `__post_init__` runs the rules and
+raises ValueError naming the field and the value ("agent_radius must be ..., got 0.7"); the message starts with the
+field name.
 """
 
 from __future__ import annotations

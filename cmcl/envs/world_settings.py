@@ -1,6 +1,6 @@
 """The world settings a task curriculum may change between episodes, per sparse task (`env.factory` path).
 
-Where it sits: `cmcl.task_curriculum` (the [task_curriculum] section) checks its `param` and `stages` against
+Where it sits: `cmcl.rollout.task_curriculum` (the [task_curriculum] section) checks its `param` and `stages` against
 `SETTINGS` at config load, and the rollout worker hands each world its stage's value through the env's setter:
 `set_world_settings(name, idx int64[M], values float64[M])` on the batched envs (`BatchedSparseNav`,
 `cmcl.envs.parallel_vector.VectorParallelEnv`), `set_setting(name, value)` on the ParallelEnvs

@@ -1,7 +1,7 @@
 """Durable replay state: an atomic snapshot checked against a manifest, plus an append-only log of the chunks
 accepted since that snapshot.
 
-Where it sits: `services.replay_server.ReplayServer` owns one `ReplayStore`. Every accepted chunk is appended to
+Where it sits: `services.roles.replay_server.ReplayServer` owns one `ReplayStore`. Every accepted chunk is appended to
 the log (one frame: a header of magic, payload length, transitions, SHA-256 of the payload and a CRC-32 of the
 header; then the payload = `cmcl.io.records` bytes) and flushed before the insert is acknowledged; `snapshot`
 writes the whole server state atomically under a new generation, then the manifest (atomically) that names the

@@ -1,8 +1,8 @@
 """A run's metrics file, `<run dir>/metrics.jsonl`: one JSON object per line (episode rows and update rows, each with
 a "kind"), appended one row at a time and read back in order.
 
-Where it sits: the run directory (cmcl.io.rundir) keeps one `MetricsLog` and answers `log` / `rows` with it; both
-runners append through it, `cmcl.evaluate`, the plots and experiments/ read through it. It touches only the metrics
+Where it sits: the run directory (cmcl.run.rundir) keeps one `MetricsLog` and answers `log` / `rows` with it; both
+runners append through it, `cmcl.run.evaluate`, the plots and experiments/ read through it. It touches only the metrics
 file and, beside it, `metrics.jsonl.torn` (a last line cut by a crash or a full disk, set aside before the next
 append). Numpy / torch values are written as JSON values (`json_safe`), non-finite floats as null.
 """

@@ -1,6 +1,6 @@
 """Records at the replay boundary: rollout chunks (checked before anything is stored) and replay-log events.
 
-Where it sits: `services.replay_server.ReplayServer.insert` runs `check_chunk` on every `Chunk` (a bad chunk is
+Where it sits: `services.roles.replay_server.ReplayServer.insert` runs `check_chunk` on every `Chunk` (a bad chunk is
 refused as a unit, naming the field and the value; nothing is half-applied); `encode_chunk` / `encode_event` are
 the payloads of the durable replay log (`cmcl.io.durable`), read back by `decode_log_record`. All payloads use
 the envelope of `cmcl.io.codec` (dtype allow-list, size caps, no pickle).
@@ -13,7 +13,7 @@ from dataclasses import fields
 import numpy as np
 
 from cmcl.io.codec import DEFAULT_LIMITS, CodecError, Limits, decode, encode, unwrap
-from cmcl.messages import Chunk
+from cmcl.replay.messages import Chunk
 
 CHUNK_ARRAYS = {"obs": ("float32", 3), "act": ("float32", 3), "rew": ("float32", 2), "next_obs": ("float32", 3),
                 "done": ("float32", 2), "env_index": ("int64", 1)}  # Chunk field -> (dtype, dims)

@@ -1,8 +1,8 @@
 """The commands a message tells the user to type: this interpreter as it can be typed where the message is printed,
 and the command that resumes a run directory.
 
-Where it sits: the run directory (cmcl.io.rundir) names the resume command when it refuses to start over a run, and
-the command-line layer (cmcl.run_flags, cmcl.__main__, both runners) when a run stops early or is refused; it imports
+Where it sits: the run directory (cmcl.run.rundir) names the resume command when it refuses to start over a run, and
+the command-line layer (cmcl.run.flags, cmcl.__main__, both runners) when a run stops early or is refused; it imports
 nothing of cmcl, so storage uses it without reaching up to the command line.
 """
 

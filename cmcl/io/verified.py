@@ -1,7 +1,7 @@
 """Checkpoint files checked before anything reads them, with the previous generation kept.
 
 Where it sits: the learner, teacher and ICM actors of services/ save their state through `VerifiedFile`
-(via services.common); the inline runner's checkpoints and replay snapshots use `write_checked` / `read_checked`
+(via services.runtime.common); the inline runner's checkpoints and replay snapshots use `write_checked` / `read_checked`
 (via cmcl.io.checkpoint_files). Each `VerifiedFile` save writes a new generation `<stem>-<gen>.<suffix>` and its digest
 file `<file>.sha256` (SHA-256 and size; each atomic), reads it back and checks it, then switches the manifest
 `<name>.manifest.json` (atomic: temp file + rename) to it, naming its size and SHA-256 and the previous verified

@@ -5,7 +5,7 @@ cmcl.replay.agent_padding) hands the learner `present` bool[N, S, N] with each p
 agent j; the present agents of a row are always its first ones). :class:`cmcl.learners.maddpg.MADDPG` then
 - gives the entity networks each row's count of present agents, so that absent agents' entity slots (their
   observation, their action, their target action) are masked out of every present agent's embedding and Q
-  (cmcl.learners.entity_nets);
+  (cmcl.learners.entity.nets);
 - takes the critic loss (eq. 5) and the actor loss (eq. 4) of owner v as the mean over the rows where v itself is
   present (`row_mean`), and their total over the owners that have such a row (`total`): an owner absent from every
   row of its minibatch adds nothing, so a minibatch of n-agent rows padded to N agents gives the losses, the

@@ -10,7 +10,7 @@ Members are agents: ``actor`` maps o_v [obs_dim] -> a_v [act_dim] (tanh, or Gumb
 same obs_dim (shorter observations zero-padded by the env) and act_dim.
 
 Public boundary: inputs may be numpy arrays or torch tensors (converted once, float32; per-owner minibatches by
-cmcl.learners.maddpg_batch); outputs are numpy.
+`owner_batch` below); outputs are numpy.
 Data conventions: joint rows ``obs[M, N, obs_dim], act[M, N, act_dim], rew[M, N], next_obs[M, N, obs_dim],
 done[M, N]`` (per agent; ``[M]`` per row); per-owner stacks add a leading owner axis: ``obs[N, S, N, obs_dim]``,
 ``rew[N, S, N]``, ``done[N, S, N]`` (or the owner's own ``[N, S]``); with rows carried from fewer agents
@@ -21,19 +21,18 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Mapping, Sequence
+from typing import NamedTuple
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from cmcl.envs.entities import EntityLayout
 from cmcl.learners import actor_grad
 from cmcl.learners.agent_presence import AgentPresence, row_mean
-from cmcl.learners.assignment import AssignmentTerm
-from cmcl.learners.entity_holder import require_holder_rule
-from cmcl.learners.maddpg_batch import actor_rows, owner_batch
-from cmcl.learners.maddpg_checkpoint import MADDPGCheckpoint
-from cmcl.learners.maddpg_policy import MADDPGPolicy
+from cmcl.learners.entity.assignment import AssignmentTerm
+from cmcl.learners.entity.holder import require_holder_rule
 from cmcl.learners.nets import (
     adam_step_,
     as_tensor,
@@ -45,13 +44,63 @@ from cmcl.learners.nets import (
 )
 from cmcl.learners.networks import build_networks, network_kind
 from cmcl.learners.normalised_td import normalised_td_error
+from cmcl.learners.state_check import (
+    require_same_holder,
+    require_same_holder_rule,
+    require_same_nearest,
+    require_same_shapes,
+)
+from cmcl.learners.weights import load_published
+from cmcl.replay.messages import ACTOR_PREFIX
 
 __all__ = ["MADDPG"]
 
 ArrayLike = np.ndarray | torch.Tensor
 
 
-class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
+class OwnerBatch(NamedTuple):
+    """A per-owner minibatch as tensors (unpacks as the tuple ``obs, act, rew, next_obs, done, weights, presence``)."""
+
+    obs: torch.Tensor  # float32[N, S, N, obs_dim]
+    act: torch.Tensor  # float32[N, S, N, act_dim]
+    rew: torch.Tensor  # float32[N, S, N] or the owner's own [N, S]
+    next_obs: torch.Tensor  # float32[N, S, N, obs_dim]
+    done: torch.Tensor  # float32[N, S] or [N, S, N]; zeros when the batch has none
+    weights: torch.Tensor | None  # is_weights float32[N, S] (critic only), None: unweighted
+    presence: AgentPresence | None  # None: every agent of every row
+
+def owner_batch(batch: Mapping[str, np.ndarray | torch.Tensor], num_agents: int, networks: str) -> OwnerBatch:
+    """The critic's rows of a per-owner minibatch dict as tensors; ValueError on an obs that is not
+    [N=num_agents, S, N, obs_dim], or on rows with absent agents for ``networks`` other than "entity"."""
+    obs, act = as_tensor(batch["obs"]), as_tensor(batch["act"])
+    n, s = obs.shape[0], obs.shape[1]
+    if obs.dim() != 4 or n != num_agents or obs.shape[2] != num_agents:
+        raise ValueError(f"obs must be [N={num_agents}, S, N, obs_dim], got {tuple(obs.shape)}")
+    done = batch.get("done")
+    done = torch.zeros(n, s) if done is None else as_tensor(done)
+    w = batch.get("is_weights")
+    presence = AgentPresence.of_batch(batch.get("present"), num_agents)
+    if presence is not None and networks != "entity":
+        raise ValueError(f"rows with absent agents (run.carry_replay) need entity networks, not {networks!r}")
+    return OwnerBatch(obs, act, as_tensor(batch["rew"]), as_tensor(batch["next_obs"]), done,
+                      None if w is None else as_tensor(w), presence)
+
+def actor_rows(batch: Mapping[str, np.ndarray | torch.Tensor], obs: torch.Tensor, act: torch.Tensor,
+               presence: AgentPresence | None, num_agents: int) -> tuple:
+    """The actor step's rows (obs [N, B, N, obs_dim], act [N, B, N, act_dim], presence): the batch's "actor_obs",
+    "actor_act" (and "actor_present") when it has them (actor_batch = "uniform"), else the critic's (obs, act,
+    presence) as given. ValueError when their shapes do not match the critic's rows but for B."""
+    if ACTOR_PREFIX + "obs" not in batch:
+        return obs, act, presence
+    a_obs, a_act = as_tensor(batch[ACTOR_PREFIX + "obs"]), as_tensor(batch[ACTOR_PREFIX + "act"])
+    if a_obs.dim() != 4 or a_obs.shape[0] != num_agents or a_obs.shape[2:] != obs.shape[2:] \
+            or a_act.shape[:2] != a_obs.shape[:2] or a_act.shape[2:] != act.shape[2:]:
+        raise ValueError(f"actor_obs / actor_act must be [N={num_agents}, B, N, ·] like obs / act, got "
+                         f"{tuple(a_obs.shape)} and {tuple(a_act.shape)}")
+    return a_obs, a_act, AgentPresence.of_batch(batch.get(ACTOR_PREFIX + "present"), num_agents)
+
+
+class MADDPG:
     """Stacked MADDPG learner (continuous tanh actions by default; Gumbel-softmax option, A17).
 
     Args:
@@ -65,30 +114,30 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         share_parameters: one actor and one critic network for all agents, each agent keeping its own first-layer
             bias (an agent-id embedding; cmcl.learners.nets). Off by default (the paper's per-agent networks).
         networks: "per_agent", "shared" (= share_parameters) or "entity": one attention actor and one
-            permutation-invariant critic for all agents (cmcl.learners.entity_nets; ``hidden`` must be an int, the
+            permutation-invariant critic for all agents (cmcl.learners.entity.nets; ``hidden`` must be an int, the
             width H); None: what share_parameters says. The gradient clip then applies to the one network, and the
             per-agent grad norms report its norm for every agent.
         entity_layout: how the flat observation splits into entities (cmcl.envs.entities); needed by "entity".
-        entity_pool: the entity encoder's pooling, "attention" or "mean" (cmcl.learners.entity_nets).
+        entity_pool: the entity encoder's pooling, "attention" or "mean" (cmcl.learners.entity.nets).
         entity_nearest: k > 0: the entity actor and critic read only the k nearest entities of each kind
             (entity_nets.nearest_entities; cheaper per update at large N, another model); 0 (default): every
             entity. The config's maddpg.entity_nearest; rollout workers' numpy twin of the actor
-            (cmcl.learners.policy.NumpyEntityPolicy, `nearest`) picks the same entities. The weights do not depend
+            (cmcl.rollout.policy.NumpyEntityPolicy, `nearest`) picks the same entities. The weights do not depend
             on k, so the state dict records it and loading it into a learner of another k is refused (a warm start,
-            which copies the networks only, may change k: cmcl.learners.warm_start).
+            which copies the networks only, may change k: cmcl.run.warm_start).
         entity_holder: every entity row of the entity actor and critic (and their targets) ends with its holder
             margin (entity_nets.holder_margin: < 0 when another agent is closer to that landmark than the viewer;
             navigation only; one more input of the entity layer); False (default): not computed. The config's
             maddpg.entity_holder; the numpy twin takes it as `holder`. The state dict records it, and loading or
             warm-starting a state of the other value is refused, naming it (the entity layers' shapes differ).
         holder_rule: which other agents count as holding a landmark in that margin, "nearest" (default) or "seated"
-            (cmcl.learners.entity_holder; maddpg.holder_rule). The state dict records it; loading a state of the
+            (cmcl.learners.entity.holder; maddpg.holder_rule). The state dict records it; loading a state of the
             other rule is refused (a warm start may change it: the weights fit either way).
         act_mask: float32[N, act_dim], 1 on the action entries each agent has and 0 on zero padding (agents whose
             action sizes differ); every actor output is multiplied by it, so the critics only ever see zeros there.
             None: every entry is used.
         assignment_loss: β > 0 adds β · the cross-entropy of the entity actor's attention over the landmarks toward
-            a minimum-total-distance assignment to the actor loss (cmcl.learners.assignment; entity networks with
+            a minimum-total-distance assignment to the actor loss (cmcl.learners.entity.assignment; entity networks with
             an attention pool, navigation only, entity_nearest 0); 0 (default): off, nothing more is computed.
     """
 
@@ -244,7 +293,8 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         where owner v is present.
 
         Returns (loss [N], pre-clip grad norm [N]). Only actor parameters receive gradients. With the assignment
-        term (`assignment`), the step minimises loss + β · CE (cmcl.learners.assignment); the loss returned is eq. 4's.
+        term (`assignment`), the step minimises loss + β · CE (cmcl.learners.entity.assignment); the loss returned is
+        eq. 4's.
         Per-agent MLPs with continuous actions take the gradient from cmcl.learners.actor_grad (the same numbers).
         """
         own_obs = self._owners_own(obs)  # [N, S, obs_dim]
@@ -301,7 +351,7 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         squared TD error over the variance of the targets y, nan where y has none: normalised_td), actor_loss [N],
         td_abs |y - Q| [N, S] (pre-step, for PER), critic_grad_norm [N], actor_grad_norm [N] (pre-clip), and with
         `target_scores` target_td_abs |y − Q_target| [N, S] (pre-step, ReLo), and with the assignment term
-        assignment_loss [N] (its unweighted CE) and assignment_accuracy [N] (cmcl.learners.assignment).
+        assignment_loss [N] (its unweighted CE) and assignment_accuracy [N] (cmcl.learners.entity.assignment).
         """
         obs, act, rew, next_obs, done, w, presence = owner_batch(batch, self.num_agents, self.networks)
         c_loss, delta, c_norm, unexplained = self._critic_step(obs, act, rew, next_obs, done, w, presence)
@@ -333,3 +383,120 @@ class MADDPG(MADDPGCheckpoint, MADDPGPolicy):
         obs, act, rew, next_obs, done, w, presence = owner_batch(batch, self.num_agents, self.networks)
         _, delta, _ = self._td_errors(obs, act, rew, next_obs, done, presence)
         return row_mean(delta.pow(2), w, presence).numpy()
+
+    # ------------------------------------------------------------------ actions (exploration, TD targets, actor step)
+    def _policy(self, net: nn.Module, obs: torch.Tensor, sample: bool, count: torch.Tensor | None = None,
+                out: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """obs [N, B, obs_dim] (count: the present agents of each row, int64[N, B], entity networks only)
+        -> (actions [N, B, act_dim], raw outputs [N, B, act_dim]).
+
+        Continuous: the tanh output is the action. Discrete: Gumbel-softmax sample of the logits (``sample``),
+        else their softmax; padded entries (act_mask 0) get probability 0 (and raw output 0). `out`: net's output
+        on obs float32[N, B, act_dim] when the caller already has it (the actor step's assignment loss), else None.
+        """
+        if out is None:
+            out = net(obs) if count is None else net(obs, count=count)
+        if self.act_mask is not None:
+            out = out * self.act_mask
+        if not self.discrete:
+            return out, out
+        raw, out = out, self._padded_logits(out, self.act_mask)
+        if sample:
+            u = torch.rand(out.shape, generator=self.noise_gen).clamp_(1e-10, 1.0 - 1e-7)
+            return F.softmax((out - torch.log(-torch.log(u))) / self.temperature, dim=-1), raw
+        return F.softmax(out, dim=-1), raw
+
+    @staticmethod
+    def _padded_logits(logits: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+        """Logits with −inf on the padded entries (mask 0, broadcast against logits): a softmax gives them 0."""
+        return logits if mask is None else logits.masked_fill(mask == 0, float("-inf"))
+
+    def _joint_actions(self, net: nn.Module, obs: torch.Tensor, sample: bool,
+                       count: torch.Tensor | None = None) -> torch.Tensor:
+        """Every agent's action from its own obs: obs [..., N, obs_dim] (count int64[...]) -> act [..., N, act_dim]."""
+        lead = obs.shape[:-2]
+        x = obs.reshape(-1, self.num_agents, self.obs_dim).transpose(0, 1)  # [N, B, obs_dim]
+        rows = None if count is None else count.reshape(1, -1).expand(self.num_agents, -1)  # [N, B]
+        a, _ = self._policy(net, x, sample, rows)
+        return a.transpose(0, 1).reshape(*lead, self.num_agents, self.act_dim)
+
+    @torch.no_grad()
+    def act(self, obs: ArrayLike, noise_std: float = 0.1, rng: np.random.Generator | None = None) -> np.ndarray:
+        """Exploration actions: obs float32[B, N, obs_dim] -> float32[B, N, act_dim].
+
+        Continuous: clip(pi_v(o_v) + N(0, noise_std^2), -1, 1). Discrete: a Gumbel-softmax sample when
+        noise_std > 0, the softmax otherwise. Noise comes from ``rng`` (numpy) if given, else the internal
+        torch generator.
+        """
+        o = as_tensor(obs)
+        x = o.transpose(0, 1)  # [N, B, obs_dim]
+        out = self.actor(x).transpose(0, 1)  # [B, N, act_dim]
+        if self.discrete:
+            out = self._padded_logits(out, None if self.act_mask is None else self.act_mask.transpose(0, 1))
+            if noise_std > 0:
+                g = (
+                    torch.from_numpy(rng.gumbel(size=out.shape).astype(np.float32))
+                    if rng is not None
+                    else -torch.log(-torch.log(torch.rand(out.shape, generator=self.noise_gen).clamp_(1e-10, 1 - 1e-7)))
+                )
+                out = (out + g) / self.temperature
+            return F.softmax(out, dim=-1).numpy()
+        if noise_std > 0:
+            noise = (
+                torch.from_numpy(rng.normal(0.0, noise_std, size=out.shape).astype(np.float32))
+                if rng is not None
+                else torch.randn(out.shape, generator=self.noise_gen) * noise_std
+            )
+            out = out + noise
+        out = out.clamp_(-1.0, 1.0)
+        if self.act_mask is not None:
+            out = out * self.act_mask.transpose(0, 1)
+        return out.numpy()
+
+    # ------------------------------------------------------------------ weights and state (rollouts, checkpoints)
+    def actor_weights(self) -> dict[str, np.ndarray]:
+        """Online actor parameters as numpy copies, e.g. {"layers.0.weight": float32[N, obs_dim, 64], ...}."""
+        return {k: v.detach().numpy().copy() for k, v in self.actor.state_dict().items()}
+
+    def load_actor_weights(self, weights: Mapping[str, np.ndarray | torch.Tensor]) -> None:
+        """Load :meth:`actor_weights` output into the ONLINE actor (rollout workers); targets untouched. Keys, shapes
+        and finiteness are checked first (ValueError), as for every published part (cmcl.learners.weights)."""
+        load_published(self, {"actor": weights}, ("actor",))
+
+    def state_dict(self) -> dict:
+        """Nets, targets, optimisers, noise generator state and update counter (torch.load(weights_only=True) safe).
+
+        Layout: {"actor", "critic", "target_actor", "target_critic": module state dicts with stacked
+        tensors [N, in, out] / [N, out]; "actor_opt", "critic_opt": Adam state dicts; "noise_gen": uint8 tensor;
+        "updates": int; "entity_nearest": int, the k of maddpg.entity_nearest (the weights do not show it; a
+        state without it, written before it was kept, is k = 0); "entity_holder": bool, maddpg.entity_holder (a
+        state without it is false); "holder_rule": str, maddpg.holder_rule (a state without it is "nearest")}.
+        """
+        return {
+            "actor": self.actor.state_dict(),
+            "critic": self.critic.state_dict(),
+            "target_actor": self.target_actor.state_dict(),
+            "target_critic": self.target_critic.state_dict(),
+            "actor_opt": self.actor_opt.state_dict(),
+            "critic_opt": self.critic_opt.state_dict(),
+            "noise_gen": self.noise_gen.get_state(),
+            "updates": int(self.updates),
+            "entity_nearest": int(self.entity_nearest),
+            "entity_holder": bool(self.entity_holder),
+            "holder_rule": str(self.holder_rule),
+        }
+
+    def load_state_dict(self, state: Mapping) -> None:
+        """Restore everything saved by :meth:`state_dict` (same architecture required: checked first, by name)."""
+        parts = ("actor", "critic", "target_actor", "target_critic")
+        require_same_holder("checkpoint maddpg", self.entity_holder, state)
+        require_same_shapes("checkpoint maddpg", {name: getattr(self, name) for name in parts}, state,
+                            "maddpg.networks, maddpg.share_parameters, maddpg.hidden, agents or observation sizes")
+        require_same_nearest("checkpoint maddpg", self.entity_nearest, state)
+        require_same_holder_rule("checkpoint maddpg", self.holder_rule, state)
+        for name in parts:
+            getattr(self, name).load_state_dict(state[name])
+        self.actor_opt.load_state_dict(state["actor_opt"])
+        self.critic_opt.load_state_dict(state["critic_opt"])
+        self.noise_gen.set_state(state["noise_gen"])
+        self.updates = int(state["updates"])

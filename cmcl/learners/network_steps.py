@@ -1,7 +1,7 @@
 """The learner side of each step of Algorithm 1 (ALGORITHM.md §3.8): what the networks do with rows from the replay.
 
 Where it sits: one implementation, two runners. `cmcl.loop` calls these on its own models; the service's learner,
-teacher and ICM actors call the same functions on theirs (`services/learner.py`, `teachers.py`, `icm.py`). The
+teacher and ICM actors call the same functions on theirs (`services/roles/learner.py`, `teachers.py`, `icm.py`). The
 replay side (what is drawn, what is written back) is `cmcl.replay.buffer_steps`.
 
   learner minibatch .. choose_minibatch    the batch's own, or a rule's learner-side pick among m·B candidates by
@@ -25,7 +25,7 @@ import torch
 
 from cmcl.learners.maddpg import MADDPG
 from cmcl.learners.nets import joint_input
-from cmcl.messages import ACTOR_PREFIX, CURIOSITY_KEY, LearnerBatch
+from cmcl.replay.messages import ACTOR_PREFIX, CURIOSITY_KEY, LearnerBatch
 from cmcl.replay.priority import EPS_P
 from cmcl.replay.rules.contract import LearnerScore
 from cmcl.scorers.icm import ICM

@@ -12,7 +12,7 @@ from torch import nn
 
 from cmcl.config.learning import NETWORK_KINDS
 from cmcl.envs.entities import EntityLayout
-from cmcl.learners.entity_nets import EntityActor, EntityCritic
+from cmcl.learners.entity.nets import EntityActor, EntityCritic
 from cmcl.learners.nets import StackedMLP
 
 __all__ = ["build_networks", "network_kind"]

@@ -1,5 +1,5 @@
 """How well each critic explains its TD targets on its minibatch: the normalised TD error (run.progress_signal =
-"normalised_td", cmcl.learning_progress), returned by :meth:`cmcl.learners.maddpg.MADDPG.update` as
+"normalised_td", cmcl.progress.learning), returned by :meth:`cmcl.learners.maddpg.MADDPG.update` as
 ``critic_loss_normalised``.
 
 Reads tensors only, without grad: the MADDPG step does not depend on it.

@@ -1,7 +1,7 @@
 """Rows of a smaller agent count in the replay of a larger one (`run.carry_replay`).
 
 Where it sits: a run that warm-starts from a run with fewer agents (`python -m cmcl stages`, each stage from the one
-before) may also start with that run's replay rows (cmcl.carried_replay reads them); this module puts them
+before) may also start with that run's replay rows (cmcl.run.carried_replay reads them); this module puts them
 into the larger run's layout. How a row of n agents enters the layout of N >= n agents (two EntityLayouts of the
 same task, cmcl.envs.entities):
 - agents: the row's n agents become agents 0..n-1; agents n..N-1 are absent: their observation, action, reward and

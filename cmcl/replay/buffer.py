@@ -132,9 +132,9 @@ class ReplayBuffer:
         """The learner's per-row scores of one agent's sampled rows, to that agent's sampler (`feedback`).
 
         Args: agent index; slots int[M]; generations int[M] (stale pairs are dropped); scores {name: float[M]}:
-        "td_abs" and the rule's own learner scores (checked at the message boundary, cmcl.messages.check_feedback),
-        passed on as float64 magnitudes. Returns (accepted count, whether a score column changed, i.e. a recompute
-        is due).
+        "td_abs" and the rule's own learner scores (checked at the message boundary,
+        cmcl.replay.messages.check_feedback), passed on as float64 magnitudes. Returns (accepted count, whether a score
+        column changed, i.e. a recompute is due).
         """
         s = self.storage.check_slots(slots)
         gens = np.asarray(generations, dtype=np.int64).reshape(-1)

@@ -1,7 +1,7 @@
 """The replay side of each step of Algorithm 1 (ALGORITHM.md §3.8): what is drawn from the buffer, what is written back.
 
 Where it sits: one implementation, two runners. `cmcl.loop` calls these functions in Algorithm 1's order on its own
-buffer; `services.replay_server` calls the same functions when a role asks for work or sends results. The learner
+buffer; `services.roles.replay_server` calls the same functions when a role asks for work or sends results. The learner
 side of each step (networks) is `cmcl.learners.network_steps`. Numpy only.
 
   learner minibatches ...... sample_owner_batches       -> LearnerBatch [n, N, S]      (per-agent samplers, eq. 20;
@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.messages import ACTOR_KEYS, PRESENT_KEY, ROW_KEYS, ActorRows, LearnerBatch, LearnerFeedback, Rows
 from cmcl.replay.buffer import ReplayBuffer
+from cmcl.replay.messages import ACTOR_KEYS, PRESENT_KEY, ROW_KEYS, ActorRows, LearnerBatch, LearnerFeedback, Rows
 from cmcl.replay.rules.laber import candidate_orders
 from cmcl.replay.sampling import UniformSampling
 

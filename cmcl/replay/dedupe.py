@@ -1,6 +1,6 @@
 """Exactly-once inserts: which (writer, incarnation, seq) chunks the replay has stored, whatever order they came in.
 
-Where it sits: `services.replay_server.ReplayServer.insert` asks `InsertLedger.accept` before storing a chunk. A
+Where it sits: `services.roles.replay_server.ReplayServer.insert` asks `InsertLedger.accept` before storing a chunk. A
 writer's chunks are numbered 0, 1, 2, ... per incarnation; a retried or reordered chunk is stored if and only if
 its number was never stored before, so a chunk that arrives behind a later one is not lost, and a duplicate is
 never stored twice. Per writer the ledger keeps a watermark (every seq <= it is stored) and the stored seqs above

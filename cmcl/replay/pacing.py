@@ -12,7 +12,7 @@ Three ratios, each held by a `cmcl.replay.ratelimit.RateLimiter`:
 * teacher fit steps per learner update: teachers.steps_per_update, one limiter per fold (its fit steps);
 * ICM fit steps per learner update: icm.steps_per_update.
 
-Teachers / the ICM have limiters only when some team uses them. The replay server (`services.replay_server`) asks
+Teachers / the ICM have limiters only when some team uses them. The replay server (`services.roles.replay_server`) asks
 `status` how much work each role may be given now, each ratio held within a slack (the calls' sizes plus
 `service.slack_updates`), so that on the service the actors overlap instead of waiting for each other; in one
 process (`--runner inline`) the same allowances are handed out one call after the other.
@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from cmcl.messages import PacingStatus
+from cmcl.replay.messages import PacingStatus
 from cmcl.replay.ratelimit import RateLimiter, slack_for
 
 

@@ -9,7 +9,7 @@ and the MADDPG actors/critics: separate modules and a separate optimiser.
 Members are agents (the A agents that use CMCL): phi_v: o -> 64 -> feature_dim, g_v: [phi(o), phi(o')] -> 64 ->
 act_dim (inverse model), F_v: [phi(o), a] -> 64 -> feature_dim (forward model).
 With ``networks="entity"`` one network of each kind serves every agent: φ is the entity encoder
-(cmcl.learners.entity_nets.EntityFeatures) and g, F one MLP each, so the ICM's size depends on neither N nor A.
+(cmcl.learners.entity.nets.EntityFeatures) and g, F one MLP each, so the ICM's size depends on neither N nor A.
 Inputs are per-agent slices ``obs[A, M, obs_dim]`` (from joint rows: ``obs[:, agents].transpose(0, 1)``).
 ``icm_scope="joint"`` (A5 option) needs no extra code: use ``ICM(num_agents=1, obs_dim=N*od, act_dim=N*ad)`` on
 flattened joint rows ``[1, M, N*od]`` and share the resulting rho across the team.
@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as F
 
 from cmcl.envs.entities import EntityLayout
-from cmcl.learners.entity_nets import EntityFeatures
+from cmcl.learners.entity.nets import EntityFeatures
 from cmcl.learners.nets import StackedMLP, adam_step_, as_tensor, clip_grad_norm_per_member_, drop_grads_, make_adam
 from cmcl.learners.state_check import require_same_shapes
 

@@ -1,8 +1,8 @@
 """The scoring state of the curriculum: who scored which replay row and when, and the one rule that picks the rows to
 (re)score next (ALGORITHM.md §3.2, §3.4, §3.8, §3.9, A11).
 
-Where it sits: one `ScoringState` beside the `ReplayBuffer` of the replay server (`services.replay_server`), whichever
-scheduler runs it. Scores come in through `write_difficulty` (teacher errors, eqs. 10–11),
+Where it sits: one `ScoringState` beside the `ReplayBuffer` of the replay server (`services.roles.replay_server`),
+whichever scheduler runs it. Scores come in through `write_difficulty` (teacher errors, eqs. 10–11),
 `write_curiosity` (ρ, eq. 18) and `write_online_td` (ACL td_self's |δ|); each writes the buffer's score column and
 stamps the rows with the learner update the score was made at. The buffer's columns hold the scores; this object
 holds the stamps, the teachers' per-fold errors (`cmcl.scorers.difficulty.DifficultyTable`) and the insertion times.
@@ -50,8 +50,8 @@ def oldest_first(candidates: np.ndarray, stamps: np.ndarray, count: int) -> np.n
 @dataclass(frozen=True)
 class ScoringSummary:
     """How much of the buffer is scored and how old the scores are (fields named as in the replay server's report,
-    `services.report_schema.ReplayReport`); None where the run has no such scorer or nothing to show. Ages in
-    learner updates, uniform subsamples of the rows."""
+    `services.observability.report_schema.ReplayReport`); None where the run has no such scorer or nothing to show. Ages
+    in learner updates, uniform subsamples of the rows."""
 
     score_coverage: float | None = None  # fraction of the rows with a teacher difficulty for every teacher agent
     fold_score_coverage: dict[str, float] | None = None  # the same per fold {fold: fraction}

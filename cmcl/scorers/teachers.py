@@ -13,7 +13,7 @@ slot a (0..A-1, the agents that use teachers) and fold i (0..K-1). Folds are 0-b
 With ``share_parameters`` the A teachers of each fold are one network (``StackedMLP(share=True, share_groups=K)``:
 member ``a*K + i`` uses network i), each agent keeping its own first-layer bias; the K folds stay separate networks,
 so a fold's network is still fitted on its own fold only and the cross-validation of eq. (11) holds.
-With ``networks="entity"`` each fold is one :class:`~cmcl.learners.entity_nets.EntityCritic` for all agents (group
+With ``networks="entity"`` each fold is one :class:`~cmcl.learners.entity.nets.EntityCritic` for all agents (group
 axis K: fold i's network only ever reads fold i's rows), teacher (a, i) being fold i's Q of agent ``agents[a]``;
 its parameter count does not depend on N, and with ``entity_nearest`` = k > 0 it reads only the k nearest entities of
 each kind, with ``entity_holder`` each entity row with its holder margin, as the learner's critic does.
@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from cmcl.envs.entities import EntityLayout
-from cmcl.learners.entity_nets import EntityCritic
+from cmcl.learners.entity.nets import EntityCritic
 from cmcl.learners.nets import StackedMLP, adam_step_, as_tensor, clip_grad_norm_per_member_, drop_grads_, make_adam
 from cmcl.learners.networks import network_kind
 from cmcl.learners.state_check import require_same_shapes

@@ -5,8 +5,8 @@ compares a rule's name.
 
 A rule holds:
   options ............ its own config dataclass: the keys it adds to its team's table, `teams.<team>.<option>`
-                       (fields declared with cmcl.field_docs.documented: meaning, unit, range rule, checked once at
-                       config load, each failure one line naming `teams.<team>.<option>` and the value)
+                       (fields declared with cmcl.field_docs.documented: meaning, unit, range rule, checked once
+                       at config load, each failure one line naming `teams.<team>.<option>` and the value)
   sampler ............ how one agent's sampler is built: (SamplerArgs, options) -> the sampler protocol of
                        cmcl.replay.sampling (the buffer receives the built samplers and never asks their kind)
   needs .............. what the other roles must score for it (teachers, the ICM, learner scores), given the team
@@ -30,8 +30,8 @@ from cmcl.replay.sampling import SamplerArgs
 
 @dataclass(frozen=True)
 class Range:
-    """The allowed range of a rule's option (its field's `rule`, cmcl.field_docs.documented): `why` is the error's
-    and the reference's text ("must be >= 2"); the config checks `ok` once at load (cmcl.config.teams)."""
+    """The allowed range of a rule's option (its field's `rule`, cmcl.field_docs.documented): `why` is the
+    error's and the reference's text ("must be >= 2"); the config checks `ok` once at load (cmcl.config.teams)."""
 
     why: str
     test: Callable[[Any], bool]
@@ -63,8 +63,8 @@ class Needs:
 class LearnerScore:
     """One per-row score the learner computes for a rule after each update: `of(stats, minibatch)` -> float[N, S]
     >= 0 (stats: what MADDPG.update returned, e.g. "td_abs" |y − Q| [N, S], "target_td_abs" |y − Q_target| [N, S];
-    minibatch: the update's rows [N, S, ...]). It travels as cmcl.messages.LearnerFeedback.rule_scores under `name`
-    and reaches the agent's sampler's `feedback` as scores[name] float[k]. `target_critic`: it needs MADDPG's
+    minibatch: the update's rows [N, S, ...]). It travels as cmcl.replay.messages.LearnerFeedback.rule_scores under
+    `name` and reaches the agent's sampler's `feedback` as scores[name] float[k]. `target_critic`: it needs MADDPG's
     pre-step target-critic errors ("target_td_abs" in stats)."""
 
     name: str

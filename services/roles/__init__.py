@@ -1,0 +1,2 @@
+"""The Ray roles of the service: rollout workers, the replay server, the learner, the scorers' actors (teachers,
+ICM)."""
