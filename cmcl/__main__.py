@@ -15,9 +15,9 @@ The default runner of `train` is the service on an embedded Ray: the system this
 starts, and the one that ends with the held-out evaluation and the GIF. `--runner inline` trains in this process
 without Ray (Algorithm 1, the reference the service is measured against). Both write one run-directory layout
 (cmcl/run/rundir.py), so `resume` and `evaluate` find the run's newest verified policy themselves.
-`python -m cmcl.loop`, `python -m services.launch` and `python -m cmcl.run.evaluate` remain, as aliases with the same
-flags (cmcl/run/flags.py). Exit codes: 0 done, 2 bad arguments / config / run directory, 130 / 143 stopped by
-SIGINT / SIGTERM after a checkpoint.
+`python -m services.launch` and `python -m cmcl.run.evaluate` remain, as aliases with the same flags
+(cmcl/run/flags.py). Exit codes: 0 done, 2 bad arguments / config / run directory, 130 / 143 stopped by SIGINT / SIGTERM
+after a checkpoint.
 """
 
 from __future__ import annotations

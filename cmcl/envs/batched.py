@@ -1,6 +1,6 @@
 """Batched numpy twins of the sparse tasks: B worlds per `step`, for the rollout hot path.
 
-Where it sits: rollout workers (and `cmcl.loop`) step these instead of PettingZoo envs; the parity
+Where it sits: rollout workers (on either runner) step these instead of PettingZoo envs; the parity
 test ties them to `sparse_spread_v0` / `sparse_tag_v0`. Common interface of both classes:
 
 * constructor: `(num_envs, <task sizes>, episode_length=30, ..., seed=None, auto_reset=False,

@@ -1,8 +1,8 @@
 """The inline runner's checkpoint files: `ckpt_<episodes:08d>.pt` (torch.save of plain state dicts) and, beside each,
 `replay_<episodes:08d>.msgpack` (the replay snapshot, cmcl.io.codec), each with its digest file `<file>.sha256`.
 
-Where it sits: the run directory (cmcl.run.rundir) saves and checks its checkpoints with these; the inline loop
-(cmcl/loop/checkpoint.py) writes and reads its replay snapshots, `cmcl.run.carried_replay` reads the one a new run
+Where it sits: the run directory (cmcl.run.rundir) saves and checks its checkpoints with these; the replay
+server writes and reads its snapshots, `cmcl.run.carried_replay` reads the one a new run
 carries its rows from, `cmcl.run.evaluate` loads the checkpoint named by --checkpoint.
 Every write is all or nothing, the file then its digest file (`cmcl.io.verified.write_checked`); every read checks
 the digest file before the bytes reach a decoder (`read_checked`), and torch only decodes with weights_only=True.

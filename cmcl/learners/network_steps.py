@@ -1,8 +1,8 @@
 """The learner side of each step of Algorithm 1 (ALGORITHM.md §3.8): what the networks do with rows from the replay.
 
-Where it sits: one implementation, two runners. `cmcl.loop` calls these on its own models; the service's learner,
-teacher and ICM actors call the same functions on theirs (`services/roles/learner.py`, `teachers.py`, `icm.py`). The
-replay side (what is drawn, what is written back) is `cmcl.replay.buffer_steps`.
+Where it sits: one implementation, two schedulers. The service's learner, teacher and ICM roles call these on
+their models, in one process (`--runner inline`) or as Ray actors (`services/roles/learner.py`, `teachers.py`,
+`icm.py`). The replay side (what is drawn, what is written back) is `cmcl.replay.buffer_steps`.
 
   learner minibatch .. choose_minibatch    the batch's own, or a rule's learner-side pick among m·B candidates by
                                            fresh |δ| (LaBER's; shuffled across them under the permuted control);

@@ -1,9 +1,9 @@
-"""Training progress shared by the inline loop and the service: episode rows, moving averages, the progress line
+"""Training progress, the same on both schedulers: episode rows, moving averages, the progress line
 and the rule that ends a run early once the task is solved.
 
-Where it sits: `cmcl.loop.InlineLoop` and `services.runtime.supervisor.Supervisor` both turn finished episodes into
-metrics rows (`finished_episodes` -> `episode_rows`), keep a window of the last `run.smoothing_window` rows (dicts
-with "coverage" in [0, 1] for the spread task), print `progress_line` and ask `solved`. No torch, no Ray.
+Where it sits: `services.runtime.supervisor.Supervisor` (on both schedulers) turns finished episodes into
+metrics rows (`finished_episodes` -> `episode_rows`), keeps a window of the last `run.smoothing_window` rows (dicts
+with "coverage" in [0, 1] for the spread task), prints `progress_line` and asks `solved`. No torch, no Ray.
 """
 
 from __future__ import annotations

@@ -1,8 +1,7 @@
 """The replay side of each step of Algorithm 1 (ALGORITHM.md §3.8): what is drawn from the buffer, what is written back.
 
-Where it sits: one implementation, two runners. `cmcl.loop` calls these functions in Algorithm 1's order on its own
-buffer; `services.roles.replay_server` calls the same functions when a role asks for work or sends results. The learner
-side of each step (networks) is `cmcl.learners.network_steps`. Numpy only.
+Where it sits: one implementation, two schedulers: `services.roles.replay_server` calls these functions when a role asks
+for work or sends results. The learner side of each step (networks) is `cmcl.learners.network_steps`. Numpy only.
 
   learner minibatches ...... sample_owner_batches       -> LearnerBatch [n, N, S]      (per-agent samplers, eq. 20;
                                                            with the actors' own uniform rows, actor_batch = "uniform";

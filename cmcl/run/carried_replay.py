@@ -1,10 +1,9 @@
 """A new run's start from the replay rows of the run it warm-starts from (`run.carry_replay`), both runners.
 
 Where it sits: a new run with run.init_from and run.carry_replay (the agent-count stages, cmcl.run.agent_stages, set
-both for every stage after the first). After the warm start, the inline runner (cmcl/loop/__main__.py) and the
-service's replay server (services/roles/replay_server.py, when it starts without a store of its own) call
-`carry_replay_rows`: it reads init_from's newest replay (`_source`: the snapshot beside its newest inline
-checkpoint, which a resume of that run would load, or the service's replay store snapshot, written at every
+both for every stage after the first). After the warm start, the replay server (services/roles/replay_server.py, when
+it starts without a store of its own) calls `carry_replay_rows`: it reads init_from's newest replay (`_source`: the
+replay store snapshot, written at every
 checkpoint and at the end of the run), pads its rows to this run's agent count (cmcl.replay.agent_padding: absent
 agents zero and masked per row) and adds them to the new buffer, oldest first (its newest `replay.capacity` rows if
 they do not all fit). They enter as new rows: their scores unset, PER's priority at the running maximum (the

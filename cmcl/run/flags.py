@@ -1,8 +1,8 @@
 """The command-line flags of a training run, defined once for every entry point, the typed request they become, and
 the opening of the run directory that request names (the same for both runners).
 
-Where it sits: `python -m cmcl train | resume` (cmcl/__main__.py) and its two aliases, `python -m cmcl.loop` (the
-inline runner) and `python -m services.launch` (the service), all build their parsers here, so the three accept the
+Where it sits: `python -m cmcl train | resume` (cmcl/__main__.py) and its alias `python -m services.launch` (either
+runner) build their parsers here, so both accept the
 same flags and cannot drift (tests/test_cli.py checks it). Each parser's namespace becomes a `RunRequest`, which is
 what a runner receives; `add_evaluate_flags` does the same for `python -m cmcl evaluate` and `python -m
 cmcl.run.evaluate`. This module imports neither a runner, torch nor Ray: `--help` stays fast and `cmcl/` stays free of
@@ -411,7 +411,7 @@ def add_run_flags(parser: argparse.ArgumentParser, *, new_run: bool = True) -> N
 
 
 def alias_parser(prog: str, description: str) -> argparse.ArgumentParser:
-    """The parser of a runner's own command (`python -m cmcl.loop`, `python -m services.launch`): the run flags and
+    """The parser of a runner's own command (`python -m services.launch`): the run flags and
     `--resume DIR`, the runner fixed by the command."""
     parser = argparse.ArgumentParser(prog=prog, description=description)
     add_run_flags(parser)

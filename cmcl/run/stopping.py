@@ -1,11 +1,11 @@
 """A graceful stop on SIGINT or SIGTERM, for both runners; a second signal forces the exit.
 
-Where it sits: both runners' commands (`python -m cmcl train | resume`; cmcl/loop/__main__.py and
-services/launch.py) install a `StopSignals` around training. The first SIGINT (Ctrl-C) or SIGTERM (`docker stop`,
-Kubernetes, `kill`) only sets `requested`; the training loop polls it between steps, stops issuing work, drains,
-checkpoints and returns, and the CLI exits with `exit_code` (130 for SIGINT, 143 for SIGTERM: 128 + the signal
-number, the shell's convention). A second signal while that is under way calls `force` (default: exit at once with
-the same code, no checkpoint). `exit_without_teardown` is how every training and evaluation command ends.
+Where it sits: both runners' commands (`python -m cmcl train | resume`; services/launch.py) install a `StopSignals`
+around training. The first SIGINT (Ctrl-C) or SIGTERM (`docker stop`, Kubernetes, `kill`) only sets `requested`; the
+training loop polls it between steps, stops issuing work, drains, checkpoints and returns, and the CLI exits with
+`exit_code` (130 for SIGINT, 143 for SIGTERM: 128 + the signal number, the shell's convention). A second signal while
+that is under way calls `force` (default: exit at once with the same code, no checkpoint). `exit_without_teardown` is
+how every training and evaluation command ends.
 """
 
 from __future__ import annotations

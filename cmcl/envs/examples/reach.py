@@ -1,6 +1,7 @@
 """Two walkers on a line, each to reach its own goal: an environment written from scratch for docs/OWN_ENVIRONMENT.md.
 
-Train it: python -m cmcl.loop --set env.factory=cmcl.envs.examples.reach:parallel_env --set env.success_key=reached
+Train it: python -m cmcl train --runner inline --set env.factory=cmcl.envs.examples.reach:parallel_env --set
+env.success_key=reached
 """
 
 import numpy as np
