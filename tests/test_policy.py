@@ -96,7 +96,7 @@ def test_the_nearest_picks_agree_with_the_learners_including_ties():
     """Closest first within a kind, ties to the lower slot, absent entities last (their contents unread)."""
     import torch
 
-    from cmcl.learners import entity_nets
+    from cmcl.learners.entity import nets as entity_nets
     from cmcl.rollout.policy import nearest_entities
 
     types = slice(2, 4)
