@@ -2,12 +2,14 @@
 
     python -m experiments run GRID [GRID ...] [--seeds 0 1 2 3 4] [--jobs 2] [--out DIR]
             [--arms ...] [--cells ...] [--ablations ...] [--algorithms ...] [--modes inline service] [--episodes 20000]
-            [--screen DIR] [--allow-dirty]
+            [--tasks ...] [--screen DIR] [--ray [--address ADDR]] [--allow-dirty]
     python -m experiments report [--update docs/RESULTS.md | README.md | docs/LEARNING.md] [--results bench/results]
     python -m experiments figures [--results bench/results]
     python -m experiments stalls FOLDER [FOLDER ...]      (e.g. bench/results/curriculum: its runs/ directories)
 
-`run` is resumable (experiments.runner): rerun the same command after a stop. Its results go to the grid's folder
+`run` is resumable (experiments.runner): rerun the same command after a stop. With --ray (or --address) each run is
+a Ray Tune trial of 1 CPU, on an embedded Ray or the cluster at ADDR (experiments.on_ray), the path of `python -m cmcl
+tune`. Its results go to the grid's folder
 of the registry (experiments.grids.GRIDS, under bench/results/) unless --out names another. Seeds default to 0-4,
 and to 0-19 for the confirm grid alone, whose arms the screen's summaries select (--screen: their folder). Exit code
 of `run`: 0 when every run finished, 1 when some failed (each is named in the output), 2 when it refused to start.
@@ -33,6 +35,7 @@ from experiments.grids import (
     prefix_reference_runs,
 )
 from experiments.labels import PERMUTED
+from experiments.on_ray import GridOnRayError, run_grid_on_ray
 from experiments.report import blocks, figures, update
 from experiments.run_spec import ROOT, Run
 from experiments.runner import run_grid
@@ -134,7 +137,15 @@ def run(args: argparse.Namespace) -> int:
         return 2
     print(f"grid code: commit {commit or 'unknown'}" + (" with uncommitted changes (--allow-dirty)" if dirty else ""),
           flush=True)
-    failed = run_grid(runs, store, args.jobs, report=lambda line: print(line, flush=True))
+    say = lambda line: print(line, flush=True)  # noqa: E731
+    if args.ray or args.address:
+        try:
+            failed = run_grid_on_ray(runs, store, args.jobs, args.address, report=say)
+        except GridOnRayError as refused:
+            print(f"error: {refused}", file=sys.stderr)
+            return 2
+    else:
+        failed = run_grid(runs, store, args.jobs, report=say)
     print(f"results: {shown(store.write_csv())}" + (f"; {failed} runs failed (a rerun retries them)" if failed else ""))
     return 1 if failed else 0
 
@@ -197,6 +208,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, default=EPISODES, help="budget of every run (the paper: 20,000)")
     p.add_argument("--screen", type=Path, default=None,
                    help="confirm grid: the screen's results folder that selects its arms (default: the screen's)")
+    p.add_argument("--ray", action="store_true",
+                   help="train the runs as Ray Tune trials of 1 CPU on an embedded Ray (inline runs only)")
+    p.add_argument("--address", default=None,
+                   help="with --ray implied: the Ray cluster to run the trials on (results on shared storage)")
     p.add_argument("--allow-dirty", action="store_true",
                    help="train even though tracked files differ from the commit (recorded in every summary)")
     p.set_defaults(handler=run)

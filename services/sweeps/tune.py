@@ -120,7 +120,7 @@ def tune_command(args: argparse.Namespace) -> int:
         record = {"settings": settings.to_json(), "search": [d.text for d in dimensions], "trials": trials}
         atomic_write_bytes(sweep / SWEEP_FILE, json.dumps(record, indent=2).encode())
     try:
-        owned = _start_ray(args.address)
+        owned = join_or_start_ray(args.address)
     except ConnectionError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -137,7 +137,7 @@ def tune_command(args: argparse.Namespace) -> int:
                 stop_ray()
 
 
-def _start_ray(address: str | None) -> bool:
+def join_or_start_ray(address: str | None) -> bool:
     """Join `address`, or keep the Ray this process has, or start an embedded one (with the reaper); True when this
     call started or joined it (the caller stops it), False when it was there. ConnectionError (one line) when the
     cluster does not answer or the embedded Ray does not start."""
