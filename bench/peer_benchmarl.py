@@ -64,7 +64,7 @@ from torchrl.envs.libs.pettingzoo import PettingZooWrapper  # noqa: E402
 
 from cmcl.run.provenance import provenance  # noqa: E402
 
-ENV = ENVS["sparse_spread"]
+ENV = ENVS["sparse_spread"]  # --env sets it (an env of ENVS whose final step reports coverage and success)
 MA_WINDOW = 100
 MA_TARGET = 0.9
 
@@ -179,7 +179,11 @@ def main() -> None:
                          "smoke tests only (a deviation from the defaults, recorded in the summary)")
     ap.add_argument("--out", default=None, help="JSON summary (default bench/results/peer_benchmarl/"
                                                 "<algorithm>_seed<seed>.json)")
+    ap.add_argument("--env", choices=[name for name, env in ENVS.items() if env.has_coverage], default="sparse_spread",
+                    help="the task (peer_envs.ENVS; vacl_n4: VACL's all-or-nothing navigation, docs/SPARSE_TASKS.md)")
     args = ap.parse_args()
+    global ENV
+    ENV = ENVS[args.env]
     out = Path(args.out or Path(__file__).resolve().parent / "results" / "peer_benchmarl"
                / f"{args.algorithm}_seed{args.seed}.json")
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -4,6 +4,8 @@ Environments (``--env``):
 
 * ``sparse_spread``: ours, ``cmcl.envs.sparse_spread_v0.parallel_env(num_agents=4, max_cycles=30,
   shared_reward=False)``; the final step's ``info["episode"]`` gives landmark coverage and success.
+* ``vacl_n4``: VACL's all-or-nothing sparse navigation, ``cmcl.envs.sparse_nav_v0.parallel_env(variant="vacl",
+  num_agents=4)`` (70 steps; docs/SPARSE_TASKS.md); success: every landmark covered at the final step.
 * ``simple_spread_v3``: mpe2's ``simple_spread_v3.parallel_env(N=3, max_cycles=25, continuous_actions=True)``
   (local_ratio 0.5, its default), the MPE cooperative-navigation task with N = 3 and 25-step episodes as in
   AgileRL's MPE examples; actions ``Box(0, 1, (5,))`` per agent, observations float32[18].
@@ -55,6 +57,9 @@ ENVS: dict[str, PeerEnv] = {
     "sparse_spread": PeerEnv(
         "sparse_spread", "sparse_spread_v0(num_agents=4, max_cycles=30, shared_reward=False)", 4, 30, True,
         "cmcl.envs.sparse_spread_v0:parallel_env", (("num_agents", 4), ("max_cycles", 30), ("shared_reward", False))),
+    "vacl_n4": PeerEnv(
+        "vacl_n4", "sparse_nav_v0(variant='vacl', num_agents=4)", 4, 70, True, "cmcl.envs.sparse_nav_v0:parallel_env",
+        (("variant", "vacl"), ("num_agents", 4))),
     "simple_spread_v3": PeerEnv(
         "simple_spread_v3", "mpe2.simple_spread_v3(N=3, max_cycles=25, continuous_actions=True, local_ratio=0.5)", 3,
         25, False, "mpe2.simple_spread_v3:parallel_env",
