@@ -110,11 +110,9 @@ def test_one_key_is_printed_under_its_section_and_an_unknown_one_refused(capsys,
     assert capsys.readouterr().err.startswith(f"error: unknown section or key {key + 'x'!r}")
 
 
-def test_only_the_services_ray_keys_say_they_are_the_services_and_the_removed_keys_are_gone():
+def test_only_the_services_ray_keys_say_they_are_the_services():
     """Both runners schedule the same roles: a [service] key is the inline runner's too (service.updates_per_call)
-    but for the Ray-only ones (cmcl.config.runners.SERVICE_ONLY), whose meaning says so; the keys removed when the
-    runners became one (cmcl.config.moved.REMOVED) are no key of the reference."""
-    from cmcl.config.moved import REMOVED
+    but for the Ray-only ones (cmcl.config.runners.SERVICE_ONLY), whose meaning says so."""
     from cmcl.config.runners import IN_ONE_PROCESS, SERVICE_ONLY
 
     docs = reference()
@@ -125,5 +123,3 @@ def test_only_the_services_ray_keys_say_they_are_the_services_and_the_removed_ke
     assert "runner only" not in service["updates_per_call"].meaning + service["checkpoint_every_s"].meaning
     assert not any("runner only" in k.meaning for name, section in docs.items() if name != "service"
                    for k in section.keys)
-    for section, key in REMOVED:
-        assert key not in {k.key for k in docs[section].keys}, (section, key)

@@ -2,8 +2,8 @@
 
 Where it sits: both runners (`python -m cmcl train | resume`) write here; `cmcl.evaluate` and the plots read here.
 Layout of `<dir>/`:
-  config.toml            the resolved configuration (read back with `config()`: keys that moved since it was written
-                         are carried to their new place, cmcl.config.moved)
+  config.toml            the resolved configuration (read back with `config()`; one written by an older version
+                         with a key this one does not know is refused, cmcl.config.load_stored_config)
   metrics.jsonl          one JSON object per line (episode rows and update rows, each with a "kind";
                          cmcl.io.metrics_log)
   run.lock               the one writer's lock (cmcl.io.runlock)
@@ -144,9 +144,8 @@ class RunDirectory:
         return run
 
     def config(self, overrides: tuple[str, ...] = ()) -> Config:
-        """The run's resolved config, with optional overrides; a config.toml written before a key moved is read with
-        the key at its new place (cmcl.config.load_stored_config), so an older run resumes and evaluates as it
-        trained."""
+        """The run's resolved config, with optional overrides (cmcl.config.load_stored_config: a key of an older
+        version is refused in one line naming it)."""
         return load_stored_config(self.config_path, overrides)
 
     def log(self, row: Mapping[str, Any]) -> None:

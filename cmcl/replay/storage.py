@@ -257,7 +257,7 @@ class TransitionStorage:
                "act": _real_array("act", state["act"], (n, na, ad)),
                "rew": _real_array("rew", state["rew"], (n, na)),
                "next_obs": _real_array("next_obs", state["next_obs"], (n, na, od)),
-               "done": self._per_agent_done(state["done"], n)}  # [n] in snapshots older than per-agent done
+               "done": _real_array("done", state["done"], (n, na))}
         for name in _META:
             new[name] = _int_array(name, state[name], (n,))
         if n and not np.array_equal(new["id"] % self.capacity, np.arange(n)):
@@ -278,7 +278,7 @@ class TransitionStorage:
         for c in SCORE_COLUMNS:
             self.scores[c][:n], self.scored[c][:n] = scores[c], scored[c]
         self.size, self.next_id = int(n), int(next_id)
-        self.stale_dropped_total = int(state.get("stale_dropped_total", 0))
+        self.stale_dropped_total = int(state["stale_dropped_total"])
         self.absent_rows = int((~new["present"]).any(1).sum())
 
     def _per_agent_done(self, done, t: int) -> np.ndarray:
