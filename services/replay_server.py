@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from cmcl.io import codec, records
-from cmcl.io.durable import ReplayStore
+from cmcl.io.durable import ReplayStore, StoreError
 from cmcl.messages import (
     CURIOSITY,
     CURIOSITY_KEY,
@@ -46,7 +46,7 @@ from cmcl.replay import buffer_steps
 from cmcl.replay.curriculum import unplayed_steps
 from cmcl.replay.dedupe import InsertLedger
 from cmcl.replay.pacing import pacing_from_config
-from cmcl.replay.snapshot import older_run, rng_state, set_rng_state
+from cmcl.replay.snapshot import OlderRunError, older_run, rng_state, set_rng_state
 from cmcl.scorers.scoring import ScoringState
 from cmcl.system import beta_is, build_replay, build_schedule, layout_of
 from services.common import actor_setup, new_incarnation
@@ -357,7 +357,10 @@ class ReplayServer:
         verify; a damaged log (moved aside by the store) is counted and said on stderr, with what was lost."""
         state, frames, damage = self.store.load()
         if state is not None:
-            self._load_state(state)
+            try:
+                self._load_state(state)
+            except OlderRunError as err:  # refused as a snapshot that fails its checks is (services.launch)
+                raise StoreError(str(err)) from None
         for payload in frames:  # in the order they were applied
             record = records.decode_log_record(payload)
             if isinstance(record, dict):
@@ -376,7 +379,7 @@ class ReplayServer:
         version writes is refused in one line, `cmcl.replay.snapshot.older_run`)."""
         missing = [key for key in SNAPSHOT_KEYS if key not in state]
         if missing:
-            raise ValueError(older_run(f"replay server snapshot without {missing[0]!r}"))
+            raise OlderRunError(older_run(f"replay server snapshot without {missing[0]!r}"))
         self.replay.load_state_dict(state["replay"])
         self.scoring.load_state_dict(state)
         self.ledger.load_state_dict(state["ledger"])

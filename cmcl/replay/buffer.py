@@ -19,7 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from cmcl.replay.priority import LAM_MAX, kfold_priority, permute_priorities
-from cmcl.replay.snapshot import STATE_FORMAT, older_run, require_format, rng_state, set_rng_state
+from cmcl.replay.snapshot import STATE_FORMAT, OlderRunError, older_run, require_format, rng_state, set_rng_state
 from cmcl.replay.storage import TransitionStorage
 
 
@@ -269,7 +269,7 @@ class ReplayBuffer:
         try:
             staged.load_state_dict(state["storage"])
         except KeyError as err:
-            raise ValueError(older_run(f"replay snapshot without storage.{err.args[0]}")) from None
+            raise OlderRunError(older_run(f"replay snapshot without storage.{err.args[0]}")) from None
         lam = float(state["lam"])
         if lam != -1.0 and not 0.0 < lam <= self.lam_max:
             raise ValueError(f"lam in state must be -1 (never recomputed) or in (0, {self.lam_max}], got {lam!r}")

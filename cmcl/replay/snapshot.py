@@ -18,19 +18,23 @@ STATE_FORMAT = 2
 LAST_READER = "4e14724"
 
 
+class OlderRunError(ValueError):
+    """A run directory, snapshot or log written by an older version, refused (`older_run`'s line)."""
+
+
 def older_run(what: str) -> str:
     """The one line refusing a run written by an older version: `what` names the field or format."""
     return f"{what}: written by an older version; commit {LAST_READER} is the last that reads it"
 
 
 def require_format(state: dict[str, Any], *fields: str) -> None:
-    """ValueError (`older_run`) unless `state` is of format `STATE_FORMAT` and holds every one of `fields`."""
+    """OlderRunError (`older_run`) unless `state` is of format `STATE_FORMAT` and holds every one of `fields`."""
     version = state.get("format", 1)
     if version != STATE_FORMAT:
-        raise ValueError(older_run(f"replay snapshot format {version!r} (this version reads {STATE_FORMAT})"))
+        raise OlderRunError(older_run(f"replay snapshot format {version!r} (this version reads {STATE_FORMAT})"))
     missing = [name for name in fields if name not in state]
     if missing:
-        raise ValueError(older_run(f"replay snapshot without {missing[0]!r}"))
+        raise OlderRunError(older_run(f"replay snapshot without {missing[0]!r}"))
 
 
 def rng_state(rng: np.random.Generator) -> dict[str, Any]:
