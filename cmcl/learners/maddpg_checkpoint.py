@@ -76,7 +76,7 @@ class MADDPGCheckpoint:
         parts = ("actor", "critic", "target_actor", "target_critic")
         require_same_holder("checkpoint maddpg", self.entity_holder, state)
         require_same_shapes("checkpoint maddpg", {name: getattr(self, name) for name in parts}, state,
-                            "maddpg.networks, maddpg.share_parameters, maddpg.hidden, agents or observation sizes")
+                            "maddpg.networks, maddpg.hidden, agents or observation sizes")
         require_same_nearest("checkpoint maddpg", self.entity_nearest, state)
         require_same_holder_rule("checkpoint maddpg", self.holder_rule, state)
         for name in parts:
