@@ -19,12 +19,11 @@ def tallies(failures: Failures, held: HeldClock, checkpoint_seconds: list[float]
 
 
 def add_tallies(earlier: dict[str, Any], failures: Failures, held: HeldClock, checkpoint_seconds: list[float]) -> None:
-    """On resume: the earlier segments' `tallies` (from the checkpoint; {} for one written before they were kept)
-    added, in place, to this segment's."""
-    for mine, theirs in ((failures.counts, earlier.get("failures", {})), (failures.hung, earlier.get("hung", {})),
-                         (held.seconds, earlier.get("learner_held_s", {}))):
+    """On resume: the earlier segments' `tallies` (from the checkpoint) added, in place, to this segment's."""
+    for mine, theirs in ((failures.counts, earlier["failures"]), (failures.hung, earlier["hung"]),
+                         (held.seconds, earlier["learner_held_s"])):
         for key, value in theirs.items():
             mine[key] = mine.get(key, 0) + value
-    for role, seconds in earlier.get("recovery_s", {}).items():
+    for role, seconds in earlier["recovery_s"].items():
         failures.recovery.times[role] = [*seconds, *failures.recovery.times.get(role, [])]
-    checkpoint_seconds[:0] = earlier.get("checkpoint_seconds", [])
+    checkpoint_seconds[:0] = earlier["checkpoint_seconds"]

@@ -295,13 +295,13 @@ class Supervisor:
 
     def restore_counters(self) -> None:
         """On resume: continue the episode numbering of metrics.jsonl, the training clock (elapsed_s) and the tallies
-        from the last checkpoint (one written before the clock was kept: from 0)."""
+        from the last checkpoint."""
         path = self.paths["supervisor"]
         if path.exists():
             saved = json.loads(path.read_text())
             self.episodes_logged = int(saved["episodes_logged"])
-            self.clock.before_s = float(saved.get("elapsed_s", 0.0))
-            add_tallies(saved.get("tallies", {}), self.failures, self.held, self.checkpoint_seconds)
+            self.clock.before_s = float(saved["elapsed_s"])
+            add_tallies(saved["tallies"], self.failures, self.held, self.checkpoint_seconds)
             self.run_dir.truncate_rows_after(self.episodes_logged)
 
     def tallies(self) -> dict[str, Any]:

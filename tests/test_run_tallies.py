@@ -23,5 +23,3 @@ def test_a_resumed_segment_counts_the_earlier_ones_too():
     assert both["failures"] == {"teacher": 3, "icm": 1}
     assert both["recovery_s"] == {"teacher": [0.5, 0.7, 0.4]} and both["checkpoint_seconds"] == [0.1, 0.2, 0.3]
     assert both["learner_held_s"]["warmup"] == 3.0 and set(both["learner_held_s"]) == set(HeldClock.REASONS)
-    add_tallies({}, failures, clock, checkpoints)  # a checkpoint from before the tallies were kept
-    assert tallies(failures, clock, checkpoints) == both

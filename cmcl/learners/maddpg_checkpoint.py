@@ -53,9 +53,8 @@ class MADDPGCheckpoint:
 
         Layout: {"actor", "critic", "target_actor", "target_critic": module state dicts with stacked
         tensors [N, in, out] / [N, out]; "actor_opt", "critic_opt": Adam state dicts; "noise_gen": uint8 tensor;
-        "updates": int; "entity_nearest": int, the k of maddpg.entity_nearest (the weights do not show it; a
-        state without it, written before it was kept, is k = 0); "entity_holder": bool, maddpg.entity_holder (a
-        state without it is false); "holder_rule": str, maddpg.holder_rule (a state without it is "nearest")}.
+        "updates": int; "entity_nearest": int, the k of maddpg.entity_nearest (the weights do not show it);
+        "entity_holder": bool, maddpg.entity_holder; "holder_rule": str, maddpg.holder_rule}.
         """
         return {
             "actor": self.actor.state_dict(),
