@@ -230,7 +230,7 @@ def main(argv: list[str] | None = None) -> None:
 
     n, s = layout.num_agents, config.maddpg.batch_size
     print(f"config {args.config}: N = {n}, S = {s}, hidden {config.maddpg.hidden}, networks "
-          f"{config.maddpg.network_kind}; one update = {flop / 1e6:.1f} MFLOP (matmuls, forward + backward)")
+          f"{config.maddpg.networks}; one update = {flop / 1e6:.1f} MFLOP (matmuls, forward + backward)")
     print(f"matmul peak on one core (1024³): float32 {peak32:.1f} GFLOP/s"
           + (f", bfloat16 {peak16:.1f} GFLOP/s" if peak16 else ", bfloat16: not supported by this CPU"))
     print(f"the update's own size of product (baddbmm [{n}, {s}, {config.maddpg.hidden}] x [{n}, "

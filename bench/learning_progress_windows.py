@@ -49,7 +49,7 @@ def stage_windows(run_dir: Path, window: int) -> list[dict[str, float | None]]:
     from the learning-progress record of the stage's newest checkpoint."""
     run = RunDirectory.open(run_dir)
     lp = LearningProgress(window=window)
-    lp.load_state_dict(load_checkpoint(run.latest_checkpoint())["learning_progress"])
+    lp.load_state_dict(load_checkpoint(sorted(run.checkpoints.glob("ckpt_*.pt"))[-1])["learning_progress"])
     coverage = np.array([r["coverage"] for r in run.rows() if r.get("kind") == "episode"])
     if len(coverage) >= (lp.window_index + 1) * window:  # the open window is full: close it (a partial one, the
         lp.close()  # few episodes of the last batched step past the budget, is left out)

@@ -1,7 +1,7 @@
 """Scale past the paper's N = 4: what one update costs, and how learning goes, at N = 4, 8 and 16 agents.
 
 Cost (default): for each N and each network kind (NETWORKS: per-agent networks, the paper's; `maddpg.
-share_parameters = true`; and that plus `teachers.share_parameters = true`, one teacher network per fold; and
+networks = "shared"`; and that plus `teachers.networks = "shared"`, one teacher network per fold; and
 `maddpg.networks = "entity"`, one attention actor and critic whose size does not depend on N),
 the service's roles of cooperative navigation (N agents, N landmarks), built in this process as `--runner inline`
 runs them (bench/learner_throughput.py `FilledRoles`), fill the buffer to its capacity by their own policy, then are
@@ -40,7 +40,7 @@ from cmcl.run.provenance import provenance  # noqa: E402
 from cmcl.run.rundir import RunDirectory  # noqa: E402
 from experiments.measures import WINDOW, first_reaching  # noqa: E402
 
-NETWORKS = {  # network kind -> (maddpg.networks, teachers.share_parameters)
+NETWORKS = {  # network kind -> (maddpg.networks, teachers.networks = "shared")
     "own": ("per_agent", False),  # per-agent actors, critics and (agent, fold) teachers: the paper's
     "shared": ("shared", False),  # one actor and one critic for all agents
     "shared_teachers": ("shared", True),  # ... and one teacher per fold for all agents
@@ -51,7 +51,8 @@ NETWORKS = {  # network kind -> (maddpg.networks, teachers.share_parameters)
 def overrides(n: int, kind: str) -> list[str]:
     """Config overrides of the navigation preset for N agents (and N landmarks) with the networks of `kind`."""
     maddpg, teachers = NETWORKS[kind]
-    return [f"env.num_agents={n}", f"maddpg.networks={maddpg}", f"teachers.share_parameters={str(teachers).lower()}"]
+    return [f"env.num_agents={n}", f"maddpg.networks={maddpg}",
+            f"teachers.networks={'shared' if teachers else 'per_agent'}"]
 
 
 def parameter_counts(loop: FilledRoles) -> tuple[int, int]:

@@ -214,10 +214,10 @@ def build_maddpg(config: Config, layout: AgentLayout, seed: int) -> MADDPG:
     from cmcl.learners.maddpg import MADDPG
 
     m = config.maddpg
-    _require_entity_layout(layout, "maddpg.networks", m.network_kind)
+    _require_entity_layout(layout, "maddpg.networks", m.networks)
     return MADDPG(layout.num_agents, layout.obs_dim, layout.act_dim, hidden=m.hidden, actor_lr=m.actor_lr,
                   critic_lr=m.critic_lr, gamma=m.gamma, tau=m.tau, grad_clip=m.grad_clip, discrete=layout.discrete,
-                  seed=seed, act_mask=layout.act_mask, networks=m.network_kind, entity_layout=layout.entities,
+                  seed=seed, act_mask=layout.act_mask, networks=m.networks, entity_layout=layout.entities,
                   entity_pool=m.entity_pool, target_scores=any(s.target_critic for s in layout.rule_scores),
                   entity_nearest=m.entity_nearest, assignment_loss=m.assignment_loss, entity_holder=m.entity_holder,
                   holder_rule=m.holder_rule)
@@ -263,11 +263,11 @@ def build_teachers(config: Config, layout: AgentLayout, seed: int, num_folds: in
     from cmcl.scorers.teachers import TeacherEnsemble
 
     t = config.teachers
-    _require_entity_layout(layout, "teachers.networks", t.network_kind)
+    _require_entity_layout(layout, "teachers.networks", t.networks)
     in_dim = layout.num_agents * (layout.obs_dim + layout.act_dim)
     return TeacherEnsemble(int(layout.teacher_agents.size), in_dim=in_dim,
                            num_folds=t.num_folds if num_folds is None else num_folds, hidden=t.hidden, lr=t.lr,
-                           seed=seed, networks=t.network_kind, agents=layout.teacher_agents,
+                           seed=seed, networks=t.networks, agents=layout.teacher_agents,
                            entity_layout=layout.entities, act_dim=layout.act_dim,
                            entity_pool=config.maddpg.entity_pool, entity_nearest=config.maddpg.entity_nearest,
                            entity_holder=config.maddpg.entity_holder,

@@ -68,7 +68,7 @@ def summarise(run: Run, run_path: Path, upto: int | None = None) -> dict[str, An
         if checkpoint is None:
             raise FileNotFoundError(f"{run_path}: no policy checkpoint that passes its checks")
     else:
-        checkpoint = run_dir.checkpoint_path(upto)
+        checkpoint = run_dir.checkpoints / f"ckpt_{upto:08d}.pt"  # the inline runner's own format of older runs
         if len(rows) < upto or not checkpoint.exists():
             raise ValueError(f"{run_path}: no {upto} episodes to read (has {len(rows)}, checkpoint "
                              f"{checkpoint.name} {'exists' if checkpoint.exists() else 'missing'})")

@@ -108,7 +108,7 @@ def policy_checkpoints(run: RunDirectory) -> dict[int, Any]:
     from cmcl.io.verified import VerifiedFile
     from cmcl.run.rundir import PolicyCheckpoint
 
-    found: dict[int, Any] = dict(run.inline_checkpoints())
+    found: dict[int, Any] = {int(p.stem.split("_")[1]): p for p in sorted(run.checkpoints.glob("ckpt_*.pt"))}
     learner, below = VerifiedFile(run.service_dir / "learner.pt"), None
     rows = [(int(r.get("weight_version", 0)), int(r["episodes"])) for r in run.rows("episode")]
     while True:
@@ -119,7 +119,7 @@ def policy_checkpoints(run: RunDirectory) -> dict[int, Any]:
         state = torch.load(io.BytesIO(loaded.payload), map_location="cpu", weights_only=True)
         version = int(state.get("version", 0))  # the weights' version; an episode row names the one it acted with
         episode = max((e for v, e in rows if v <= version), default=0)
-        found.setdefault(episode, PolicyCheckpoint(path, "service", state, path.stat().st_mtime))
+        found.setdefault(episode, PolicyCheckpoint(path, state, path.stat().st_mtime))
         below = loaded.generation
 
 

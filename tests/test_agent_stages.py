@@ -36,7 +36,7 @@ def test_a_bad_plan_names_the_flag_and_the_value(tiny_config, agents, episodes, 
 def test_networks_that_grow_with_the_agent_count_are_refused_before_anything_trains(tmp_path, tiny_config_file,
                                                                                       capsys):
     config = str(tiny_config_file("maddpg", dir=str(tmp_path / "cur")))
-    for extra in ([], ["--set", "maddpg.share_parameters=true"]):
+    for extra in ([], ["--set", "maddpg.networks=shared"]):
         assert main(["stages", "--runner", "inline", "--agents", "2", "3", "--config", config, *extra]) == 2
         err = capsys.readouterr().err
         assert "shapes do not depend on the number of agents" in err and "at N = 2" in err and "at N = 3" in err

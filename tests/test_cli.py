@@ -5,9 +5,8 @@
 - Each verb runs as a user runs it, a subprocess, on the inline runner with the tiny config; `resume` finds the
   runner from the run directory itself, and either runner resumes a run of either (one checkpoint format).
 - Bad input (an unknown verb or runner, a folder that is not a run, a service flag for the inline runner, a run of
-  the inline runner's own old checkpoint format, a config key that moved) exits with 2 and a message naming the
-  value, and leaves what is stored untouched; a run stored before a key moved or was removed still resumes and
-  evaluates.
+  the inline runner's own old checkpoint format, a config key of an older layout, a run stored with one) exits with
+  2 and a message naming the value, and leaves what is stored untouched.
 """
 
 from __future__ import annotations
@@ -17,20 +16,18 @@ import json
 import shlex
 import subprocess
 import sys
-import tomllib
 from pathlib import Path
 
 import pytest
 
-from cmcl.__main__ import build_parser, main, runner_of
-from cmcl.config import config_from_dict
-from cmcl.config.toml_io import _toml_value
+from cmcl.__main__ import build_parser, main
 from cmcl.io.resume_hint import python_command
 from cmcl.io.verified import VerifiedFile
 from cmcl.run.evaluate import build_parser as evaluate_alias_parser
 from cmcl.run.flags import LAST_OWN_INLINE_FORMAT, RunRequest, open_run, request_from
 from cmcl.run.rundir import RunDirectory
 from cmcl.run.runlock import LOCK_NAME
+from cmcl.run.status import runner_of
 from services.launch import build_parser as launch_alias_parser
 from tests.evaluation_output import evaluation_json
 from tests.in_process import trained_inline_run
@@ -135,7 +132,7 @@ def test_train_runs_the_inline_runner_to_its_budget(tmp_path, tiny_config_file):
     assert "held-out evaluation (200 new worlds, no exploration noise): coverage " in trained.stdout
     assert f"gif: {run_dir / 'trained.gif'}" in trained.stdout and (run_dir / "trained.gif").stat().st_size > 0
     newest = RunDirectory.open(run_dir).newest_policy()
-    assert newest.path == run_dir / "checkpoints" / "service" / "learner-000001.pt" and newest.runner == "service"
+    assert newest.path == run_dir / "checkpoints" / "service" / "learner-000001.pt"
     holder = json.loads((run_dir / LOCK_NAME).read_text())
     assert holder["command"].startswith("python -m cmcl train --runner inline"), holder
 
@@ -314,55 +311,32 @@ def test_the_printed_python_is_the_one_a_user_can_type_where_it_is_printed(tmp_p
         assert python_command() == "python"
 
 
-def test_a_moved_key_is_refused_in_one_line_and_nothing_is_made(tmp_path, capsys):
+def test_a_key_of_an_older_layout_is_refused_in_one_line_and_nothing_is_made(tmp_path, capsys):
     run = tmp_path / "run"
-    moved = "teachers.difficulty_norm=max"
-    assert main(["train", "--runner", "inline", "--set", f"run.dir={run}", "--set", moved]) == 2
-    assert capsys.readouterr().err == ("error: teachers.difficulty_norm moved to teams.<team>.priority.difficulty_norm "
-                                       "(one per team); set that instead, got 'max'\n")
+    old_key = "teachers.difficulty_norm=max"
+    assert main(["train", "--runner", "inline", "--set", f"run.dir={run}", "--set", old_key]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: unknown key teachers.difficulty_norm") and err.count("\n") == 1, err
     assert not run.exists()
 
 
-def old_layout(text: str) -> str:
-    """A config.toml as the code before [teams.<team>.priority] wrote it: the team's α and floor in its own table,
-    the other priority settings global (every team of these tests has the same); and the keys removed since
-    (cmcl.config.moved.REMOVED) at their defaults of then."""
-    data = tomllib.loads(text)
-    data["run"].update(log_every=10, checkpoint_every=500)
-    data["teachers"]["rescore_rows_per_update"] = 128
-    for team in data["teams"].values():
-        priority = team.pop("priority")
-        team.update({k: priority.pop(k) for k in ("alpha", "uniform_floor") if k in priority})
-        data["teachers"].update({k: priority[k] for k in ("difficulty_norm", "difficulty_transform",
-                                                          "difficulty_error")})
-        data["icm"]["cp_input"] = priority["cp_input"]
-    lines = []
-    for name, table in [*((s, t) for s, t in data.items() if s != "teams"),
-                        *((f"teams.{team}", t) for team, t in data["teams"].items())]:
-        lines += [f"[{name}]", *(f"{k} = {_toml_value(v)}" for k, v in table.items()), ""]
-    return "\n".join(lines)
+def test_a_run_written_before_the_priority_tables_is_refused_naming_the_key_and_the_last_commit(tmp_path,
+                                                                                                tiny_config, capsys):
+    """A run directory whose config.toml has a key of the layout before [teams.<team>.priority]
+    (teachers.difficulty_norm): resume and evaluate refuse it in one line naming the key and the commit that reads
+    it, and leave it untouched."""
+    from cmcl.replay.snapshot import LAST_READER
 
-
-def test_a_run_written_before_the_priority_tables_resumes_and_evaluates(tmp_path, tiny_config, capsys):
-    """A run directory whose config.toml has the old keys (teams.agent.alpha, teachers.difficulty_norm, ...,
-    run.log_every) resumes with the values it trained with (its replay snapshot's α must match the buffer's) and
-    evaluates; its stored config.toml keeps those values when the resume records its own setting (--more-episodes:
-    run.episodes), written in the current layout."""
     path = tmp_path / "run"
-    data = tiny_config("per", dir=str(path), episodes=4).to_dict()
-    data["teams"]["agent"]["priority"].update(alpha=0.7, uniform_floor=0.1, difficulty_norm="max")
-    config = config_from_dict(data)
-    run_dir = trained_inline_run(config)
-    stored = old_layout(run_dir.config_path.read_text())
-    assert "[teams.agent.priority]" not in stored and 'difficulty_norm = "max"' in stored
-    assert "log_every = 10" in stored and "rescore_rows_per_update = 128" in stored
-    run_dir.config_path.write_text(stored)
-    assert run_dir.config() == config
-    resumed = main(["resume", str(path), "--more-episodes", "4", "--quiet", "--no-eval"])
-    assert resumed == 0, capsys.readouterr()
-    assert f"resuming {path} from checkpoints/service/learner-000001.pt" in capsys.readouterr().out
-    assert [r["episodes"] for r in run_dir.rows("episode")][-1] == 8
-    assert main(["evaluate", str(path), "--episodes", "4", "--no-gif"]) == 0, capsys.readouterr().err
-    assert evaluation_json(capsys.readouterr().out)["policy"] == "trained"
-    now = run_dir.config()
-    assert now.teams == config.teams and now.teachers == config.teachers and now.run.episodes == 8
+    run_dir = trained_inline_run(tiny_config("per", dir=str(path), episodes=4))
+    text = run_dir.config_path.read_text()
+    assert "\n[teachers]\n" in text
+    run_dir.config_path.write_text(text.replace("\n[teachers]\n", '\n[teachers]\ndifficulty_norm = "max"\n'))
+    before = stored_files(run_dir.path)
+    for argv in (["resume", str(path), "--more-episodes", "4", "--quiet", "--no-eval"],
+                 ["evaluate", str(path), "--episodes", "4", "--no-gif"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and "unknown key teachers.difficulty_norm: written by an older version; " \
+            f"commit {LAST_READER} is the last that reads it" in err and err.count("\n") == 1, err
+    assert stored_files(run_dir.path) == before

@@ -58,7 +58,7 @@ def test_every_dataclass_field_appears_with_a_meaning():
     ("teachers.num_folds=1", "teachers.num_folds"), ("icm.lr=0", "icm.lr"), ("run.dir=''", "run.dir"),
     ("run.max_seconds=-1", "run.max_seconds"), ("service.metrics_port=70000", "service.metrics_port"),
     ("service.call_timeout_s=-1", "service.call_timeout_s"),
-    ("teams.agent.priority_sharing=x", "teams.agent.priority_sharing"), ("env.num_envs=0", "env.num_envs"),
+    ("env.num_envs=0", "env.num_envs"),
     ("env.factory=nope", "env.factory"), ("env.agent_radius=0.7", "env.agent_radius"),
     ("env.num_predators=0", "env.num_predators"), ("env.tag_shared_reward=1", "env.tag_shared_reward"),
     ("maddpg.entity_pool=max", "maddpg.entity_pool"), ("run.episodes=1.5", "run.episodes"),
@@ -80,7 +80,7 @@ def test_defaults_are_a_runs_defaults():
     assert docs["shared_reward"].default == "false" and docs["tag_shared_reward"].default == "false"
     assert docs["cover_radius"].default == "0.1" and docs["cover_radius"].unit == "arena units"
     maddpg = {k.key: k for k in reference()["maddpg"].keys}
-    assert maddpg["networks"].default == "unset" and maddpg["update_every"].default == "16"
+    assert maddpg["networks"].default == "\"per_agent\"" and maddpg["update_every"].default == "16"
 
 
 def test_one_section_is_printed_and_an_unknown_one_is_refused_in_one_line(capsys):
@@ -110,11 +110,9 @@ def test_one_key_is_printed_under_its_section_and_an_unknown_one_refused(capsys,
     assert capsys.readouterr().err.startswith(f"error: unknown section or key {key + 'x'!r}")
 
 
-def test_only_the_services_ray_keys_say_they_are_the_services_and_the_removed_keys_are_gone():
+def test_only_the_services_ray_keys_say_they_are_the_services():
     """Both runners schedule the same roles: a [service] key is the inline runner's too (service.updates_per_call)
-    but for the Ray-only ones (cmcl.config.runners.SERVICE_ONLY), whose meaning says so; the keys removed when the
-    runners became one (cmcl.config.moved.REMOVED) are no key of the reference."""
-    from cmcl.config.moved import REMOVED
+    but for the Ray-only ones (cmcl.config.runners.SERVICE_ONLY), whose meaning says so."""
     from cmcl.config.runners import IN_ONE_PROCESS, SERVICE_ONLY
 
     docs = reference()
@@ -125,5 +123,3 @@ def test_only_the_services_ray_keys_say_they_are_the_services_and_the_removed_ke
     assert "runner only" not in service["updates_per_call"].meaning + service["checkpoint_every_s"].meaning
     assert not any("runner only" in k.meaning for name, section in docs.items() if name != "service"
                    for k in section.keys)
-    for section, key in REMOVED:
-        assert key not in {k.key for k in docs[section].keys}, (section, key)

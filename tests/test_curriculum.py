@@ -54,18 +54,3 @@ def test_state_dict_round_trip_and_validation():
     with pytest.raises(ValueError, match="env_steps"):
         other.load_state_dict({"env_steps": -3})
     assert other.env_steps == 12345
-
-
-@pytest.mark.parametrize("kwargs, name", [
-    ({"lam0": 0.0}, "lam0"), ({"lam0": 0.5, "lam_max": 0.4}, "lam0"), ({"lam_max": 1.5}, "lam_max"),
-    ({"stride": -1e-6}, "stride"), ({"warmup_steps": -1}, "warmup_steps"), ({"kind": "cosine"}, "kind"),
-    ({"growth": float("nan")}, "growth"),
-])
-def test_bad_settings(kwargs, name):
-    with pytest.raises(ValueError, match=name):
-        CurriculumSchedule(**kwargs)
-
-
-def test_advance_rejects_negative():
-    with pytest.raises(ValueError, match="n_env_steps"):
-        CurriculumSchedule().advance(-1)

@@ -4,6 +4,7 @@ import dataclasses
 import hashlib
 import pickle
 import re
+import struct
 from pathlib import Path
 
 import msgpack
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 
 from cmcl.io import codec, records
-from cmcl.io.durable import FRAME, LEGACY_FRAME, ReplayStore, StoreError, frame, read_frames
+from cmcl.io.durable import FRAME, LEGACY_MAGIC, ReplayStore, StoreError, frame, read_frames
 from cmcl.replay.dedupe import InsertLedger
 from cmcl.replay.messages import Chunk
 from tests.test_codec import make_chunk
@@ -65,15 +66,16 @@ def test_frames_round_trip_a_cut_drops_only_the_torn_frame_and_a_flip_loses_only
         assert scan.damaged == [(starts[hit], ends[hit])] and scan.torn_tail is None
 
 
-def test_a_legacy_log_is_still_read_and_a_bad_legacy_frame_costs_only_itself():
-    payloads = [bytes([i]) * 40 for i in range(4)]
-    legacy = [LEGACY_FRAME.pack(b"CMCL", len(p), hashlib.sha256(p).digest()) + p for p in payloads]
-    data = b"".join(legacy) + frame(b"new", 2)  # a run of the old code resumed by the new one
-    assert read_frames(data).frames == [*payloads, b"new"]
-    flipped = bytearray(data)
-    flipped[len(legacy[0]) + LEGACY_FRAME.size + 3] ^= 1  # in the second frame's payload
-    scan = read_frames(bytes(flipped))
-    assert scan.frames == [payloads[0], *payloads[2:], b"new"] and scan.unknown_ranges == 1
+def test_a_log_of_an_older_frame_format_is_refused_in_one_line_naming_it_and_the_last_commit():
+    from cmcl.replay.snapshot import LAST_READER
+
+    payloads = [bytes([i]) * 40 for i in range(2)]
+    # the older frames: magic, payload bytes, SHA-256 (no transitions, no header CRC)
+    legacy = [struct.pack("<4sQ32s", LEGACY_MAGIC, len(p), hashlib.sha256(p).digest()) + p for p in payloads]
+    with pytest.raises(StoreError) as err:
+        read_frames(b"".join(legacy) + frame(b"new", 2))
+    assert str(err.value) == (f"replay log of frame format 'CMCL': written by an older version; commit {LAST_READER} "
+                              "is the last that reads it")
 
 
 def test_a_corrupt_frame_moves_the_log_aside_whole_and_keeps_every_good_frame(tmp_path):

@@ -135,7 +135,7 @@ def test_the_plateau_anatomy_reads_the_learners_checkpoints_of_the_service_forma
     config = make_tiny_config("maddpg", service=True, sections=ONE_UPDATE_PER_STEP, dir=str(tmp_path / "run"))
     summary, roles = train_tiny(config, config.run.dir)
     checkpoints = policy_checkpoints(RunDirectory.open(config.run.dir))
-    assert list(checkpoints) == [summary["episodes"]] and checkpoints[summary["episodes"]].runner == "service"
+    assert list(checkpoints) == [summary["episodes"]] and checkpoints[summary["episodes"]].path.parent.name == "service"
     obs = np.random.default_rng(0).normal(size=(2, config.env.spread.num_agents, roles.learner.maddpg.obs_dim))
     obs = obs.astype(np.float32)
     restored = load_policy(config, checkpoints[summary["episodes"]])

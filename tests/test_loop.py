@@ -73,8 +73,8 @@ def test_eight_agents_with_shared_networks_run_and_resume_their_weights(tmp_path
     """Scale: N = 8 navigation with one shared actor and critic and one teacher per fold; the
     learner's and the teachers' weights change, every row is scored, and a checkpoint restores them."""
     data = tiny_config("cmcl", dir=str(tmp_path / "n8")).to_dict()
-    data["env"]["num_agents"], data["maddpg"]["share_parameters"] = 8, True
-    data["teachers"]["share_parameters"] = True
+    data["env"]["num_agents"], data["maddpg"]["networks"] = 8, "shared"
+    data["teachers"]["networks"] = "shared"
     config = config_from_dict(data)
     fresh = create_roles(config, RunDirectory.create(tmp_path / "fresh", config), in_process=True)
     before = {k: v.clone() for k, v in fresh.learner.maddpg.actor.state_dict().items()}
@@ -159,7 +159,7 @@ def test_cli_rejects_bad_config(capsys):
     assert "maddpg.gamma" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("changed", ["teachers.share_parameters=true", "maddpg.share_parameters=true",
+@pytest.mark.parametrize("changed", ["teachers.networks=shared", "maddpg.networks=shared",
                                      "teachers.num_folds=2", "maddpg.networks=entity"])
 def test_resuming_under_other_network_settings_names_them_and_keeps_the_run(tmp_path, capsys, changed,
                                                                              tiny_config):
@@ -171,9 +171,9 @@ def test_resuming_under_other_network_settings_names_them_and_keeps_the_run(tmp_
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     # named before anything starts (cmcl.run.resume_shapes), the setting alone (not run.episodes), with both shapes
     assert err.startswith(f"error: resume --set {changed}: the run's checkpoints hold other shapes ("), err
-    if "share_parameters" in changed:
+    if "=shared" in changed:
         assert f"({changed.split('.')[0]} " in err and " in them, (" in err and " with these settings)" in err
-    elif "networks" in changed:  # other tensors altogether: one of the stored ones, absent under the setting
+    elif "networks=entity" in changed:  # other tensors altogether: one of the stored ones, absent under the setting
         assert "(maddpg actor.layers.0.weight: (" in err and "in them, none with these settings)" in err
     else:
         assert "(teachers.num_folds: 3 in them, 2 with these settings)" in err

@@ -68,15 +68,11 @@ def test_network_settings_are_checked():
     with pytest.raises(ValueError, match="share_parameters"):
         MADDPG(N, OD, 2, networks="entity", share_parameters=True, entity_layout=LAYOUT)
     assert MADDPG(N, OD, 2, share_parameters=True).networks == "shared"
-    assert load_config(None, ["maddpg.networks=entity"]).maddpg.network_kind == "entity"
-    assert load_config(None, ["maddpg.share_parameters=true"]).maddpg.network_kind == "shared"
-    with pytest.raises(ConfigError, match="maddpg.share_parameters = true contradicts maddpg.networks = 'entity'"):
-        load_config(None, ["maddpg.networks=entity", "maddpg.share_parameters=true"])
+    assert load_config(None, ["maddpg.networks=entity"]).maddpg.networks == "entity"
+    assert load_config(None).maddpg.networks == load_config(None).teachers.networks == "per_agent"
     with pytest.raises(ConfigError, match="maddpg.networks"):
         load_config(None, ["maddpg.networks=graph"])
-    assert load_config(None, ["teachers.networks=entity"]).teachers.network_kind == "entity"
-    with pytest.raises(ConfigError, match="teachers.share_parameters = true contradicts teachers.networks"):
-        load_config(None, ["teachers.networks=per_agent", "teachers.share_parameters=true"])
+    assert load_config(None, ["teachers.networks=entity"]).teachers.networks == "entity"
 
 
 def test_discrete_entity_actors_update():

@@ -31,6 +31,5 @@ def test_a_factory_environment_trains_through_the_service(factory, extra, tmp_pa
     summary = run_service(config, RunDirectory.create(config.run.dir, config), progress=None)
     brief = {k: v for k, v in summary.items() if k != "metrics_text"}
     assert summary["episodes"] >= 24 and summary["updates"] > 0, brief
-    assert summary["reports_rejected"] == {}, brief
     for team in config.teams:
         assert f'team="{team}"' in summary["metrics_text"], team

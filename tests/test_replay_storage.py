@@ -96,30 +96,6 @@ def test_fold_slots_only_own_fold():  # property 11 (the storage side)
         rb.fold_slots(5)
 
 
-@pytest.mark.parametrize("field, bad, match", [
-    (0, np.zeros((4, N, OD + 1)), r"obs has shape \(4, 3, 5\)"),
-    (1, np.zeros((4, N, AD), dtype=object), "act must be a real numeric array"),
-    (2, np.array([[0, 1, np.nan]] * 4), "rew must be finite"),
-    (3, np.full((4, N, OD), 1e39), "next_obs value .* does not fit in float32"),
-    (4, np.full(4, 2.0), "done must lie in"),
-    (5, np.full(4, 1.5), "episode must be integers"),
-    (5, np.full(4, -1), "episode must be >= 0"),
-    (2, np.zeros((4, N + 1)), r"rew has shape \(4, 4\), expected \(4, 3\)"),
-])
-def test_add_rejects_bad_input_and_stores_nothing(field, bad, match):
-    rb = filled(capacity=50, episodes=2)
-    before = rb.state_dict()
-    args = list(chunk(4, 9, np.random.default_rng(3)))
-    args[field] = bad
-    with pytest.raises(ValueError, match=match):
-        rb.add(*args)
-    after = rb.state_dict()
-    assert rb.size == before["storage"]["size"] and after["storage"]["next_id"] == before["storage"]["next_id"]
-    assert np.array_equal(after["storage"]["obs"], before["storage"]["obs"])
-    with pytest.raises(ValueError, match="policy_version"):
-        rb.add(*chunk(4, 9, np.random.default_rng(3)), policy_version=-2)
-
-
 def test_update_scores_drops_stale():
     rb = filled(capacity=60, episodes=2)  # slots 0..59, generation 1
     slots = np.arange(0, 60, 6)
@@ -211,23 +187,29 @@ def test_load_state_dict_rejects_and_leaves_buffer_untouched():
     assert rb.state_dict()["storage"]["next_id"] == good["storage"]["next_id"]
 
 
-def test_loads_a_format_1_snapshot():
-    """A buffer snapshotted before the sampling distributions were objects (format 1: "modes" with "uniform",
-    "samplers", one "max_priority" array; written by that version) loads and samples as it did."""
+def test_a_snapshot_of_an_older_format_is_refused_in_one_line_naming_the_last_commit_that_reads_it():
+    """A buffer snapshotted before the sampling distributions were objects (format 1: "modes", "samplers", one
+    "max_priority" array; written by that version), or one of format 2 without a field this version writes: refused
+    in one line naming the format or the field and the commit that reads it; the buffer is left as it was."""
     from pathlib import Path
 
+    from cmcl.replay.snapshot import LAST_READER
+
     old = codec.read_snapshot(Path(__file__).parent / "fixtures" / "replay_format1.msgpack")
-    assert "format" not in old["replay"] and old["replay"]["modes"]["2"] == "uniform"
-    rb = make_buffer(capacity=60, n_agents=N, obs_dim=2, act_dim=1, algorithms=["per", "cmcl", "maddpg"],
-                      alpha=[0.6, 1.0, 1.0])
-    rb.load_state_dict(old["replay"])
-    s = rb.valid_slots()
-    assert rb.lam == 0.35 and rb.sampling[0].max_priority == old["max_priority"][0]
-    for a in range(N):
-        assert np.array_equal(rb.probabilities(a, s), old["probabilities"][a])
-        assert np.array_equal(rb.sample(a, 16, np.random.default_rng(a), beta=0.4)[0], old["draws"][a])
-    assert rb.state_dict()["format"] == 2
-    done = np.asarray(old["replay"]["storage"]["done"])  # one per row then: every agent's, per agent now
-    assert done.shape == (60,) and np.array_equal(rb.storage.done[:60], np.repeat(done[:, None], N, 1))
+    rb = make_buffer(capacity=60, n_agents=N, obs_dim=OD, act_dim=AD, algorithms=["per", "cmcl", "maddpg"],
+                     alpha=[0.6, 1.0, 1.0])
+    rb.add(*chunk(10, 0, np.random.default_rng(0)))
+    before = rb.state_dict()
+    with pytest.raises(ValueError) as err:
+        rb.load_state_dict(old["replay"])
+    assert str(err.value) == (f"replay snapshot format 1 (this version reads 2): written by an older version; "
+                              f"commit {LAST_READER} is the last that reads it")
+    without_rng = {k: v for k, v in before.items() if k != "control_rng"}
+    with pytest.raises(ValueError, match=f"^replay snapshot without 'control_rng': .* commit {LAST_READER} "):
+        rb.load_state_dict(without_rng)
+    storage = {k: v for k, v in before["storage"].items() if k != "stale_dropped_total"}
+    with pytest.raises(ValueError, match="^replay snapshot without storage.stale_dropped_total: "):
+        rb.load_state_dict({**before, "storage": storage})
     with pytest.raises(ValueError, match="format 3"):
-        rb.load_state_dict({**rb.state_dict(), "format": 3})
+        rb.load_state_dict({**before, "format": 3})
+    assert rb.state_dict()["storage"]["next_id"] == before["storage"]["next_id"] == 10

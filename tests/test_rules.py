@@ -81,7 +81,6 @@ def test_no_algorithm_name_is_compared_outside_the_registry_and_the_rule_files()
     names = set(ALGORITHMS)
     offenders = [f"{path.relative_to(ROOT)}:{line}" for folder in ("cmcl", "services")
                  for path in sorted((ROOT / folder).rglob("*.py")) if path.name != "registry.py"
-                 and path.name != "snapshot.py"  # the format-1 upgrade reads the old files' mode names
                  and not (path.parent.name == "rules" and path.stem in names)
                  for line in name_comparisons(path.read_text(), names)]
     assert offenders == []

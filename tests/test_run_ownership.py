@@ -8,7 +8,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
 import torch
@@ -52,23 +51,25 @@ def save_service(run: RunDirectory, value: float) -> None:
     VerifiedFile(run.service_paths()["learner"]).save(buffer.getvalue())
 
 
-def test_newest_policy_is_the_newest_verified_file_of_either_runner(tmp_path):
+def test_newest_policy_is_the_learners_newest_verified_file_and_the_old_inline_format_is_refused(tmp_path):
+    from cmcl.replay.snapshot import LAST_READER, OlderRunError
+
     run = RunDirectory(tmp_path)
     assert run.newest_policy() is None
-    save_torch_atomic(run.checkpoint_path(500), policy_state(1.0))
-    assert run.newest_policy().runner == "inline" and run.newest_policy().path.name == "ckpt_00000500.pt"
-    old = time.time() - 60
-    os.utime(run.checkpoint_path(500), (old, old))  # written a minute before the service's files below
+    (run.checkpoints / "ckpt_00000500.pt").parent.mkdir(parents=True, exist_ok=True)
+    save_torch_atomic(run.checkpoints / "ckpt_00000500.pt", policy_state(1.0))  # the inline runner's own, older
+    with pytest.raises(OlderRunError) as err:
+        run.newest_policy()
+    assert str(err.value) == (f"{run.checkpoints}: checkpoints of the inline runner's own format (ckpt_*.pt): "
+                              f"written by an older version; commit {LAST_READER} is the last that reads it")
     save_service(run, 2.0)
     save_service(run, 3.0)
     newest = run.newest_policy()
-    assert (newest.runner, newest.path.name, newest.state["version"]) == ("service", "learner-000002.pt", 3)
+    assert (newest.path.name, newest.state["version"]) == ("learner-000002.pt", 3)
     newest.path.write_bytes(b"corrupted")  # the newest generation fails its digest: the previous one is used
     fallback = run.newest_policy()
-    assert (fallback.runner, fallback.state["version"]) in {("service", 2), ("inline", 1)}
-    assert fallback.path.name in {"learner-000001.pt", "ckpt_00000500.pt"}
+    assert (fallback.path.name, fallback.state["version"]) == ("learner-000001.pt", 2)
     assert run.runners() == {"inline", "service"}
-
 
 def test_first_signal_asks_for_a_stop_and_a_second_forces(tmp_path):
     forced: list[int] = []

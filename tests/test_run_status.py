@@ -5,9 +5,10 @@ from __future__ import annotations
 import json
 import os
 
-from cmcl.__main__ import main, runner_of
+from cmcl.__main__ import main
 from cmcl.io.resume_hint import resume_command
 from cmcl.run.runlock import RunLock
+from cmcl.run.status import runner_of
 from tests.in_process import trained_inline_run
 from tests.tiny import make_tiny_config
 

@@ -1,13 +1,10 @@
-"""Which runner honours which key (cmcl/config/runners.py) and the keys removed when the two runners became one
-(cmcl/config/moved.py REMOVED).
+"""Which runner honours which key (cmcl/config/runners.py).
 
 Both runners schedule the same roles (services.runtime.calls), so every key is read by both but the service's Ray-only
 ones (SERVICE_ONLY: restarts, call timeouts, CPU requests, the metrics endpoint): those are refused on the inline
 runner's command line in one line naming the key, the runner and the value (exit 2, nothing made), and not read
-there from a config file. Every other service.* key (service.updates_per_call, ...) is accepted inline. A removed
-key (run.log_every, run.checkpoint_every, teachers.rescore_rows_per_update) is refused in one line naming what does
-its work now, on both runners, from the command line and from a file. Every shipped preset, the grids' commands and
-the Makefile's run still load on the runners they are run with."""
+there from a config file. Every other service.* key (service.updates_per_call, ...) is accepted inline. Every shipped
+preset, the grids' commands and the Makefile's run still load on the runners they are run with."""
 
 from __future__ import annotations
 
@@ -20,7 +17,6 @@ import pytest
 
 from cmcl.__main__ import main
 from cmcl.config import Config, ConfigError, apply_overrides, config_from_dict, load_config, load_data
-from cmcl.config.moved import REMOVED
 from cmcl.config.runners import SERVICE_ONLY, check_runner_keys
 from cmcl.run.rundir import RunDirectory
 from services.launch import main as launch_main
@@ -35,7 +31,6 @@ SERVICE_ONLY_VALUES = {"service.max_restarts": 5, "service.call_timeout_s": 30.0
 # one non-default value of service keys both runners honour
 SHARED_VALUES = {"service.updates_per_call": 4, "service.fit_steps_per_call": 2, "service.score_rows_per_call": 200,
                  "service.checkpoint_every_s": 5.0, "service.rollout_workers": 2}
-REMOVED_VALUES = {"run.log_every": 8, "run.checkpoint_every": 20, "teachers.rescore_rows_per_update": 64}
 
 
 def check(runner, file_data=None, overrides=()):
@@ -92,39 +87,10 @@ def test_a_config_file_may_carry_the_services_own_settings_for_the_inline_runner
         check("inline", file, ["service.max_restarts=7"])  # on the command line it is refused
 
 
-@pytest.mark.parametrize("key", sorted(REMOVED_VALUES))
-def test_a_removed_key_is_refused_in_one_line_naming_what_does_its_work_now(key, tmp_path):
-    value = REMOVED_VALUES[key]
-    section, name = key.split(".")
-    expected = f"{key} was removed ({REMOVED[(section, name)]}); leave it out, got {value!r}"
-    with pytest.raises(ConfigError) as err:
-        load_config(None, [override(key, value)])
-    assert str(err.value) == expected
-    path = tmp_path / "old.toml"
-    path.write_text(f"[{section}]\n{name} = {value}\n")
-    with pytest.raises(ConfigError) as err:
-        load_config(path)
-    assert str(err.value) == expected
-    assert set(REMOVED) == {tuple(k.split(".")) for k in REMOVED_VALUES}
-
-
-def test_what_the_removed_keys_say_does_their_work_is_what_does_it():
-    from services.runtime.supervisor import REPORT_EVERY_S
-
-    assert f"every {REPORT_EVERY_S:g} s" in REMOVED[("run", "log_every")]
-    assert "service.checkpoint_every_s" in REMOVED[("run", "checkpoint_every")]
-    assert "service.score_rows_per_call" in REMOVED[("teachers", "rescore_rows_per_update")]
-    fields = {f"{s}.{f.name}" for s in ("run", "service", "teachers")
-              for f in dataclasses.fields(getattr(Config(), s))}
-    assert {"service.checkpoint_every_s", "service.score_rows_per_call"} <= fields
-    assert not {".".join(k) for k in REMOVED} & fields
-
-
 @pytest.mark.parametrize("path", PRESETS, ids=lambda p: str(p.relative_to(ROOT / "configs")))
 @pytest.mark.parametrize("runner", ["inline", "service"])
 def test_every_shipped_preset_loads_on_both_runners(path, runner):
     data = load_data(path)
-    assert not any(key in data.get(section, {}) for section, key in REMOVED), path
     check(runner, data)
     load_config(path)
 
@@ -168,9 +134,7 @@ def test_the_makefiles_run_loads_on_the_service():
      r"service\.max_restarts is honoured by the service runner only, not the inline runner \(.+\); leave it out or "
      r"train with --runner service, got 5"),
     (["train", "--set", "run.checkpoint_every=20"],  # the default runner
-     r"run\.checkpoint_every was removed \(.+\); leave it out, got 20"),
-    (["train", "--runner", "inline", "--set", "teachers.rescore_rows_per_update=64"],
-     r"teachers\.rescore_rows_per_update was removed \(.+\); leave it out, got 64"),
+     r"unknown key run\.checkpoint_every \(known: .+\)"),
 ])
 def test_the_command_line_refuses_in_one_line_before_anything_is_made(argv, error, tmp_path, capsys):
     run = tmp_path / "run"
@@ -184,7 +148,7 @@ def test_the_alias_and_resume_refuse_alike_and_a_shared_key_resumes_inline(tmp_p
     from services.launch import train_in_process
 
     assert launch_main(["--set", "run.log_every=4", "--set", f"run.dir={tmp_path / 'b'}"]) == 2
-    assert capsys.readouterr().err.startswith("error: run.log_every was removed (both runners log a progress row")
+    assert capsys.readouterr().err.startswith("error: unknown key run.log_every (known: ")
     assert not (tmp_path / "b").exists()
     config = tiny_config("maddpg", dir=str(tmp_path / "run"), episodes=4)
     run_dir = RunDirectory.create(config.run.dir, config)
@@ -194,7 +158,7 @@ def test_the_alias_and_resume_refuse_alike_and_a_shared_key_resumes_inline(tmp_p
     assert main([*resume, "--set", "service.max_restarts=5"]) == 2
     assert capsys.readouterr().err.startswith("error: service.max_restarts is honoured by the service runner only")
     assert main([*resume, "--set", "run.log_every=2"]) == 2
-    assert capsys.readouterr().err.startswith("error: run.log_every was removed")
+    assert capsys.readouterr().err.startswith("error: unknown key run.log_every (known: ")
     assert run_dir.metrics_path.read_bytes() == before
     assert main([*resume, "--set", "service.updates_per_call=4", "--more-episodes", "2"]) == 0
     assert [r["episodes"] for r in run_dir.rows("episode")][-1] >= 6

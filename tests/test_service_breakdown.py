@@ -13,7 +13,7 @@ from cmcl.replay.messages import ReplayStatus
 from cmcl.replay.pacing import Pacing
 from cmcl.replay.ratelimit import RateLimiter
 from services.observability.metrics import ServiceMetrics
-from services.observability.report_schema import LearnerReport, Report, parse_report
+from services.observability.report_schema import LearnerReport, Report
 from services.runtime.call_budget import HeldClock
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
@@ -101,7 +101,6 @@ def test_the_held_clock_counts_the_seconds_without_a_learner_call_by_reason():
 def test_the_learners_busy_seconds_reach_the_metrics_endpoint():
     report = Report(source="learner", role="learner", incarnation="a",
                     learner=LearnerReport(updates=16, busy_s=1.5, busy_cpu_s=1.25))
-    assert parse_report(report.to_dict()).learner.busy_cpu_s == 1.25
     metrics = ServiceMetrics()
     metrics.apply(report)
     metrics.apply(Report(source="learner", role="learner", incarnation="a",

@@ -219,7 +219,6 @@ def test_a_replay_server_killed_mid_snapshot_keeps_the_previous_one(tmp_path, ra
     summary = supervisor.run()  # (the arming call's own reply may be lost with the process: see above)
     assert armed and summary["episodes"] == 60 and summary["env_steps"] == 60 * config.env.episode_length
     assert summary["failures"].get("replay", 0) >= 1, summary["failures"]
-    assert summary["reports_rejected"] == {}, "the final cut's report reached the metrics"
     assert value(samples(metrics.text()), "cmcl_replay_inserts_total") == summary["env_steps"]
     kill_all(ray, roles)
 
@@ -246,7 +245,6 @@ def test_a_rollout_worker_killed_three_times_with_sigkill_loses_nothing_acknowle
     parsed = samples(metrics.text())
     assert value(parsed, "cmcl_actor_restarts_total", role="rollout") == 3
     assert value(parsed, "cmcl_replay_inserts_total") == summary["env_steps"], "each stored chunk stored once"
-    assert summary["reports_rejected"] == {}, summary["reports_rejected"]
     assert actor_entry(roles.rollout[0])["NumRestarts"] == 3
     assert len(summary["recovery_s"]["rollout"]) == 3 and all(t > 0 for t in summary["recovery_s"]["rollout"])
     kill_all(ray, roles)

@@ -94,7 +94,7 @@ def test_icm_actor_refuses_a_config_without_curiosity():
 @pytest.mark.parametrize("shared", [False, True], ids=["own_teachers", "shared_teachers"])
 def test_one_actor_can_host_every_fold_without_leaking_a_rows_own_fold(shared):
     cfg = in_process_config("acl", service={"teacher_actors": 1, "score_rows_per_call": 360},
-                            teachers={"share_parameters": shared})
+                            teachers={"networks": "shared" if shared else "per_agent"})
     assert teacher_groups(config_from_dict(cfg)) == [[0, 1, 2]]
     replay, worker, learner = ReplayServer(cfg), RolloutWorker(cfg, 0, 0), Learner(cfg, 0)
     teacher = TeacherWorker(cfg, [0, 1, 2], 0)

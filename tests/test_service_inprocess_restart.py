@@ -108,6 +108,29 @@ def test_a_torn_log_tail_is_cut_and_a_bad_snapshot_refused(tmp_path):
         ReplayServer(cfg, store_dir=str(store))
 
 
+def test_a_snapshot_of_an_older_version_is_refused_in_one_line_naming_the_field_and_the_last_commit(tmp_path):
+    """A snapshot without a part this version writes (the sampler streams, kept since a later version) or of the
+    buffer's older format: refused as a bad snapshot is, naming what it lacks and the commit that reads it."""
+    from services.replay_server import SNAPSHOT_KEYS
+
+    from cmcl.replay.snapshot import LAST_READER
+
+    cfg = in_process_config("maddpg")
+    replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
+    replay.insert(worker.rollout(None)[0])
+    state = replay.state_dict()
+    assert tuple(state) == SNAPSHOT_KEYS
+    for name, older in (("replay server snapshot without 'sampler_rngs'",
+                         {k: v for k, v in state.items() if k != "sampler_rngs"}),
+                        ("replay snapshot format 1 (this version reads 2)",
+                         {**state, "replay": {k: v for k, v in state["replay"].items() if k != "format"}})):
+        store = tmp_path / name.split()[2]
+        ReplayStore(store).snapshot(older)
+        with pytest.raises(StoreError) as err:
+            ReplayServer(cfg, store_dir=str(store))
+        assert str(err.value) == f"{name}: written by an older version; commit {LAST_READER} is the last that reads it"
+
+
 def test_a_corrupt_frame_costs_only_its_own_transitions_and_the_log_is_moved_aside(tmp_path, capsys):
     """One flipped byte in the first frame used to truncate the log there and lose every chunk after."""
     cfg = in_process_config("maddpg")  # capacity 360: two chunks of 120 stay in the log

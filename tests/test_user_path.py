@@ -139,7 +139,7 @@ def resume(run_dir: Path, command: str | list[str]) -> Launched:
 def learner_version(run_dir: Path) -> int:
     """The policy version of the run's newest verified learner checkpoint."""
     policy = RunDirectory.open(run_dir).newest_policy()
-    assert policy is not None and policy.runner == "service", f"no service policy in {run_dir}"
+    assert policy is not None and policy.path.parent.name == "service", f"no service policy in {run_dir}"
     return int(policy.state["version"])
 
 

@@ -9,7 +9,7 @@ Layout: the section dataclasses, each field's range check in its own metadata: `
 [service]), `env` (the [env] section and the tasks: the world parameters are cmcl.envs.params' SpreadParams /
 TagParams, under their flat TOML keys); `checks` (`ConfigError` and the range checks), `experiment` (`Config`, its
 derived quantities, `preset`), `toml_io` (mapping / TOML loading, `--set` overrides, type coercion, `dump_toml`),
-`moved` (keys that moved: refused from user input, migrated in a stored run config), `reference` (every key's
+`reference` (every key's
 meaning, unit, default and range from the fields' metadata: `python -m cmcl config`, docs/CONFIG.md).
 Import every name from `cmcl.config`; the submodules are an implementation detail.
 

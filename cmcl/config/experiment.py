@@ -75,9 +75,9 @@ class Config:
         layout, read by the entity networks, which alone mask absent agents; the teachers, the ICM and ACL's online
         critic score rows without the mask, so only MADDPG's uniform and PER's sampling may draw them."""
         why = "needs {} ({} here)"
-        _require(self.maddpg.network_kind == "entity", "run.carry_replay", True,
+        _require(self.maddpg.networks == "entity", "run.carry_replay", True,
                  why.format("maddpg.networks = 'entity' (networks whose parameters do not depend on N)",
-                            f"maddpg.networks = {self.maddpg.network_kind!r}"))
+                            f"maddpg.networks = {self.maddpg.networks!r}"))
         _require(self.env.task == "spread" and not self.env.factory, "run.carry_replay", True,
                  why.format("env.task = 'spread' (its rows of fewer agents are padded into its entity layout)",
                             f"env.task = {self.env.task!r}" + (" with env.factory" if self.env.factory else "")))
@@ -91,8 +91,8 @@ class Config:
         """maddpg.assignment_loss's needs (cmcl.learners.entity.assignment): the entity actor's attention over the
         entity slots (entity networks, a pool with attention) and landmarks to assign (the navigation task)."""
         key, value, why = "maddpg.assignment_loss", self.maddpg.assignment_loss, "> 0 needs {} ({} here)"
-        _require(self.maddpg.network_kind == "entity", key, value,
-                 why.format("maddpg.networks = 'entity'", f"maddpg.networks = {self.maddpg.network_kind!r}"))
+        _require(self.maddpg.networks == "entity", key, value,
+                 why.format("maddpg.networks = 'entity'", f"maddpg.networks = {self.maddpg.networks!r}"))
         _require(self.maddpg.entity_pool != "mean", key, value,
                  why.format("an attention to supervise, maddpg.entity_pool = 'attention' or 'relational'",
                             "maddpg.entity_pool = 'mean'"))

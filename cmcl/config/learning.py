@@ -24,7 +24,6 @@ from cmcl.config.checks import (
     OPEN_PROBABILITY,
     POSITIVE,
     PROBABILITY,
-    ConfigError,
     Rule,
     _require,
     check_fields,
@@ -35,19 +34,6 @@ from cmcl.field_docs import documented
 NetworkKind = Literal["per_agent", "shared", "entity"]
 NETWORK_KINDS: tuple[str, ...] = typing.get_args(NetworkKind)
 __all__ = ["NETWORK_KINDS", "CurriculumConfig", "ICMConfig", "MADDPGConfig", "ReplayConfig", "TeacherConfig"]
-
-
-def _check_networks(section: str, networks: str | None, share_parameters: bool) -> None:
-    """A section's `networks` is a known kind and agrees with its `share_parameters` (which means 'shared')."""
-    if share_parameters and networks not in (None, "shared"):
-        raise ConfigError(f"{section}.share_parameters = true contradicts {section}.networks = {networks!r}: set "
-                          f"only {section}.networks (share_parameters = true means networks = 'shared')")
-    _require(networks in (None, *NETWORK_KINDS), f"{section}.networks", networks,
-             f"must be one of {list(NETWORK_KINDS)}")
-
-
-def _network_kind(networks: str | None, share_parameters: bool) -> str:
-    return networks if networks is not None else ("shared" if share_parameters else "per_agent")
 
 
 @dataclass(frozen=True)
@@ -75,14 +61,12 @@ class MADDPGConfig:
         16, "world steps (one step of one world = one transition) per learner update; 16 solves navigation fastest "
         "in wall clock (docs/LEARNING.md, python -m experiments run schedule); the paper presets (configs/paper/) "
         "use 1 (A18)", unit="world steps per update", rule=AT_LEAST_1)
-    share_parameters: bool = documented(
-        False, "one actor and one critic network for all agents, each with its own first-layer bias (an agent-id "
-        "embedding, cmcl.learners.nets); for N = 8 / 16 (bench/scale.py). False = the paper's per-agent networks")
-    networks: NetworkKind | None = documented(
-        None, "the networks' kind: 'per_agent' (one actor and critic per agent, the paper's), 'shared' "
-        "(the same as share_parameters = true) or 'entity' (one attention actor and one permutation-invariant "
-        "critic for all agents over the observation's entities, a parameter count independent of N: "
-        "cmcl.learners.entity.nets; built-in tasks only). Unset: 'shared' if share_parameters else 'per_agent'")
+    networks: NetworkKind = documented(
+        "per_agent", "the networks' kind: 'per_agent' (one actor and critic per agent, the paper's), 'shared' "
+        "(one actor and one critic network for all agents, each with its own first-layer bias, an agent-id "
+        "embedding, cmcl.learners.nets; for N = 8 / 16, bench/scale.py) or 'entity' (one attention actor and one "
+        "permutation-invariant critic for all agents over the observation's entities, a parameter count independent "
+        "of N: cmcl.learners.entity.nets; built-in tasks only)")
     entity_pool: Literal["attention", "mean", "relational"] = documented(
         "attention", "how every entity network of the run (learner, teachers.networks and icm.networks = "
         "'entity') pools its entities: 'attention' (one head from the agent's own embedding, plus a mean), 'mean' "
@@ -125,20 +109,15 @@ class MADDPGConfig:
         "not the other agents), maddpg.entity_nearest = 0 and env.task = 'spread'. 0 = off", rule=FINITE_AT_LEAST_0)
 
     def __post_init__(self) -> None:
-        _check_networks("maddpg", self.networks, self.share_parameters)
         check_fields(self, "maddpg")
-        _require(self.entity_nearest == 0 or self.network_kind == "entity", "maddpg.entity_nearest",
+        _require(self.entity_nearest == 0 or self.networks == "entity", "maddpg.entity_nearest",
                  self.entity_nearest, f"> 0 needs maddpg.networks = 'entity' (maddpg.networks = "
-                 f"{self.network_kind!r} here)")
-        _require(not self.entity_holder or self.network_kind == "entity", "maddpg.entity_holder", self.entity_holder,
-                 f"needs maddpg.networks = 'entity' (maddpg.networks = {self.network_kind!r} here)")
+                 f"{self.networks!r} here)")
+        _require(not self.entity_holder or self.networks == "entity", "maddpg.entity_holder", self.entity_holder,
+                 f"needs maddpg.networks = 'entity' (maddpg.networks = {self.networks!r} here)")
         _require(self.holder_rule == "nearest" or self.entity_holder, "maddpg.holder_rule", self.holder_rule,
                  "needs maddpg.entity_holder = true (the rule is the holder margin's)")
 
-    @property
-    def network_kind(self) -> str:
-        """The networks built: maddpg.networks, or what share_parameters implies when it is unset."""
-        return _network_kind(self.networks, self.share_parameters)
 
 
 @dataclass(frozen=True)
@@ -208,23 +187,14 @@ class TeacherConfig:
         0.5, "teacher fit steps per learner update, inline and in the service (its rate limiter); §3.8 has 1, the "
         "default 0.5 halves the teachers' cost (CMCL update cost vs MADDPG: bench/learner_throughput.py)",
         unit="fit steps per update", rule=POSITIVE)
-    share_parameters: bool = documented(
-        False, "one teacher network per fold for all agents, each agent with its own first-layer bias "
-        "(cmcl.learners.nets, grouped sharing); the folds stay separate. For N = 8 / 16 (bench/scale.py). False = "
-        "per-(agent, fold) networks")
-    networks: NetworkKind | None = documented(
-        None, "the teachers' kind, as maddpg.networks: 'entity' = one entity critic (cmcl.learners.entity.nets) per "
-        "fold for all agents, its parameter count independent of N; unset: 'shared' if share_parameters else "
-        "'per_agent'")
+    networks: NetworkKind = documented(
+        "per_agent", "the teachers' kind: 'per_agent' (one network per (agent, fold)), 'shared' (one teacher "
+        "network per fold for all agents, each agent with its own first-layer bias, cmcl.learners.nets, grouped "
+        "sharing; the folds stay separate; for N = 8 / 16, bench/scale.py) or 'entity' (one entity critic, "
+        "cmcl.learners.entity.nets, per fold for all agents, its parameter count independent of N)")
 
     def __post_init__(self) -> None:
-        _check_networks("teachers", self.networks, self.share_parameters)
         check_fields(self, "teachers")
-
-    @property
-    def network_kind(self) -> str:
-        """The teachers' networks: teachers.networks, or what share_parameters implies when it is unset."""
-        return _network_kind(self.networks, self.share_parameters)
 
 
 @dataclass(frozen=True)

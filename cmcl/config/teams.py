@@ -94,10 +94,6 @@ class TeamConfig:
     acl_variant: Literal["teachers", "td_self"] = documented(
         "teachers", "where an acl team's difficulty comes from: 'teachers' (the K-fold teachers' errors, as cmcl) "
         "or 'td_self' (the learner's own |δ| on the row)")
-    priority_sharing: Literal["per_agent"] = documented(
-        "per_agent", "one sampler per agent (A3); A3's option 'team_mean' (one sampler per team on the team's mean "
-        "ĉ and ρ̂) is refused here, not implemented",
-        rule=rule("must be 'per_agent' (A3's 'team_mean' is not implemented)", lambda v: v == "per_agent"))
     actor_batch: Literal["rule", "uniform"] = documented(
         "rule", "the rows the actor step trains on: 'rule' = the critic's minibatch, drawn by the team's rule; "
         "'uniform' = a minibatch of its own drawn uniformly from the buffer, apart from the critic's, without IS "

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import re
 import tomllib
 import types
 import typing
@@ -20,9 +21,9 @@ from typing import Any, Literal
 from cmcl.config.checks import ConfigError, _require
 from cmcl.config.env import TASK_TEAMS, TASKS, WORLD_KEYS, EnvConfig, WorldKey
 from cmcl.config.experiment import Config
-from cmcl.config.moved import migrate_moved, refuse_moved
 from cmcl.config.teams import PriorityConfig, TeamConfig
 from cmcl.replay.registry import REGISTRY, register_file
+from cmcl.replay.snapshot import older_run
 
 _SECTIONS = {f.name: f for f in dataclasses.fields(Config) if f.name != "teams"}
 
@@ -159,12 +160,10 @@ def _build_env(data: Mapping[str, Any], prefix: str = "env") -> EnvConfig:
 
 
 def config_from_dict(data: Mapping[str, Any]) -> Config:
-    """Build and validate a Config from a nested mapping (as parsed from TOML). A key that moved is refused, naming
-    its new place (cmcl.config.moved; a stored run config is migrated first: `load_stored_config`)."""
+    """Build and validate a Config from a nested mapping (as parsed from TOML)."""
     unknown = sorted(set(data) - set(_SECTIONS) - {"teams"})
     if unknown:
         raise ConfigError(f"unknown section {unknown[0]!r} (known: {sorted([*_SECTIONS, 'teams'])})")
-    refuse_moved(data)
     sections = {name: _build_env(data.get(name, {})) if name == "env" else
                 _build(f.default_factory, data.get(name, {}), name) for name, f in _SECTIONS.items()}
     for path in sections["replay"].rule_paths:  # rules kept in files of their own, registered before the teams
@@ -230,12 +229,20 @@ def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -
 
 
 def load_stored_config(path: str | Path, overrides: Iterable[str] = ()) -> Config:
-    """A run directory's stored config.toml, keys that moved since it was written carried to their new place
-    (cmcl.config.moved.migrate_moved), then the `--set` overrides (refused if they name a moved key)."""
+    """A run directory's stored config.toml with the `--set` overrides. A key this version does not know, written
+    by an older one (it wrote only known keys), is refused in one line naming it (`older_run`)."""
     data = load_data(path)
-    env = data.get("env") if isinstance(data.get("env"), Mapping) else {}
-    teams = ("agent",) if env.get("factory") else TASK_TEAMS.get(env.get("task", EnvConfig().task), ())
-    return config_from_dict(apply_overrides(migrate_moved(data, teams), overrides))
+    try:
+        return config_from_dict(apply_overrides(data, overrides))
+    except ConfigError as err:
+        if not str(err).startswith("unknown "):
+            raise
+        try:  # the stored keys alone: an unknown key there is the older version's, one of an override the user's
+            config_from_dict(data)
+        except ConfigError as stored:
+            if str(stored) == str(err):
+                raise ConfigError(older_run(f"{path}: {re.split(r'[;(]', str(err))[0].strip()}")) from None
+        raise
 
 
 def load_data(path: str | Path | None = None, overrides: Iterable[str] = ()) -> dict[str, Any]:

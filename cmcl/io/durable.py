@@ -30,11 +30,11 @@ from typing import Any
 from cmcl.io import codec
 from cmcl.io.atomic import atomic_write_bytes
 from cmcl.io.write_failure import write_error
+from cmcl.replay.snapshot import older_run
 
 MAGIC = b"CML2"
 FRAME = struct.Struct("<4sQI32sI")  # magic, payload bytes, transitions, sha256(payload), crc32(the 48 bytes before)
-LEGACY_MAGIC = b"CMCL"
-LEGACY_FRAME = struct.Struct("<4sQ32s")  # frames written before transitions and the header CRC: still read
+LEGACY_MAGIC = b"CMCL"  # the frames of an older version (no transitions, no header CRC): refused
 MAX_FRAME_BYTES = 1 << 30
 
 
@@ -49,30 +49,26 @@ def frame(payload: bytes, transitions: int = 0) -> bytes:
     return head + struct.pack("<I", zlib.crc32(head)) + payload
 
 
-def _header(data: bytes, pos: int) -> tuple[int, int, int | None, bytes] | None:
-    """The frame header at `pos` if one is there: (header bytes, payload bytes, transitions or None when the header
-    does not record them, payload SHA-256); None when the bytes at `pos` are not a whole, intact header."""
+def _header(data: bytes, pos: int) -> tuple[int, int, int, bytes] | None:
+    """The frame header at `pos` if one is there: (header bytes, payload bytes, transitions, payload SHA-256); None
+    when the bytes at `pos` are not a whole, intact header."""
     magic = data[pos:pos + 4]
     if magic == MAGIC and len(data) - pos >= FRAME.size:
         _, length, rows, digest, crc = FRAME.unpack_from(data, pos)
         if zlib.crc32(data[pos:pos + FRAME.size - 4]) == crc and length <= MAX_FRAME_BYTES:
             return FRAME.size, length, rows, digest
-    elif magic == LEGACY_MAGIC and len(data) - pos >= LEGACY_FRAME.size:
-        _, length, digest = LEGACY_FRAME.unpack_from(data, pos)
-        if length <= MAX_FRAME_BYTES:
-            return LEGACY_FRAME.size, length, None, digest
     return None
 
 
 def _next_header(data: bytes, start: int) -> int:
     """The first position >= `start` holding an intact frame header, or len(data)."""
     while start < len(data):
-        hits = [i for i in (data.find(MAGIC, start), data.find(LEGACY_MAGIC, start)) if i >= 0]
-        if not hits:
+        hit = data.find(MAGIC, start)
+        if hit < 0:
             return len(data)
-        if _header(data, min(hits)) is not None:
-            return min(hits)
-        start = min(hits) + 1
+        if _header(data, hit) is not None:
+            return hit
+        start = hit + 1
     return len(data)
 
 
@@ -113,14 +109,16 @@ class LogScan:
 def read_frames(data: bytes) -> LogScan:
     """Every frame of a log's bytes that verifies, with what was skipped. A frame whose header is intact (CRC)
     but whose payload fails its SHA-256 is skipped by its recorded length; bytes without an intact header are
-    skipped up to the next intact header; a frame cut by the end of the data is a torn tail."""
+    skipped up to the next intact header; a frame cut by the end of the data is a torn tail. StoreError for a log
+    of an older version's frames (`LEGACY_MAGIC`)."""
+    if data.startswith(LEGACY_MAGIC):
+        raise StoreError(older_run(f"replay log of frame format {LEGACY_MAGIC.decode()!r}"))
     out, pos = LogScan(), 0
     while pos < len(data):
         head = _header(data, pos)
         if head is None:
             nxt = _next_header(data, pos)
-            if nxt == len(data) and len(data) - pos < FRAME.size and any(
-                    m.startswith(data[pos:pos + 4]) for m in (MAGIC, LEGACY_MAGIC)):
+            if nxt == len(data) and len(data) - pos < FRAME.size and MAGIC.startswith(data[pos:pos + 4]):
                 out.torn_tail = pos  # a header cut by the end of the log
             else:
                 out.unknown_ranges += 1
@@ -138,11 +136,6 @@ def read_frames(data: bytes) -> LogScan:
             out.frames.append(payload)
             out.spans.append((pos, end))
             pos = end
-        elif rows is None:  # a legacy header has no CRC: its length may be the damage, so resynchronise
-            out.unknown_ranges += 1
-            nxt = _next_header(data, pos + 1)
-            out._skip(pos, nxt)
-            pos = nxt
         else:
             out.lost_frames += 1
             out.lost_transitions += rows

@@ -468,9 +468,8 @@ class MADDPG:
 
         Layout: {"actor", "critic", "target_actor", "target_critic": module state dicts with stacked
         tensors [N, in, out] / [N, out]; "actor_opt", "critic_opt": Adam state dicts; "noise_gen": uint8 tensor;
-        "updates": int; "entity_nearest": int, the k of maddpg.entity_nearest (the weights do not show it; a
-        state without it, written before it was kept, is k = 0); "entity_holder": bool, maddpg.entity_holder (a
-        state without it is false); "holder_rule": str, maddpg.holder_rule (a state without it is "nearest")}.
+        "updates": int; "entity_nearest": int, the k of maddpg.entity_nearest (the weights do not show it);
+        "entity_holder": bool, maddpg.entity_holder; "holder_rule": str, maddpg.holder_rule}.
         """
         return {
             "actor": self.actor.state_dict(),
@@ -491,7 +490,7 @@ class MADDPG:
         parts = ("actor", "critic", "target_actor", "target_critic")
         require_same_holder("checkpoint maddpg", self.entity_holder, state)
         require_same_shapes("checkpoint maddpg", {name: getattr(self, name) for name in parts}, state,
-                            "maddpg.networks, maddpg.share_parameters, maddpg.hidden, agents or observation sizes")
+                            "maddpg.networks, maddpg.hidden, agents or observation sizes")
         require_same_nearest("checkpoint maddpg", self.entity_nearest, state)
         require_same_holder_rule("checkpoint maddpg", self.holder_rule, state)
         for name in parts:

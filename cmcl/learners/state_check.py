@@ -8,6 +8,8 @@ from collections.abc import Mapping
 
 from torch import nn
 
+from cmcl.replay.snapshot import OlderRunError, older_run
+
 
 def require_same_shapes(owner: str, modules: Mapping[str, nn.Module], state: Mapping, settings: str) -> None:
     """Raise ValueError unless state[name] has exactly the tensor keys and shapes of modules[name] for every name.
@@ -28,11 +30,17 @@ def require_same_shapes(owner: str, modules: Mapping[str, nn.Module], state: Map
                                  f": it was saved under other {settings}")
 
 
+def _saved(owner: str, state: Mapping, key: str):
+    """state[key]; OlderRunError (one line) for a state written before the key was kept."""
+    if key not in state:
+        raise OlderRunError(older_run(f"{owner} without {key!r}"))
+    return state[key]
+
+
 def require_same_nearest(owner: str, nearest: int, state: Mapping) -> None:
     """Raise ValueError unless the saved MADDPG state was trained with the same maddpg.entity_nearest as this model
-    (`nearest`): the weights fit either way, but they were learned reading other entities (a state written before the
-    setting was kept has k = 0)."""
-    saved = int(state.get("entity_nearest", 0))
+    (`nearest`): the weights fit either way, but they were learned reading other entities."""
+    saved = int(_saved(owner, state, "entity_nearest"))
     if saved != int(nearest):
         raise ValueError(f"{owner} was trained with maddpg.entity_nearest = {saved} and this config has {int(nearest)}"
                          f": the same weights would read other entities; set maddpg.entity_nearest = {saved}")
@@ -41,8 +49,8 @@ def require_same_nearest(owner: str, nearest: int, state: Mapping) -> None:
 def require_same_holder(owner: str, holder: bool, state: Mapping) -> None:
     """Raise ValueError unless the saved MADDPG state was trained with the same maddpg.entity_holder as this model
     (`holder`): the entity layers take one more input with it, so the weights do not fit (checked before the shapes,
-    so that the message names the setting; a state written before the setting was kept has it false)."""
-    saved = bool(state.get("entity_holder", False))
+    so that the message names the setting)."""
+    saved = bool(_saved(owner, state, "entity_holder"))
     if saved != bool(holder):
         toml = {True: "true", False: "false"}
         raise ValueError(f"{owner} was trained with maddpg.entity_holder = {toml[saved]} and this config has "
@@ -52,9 +60,8 @@ def require_same_holder(owner: str, holder: bool, state: Mapping) -> None:
 
 def require_same_holder_rule(owner: str, rule: str, state: Mapping) -> None:
     """Raise ValueError unless the saved MADDPG state was trained with the same maddpg.holder_rule as this model
-    (`rule`): the weights fit either way, but they learned to read the margin by the saved rule (a state written
-    before the rule was kept has "nearest")."""
-    saved = str(state.get("holder_rule", "nearest"))
+    (`rule`): the weights fit either way, but they learned to read the margin by the saved rule."""
+    saved = str(_saved(owner, state, "holder_rule"))
     if saved != rule:
         raise ValueError(f"{owner} was trained with maddpg.holder_rule = {saved!r} and this config has {rule!r}: the "
                          f"same weights would read another margin; set maddpg.holder_rule = {saved!r}")

@@ -31,6 +31,8 @@ import math
 from collections.abc import Iterable
 from typing import Any
 
+from cmcl.replay.snapshot import OlderRunError, older_run
+
 RELATIVE = {"critic_loss": True, "normalised_td": True, "coverage": False}  # LP: relative, else absolute change
 SIGNALS = tuple(RELATIVE)  # run.progress_signal's values
 
@@ -176,22 +178,20 @@ class LearningProgress:
         return [table[w] for w in sorted(table)]
 
     def state_dict(self) -> dict[str, Any]:
-        critic = self.series["critic_loss"].state_dict()  # also under the old top-level keys, for older readers
         return {"window_index": self.window_index, "below": self.below, "signal": self.signal,
-                "total": critic["total"], "count": critic["count"], "means": critic["means"],
-                "progress": critic["progress"],
                 "series": {name: series.state_dict() for name, series in self.series.items()}}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Restore a `state_dict()`; a state from before the normalised TD error and the coverage were kept (the
-        critic loss's alone, at the top level) restores the critic loss and starts the other two afresh."""
+        """Restore a `state_dict()` (OlderRunError, one line, for a state without a signal's series, written before
+        it was kept)."""
+        missing = [name for name in SIGNALS if name not in state.get("series", {})]
+        if missing:
+            raise OlderRunError(older_run(f"learning progress state without the series {missing[0]!r}"))
         self.window_index = int(state["window_index"])
-        series = state.get("series") or {"critic_loss": state}
         for name in SIGNALS:
             self.series[name] = _Series(RELATIVE[name])
-            if name in series:
-                self.series[name].load_state_dict(series[name], self.window_index)
-        if state.get("signal", "critic_loss") == self.signal:
+            self.series[name].load_state_dict(state["series"][name], self.window_index)
+        if state["signal"] == self.signal:
             self.below = int(state["below"])
         else:  # another signal's count: this signal's trailing windows below the threshold
             self.below = 0

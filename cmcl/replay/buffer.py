@@ -19,7 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from cmcl.replay.priority import LAM_MAX, kfold_priority, permute_priorities
-from cmcl.replay.snapshot import STATE_FORMAT, rng_state, set_rng_state, upgrade_state
+from cmcl.replay.snapshot import STATE_FORMAT, OlderRunError, older_run, require_format, rng_state, set_rng_state
 from cmcl.replay.storage import TransitionStorage
 
 
@@ -247,30 +247,29 @@ class ReplayBuffer:
         }
 
     def load_state_dict(self, state: dict) -> None:
-        """Restore from `state_dict()` output (or a snapshot of an older format, `cmcl.replay.snapshot`);
+        """Restore from `state_dict()` output (an older format is refused: `cmcl.replay.snapshot.require_format`);
         everything is validated before anything changes (a snapshot is a file read back). Algorithms, alpha and the
         controls must equal this buffer's samplers' (they come from the run config); each sampler checks its own
         state."""
         n = self.storage.n_agents
-        state = upgrade_state(state, n)
+        require_format(state, "storage", "lam", "algorithms", "sampling", "alpha", "difficulty_transform",
+                       "control_rng")
         algorithms = [state["algorithms"].get(str(a)) for a in range(n)]
         if algorithms != self.algorithms:
             raise ValueError(f"algorithms in state {algorithms} differ from this buffer's {self.algorithms}")
-        alpha = state["alpha"]
-        alphas = [float(a) for a in alpha] if isinstance(alpha, Sequence) else [float(alpha)] * n  # older: one float
-        if alphas != self.alpha:
+        if [float(a) for a in state["alpha"]] != self.alpha:
             raise ValueError(f"alpha in state ({state['alpha']!r}) differs from this buffer ({self.alpha!r})")
-        transform = state.get("difficulty_transform", "none")  # older snapshots: one transform for every agent
-        transform = [transform] * n if isinstance(transform, str) else list(transform)
-        if transform != self.difficulty_transform:
-            raise ValueError(f"difficulty_transform in state ({transform!r}) differs from this buffer "
-                             f"({self.difficulty_transform!r})")
+        if list(state["difficulty_transform"]) != self.difficulty_transform:
+            raise ValueError(f"difficulty_transform in state ({state['difficulty_transform']!r}) differs from this "
+                             f"buffer ({self.difficulty_transform!r})")
         control_rng = np.random.default_rng()
-        if "control_rng" in state:
-            set_rng_state(control_rng, state["control_rng"])
+        set_rng_state(control_rng, state["control_rng"])
         staged = TransitionStorage(capacity=self.capacity, n_agents=n, obs_dim=self.storage.obs_dim,
                                    act_dim=self.storage.act_dim, n_folds=self.storage.n_folds)
-        staged.load_state_dict(state["storage"])
+        try:
+            staged.load_state_dict(state["storage"])
+        except KeyError as err:
+            raise OlderRunError(older_run(f"replay snapshot without storage.{err.args[0]}")) from None
         lam = float(state["lam"])
         if lam != -1.0 and not 0.0 < lam <= self.lam_max:
             raise ValueError(f"lam in state must be -1 (never recomputed) or in (0, {self.lam_max}], got {lam!r}")
@@ -283,5 +282,4 @@ class ReplayBuffer:
         self.storage, self.sampling = staged, sampling
         self._index_recomputing()
         self.lam = None if lam < 0 else lam
-        if "control_rng" in state:
-            self.control_rng = control_rng
+        self.control_rng = control_rng

@@ -50,7 +50,8 @@ def default_growth(total_env_steps: int, lam0: float = 0.1, lam_max: float = 1.0
 
 
 class CurriculumSchedule:
-    """λ as a function of environment steps; stateful counter plus a pure `value(t_learn)`.
+    """λ as a function of environment steps; stateful counter plus a pure `value(t_learn)`. Its settings come
+    from the [curriculum] section, checked when the config is loaded (cmcl.config.learning), not again here.
 
     Args:
         lam0: initial λ_0 (0 < λ_0 <= λ_max).
@@ -72,20 +73,8 @@ class CurriculumSchedule:
         kind: str = "linear",
         growth: float | None = None,
     ) -> None:
-        if not (0.0 < lam_max <= 1.0):
-            raise ValueError(f"lam_max must lie in (0, 1], got {lam_max!r}")
-        if not (0.0 < lam0 <= lam_max):
-            raise ValueError(f"lam0 must lie in (0, lam_max={lam_max}], got {lam0!r}")
-        if not (math.isfinite(stride) and stride >= 0):
-            raise ValueError(f"stride must be finite and >= 0, got {stride!r}")
-        if int(warmup_steps) != warmup_steps or warmup_steps < 0:
-            raise ValueError(f"warmup_steps must be an integer >= 0, got {warmup_steps!r}")
-        if kind not in KINDS:
-            raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
         if growth is None:
             growth = default_growth(600_000, lam0=0.1, lam_max=1.0)
-        if not (math.isfinite(growth) and growth >= 0):
-            raise ValueError(f"growth must be finite and >= 0, got {growth!r}")
         self.lam0 = float(lam0)
         self.lam_max = float(lam_max)
         self.stride = float(stride)
@@ -116,8 +105,6 @@ class CurriculumSchedule:
 
     def advance(self, n_env_steps: int = 1) -> float:
         """Count `n_env_steps` more environment steps (integer >= 0); returns the new λ."""
-        if int(n_env_steps) != n_env_steps or n_env_steps < 0:
-            raise ValueError(f"n_env_steps must be an integer >= 0, got {n_env_steps!r}")
         self.env_steps += int(n_env_steps)
         return self.lam
 

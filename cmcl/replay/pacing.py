@@ -114,12 +114,8 @@ class Pacing:
                 "icm_limit": self.icm.state_dict() if self.icm is not None else {}}
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
-        """Restore `state_dict()` output (ValueError naming the key and the setting that differs). A learner state
-        saved before the one warm-up rule (no "start": its target began at maddpg.warmup, with warm-up
-        maddpg.warmup) keeps its counters under this rule."""
+        """Restore `state_dict()` output (ValueError naming the key and the setting that differs)."""
         learner = state["learner_limit"]
-        if "start" not in learner and max(1, learner.get("warmup", -1)) == self.learner.warmup:
-            learner = {**learner, "warmup": self.learner.warmup, "start": self.learner.start}
         teachers = state["teacher_limits"]
         if len(teachers) != len(self.teachers):
             raise ValueError(f"teacher_limits: the state has {len(teachers)} folds' limiters, this config "

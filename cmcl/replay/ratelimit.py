@@ -36,6 +36,8 @@ from collections.abc import Mapping
 from numbers import Real
 from typing import Any
 
+from cmcl.replay.snapshot import OlderRunError, older_run
+
 _EPS = 1e-9  # relative tolerance on float products such as 0.1 * 30
 
 
@@ -122,12 +124,10 @@ class RateLimiter:
                 "inserts": self.inserts, "samples": self.samples}
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
-        """Restore the counters; the settings in `state` must equal this limiter's (ValueError naming the key).
-        States saved before `start` existed lack it: their target started at their warm-up."""
-        missing = sorted({"ratio", "warmup", "slack", "inserts", "samples"} - set(state))
+        """Restore the counters; the settings in `state` must equal this limiter's (ValueError naming the key)."""
+        missing = sorted({"ratio", "warmup", "slack", "start", "inserts", "samples"} - set(state))
         if missing:
-            raise ValueError(f"rate limiter state lacks key {missing[0]!r}")
-        state = {"start": state["warmup"], **state}
+            raise OlderRunError(older_run(f"rate limiter state without {missing[0]!r}"))
         for key in ("ratio", "warmup", "slack", "start"):
             if state[key] != getattr(self, key):
                 raise ValueError(f"rate limiter state has {key}={state[key]!r}, this limiter has "

@@ -222,7 +222,7 @@ class PrioritySampler:
     def load_state_dict(self, state: dict) -> None:
         """Restore raw priorities and rebuild the backend (alpha and backend come from the constructor)."""
         p = _check_priorities(state["priorities"], (self.capacity,))
-        if float(state.get("alpha", self.alpha)) != self.alpha:
+        if float(state["alpha"]) != self.alpha:
             raise ValueError(f"alpha in state ({state['alpha']!r}) differs from this sampler ({self.alpha!r})")
         self.p[:] = p
         self._impl.build(self._pow(self.p))

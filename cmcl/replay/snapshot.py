@@ -1,14 +1,9 @@
-"""The replay buffer's snapshot format: its version, older snapshots read forward, and the control generator's state.
+"""The replay buffer's snapshot format: its version, the refusal of older ones, and the control generator's state.
 
-Where it sits: `cmcl.replay.buffer.ReplayBuffer.state_dict` writes format `STATE_FORMAT`; `load_state_dict` passes
-whatever it reads through `upgrade_state` first, so a run checkpointed (inline) or snapshotted (replay server) by an
-older version resumes.
-
-Formats:
-  1 (no "format" key): per-agent "modes" ("uniform" for MADDPG agents), "samplers" {agent: sampler state} for the
-    prioritized agents only, and PER's running maxima in one "max_priority" float64[N].
-  2: "algorithms" {agent: the config's algorithm}, "sampling" {agent: its sampling distribution's state} for every
-    agent (PER's carries its own "max_priority"; MADDPG's is empty).
+Where it sits: `cmcl.replay.buffer.ReplayBuffer.state_dict` writes format `STATE_FORMAT`; `load_state_dict` reads
+that format only (`require_format`): "algorithms" {agent: the config's algorithm}, "sampling" {agent: its sampling
+distribution's state} for every agent. The replay server's snapshot and a run directory's config.toml are refused the
+same way when they lack what this version writes (`older_run`).
 """
 
 from __future__ import annotations
@@ -18,30 +13,28 @@ from typing import Any
 import numpy as np
 
 STATE_FORMAT = 2
-_FORMAT_1_NAMES = {"uniform": "maddpg"}  # format 1 named MADDPG's sampling, not the algorithm
+# the last commit that reads the project's older layouts (replay snapshot format 1 and the fields added since,
+# config keys that moved into [teams.<team>.priority] or were removed): an older run is refused naming it
+LAST_READER = "4e14724"
 
 
-def upgrade_state(state: dict[str, Any], n_agents: int) -> dict[str, Any]:
-    """A replay `state_dict` of any known format as format `STATE_FORMAT` (a new dict; ValueError for an unknown
-    format, naming it)."""
-    version = int(state.get("format", 1))
-    if version == STATE_FORMAT:
-        return state
-    if version != 1:
-        raise ValueError(f"replay snapshot format {version} is not known to this version (it reads formats 1 to "
-                         f"{STATE_FORMAT}); resume it with the version that wrote it")
-    modes = {str(k): str(v) for k, v in state["modes"].items()}
-    maxp = np.asarray(state["max_priority"], dtype=np.float64)
-    if maxp.shape != (n_agents,):
-        raise ValueError(f"max_priority must have shape ({n_agents},), got {maxp.shape}")
-    sampling = {}
-    for agent, mode in modes.items():
-        sampling[agent] = dict(state["samplers"].get(agent, {}))
-        if mode == "per":
-            sampling[agent]["max_priority"] = float(maxp[int(agent)])
-    rest = {k: v for k, v in state.items() if k not in ("modes", "samplers", "max_priority")}
-    return {**rest, "format": STATE_FORMAT, "sampling": sampling,
-            "algorithms": {k: _FORMAT_1_NAMES.get(v, v) for k, v in modes.items()}}
+class OlderRunError(ValueError):
+    """A run directory, snapshot or log written by an older version, refused (`older_run`'s line)."""
+
+
+def older_run(what: str) -> str:
+    """The one line refusing a run written by an older version: `what` names the field or format."""
+    return f"{what}: written by an older version; commit {LAST_READER} is the last that reads it"
+
+
+def require_format(state: dict[str, Any], *fields: str) -> None:
+    """OlderRunError (`older_run`) unless `state` is of format `STATE_FORMAT` and holds every one of `fields`."""
+    version = state.get("format", 1)
+    if version != STATE_FORMAT:
+        raise OlderRunError(older_run(f"replay snapshot format {version!r} (this version reads {STATE_FORMAT})"))
+    missing = [name for name in fields if name not in state]
+    if missing:
+        raise OlderRunError(older_run(f"replay snapshot without {missing[0]!r}"))
 
 
 def rng_state(rng: np.random.Generator) -> dict[str, Any]:

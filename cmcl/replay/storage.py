@@ -97,24 +97,16 @@ class TransitionStorage:
         """Next slot to write (= next_id mod capacity)."""
         return self.next_id % self.capacity
 
-    def _validate_chunk(self, obs, act, rew, next_obs, done, episode, policy_version) -> dict:
-        """All fields checked and converted before anything is written."""
-        o = np.asarray(obs)
-        if o.ndim != 3:
-            raise ValueError(f"obs has shape {o.shape}, expected (T, {self.n_agents}, {self.obs_dim})")
-        t, n = o.shape[0], self.n_agents
-        done_arr = self._per_agent_done(done, t)
-        if done_arr.size and (done_arr.min() < 0 or done_arr.max() > 1):
-            raise ValueError(f"done must lie in [0, 1], got range [{done_arr.min()}, {done_arr.max()}]")
-        return {
-            "obs": _real_array("obs", o, (t, n, self.obs_dim)),
-            "act": _real_array("act", act, (t, n, self.act_dim)),
-            "rew": _real_array("rew", rew, (t, n)),
-            "next_obs": _real_array("next_obs", next_obs, (t, n, self.obs_dim)),
-            "done": done_arr,
-            "episode": _int_array("episode", episode, (t,)),
-            "policy_version": _int_array("policy_version", policy_version, (t,)),
-        }
+    def _as_chunk(self, obs, act, rew, next_obs, done, episode, policy_version) -> dict:
+        """The fields in the storage's dtypes; a rollout's chunk was checked at the message boundary
+        (cmcl.io.records.check_chunk), so nothing is checked again here."""
+        t = np.shape(obs)[0]
+        done = np.asarray(done, np.float32)
+        return {"obs": np.asarray(obs, np.float32), "act": np.asarray(act, np.float32),
+                "rew": np.asarray(rew, np.float32), "next_obs": np.asarray(next_obs, np.float32),
+                "done": np.repeat(done[:, None], self.n_agents, axis=1) if done.ndim == 1 else done,
+                "episode": np.asarray(episode, np.int64),
+                "policy_version": np.broadcast_to(np.asarray(policy_version, np.int64), (t,))}
 
     def add(self, obs, act, rew, next_obs, done, episode, policy_version=0, present=None) -> np.ndarray:
         """Append T transitions (vectorised); returns int64[T] slots, −1 for the ones a longer-than-capacity
@@ -124,9 +116,8 @@ class TransitionStorage:
             row, every agent's) in [0, 1];
             episode int[T] >= 0; policy_version int scalar or int[T] >= 0;
             present bool[T, N], a prefix of present agents per row (None: every agent; module docstring).
-        Raises ValueError naming the bad field; nothing is stored then.
         """
-        chunk = self._validate_chunk(obs, act, rew, next_obs, done, episode, policy_version)
+        chunk = self._as_chunk(obs, act, rew, next_obs, done, episode, policy_version)
         t = chunk["done"].shape[0]
         chunk["present"] = np.ones((t, self.n_agents), bool) if present is None else self._present(present, t)
         out = np.full(t, -1, np.int64)
@@ -257,7 +248,7 @@ class TransitionStorage:
                "act": _real_array("act", state["act"], (n, na, ad)),
                "rew": _real_array("rew", state["rew"], (n, na)),
                "next_obs": _real_array("next_obs", state["next_obs"], (n, na, od)),
-               "done": self._per_agent_done(state["done"], n)}  # [n] in snapshots older than per-agent done
+               "done": _real_array("done", state["done"], (n, na))}
         for name in _META:
             new[name] = _int_array(name, state[name], (n,))
         if n and not np.array_equal(new["id"] % self.capacity, np.arange(n)):
@@ -278,16 +269,8 @@ class TransitionStorage:
         for c in SCORE_COLUMNS:
             self.scores[c][:n], self.scored[c][:n] = scores[c], scored[c]
         self.size, self.next_id = int(n), int(next_id)
-        self.stale_dropped_total = int(state.get("stale_dropped_total", 0))
+        self.stale_dropped_total = int(state["stale_dropped_total"])
         self.absent_rows = int((~new["present"]).any(1).sum())
-
-    def _per_agent_done(self, done, t: int) -> np.ndarray:
-        """done [t, N], or [t] (one flag per joint row, as before per-agent termination) broadcast to every agent:
-        float32[t, N]."""
-        arr = np.asarray(done)
-        if arr.ndim == 1:
-            arr = _real_array("done", arr, (t,))[:, None].repeat(self.n_agents, axis=1)
-        return _real_array("done", arr, (t, self.n_agents))
 
     def _present(self, present, t: int) -> np.ndarray:
         """present bool[t, N] whose every row is a non-empty prefix of agents (module docstring), validated."""

@@ -20,29 +20,27 @@ import numpy as np
 
 from cmcl.config import Config, ConfigError
 from cmcl.envs.entities import EntityLayout, spread_layout
-from cmcl.io.checkpoint_files import read_replay_snapshot, replay_snapshot_path
 from cmcl.io.durable import ReplayStore
 from cmcl.replay.agent_padding import pad_rows
 from cmcl.replay.buffer import ReplayBuffer
+from cmcl.replay.snapshot import older_run
 from cmcl.replay.storage import TransitionStorage
 from cmcl.run.rundir import RunDirectory
 
 __all__ = ["carry_replay_rows", "check_carry_source"]
 
 
-def _source(init_from: str) -> tuple[str, Path]:
-    """Where init_from's newest replay rows are: ("inline", the replay snapshot beside its newest inline checkpoint)
-    or ("service", its replay store's folder, whose snapshot the service writes at every checkpoint and at the end).
-    ConfigError naming run.carry_replay when there is neither."""
+def _source(init_from: str) -> Path:
+    """Where init_from's newest replay rows are: its replay store's folder, whose snapshot both runners write at
+    every checkpoint and at the end. ConfigError naming run.carry_replay when there is none."""
     run = RunDirectory.open(init_from) if (Path(init_from) / "config.toml").is_file() else None
-    checkpoints = list(run.inline_checkpoints().values()) if run is not None else []
-    if checkpoints:
-        if replay_snapshot_path(checkpoints[-1]).is_file():
-            return "inline", replay_snapshot_path(checkpoints[-1])
     if run is not None and ReplayStore(run.service_replay_dir).manifest_path.is_file():
-        return "service", run.service_replay_dir
-    raise ConfigError(f"run.carry_replay=True: run.init_from={init_from!r} holds no replay to carry (no inline "
-                      "checkpoint with its replay snapshot, no replay store of the service)")
+        return run.service_replay_dir
+    if run is not None and "inline" in run.runners():
+        raise ConfigError(older_run(f"run.carry_replay=True: run.init_from={init_from!r} holds the inline runner's "
+                                    "own checkpoint format"))
+    raise ConfigError(f"run.carry_replay=True: run.init_from={init_from!r} holds no replay to carry (no replay "
+                      "store)")
 
 
 def check_carry_source(config: Config) -> None:
@@ -67,8 +65,7 @@ def check_carry_source(config: Config) -> None:
 
 def source_rows(init_from: str) -> TransitionStorage:
     """The validated storage (TransitionStorage.load_state_dict) of init_from's newest replay (`_source`)."""
-    kind, path = _source(init_from)
-    snapshot = read_replay_snapshot(path) if kind == "inline" else ReplayStore(path).read_snapshot()
+    snapshot = ReplayStore(_source(init_from)).read_snapshot()
     state = snapshot["replay"]["storage"]
     storage = TransitionStorage(capacity=state["capacity"], n_agents=state["n_agents"], obs_dim=state["obs_dim"],
                                 act_dim=state["act_dim"], n_folds=state["n_folds"])

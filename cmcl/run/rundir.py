@@ -2,19 +2,16 @@
 
 Where it sits: both runners (`python -m cmcl train | resume`) write here; `cmcl.run.evaluate` and the plots read here.
 Layout of `<dir>/`:
-  config.toml            the resolved configuration (read back with `config()`: keys that moved since it was written
-                         are carried to their new place, cmcl.config.moved)
+  config.toml            the resolved configuration (read back with `config()`; one written by an older version
+                         with a key this one does not know is refused, cmcl.config.load_stored_config)
   metrics.jsonl          one JSON object per line (episode rows and update rows, each with a "kind";
                          cmcl.io.metrics_log)
   run.lock               the one writer's lock (cmcl.run.runlock)
   summary.json           the runner's last summary (how the run ended, its counters, its provenance)
-  checkpoints/ckpt_<episodes:08d>.pt   inline runner: torch.save of plain state dicts, read with weights_only=True
-  checkpoints/replay_<episodes:08d>.msgpack  inline runner: the replay snapshot beside each checkpoint (both files
-                         and their digest files: cmcl.io.checkpoint_files)
-  checkpoints/service/   service: each role's checkpoint generations and manifest (cmcl.io.verified), the replay
-                         store, the supervisor's counters (`service_paths`)
-Whichever runner wrote the run, `newest_policy()` finds its newest verified policy: evaluation, the end-of-run
-report and resume ask it, never a file name.
+  checkpoints/service/   both runners: each role's checkpoint generations and manifest (cmcl.io.verified), the
+                         replay store, the supervisor's counters (`service_paths`)
+`newest_policy()` finds the newest verified policy: evaluation, the end-of-run report and resume ask it, never a file
+name. The inline runner's own format of older versions (checkpoints/ckpt_<episodes:08d>.pt) is refused.
 """
 
 from __future__ import annotations
@@ -26,17 +23,17 @@ import shutil
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from cmcl.config import Config, dump_toml, load_stored_config
 from cmcl.io.atomic import atomic_write_bytes
-from cmcl.io.checkpoint_files import load_checkpoint, save_torch_atomic
 from cmcl.io.metrics_log import MetricsLog, json_safe
 from cmcl.io.resume_hint import resume_command
 from cmcl.io.verified import CheckpointError, VerifiedFile
+from cmcl.replay.snapshot import OlderRunError, older_run
 from cmcl.run.provenance import code_at_start, provenance
 
-CHECKPOINT_GLOB = "ckpt_*.pt"
+CHECKPOINT_GLOB = "ckpt_*.pt"  # the inline runner's own checkpoints of older versions: refused
 # what a start that failed before its first episode leaves at the top of its run directory (with a `checkpoints/`
 # tree holding no data): nothing a retry must keep (`RunDirectory.never_trained`)
 START_LEFTOVERS = ("config.toml", "run.lock", "ray_shutdown.log")
@@ -49,11 +46,10 @@ class ForeignFolderError(FileExistsError):
 
 @dataclass(frozen=True)
 class PolicyCheckpoint:
-    """A run's policy checkpoint that passed its checks: the file, the runner that wrote it, its decoded state
-    (torch tensors; `state["maddpg"]` holds the policy) and the file's modification time (seconds since the epoch)."""
+    """A run's policy checkpoint that passed its checks: the file, its decoded state (torch tensors;
+    `state["maddpg"]` holds the policy) and the file's modification time (seconds since the epoch)."""
 
     path: Path
-    runner: Literal["inline", "service"]
     state: dict[str, Any]
     mtime: float
 
@@ -144,9 +140,8 @@ class RunDirectory:
         return run
 
     def config(self, overrides: tuple[str, ...] = ()) -> Config:
-        """The run's resolved config, with optional overrides; a config.toml written before a key moved is read with
-        the key at its new place (cmcl.config.load_stored_config), so an older run resumes and evaluates as it
-        trained."""
+        """The run's resolved config, with optional overrides (cmcl.config.load_stored_config: a key of an older
+        version is refused in one line naming it)."""
         return load_stored_config(self.config_path, overrides)
 
     def log(self, row: Mapping[str, Any]) -> None:
@@ -166,25 +161,6 @@ class RunDirectory:
     def truncate_rows_after(self, episodes: int) -> None:
         """On resume: drop rows logged after the checkpoint (row["episodes"] > episodes), atomically."""
         self.metrics.truncate_after(episodes)
-
-    def checkpoint_path(self, episodes: int) -> Path:
-        return self.checkpoints / f"ckpt_{episodes:08d}.pt"
-
-    def save_checkpoint(self, episodes: int, state: Mapping[str, Any]) -> Path:
-        """Save `state` as the checkpoint of `episodes` (see `save_torch_atomic`); returns the path."""
-        path = self.checkpoint_path(episodes)
-        save_torch_atomic(path, state)
-        return path
-
-    def inline_checkpoints(self) -> dict[int, Path]:
-        """The inline runner's checkpoints by the episodes they were saved at, oldest first (unchecked)."""
-        found = sorted(self.checkpoints.glob(CHECKPOINT_GLOB))
-        return {int(path.stem.split("_")[1]): path for path in found}
-
-    def latest_checkpoint(self) -> Path | None:
-        """The inline runner's checkpoint with the most episodes, or None (unchecked; see `newest_policy`)."""
-        found = list(self.inline_checkpoints().values())
-        return found[-1] if found else None
 
     def service_paths(self) -> dict[str, Path]:
         """Where each service role keeps its checkpoint (created if missing): learner / icm (VerifiedFile bases),
@@ -211,7 +187,8 @@ class RunDirectory:
         return self.checkpoints / "service"
 
     def runners(self) -> set[str]:
-        """Which runners have written a policy checkpoint here: a subset of {"inline", "service"}."""
+        """Which checkpoint formats are here: "service" (both runners write it) and "inline" (the inline runner's
+        own format of older versions, refused)."""
         found = set()
         if any(self.checkpoints.glob(CHECKPOINT_GLOB)):
             found.add("inline")
@@ -240,23 +217,12 @@ class RunDirectory:
                 "roles afresh over them (restore the manifest, or move the files away to start afresh)")
 
     def newest_policy(self) -> PolicyCheckpoint | None:
-        """The newest policy checkpoint that passes its checks, whichever runner wrote it (by file time), or None.
-
-        Inline: the newest `ckpt_*.pt` whose manifest digest matches (a refused one is skipped for the one
-        before it). Service: the learner's newest generation that matches its manifest (else the previous one).
-        Every file refused on the way is in `refused_policies` afterwards ("file: reason").
-        """
+        """The learner's newest generation that matches its manifest (else the previous one), or None. Every file
+        refused on the way is in `refused_policies` afterwards ("file: reason"). OlderRunError (one line) for a run
+        holding only checkpoints of the inline runner's own older format."""
         import torch
 
-        found: list[PolicyCheckpoint] = []
         self.refused_policies = []
-        for path in reversed(self.inline_checkpoints().values()):
-            try:
-                found.append(PolicyCheckpoint(path, "inline", load_checkpoint(path), path.stat().st_mtime))
-                break
-            except (CheckpointError, OSError, RuntimeError) as err:
-                self.refused_policies.append(str(err) if str(path) in str(err) else f"{path}: {err}")
-                continue
         learner = VerifiedFile(self.service_dir / "learner.pt")
         loaded = learner.load()
         self.refused_policies += loaded.refused
@@ -264,10 +230,13 @@ class RunDirectory:
             path = learner.file_of(loaded.generation)
             try:
                 state = torch.load(io.BytesIO(loaded.payload), map_location="cpu", weights_only=True)
-                found.append(PolicyCheckpoint(path, "service", state, path.stat().st_mtime))
+                return PolicyCheckpoint(path, state, path.stat().st_mtime)
             except (RuntimeError, OSError):
                 pass
-        return max(found, key=lambda c: c.mtime) if found else None
+        if "inline" in self.runners():
+            raise OlderRunError(older_run(f"{self.checkpoints}: checkpoints of the inline runner's own format "
+                                          f"({CHECKPOINT_GLOB})"))
+        return None
 
     @property
     def summary_path(self) -> Path:

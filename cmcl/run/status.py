@@ -7,7 +7,7 @@ success), summary.json (how it ended) and its lock (who runs it now: `cmcl.run.r
     runs/make-run | service | solved | 12,176 of 60,000 episodes | 130 s trained | last 100 episodes: cov 0.91,
         succ 0.60 | newest checkpoint learner-000003.pt
     runs/smoke | inline | stopped by SIGINT | 40 of 400 episodes | 3 s trained | last 40 episodes: cov 0.09, succ 0.00
-        | newest checkpoint ckpt_00000040.pt | resume: python -m cmcl resume runs/smoke
+        | newest checkpoint learner-000001.pt | resume: python -m cmcl resume runs/smoke
 
 (each one line). A resumed run trains past its config.toml's run.episodes (`resume --more-episodes`): its episodes
 are then shown alone.
@@ -119,11 +119,8 @@ def _last_progress(run_dir: RunDirectory) -> dict[str, Any]:
 
 
 def _newest_checkpoint(run_dir: RunDirectory) -> str | None:
-    """The name of the newest policy checkpoint file (the inline runner's latest, else the service learner's newest
-    generation), not verified; None when there is none."""
-    inline = run_dir.latest_checkpoint()
-    if inline is not None:
-        return inline.name
+    """The name of the newest policy checkpoint file (the learner's newest generation), not verified; None when there
+    is none."""
     learner = VerifiedFile(run_dir.service_dir / "learner.pt")
     generations = learner.generations()
     return learner.file_of(generations[0]).name if generations else None

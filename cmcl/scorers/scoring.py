@@ -198,17 +198,15 @@ class ScoringState:
                 "online_td_stamps": self.online_td_stamps.state_dict(), "inserted_at": self.inserted_at.copy()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Restore `state_dict()` output, validated before anything changes. Snapshots written before a part was kept
-        (inline: stamps other than the teachers', insertion times) restore it as never scored / inserted at 0."""
+        """Restore `state_dict()` output, validated before anything changes."""
         capacity = self.inserted_at.size
         difficulty = DifficultyTable(capacity, self.teacher_agents.size, self.difficulty.num_folds)
         difficulty.load_state_dict(state["difficulty"])
         stamps = {}
         for name in ("curiosity_stamps", "online_td_stamps"):
             stamps[name] = ScoreStamps(capacity, 1)
-            if name in state:
-                stamps[name].load_state_dict(state[name])
-        inserted_at = np.asarray(state.get("inserted_at", np.zeros(capacity)), np.int64)
+            stamps[name].load_state_dict(state[name])
+        inserted_at = np.asarray(state["inserted_at"], np.int64)
         if inserted_at.shape != (capacity,):
             raise ValueError(f"inserted_at has shape {inserted_at.shape}, expected ({capacity},)")
         self.difficulty, self.inserted_at = difficulty, inserted_at.copy()

@@ -166,7 +166,7 @@ class TeacherEnsemble:
     def load_state_dict(self, state: Mapping) -> None:
         """Restore :meth:`state_dict` output (same A, K, in_dim, hidden, sharing: checked first, by name)."""
         require_same_shapes("checkpoint teachers", {"net": self.net}, state,
-                            "teachers.networks, teachers.share_parameters, teachers.num_folds, teachers.hidden or "
+                            "teachers.networks, teachers.num_folds, teachers.hidden or "
                             "agents")
         self.net.load_state_dict(state["net"])
         self.opt.load_state_dict(state["opt"])

@@ -17,7 +17,7 @@ from prometheus_client.metrics_core import HistogramMetricFamily, Metric
 from prometheus_client.registry import Collector
 from prometheus_client.utils import floatToGoString
 
-from services.observability.report_schema import REJECT_REASONS, REPORT_REJECT_REASONS, ROLES
+from services.observability.report_schema import REJECT_REASONS, ROLES
 
 UNIT_BUCKETS = tuple(round(0.05 * i, 2) for i in range(1, 21))  # [0.05 .. 1.0]
 CI_BUCKETS = tuple(round(0.1 * i, 1) for i in range(1, 16))  # [0.1 .. 1.5]
@@ -121,10 +121,8 @@ def define_metrics(r: CollectorRegistry) -> tuple[dict[str, Gauge], dict[str, Co
         "checkpoints_refused": c("cmcl_checkpoints_refused_total",
                                  "Checkpoint files refused by their manifest check when a role started.", ["role"]),
         "reports": c("cmcl_metrics_reports_total", "Reports applied to the metrics endpoint."),
-        "reports_rejected": c("cmcl_metrics_reports_rejected_total", "Reports refused.", ["reason"]),
     }
-    for label, values in (("replay_rejected", REJECT_REASONS), ("reports_rejected", REPORT_REJECT_REASONS),
-                          ("restarts", ROLES), ("checkpoints_refused", ROLES)):
+    for label, values in (("replay_rejected", REJECT_REASONS), ("restarts", ROLES), ("checkpoints_refused", ROLES)):
         for value in values:  # every series exists from the start: a panel shows 0, not "no data"
             counters[label].labels(value)
     histograms = {key: NumpyHistogram(*spec) for key, spec in HISTOGRAMS.items()}

@@ -1,14 +1,14 @@
 """Prometheus metrics of the whole CMCL service: one registry, one HTTP endpoint, fed by actor reports.
 
 Where it sits: `services/launch.py` (the supervisor, a single process) creates one `ServiceMetrics`, calls
-`serve(port, host)` once, and passes every report an actor returns to `apply(report)` (or `try_apply`, which
-returns the error text instead of raising). Actors never touch Prometheus: they send reports, a `Report` or the
-plain mapping of one, whose schema is services/observability/report_schema.py; `apply` parses first (`parse_report`),
-then plans from the typed Report. deploy/prometheus.yml scrapes the endpoint; deploy/grafana/dashboards/cmcl.json
-shows it. The endpoint binds 127.0.0.1 unless told otherwise (the compose file passes 0.0.0.0 inside its
-private network) and uses its own `CollectorRegistry`, never prometheus-client's global one.
+`serve(port, host)` once, and passes every report an actor returns to `apply(report)`. Actors never touch
+Prometheus: they send a `Report` (services/observability/report_schema.py, built by the roles of this code base and
+not validated again here); `apply` plans its metric updates, then commits them. deploy/prometheus.yml scrapes the
+endpoint; deploy/grafana/dashboards/cmcl.json shows it. The endpoint binds 127.0.0.1 unless told otherwise (the compose
+file passes 0.0.0.0 inside its private network) and uses its own `CollectorRegistry`, never prometheus-client's global
+one.
 
-Counter rule (the totals N of the schema). Actors send cumulative totals since their process started; the
+Counter rule (the totals N of the report). Actors send cumulative totals since their process started; the
 supervisor keeps the last total per (source, metric, labels) and adds the difference, so a repeated report adds
 nothing. When `incarnation` changes, one restart of `role` is counted and, unless `resumed` is true, the source's
 remembered totals are dropped (the new totals are added whole, even when larger than the old). With `resumed`
@@ -24,15 +24,12 @@ supervisor time (default 30), refreshed by `apply` at most every `rate_interval`
 `service.updates_per_call` updates, which on a loaded machine can take longer than `rate_interval`, and a rate over
 the last refresh alone then read 0 while it trained (the dashboard's "Updates / s", at random).
 
-Histogram rule (the replay samples of the schema). Each report adds at most `max_samples` (default 512) values
+Histogram rule (the replay samples of the report). Each report adds at most `max_samples` (default 512) values
 per histogram, a uniform subsample drawn with the seeded generator when the array is larger (in SAMPLE_KEYS
 order), so a report weighs the same whatever the buffer size and costs a bounded amount; bucket counts are added
 in one vectorised step. Histogram `_count` therefore counts observed samples, not transitions. Episode
 statistics (rollout.finished) feed moving averages over the last `window` episodes (default 100, ALGORITHM.md
 §6.3) exported as gauges.
-
-A bad report raises `ReportError` (from `parse_report`); nothing of it is applied (and nothing is drawn from the
-subsampling generator), `cmcl_metrics_reports_rejected_total{reason}` counts it, and the endpoint keeps serving.
 """
 
 from __future__ import annotations
@@ -48,17 +45,9 @@ from prometheus_client import CollectorRegistry, generate_latest, start_http_ser
 
 from cmcl.progress.rates import WindowedRate
 from services.observability.metric_families import HISTOGRAMS, NumpyHistogram, define_metrics
-from services.observability.report_schema import (
-    SAMPLE_KEYS,
-    SCHEMA_VERSION,
-    FinishedEpisodes,
-    Report,
-    ReportError,
-    parse_report,
-)
+from services.observability.report_schema import SAMPLE_KEYS, FinishedEpisodes, Report
 
-__all__ = ["DEFAULT_MAX_SAMPLES", "HISTOGRAMS", "SCHEMA_VERSION", "NumpyHistogram", "Report", "ReportError",
-           "ServiceMetrics"]
+__all__ = ["DEFAULT_MAX_SAMPLES", "HISTOGRAMS", "NumpyHistogram", "Report", "ServiceMetrics"]
 
 DEFAULT_MAX_SAMPLES = 512
 
@@ -122,14 +111,16 @@ class ServiceMetrics:
             names.add(family.name + "_total" if family.type == "counter" else family.name)
         return frozenset(names)
 
-    def _subsample(self, values: np.ndarray) -> np.ndarray:
-        """`values` [n], or a uniform subsample [max_samples] of them without replacement when n is larger."""
+    def _subsample(self, values: Any) -> np.ndarray:
+        """`values` (array-like, any shape) as float64 [n], or a uniform subsample [max_samples] of them without
+        replacement when n is larger."""
+        values = np.asarray(values, dtype=np.float64).ravel()
         if values.size > self.max_samples:
             return self._rng.choice(values, size=self.max_samples, replace=False)
         return values
 
     def _plan(self, report: Report) -> _Plan:
-        """The operations of a parsed report, section by section; draws the histogram subsamples."""
+        """The operations of a report, section by section; draws the histogram subsamples."""
         plan = _Plan()
         if report.checkpoints_refused is not None:
             plan.count("checkpoints_refused", report.checkpoints_refused, (report.role,))
@@ -186,35 +177,22 @@ class ServiceMetrics:
             return
         for key in ("coverage", "success"):
             if getattr(finished, key) is not None:
-                plan.episodes.append((f"{key}_rate", "", getattr(finished, key)))
+                plan.episodes.append((f"{key}_rate", "", np.asarray(getattr(finished, key), np.float64).ravel()))
         for teams, gauge in ((finished.reward, "episode_reward"), (finished.win, "win_rate")):
-            plan.episodes.extend((gauge, team, values) for team, values in (teams or {}).items())
+            plan.episodes.extend((gauge, str(team), np.asarray(values, np.float64).ravel())
+                                 for team, values in (teams or {}).items())
 
-    def apply(self, report: Report | Mapping[str, Any]) -> None:
-        """Validate and apply one actor report (a Report or its mapping) atomically; ReportError (counted) if it
-        is malformed."""
+    def apply(self, report: Report) -> None:
+        """Apply one actor report atomically."""
         with self._lock:  # one report at a time (the subsampling generator is shared too)
-            try:
-                parsed = parse_report(report.to_dict() if isinstance(report, Report) else report)
-            except ReportError as err:
-                self.counters["reports_rejected"].labels(err.reason).inc()
-                raise
-            self._commit(parsed, self._plan(parsed))
+            self._commit(report, self._plan(report))
             self.counters["reports"].inc()
             now = self._clock()
             if self._rates.last is None or now - self._rates.last >= self.rate_interval:
                 self._update_rates(now)
 
-    def try_apply(self, report: Report | Mapping[str, Any]) -> str | None:
-        """Like `apply`, but return the error message of a malformed report instead of raising."""
-        try:
-            self.apply(report)
-        except ReportError as err:
-            return str(err)
-        return None
-
     def _commit(self, report: Report, plan: _Plan) -> None:
-        """Apply the plan of a parsed report (caller holds the lock)."""
+        """Apply the plan of a report (caller holds the lock)."""
         source, incarnation, resumed = report.source, report.incarnation, report.resumed
         state = self._source_state(source, report.role, incarnation, resumed)
         for metric, labels, total in plan.counter:

@@ -2,7 +2,7 @@
 
 Where it sits: the hub of the flow, and a shell: dedupe, pacing and status around the replay side of Algorithm 1's
 steps (`cmcl.replay.buffer_steps`) and its scoring state (`cmcl.scorers.scoring.ScoringState`: stamps, teacher
-errors, insertion times and the rule that picks the rows to rescore), the same the inline loop uses. Rollout
+errors, insertion times and the rule that picks the rows to rescore), the same on both schedulers. Rollout
 `Chunk`s come in (`insert`, validated by `cmcl.io.records.check_chunk`, idempotent by writer / incarnation / seq);
 every scorer (a teacher group, the ICM, the online critics the learner hosts) gets its `ScoreWork` from one `work`
 and sends its `Scores` back to one `write`, keyed by (slot, generation), stale ones dropped; the learner receives
@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from cmcl.io import codec, records
-from cmcl.io.durable import ReplayStore
+from cmcl.io.durable import ReplayStore, StoreError
 from cmcl.replay import buffer_steps
 from cmcl.replay.curriculum import unplayed_steps
 from cmcl.replay.dedupe import InsertLedger
@@ -46,7 +46,7 @@ from cmcl.replay.messages import (
     check_scores,
 )
 from cmcl.replay.pacing import pacing_from_config
-from cmcl.replay.snapshot import rng_state, set_rng_state
+from cmcl.replay.snapshot import OlderRunError, older_run, rng_state, set_rng_state
 from cmcl.scorers.scoring import ScoringState
 from cmcl.system import beta_is, build_replay, build_schedule, layout_of
 from services.observability.replay_report import REPORT_SAMPLES, ReplayTallies, replay_report
@@ -54,6 +54,10 @@ from services.observability.report_schema import Report
 from services.runtime.common import actor_setup, new_incarnation
 
 ONLINE_CRITICS = Scorer(ONLINE_TD)  # the scorer the learner hosts (ACL td_self)
+# the top-level keys of `ReplayServer.state_dict`, each one required in a snapshot read back
+SNAPSHOT_KEYS = ("replay", "difficulty", "curiosity_stamps", "online_td_stamps", "inserted_at", "ledger", "counters",
+                 "rejected", "stale_scores", "teacher_steps", "teacher_scores", "learner_limit", "teacher_limits",
+                 "icm_limit", "schedule_env_steps", "sampler_rngs", "rng")
 
 
 class ReplayServer:
@@ -354,7 +358,10 @@ class ReplayServer:
         verify; a damaged log (moved aside by the store) is counted and said on stderr, with what was lost."""
         state, frames, damage = self.store.load()
         if state is not None:
-            self._load_state(state)
+            try:
+                self._load_state(state)
+            except OlderRunError as err:  # refused as a snapshot that fails its checks is (services.launch)
+                raise StoreError(str(err)) from None
         for payload in frames:  # in the order they were applied
             record = records.decode_log_record(payload)
             if isinstance(record, dict):
@@ -369,24 +376,25 @@ class ReplayServer:
             print(f"replay log: {damage}", file=sys.stderr)
 
     def _load_state(self, state: dict[str, Any]) -> None:
-        """Apply a `state_dict()` (each part validated by its owner before use)."""
+        """Apply a `state_dict()` (each part validated by its owner before use; a snapshot without a part this
+        version writes is refused in one line, `cmcl.replay.snapshot.older_run`)."""
+        missing = [key for key in SNAPSHOT_KEYS if key not in state]
+        if missing:
+            raise OlderRunError(older_run(f"replay server snapshot without {missing[0]!r}"))
         self.replay.load_state_dict(state["replay"])
         self.scoring.load_state_dict(state)
         self.ledger.load_state_dict(state["ledger"])
         self.counters.update({k: int(v) for k, v in state["counters"].items()})
-        rejected = {str(k): int(v) for k, v in state["rejected"].items()}
-        # snapshots from before stale updates had their own count kept them under rejected["stale"]
-        self.stale_scores = int(state.get("stale_scores", 0)) + rejected.pop("stale", 0)
-        self.rejected = rejected
+        self.rejected = {str(k): int(v) for k, v in state["rejected"].items()}
+        self.stale_scores = int(state["stale_scores"])
         self.teacher_steps = [int(v) for v in state["teacher_steps"]]
         self.teacher_scores = [int(v) for v in state["teacher_scores"]]
         self.pacing.load_state_dict(state)
         self.schedule.env_steps = int(state["schedule_env_steps"])
-        if "sampler_rngs" in state:  # snapshots written before the generators were saved restart them from the seed
-            if len(state["sampler_rngs"]) != len(self.sampler_rngs):
-                raise ValueError(f"sampler_rngs: the snapshot holds {len(state['sampler_rngs'])} agents' generators, "
-                                 f"this run has {len(self.sampler_rngs)} agents")
-            for agent, (g, saved) in enumerate(zip(self.sampler_rngs, state["sampler_rngs"], strict=True)):
-                set_rng_state(g, saved, f"sampler_rngs[{agent}]")
-            set_rng_state(self.rng, state["rng"], "rng")
+        if len(state["sampler_rngs"]) != len(self.sampler_rngs):
+            raise ValueError(f"sampler_rngs: the snapshot holds {len(state['sampler_rngs'])} agents' generators, "
+                             f"this run has {len(self.sampler_rngs)} agents")
+        for agent, (g, saved) in enumerate(zip(self.sampler_rngs, state["sampler_rngs"], strict=True)):
+            set_rng_state(g, saved, f"sampler_rngs[{agent}]")
+        set_rng_state(self.rng, state["rng"], "rng")
         self.dirty = True

@@ -78,7 +78,6 @@ class Supervisor:
         self.version = -1
         self.window: deque[dict[str, Any]] = deque(maxlen=config.run.smoothing_window)
         self.failures = Failures(config, roles)  # failed and hung calls, restarts, recovery times
-        self.reports_rejected: dict[str, int] = {}  # reports the metrics refused, per kind (each also logged)
         self.held = HeldClock()  # seconds the learner had no call, by what held it back (the replay's pacing)
         self.lags: dict[str, int] = {}  # weight versions each rollout worker / teacher is behind
         self.episodes_logged = 0
@@ -104,7 +103,7 @@ class Supervisor:
                    *((f"{s.kind}_report", s.handle) for s in r.scorers if s.kind != "online")]
         refs = [self.calls.submit(h, "report") for _, h in handles]
         for (kind, _), report in zip(handles, map(self.calls.get, refs), strict=True):
-            self._apply_metrics(kind, report)
+            self.metrics.apply(report)
             if kind == "replay_report":
                 self.last_replay_report = report
 
@@ -192,7 +191,7 @@ class Supervisor:
                 self.failures.replay_error(value.error)
             self.inflight[(kind, index)] -= 1
             return
-        self._apply_metrics(kind, value)  # a Report, dispatched on the role that sent it
+        self.metrics.apply(value)  # a Report, dispatched on the role that sent it
         if value.role == "replay":
             self.last_replay_report = value
             return
@@ -212,14 +211,6 @@ class Supervisor:
             self.weights = self.calls.submit(self.roles.learner, "publish")
         if value.role == "rollout":
             self._log_episodes(value)
-
-    def _apply_metrics(self, kind: str, report: Report) -> None:
-        """Apply a report to the metrics; a refused one is counted per kind and logged with its error, never
-        dropped silently (a refused final replay report once left the inserts counter a few chunks behind)."""
-        error = self.metrics.try_apply(report)
-        if error is not None:
-            self.reports_rejected[kind] = self.reports_rejected.get(kind, 0) + 1
-            self.run_dir.log({"kind": "report_rejected", "report": kind, "error": error})
 
     def _log_episodes(self, report: Report) -> None:
         """Append one 'episode' row per finished episode of a rollout report to metrics.jsonl."""
@@ -305,20 +296,19 @@ class Supervisor:
 
     def restore_counters(self) -> None:
         """On resume: continue the episode numbering of metrics.jsonl, the training clock (elapsed_s) and the tallies
-        from the last checkpoint (one written before the clock was kept: from 0)."""
+        from the last checkpoint."""
         path = self.paths["supervisor"]
         if path.exists():
             saved = json.loads(path.read_text())
             self.episodes_logged = int(saved["episodes_logged"])
-            self.clock.before_s = float(saved.get("elapsed_s", 0.0))
-            add_tallies(saved.get("tallies", {}), self.failures, self.held, self.reports_rejected,
-                        self.checkpoint_seconds)
+            self.clock.before_s = float(saved["elapsed_s"])
+            add_tallies(saved["tallies"], self.failures, self.held, self.checkpoint_seconds)
             self.run_dir.truncate_rows_after(self.episodes_logged)
 
     def tallies(self) -> dict[str, Any]:
         """What the run has counted so far, over every segment (services.observability.run_tallies; the summary's
         keys)."""
-        return tallies(self.failures, self.held, self.reports_rejected, self.checkpoint_seconds)
+        return tallies(self.failures, self.held, self.checkpoint_seconds)
 
     def run(self) -> dict[str, Any]:
         """Train until the episode target (or the time budget) is reached; checkpoint periodically and at the end."""
