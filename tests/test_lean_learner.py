@@ -137,5 +137,5 @@ def test_the_actor_step_by_hand_takes_only_plain_per_agent_networks():
     from cmcl.learners import actor_grad
     from cmcl.learners.maddpg import MADDPG
 
-    assert not actor_grad.supports(*(lambda m: (m.actor, m.critic))(MADDPG(3, 6, 2, share_parameters=True)))
+    assert not actor_grad.supports(*(lambda m: (m.actor, m.critic))(MADDPG(3, 6, 2, networks="shared")))
     assert not actor_grad.supports(*(lambda m: (m.actor, m.critic))(MADDPG(3, 6, 5, discrete=True)))

@@ -263,7 +263,7 @@ def test_shared_parameters_tell_agents_apart_by_their_own_bias():
     obs = np.repeat(rng.normal(size=(m_rows, 1, 4)).astype(np.float32), 3, axis=1)  # every agent sees the same
     act = rng.uniform(-1, 1, size=(m_rows, 3, 2)).astype(np.float32)
     rows = {"obs": obs, "act": act, "rew": -((act - targets) ** 2).sum(-1), "next_obs": obs}
-    m = MADDPG(3, 4, 2, gamma=0.0, actor_lr=1e-3, critic_lr=1e-2, seed=0, share_parameters=True)
+    m = MADDPG(3, 4, 2, gamma=0.0, actor_lr=1e-3, critic_lr=1e-2, seed=0, networks="shared")
     assert sum(p.numel() for p in m.actor.parameters()) < sum(p.numel() for p in MADDPG(3, 4, 2).actor.parameters())
     d0 = np.abs(m.act(obs[:200], noise_std=0) - targets).mean()
     for _ in range(400):
@@ -272,6 +272,6 @@ def test_shared_parameters_tell_agents_apart_by_their_own_bias():
     assert out["critic_grad_norm"].shape == (3,) and out["td_abs"].shape == (3, 64)
     d1 = np.abs(m.act(obs[:200], noise_std=0) - targets).mean()
     assert d1 < 0.5 * d0, (d0, d1)
-    twin = MADDPG(3, 4, 2, share_parameters=True, seed=5)
+    twin = MADDPG(3, 4, 2, networks="shared", seed=5)
     twin.load_state_dict(m.state_dict())
     np.testing.assert_array_equal(twin.act(obs[:10], noise_std=0), m.act(obs[:10], noise_std=0))

@@ -65,9 +65,9 @@ def test_state_dict_round_trip_and_a_per_agent_checkpoint_is_refused():
 def test_network_settings_are_checked():
     with pytest.raises(ValueError, match="entity layout"):
         MADDPG(N, OD, 2, networks="entity")
-    with pytest.raises(ValueError, match="share_parameters"):
-        MADDPG(N, OD, 2, networks="entity", share_parameters=True, entity_layout=LAYOUT)
-    assert MADDPG(N, OD, 2, share_parameters=True).networks == "shared"
+    with pytest.raises(ValueError, match="networks must be one of"):
+        MADDPG(N, OD, 2, networks="attention")
+    assert MADDPG(N, OD, 2, networks="shared").networks == "shared"
     assert load_config(None, ["maddpg.networks=entity"]).maddpg.networks == "entity"
     assert load_config(None).maddpg.networks == load_config(None).teachers.networks == "per_agent"
     with pytest.raises(ConfigError, match="maddpg.networks"):

@@ -210,12 +210,12 @@ def test_make_fit_batch_shared_fold_batches():
 
 
 def test_shared_teachers_are_one_network_per_fold_and_folds_stay_independent():
-    """share_parameters: parameters ~A times fewer; a corrupt target in fold 3 moves only fold 3's teachers
+    """networks = "shared": parameters ~A times fewer; a corrupt target in fold 3 moves only fold 3's teachers
     (of every agent, since they share fold 3's network), never another fold's (eq. 11 needs that)."""
     data, fold = buffer()
     m = MADDPG(N, OD, AD, seed=0)
     own = TeacherEnsemble(N, in_dim=IN, num_folds=K, seed=5)
-    shared = TeacherEnsemble(N, in_dim=IN, num_folds=K, seed=5, share_parameters=True)
+    shared = TeacherEnsemble(N, in_dim=IN, num_folds=K, seed=5, networks="shared")
     count = [sum(p.numel() for p in e.net.parameters()) for e in (own, shared)]
     assert count[1] < count[0] / (N - 1), count
     idx = fold_batch_indices(fold, K, 64, np.random.default_rng(0), num_agents=N)
@@ -226,8 +226,8 @@ def test_shared_teachers_are_one_network_per_fold_and_folds_stay_independent():
     for _ in range(30):
         last = shared.fit_step(x, y)
     assert (last < first).all()
-    clean = TeacherEnsemble(N, in_dim=IN, num_folds=K, seed=5, share_parameters=True)
-    corrupt = TeacherEnsemble(N, in_dim=IN, num_folds=K, seed=5, share_parameters=True)
+    clean = TeacherEnsemble(N, in_dim=IN, num_folds=K, seed=5, networks="shared")
+    corrupt = TeacherEnsemble(N, in_dim=IN, num_folds=K, seed=5, networks="shared")
     for _ in range(3):
         la, lb = clean.fit_step(x, y), corrupt.fit_step(x, y_bad)
     np.testing.assert_allclose(la[:, :3], lb[:, :3], rtol=1e-6)  # folds 0-2 never see fold 3's targets
@@ -244,7 +244,7 @@ def test_a_fold_batch_shared_by_the_agents_fits_shared_teachers_as_its_copies_do
     idx = fold_batch_indices(fold, K, 32, np.random.default_rng(1), num_agents=1)
     x, y = make_fit_batch(idx, data, list(range(N)), m)
     x_shared = x[:1].expand(N, -1, -1, -1)
-    fast, slow = (TeacherEnsemble(N, in_dim=IN, num_folds=K, seed=7, share_parameters=True) for _ in range(2))
+    fast, slow = (TeacherEnsemble(N, in_dim=IN, num_folds=K, seed=7, networks="shared") for _ in range(2))
     for _ in range(3):
         np.testing.assert_allclose(fast.fit_step(x_shared, y), slow.fit_step(x_shared.contiguous(), y), rtol=1e-5)
     for p, q in zip(fast.net.parameters(), slow.net.parameters(), strict=True):

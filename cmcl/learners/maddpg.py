@@ -111,11 +111,10 @@ class MADDPG:
         grad_clip: per-agent gradient-norm clip (actor and critic).  discrete: Gumbel-softmax actors.
         gumbel_temperature: temperature of the Gumbel-softmax sample.  logit_l2: L2 on actor logits (discrete).
         seed: initial weights and the internal noise generator.
-        share_parameters: one actor and one critic network for all agents, each agent keeping its own first-layer
-            bias (an agent-id embedding; cmcl.learners.nets). Off by default (the paper's per-agent networks).
-        networks: "per_agent", "shared" (= share_parameters) or "entity": one attention actor and one
-            permutation-invariant critic for all agents (cmcl.learners.entity.nets; ``hidden`` must be an int, the
-            width H); None: what share_parameters says. The gradient clip then applies to the one network, and the
+        networks: "per_agent" (the paper's, default), "shared" (one actor and one critic network for all agents,
+            each agent keeping its own first-layer bias, an agent-id embedding; cmcl.learners.nets) or "entity": one
+            attention actor and one permutation-invariant critic for all agents (cmcl.learners.entity.nets;
+            ``hidden`` must be an int, the width H). With one network the gradient clip applies to it, and the
             per-agent grad norms report its norm for every agent.
         entity_layout: how the flat observation splits into entities (cmcl.envs.entities); needed by "entity".
         entity_pool: the entity encoder's pooling, "attention" or "mean" (cmcl.learners.entity.nets).
@@ -156,9 +155,8 @@ class MADDPG:
         gumbel_temperature: float = 1.0,
         logit_l2: float = 1e-3,
         seed: int = 0,
-        share_parameters: bool = False,
         act_mask: np.ndarray | None = None,
-        networks: str | None = None,
+        networks: str = "per_agent",
         entity_layout: EntityLayout | None = None,
         entity_pool: str = "attention",
         target_scores: bool = False,
@@ -177,10 +175,9 @@ class MADDPG:
         init_seed, noise_seed = np.random.SeedSequence(seed).generate_state(2)
         gen = torch.Generator().manual_seed(int(init_seed))
         n = self.num_agents
-        self.networks = network_kind(networks, share_parameters)
+        self.networks = network_kind(networks)
         self.entity_nearest, self.entity_holder = int(entity_nearest), bool(entity_holder)
         self.holder_rule = require_holder_rule(holder_rule)
-        self.share_parameters = self.networks == "shared"
         self.actor, self.critic = build_networks(self.networks, n, obs_dim, act_dim, widths, discrete, gen,
                                                  entity_layout, entity_pool, entity_nearest, self.entity_holder,
                                                  self.holder_rule)

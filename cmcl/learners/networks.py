@@ -18,13 +18,10 @@ from cmcl.learners.nets import StackedMLP
 __all__ = ["build_networks", "network_kind"]
 
 
-def network_kind(networks: str | None, share_parameters: bool) -> str:
-    """The networks' kind from the two settings (the config validates the same rule and names its fields)."""
-    if networks is None:
-        return "shared" if share_parameters else "per_agent"
-    if networks not in NETWORK_KINDS or (share_parameters and networks != "shared"):
-        raise ValueError(f"networks must be one of {list(NETWORK_KINDS)} and agree with share_parameters="
-                         f"{share_parameters}, got {networks!r}")
+def network_kind(networks: str) -> str:
+    """`networks` when it is one of NETWORK_KINDS (the config checks the same at load and names its field)."""
+    if networks not in NETWORK_KINDS:
+        raise ValueError(f"networks must be one of {list(NETWORK_KINDS)}, got {networks!r}")
     return networks
 
 

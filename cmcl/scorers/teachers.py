@@ -10,7 +10,7 @@ and `cmcl.scorers.difficulty` turns the errors into c_{v,j}
 
 All A x K teachers are ONE :class:`~cmcl.learners.nets.StackedMLP` with A*K members, member index ``a*K + i`` for agent
 slot a (0..A-1, the agents that use teachers) and fold i (0..K-1). Folds are 0-based: f(j) in {0..K-1}.
-With ``share_parameters`` the A teachers of each fold are one network (``StackedMLP(share=True, share_groups=K)``:
+With ``networks = "shared"`` the A teachers of each fold are one network (``StackedMLP(share=True, share_groups=K)``:
 member ``a*K + i`` uses network i), each agent keeping its own first-layer bias; the K folds stay separate networks,
 so a fold's network is still fitted on its own fold only and the cross-validation of eq. (11) holds.
 With ``networks="entity"`` each fold is one :class:`~cmcl.learners.entity.nets.EntityCritic` for all agents (group
@@ -49,9 +49,8 @@ class TeacherEnsemble:
         grad_clip: optional per-teacher gradient-norm clip (None: none; §3.2 specifies plain Adam).
         chunk_size: rows per forward pass in :meth:`errors` (bounds memory at A*K*chunk*hidden floats).
         seed: initial weights (every teacher independently initialised).
-        share_parameters: one network per fold for all A agents, a per-(agent, fold) first-layer bias (module
-            docstring); parameters ~A times fewer, for N = 8 / 16.
-        networks: "per_agent", "shared" (= share_parameters) or "entity" (module docstring); None: share_parameters.
+        networks: "per_agent" (default), "shared" (one network per fold for all A agents, a per-(agent, fold)
+            first-layer bias; parameters ~A times fewer, for N = 8 / 16) or "entity" (module docstring).
         agents: int64[A], the agents the teachers stand for (entity teachers read their Q); default 0..A-1.
         entity_layout, act_dim, entity_pool: the observation's entity layout, the action width and the encoder's
             pooling (entity teachers only).
@@ -72,8 +71,7 @@ class TeacherEnsemble:
         grad_clip: float | None = None,
         chunk_size: int = 1024,
         seed: int = 0,
-        share_parameters: bool = False,
-        networks: str | None = None,
+        networks: str = "per_agent",
         agents: Sequence[int] | np.ndarray | None = None,
         entity_layout: EntityLayout | None = None,
         act_dim: int = 2,
@@ -85,8 +83,7 @@ class TeacherEnsemble:
         self.num_agents, self.num_folds, self.in_dim = int(num_agents), int(num_folds), int(in_dim)
         self.grad_clip, self.chunk_size = grad_clip, int(chunk_size)
         widths = (hidden, hidden) if isinstance(hidden, int) else tuple(hidden)
-        self.networks = network_kind(networks, share_parameters)
-        self.share_parameters = self.networks == "shared"
+        self.networks = network_kind(networks)
         self.agents = torch.arange(self.num_agents) if agents is None else torch.as_tensor(np.asarray(agents))
         if self.networks == "entity":
             if entity_layout is None or in_dim != entity_layout.num_agents * (entity_layout.obs_dim + act_dim):
@@ -98,7 +95,7 @@ class TeacherEnsemble:
                                     holder=entity_holder, holder_rule=entity_holder_rule)
         else:
             self.net = StackedMLP(self.num_agents * self.num_folds, self.in_dim, widths, 1, seed=seed,
-                                  share=self.share_parameters, share_groups=self.num_folds)
+                                  share=self.networks == "shared", share_groups=self.num_folds)
         self.opt = make_adam(self.net.parameters(), lr)
         self.steps = 0
 
@@ -114,7 +111,7 @@ class TeacherEnsemble:
         if self.networks == "entity":  # fold i's network on every agent's rows of fold i: [K, A*S] -> [A*K, S]
             pred = self._entity_q(x_t.transpose(0, 1).reshape(k_n, a_n * s_n, -1)).view(k_n, a_n, s_n)
             pred = pred.transpose(0, 1).reshape(a_n * k_n, s_n)
-        elif self.share_parameters and x_t.stride(0) == 0:  # one fold batch for all agents (fit_batch "shared")
+        elif self.networks == "shared" and x_t.stride(0) == 0:  # one fold batch for all agents (fit_batch "shared")
             pred = self.net(x_t[0]).squeeze(-1)  # [K, S, in] per fold network -> [A*K, S], first layer once per fold
         else:
             pred = self.net(x_t.reshape(a_n * k_n, s_n, -1)).squeeze(-1)  # [A*K, S]
