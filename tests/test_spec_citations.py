@@ -35,7 +35,7 @@ def tracked_text_files() -> list[Path]:
     names = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
     return [ROOT / name for name in names
             if (Path(name).suffix in TEXT_SUFFIXES or Path(name).name == "Makefile")
-            and not name.startswith("bench/results/") and ROOT / name != Path(__file__).resolve()
+            and not name.startswith("lab/results/") and ROOT / name != Path(__file__).resolve()
             and (ROOT / name).is_file()]
 
 
