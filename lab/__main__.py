@@ -15,13 +15,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from experiments.run_spec import ROOT
+from experiments.__main__ import shown
 from lab.report.report import blocks, figures, update
 from lab.report.stalls import analyse_folder
-
-
-def shown(path: Path) -> str:
-    return str(path.relative_to(ROOT) if path.is_relative_to(ROOT) else path)
 
 
 def report(args: argparse.Namespace) -> int:
@@ -61,22 +57,24 @@ def build_parser() -> argparse.ArgumentParser:
     """The command line: report, figures, stalls."""
     parser = argparse.ArgumentParser(prog="python -m lab", description=__doc__.split("\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
-    for name, handler, text in (("report", report, "print the tables, draw the figures, optionally update a page"),
-                                ("figures", draw, "draw the figures only")):
+    for name, text in (("report", "print the tables, draw the figures, optionally update a page"),
+                       ("figures", "draw the figures only")):
         p = commands.add_parser(name, help=text)
         p.add_argument("--results", type=Path, default=None, help="results root (default lab/results)")
         if name == "report":
             p.add_argument("--update", help="a markdown file whose marked blocks get the new tables")
-        p.set_defaults(handler=handler)
     p = commands.add_parser("stalls", help="write the stall records of a curriculum grid's finished runs")
     p.add_argument("folders", nargs="+", type=Path, metavar="FOLDER", help="a grid folder with runs/ and summaries/")
-    p.set_defaults(handler=stalls)
     return parser
 
 
+COMMANDS = {"report": report, "figures": draw, "stalls": stalls}
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run the command `argv` names (default: the command line's); its exit code."""
     args = build_parser().parse_args(argv)
-    return args.handler(args)
+    return COMMANDS[args.command](args)
 
 
 if __name__ == "__main__":
