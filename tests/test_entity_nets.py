@@ -8,7 +8,7 @@ import torch
 
 from cmcl.envs.entities import spread_layout, tag_layout
 from cmcl.envs.params import TagParams
-from cmcl.learners import entity_ops
+from cmcl.learners.entity import ops as entity_ops
 from cmcl.learners.entity.nets import POOLS, EntityActor, EntityCritic, EntityEncoder
 from cmcl.learners.nets import StackedLinear, joint_input
 
