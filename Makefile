@@ -28,7 +28,7 @@ install: $(STAMP)
 # The main job: MADDPG with uniform replay on the distributed service (embedded Ray) trains sparse navigation until the
 # 100-episode moving average of coverage reaches 0.9, or 5 minutes (or RUN_EPISODES episodes, set above what 5
 # minutes hold on a fast machine, so that the minutes are the budget); then a held-out evaluation, a GIF and the
-# learning curve. Uniform replay until a sampling rule beats it (lab/RESULTS.md); the paper's CMCL is one flag away:
+# learning curve. Uniform replay until a sampling rule beats it (docs/RESULTS.md); the paper's CMCL is one flag away:
 # `make run RUN_ARGS="--set teams.agent.algorithm=cmcl"`.
 # Ctrl-C (or SIGTERM) stops it with every role checkpointed and the resume command printed; the run's exit 130 / 143
 # is not reported as an error of make's (on Ctrl-C make, which got the SIGINT too, only says "Interrupt").

@@ -123,7 +123,7 @@ def test_a_torn_last_metrics_line_is_ignored_and_set_aside_and_a_corrupt_one_bef
 def test_a_lock_held_by_a_child_of_a_dead_holder_names_the_live_process(tmp_path, monkeypatch):
     """The holder the lock file names has died, but a child that inherited its descriptor (the launcher's Ray
     reaper) still holds the lock: the refusal names that live process, not only the dead pid."""
-    from cmcl.io import runlock
+    from cmcl.run import runlock
 
     monkeypatch.setattr(runlock, "DEAD_HOLDER_WAIT_S", 0.2)
     script = ("import subprocess, sys; from cmcl.run.runlock import RunLock; lock = RunLock.acquire(sys.argv[1]); "

@@ -1,5 +1,5 @@
 """`make run` measured: the README's table of the make_run grid's summaries, one row per seed, and the
-tally under it. Every number the README gives of `make run` comes from here (tests/test_make_run_table.py checks
+tally under it. Every number the README gives of `make run` comes from here (lab/tests/test_make_run_table.py checks
 the README's block against the committed summaries).
 
 Seconds are the run's training clock when its 100-episode moving-average coverage first reached 0.9 (the run stops

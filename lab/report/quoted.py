@@ -1,7 +1,7 @@
 """The numbers README.md and docs/LEARNING.md quote from the grids, as the sentences and tables that hold
 them, drawn from the committed summaries by the statistics of lab/RESULTS.md's tables (lab.report.stats, tables,
 curriculum_tables). `python -m lab report --update README.md` and `--update docs/LEARNING.md` write them into
-their marked blocks; tests/test_quoted_numbers.py regenerates both pages and fails on any difference.
+their marked blocks; lab/tests/test_quoted_numbers.py regenerates both pages and fails on any difference.
 
 Wording follows the tests, not the author: a comparison whose runs ran different code (experiments.provenance) is
 quoted as withdrawn, with no number; one at p ≥ α as "not shown"; a Kaplan-Meier median that is only a lower bound
