@@ -15,7 +15,7 @@ TEST_ARGS ?=
 # Appended to a training command: its exit status after a graceful stop (130 Ctrl-C, 143 SIGTERM) is not an error.
 STOPPED_IS_OK := || { status=$$?; [ $$status -eq 130 ] || [ $$status -eq 143 ] || exit $$status; }
 
-.PHONY: install system-deps run resume demo test test-extended test-deploy lint bench peer peer-benchmarl clean
+.PHONY: install system-deps run resume demo test test-lab test-extended test-deploy lint bench peer peer-benchmarl clean
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -55,8 +55,13 @@ system-deps:
 	else echo "note: prometheus / chromium missing and not installable here (not root or no apt-get):" \
 		"tests/test_live_dashboard.py will skip"; fi
 
+# The product and the grid runner: tests/ (pyproject's testpaths); nothing of lab/ is imported.
 test: install system-deps
 	$(BIN)/python -m pytest -n 2 --dist loadfile $(TEST_ARGS)
+
+# The research record: the report, the doc-generation code and the pages' generated blocks (lab/tests/).
+test-lab: install
+	$(BIN)/python -m pytest -n 2 --dist loadfile lab/tests $(TEST_ARGS)
 
 # The cases kept out of `make test` for its 10-minute budget (marker `extended`: more runners, faults and
 # environments of paths the default run covers once). The hours-long learning runs stay under `-m slow`.
@@ -103,7 +108,7 @@ peer:
 		accelerate peft transformers wandb dill fastrand xxhash regex
 	$(PEER)/bin/python -m pip install --quiet lazy-loader importlib_metadata orjson pyvers huggingface_hub \
 		safetensors tokenizers typer
-	OMP_NUM_THREADS=1 $(PEER)/bin/python bench/peer_agilerl.py --seed 0 --out bench/results/peer_agilerl/agilerl_seed0.json
+	OMP_NUM_THREADS=1 $(PEER)/bin/python bench/peer_agilerl.py --seed 0 --out lab/results/peer_agilerl/agilerl_seed0.json
 
 # The BenchMARL peer (issue 39): BenchMARL 1.5.2 MAPPO / MADDPG on our sparse navigation through TorchRL's
 # PettingZooWrapper, in its own venv; --no-deps throughout (benchmarl -> torchrl -> torch would replace the CPU
@@ -124,7 +129,7 @@ peer-benchmarl:
 		"pyvers>=0.2,<0.3" tqdm hydra-core "av<14"
 	OMP_NUM_THREADS=1 nice -n 10 $(BENCHMARL_VENV)/bin/python bench/peer_benchmarl.py --algorithm $(PEER_ALGORITHM) \
 		--seconds $(PEER_SECONDS) --seed $(PEER_SEED) \
-		--out bench/results/peer_benchmarl/$(PEER_ALGORITHM)_seed$(PEER_SEED).json $(PEER_ARGS)
+		--out lab/results/peer_benchmarl/$(PEER_ALGORITHM)_seed$(PEER_SEED).json $(PEER_ARGS)
 
 clean:
 	rm -rf $(VENV) .pytest_cache

@@ -32,7 +32,7 @@ Install (a venv of its own, torch stays the local CPU wheel): ``make peer-benchm
 Usage:
 
     OMP_NUM_THREADS=1 nice -n 10 .venv-benchmarl/bin/python bench/peer_benchmarl.py --algorithm mappo \
-        --seconds 300 --seed 0 --out bench/results/peer_benchmarl/mappo_seed0.json
+        --seconds 300 --seed 0 --out lab/results/peer_benchmarl/mappo_seed0.json
 
 Prints progress lines, then a one-line JSON summary (also written to --out).
 """
@@ -177,14 +177,14 @@ def main() -> None:
     ap.add_argument("--frames-per-batch", type=int, default=None,
                     help="override BenchMARL's collected frames per batch (on- and off-policy, default 6000); for "
                          "smoke tests only (a deviation from the defaults, recorded in the summary)")
-    ap.add_argument("--out", default=None, help="JSON summary (default bench/results/peer_benchmarl/"
+    ap.add_argument("--out", default=None, help="JSON summary (default lab/results/peer_benchmarl/"
                                                 "<algorithm>_seed<seed>.json)")
     ap.add_argument("--env", choices=[name for name, env in ENVS.items() if env.has_coverage], default="sparse_spread",
                     help="the task (peer_envs.ENVS; vacl_n4: VACL's all-or-nothing navigation, docs/SPARSE_TASKS.md)")
     args = ap.parse_args()
     global ENV
     ENV = ENVS[args.env]
-    out = Path(args.out or Path(__file__).resolve().parent / "results" / "peer_benchmarl"
+    out = Path(args.out or Path(__file__).resolve().parents[1] / "lab" / "results" / "peer_benchmarl"
                / f"{args.algorithm}_seed{args.seed}.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(1)

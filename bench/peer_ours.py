@@ -13,7 +13,7 @@ no start-up, as AgileRL's side measures); the wall seconds of the whole command 
 Usage (the repo's venv):
 
     OMP_NUM_THREADS=1 nice -n 10 .venv/bin/python bench/peer_ours.py --env simple_spread_v3 --algorithm maddpg \
-        --env-steps 200000 --seed 0 --eval-episodes 200 --out bench/results/peer_agilerl/ours_maddpg_spread3_seed0.json
+        --env-steps 200000 --seed 0 --eval-episodes 200 --out lab/results/peer_agilerl/ours_maddpg_spread3_seed0.json
 """
 
 from __future__ import annotations

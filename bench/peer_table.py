@@ -6,7 +6,7 @@ each seed), the random policy's return on the same held-out episodes (mean over 
 training loop's wall clock) and the CPU seconds of training (AgileRL: main process + vec-env workers; ours: the
 one training process), each seed.
 
-Usage:  python bench/peer_table.py [--env simple_spread_v3] [bench/results/peer_agilerl/*.json]
+Usage:  python bench/peer_table.py [--env simple_spread_v3] [lab/results/peer_agilerl/*.json]
 """
 
 from __future__ import annotations
@@ -61,7 +61,8 @@ def main() -> None:
     ap.add_argument("--env", choices=sorted(ENV_PREFIX), default="simple_spread_v3")
     ap.add_argument("paths", nargs="*")
     args = ap.parse_args()
-    paths = args.paths or sorted(glob.glob(str(Path(__file__).parent / "results" / "peer_agilerl" / "*.json")))
+    results = Path(__file__).resolve().parents[1] / "lab" / "results" / "peer_agilerl"
+    paths = args.paths or sorted(glob.glob(str(results / "*.json")))
     print(table(load(paths, args.env)))
 
 

@@ -16,7 +16,7 @@
 The load average is printed with the numbers: on a shared machine the absolute rates mean little, the ratios of
 one process a little more.
 
-    python bench/rollout_scaling.py [--seconds 20] [--workers 1 2 4] [--out bench/results/rollout_scaling]
+    python bench/rollout_scaling.py [--seconds 20] [--workers 1 2 4] [--out lab/results/rollout_scaling]
 """
 
 from __future__ import annotations
@@ -100,7 +100,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2, 4])
-    parser.add_argument("--out", type=Path, default=Path("bench/results/rollout_scaling"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/rollout_scaling"))
     args = parser.parse_args()
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import ray

@@ -12,7 +12,7 @@ cell against N = 4 per-agent measured in the same process.
 
 Learning (`--learn EPISODES`): one inline training run (`python -m cmcl train --runner inline`) per (N, sharing,
 seed) with early stop off, reporting the final moving-average coverage and success, episodes to MA 0.5 / 0.9 and
-wall seconds. Writes one JSON per run to `--out` (default bench/results/scale/); a rerun skips finished runs and
+wall seconds. Writes one JSON per run to `--out` (default lab/results/scale/); a rerun skips finished runs and
 resumes an interrupted one from its newest checkpoint (`python -m cmcl resume`; every service.checkpoint_every_s
 seconds; its clock goes on from there).
 
@@ -140,7 +140,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--networks", nargs="+", default=list(NETWORKS), choices=list(NETWORKS),
                         help="network kinds (NETWORKS; with --learn, two processes can split them)")
-    parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "scale"))
+    parser.add_argument("--out", default=str(ROOT / "lab" / "results" / "scale"))
     parser.add_argument("--before-issue-38", action="store_true",
                         help="cost: also time the entity learner before the fused kernels (bench/entity_cost.py)")
     args = parser.parse_args()

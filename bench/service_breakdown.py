@@ -22,7 +22,7 @@ scores, a checkpoint): computing vs waiting, and waiting for data vs for scores 
 batch being sampled / sent, or its feedback being written).
 
 Run: .venv/bin/python bench/service_breakdown.py [--seconds 120] [--set k=v ...] [--inline-rounds 7]
-     [--out bench/results/service_breakdown/make_run.json]
+     [--out lab/results/service_breakdown/make_run.json]
 Output: the inline costs, a table (one row per role, then totals: the service, the machine, the rest of the
 machine = other sessions), the learner's split, a summary ("the learner ran X updates/s where one core alone gives
 Y"), and the JSON of all numbers with provenance. Read the table's `cores` as "of one core" (2.0 = both cores busy);
@@ -51,7 +51,7 @@ from bench.breakdown_table import print_summary, print_table  # noqa: E402
 from cmcl.run.provenance import LoadSampler, provenance  # noqa: E402
 
 DEFAULT_SECONDS = 120
-DEFAULT_OUT = "bench/results/service_breakdown/make_run.json"
+DEFAULT_OUT = "lab/results/service_breakdown/make_run.json"
 MAKE_RUN = ["run.stop_coverage=0.9"]  # the Makefile's `run:` settings besides run.dir and run.max_seconds (and
 # its `--metrics-port`: the bench takes a free port, as the tests do)
 # Ray's own processes, by a fragment of their command line (first match wins), and the label of their row

@@ -6,7 +6,7 @@ seconds, then Ctrl-C (SIGINT to its process group, as a terminal sends it); resu
 SIGTERM; resumed and, after `--train` seconds, SIGKILL of the launcher alone; resumed once more for `--train`
 seconds and stopped with SIGINT. Coverage "before" is the mean final-step coverage of the last 100 episodes in
 metrics.jsonl when the stop came; "after" that of the first 100 episodes the resumed run logged (the random
-policy's is about 0.095, bench/README or docs/RESULTS.md).
+policy's is about 0.095, bench/README or lab/RESULTS.md).
 
     python bench/stop_resume.py [--train 90] [--out runs/bench_stop_resume]
 """

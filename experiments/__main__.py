@@ -1,18 +1,17 @@
-"""Command line of the experiments: run grids, write the report, draw the figures.
+"""Command line of the grid runner: train the runs of one or more grids.
 
     python -m experiments run GRID [GRID ...] [--seeds 0 1 2 3 4] [--jobs 2] [--out DIR]
             [--arms ...] [--cells ...] [--ablations ...] [--algorithms ...] [--modes inline service] [--episodes 20000]
             [--tasks ...] [--screen DIR] [--ray [--address ADDR]] [--allow-dirty]
-    python -m experiments report [--update docs/RESULTS.md | README.md | docs/LEARNING.md] [--results bench/results]
-    python -m experiments figures [--results bench/results]
-    python -m experiments stalls FOLDER [FOLDER ...]      (e.g. bench/results/curriculum: its runs/ directories)
 
 `run` is resumable (experiments.runner): rerun the same command after a stop. With --ray (or --address) each run is
 a Ray Tune trial of 1 CPU, on an embedded Ray or the cluster at ADDR (experiments.on_ray), the path of `python -m cmcl
-tune`. Its results go to the grid's folder
-of the registry (experiments.grids.GRIDS, under bench/results/) unless --out names another. Seeds default to 0-4,
+tune`. Its results go to the grid's folder of the registry (experiments.grids.GRIDS, under lab/results/) unless --out
+names another. Seeds default to 0-4,
 and to 0-19 for the confirm grid alone, whose arms the screen's summaries select (--screen: their folder). Exit code
 of `run`: 0 when every run finished, 1 when some failed (each is named in the output), 2 when it refused to start.
+The tables and figures drawn from the summaries are the research record's (`python -m lab report`, outside the
+package).
 """
 
 from __future__ import annotations
@@ -36,11 +35,9 @@ from experiments.grids import (
 )
 from experiments.labels import PERMUTED
 from experiments.on_ray import GridOnRayError, run_grid_on_ray
-from experiments.report import blocks, figures, update
 from experiments.run_spec import ROOT, Run
 from experiments.runner import run_grid
 from experiments.screen_arms import SCREEN_ARMS, SCREEN_REFERENCES, SCREEN_SEEDS, rule_algorithm
-from experiments.stalls import analyse_folder
 from experiments.store import ResultsStore
 
 
@@ -150,41 +147,8 @@ def run(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
-def report(args: argparse.Namespace) -> int:
-    if args.update and not Path(args.update).is_file():  # before the tables are drawn (a minute of statistics)
-        print(f"error: --update {args.update}: no such markdown file (the page whose marked blocks get the tables)",
-              file=sys.stderr)
-        return 2
-    new = blocks(args.results)
-    for name, body in new.items():
-        print(f"{name}:\n{body}\n")
-    for png in figures(args.results):
-        print(f"figure: {shown(png)}")
-    if args.update:
-        update(Path(args.update), new)
-    return 0
-
-
-def stalls(args: argparse.Namespace) -> int:
-    missing = [folder for folder in args.folders if not (folder / "runs").is_dir()]
-    if missing:  # before: a folder without runs/ (a typo) wrote nothing and said nothing, exit 0
-        print(f"error: {missing[0]} holds no runs/ folder (a grid folder, e.g. bench/results/curriculum)",
-              file=sys.stderr)
-        return 2
-    for folder in args.folders:
-        for path in analyse_folder(folder):
-            print(f"stall record: {shown(path)}")
-    return 0
-
-
-def draw(args: argparse.Namespace) -> int:
-    for png in figures(args.results):
-        print(f"figure: {shown(png)}")
-    return 0
-
-
 def build_parser() -> argparse.ArgumentParser:
-    """The command line: run, report, figures, stalls."""
+    """The command line: run."""
     parser = argparse.ArgumentParser(prog="python -m experiments", description=__doc__.split("\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
     p = commands.add_parser("run", help="train the runs of one or more grids (resumable)")
@@ -192,7 +156,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", nargs="+", type=int, default=None,
                    help="default 0 1 2 3 4; alone, the confirm grid 0 to 19, the screen 100 101 102")
     p.add_argument("--jobs", type=int, default=1, help="runs trained at once (one core each)")
-    p.add_argument("--out", type=Path, default=None, help="results folder (default: the grid's, bench/results/...)")
+    p.add_argument("--out", type=Path, default=None, help="results folder (default: the grid's, lab/results/...)")
     p.add_argument("--arms", nargs="+", choices=ARMS, default=None,
                    help="curriculum grids, the screen and the confirmation: only these arms (default: all)")
     p.add_argument("--cells", nargs="+", choices=list(SCALE_CELLS), default=list(SCALE_CELLS),
@@ -215,16 +179,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--allow-dirty", action="store_true",
                    help="train even though tracked files differ from the commit (recorded in every summary)")
     p.set_defaults(handler=run)
-    for name, handler, text in (("report", report, "print the tables, draw the figures, optionally update a page"),
-                                ("figures", draw, "draw the figures only")):
-        p = commands.add_parser(name, help=text)
-        p.add_argument("--results", type=Path, default=None, help="results root (default bench/results)")
-        if name == "report":
-            p.add_argument("--update", help="a markdown file whose marked blocks get the new tables")
-        p.set_defaults(handler=handler)
-    p = commands.add_parser("stalls", help="write the stall records of a curriculum grid's finished runs")
-    p.add_argument("folders", nargs="+", type=Path, metavar="FOLDER", help="a grid folder with runs/ and summaries/")
-    p.set_defaults(handler=stalls)
     return parser
 
 

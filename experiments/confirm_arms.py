@@ -1,5 +1,5 @@
-"""The confirmation's arms (protocol in docs/RESULTS.md, "the confirmation's protocol"), derived from the
-screen: the rules the screen's committed summaries select (`screen_choice`, by experiments.screen_table.selection),
+"""The confirmation's arms (protocol in lab/RESULTS.md, "the confirmation's protocol"), derived from the
+screen: the rules the screen's committed summaries select (`screen_choice`, by experiments.screen_selection.selection),
 each with its permuted control, then MADDPG (`confirm_arms`); ConfirmNotReady while the screen has no selection or a
 selected rule has no permuted control. Its seeds come in two halves: after the interim look at INTERIM_SEEDS, a rule
 whose mean area does not exceed MADDPG's stops (`stopped_at_interim`), and the later seeds run only the others
@@ -18,12 +18,12 @@ from cmcl.replay.registry import build_sampler, spec_of
 from cmcl.replay.sampling import SamplerArgs
 from experiments.labels import PERMUTED
 from experiments.screen_arms import PERMUTED_CONTROL, SCREEN_ARMS, rule_algorithm
-from experiments.screen_table import mean_area, selection
+from experiments.screen_selection import mean_area, selection
 from experiments.store import ResultsStore
 
 CONFIRM_REFERENCES = ("maddpg",)  # beside the selected rules and their controls, never selected
 CONFIRM_SEEDS = tuple(range(20))
-# Amended on 2026-12-05 at 13:35 UTC, before any run of the confirmation (docs/RESULTS.md, "Amendment: the
+# Amended on 2026-12-05 at 13:35 UTC, before any run of the confirmation (lab/RESULTS.md, "Amendment: the
 # confirmation with an interim look"): PER-MADDPG is no longer an arm, and once every arm has INTERIM_SEEDS a rule
 # whose mean area does not exceed MADDPG's stops (non-binding futility: it cannot raise the false positive rate).
 INTERIM_SEEDS = CONFIRM_SEEDS[:10]

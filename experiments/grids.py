@@ -8,7 +8,7 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
 * ``winrate``: CMCL predators against ACL prey and against PER-MADDPG prey (Fig. 13);
 * ``ablations``: CMCL on navigation with one setting changed at a time (ABLATIONS; the unchanged CMCL runs of
   ``spread`` are their reference);
-* ``curriculum`` (the pre-registered protocol of docs/RESULTS.md): navigation N=4 with the arms of
+* ``curriculum`` (the pre-registered protocol of lab/RESULTS.md): navigation N=4 with the arms of
   CURRICULUM_ARMS -- maddpg, per, acl, cmcl, and CMCL's two controls, ``cmcl_permuted`` (its priorities shuffled
   across rows: same ESS, no information) and ``cmcl_anti`` (difficulty reversed) -- progress rows every 200
   episodes so that the summary holds the sampling distribution's ESS and reward-row shares over training;
@@ -18,7 +18,7 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
 * ``screen``: candidate sampling rules of the registry (cmcl.replay.registry) on the harder task, MADDPG and
   PER-MADDPG beside them for reference, in two rounds: every arm at seed 100, then MADDPG and round one's three best
   candidates at seeds 101-102 (experiments.screen_arms);
-* ``confirm``: the rules the screen's committed summaries select (experiments.screen_table.selection),
+* ``confirm``: the rules the screen's committed summaries select (experiments.screen_selection.selection),
   MADDPG and each selected rule's permuted control, on the harder task, seeds 0-19 with an interim look after seeds
   0-9; its arms (experiments.confirm_arms) refuse to exist (ConfirmNotReady) while the screen has no selection;
 * ``make_run``: the exact `make run` (MAKE_RUN), one run per seed; run it with --jobs 1 on an idle
@@ -51,10 +51,10 @@ from experiments.confirm_arms import arms_at_seed, screen_choice
 from experiments.own_envs import OWN_ENVS
 from experiments.run_spec import ROOT, Run
 from experiments.screen_arms import PERMUTED_CONTROL, ROUND_ONE_SEEDS, ROUND_TWO_SEEDS, SCREEN_ARMS, rule_algorithm
-from experiments.screen_table import round_two_arms
+from experiments.screen_selection import round_two_arms
 from experiments.store import ResultsStore
 
-RESULTS = ROOT / "bench" / "results"
+RESULTS = ROOT / "lab" / "results"
 EPISODES = 20_000  # the paper's budget per run
 
 # arm -> (config file, --set overrides) of the curriculum grids; every other setting is the shared default. An
@@ -68,7 +68,7 @@ CURRICULUM_ARMS = {
     "cmcl_permuted": ("spread_cmcl.toml", [PERMUTED_CONTROL]),
     "cmcl_anti": ("spread_cmcl.toml", ["teams.<team>.priority.difficulty_transform=reversed"]),
 }
-HARD_CONFIG = "spread_hard.toml"  # the calibrated harder task (docs/RESULTS.md, "A harder task: calibration")
+HARD_CONFIG = "spread_hard.toml"  # the calibrated harder task (lab/RESULTS.md, "A harder task: calibration")
 # grid -> {arm: --set overrides}: CMCL on the harder task with one setting changed, every other setting the
 # curriculum_hard grid's, whose MADDPG and default CMCL runs stand beside them in the report.
 # curriculum_stride, the λ schedule: other strides than the default 3e-6 per env step (λ from 0.1 to 1 at half of the
@@ -82,7 +82,7 @@ HARD_SETTING_GRIDS: dict[str, dict[str, list[str]]] = {
     "curriculum_eta": {"cmcl_eta1": ["teams.agent.eta=1.0"]},
 }
 # The rule screen: its arms (arm -> --set overrides), references, rounds and seeds are experiments.screen_arms's.
-# The rule confirmation (protocol in docs/RESULTS.md, "the confirmation's protocol"): its arms come from the
+# The rule confirmation (protocol in lab/RESULTS.md, "the confirmation's protocol"): its arms come from the
 # screen's selection, its seeds (CONFIRM_SEEDS) and interim look from experiments.confirm_arms.
 
 ABLATIONS = {  # name -> (config file, --set overrides, episode budget or None for the grid's) of CMCL variants
@@ -116,10 +116,10 @@ class ScaleCell:
 
 NO_CAP = "run.max_seconds=0"  # the presets' wall-clock caps off: every seed gets the same episodes, whatever the load
 NO_HOLDER = "maddpg.entity_holder=false"  # the presets' holder margin (on in the presets): off, as these cells ran
-# The first four cells ran first (one seed): entity networks cost 6x more per update at N = 8 (docs/RESULTS.md), so
+# The first four cells ran first (one seed): entity networks cost 6x more per update at N = 8 (lab/RESULTS.md), so
 # they trained for a wall-clock budget, 45 min or 15 min per stage (2 -> 4 -> 8), the "progress" cell also ended once
 # the critics' TD-error learning progress stayed below 5% for three 500-episode windows (the old default,
-# run.progress_signal = critic_loss; it never fired: docs/RESULTS.md). The later cells fill the
+# run.progress_signal = critic_loss; it never fired: lab/RESULTS.md). The later cells fill the
 # agent-count curriculum's table at equal episodes: N = 4 and N = 16 with the presets' entity networks
 # (configs/spread_n8.toml, configs/spread_n16.toml), N = 16 with the paper's per-agent networks, and N = 16 trained
 # from scratch for the 3,040 episodes the preset trains after its N = 8 stage.

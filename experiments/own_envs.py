@@ -2,8 +2,8 @@
 both runners, each against the random policy on the same held-out episodes.
 
 OWN_ENVS names each environment with the settings it trains with (the same for both runners and every seed); its
-runs are built by experiments.grids.own_env_runs, measured by `own_env_measures` and shown by `own_env_table`
-(the `ownenvs` block of docs/RESULTS.md).
+runs are built by experiments.grids.own_env_runs, measured by `own_env_measures` and tabled by the report
+(lab/report/own_env_table.py: the `ownenvs` block of lab/RESULTS.md).
 
 A team's return is the sum over the team's agents of their episode returns (cmcl.run.evaluate.evaluate_policy), the
 mean over HELD_OUT held-out episodes. With more than one team each team also plays against uniformly random
@@ -30,7 +30,7 @@ MPE_KWARGS = "env.factory_kwargs={continuous_actions=true, max_cycles=25}"
 MPE_LEARNER = ("replay.capacity=50000", "maddpg.update_every=4")  # calibrated on simple_spread, seed 0 (inline)
 # simple_tag: Lowe et al. (2017)'s MADDPG settings (openai/maddpg experiments/train.py: Adam lr 0.01, gamma 0.95,
 # batch 1024, a warm-up of batch x episode length transitions), an update every 25 world steps instead of their 100
-# and exploration noise 0.5 instead of 0.1; calibrated on simple_tag, seed 0 (inline), docs/RESULTS.md. At the spread
+# and exploration noise 0.5 instead of 0.1; calibrated on simple_tag, seed 0 (inline), lab/RESULTS.md. At the spread
 # settings (gamma 0.99, lr 0.001, an update every 4) both teams' critics diverged and neither team beat random.
 TAG_LEARNER = ("maddpg.actor_lr=0.01", "maddpg.critic_lr=0.01", "maddpg.gamma=0.95", "maddpg.batch_size=1024",
                "maddpg.warmup=25600", "maddpg.update_every=25", "maddpg.exploration_std=0.5",
@@ -89,30 +89,3 @@ def own_env_measures(config: Config, policy: MADDPG, series: dict[str, np.ndarra
         if key in held_out:
             out[f"held_out_{key}"], out[f"random_{key}"] = held_out[key], random[key]
     return out
-
-
-def _mean_sd(values: list[float], digits: int) -> str:
-    x = np.asarray(values, dtype=np.float64)
-    sd = f" ± {x.std(ddof=1):.{digits}f}" if x.size > 1 else ""
-    return f"{x.mean():.{digits}f}{sd}"
-
-
-def own_env_table(runs: list[dict[str, Any]]) -> str:
-    """One row per (environment, runner, team): held-out return mean ± sd over the seeds, the random policy's,
-    the team against random others (competing teams only), the seeds, episodes and wall seconds (means)."""
-    lines = ["| environment | runner | team | held-out return (mean ± sd over seeds) | random policy | "
-             "vs random others | seeds | episodes | wall s |", "| --- " * 9 + "|"]
-    for name, env in OWN_ENVS.items():
-        for mode in ("inline", "service"):
-            rs = sorted((r for r in runs if r.get("env") == name and r.get("mode", "inline") == mode),
-                        key=lambda r: r["seed"])
-            if not rs:
-                continue
-            for team in rs[0]["held_out_return"]:
-                versus = [r["vs_random_others_return"][team] for r in rs if env.competing]
-                lines.append(
-                    f"| {env.label} | {mode} | {team} | {_mean_sd([r['held_out_return'][team] for r in rs], 1)} | "
-                    f"{_mean_sd([r['random_return'][team] for r in rs], 1)} | "
-                    f"{_mean_sd(versus, 1) if versus else '–'} | {','.join(str(r['seed']) for r in rs)} | "
-                    f"{np.mean([r['episodes'] for r in rs]):,.0f} | {np.mean([r['wall_s'] for r in rs]):.0f} |")
-    return "\n".join(lines)

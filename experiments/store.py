@@ -27,7 +27,7 @@ LEGACY_LOG = "results.jsonl"  # the earlier time-to-solve program's store
 
 
 class ResultsStore:
-    """The summaries of one results folder (e.g. bench/results/curriculum)."""
+    """The summaries of one results folder (e.g. lab/results/curriculum)."""
 
     def __init__(self, root: str | Path):
         self.root = Path(root)

@@ -1,6 +1,6 @@
 """The rule confirmation: its arms derived from the screen's summaries by the screen's selection rule, its
-refusal while the screen has no selection, the permuted control of each rule, the interim look after seeds 0-9, and
-its tables and goal verdicts.
+refusal while the screen has no selection, the permuted control of each rule and the interim look after seeds 0-9
+(its tables and goal verdicts: lab/tests/test_confirm_tables.py).
 
 Every summary here is synthetic (written by the helpers below, named fake_* / synthetic_*): they stand for finished
 runs' summaries, never for a component of the code."""
@@ -18,15 +18,11 @@ from experiments.confirm_arms import (
     has_permuted_control,
     stopped_at_interim,
 )
-from experiments.confirm_tables import GOAL, confirm_decision, confirm_table, confirm_tests, families, recommended
-from experiments.curriculum_tables import curriculum_test_rows, format_tests
 from experiments.grids import CURRICULUM_ARMS, grid, team_sets
-from experiments.report import NO_RUNS, blocks
 from experiments.screen_arms import PERMUTED_CONTROL, SCREEN_ARMS
-from experiments.stats import holm
 from experiments.store import ResultsStore
 from tests.test_replay_storage import N, filled
-from tests.test_screen_table import screen_runs
+from tests.test_screen_selection import screen_runs
 
 CHOSEN = ("relo", "lp")  # what the fake screen selects: rho has the best area but does not act
 
@@ -96,8 +92,6 @@ def test_the_interim_look_stops_a_rule_not_above_maddpg_and_the_later_seeds_run_
     for summary in synthetic_confirm({**AREAS, "relo": 0.60, "lp": 0.64}, seeds=INTERIM_SEEDS):
         store.write(summary)
     assert all(r.seed in INTERIM_SEEDS for r in selected_runs(build_parser().parse_args(args)))
-    goal = {row[0]: row for row in table_rows(confirm_tests(store.load(), CHOSEN), "The goal")}
-    assert goal["ReLo"][-1].startswith("goal not met: stopped at the interim look (seeds 0–9)")
 
 
 def test_the_screen_runs_round_two_once_round_one_is_in_and_refuses_a_seed_of_neither(tmp_path, capsys):
@@ -166,111 +160,3 @@ def test_the_permuted_control_shuffles_exactly_the_rules_said_to_have_one(algori
         assert confirm_arms(["laber"])["laber_permuted"] == [*SCREEN_ARMS["laber"], PERMUTED_CONTROL]
     with pytest.raises(ConfirmNotReady, match="does not act on the selected \\['maddpg'\\]"):
         confirm_arms(["maddpg"])
-
-
-def table_rows(text: str, title: str) -> list[list[str]]:
-    """The cells of the table after the paragraph starting with `title`."""
-    block = text.split(title, 1)[1].split("\n\n")[1]
-    return [[c.strip() for c in line.strip("|").split("|")] for line in block.splitlines()[2:]]
-
-
-def test_the_goal_is_met_only_with_the_gain_the_corrected_interval_and_the_permuted_control():
-    runs = synthetic_confirm(AREAS)
-    text = confirm_tests(runs, CHOSEN)
-    goal = {row[0]: row for row in table_rows(text, "The goal")}
-    assert goal["ReLo"][-1] == "**meets the goal**"
-    assert goal["held-out learning progress"][-1].startswith("goal not met: the area is +0.0")
-    assert f"less than {GOAL:+.2f}" in goal["held-out learning progress"][-1]
-    # the same gain over MADDPG, but no better than its own permuted control: not met
-    same = synthetic_confirm({**AREAS, "relo_permuted": 0.80})
-    row = {r[0]: r for r in table_rows(confirm_tests(same, CHOSEN), "The goal")}["ReLo"]
-    assert row[-1].startswith("goal not met: not shown above its permuted control")
-    # a large gain with a wide spread: the Holm-corrected interval reaches 0
-    wide = synthetic_confirm({**AREAS, "relo_permuted": 0.2})
-    for r in wide:  # relo 0.70 and MADDPG 0.59 on average, each ± 0.25 by seed
-        if r["arm"] in ("relo", "maddpg"):
-            r["auc_coverage"] = (0.70 if r["arm"] == "relo" else 0.59) + (0.25 if r["seed"] % 2 else -0.25)
-    row = {r[0]: r for r in table_rows(confirm_tests(wide, CHOSEN), "The goal")}["ReLo"]
-    assert row[-1].startswith("goal not met: the Holm-corrected interval [−") and ";" not in row[-1]
-    # until every arm has its 20 seeds there is no verdict
-    early = confirm_tests(synthetic_confirm(AREAS, seeds=range(19)), CHOSEN)
-    assert all(r[-1] == "waits for 20 seeds per arm (or 10 if the interim look stops it)"
-               for r in table_rows(early, "The goal"))
-
-
-def test_holm_is_applied_within_each_family_at_the_familys_alpha():
-    runs = synthetic_confirm(AREAS)
-    text = confirm_tests(runs, CHOSEN)
-    first, second = families(CHOSEN)
-    assert first == [("relo", "maddpg", "auc_coverage"), ("lp", "maddpg", "auc_coverage")]
-    assert second[:3] == [("relo", "relo_permuted", "auc_coverage"), ("relo", "maddpg", "held_out_success"),
-                          ("relo", "maddpg", "episodes_to_90")]
-    for comparisons, m in ((first, 2), (second, 6)):
-        rows = curriculum_test_rows(runs, comparisons)
-        assert len(rows) == m and not any(t.primary for t in rows)
-        assert [t.adjusted for t in rows] == pytest.approx(holm([t.p for t in rows]))
-        assert {t.level for t in rows} == {0.05 / m}  # the detectable differences at the family's α
-        assert format_tests(rows) in text
-    assert any(0.05 < t.p < 1 for t in curriculum_test_rows(runs, second))  # not every p is 0 or 1
-    assert "Holm-corrected interval (97.5%)" in text  # 1 − 0.05 / 2 for two chosen rules
-
-
-def test_runs_of_mixed_code_are_not_tested_and_meet_no_goal():
-    runs = synthetic_confirm(AREAS)
-    for r in runs:
-        if r["arm"] == "relo_permuted" and r["seed"] < 10:
-            r["provenance"] = {"commit": "d" * 40, "dirty": False, "segment_commits": ["d" * 40]}
-    text = confirm_tests(runs, CHOSEN)
-    control = {r[0]: r for r in table_rows(text, "Secondary")}["ReLo − ReLo, permuted control"]
-    assert control[4] == "not tested: code versions mixed" and control[3].startswith("mixed: ")
-    goal = {r[0]: r for r in table_rows(text, "The goal")}
-    assert goal["ReLo"][-1].startswith("goal not met: not tested") and "meets" not in goal["ReLo"][-1]
-    assert goal["held-out learning progress"][-1].startswith("goal not met: the area")
-
-
-def test_the_report_blocks_of_the_confirmation(tmp_path):
-    fake_screen(tmp_path / "screen")
-    empty = blocks(tmp_path)
-    assert empty["confirm"] == empty["confirmtests"] == NO_RUNS
-    store = ResultsStore(tmp_path / "confirm")
-    for summary in synthetic_confirm(AREAS):
-        store.write(summary)
-    out = blocks(tmp_path)
-    assert out["confirm"] == confirm_table(store.load(), CHOSEN)
-    roles = {r[0]: r[1:4] for r in table_rows("x\n\n" + out["confirm"], "x")}
-    assert roles["ReLo"] == ["rule", "20", "ccccccc"] and roles["ReLo, permuted control"][0] == "permuted control"
-    assert roles["MADDPG"][0] == "reference" and len(roles) == 5
-    assert "**meets the goal**" in out["confirmtests"]
-
-
-def test_the_readme_sentence_says_no_verdict_until_complete_then_what_make_run_trains():
-    early = confirm_decision(synthetic_confirm(AREAS, seeds=range(12)), CHOSEN)
-    assert "no verdict yet" in early and "12 of ReLo; 12 of ReLo, permuted control" in early
-    assert early.endswith("`make run` trains uniform replay (MADDPG).")
-    assert recommended(synthetic_confirm(AREAS, seeds=range(12)), CHOSEN) is None
-    done = confirm_decision(synthetic_confirm(AREAS), CHOSEN)
-    assert recommended(synthetic_confirm(AREAS), CHOSEN) == "relo"
-    assert "ReLo: area +0.1" in done and "; meets the goal;" in done and "**" not in done
-    assert done.endswith("ReLo is the recommended curriculum, and `make run` trains it.")
-    assert "(20 seeds per arm, code ccccccc)" in done
-    # neither rule above its permuted control: no recommendation, and the reason is said
-    tied = synthetic_confirm({**AREAS, "relo_permuted": 0.80, "lp_permuted": 0.70})
-    text = confirm_decision(tied, CHOSEN)
-    assert recommended(tied, CHOSEN) is None and "not shown above its permuted control" in text
-    assert text.endswith("So no rule is recommended over uniform replay, and `make run` trains uniform replay "
-                         "(MADDPG).")
-
-
-def test_make_run_trains_what_the_committed_confirmation_recommends():
-    """The protocol's "Then": `make run` trains the rule that met the goal, else uniform replay."""
-    from cmcl.config import load_config
-    from experiments.grids import GRIDS, MAKE_RUN
-    from experiments.run_spec import ROOT
-    from experiments.screen_table import selection
-
-    chosen = selection(ResultsStore(GRIDS["screen"]).load()).chosen
-    best = recommended(ResultsStore(GRIDS["confirm"]).load(), chosen) if chosen else None
-    config = ROOT / "configs" / MAKE_RUN["config"]
-    follows = SCREEN_ARMS["maddpg" if best is None else best]  # the overrides of what make run must train
-    assert load_config(config).to_dict() == load_config(config, follows).to_dict(), \
-        f"the confirmation recommends {best or 'uniform replay (maddpg)'}: make run must train it ({follows})"

@@ -1,5 +1,5 @@
 """The rule a run trains with when none is named, as a new user meets it: MADDPG (uniform replay, which no rule here
-has beaten, docs/RESULTS.md) on a user's env.factory and on the built-in tasks; and CMCL's early hint "cov may wait"
+has beaten, lab/RESULTS.md) on a user's env.factory and on the built-in tasks; and CMCL's early hint "cov may wait"
 only on a run that has a coverage to wait for (subprocesses of `python -m cmcl train`, and the progress line)."""
 
 from __future__ import annotations

@@ -122,7 +122,7 @@ def test_a_summary_holds_the_sampling_distribution_over_training(finished_run):
 
 
 def test_a_summary_starts_with_the_fields_the_committed_summaries_have(finished_run):
-    """New summaries keep the keys the report reads in the committed ones (bench/results/*/summaries)."""
+    """New summaries keep the keys the report reads in the committed ones (lab/results/*/summaries)."""
     run = grid(["curriculum"], [0], [])[3]
     s = summarise(run, finished_run)
     assert list(s)[:7] == ["id", "grid", "task", "algorithm", "prey_algorithm", "seed", "budget"]
@@ -158,9 +158,9 @@ def test_every_grid_has_a_results_folder_and_the_time_to_solve_grids_stop_early(
 @pytest.mark.extended
 def test_an_own_env_run_trains_from_its_settings_and_is_measured_per_team_against_random(tmp_path):
     """The own_envs grid's simple_tag run: no config file, the env's settings; held-out return per team, the random
-    policy's on the same worlds and each team against random opponents; its rows in the table."""
+    policy's on the same worlds and each team against random opponents."""
     from cmcl.config import load_config
-    from experiments.own_envs import OWN_ENVS, own_env_table
+    from experiments.own_envs import OWN_ENVS
     from experiments.runner import command
     from tests.tiny import tiny_overrides
 
@@ -179,11 +179,6 @@ def test_an_own_env_run_trains_from_its_settings_and_is_measured_per_team_agains
     assert set(summary["held_out_return"]) == set(summary["random_return"]) == teams
     assert set(summary["vs_random_others_return"]) == teams
     assert summary["random_return"] != summary["held_out_return"]
-    lines = own_env_table([summary, {**summary, "seed": 1, "wall_s": summary["wall_s"] + 2}]).splitlines()
-    adversary = summary["held_out_return"]["adversary"]
-    assert len(lines) == 4
-    assert lines[2].startswith(f"| mpe2 simple_tag_v3 | service | adversary | {adversary:.1f} ± 0.0 |")
-    assert lines[3].split(" | ")[2] == "agent" and " | 0,1 | 8 | " in lines[3]
 
 
 def test_the_command_line_filters_curriculum_arms_with_arms_and_scale_cells_with_cells(tmp_path):

@@ -9,7 +9,7 @@ one landmark of two covered (coverage ~0.5), and which one a seed does depends o
 machine: seed 0 gave 0.98 on the machine that set the first bar (0.5) and 0.492 on another (2026-12-03), which
 failed that bar. Measured there at 3,000 episodes, seeds 0/1/2/3: 0.492/0.990/0.993/0.540 (4,000 episodes:
 0.495/1.0/1.0/0.777). A broken learner stays near the random policy's 0.055, far below both outcomes. How often
-runs stall is a learning-quality question (the stall analysis, experiments.stalls), not this regression test's.
+runs stall is a learning-quality question (the stall analysis, lab.report.stalls), not this regression test's.
 The slow tests (`pytest -m slow`) run every algorithm for the full default budget (20,000 episodes, N=4) and
 require held-out coverage >= 0.9 and success >= 0.8.
 """

@@ -11,7 +11,7 @@ from cmcl.rollout.policy import NumpyPolicy, numpy_policy
 @pytest.mark.parametrize("share", [False, True])
 @pytest.mark.parametrize("noise", [0.0, 0.1])
 def test_numpy_policy_matches_maddpg_act(noise, share):
-    maddpg = MADDPG(4, 18, seed=3, networks="shared" if share else "per_agent")
+    maddpg = MADDPG(4, 18, seed=3, share_parameters=share)
     obs = np.random.default_rng(0).normal(size=(64, 4, 18)).astype(np.float32)
     policy = NumpyPolicy(published_weights(maddpg)["actor"])
     ours = policy.act(obs, noise, rng=np.random.default_rng(7))
@@ -96,7 +96,7 @@ def test_the_nearest_picks_agree_with_the_learners_including_ties():
     """Closest first within a kind, ties to the lower slot, absent entities last (their contents unread)."""
     import torch
 
-    from cmcl.learners.entity import nets as entity_nets
+    from cmcl.learners.entity import picks
     from cmcl.rollout.policy import nearest_entities
 
     types = slice(2, 4)
@@ -107,7 +107,7 @@ def test_the_nearest_picks_agree_with_the_learners_including_ties():
     mask = rng.random((64, 9)) < 0.8
     for k in (1, 3, 9, 12):
         ours, ours_mask = nearest_entities(ents, mask, k, types)
-        theirs, theirs_mask = entity_nets.nearest_entities(torch.from_numpy(ents), torch.from_numpy(mask), k, types)
+        theirs, theirs_mask = picks.nearest_entities(torch.from_numpy(ents), torch.from_numpy(mask), k, types)
         np.testing.assert_array_equal(ours_mask, theirs_mask.numpy())
         np.testing.assert_array_equal(ours[ours_mask], theirs.numpy()[ours_mask])
         assert ours.shape == (64, 2 * min(k, 9), 4)

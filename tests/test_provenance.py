@@ -10,7 +10,6 @@ import experiments.__main__ as experiments_cli
 from cmcl.config import load_config
 from cmcl.run.provenance import SIMD, LoadSampler, code_at_start, code_state, cpu, provenance
 from cmcl.run.rundir import RunDirectory
-from experiments.curriculum_tables import curriculum_tests
 from experiments.provenance import cell_versions, code_version
 
 
@@ -39,10 +38,10 @@ def test_code_state_names_the_commit_and_sees_a_dirty_tracked_file(repo):
 
 def test_a_grids_own_results_do_not_make_the_code_dirty(repo):
     """A grid's tracked results.csv changes after its first run: the runs after it ran the same code."""
-    results = repo / "bench" / "results" / "grid"
+    results = repo / "lab" / "results" / "grid"
     results.mkdir(parents=True)
     (results / "results.csv").write_text("id\n")
-    git(repo, "add", "bench")
+    git(repo, "add", "lab")
     git(repo, "commit", "-qm", "results")
     head = git(repo, "rev-parse", "HEAD")
     (results / "results.csv").write_text("id\nrun_s0\n")
@@ -158,16 +157,6 @@ def test_summaries_without_provenance_are_told_apart_by_the_later_measures_keys(
     dirty = summary("cmcl", 0, 0.4, "c" * 40)
     dirty["provenance"]["dirty"] = True
     assert code_version(dirty) == "ccccccc+dirty"
-
-
-def test_the_report_refuses_a_mixed_cell_and_tests_a_clean_one():
-    runs = [summary(a, s, 0.5 + 0.01 * s + (0.1 if a == "maddpg" else 0), "a" * 40)
-            for a in ("maddpg", "cmcl") for s in range(4)]
-    clean = curriculum_tests(runs, [("cmcl", "maddpg", "auc_coverage")])
-    assert "aaaaaaa" in clean and "not tested" not in clean
-    runs[0]["provenance"].update(commit="b" * 40, segment_commits=["b" * 40])
-    mixed = curriculum_tests(runs, [("cmcl", "maddpg", "auc_coverage")])
-    assert "not tested: code versions mixed" in mixed and "bbbbbbb (1 runs)" in mixed
 
 
 def test_a_grid_refuses_a_dirty_tree_unless_told(monkeypatch, capsys, tmp_path):

@@ -4,7 +4,7 @@ Default run: each preset trains a few updates inline with its own networks, and 
 networks start from an N = 8 run, name `run.init_from` when that run does not exist.
 Slow (`pytest -m slow`): the commands the presets' headers give, run as a user runs them: the N = 8 preset trained
 directly (its 30 minutes, with the holder margin), then spread_n16 and spread_n32 from it, each held-out evaluated
-against a floor below what docs/RESULTS.md measured; and, without the margin (as it was measured), the agent-count
+against a floor below what lab/RESULTS.md measured; and, without the margin (as it was measured), the agent-count
 curriculum 2 -> 4 -> 8 of spread_n8 (about 16 minutes on a free core), then spread_n16 from it, on either runner.
 """
 
@@ -94,4 +94,4 @@ def test_the_n8_preset_then_the_n16_and_n32_presets_reach_the_goals_as_their_hea
     assert result["coverage"] >= N16_FLOOR[0] and result["success"] >= N16_FLOOR[1], result
     train("spread_n32.toml", tmp_path / "spread_n32", "--set", f"run.init_from={n8}")
     result = held_out(tmp_path / "spread_n32")
-    assert result["coverage"] >= 0.9, result  # the issue's N = 32 goal; docs/RESULTS.md "Thirty-two agents"
+    assert result["coverage"] >= 0.9, result  # the issue's N = 32 goal; lab/RESULTS.md "Thirty-two agents"

@@ -35,7 +35,7 @@ def tracked_text_files() -> list[Path]:
     names = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
     return [ROOT / name for name in names
             if (Path(name).suffix in TEXT_SUFFIXES or Path(name).name == "Makefile")
-            and not name.startswith("bench/results/") and ROOT / name != Path(__file__).resolve()
+            and not name.startswith("lab/results/") and ROOT / name != Path(__file__).resolve()
             and (ROOT / name).is_file()]
 
 
@@ -197,7 +197,7 @@ def test_every_bare_section_sign_names_an_algorithm_section(files):
 def test_every_equation_the_code_cites_is_in_the_index(files):
     index = indexed_equations(ALGORITHM.read_text())
     missing = sorted({f"{name}: eq. {n}" for name, text in files.items()
-                      if name.split("/")[0] in {"cmcl", "services", "experiments", "bench", "tests"}
+                      if name.split("/")[0] in {"cmcl", "services", "experiments", "lab", "bench", "tests"}
                       for n in cited_equations(text) if n not in index})
     assert not missing, f"equations the equation index of docs/ALGORITHM.md lacks: {missing}"
 

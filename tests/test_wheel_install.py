@@ -22,7 +22,7 @@ import zipfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = {"cmcl", "services", "experiments"}  # what the wheel may install at the top level
+PACKAGES = {"cmcl", "services", "experiments"}  # what the wheel may install at the top level (never lab/)
 
 
 def _run(argv: list[str], cwd: Path, timeout: float = 240) -> subprocess.CompletedProcess:

@@ -42,8 +42,9 @@ class RunConfig:
         0.0, "stop early once learning stops progressing (cmcl.progress.learning): the learning progress of "
         "progress_signal between consecutive windows of progress_window episodes stays below this for "
         "progress_patience windows (0: off). With the default signal, coverage, it is an absolute change of the "
-        "window's mean coverage (0.02 separated a rising from a flat stage in bench/learning_progress_windows.py, "
-        "one seed). The agent-count curriculum (python -m cmcl stages) ends its stages by it",
+        "window's mean coverage (0.02 separated a rising from a flat stage in "
+        "lab/studies/learning_progress_windows.py, one seed). The agent-count curriculum (python -m cmcl stages) "
+        "ends its stages by it",
         unit="change of coverage (coverage); relative change (critic_loss, normalised_td)", rule=FINITE_AT_LEAST_0)
     progress_signal: ProgressSignal = documented(
         "coverage", "what stop_progress reads (cmcl.progress.learning): 'coverage' = the absolute change of the "

@@ -83,7 +83,7 @@ class TeamConfig:
 
     algorithm: str = documented(
         "maddpg", "the team's algorithm, i.e. its replay's sampling rule (cmcl.replay.registry; unnamed: MADDPG's "
-        "uniform replay, which no rule here has beaten, docs/RESULTS.md): " +
+        "uniform replay, which no rule here has beaten, lab/RESULTS.md): " +
         "; ".join(f"'{name}' ({REGISTRY[name].summary})" for name in ALGORITHMS) +
         ". A rule's own options are keys of this table too (teams.<team>.<option>, listed below with their rule)",
         rule=_Registered())

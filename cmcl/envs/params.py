@@ -48,7 +48,7 @@ class SpreadParams:
                                         unit=LENGTH, rule=FloatIn(0.0, ARENA_HALF))
     cover_radius: float = documented(
         0.1, "a landmark is covered by the closest agent whose centre is closer than this [P: 0.1]; smaller values "
-        "make the sparse reward rarer (the harder-task calibration of docs/RESULTS.md)", unit=LENGTH, rule=FloatIn())
+        "make the sparse reward rarer (the harder-task calibration of lab/RESULTS.md)", unit=LENGTH, rule=FloatIn())
     sensitivity: float = documented(5.0, "force = action × sensitivity (MPE's default [V])", unit="force per action "
                                     "unit", rule=FloatIn())
     landmark_spawn: float = documented(0.4, "landmarks are placed uniformly in [-landmark_spawn, landmark_spawn]^2",
@@ -88,7 +88,7 @@ class SpreadParams:
 class TagParams:
     """Sparse predator-prey (ALGORITHM.md §6.2). Predators are agents 0..m-1, prey m..m+n-1.
 
-    Defaults are the calibrated world of §6.2 ("calibration" row; bench/tag_calibration.py): 2 predators
+    Defaults are the calibrated world of §6.2 ("calibration" row; lab/studies/tag_calibration.py): 2 predators
     and 2 prey at half MPE's absolute sizes, so that random policies on both sides give the predators
     ~0.45 of rounds (§6.2's first recommendation, 4 predators of radius 0.075 and prey of radius 0.05,
     gave 0.90).

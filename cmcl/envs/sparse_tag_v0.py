@@ -9,7 +9,7 @@ m predators ("predator_0".., default m = 2, radius 0.0375, accel 3, max speed 1)
 default n = 2, radius 0.025, accel 4, max speed 2) among O immovable, collidable obstacles (default 3,
 radius 0.1, centres uniform in [-0.3, 0.3]^2) in the walled square [-0.5, 0.5]^2. Agents are ordered
 predators first, then prey. The defaults are §6.2's calibrated world: random policies on both sides give
-the predators ~0.45 of rounds (bench/tag_calibration.py); radii in arena units, speeds per unit time.
+the predators ~0.45 of rounds (lab/studies/tag_calibration.py); radii in arena units, speeds per unit time.
 Rewards per step:
   D1: for every (predator, prey) pair in contact (distance < r_pred + r_prey): +5 to that predator
       and -5 to that prey; prey are not removed. With shared_reward=True every predator receives +5

@@ -17,7 +17,7 @@ recorded in window k. Its learning progress in window k >= 1 is
   the agent count's scale).
 All three are kept, window by window; `signal` (run.progress_signal, default coverage) names the one the rule reads:
 learning has stopped progressing once its LP_k < `threshold` for `patience` consecutive windows. Why coverage
-(bench/learning_progress_windows.py, docs/RESULTS.md "The stage rule's signal", one seed, stages N = 2 then 4): the
+(lab/studies/learning_progress_windows.py, lab/RESULTS.md "The stage rule's signal", one seed, stages N = 2 then 4): the
 raw critic loss grows with the value scale, so its relative change stayed 0.04–0.43 at N = 4 (coverage 0.67–0.77)
 and never below 0.2 for three windows in a row; the normalised TD error's relative change was noisy (0.015–0.49 at
 N = 4, 0.07 once at N = 2 while coverage rose by 0.35); the coverage's change stayed >= 0.033 while N = 2 learned and

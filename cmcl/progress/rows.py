@@ -87,7 +87,7 @@ def sampling_parts(ess: Sequence[float], reward_rows_sampled: Sequence[float],
     """The compact sampling part of a progress line, means over the agents that do not sample uniformly:
     ["ESS 0.42", "reward rows 0.02/0.18"], the ESS as a fraction of the buffer (1 = uniform) and the share of
     reward-bearing rows in a sampled minibatch / in the buffer (a curriculum that excludes the hard rows starves
-    the learner of reward when the first is far below the second; docs/RESULTS.md, "Sampling and stalls").
+    the learner of reward when the first is far below the second; lab/RESULTS.md, "Sampling and stalls").
     [] when every agent samples uniformly. Both runners' lines call it."""
     keep = [a for a, flat in enumerate(uniform) if not flat and a < len(ess)]
     if not keep:

@@ -49,7 +49,7 @@ def _git(*args: str, cwd: Path = ROOT) -> str | None:
     return done.stdout.strip() if done.returncode == 0 else None
 
 
-RESULTS_PATHS = ("bench/results",)  # what the grids and benches write into the checkout: results, not code
+RESULTS_PATHS = ("lab/results",)  # what the grids and benches write into the checkout: results, not code
 
 
 def code_state(root: Path = ROOT) -> tuple[str | None, bool | None]:

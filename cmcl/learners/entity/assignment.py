@@ -13,7 +13,7 @@ toward the landmark a minimum-total-distance assignment gives agent v:
 
 At N = 8 the unfinished worlds are crowded (two agents on one landmark while another is free); in an optimal assignment
 no two agents share a landmark, so the signal says which landmark is v's to take. Whether it helps learning is not
-shown: its one run at N = 8 (docs/RESULTS.md, "Tried against the crowding") still crowded. The targets depend on the
+shown: its one run at N = 8 (lab/RESULTS.md, "Tried against the crowding") still crowded. The targets depend on the
 observation only (no gradient); the loss's gradient reaches the actor's encoder only (not its head, not the critic).
 With entity_pool = "attention" a landmark's logit is a function of v's own features and that landmark's alone (it cannot
 see the other agents, so at best it learns a per-landmark score such as nearness); "relational" lets the landmark
