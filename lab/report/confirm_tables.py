@@ -138,10 +138,11 @@ def recommended(runs: list[dict[str, Any]], rules: Sequence[str]) -> str | None:
     return max(met)[1] if met else None
 
 
-def confirm_decision(runs: list[dict[str, Any]], rules: Sequence[str]) -> str:
+def confirm_decision(runs: list[dict[str, Any]], rules: Sequence[str], code: bool = True) -> str:
     """README.md's sentence on the recommended curriculum, from the confirmation's summaries: how far it is while
     incomplete; then each rule's gain over MADDPG, its difference from its permuted control and its verdict, and
-    what `make run` trains as a consequence (the rule that meets the goal, else uniform replay)."""
+    what `make run` trains as a consequence (the rule that meets the goal, else uniform replay); `code`: name the
+    commits the runs were made at (the record's form; the README's leaves them to the record)."""
     names = " and ".join(ARM_LABEL[rule] for rule in rules)
     first, second = families(rules)
     primary, secondary = curriculum_test_rows(runs, first), curriculum_test_rows(runs, second)
@@ -162,8 +163,9 @@ def confirm_decision(runs: list[dict[str, Any]], rules: Sequence[str]) -> str:
     then = (f"{ARM_LABEL[best]} is the recommended curriculum, and `make run` trains it" if best else
             "so no rule is recommended over uniform replay, and `make run` trains uniform replay (MADDPG)")
     seeds = sorted({len({r["seed"] for r in runs if r.get("arm") == arm}) for arm in confirm_arms(rules)})
-    return (f"The confirmation on the harder task ({'–'.join(map(str, seeds))} seeds per arm, code "
-            f"{', '.join(sorted({t.code for t in primary}))}): " + "; ".join(parts) + f". {then[0].upper()}{then[1:]}.")
+    commits = f", code {', '.join(sorted({t.code for t in primary}))}" if code else ""
+    return (f"The confirmation on the harder task ({'–'.join(map(str, seeds))} seeds per arm{commits}): "
+            + "; ".join(parts) + f". {then[0].upper()}{then[1:]}.")
 
 
 def confirm_tests(runs: list[dict[str, Any]], rules: Sequence[str]) -> str:

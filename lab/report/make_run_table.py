@@ -56,9 +56,26 @@ def make_run_table(runs: list[dict[str, Any]], config: str, earlier: list[dict[s
     return "\n".join(lines)
 
 
-def tally(runs: list[dict[str, Any]]) -> str:
+def make_run_summary(runs: list[dict[str, Any]], config: str) -> str:
+    """README.md's view of today's `make run` (those of `runs` whose config file is `config`): per seed, reached MA 0.9
+    or not, seconds and episodes to it, held-out coverage and success; then the tally. No code, load or day: those are
+    the record's (`make_run_table`, lab/RESULTS.md)."""
+    runs = sorted((r for r in runs if r["config"] == config), key=lambda r: r["seed"])
+    if not runs:
+        return "not measured yet"
+    lines = ["| seed | reached MA 0.9 | seconds to MA 0.9 | episodes to MA 0.9 | held-out coverage | "
+             "held-out success |", "| --- " * 6 + "|"]
+    for r in runs:
+        reached = r.get("seconds_to_90") is not None
+        lines.append((f"| {r['seed']} | yes | {r['seconds_to_90']:.0f} | {r['episodes_to_90']:,} | " if reached else
+                      f"| {r['seed']} | no | — | — | ")
+                     + f"{r['held_out_coverage']:.3f} | {r['held_out_success']:.3f} |")
+    return "\n".join([*lines, "", tally(runs, code=False)])
+
+
+def tally(runs: list[dict[str, Any]], code: bool = True) -> str:
     """How many of `runs` reached MA 0.9 within their budget (300 s of training; on a fast machine the episode budget
-    can end a run first, and the tally says so), the Kaplan-Meier median time to it, and the code they ran."""
+    can end a run first, and the tally says so), the Kaplan-Meier median time to it, and (`code`) the code they ran."""
     seconds = [r.get("seconds_to_90") for r in runs]
     reached = sum(s is not None for s in seconds)
     codes = ", ".join(sorted({code_version(r) for r in runs}))
@@ -70,7 +87,7 @@ def tally(runs: list[dict[str, Any]]) -> str:
               f"episodes first, at {at} s)") if ended else "the 300-second budget"
     return (f"{reached} of {len(runs)} seeds reached MA 0.9 within {budget}; Kaplan–Meier median time to "
             f"MA 0.9: {median_text(seconds, missing='not reached')}"
-            + ("" if kaplan_meier(seconds)[0] is None else " s") + f" (code {codes}).")
+            + ("" if kaplan_meier(seconds)[0] is None else " s") + (f" (code {codes})." if code else "."))
 
 
 def first_day(runs: list[dict[str, Any]]) -> str:

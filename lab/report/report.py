@@ -55,7 +55,7 @@ from lab.report.curriculum_tables import (
     setting_table,
 )
 from lab.report.curriculum_verdicts import setting_verdict_table, verdict_table
-from lab.report.make_run_table import earlier_runs, make_run_table
+from lab.report.make_run_table import earlier_runs, make_run_summary, make_run_table
 from lab.report.own_env_table import own_env_table
 from lab.report.quoted import quoted_blocks
 from lab.report.quoted_words import NO_RUNS
@@ -147,11 +147,14 @@ def blocks(results: Path | None = None) -> dict[str, str]:
     out["confirm"], out["confirmtests"] = (NO_RUNS, NO_RUNS) if not confirm else \
         (chosen.reason(), chosen.reason()) if not chosen.chosen else \
         (confirm_table(confirm, chosen.chosen), confirm_tests(confirm, chosen.chosen))
-    out["confirmdecision"] = confirm_decision(confirm, chosen.chosen) if chosen.chosen else chosen.reason()  # README
+    # README.md's sentence (no commits) and the record's
+    out["confirmdecision"] = confirm_decision(confirm, chosen.chosen, code=False) if chosen.chosen else chosen.reason()
+    out["confirmdecision_record"] = confirm_decision(confirm, chosen.chosen) if chosen.chosen else chosen.reason()
     out["reruns"] = rerun_text(results)
     out |= {block: figure_link(where[grid_name], alt) for block, (grid_name, alt) in FIGURE_LINKS.items()}
-    out["makerun"] = make_run_table(ResultsStore(where["make_run"]).load(), MAKE_RUN["config"],  # README.md's block
-                                    earlier_runs(where["make_run"]))
+    make_runs = ResultsStore(where["make_run"]).load()
+    out["makerun"] = make_run_summary(make_runs, MAKE_RUN["config"])  # README.md's block
+    out["makerun_record"] = make_run_table(make_runs, MAKE_RUN["config"], earlier_runs(where["make_run"]))  # the record
     quoted = quoted_blocks(where, RESULTS if results is None else results)  # README.md's and LEARNING.md's
     assert not quoted.keys() & out.keys(), f"two texts named {sorted(quoted.keys() & out.keys())}"
     return {**out, **quoted}

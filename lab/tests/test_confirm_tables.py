@@ -109,6 +109,7 @@ def test_the_readme_sentence_says_no_verdict_until_complete_then_what_make_run_t
     assert "ReLo: area +0.1" in done and "; meets the goal;" in done and "**" not in done
     assert done.endswith("ReLo is the recommended curriculum, and `make run` trains it.")
     assert "(20 seeds per arm, code ccccccc)" in done
+    assert confirm_decision(synthetic_confirm(AREAS), CHOSEN, code=False) == done.replace(", code ccccccc", "")
     # neither rule above its permuted control: no recommendation, and the reason is said
     tied = synthetic_confirm({**AREAS, "relo_permuted": 0.80, "lp_permuted": 0.70})
     text = confirm_decision(tied, CHOSEN)

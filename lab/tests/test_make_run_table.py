@@ -5,16 +5,32 @@ import re
 from experiments.grids import GRIDS, MAKE_RUN
 from experiments.run_spec import ROOT
 from experiments.store import ResultsStore
-from lab.report.make_run_table import earlier_runs, make_run_table, tally
+from lab.report.make_run_table import earlier_runs, make_run_summary, make_run_table, tally
 
 
-def test_the_readme_table_is_regenerated_from_the_committed_summaries():
-    readme = (ROOT / "README.md").read_text()
-    block = re.search(r"<!-- makerun:begin -->\n(.*?)\n<!-- makerun:end -->", readme, re.S)
-    assert block, "README.md lacks its makerun block"
-    assert block.group(1) == make_run_table(ResultsStore(GRIDS["make_run"]).load(), MAKE_RUN["config"],
-                                            earlier_runs(GRIDS["make_run"])), \
+def block_of(path, name: str) -> str:
+    found = re.search(rf"<!-- {name}:begin -->\n(.*?)\n<!-- {name}:end -->", path.read_text(), re.S)
+    assert found, f"{path.name} lacks its {name} block"
+    return found.group(1)
+
+
+def test_the_readme_table_and_the_records_are_regenerated_from_the_committed_summaries():
+    runs = ResultsStore(GRIDS["make_run"]).load()
+    assert block_of(ROOT / "README.md", "makerun") == make_run_summary(runs, MAKE_RUN["config"]), \
         "stale: run `python -m lab report --update README.md`"
+    assert block_of(ROOT / "lab" / "RESULTS.md", "makerun_record") == make_run_table(
+        runs, MAKE_RUN["config"], earlier_runs(GRIDS["make_run"])), \
+        "stale: run `python -m lab report --update lab/RESULTS.md`"
+
+
+def test_the_readme_view_names_no_commit_and_the_records_does():
+    runs = [run(0, 100.0), run(1, None)]
+    user, record = make_run_summary(runs, "now.toml"), make_run_table(runs, "now.toml")
+    assert "ccccccc" not in user and "ccccccc" in record
+    assert "| 0 | yes | 100 | 10,000 | 0.900 | 0.600 |" in user and "| 1 | no | — | — | 0.900 | 0.600 |" in user
+    assert user.endswith("1 of 2 seeds reached MA 0.9 within the 300-second budget; Kaplan–Meier median time to "
+                         "MA 0.9: ≥ 100 s.")
+    assert make_run_summary([], "now.toml") == "not measured yet"
 
 
 def test_the_tally_counts_a_run_that_never_got_there_as_censored():
