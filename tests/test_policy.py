@@ -11,7 +11,7 @@ from cmcl.rollout.policy import NumpyPolicy, numpy_policy
 @pytest.mark.parametrize("share", [False, True])
 @pytest.mark.parametrize("noise", [0.0, 0.1])
 def test_numpy_policy_matches_maddpg_act(noise, share):
-    maddpg = MADDPG(4, 18, seed=3, share_parameters=share)
+    maddpg = MADDPG(4, 18, seed=3, networks="shared" if share else "per_agent")
     obs = np.random.default_rng(0).normal(size=(64, 4, 18)).astype(np.float32)
     policy = NumpyPolicy(published_weights(maddpg)["actor"])
     ours = policy.act(obs, noise, rng=np.random.default_rng(7))
