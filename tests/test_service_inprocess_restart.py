@@ -111,9 +111,8 @@ def test_a_torn_log_tail_is_cut_and_a_bad_snapshot_refused(tmp_path):
 def test_a_snapshot_of_an_older_version_is_refused_in_one_line_naming_the_field_and_the_last_commit(tmp_path):
     """A snapshot without a part this version writes (the sampler streams, kept since a later version) or of the
     buffer's older format: refused as a bad snapshot is, naming what it lacks and the commit that reads it."""
-    from services.roles.replay_server import SNAPSHOT_KEYS
-
     from cmcl.replay.snapshot import LAST_READER
+    from services.roles.replay_server import SNAPSHOT_KEYS
 
     cfg = in_process_config("maddpg")
     replay, worker = ReplayServer(cfg), RolloutWorker(cfg, 0, 0)
