@@ -32,13 +32,30 @@ from cmcl.io.checkpoint_files import load_checkpoint
 from cmcl.io.write_failure import RunWriteError
 from cmcl.learners.maddpg import MADDPG
 from cmcl.run.flags import add_evaluate_flags
-from cmcl.run.report import beside_random
 from cmcl.run.rundir import PolicyCheckpoint, RunDirectory
 from cmcl.run.stalls import MissAnatomy, miss_anatomy
 from cmcl.run.stopping import exit_without_teardown
 from cmcl.system import build_maddpg, layout_of, make_batched_env, make_parallel_env, to_env_actions
 
 EVAL_SEED_OFFSET = 10_000  # evaluation worlds never reuse the training seed's worlds
+
+
+MEASURES = ("coverage", "success", "collisions", "wall_hits", "predator_win")  # an evaluation's named measures
+
+
+def measures_text(result: dict[str, Any], keys: tuple[str, ...] | list[str]) -> str:
+    """'coverage 0.512, success 0.100, return[agent] 12.3': the `keys` of an evaluation `result` (`evaluate_policy`),
+    then each team's return (any environment)."""
+    return ", ".join([*(f"{k} {result[k]:.3f}" for k in keys),
+                      *(f"return[{team}] {value:.1f}" for team, value in result["reward"].items())])
+
+
+def beside_random(trained: dict[str, Any], random: dict[str, Any], episodes: int) -> str:
+    """The held-out evaluation line: the policy's measures beside the random policy's on the same `episodes`
+    worlds (train's end and a standalone `evaluate` print it alike)."""
+    keys = [k for k in MEASURES if k in trained]
+    return (f"held-out evaluation ({episodes} new worlds, no exploration noise): {measures_text(trained, keys)}"
+            f"  | random policy: {measures_text(random, keys)}")
 
 
 def load_policy(config: Config, checkpoint: PolicyCheckpoint | str | Path) -> MADDPG:

@@ -112,6 +112,18 @@ class RunRequest:
         return tuple(extra)
 
 
+def no_update_line(config: Config, summary: dict[str, Any]) -> str | None:
+    """The one line of a run that ended without a learner update (its `summary` counts 0 updates), naming the
+    warm-up and the env steps taken; None when it trained."""
+    if summary.get("updates", 1) != 0:
+        return None
+    m = config.maddpg
+    return (f"note: no learner update in this run: the first waits for maddpg.warmup = {m.warmup} transitions in the "
+            f"replay, then one every maddpg.update_every = {m.update_every} env steps, and the run took "
+            f"{summary.get('env_steps', 0)} env steps ({summary.get('episodes', 0)} episodes); the policy is the "
+            "untrained one. Raise run.episodes or lower maddpg.warmup")
+
+
 def open_run(request: RunRequest) -> tuple[Config, RunDirectory, RunLock]:
     """The config (file, or the run's own config.toml on resume, with `config_overrides`), the run directory (new, or
     the one resumed) and its lock, taken before anything in the directory changes: a run in use is refused, naming
@@ -329,8 +341,6 @@ def train_in_run(request: RunRequest, train: Callable[[Config, RunDirectory, Run
         try:
             code = train(config, run_dir, lock)
             if code == 0 and request.no_eval:  # with an evaluation, cmcl.run.report.report_trained says it first
-                from cmcl.run.report import no_update_line
-
                 untrained = no_update_line(config, run_dir.summary())
                 if untrained:
                     print(untrained)

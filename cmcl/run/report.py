@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from cmcl.config import Config
+from cmcl.run.flags import no_update_line
 from cmcl.run.rundir import RunDirectory
 
 
@@ -20,36 +21,6 @@ def done_line(summary: dict[str, Any], stop_coverage: float) -> str:
            "plateau": " (learning stopped progressing: run.stop_progress)"}.get(summary.get("ended"), "")
     return (f"done: {summary['episodes']} episodes, {summary['env_steps']} env steps, {summary['updates']} updates "
             f"in {summary['elapsed_s']:.0f}s{resumed}{why}")
-
-
-def no_update_line(config: Config, summary: dict[str, Any]) -> str | None:
-    """The one line of a run that ended without a learner update (its `summary` counts 0 updates), naming the
-    warm-up and the env steps taken; None when it trained."""
-    if summary.get("updates", 1) != 0:
-        return None
-    m = config.maddpg
-    return (f"note: no learner update in this run: the first waits for maddpg.warmup = {m.warmup} transitions in the "
-            f"replay, then one every maddpg.update_every = {m.update_every} env steps, and the run took "
-            f"{summary.get('env_steps', 0)} env steps ({summary.get('episodes', 0)} episodes); the policy is the "
-            "untrained one. Raise run.episodes or lower maddpg.warmup")
-
-
-MEASURES = ("coverage", "success", "collisions", "wall_hits", "predator_win")  # an evaluation's named measures
-
-
-def measures_text(result: dict[str, Any], keys: tuple[str, ...] | list[str]) -> str:
-    """'coverage 0.512, success 0.100, return[agent] 12.3': the `keys` of an evaluation `result` (`evaluate_policy`),
-    then each team's return (any environment)."""
-    return ", ".join([*(f"{k} {result[k]:.3f}" for k in keys),
-                      *(f"return[{team}] {value:.1f}" for team, value in result["reward"].items())])
-
-
-def beside_random(trained: dict[str, Any], random: dict[str, Any], episodes: int) -> str:
-    """The held-out evaluation line: the policy's measures beside the random policy's on the same `episodes`
-    worlds (train's end and a standalone `evaluate` print it alike)."""
-    keys = [k for k in MEASURES if k in trained]
-    return (f"held-out evaluation ({episodes} new worlds, no exploration noise): {measures_text(trained, keys)}"
-            f"  | random policy: {measures_text(random, keys)}")
 
 
 EVAL_SECONDS = 60.0  # s: the most the end-of-run evaluation of both policies takes (each gets half; `eval_bound_s`)
@@ -107,7 +78,7 @@ def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -
     beside the random policy's, within `eval_bound_s` (a line when it starts, naming --no-eval; its progress on an
     env.factory environment), a GIF of one episode and the learning curve, all in the run directory; printed. A run
     without a learner update says so first (`no_update_line`)."""
-    from cmcl.run.evaluate import gif_line, load_policy
+    from cmcl.run.evaluate import beside_random, gif_line, load_policy
     from cmcl.run.plots import curve_line
     from cmcl.run.stalls import MissAnatomy
 
