@@ -16,7 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from experiments.run_spec import Run
-from experiments.runner import run_one
+from experiments.runner import run_one, runs_to_do
 from experiments.store import ResultsStore
 
 EXPERIMENT = "tune"  # Tune's experiment folder inside the results folder
@@ -54,9 +54,7 @@ def run_grid_on_ray(runs: list[Run], store: ResultsStore, jobs: int, address: st
     (or the cluster at `address`, or the Ray this process has). Returns the number of runs that failed (each
     named); the CSV is rebuilt at the end. Raises GridOnRayError (before any run) for runs it cannot train."""
     check_runs(runs)
-    finished = store.finished()
-    todo = [r for r in runs if r.id not in finished]
-    report(f"{len(todo)} runs to do, as Ray Tune trials: {' '.join(r.id for r in todo)}")
+    todo = runs_to_do(runs, store, report, ", as Ray Tune trials")
     if not todo:
         return 0
     from ray import tune

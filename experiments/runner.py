@@ -147,15 +147,22 @@ def run_one(run: Run, store: ResultsStore) -> str:
         ", ".join(f"{k}={summary[k]}" for k in keys if k in summary)
 
 
+def runs_to_do(runs: list[Run], store: ResultsStore, report: Callable[[str], None], how: str = "") -> list[Run]:
+    """The runs of `runs` without a summary in `store`, in order, said in one line (`how`: e.g. ", as Ray Tune
+    trials")."""
+    finished = store.finished()
+    todo = [r for r in runs if r.id not in finished]
+    report(f"{len(todo)} runs to do{how}: {' '.join(r.id for r in todo)}")
+    return todo
+
+
 def run_grid(runs: list[Run], store: ResultsStore, jobs: int = 1, report: Callable[[str], None] = print) -> int:
     """Run every run of `runs` without a summary in `store`, `jobs` at a time, submitted in the given order; the
     CSV is rebuilt after each. Returns the number of runs that failed (each is reported, the others go on)."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     if session_yields_like_nice():
         report(f"the session's autogroup runs at nice {os.nice(0)}: the grid yields to other sessions")
-    finished = store.finished()
-    todo = [r for r in runs if r.id not in finished]
-    report(f"{len(todo)} runs to do: {' '.join(r.id for r in todo)}")
+    todo = runs_to_do(runs, store, report)
     failed = 0
     with ThreadPoolExecutor(max_workers=jobs) as pool:
         futures = {pool.submit(run_one, r, store): r.id for r in todo}
