@@ -265,24 +265,28 @@ def sparse_calibration_runs(seed: int) -> list[Run]:
 
 
 # the sparse screen (docs/SPARSE_TASKS.md, "Screen protocol"): candidate -> (its preset configs/<task>_<kind>.toml,
-# --set overrides), on each task of SPARSE_SCREEN_TASKS, at the preset's budget, the seeds SPARSE_SCREEN_SEEDS
+# --set overrides, the tasks it runs on), at the preset's budget, the seeds SPARSE_SCREEN_SEEDS
 SPARSE_SCREEN_TASKS = ("vacl_n4", "push_box")
 SPARSE_SCREEN = {
-    "curriculum": ("curriculum", ()),
-    "curriculum_progress": ("curriculum", ("task_curriculum.advance=progress", "task_curriculum.level=0.05")),
-    "curriculum_nomix": ("curriculum", ("task_curriculum.mix=0.0",)),
-    "intrinsic": ("intrinsic", ()),
-    "intrinsic_strong": ("intrinsic", ("icm.intrinsic_reward_coef=1.0",)),
+    "curriculum": ("curriculum", (), SPARSE_SCREEN_TASKS),
+    "curriculum_progress": ("curriculum", ("task_curriculum.advance=progress", "task_curriculum.level=0.05"),
+                            SPARSE_SCREEN_TASKS),
+    "curriculum_nomix": ("curriculum", ("task_curriculum.mix=0.0",), SPARSE_SCREEN_TASKS),
+    "curriculum_radius": ("radius", (), ("vacl_n4",)),  # the cover radius from 2.0 down: navigation's own
+    "intrinsic": ("intrinsic", (), SPARSE_SCREEN_TASKS),
+    "intrinsic_strong": ("intrinsic", ("icm.intrinsic_reward_coef=1.0",), SPARSE_SCREEN_TASKS),
 }
 SPARSE_SCREEN_SEEDS = (0, 1, 2)
 
 
 def sparse_screen_runs(seed: int) -> list[Run]:
-    """The sparse_screen grid: every candidate of SPARSE_SCREEN on every task of SPARSE_SCREEN_TASKS at its preset's
-    budget, id "sparse_screen_<task>_<candidate>_s<seed>"."""
+    """The sparse_screen grid: every candidate of SPARSE_SCREEN on each of its tasks at its preset's budget, id
+    "sparse_screen_<task>_<candidate>_s<seed>"."""
     runs = []
     for task in SPARSE_SCREEN_TASKS:
-        for candidate, (kind, sets) in SPARSE_SCREEN.items():
+        for candidate, (kind, sets, tasks) in SPARSE_SCREEN.items():
+            if task not in tasks:
+                continue
             config = f"{task}_{kind}.toml"
             preset = load_data(ROOT / "configs" / config)["run"]
             runs.append(Run(f"sparse_screen_{task}_{candidate}_s{seed}", "sparse_screen", "own_env", "maddpg", None,

@@ -48,16 +48,19 @@ def test_the_learner_trains_on_reward_plus_the_decayed_weight_times_rho(tiny_con
     config = config_from_dict(data)
     summary, roles = train_in_process(config, RunDirectory.create(config.run.dir, config))
     assert roles.icm is not None and summary["updates"] > 0
+    progress = [r for r in RunDirectory.open(config.run.dir).rows("progress") if "intrinsic_reward" in r]
+    assert progress and all(r["intrinsic_reward"] > 0 for r in progress)  # the run's rows show coef(t)·ρ
     batch, _ = roles.replay.sample(1)
     assert batch is not None and np.any(batch.rows["curiosity"] > 0)
     learner = roles.learner
     learner.maddpg.updates = at
     learner.maddpg = recorder = RecordingMADDPG(learner.maddpg)
-    learner.update(batch)
+    _, report = learner.update(batch)
     a = learner.layout.icm_agents
     assert a.tolist() == list(range(config.env.spread.num_agents))  # uniform sampling: every agent's ICM
-    expected = batch.rows["rew"][0][a, :, a] + 2.0 * weight * batch.rows["curiosity"][0][a, :, a]
-    np.testing.assert_allclose(recorder.minibatch["rew"][a, :, a], expected, rtol=1e-5)
+    added = 2.0 * weight * batch.rows["curiosity"][0][a, :, a]
+    np.testing.assert_allclose(recorder.minibatch["rew"][a, :, a], batch.rows["rew"][0][a, :, a] + added, rtol=1e-5)
+    assert report.learner.intrinsic_reward == pytest.approx(float(added.mean()), rel=1e-5)  # what the metrics show
 
 
 @pytest.mark.parametrize("frozen", [False, True])

@@ -30,6 +30,7 @@ REQUIRED = {
     "cmcl_icm_loss", "cmcl_learner_updates_total", "cmcl_learner_loss", "cmcl_weight_version_lag",
     "cmcl_env_steps_total", "cmcl_episodes_total", "cmcl_coverage_rate", "cmcl_success_rate", "cmcl_win_rate",
     "cmcl_episode_reward", "cmcl_actor_restarts_total", "cmcl_updates_per_second", "cmcl_env_steps_per_second",
+    "cmcl_intrinsic_reward",
 }
 
 
@@ -83,7 +84,7 @@ def test_reports_reach_the_endpoint(served):
                                              difficulty=np.array([0.0, 0.04, 0.05, 0.5, 1.0, 3.0])),
                          curriculum=CurriculumReport(lam=0.125)))
     metrics.apply(Report(source="learner", role="learner", learner=LearnerReport(
-        updates=7, weight_version=9, losses={"agent_0": {"critic": 0.5, "actor": -1.25}})))
+        updates=7, weight_version=9, losses={"agent_0": {"critic": 0.5, "actor": -1.25}}, intrinsic_reward=0.375)))
     metrics.apply(Report(source="rollout-0", role="rollout", weight_version=6,
                          rollout=RolloutReport(env_steps=480, episodes=16, finished=FinishedEpisodes(
                              coverage=[0.25, 0.75], success=[0, 1], reward={"agent": [-10.0, -4.0]}))))
@@ -104,6 +105,7 @@ def test_reports_reach_the_endpoint(served):
     assert math.isclose(get(p, "cmcl_difficulty_sum"), 4.59)
     assert get(p, "cmcl_learner_updates_total") == 7
     assert get(p, "cmcl_learner_loss", agent="agent_0", kind="actor") == -1.25
+    assert get(p, "cmcl_intrinsic_reward") == 0.375
     assert get(p, "cmcl_weight_version_lag", actor="rollout-0") == 3
     assert get(p, "cmcl_env_steps_total") == 480 and get(p, "cmcl_episodes_total") == 16
     assert get(p, "cmcl_coverage_rate") == 0.5 and get(p, "cmcl_success_rate") == 0.5

@@ -147,28 +147,30 @@ def test_the_service_runner_trains_a_curriculum(tmp_path, ray_cluster):
     assert stages[0] == 0 and stages[-1] == 1
 
 
-@pytest.mark.parametrize("task", ["vacl_n4", "push_box"])
-@pytest.mark.parametrize("kind", ["curriculum", "intrinsic"])
+@pytest.mark.parametrize("task,kind", [("vacl_n4", "curriculum"), ("push_box", "curriculum"), ("vacl_n4", "radius"),
+                                       ("vacl_n4", "intrinsic"), ("push_box", "intrinsic")])
 def test_each_screen_preset_is_its_tasks_maddpg_preset_plus_one_section(task, kind):
     from cmcl.config import load_data
 
     base, data = (load_data(ROOT / "configs" / f"{task}_{k}.toml") for k in ("maddpg", kind))
-    section = "task_curriculum" if kind == "curriculum" else "icm"
+    section = "icm" if kind == "intrinsic" else "task_curriculum"
     assert set(data) == set(base) | {section} and data["env"] == base["env"] and data["teams"] == base["teams"]
     assert data["run"]["max_seconds"] == base["run"]["max_seconds"]
     config = load_config(ROOT / "configs" / f"{task}_{kind}.toml")
-    assert config.task_curriculum.enabled == (kind == "curriculum")
+    assert config.task_curriculum.enabled == (kind != "intrinsic")
     assert config.trains_icm == (kind == "intrinsic")
-    if kind == "curriculum":  # the last stage is the source task, the one held out
+    if kind != "intrinsic":  # the last stage is the source task, the one held out
         setting = config.task_curriculum.param
-        assert config.task_curriculum.stages[-1] == {"spawn_scale": 1.0, "push_cells": 6}[setting]
+        assert config.task_curriculum.stages[-1] == {"spawn_scale": 1.0, "push_cells": 6, "cover_radius": 0.15}[setting]
 
 
-def test_the_sparse_screen_grid_has_every_candidate_on_both_tasks_per_seed():
+def test_the_sparse_screen_grid_has_every_candidate_on_each_of_its_tasks_per_seed():
     from experiments.grids import SPARSE_SCREEN, grid
 
     runs = grid(["sparse_screen"], [0, 1, 2])
-    assert len(runs) == 3 * 2 * len(SPARSE_SCREEN)
+    assert len(runs) == 3 * sum(len(tasks) for _, _, tasks in SPARSE_SCREEN.values())
+    assert {r.id for r in runs if r.arm == "curriculum_radius"} == {f"sparse_screen_vacl_n4_curriculum_radius_s{s}"
+                                                                    for s in (0, 1, 2)}
     assert [r.seed for r in runs] == sorted(r.seed for r in runs)
     for r in runs:
         config = load_config(ROOT / "configs" / r.config, list(r.sets))  # every candidate loads

@@ -45,13 +45,16 @@ def learner_update(maddpg: MADDPG, minibatch: dict[str, np.ndarray], icm_agents:
     curiosity [N, S, N] (the rows' stored ρ). With intrinsic_reward_coef > 0 (ablation A6's reverse): r_v += coef·ρ_v
     on each curiosity agent's (icm_agents) own rows; the caller passes coef(t), the weight at this update
     (cmcl.config.ICMConfig.intrinsic_coef: icm.intrinsic_reward_decay).
-    Returns the MADDPG stats (critic_loss [N], actor_loss [N], td_abs [N, S], ...).
+    Returns the MADDPG stats (critic_loss [N], actor_loss [N], td_abs [N, S], ...), with the intrinsic reward also
+    "intrinsic_reward": the mean coef·ρ added to a curiosity agent's own reward, over their own rows (a float).
     """
     rho = minibatch.pop(CURIOSITY_KEY, None)
     if intrinsic_reward_coef > 0 and rho is not None:
         a = icm_agents
         minibatch = {**minibatch, "rew": minibatch["rew"].copy()}
-        minibatch["rew"][a, :, a] += intrinsic_reward_coef * rho[a, :, a]  # owner a's rows, agent a's own columns
+        added = intrinsic_reward_coef * rho[a, :, a]  # owner a's rows, agent a's own columns [A_c, S]
+        minibatch["rew"][a, :, a] += added
+        return {**maddpg.update(minibatch), "intrinsic_reward": float(added.mean())}
     return maddpg.update(minibatch)
 
 

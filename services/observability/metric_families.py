@@ -89,6 +89,8 @@ def define_metrics(r: CollectorRegistry) -> tuple[dict[str, Gauge], dict[str, Co
         "teacher_loss": g("cmcl_teacher_loss", "Last fit loss of each teacher critic.", ["teacher"]),
         "icm_loss": g("cmcl_icm_loss", "Last ICM training loss (inverse + forward)."),
         "learner_loss": g("cmcl_learner_loss", "Last learner loss per agent and kind.", ["agent", "kind"]),
+        "intrinsic_reward": g("cmcl_intrinsic_reward", "Mean curiosity reward coef * rho the learner's last update "
+                              "added to an agent's own reward (icm.intrinsic_reward_coef > 0)."),
         "weight_lag": g("cmcl_weight_version_lag",
                         "Policy versions the actor is behind the learner's last published weights.", ["actor"]),
         "coverage_rate": g("cmcl_coverage_rate", "Landmark cover rate at the final step, moving average."),

@@ -164,6 +164,7 @@ class ServiceMetrics:
             for agent, kinds in (learner.losses or {}).items():
                 for kind, value in kinds.items():
                     plan.gauge("learner_loss", value, (agent, kind))
+            plan.gauge("intrinsic_reward", learner.intrinsic_reward)
         if (rollout := report.rollout) is not None:
             plan.count("env_steps", rollout.env_steps)
             plan.count("episodes", rollout.episodes)

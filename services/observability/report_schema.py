@@ -102,6 +102,8 @@ class LearnerReport(_Section):
     # and with maddpg.assignment_loss > 0 assignment, assignment_accuracy (services.roles.learner.last_losses)
     busy_s: float | None = None  # N: wall seconds inside update calls (the rest of the time it waited for batches)
     busy_cpu_s: float | None = None  # N: CPU seconds of those calls (the thread that ran them)
+    intrinsic_reward: float | None = None  # x: the last update's mean coef(t)·ρ added to a curiosity agent's own
+    # reward (icm.intrinsic_reward_coef > 0; docs/ALGORITHM.md §3.4), None without it
 
 
 @dataclass(frozen=True)

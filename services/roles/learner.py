@@ -47,6 +47,7 @@ class Learner:
         self.layout = layout_of(cfg)
         self.maddpg = build_maddpg(cfg, self.layout, seed)
         self.version, self.losses = 0, {}
+        self.intrinsic_reward: float | None = None  # the last update's mean coef·ρ (network_steps.learner_update)
         self.busy_s = self.busy_cpu_s = 0.0  # wall / CPU (this thread) seconds inside update calls with a batch
         state, refused = load_state(checkpoint_path)
         self.checkpoints_refused = len(refused)  # files refused at this start (manifest checks)
@@ -85,6 +86,7 @@ class Learner:
         scores = self.score(batch.score)[0] if batch.score is not None else None
         self.version += 1
         self.losses = {f"agent_{a}": last_losses(stats, a) for a in range(self.layout.num_agents)}
+        self.intrinsic_reward = stats.get("intrinsic_reward", self.intrinsic_reward)
         self.busy_s += time.perf_counter() - started
         self.busy_cpu_s += time.thread_time() - started_cpu
         return LearnerFeedback(slots, generations, td, self.losses, self.incarnation, own, scores), self.report()
@@ -106,11 +108,13 @@ class Learner:
         return {"version": self.version, "weights": published_weights(self.maddpg)}
 
     def report(self) -> Report:
-        """Metrics report (cumulative updates, busy seconds, published version, last losses per agent)."""
+        """Metrics report (cumulative updates, busy seconds, published version, last losses per agent, the last
+        intrinsic reward)."""
         return Report(source="learner", role="learner", incarnation=self.incarnation, resumed=self.resumed,
                       checkpoints_refused=self.checkpoints_refused,
                       learner=LearnerReport(updates=int(self.maddpg.updates), weight_version=self.version,
-                                            losses=self.losses, busy_s=self.busy_s, busy_cpu_s=self.busy_cpu_s))
+                                            losses=self.losses, busy_s=self.busy_s, busy_cpu_s=self.busy_cpu_s,
+                                            intrinsic_reward=self.intrinsic_reward))
 
     def save(self) -> str | None:
         """Write the learner checkpoint atomically (torch.save of plain state dicts)."""

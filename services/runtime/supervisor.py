@@ -87,6 +87,7 @@ class Supervisor:
         self.learning_progress = LearningProgress.from_run_config(config.run)
         self.last_replay_report: Report | None = None
         self.last_losses: dict[str, list[float]] = {}  # the learner's last reported losses, per kind and agent
+        self.intrinsic_reward: float | None = None  # the learner's last mean coef·ρ (icm.intrinsic_reward_coef > 0)
         self.clock = RunClock()  # the run's training clock (a resumed run's goes on: restore_counters)
         algorithms = layout_of(config).algorithms
         self.view = ProgressView(config.run.episodes, self.clock, self.status,
@@ -206,6 +207,8 @@ class Supervisor:
             critic = [kinds["critic"] for kinds in value.learner.losses.values()]
             normalised = agent_mean(kinds.get("critic_normalised", np.nan) for kinds in value.learner.losses.values())
             self.learning_progress.record(self.status.episodes, sum(critic) / len(critic), normalised)
+            if value.learner.intrinsic_reward is not None:
+                self.intrinsic_reward = value.learner.intrinsic_reward
         if value.role == "learner" and value.learner.weight_version != self.version:
             self.version = value.learner.weight_version
             self.weights = self.calls.submit(self.roles.learner, "publish")
@@ -226,11 +229,14 @@ class Supervisor:
     # ------------------------------------------------------------------ progress, checkpoints
     def progress_row(self) -> dict[str, Any]:
         """The progress row of metrics.jsonl (services.observability.progress_view) with the learner's last losses per
-        agent ("critic_loss", "actor_loss": lists over agents in index order) once it has reported them."""
+        agent ("critic_loss", "actor_loss": lists over agents in index order) once it has reported them, and with
+        curiosity as a reward the last update's mean coef·ρ ("intrinsic_reward")."""
         row = self.view.row(self.status, self.last_replay_report)
         # the task curriculum's newest stage (cmcl.rollout.task_curriculum)
         if self.window and "task_stage" in self.window[-1]:
             row["task_stage"] = int(max(r["task_stage"] for r in self.window))
+        if self.intrinsic_reward is not None:
+            row["intrinsic_reward"] = self.intrinsic_reward
         return {**row, **{f"{kind}_loss": losses for kind, losses in self.last_losses.items()}}
 
     def progress_line(self) -> str:
