@@ -88,4 +88,24 @@ def own_env_measures(config: Config, policy: MADDPG, series: dict[str, np.ndarra
     for key in ("success", "coverage"):
         if key in held_out:
             out[f"held_out_{key}"], out[f"random_{key}"] = held_out[key], random[key]
+    if "success" in series and series["success"].size:  # the sparse screen's tie-break (docs/SPARSE_TASKS.md)
+        out["final_tenth_success"] = float(series["success"][-max(1, series["success"].size // 10):].mean())
+    if "task_stage" in series:
+        out["task_stages"] = stage_spans(series["task_stage"])
     return out
+
+
+def stage_spans(played: np.ndarray) -> list[dict[str, int]]:
+    """The stages a task curriculum reached, in order, from the stage each training episode was played at
+    (`played`: float64[E], episode order; earlier stages recur under the curriculum's mix): per stage k reached,
+    `first_episode` (the index of its first episode) and `episodes_at_stage` (the episodes played at k from then
+    until the next stage's first, the count `task_curriculum.advance = "fixed"` advances on); the last stage's span
+    runs to the end of training."""
+    stages = played.astype(np.int64)
+    spans, top = [], int(stages.max()) if stages.size else -1
+    firsts = [int(np.argmax(stages == k)) for k in range(top + 1) if np.any(stages == k)]
+    for i, first in enumerate(firsts):
+        end = firsts[i + 1] if i + 1 < len(firsts) else stages.size
+        k = int(stages[first])
+        spans.append({"stage": k, "first_episode": first, "episodes_at_stage": int(np.sum(stages[first:end] == k))})
+    return spans

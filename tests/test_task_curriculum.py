@@ -14,7 +14,9 @@ import pytest
 
 from cmcl.config import ConfigError, TaskCurriculumConfig, load_config
 from cmcl.rollout.task_curriculum import TaskCurriculum
+from cmcl.run.plots import episode_series
 from cmcl.run.rundir import RunDirectory
+from experiments.own_envs import stage_spans
 from services.roles.rollout import RolloutWorker
 from tests.in_process import train_tiny
 from tests.tiny import tiny_overrides
@@ -134,6 +136,33 @@ def test_the_inline_runner_trains_a_curriculum_and_its_resume_keeps_the_stage(tm
     assert saved["task_curriculum"]["stage"] == 1
     train_tiny(None, tmp_path / "run", episodes=32, resume=True)
     assert _stage_rows(tmp_path / "run")[24:] == [1] * 8  # not back at stage 0
+    spans = stage_spans(episode_series(RunDirectory.open(tmp_path / "run"))["task_stage"])  # what a summary keeps
+    first = _stage_rows(tmp_path / "run").index(1)
+    assert spans == [{"stage": 0, "first_episode": 0, "episodes_at_stage": first},
+                     {"stage": 1, "first_episode": first, "episodes_at_stage": 32 - first}]
+
+
+def test_a_curriculum_runs_summary_keeps_its_stage_spans_and_last_tenths_success(tmp_path):
+    from experiments.measures import summarise
+    from experiments.run_spec import Run
+
+    train_tiny(_config(*EASY_THEN_SOURCE), tmp_path / "run", episodes=40)
+    run = Run("sparse_screen_vacl_n4_curriculum_s0", "sparse_screen", "own_env", "maddpg", None, 0, 40,
+              arm="curriculum", config="vacl_n4_curriculum.toml", env="vacl_n4")
+    summary = summarise(run, tmp_path / "run")
+    success = [r["success"] for r in RunDirectory.open(tmp_path / "run").rows("episode")]
+    assert summary["final_tenth_success"] == pytest.approx(np.mean(success[-4:]))
+    assert [s["stage"] for s in summary["task_stages"]] == [0, 1]
+    assert summary["task_stages"][1]["first_episode"] == _stage_rows(tmp_path / "run").index(1)
+    assert 0.0 <= summary["held_out_success"] <= 1.0 and "task_stage" in summary["curves"]
+
+
+def test_stage_spans_count_each_stage_from_its_first_episode_without_the_mixed_earlier_ones():
+    played = np.array([0, 0, 0, 1, 0, 1, 1, 2, 0, 1, 2, 2], np.float64)
+    assert stage_spans(played) == [{"stage": 0, "first_episode": 0, "episodes_at_stage": 3},
+                                   {"stage": 1, "first_episode": 3, "episodes_at_stage": 3},
+                                   {"stage": 2, "first_episode": 7, "episodes_at_stage": 3}]
+    assert stage_spans(np.zeros(5)) == [{"stage": 0, "first_episode": 0, "episodes_at_stage": 5}]
 
 
 @pytest.mark.ray

@@ -29,12 +29,13 @@ def moving_average(values: np.ndarray, window: int) -> np.ndarray:
 
 
 def episode_series(run: RunDirectory) -> dict[str, np.ndarray]:
-    """Per-episode columns of a run: episode index, coverage, success, win, and reward_<team>."""
+    """Per-episode columns of a run: episode index, coverage, success, win, the task curriculum's stage the episode
+    was played at (task_stage), and reward_<team>."""
     rows = list(run.rows("episode"))
     series: dict[str, list[float]] = {"episode": []}
     for row in rows:
         series["episode"].append(row["episodes"])
-        for key in ("coverage", "success", "predator_win"):
+        for key in ("coverage", "success", "predator_win", "task_stage"):
             if key in row:
                 series.setdefault(key, []).append(float(row[key]))
         for team, value in row.get("reward", {}).items():
