@@ -84,3 +84,15 @@ def test_a_frozen_icm_scores_with_its_random_networks_and_never_fits(frozen):
     assert scores.values.shape[1] == 4 and np.isfinite(scores.values).all() and (scores.values > 0).all()
     same = all(torch.equal(b, p) for b, p in zip(before, icm.icm.parameters(), strict=True))
     assert same == frozen
+
+
+def test_a_summary_keeps_curiositys_reward_over_the_first_tenth_of_updates_and_the_whole_run():
+    from experiments.measures import intrinsic_over_training
+
+    rows = [{"episodes": 10 * i, "updates": 100 * i, "intrinsic_reward": 1.0 / i} for i in range(1, 21)]
+    rows.insert(0, {"episodes": 0, "updates": 0})  # before the first update: no intrinsic_reward in the row
+    out = intrinsic_over_training(rows)
+    assert out["intrinsic_reward_first_tenth"] == pytest.approx((1.0 + 0.5) / 2, abs=1e-6)  # updates <= 200 of 2000
+    assert out["intrinsic_reward_mean"] == pytest.approx(np.mean([1.0 / i for i in range(1, 21)]), abs=1e-6)
+    assert intrinsic_over_training(rows, upto=10) == {"intrinsic_reward_first_tenth": 1.0, "intrinsic_reward_mean": 1.0}
+    assert intrinsic_over_training([{"episodes": 5, "updates": 3}]) == {}
