@@ -114,14 +114,17 @@ def intrinsic_over_training(progress: list[dict[str, Any]], upto: int | None = N
     `icm.intrinsic_reward_coef > 0` (its rows carry `intrinsic_reward`, the mean coef·ρ of the learner's last update
     over the agents' own rows, reward units per step): {"intrinsic_reward_first_tenth": the mean over the rows within
     the run's first 10 % of learner updates (the number the sparse confirmation scales its frozen-ICM control by,
-    docs/SPARSE_TASKS.md), "intrinsic_reward_mean": over every row}; {} for a run without it."""
+    docs/SPARSE_TASKS.md), "intrinsic_reward_mean": over every row, "intrinsic_curve": {"updates": [rows],
+    "intrinsic_reward": [rows]}}; {} for a run without it."""
     rows = [r for r in progress if "intrinsic_reward" in r and (upto is None or r["episodes"] <= upto)]
     if not rows:
         return {}
     tenth = 0.1 * max(int(r.get("updates", 0)) for r in rows)
     early = [r["intrinsic_reward"] for r in rows if int(r.get("updates", 0)) <= tenth] or [rows[0]["intrinsic_reward"]]
     return {"intrinsic_reward_first_tenth": round(float(np.mean(early)), 6),
-            "intrinsic_reward_mean": round(float(np.mean([r["intrinsic_reward"] for r in rows])), 6)}
+            "intrinsic_reward_mean": round(float(np.mean([r["intrinsic_reward"] for r in rows])), 6),
+            "intrinsic_curve": {"updates": [int(r.get("updates", 0)) for r in rows],
+                                "intrinsic_reward": [round(float(r["intrinsic_reward"]), 6) for r in rows]}}
 
 
 def stage_cost(run_dir: RunDirectory) -> dict[str, Any]:

@@ -94,5 +94,8 @@ def test_a_summary_keeps_curiositys_reward_over_the_first_tenth_of_updates_and_t
     out = intrinsic_over_training(rows)
     assert out["intrinsic_reward_first_tenth"] == pytest.approx((1.0 + 0.5) / 2, abs=1e-6)  # updates <= 200 of 2000
     assert out["intrinsic_reward_mean"] == pytest.approx(np.mean([1.0 / i for i in range(1, 21)]), abs=1e-6)
-    assert intrinsic_over_training(rows, upto=10) == {"intrinsic_reward_first_tenth": 1.0, "intrinsic_reward_mean": 1.0}
+    assert out["intrinsic_curve"]["updates"] == [100 * i for i in range(1, 21)]
+    assert out["intrinsic_curve"]["intrinsic_reward"][:2] == [1.0, 0.5]
+    early = intrinsic_over_training(rows, upto=10)
+    assert early["intrinsic_reward_first_tenth"] == early["intrinsic_reward_mean"] == 1.0
     assert intrinsic_over_training([{"episodes": 5, "updates": 3}]) == {}
