@@ -8,7 +8,9 @@
 a Ray Tune trial of 1 CPU, on an embedded Ray or the cluster at ADDR (experiments.on_ray), the path of `python -m cmcl
 tune`. Its results go to the grid's folder of the registry (experiments.grids.GRIDS, under lab/results/) unless --out
 names another. Seeds default to 0-4,
-and to 0-19 for the confirm grid alone, whose arms the screen's summaries select (--screen: their folder). Exit code
+and to 0-19 for the confirm grid alone, whose arms the screen's summaries select (--screen: their folder); alone, the
+sparse screen and sparse_scale default to 0-2 and sparse_confirm, whose arms the sparse screen's summaries select, to
+100-109. Exit code
 of `run`: 0 when every run finished, 1 when some failed (each is named in the output), 2 when it refused to start.
 The tables and figures drawn from the summaries are the research record's (`python -m lab report`, outside the
 package).
@@ -38,6 +40,7 @@ from experiments.on_ray import GridOnRayError, run_grid_on_ray
 from experiments.run_spec import ROOT, Run
 from experiments.runner import run_grid
 from experiments.screen_arms import SCREEN_ARMS, SCREEN_REFERENCES, SCREEN_SEEDS, rule_algorithm
+from experiments.sparse_arms import SPARSE_CONFIRM_SEEDS, SPARSE_SCREEN_SEEDS
 from experiments.store import ResultsStore
 
 
@@ -46,7 +49,8 @@ def shown(path: Path) -> str:
 
 
 SEEDS = [0, 1, 2, 3, 4]  # a grid's seeds unless --seeds names others (alone, the confirm grid: CONFIRM_SEEDS; the
-# screen: SCREEN_SEEDS)
+# screen: SCREEN_SEEDS; the sparse screen and its scale: SPARSE_SCREEN_SEEDS; the sparse confirmation:
+# SPARSE_CONFIRM_SEEDS)
 # what --arms may name: the curriculum grids', the screen's and the confirmation's arms (a screen candidate's permuted
 # control is one of the latter once the screen selects it)
 ARMS = list(dict.fromkeys([*CURRICULUM_ARMS, *SCREEN_ARMS,
@@ -54,7 +58,7 @@ ARMS = list(dict.fromkeys([*CURRICULUM_ARMS, *SCREEN_ARMS,
                              if arm not in SCREEN_REFERENCES and has_permuted_control(rule_algorithm(sets)))]))
 
 
-SPARSE_GRIDS = ("sparse_calibration", "sparse_screen")  # the grids whose runs --tasks selects
+SPARSE_GRIDS = ("sparse_calibration", "sparse_screen", "sparse_scale", "sparse_confirm")  # what --tasks selects
 
 
 def has_arms(run: Run) -> bool:
@@ -68,7 +72,9 @@ def grid_args(args: argparse.Namespace) -> tuple:
     --out as the folder whose summaries decide its later round."""
     own = args.out if len(args.grids) == 1 else None
     seeds = args.seeds or (
-        {"confirm": list(CONFIRM_SEEDS), "screen": list(SCREEN_SEEDS)}.get(args.grids[0], SEEDS)
+        {"confirm": list(CONFIRM_SEEDS), "screen": list(SCREEN_SEEDS), "sparse_screen": list(SPARSE_SCREEN_SEEDS),
+         "sparse_scale": list(SPARSE_SCREEN_SEEDS), "sparse_confirm": list(SPARSE_CONFIRM_SEEDS)}
+        .get(args.grids[0], SEEDS)
         if len(args.grids) == 1 else SEEDS)
     screen = own if args.grids == ["screen"] and own else args.screen
     return args.grids, seeds, args.algorithms, args.episodes, screen, own if args.grids == ["confirm"] else None
@@ -111,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         every = grid(*grid_args(args))
-    except ValueError as refused:  # ConfirmNotReady, or a seed outside the screen's rounds
+    except ValueError as refused:  # ConfirmNotReady, SparseNotReady, or a seed outside the screen's rounds
         print(f"error: {refused}", file=sys.stderr)
         return 2
     runs = selected_runs(args, every)
@@ -168,7 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--modes", nargs="+", choices=["inline", "service"], default=["inline", "service"],
                    help="algorithms grid: only these runners")
     p.add_argument("--tasks", nargs="+", choices=list(SPARSE_TASKS), default=None,
-                   help="sparse grids (sparse_calibration, sparse_screen): only these tasks (default: all)")
+                   help="sparse grids (sparse_calibration, _screen, _scale, _confirm): only these tasks (default: all)")
     p.add_argument("--episodes", type=int, default=EPISODES, help="budget of every run (the paper: 20,000)")
     p.add_argument("--screen", type=Path, default=None,
                    help="confirm grid: the screen's results folder that selects its arms (default: the screen's)")

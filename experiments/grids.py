@@ -34,7 +34,11 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
   SPARSE_TASKS (its preset configs/<task>_maddpg.toml, through ``env.factory``), inline, the preset's budget.
 * ``sparse_screen`` (docs/SPARSE_TASKS.md, its screen protocol): the task-curriculum and intrinsic-reward candidates
   of SPARSE_SCREEN on vacl_n4 and push_box (presets configs/<task>_curriculum.toml, <task>_intrinsic.toml), uniform
-  MADDPG sampling, inline, the preset's budget, seeds 0, 1, 2.
+  MADDPG sampling, inline, the preset's budget, seeds 0, 1, 2;
+* ``sparse_scale``: on each task whose screen chose curiosity as a reward, that candidate with a frozen ICM at coef 1
+  for 300 s at the screen's seeds (the scale of the confirmation's control);
+* ``sparse_confirm`` (its confirmation protocol): per task the screen chose a candidate for, the candidate, uniform
+  MADDPG and the control (experiments.sparse_arms), seeds 100-109.
 
 Runs are ordered seed outermost (seed k of every cell before any seed k+1), so a grid stopped part-way has
 balanced arms. A run's id names its summary file, so ids never change once results exist.
@@ -52,6 +56,17 @@ from experiments.own_envs import OWN_ENVS
 from experiments.run_spec import ROOT, Run
 from experiments.screen_arms import PERMUTED_CONTROL, ROUND_ONE_SEEDS, ROUND_TWO_SEEDS, SCREEN_ARMS, rule_algorithm
 from experiments.screen_selection import round_two_arms
+from experiments.sparse_arms import (
+    FROZEN_AT_COEF_1,
+    SCALE_SECONDS,
+    SPARSE_SCREEN,
+    SPARSE_SCREEN_SEEDS,
+    SPARSE_SCREEN_TASKS,
+    config_of,
+    confirm_arms,
+    is_curriculum,
+    sparse_choice,
+)
 from experiments.store import ResultsStore
 
 RESULTS = ROOT / "lab" / "results"
@@ -264,21 +279,6 @@ def sparse_calibration_runs(seed: int) -> list[Run]:
     return runs
 
 
-# the sparse screen (docs/SPARSE_TASKS.md, "Screen protocol"): candidate -> (its preset configs/<task>_<kind>.toml,
-# --set overrides, the tasks it runs on), at the preset's budget, the seeds SPARSE_SCREEN_SEEDS
-SPARSE_SCREEN_TASKS = ("vacl_n4", "push_box")
-SPARSE_SCREEN = {
-    "curriculum": ("curriculum", (), SPARSE_SCREEN_TASKS),
-    "curriculum_progress": ("curriculum", ("task_curriculum.advance=progress", "task_curriculum.level=0.05"),
-                            SPARSE_SCREEN_TASKS),
-    "curriculum_nomix": ("curriculum", ("task_curriculum.mix=0.0",), SPARSE_SCREEN_TASKS),
-    "curriculum_radius": ("radius", (), ("vacl_n4",)),  # the cover radius from 2.0 down: navigation's own
-    "intrinsic": ("intrinsic", (), SPARSE_SCREEN_TASKS),
-    "intrinsic_strong": ("intrinsic", ("icm.intrinsic_reward_coef=1.0",), SPARSE_SCREEN_TASKS),
-}
-SPARSE_SCREEN_SEEDS = (0, 1, 2)
-
-
 def sparse_screen_runs(seed: int) -> list[Run]:
     """The sparse_screen grid: every candidate of SPARSE_SCREEN on each of its tasks at its preset's budget, id
     "sparse_screen_<task>_<candidate>_s<seed>"."""
@@ -295,6 +295,37 @@ def sparse_screen_runs(seed: int) -> list[Run]:
     return runs
 
 
+def sparse_scale_runs(seed: int, screen: list[dict]) -> list[Run]:
+    """The sparse_scale grid: on each task whose screen chose curiosity as a reward, that candidate with a frozen
+    ICM at coef 1 (FROZEN_AT_COEF_1) for SCALE_SECONDS at a screen seed, id "sparse_scale_<task>_<candidate>_s<seed>"
+    (the confirmation's control scale, experiments.sparse_arms.frozen_coef). SparseNotReady while the screen misses
+    a run."""
+    runs = []
+    for task in SPARSE_SCREEN_TASKS:
+        chosen = sparse_choice(screen, task).candidate
+        if chosen is None or is_curriculum(chosen) or seed not in SPARSE_SCREEN_SEEDS:
+            continue
+        runs.append(Run(f"sparse_scale_{task}_{chosen}_s{seed}", "sparse_scale", "own_env", "maddpg", None, seed,
+                        int(load_data(ROOT / "configs" / config_of(task, chosen))["run"]["episodes"]), arm=chosen,
+                        config=config_of(task, chosen), max_seconds=SCALE_SECONDS, env=task,
+                        sets=(*SPARSE_SCREEN[chosen][1], *FROZEN_AT_COEF_1)))
+    return runs
+
+
+def sparse_confirm_runs(seed: int, screen: list[dict], scale: list[dict]) -> list[Run]:
+    """The sparse_confirm grid: on each task the screen chose a candidate for, its three arms (experiments.sparse_arms
+    .confirm_arms) at the preset's budget, id "sparse_confirm_<task>_<arm>_s<seed>"; SparseNotReady while the screen
+    or a control's reference runs miss a run."""
+    runs = []
+    for task in SPARSE_SCREEN_TASKS:
+        for arm, (config, sets) in confirm_arms(screen, scale, task).items():
+            preset = load_data(ROOT / "configs" / config)["run"]
+            runs.append(Run(f"sparse_confirm_{task}_{arm}_s{seed}", "sparse_confirm", "own_env", "maddpg", None, seed,
+                            int(preset["episodes"]), arm=arm, config=config, max_seconds=float(preset["max_seconds"]),
+                            env=task, sets=sets))
+    return runs
+
+
 GRIDS = {  # name -> results folder (its summaries/ and runs/)
     "spread": RESULTS / "reproduce", "tag": RESULTS / "reproduce", "winrate": RESULTS / "reproduce",
     "ablations": RESULTS / "reproduce", "curriculum": RESULTS / "curriculum",
@@ -304,6 +335,7 @@ GRIDS = {  # name -> results folder (its summaries/ and runs/)
     "schedule": RESULTS / "time_to_solve",
     "algorithms": RESULTS / "time_to_solve", "own_envs": RESULTS / "own_envs", "scale": RESULTS / "scale",
     "sparse_calibration": RESULTS / "sparse_calibration", "sparse_screen": RESULTS / "sparse_screen",
+    "sparse_scale": RESULTS / "sparse_scale", "sparse_confirm": RESULTS / "sparse_confirm",
 }
 
 
@@ -333,6 +365,9 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str] = PAPER_ALGOR
     chosen = screen_choice(screen) if "confirm" in names else ()
     confirmed = ResultsStore(confirm or GRIDS["confirm"]).load() if "confirm" in names else []
     second = round_two_arms(ResultsStore(screen).load()) if "screen" in names else None
+    sparse = {"sparse_scale", "sparse_confirm"} & set(names)
+    sparse_screen = ResultsStore(GRIDS["sparse_screen"]).load() if sparse else []
+    sparse_scale = ResultsStore(GRIDS["sparse_scale"]).load() if "sparse_confirm" in names else []
     runs = []
     for seed in seeds:
         for name in names:
@@ -354,6 +389,10 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str] = PAPER_ALGOR
                 runs += sparse_calibration_runs(seed)
             elif name == "sparse_screen":
                 runs += sparse_screen_runs(seed)
+            elif name == "sparse_scale":
+                runs += sparse_scale_runs(seed, sparse_screen)
+            elif name == "sparse_confirm":
+                runs += sparse_confirm_runs(seed, sparse_screen, sparse_scale)
             elif name == "scale":
                 runs += scale_runs(seed, budget)
             elif name in ("schedule", "algorithms"):
