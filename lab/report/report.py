@@ -21,6 +21,9 @@ the text between them (a block whose markers the page lacks is only printed):
   confirm, confirmtests: the confirmation of the rules the screen selected (lab/results/confirm), its two Holm
   families and the goal's verdict per rule; "no runs yet" while it has no summary; confirmdecision: README.md's
   sentence on the recommended curriculum and what `make run` trains, from the same summaries;
+* sparsecalibration, sparsecalibrationverdicts, sparsescreen, sparsescreenchoice, sparseconfirm,
+  sparseconfirmtests: the sparse tasks' calibration, screen and confirmation (lab.report.sparse_tables), the blocks
+  of docs/SPARSE_TASKS.md (`python -m lab report --update docs/SPARSE_TASKS.md`);
 * reruns: how far the re-runs at one commit are (lab.report.reruns) and which of them the report reads;
 * makerun: `make run` measured per seed (lab/results/make_run; earlier measurements in its earlier/<commit>/),
   the block of README.md
@@ -61,6 +64,10 @@ from lab.report.quoted import quoted_blocks
 from lab.report.quoted_words import NO_RUNS
 from lab.report.reruns import rerun_folders, rerun_text
 from lab.report.screen_table import screen_selection, screen_table
+from lab.report.sparse_tables import calibration_table, calibration_verdicts, screen_choice_text
+from lab.report.sparse_tables import confirm_table as sparse_confirm_table
+from lab.report.sparse_tables import confirm_tests as sparse_confirm_tests
+from lab.report.sparse_tables import screen_table as sparse_screen_table
 from lab.report.stalls import early_learner_table, load_stalls, stall_table
 from lab.report.tables import (
     ablation_table,
@@ -151,6 +158,15 @@ def blocks(results: Path | None = None) -> dict[str, str]:
     out["confirmdecision"] = confirm_decision(confirm, chosen.chosen, code=False) if chosen.chosen else chosen.reason()
     out["confirmdecision_record"] = confirm_decision(confirm, chosen.chosen) if chosen.chosen else chosen.reason()
     out["reruns"] = rerun_text(results)
+    calibration = ResultsStore(where["sparse_calibration"]).load()
+    out["sparsecalibration"] = calibration_table(calibration) if calibration else NO_RUNS
+    out["sparsecalibrationverdicts"] = calibration_verdicts(calibration)
+    sparse_screen = ResultsStore(where["sparse_screen"]).load()
+    out["sparsescreen"] = sparse_screen_table(sparse_screen) if sparse_screen else NO_RUNS
+    out["sparsescreenchoice"] = screen_choice_text(sparse_screen)
+    sparse_confirm = ResultsStore(where["sparse_confirm"]).load()
+    out["sparseconfirm"] = sparse_confirm_table(sparse_confirm) if sparse_confirm else NO_RUNS
+    out["sparseconfirmtests"] = sparse_confirm_tests(sparse_confirm)
     out |= {block: figure_link(where[grid_name], alt) for block, (grid_name, alt) in FIGURE_LINKS.items()}
     make_runs = ResultsStore(where["make_run"]).load()
     out["makerun"] = make_run_summary(make_runs, MAKE_RUN["config"])  # README.md's block
