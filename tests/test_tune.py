@@ -1,4 +1,5 @@
-"""`python -m cmcl tune` (services/sweeps/tune.py): real sweeps on Ray Tune of real inline runs of the tiny config.
+"""`python -m cmcl tune` (services/sweeps/tune.py): real sweeps on Ray Tune of real runs of the tiny config, inline
+and on the service (`--runner service`: each trial's roles Ray actors in its placement group).
 
 A 2-trial sweep on the session's embedded Ray (Optuna search, ASHA): each trial leaves its run directory with a
 summary and provenance, the objective agrees with the trial's own metrics.jsonl, the table and the best settings are
@@ -26,12 +27,13 @@ from services.sweeps.trial import FINISHED, HELD_OUT_EPISODES, STOPPED, SweepSet
 # navigation with 2 agents (random coverage about 0.06), a target a short run can reach, 8-episode averages
 SECTIONS = {"env": {"num_agents": 2}}
 COVERAGE, BUDGET_S = 0.1, 8.0
+SERVICE_BUDGET_S = 60.0
 SEARCH = ["--search", "maddpg.actor_lr=loguniform(1e-4,1e-2)", "--search", "maddpg.hidden=choice(16,32)"]
 
 
-def sweep_flags(config_file: Path, out: Path, coverage: float = COVERAGE) -> list[str]:
+def sweep_flags(config_file: Path, out: Path, coverage: float = COVERAGE, budget_s: float = BUDGET_S) -> list[str]:
     return ["tune", "--config", str(config_file), *SEARCH, "--trials", "2", "--coverage", str(coverage),
-            "--max-seconds", str(BUDGET_S), "--out", str(out), "--quiet"]
+            "--max-seconds", str(budget_s), "--out", str(out), "--quiet"]
 
 
 def first_reach_s(run_path: Path, window: int) -> float | None:
@@ -102,6 +104,41 @@ def test_a_two_trial_sweep_leaves_each_run_and_prints_the_table_and_the_best_set
         out / "runs" / best["trial"] / "config.toml").maddpg
     assert (again.maddpg.actor_lr, again.maddpg.hidden) == (best["params"]["maddpg.actor_lr"],
                                                            best["params"]["maddpg.hidden"])
+
+
+def test_a_service_sweep_trains_each_trial_on_the_service_with_its_searched_service_keys(
+        ray_cluster, tiny_config_file, tmp_path, capsys):
+    config_file = tiny_config_file("maddpg", service=True, sections=SECTIONS, episodes=300)
+    out = tmp_path / "sweep"
+    # the service's clock includes its actors' start (seconds on a loaded machine): a budget the target ends first
+    flags = [*sweep_flags(config_file, out, budget_s=SERVICE_BUDGET_S), "--runner", "service",
+             "--search", "service.rollout_cpus=choice(0.25,0.5)"]
+    assert main(flags) == 0
+    assert json.loads((out / "sweep.json").read_text())["settings"]["runner"] == "service"
+    rows = json.loads((out / "results.json").read_text())
+    assert len(rows) == 2 and "best: trial" in capsys.readouterr().out
+    for row in rows:
+        summary = json.loads((out / "runs" / row["trial"] / "summary.json").read_text())
+        assert summary["runner"] == "service" and summary["ended"] in (*FINISHED, STOPPED)
+        assert summary["metrics_port"] > 0  # served by the trial's own endpoint: the roles ran as actors
+        config = load_config(out / "runs" / row["trial"] / "config.toml")
+        assert config.service.rollout_cpus == row["params"]["service.rollout_cpus"] in (0.25, 0.5)
+        assert config.service.metrics_port == 0
+    assert rows[0]["episodes"] > 0  # the best trial trained (one the scheduler stopped early may not have)
+
+
+def test_a_service_trial_reserves_the_cpus_its_roles_request_and_an_inline_trial_one(tiny_config_file, tmp_path):
+    from services.runtime.placement import required_cpus
+    from services.sweeps.trial import trial_resources
+
+    config_file = tiny_config_file("cmcl", service=True)
+    settings = SweepSettings(str(config_file), (), "seconds_to_coverage", 0.5, 10.0, str(tmp_path), "service")
+    params = {"service.learner_cpus": 0.75}
+    request = trial_resources(settings, 2.0)(params)
+    wanted = required_cpus(load_config(config_file, ["service.learner_cpus=0.75"]), 2.0)
+    assert request.head_bundle_is_empty and request.bundles == [{"CPU": wanted}] and wanted > 1.0
+    inline = SweepSettings(str(config_file), (), "seconds_to_coverage", 0.5, 10.0, str(tmp_path))
+    assert inline.runner == "inline" and trial_resources(inline, 2.0)(params).bundles == [{"CPU": 1.0}]
 
 
 # kept out of `make test`: once in two full runs here, no stopped trial went on to finish after the resume (the

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from cmcl.config import Config, ConfigError, apply_overrides, config_from_dict, load_data, parse_override
-from cmcl.config.runners import check_runner_keys
+from cmcl.config.runners import Runner, check_runner_keys
 
 DISTRIBUTIONS = ("loguniform", "uniform", "randint", "choice")
 _CALL = re.compile(r"^\s*([a-z]+)\s*\((.*)\)\s*$", re.DOTALL)
@@ -129,11 +129,12 @@ def set_flag(key: str, value: Any) -> str:
 
 
 def check_space(dimensions: Iterable[Dimension], config_file: str | None, overrides: tuple[str, ...],
-                reserved: dict[str, str]) -> Config:
+                reserved: dict[str, str], runner: Runner = "inline") -> Config:
     """Refuse, in one line naming the flag, a dimension whose key the config schema does not know, whose values
-    it refuses (each bound, each option: ConfigError's words), that only the service runner reads (trials run
-    inline), that is searched twice, or that the sweep sets itself (`reserved`: key -> why). Returns the config
-    of the first probe of every dimension (the sweep's fixed settings checked too)."""
+    it refuses (each bound, each option: ConfigError's words), that the trials' `runner` does not read (the
+    service's Ray-only keys on inline trials), that is searched twice, or that the sweep sets itself (`reserved`:
+    key -> why). Returns the config of the first probe of every dimension (the sweep's fixed settings checked
+    too)."""
     dimensions = list(dimensions)
     seen: set[str] = set()
     for dim in dimensions:
@@ -145,13 +146,13 @@ def check_space(dimensions: Iterable[Dimension], config_file: str | None, overri
     file_data = load_data(config_file)
     base = apply_overrides(file_data, overrides)
     config = config_from_dict(base)  # the fixed settings alone: their own error first
-    check_runner_keys(config, "inline", file_data, overrides)
+    check_runner_keys(config, runner, file_data, overrides)
     for dim in dimensions:
         for probe in dim.probes():
             sets = (*overrides, override(dim.key, probe))
             try:
                 probed = config_from_dict(apply_overrides(file_data, sets))
-                check_runner_keys(probed, "inline", file_data, sets)
+                check_runner_keys(probed, runner, file_data, sets)
             except ConfigError as err:
                 raise SweepError(f"--search {dim.text}: {err}") from None
     firsts = (*overrides, *(override(d.key, d.probes()[0]) for d in dimensions))

@@ -1,8 +1,11 @@
-"""One trial of a sweep (`python -m cmcl tune`): one run of the inline runner in the sweep's folder, reported to
+"""One trial of a sweep (`python -m cmcl tune`): one run of the sweep's runner in the sweep's folder, reported to
 Ray Tune at every progress row of its metrics.jsonl and at its end.
 
-A trial is `python -m cmcl train --runner inline --quiet --no-eval` in a Tune actor of 1 CPU (torch on one thread):
-the same checks and run directory (`cmcl.run.flags.train_in_run`), `<sweep>/runs/<trial id>/` with its config.toml,
+A trial is `python -m cmcl train --runner R --quiet --no-eval` in a Tune actor: on the inline runner every role in
+the actor's own process, 1 CPU (torch on one thread); on the service runner every role a Ray actor inside the trial's
+placement group, which reserves the CPUs the roles request (`trial_resources`, the launcher's own count) while the
+trial's actor, the supervisor's loop, reserves none (as the launcher's driver), and the metrics endpoint on a free port.
+The same checks and run directory (`cmcl.run.flags.train_in_run`), `<sweep>/runs/<trial id>/` with its config.toml,
 metrics.jsonl, checkpoints and summary.json (with its provenance). The run directory it writes is watched
 (`ObservedRunDirectory`): each episode row feeds the moving average of the trial's measure, each progress row (every
 2 s) is one report, so that the scheduler (ASHA) can stop the trial early. A trial the scheduler stops (or the sweep,
@@ -31,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from cmcl.config import Config, load_config
+from cmcl.config.runners import Runner
 from cmcl.progress.rows import window_mean
 from cmcl.run.flags import RunRequest, resume_point, train_in_run
 from cmcl.run.rundir import RunDirectory
@@ -62,7 +66,8 @@ class SweepSettings:
 
     config_file: the preset (absolute path; None: the built-in defaults); overrides: its fixed `--set` strings;
     objective: a key of OBJECTIVES; coverage: seconds_to_coverage's target, in (0, 1]; budget_s: each trial's
-    training seconds (run.max_seconds; 0: none); sweep_dir: the sweep's folder (absolute)."""
+    training seconds (run.max_seconds; 0: none); sweep_dir: the sweep's folder (absolute); runner: what trains each
+    trial, "inline" or "service" (a sweep.json written before the choice existed: inline)."""
 
     config_file: str | None
     overrides: tuple[str, ...]
@@ -70,11 +75,15 @@ class SweepSettings:
     coverage: float
     budget_s: float
     sweep_dir: str
+    runner: Runner = "inline"
 
     def trial_sets(self, run_path: Path) -> tuple[str, ...]:
         """The overrides the sweep adds to every new trial's: its run.dir, the coverage stop of seconds_to_coverage
-        (training past it is not scored) and the budget."""
+        (training past it is not scored), the budget, and on the service a free port for its metrics endpoint (the
+        trials run side by side)."""
         sets = [f"run.dir={json.dumps(str(run_path))}"]
+        if self.runner == "service":
+            sets.append("service.metrics_port=0")
         if self.objective == "seconds_to_coverage":
             sets.append(f"run.stop_coverage={self.coverage!r}")
         if self.budget_s:
@@ -206,11 +215,11 @@ def run_trial(params: Mapping[str, Any], settings: SweepSettings, trial_id: str,
     elif earlier is not None and resume_point(earlier) is not None:
         spent = max((float(r.get("elapsed_s", 0.0)) for r in earlier.rows()), default=0.0)
         left = () if not settings.budget_s else (f"run.max_seconds={max(settings.budget_s - spent, 0.001)!r}",)
-        request = RunRequest("inline", resume_dir=str(run_path), overrides=left, quiet=True, no_eval=True)
+        request = RunRequest(settings.runner, resume_dir=str(run_path), overrides=left, quiet=True, no_eval=True)
     else:
         sets = (*settings.overrides, *(override(k, v) for k, v in params.items()), *settings.trial_sets(run_path))
-        request = RunRequest("inline", config_file=settings.config_file, overrides=sets, overwrite=True, quiet=True,
-                             no_eval=True)
+        request = RunRequest(settings.runner, config_file=settings.config_file, overrides=sets, overwrite=True,
+                             quiet=True, no_eval=True)
     watched: list[TrialProgress] = []
 
     def train(config: Config, run_dir: RunDirectory, _lock: Any) -> int:
@@ -221,12 +230,12 @@ def run_trial(params: Mapping[str, Any], settings: SweepSettings, trial_id: str,
         progress.replay(run_dir.rows())
         summary = run_service(config, ObservedRunDirectory(run_dir.path, progress.observe),
                               resume=bool(request.resume_dir), progress=None, stop=progress.stop_requested,
-                              in_process=True)
+                              in_process=settings.runner == "inline")
         solved = summary.get("solved") or (progress.reached_s is not None and not progress.objective.held_out)
         ended = "solved" if solved else STOPPED if progress.stopped else "plateau" if summary.get("plateau") \
             else "budget"
         run_dir.write_summary({**{k: v for k, v in summary.items() if k != "metrics_text"}, "ended": ended,
-                               "runner": "inline", "sweep_trial": trial_id, "sweep_params": dict(params)})
+                               "runner": settings.runner, "sweep_trial": trial_id, "sweep_params": dict(params)})
         return 0
 
     if request is not None:
@@ -249,10 +258,33 @@ def run_trial(params: Mapping[str, Any], settings: SweepSettings, trial_id: str,
     return metrics
 
 
+def trial_resources(settings: SweepSettings, cluster_cpus: float) -> Callable[[Mapping[str, Any]], Any]:
+    """What Tune reserves for a trial with the sampled `params`: 1 CPU for an inline trial; for a service trial a
+    placement group of an empty head bundle (the trial's actor, the supervisor's loop, as the launcher's driver)
+    and one bundle of the CPUs its roles request (services.runtime.placement.required_cpus at `cluster_cpus`, with
+    the rollout workers' custom resource), into which Tune's placement group captures the roles' actors."""
+    from ray.tune import PlacementGroupFactory
+
+    from services.runtime.placement import ROLLOUT_RESOURCE_SHARE, required_cpus
+    from services.sweeps.space import override
+
+    def resources(params: Mapping[str, Any]) -> Any:
+        if settings.runner == "inline":
+            return PlacementGroupFactory([{"CPU": 1.0}])
+        config = load_config(settings.config_file, (*settings.overrides, *(override(k, v) for k, v in params.items())))
+        bundle = {"CPU": required_cpus(config, cluster_cpus)}
+        if config.service.rollout_resource:
+            bundle[config.service.rollout_resource] = config.service.rollout_workers * ROLLOUT_RESOURCE_SHARE
+        return PlacementGroupFactory([{}, bundle])
+
+    return resources
+
+
 def sweep_trainable(settings: SweepSettings) -> Any:
-    """The Tune trainable of `settings`' trials (1 CPU each): `run_trial` under Tune's function API, whose actor,
-    when the trial is stopped, waits up to STOP_GRACE_S for the run to checkpoint and write its summary (Tune's own
-    cleanup does not wait for the training thread)."""
+    """The Tune trainable of `settings`' trials (`trial_resources` each, on the Ray this process is connected to):
+    `run_trial` under Tune's function API, whose actor, when the trial is stopped, waits up to STOP_GRACE_S for the
+    run to checkpoint and write its summary (Tune's own cleanup does not wait for the training thread)."""
+    import ray
     from ray import tune
     from ray.train._internal.session import get_session  # the training thread of the function API
     from ray.tune.trainable.function_trainable import wrap_function
@@ -268,4 +300,4 @@ def sweep_trainable(settings: SweepSettings) -> Any:
             if thread is not None:
                 thread.join(STOP_GRACE_S)
 
-    return tune.with_resources(SweepTrial, {"cpu": 1})
+    return tune.with_resources(SweepTrial, trial_resources(settings, ray.cluster_resources().get("CPU", 0.0)))

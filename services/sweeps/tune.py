@@ -2,11 +2,14 @@
 
     python -m cmcl tune --config F --search KEY=DISTRIBUTION [--search ...] --trials N --out DIR
                         [--objective seconds_to_coverage|held_out_coverage|held_out_success] [--coverage 0.9]
-                        [--max-seconds S] [--set KEY=VALUE ...] [--address ADDR] [--quiet]
+                        [--max-seconds S] [--runner inline|service] [--set KEY=VALUE ...] [--address ADDR]
+                        [--quiet]
     python -m cmcl tune --resume DIR
 
 Every `--search` key is checked against the config schema first (services/sweeps/space.py); then each trial is one
-inline run of 1 CPU in a Tune actor (services/sweeps/trial.py), in DIR/runs/<trial id>/. Optuna (TPE) proposes the
+run in a Tune actor (services/sweeps/trial.py), in DIR/runs/<trial id>/: an inline run of 1 CPU by default, or with
+`--runner service` a run of the service (what `make run` trains), its roles Ray actors in the trial's placement group
+(so the service's own keys, e.g. service.rollout_workers' CPUs, can be searched too). Optuna (TPE) proposes the
 settings of each trial from the objective of those before; ASHA stops a trial early whose training moving average
 (coverage, or success) is behind the others' at the same training second (or episode, without a time budget). Ray:
 an embedded one sized to this machine (its servers on 127.0.0.1, reaped with this process), the current one when
@@ -58,6 +61,9 @@ def add_tune_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-seconds", type=float, default=None,
                         help="training seconds of each trial (default: the config's run.max_seconds); a trial that "
                              "never reaches --coverage scores this")
+    parser.add_argument("--runner", choices=("inline", "service"), default="inline",
+                        help="what trains each trial: the inline runner (1 CPU, default) or the service (its roles "
+                             "as Ray actors, the CPUs they request reserved per trial)")
     parser.add_argument("--address", default=None, help="Ray cluster to join (default: an embedded Ray)")
     parser.add_argument("--resume", metavar="DIR", default=None, help="go on with the sweep in DIR after a stop")
     parser.add_argument("--out", metavar="DIR", default=None, help="the sweep's folder (required for a new sweep)")
@@ -89,13 +95,15 @@ def new_sweep(args: argparse.Namespace) -> tuple[SweepSettings, list[Dimension],
     if args.max_seconds is not None:
         reserved["run.max_seconds"] = "--max-seconds"
     config_file = str(Path(args.config).resolve()) if args.config else None
-    config = check_space(dimensions, config_file, tuple(args.overrides), reserved)
+    if args.runner == "service":
+        reserved["service.metrics_port"] = "each service trial serves its metrics on a free port"
+    config = check_space(dimensions, config_file, tuple(args.overrides), reserved, args.runner)
     budget = args.max_seconds if args.max_seconds is not None else config.run.max_seconds
     if args.objective == "seconds_to_coverage" and not budget:
         raise SweepError("--objective seconds_to_coverage scores a trial that never reaches --coverage by its time "
                          "budget: give --max-seconds S (or run.max_seconds in the config)")
     settings = SweepSettings(config_file, tuple(args.overrides), args.objective, args.coverage, float(budget),
-                             str(out))
+                             str(out), args.runner)
     return settings, dimensions, args.trials
 
 
