@@ -95,13 +95,23 @@ def test_every_shipped_preset_loads_on_both_runners(path, runner):
     load_config(path)
 
 
-def test_every_grid_run_passes_the_check_of_its_runner(tmp_path):
+def test_every_grid_run_passes_the_check_of_its_runner(tmp_path, monkeypatch):
     """The experiments' command lines (experiments.runner.command) of every grid, on the runner each run names."""
+    from experiments import grids
     from experiments.grids import GRIDS, grid
     from experiments.runner import command
+    from experiments.store import ResultsStore
     from tests.test_confirm import fake_screen  # fake summaries: the confirm grid's arms come from a screen
+    from tests.test_sparse_confirm import every_candidate, synthetic_scale, synthetic_screen  # the same, sparse
 
     screen = fake_screen(tmp_path / "screen")
+    for name in ("sparse_screen", "sparse_scale"):  # a curriculum chosen on one task, curiosity on the other
+        monkeypatch.setitem(grids.GRIDS, name, tmp_path / name)
+    for summary in synthetic_screen(every_candidate("vacl_n4") | {("vacl_n4", "curriculum_radius"): 0.5}
+                                    | every_candidate("push_box") | {("push_box", "intrinsic_strong"): 0.1}):
+        ResultsStore(tmp_path / "sparse_screen").write(summary)
+    for summary in synthetic_scale("push_box", "intrinsic_strong"):
+        ResultsStore(tmp_path / "sparse_scale").write(summary)
     runs = grid([g for g in GRIDS if g != "screen"], [0], screen=screen) + grid(["screen"], [100], screen=screen)
     for run in runs:  # the screen's seeds are its own (experiments.screen_arms); round one runs every arm
         if run.source is not None:
