@@ -225,3 +225,41 @@ def test_a_trial_the_sweep_stops_ends_in_order_and_a_restored_sweep_resumes_its_
     assert summary["elapsed_s"] == pytest.approx(stopped["elapsed_s"] + summary["segment_s"], abs=0.5)
     assert last["objective"] == 6.0 and last["training_s"] >= 6.0  # never reached coverage 1: its budget
     assert run_dir.config().maddpg.hidden == 16
+
+
+def test_a_trial_of_two_seeds_trains_both_one_after_the_other_and_scores_their_median(tiny_config_file, tmp_path):
+    from dataclasses import replace
+
+    from cmcl.run.rundir import RunDirectory
+
+    settings = replace(trial_settings(tiny_config_file, tmp_path, "seconds_to_coverage", 4.0, episodes=100_000),
+                       coverage=COVERAGE, seeds=2)
+    reports: list[dict] = []
+    last = run_trial({"maddpg.hidden": 16}, settings, "t2", reports.append)
+    runs = [RunDirectory(p) for p in settings.seed_paths("t2")]
+    assert [p.name for p in settings.seed_paths("t2")] == ["s0", "s1"]
+    base = load_config(settings.config_file).run.seed
+    assert [r.config().run.seed for r in runs] == [base, base + 1] and all(r.config().maddpg.hidden == 16 for r in runs)
+    scores = [first_reach_s(r.path, r.config().run.smoothing_window) or 4.0 for r in runs]  # each seed's own rows
+    assert last["seed_objectives"] == pytest.approx(scores, abs=1e-6)
+    assert last["objective"] == pytest.approx(sum(scores) / 2)  # the median of two
+    seconds = [r["training_s"] for r in reports]
+    assert seconds == sorted(seconds) and last["training_s"] == pytest.approx(
+        sum(max(float(row["elapsed_s"]) for row in r.rows()) for r in runs), abs=1e-6)
+    assert last["episodes"] == sum(r.summary()["episodes"] for r in runs)
+
+
+def test_a_trial_of_several_seeds_ends_as_its_runs_did_and_bad_seed_flags_are_refused(tiny_config_file, tmp_path,
+                                                                                     capsys):
+    from services.sweeps.tune import trial_ended
+
+    assert trial_ended(["budget"]) == "budget" and trial_ended(["solved", "solved"]) == "solved"
+    assert trial_ended(["solved", "budget"]) == "budget" and trial_ended(["solved", ""]) == ""
+    assert trial_ended(["solved", STOPPED]) == STOPPED
+    config = str(tiny_config_file("maddpg"))
+    for flags, words in ((["--seeds", "0"], "--seeds must be a positive integer (runs per trial), got 0"),
+                         (["--seeds", "2", "--search", "run.seed=choice(1,2)"], "run.seed is set by the sweep")):
+        out = tmp_path / "sweep"
+        assert main(["tune", "--config", config, *SEARCH[:2], *flags, "--max-seconds", "5", "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and words in err and not out.exists()

@@ -67,7 +67,9 @@ class SweepSettings:
     config_file: the preset (absolute path; None: the built-in defaults); overrides: its fixed `--set` strings;
     objective: a key of OBJECTIVES; coverage: seconds_to_coverage's target, in (0, 1]; budget_s: each trial's
     training seconds (run.max_seconds; 0: none); sweep_dir: the sweep's folder (absolute); runner: what trains each
-    trial, "inline" or "service" (a sweep.json written before the choice existed: inline)."""
+    trial, "inline" or "service" (a sweep.json written before the choice existed: inline); seeds: the runs of each
+    trial, one after the other at run.seed + 0, 1, ... (`seed_paths`), its objective their median seconds or mean
+    held-out value (`combined`)."""
 
     config_file: str | None
     overrides: tuple[str, ...]
@@ -76,12 +78,15 @@ class SweepSettings:
     budget_s: float
     sweep_dir: str
     runner: Runner = "inline"
+    seeds: int = 1
 
-    def trial_sets(self, run_path: Path) -> tuple[str, ...]:
-        """The overrides the sweep adds to every new trial's: its run.dir, the coverage stop of seconds_to_coverage
-        (training past it is not scored), the budget, and on the service a free port for its metrics endpoint (the
-        trials run side by side)."""
+    def trial_sets(self, run_path: Path, seed: int | None = None) -> tuple[str, ...]:
+        """The overrides the sweep adds to every new run of a trial: its run.dir, its run.seed (`seed`; None: the
+        config's), the coverage stop of seconds_to_coverage (training past it is not scored), the budget, and on the
+        service a free port for its metrics endpoint (the trials run side by side)."""
         sets = [f"run.dir={json.dumps(str(run_path))}"]
+        if seed is not None:
+            sets.append(f"run.seed={seed}")
         if self.runner == "service":
             sets.append("service.metrics_port=0")
         if self.objective == "seconds_to_coverage":
@@ -95,7 +100,24 @@ class SweepSettings:
         return load_config(self.config_file, self.overrides)
 
     def run_path(self, trial_id: str) -> Path:
+        """The trial's folder: its run directory, or with several seeds the folder of their run directories."""
         return Path(self.sweep_dir) / "runs" / trial_id
+
+    def seed_paths(self, trial_id: str) -> list[Path]:
+        """The run directories of the trial's seeds, in training order: the trial's folder for one seed, else
+        <trial folder>/s<k> for k = 0 .. seeds - 1 (trained at run.seed + k)."""
+        if self.seeds == 1:
+            return [self.run_path(trial_id)]
+        return [self.run_path(trial_id) / f"s{k}" for k in range(self.seeds)]
+
+    def combined(self, scores: list[float]) -> float:
+        """A trial's objective from its seeds' scores: the median of seconds_to_coverage (a seed that never reached
+        the target counts its budget), the mean of a held-out measure."""
+        values = sorted(scores)
+        if not OBJECTIVES[self.objective].held_out:
+            mid = len(values) // 2
+            return values[mid] if len(values) % 2 else (values[mid - 1] + values[mid]) / 2
+        return sum(values) / len(values)
 
     def to_json(self) -> dict[str, Any]:
         return {**asdict(self), "overrides": list(self.overrides)}
@@ -199,16 +221,45 @@ def held_out(config: Config, run_dir: RunDirectory) -> dict[str, float]:
 
 def run_trial(params: Mapping[str, Any], settings: SweepSettings, trial_id: str,
               report: Callable[[dict[str, Any]], None]) -> dict[str, Any]:
-    """Train (or, restored, resume or only re-read) the run of one trial with the sampled `params` ({dotted key:
-    value}); `report` gets the metrics at every progress row and at the end. Returns the last metrics. Raises
-    SystemExit once the sweep has stopped the trial (after the run's summary is written), TrialFailed when the
-    run ends with an error exit."""
+    """Train (or, restored, resume or only re-read) the runs of one trial with the sampled `params` ({dotted key:
+    value}), its seeds one after the other (`SweepSettings.seed_paths`); `report` gets the metrics at every progress
+    row and at the end: the objective combined over the seeds so far and the current one (`combined`), the episodes
+    and training seconds summed over them, the current seed's training average, and at the end every seed's score
+    ("seed_objectives"). Returns the last metrics. Raises SystemExit once the sweep has stopped the trial (after the
+    current run's summary is written; later seeds are not trained), TrialFailed when a run ends with an error exit."""
     import torch
 
+    torch.set_num_threads(1)
+    base_seed = load_config(settings.config_file, settings.overrides).run.seed if settings.seeds > 1 else None
+    scores: list[float] = []
+    episodes, seconds = 0, 0.0
+    progress: TrialProgress | None = None
+    for k, run_path in enumerate(settings.seed_paths(trial_id)):
+        done, before = tuple(scores), (episodes, seconds)
+
+        def seed_report(metrics: dict[str, Any], done: tuple[float, ...] = done,
+                        before: tuple[int, float] = before) -> None:
+            report({**metrics, "objective": settings.combined([*done, metrics["objective"]]),
+                    "episodes": before[0] + metrics["episodes"], "training_s": before[1] + metrics["training_s"]})
+
+        seed = None if base_seed is None else base_seed + k
+        progress = train_seed(params, settings, trial_id, run_path, seed, seed_report)
+        scores.append(progress.score())
+        episodes, seconds = episodes + progress.episodes, seconds + progress.training_s
+    assert progress is not None  # seeds >= 1
+    metrics = {**progress.metrics(), "objective": settings.combined(scores), "episodes": episodes,
+               "training_s": seconds, "seed_objectives": scores}
+    report(metrics)
+    return metrics
+
+
+def train_seed(params: Mapping[str, Any], settings: SweepSettings, trial_id: str, run_path: Path, seed: int | None,
+               report: Callable[[dict[str, Any]], None]) -> TrialProgress:
+    """Train, resume or only re-read one run of a trial in `run_path` (at run.seed `seed`; None: the config's);
+    `report` gets the metrics at every progress row. Returns its progress, with the held-out values of a held-out
+    objective. SystemExit once the sweep stopped it (after its summary is written); TrialFailed for an error exit."""
     from services.sweeps.space import override
 
-    torch.set_num_threads(1)
-    run_path = settings.run_path(trial_id)
     earlier = RunDirectory(run_path) if (run_path / "config.toml").is_file() else None
     if earlier is not None and earlier.summary().get("ended") in FINISHED:
         request = None  # a finished run of a restored sweep: its result is read back, not trained again
@@ -217,7 +268,8 @@ def run_trial(params: Mapping[str, Any], settings: SweepSettings, trial_id: str,
         left = () if not settings.budget_s else (f"run.max_seconds={max(settings.budget_s - spent, 0.001)!r}",)
         request = RunRequest(settings.runner, resume_dir=str(run_path), overrides=left, quiet=True, no_eval=True)
     else:
-        sets = (*settings.overrides, *(override(k, v) for k, v in params.items()), *settings.trial_sets(run_path))
+        sets = (*settings.overrides, *(override(k, v) for k, v in params.items()),
+                *settings.trial_sets(run_path, seed))
         request = RunRequest(settings.runner, config_file=settings.config_file, overrides=sets, overwrite=True,
                              quiet=True, no_eval=True)
     watched: list[TrialProgress] = []
@@ -250,12 +302,10 @@ def run_trial(params: Mapping[str, Any], settings: SweepSettings, trial_id: str,
         progress = TrialProgress(settings, earlier.config(), None)
         progress.replay(earlier.rows())
         progress.report = report
-    run_dir = RunDirectory(run_path)
     if progress.objective.held_out:
+        run_dir = RunDirectory(run_path)
         progress.held_out = held_out(run_dir.config(), run_dir)
-    metrics = progress.metrics()
-    report(metrics)
-    return metrics
+    return progress
 
 
 def trial_resources(settings: SweepSettings, cluster_cpus: float) -> Callable[[Mapping[str, Any]], Any]:

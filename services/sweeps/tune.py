@@ -2,14 +2,16 @@
 
     python -m cmcl tune --config F --search KEY=DISTRIBUTION [--search ...] --trials N --out DIR
                         [--objective seconds_to_coverage|held_out_coverage|held_out_success] [--coverage 0.9]
-                        [--max-seconds S] [--runner inline|service] [--set KEY=VALUE ...] [--address ADDR]
-                        [--quiet]
+                        [--max-seconds S] [--runner inline|service] [--seeds K] [--set KEY=VALUE ...]
+                        [--address ADDR] [--quiet]
     python -m cmcl tune --resume DIR
 
 Every `--search` key is checked against the config schema first (services/sweeps/space.py); then each trial is one
 run in a Tune actor (services/sweeps/trial.py), in DIR/runs/<trial id>/: an inline run of 1 CPU by default, or with
 `--runner service` a run of the service (what `make run` trains), its roles Ray actors in the trial's placement group
-(so the service's own keys, e.g. service.rollout_workers' CPUs, can be searched too). Optuna (TPE) proposes the
+(so the service's own keys, e.g. service.rollout_workers' CPUs, can be searched too). With `--seeds K` a trial is K
+runs of its settings one after the other (run.seed + 0 .. K-1, in DIR/runs/<trial id>/s<k>/), scored by their median
+seconds (or mean held-out value): one seed's time varies too much to rank settings by. Optuna (TPE) proposes the
 settings of each trial from the objective of those before; ASHA stops a trial early whose training moving average
 (coverage, or success) is behind the others' at the same training second (or episode, without a time budget). Ray:
 an embedded one sized to this machine (its servers on 127.0.0.1, reaped with this process), the current one when
@@ -64,6 +66,9 @@ def add_tune_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--runner", choices=("inline", "service"), default="inline",
                         help="what trains each trial: the inline runner (1 CPU, default) or the service (its roles "
                              "as Ray actors, the CPUs they request reserved per trial)")
+    parser.add_argument("--seeds", type=int, default=1,
+                        help="runs per trial, one after the other at run.seed + 0, 1, ...; the trial scores their "
+                             "median seconds (mean held-out value) (default 1)")
     parser.add_argument("--address", default=None, help="Ray cluster to join (default: an embedded Ray)")
     parser.add_argument("--resume", metavar="DIR", default=None, help="go on with the sweep in DIR after a stop")
     parser.add_argument("--out", metavar="DIR", default=None, help="the sweep's folder (required for a new sweep)")
@@ -83,6 +88,8 @@ def new_sweep(args: argparse.Namespace) -> tuple[SweepSettings, list[Dimension],
         raise SweepError(f"--trials must be a positive integer, got {args.trials}")
     if not 0 < args.coverage <= 1:
         raise SweepError(f"--coverage must lie in (0, 1], got {args.coverage}")
+    if args.seeds < 1:
+        raise SweepError(f"--seeds must be a positive integer (runs per trial), got {args.seeds}")
     if args.max_seconds is not None and not args.max_seconds > 0:
         raise SweepError(f"--max-seconds must be a positive number of seconds, got {args.max_seconds}")
     if not args.search:
@@ -95,6 +102,8 @@ def new_sweep(args: argparse.Namespace) -> tuple[SweepSettings, list[Dimension],
     if args.max_seconds is not None:
         reserved["run.max_seconds"] = "--max-seconds"
     config_file = str(Path(args.config).resolve()) if args.config else None
+    if args.seeds > 1:
+        reserved["run.seed"] = "--seeds: each trial's runs take run.seed + 0, 1, ..."
     if args.runner == "service":
         reserved["service.metrics_port"] = "each service trial serves its metrics on a free port"
     config = check_space(dimensions, config_file, tuple(args.overrides), reserved, args.runner)
@@ -103,7 +112,7 @@ def new_sweep(args: argparse.Namespace) -> tuple[SweepSettings, list[Dimension],
         raise SweepError("--objective seconds_to_coverage scores a trial that never reaches --coverage by its time "
                          "budget: give --max-seconds S (or run.max_seconds in the config)")
     settings = SweepSettings(config_file, tuple(args.overrides), args.objective, args.coverage, float(budget),
-                             str(out), args.runner)
+                             str(out), args.runner, args.seeds)
     return settings, dimensions, args.trials
 
 
@@ -178,7 +187,9 @@ def _fit(settings: SweepSettings, dimensions: list[Dimension], trials: int, resu
     if resume and tune.Tuner.can_restore(str(path)):
         return tune.Tuner.restore(str(path), trainable, resume_unfinished=True, resume_errored=True).fit()
     objective, config = OBJECTIVES[settings.objective], settings.base_config()
-    time_attr, budget = ("training_s", settings.budget_s) if settings.budget_s else ("episodes", config.run.episodes)
+    # a trial's clock runs over its seeds one after the other: its whole budget is the seeds' budgets summed
+    time_attr, budget = ("training_s", settings.budget_s * settings.seeds) if settings.budget_s else \
+        ("episodes", config.run.episodes * settings.seeds)
     # max_t past the budget: a trial's own budget ends it (summary "budget"), not the scheduler
     scheduler = ASHAScheduler(time_attr=time_attr, metric="training_ma", mode="max", max_t=2 * budget,
                               grace_period=budget * GRACE_FRACTION, reduction_factor=REDUCTION_FACTOR)
@@ -207,14 +218,30 @@ def _rows(settings: SweepSettings, dimensions: list[Dimension], grid: Any) -> li
         elif statuses.get(trial) not in ("TERMINATED", "ERROR"):
             ended = "unfinished"
         else:
-            ended = RunDirectory(settings.run_path(trial)).summary().get("ended", "")
-        rows.append({"trial": trial, "params": {d.key: (result.config or {}).get(d.key) for d in dimensions},
-                     "objective": metrics.get("objective"), "episodes": metrics.get("episodes"),
-                     "seconds": metrics.get("training_s"), "ended": ended,
-                     "run_dir": str(settings.run_path(trial))})
+            ended = trial_ended([RunDirectory(p).summary().get("ended", "") for p in settings.seed_paths(trial)])
+        row = {"trial": trial, "params": {d.key: (result.config or {}).get(d.key) for d in dimensions},
+               "objective": metrics.get("objective"), "episodes": metrics.get("episodes"),
+               "seconds": metrics.get("training_s"), "ended": ended, "run_dir": str(settings.seed_paths(trial)[0])}
+        if settings.seeds > 1:
+            row.update(seed_objectives=metrics.get("seed_objectives"),
+                       run_dirs=[str(p) for p in settings.seed_paths(trial)])
+        rows.append(row)
     sign = 1.0 if OBJECTIVES[settings.objective].mode == "min" else -1.0
     return sorted(rows, key=lambda r: (r["objective"] is None or r["ended"].startswith("error"),
                                        sign * (r["objective"] or 0.0), r["trial"]))
+
+
+def trial_ended(endings: list[str]) -> str:
+    """How a trial ended from its seeds' runs' endings (summary.json "ended"; "" for a seed not trained): the one
+    run's; of several, "solved" when every seed solved, "stopped_by_sweep" when the sweep stopped one, "" while a
+    seed is untrained, else "budget" (a seed ran out of its budget or plateaued)."""
+    if len(endings) == 1:
+        return endings[0]
+    if STOPPED in endings:
+        return STOPPED
+    if "" in endings:
+        return ""
+    return "solved" if all(e == "solved" for e in endings) else "budget"
 
 
 def _cell(value: Any) -> str:
