@@ -284,10 +284,10 @@ def sparse_screen_runs(seed: int) -> list[Run]:
     "sparse_screen_<task>_<candidate>_s<seed>"."""
     runs = []
     for task in SPARSE_SCREEN_TASKS:
-        for candidate, (kind, sets, tasks) in SPARSE_SCREEN.items():
+        for candidate, (_, sets, tasks) in SPARSE_SCREEN.items():
             if task not in tasks:
                 continue
-            config = f"{task}_{kind}.toml"
+            config = config_of(task, candidate)
             preset = load_data(ROOT / "configs" / config)["run"]
             runs.append(Run(f"sparse_screen_{task}_{candidate}_s{seed}", "sparse_screen", "own_env", "maddpg", None,
                             seed, int(preset["episodes"]), arm=candidate, config=config,

@@ -20,6 +20,8 @@ from experiments.sparse_arms import (
     SPARSE_SCREEN_SEEDS,
     SPARSE_SCREEN_TASKS,
     SparseNotReady,
+    config_of,
+    is_curriculum,
     sparse_choice,
 )
 from lab.report.stats import holm
@@ -73,10 +75,10 @@ def calibration_verdicts(runs: list[dict[str, Any]]) -> str:
 
 def _stages(task: str, candidate: str) -> int:
     """The number of stages of a curriculum candidate's schedule on `task` (0 for curiosity)."""
-    kind, sets, _ = SPARSE_SCREEN[candidate]
-    if kind == "intrinsic":
+    if not is_curriculum(candidate):
         return 0
-    return len(load_config(ROOT / "configs" / f"{task}_{kind}.toml", list(sets)).task_curriculum.stages)
+    config = load_config(ROOT / "configs" / config_of(task, candidate), list(SPARSE_SCREEN[candidate][1]))
+    return len(config.task_curriculum.stages)
 
 
 def screen_table(runs: list[dict[str, Any]]) -> str:
