@@ -9,8 +9,8 @@ a Ray Tune trial of 1 CPU, on an embedded Ray or the cluster at ADDR (experiment
 tune`. Its results go to the grid's folder of the registry (experiments.grids.GRIDS, under lab/results/) unless --out
 names another. Seeds default to 0-4,
 and to 0-19 for the confirm grid alone, whose arms the screen's summaries select (--screen: their folder); alone, the
-sparse screen and sparse_scale default to 0-2 and sparse_confirm, whose arms the sparse screen's summaries select, to
-100-109. Exit code
+sparse screen, sparse_scale and sparse_recalibration default to 0-2 and sparse_confirm, whose arms the sparse screen's
+summaries select, to 100-109. Exit code
 of `run`: 0 when every run finished, 1 when some failed (each is named in the output), 2 when it refused to start.
 The tables and figures drawn from the summaries are the research record's (`python -m lab report`, outside the
 package).
@@ -58,7 +58,8 @@ ARMS = list(dict.fromkeys([*CURRICULUM_ARMS, *SCREEN_ARMS,
                              if arm not in SCREEN_REFERENCES and has_permuted_control(rule_algorithm(sets)))]))
 
 
-SPARSE_GRIDS = ("sparse_calibration", "sparse_screen", "sparse_scale", "sparse_confirm")  # what --tasks selects
+# what --tasks selects
+SPARSE_GRIDS = ("sparse_calibration", "sparse_recalibration", "sparse_screen", "sparse_scale", "sparse_confirm")
 
 
 def has_arms(run: Run) -> bool:
@@ -73,7 +74,8 @@ def grid_args(args: argparse.Namespace) -> tuple:
     own = args.out if len(args.grids) == 1 else None
     seeds = args.seeds or (
         {"confirm": list(CONFIRM_SEEDS), "screen": list(SCREEN_SEEDS), "sparse_screen": list(SPARSE_SCREEN_SEEDS),
-         "sparse_scale": list(SPARSE_SCREEN_SEEDS), "sparse_confirm": list(SPARSE_CONFIRM_SEEDS)}
+         "sparse_scale": list(SPARSE_SCREEN_SEEDS), "sparse_recalibration": list(SPARSE_SCREEN_SEEDS),
+         "sparse_confirm": list(SPARSE_CONFIRM_SEEDS)}
         .get(args.grids[0], SEEDS)
         if len(args.grids) == 1 else SEEDS)
     screen = own if args.grids == ["screen"] and own else args.screen
@@ -174,7 +176,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--modes", nargs="+", choices=["inline", "service"], default=["inline", "service"],
                    help="algorithms grid: only these runners")
     p.add_argument("--tasks", nargs="+", choices=list(SPARSE_TASKS), default=None,
-                   help="sparse grids (sparse_calibration, _screen, _scale, _confirm): only these tasks (default: all)")
+                   help="sparse grids (sparse_calibration, _recalibration, _screen, _scale, _confirm): only these "
+                        "tasks (default: all)")
     p.add_argument("--episodes", type=int, default=EPISODES, help="budget of every run (the paper: 20,000)")
     p.add_argument("--screen", type=Path, default=None,
                    help="confirm grid: the screen's results folder that selects its arms (default: the screen's)")

@@ -32,6 +32,8 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
   ``env.factory``, inline and on the embedded service, each with its own budget and settings;
 * ``sparse_calibration`` (docs/SPARSE_TASKS.md): uniform MADDPG and PER-MADDPG on each sparse task of
   SPARSE_TASKS (its preset configs/<task>_maddpg.toml, through ``env.factory``), inline, the preset's budget.
+* ``sparse_recalibration``: uniform MADDPG again on the tasks of SPARSE_RECALIBRATED, whose presets' learner
+  settings changed after their calibration, the same way;
 * ``sparse_screen`` (docs/SPARSE_TASKS.md, its screen protocol): the task-curriculum and intrinsic-reward candidates
   of SPARSE_SCREEN on vacl_n4 and push_box (presets configs/<task>_curriculum.toml, <task>_intrinsic.toml), uniform
   MADDPG sampling, inline, the preset's budget, seeds 0, 1, 2;
@@ -59,6 +61,7 @@ from experiments.screen_selection import round_two_arms
 from experiments.sparse_arms import (
     FROZEN_AT_COEF_1,
     SCALE_SECONDS,
+    SCREEN_STOPPED,
     SPARSE_SCREEN,
     SPARSE_SCREEN_SEEDS,
     SPARSE_SCREEN_TASKS,
@@ -265,14 +268,22 @@ SPARSE_TASKS = {t: f"{t}_maddpg.toml" for t in ("push_box", "pass", "vacl_n4", "
 SPARSE_ALGORITHMS = ("maddpg", "per")  # uniform MADDPG and PER-MADDPG (arms; --arms maddpg runs the first alone)
 
 
-def sparse_calibration_runs(seed: int) -> list[Run]:
-    """The sparse_calibration grid: every task of SPARSE_TASKS with each of SPARSE_ALGORITHMS at the preset's
-    budget (its run.episodes and run.max_seconds), id "sparse_calibration_<task>_<algorithm>_s<seed>"."""
+# the tasks whose presets' learner settings changed after their calibration (docs/SPARSE_TASKS.md, "The learner's
+# settings on vacl_n4"): uniform MADDPG is calibrated again there at the new settings
+SPARSE_RECALIBRATED = ("vacl_n4",)
+
+
+def sparse_calibration_runs(seed: int, name: str = "sparse_calibration", tasks: tuple[str, ...] = tuple(SPARSE_TASKS),
+                            algorithms: tuple[str, ...] = SPARSE_ALGORITHMS) -> list[Run]:
+    """The sparse_calibration grid (`name`): every task of `tasks` with each of `algorithms` at its preset's
+    budget (its run.episodes and run.max_seconds), id "<name>_<task>_<algorithm>_s<seed>". The
+    sparse_recalibration grid is uniform MADDPG on SPARSE_RECALIBRATED."""
     runs = []
-    for task, config in SPARSE_TASKS.items():
+    for task in tasks:
+        config = SPARSE_TASKS[task]
         preset = load_data(ROOT / "configs" / config)["run"]
-        for algorithm in SPARSE_ALGORITHMS:
-            runs.append(Run(f"sparse_calibration_{task}_{algorithm}_s{seed}", "sparse_calibration", "own_env",
+        for algorithm in algorithms:
+            runs.append(Run(f"{name}_{task}_{algorithm}_s{seed}", name, "own_env",
                             algorithm, None, seed, int(preset["episodes"]), arm=algorithm, config=config,
                             max_seconds=float(preset["max_seconds"]), env=task,
                             sets=(f"teams.agent.algorithm={algorithm}",)))
@@ -281,9 +292,9 @@ def sparse_calibration_runs(seed: int) -> list[Run]:
 
 def sparse_screen_runs(seed: int) -> list[Run]:
     """The sparse_screen grid: every candidate of SPARSE_SCREEN on each of its tasks at its preset's budget, id
-    "sparse_screen_<task>_<candidate>_s<seed>"."""
+    "sparse_screen_<task>_<candidate>_s<seed>"; none on a task whose screen stopped (SCREEN_STOPPED)."""
     runs = []
-    for task in SPARSE_SCREEN_TASKS:
+    for task in (t for t in SPARSE_SCREEN_TASKS if t not in SCREEN_STOPPED):
         for candidate, (_, sets, tasks) in SPARSE_SCREEN.items():
             if task not in tasks:
                 continue
@@ -298,10 +309,10 @@ def sparse_screen_runs(seed: int) -> list[Run]:
 def sparse_scale_runs(seed: int, screen: list[dict]) -> list[Run]:
     """The sparse_scale grid: on each task whose screen chose curiosity as a reward, that candidate with a frozen
     ICM at coef 1 (FROZEN_AT_COEF_1) for SCALE_SECONDS at a screen seed, id "sparse_scale_<task>_<candidate>_s<seed>"
-    (the confirmation's control scale, experiments.sparse_arms.frozen_coef). SparseNotReady while the screen misses
-    a run."""
+    (the confirmation's control scale, experiments.sparse_arms.frozen_coef); none on a task whose screen stopped.
+    SparseNotReady while the screen misses a run."""
     runs = []
-    for task in SPARSE_SCREEN_TASKS:
+    for task in (t for t in SPARSE_SCREEN_TASKS if t not in SCREEN_STOPPED):
         chosen = sparse_choice(screen, task).candidate
         if chosen is None or is_curriculum(chosen) or seed not in SPARSE_SCREEN_SEEDS:
             continue
@@ -314,10 +325,10 @@ def sparse_scale_runs(seed: int, screen: list[dict]) -> list[Run]:
 
 def sparse_confirm_runs(seed: int, screen: list[dict], scale: list[dict]) -> list[Run]:
     """The sparse_confirm grid: on each task the screen chose a candidate for, its three arms (experiments.sparse_arms
-    .confirm_arms) at the preset's budget, id "sparse_confirm_<task>_<arm>_s<seed>"; SparseNotReady while the screen
-    or a control's reference runs miss a run."""
+    .confirm_arms) at the preset's budget, id "sparse_confirm_<task>_<arm>_s<seed>", none on a task whose screen
+    stopped; SparseNotReady while the screen or a control's reference runs miss a run."""
     runs = []
-    for task in SPARSE_SCREEN_TASKS:
+    for task in (t for t in SPARSE_SCREEN_TASKS if t not in SCREEN_STOPPED):
         for arm, (config, sets) in confirm_arms(screen, scale, task).items():
             preset = load_data(ROOT / "configs" / config)["run"]
             runs.append(Run(f"sparse_confirm_{task}_{arm}_s{seed}", "sparse_confirm", "own_env", "maddpg", None, seed,
@@ -335,6 +346,7 @@ GRIDS = {  # name -> results folder (its summaries/ and runs/)
     "schedule": RESULTS / "time_to_solve",
     "algorithms": RESULTS / "time_to_solve", "own_envs": RESULTS / "own_envs", "scale": RESULTS / "scale",
     "sparse_calibration": RESULTS / "sparse_calibration", "sparse_screen": RESULTS / "sparse_screen",
+    "sparse_recalibration": RESULTS / "sparse_recalibration",
     "sparse_scale": RESULTS / "sparse_scale", "sparse_confirm": RESULTS / "sparse_confirm",
 }
 
@@ -387,6 +399,8 @@ def grid(names: list[str], seeds: list[int], algorithms: list[str] = PAPER_ALGOR
                 runs += own_env_runs(seed)
             elif name == "sparse_calibration":
                 runs += sparse_calibration_runs(seed)
+            elif name == "sparse_recalibration":
+                runs += sparse_calibration_runs(seed, name, SPARSE_RECALIBRATED, ("maddpg",))
             elif name == "sparse_screen":
                 runs += sparse_screen_runs(seed)
             elif name == "sparse_scale":

@@ -120,6 +120,7 @@ def test_the_grids_run_the_scale_references_then_the_confirmation_and_refuse_in_
                                                                                                 monkeypatch, capsys):
     for name in ("sparse_screen", "sparse_scale", "sparse_confirm"):
         monkeypatch.setitem(grids.GRIDS, name, tmp_path / name)
+    monkeypatch.setattr(grids, "SCREEN_STOPPED", {})  # the mechanism on both tasks, whatever the record stopped
     assert main(["run", "sparse_confirm", "--seeds", "100"]) == 2
     assert capsys.readouterr().err.strip().count("\n") == 0  # one line naming what is missing
     for summary in synthetic_screen(every_candidate("vacl_n4") | {("vacl_n4", "curriculum"): 0.5}

@@ -195,11 +195,14 @@ def test_each_screen_preset_is_its_tasks_maddpg_preset_plus_one_section(task, ki
 
 def test_the_sparse_screen_grid_has_every_candidate_on_each_of_its_tasks_per_seed():
     from experiments.grids import SPARSE_SCREEN, grid
+    from experiments.sparse_arms import SCREEN_STOPPED
 
     runs = grid(["sparse_screen"], [0, 1, 2])
-    assert len(runs) == 3 * sum(len(tasks) for _, _, tasks in SPARSE_SCREEN.values())
-    assert {r.id for r in runs if r.arm == "curriculum_radius"} == {f"sparse_screen_vacl_n4_curriculum_radius_s{s}"
-                                                                    for s in (0, 1, 2)}
+    assert len(runs) == 3 * sum(len(set(tasks) - set(SCREEN_STOPPED)) for _, _, tasks in SPARSE_SCREEN.values())
+    assert runs and not {r.env for r in runs} & set(SCREEN_STOPPED)  # a stopped screen schedules nothing more
+    assert {r.id for r in runs if r.arm == "curriculum_progress"} == {
+        f"sparse_screen_{t}_curriculum_progress_s{s}" for s in (0, 1, 2) for t in ("vacl_n4", "push_box")
+        if t not in SCREEN_STOPPED}
     assert [r.seed for r in runs] == sorted(r.seed for r in runs)
     for r in runs:
         config = load_config(ROOT / "configs" / r.config, list(r.sets))  # every candidate loads

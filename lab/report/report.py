@@ -44,7 +44,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from experiments.grids import GRIDS, MAKE_RUN, RESULTS
+from experiments.grids import GRIDS, MAKE_RUN, RESULTS, SPARSE_RECALIBRATED
 from experiments.labels import ARM_LABEL
 from experiments.run_spec import ROOT
 from experiments.screen_selection import selection
@@ -161,6 +161,9 @@ def blocks(results: Path | None = None) -> dict[str, str]:
     calibration = ResultsStore(where["sparse_calibration"]).load()
     out["sparsecalibration"] = calibration_table(calibration) if calibration else NO_RUNS
     out["sparsecalibrationverdicts"] = calibration_verdicts(calibration)
+    recalibration = ResultsStore(where["sparse_recalibration"]).load()
+    out["sparserecalibration"] = calibration_table(recalibration) if recalibration else NO_RUNS
+    out["sparserecalibrationverdicts"] = calibration_verdicts(recalibration, SPARSE_RECALIBRATED)
     sparse_screen = ResultsStore(where["sparse_screen"]).load()
     out["sparsescreen"] = sparse_screen_table(sparse_screen) if sparse_screen else NO_RUNS
     out["sparsescreenchoice"] = screen_choice_text(sparse_screen)

@@ -5,6 +5,7 @@ confirmation per arm and its tests (one-sided Mann-Whitney U, Holm across every 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -15,6 +16,7 @@ from experiments.grids import SPARSE_TASKS
 from experiments.provenance import cell_versions
 from experiments.run_spec import ROOT
 from experiments.sparse_arms import (
+    SCREEN_STOPPED,
     SPARSE_CONFIRM_SEEDS,
     SPARSE_SCREEN,
     SPARSE_SCREEN_SEEDS,
@@ -54,11 +56,11 @@ def calibration_table(runs: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def calibration_verdicts(runs: list[dict[str, Any]]) -> str:
-    """Per task with a MADDPG run: its mean held-out success over the seeds so far and whether the task stays in the
-    suite (< SUITE_LEVEL), said as final only once the three calibration seeds are in."""
+def calibration_verdicts(runs: list[dict[str, Any]], tasks: tuple[str, ...] = tuple(SPARSE_TASKS)) -> str:
+    """Per task of `tasks` with a MADDPG run: its mean held-out success over the seeds so far and whether the task
+    stays in the suite (< SUITE_LEVEL), said as final only once the three calibration seeds are in."""
     out = []
-    for task in SPARSE_TASKS:
+    for task in tasks:
         rs = sorted((r for r in runs if r["env"] == task and r["algorithm"] == "maddpg"), key=lambda r: r["seed"])
         if not rs:
             out.append(f"- {task}: not calibrated yet.")
@@ -107,10 +109,14 @@ def screen_table(runs: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def screen_choice_text(runs: list[dict[str, Any]]) -> str:
-    """The screen protocol's choice per task (experiments.sparse_arms.sparse_choice), or what it still waits for."""
+def screen_choice_text(runs: list[dict[str, Any]], stopped: Mapping[str, str] = SCREEN_STOPPED) -> str:
+    """The screen protocol's choice per task (experiments.sparse_arms.sparse_choice), what it still waits for, or
+    why it stopped (`stopped`: task -> reason, the protocol's amendments)."""
     out = []
     for task in SPARSE_SCREEN_TASKS:
+        if task in stopped:
+            out.append(f"- {task}: **no choice**: the screen was {stopped[task]}.")
+            continue
         try:
             choice = sparse_choice(runs, task)
         except SparseNotReady as waiting:

@@ -45,10 +45,14 @@ def test_the_screen_table_and_choice_read_the_summaries():
     table = screen_table(runs)
     radius = next(line for line in table.splitlines() if "| curriculum_radius |" in line)
     assert "| 0.900, 0.600, 0.300 | 0.600 |" in radius and "| 2/8, 2/8, 2/8 |" in radius  # stage 1 of 8 stages
-    choice = dict(line[2:].split(": ", 1) for line in screen_choice_text(runs).splitlines())
+    choice = dict(line[2:].split(": ", 1) for line in screen_choice_text(runs, stopped={}).splitlines())
     assert choice["vacl_n4"].startswith("**curriculum_radius** goes to the confirmation")
     assert choice["push_box"].startswith("**no candidate**")
-    assert "misses 1 runs" in screen_choice_text(runs[:-1])
+    assert "misses 1 runs" in screen_choice_text(runs[:-1], stopped={})
+    lines = screen_choice_text(runs, {"vacl_n4": "stopped: why"}).splitlines()
+    stopped = dict(line[2:].split(": ", 1) for line in lines)
+    assert stopped["vacl_n4"] == "**no choice**: the screen was stopped: why."
+    assert stopped["push_box"] == choice["push_box"]
 
 
 def synthetic_confirm(task, means: dict, seed=0):
