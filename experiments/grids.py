@@ -273,37 +273,32 @@ SPARSE_ALGORITHMS = ("maddpg", "per")  # uniform MADDPG and PER-MADDPG (arms; --
 SPARSE_RECALIBRATED = ("vacl_n4",)
 
 
+def sparse_run(grid_name: str, task: str, arm: str, seed: int, config: str, sets: tuple[str, ...],
+               max_seconds: float | None = None, algorithm: str = "maddpg") -> Run:
+    """One run of a sparse grid, id "<grid_name>_<task>_<arm>_s<seed>", through env.factory, at the budget of its
+    preset configs/`config` (its run.episodes, and its run.max_seconds unless `max_seconds` is given); `algorithm`:
+    its team's (the summary's label; `sets` sets it where it is not the preset's)."""
+    preset = load_data(ROOT / "configs" / config)["run"]
+    return Run(f"{grid_name}_{task}_{arm}_s{seed}", grid_name, "own_env", algorithm, None, seed,
+               int(preset["episodes"]), arm=arm, config=config, env=task, sets=sets,
+               max_seconds=float(preset["max_seconds"] if max_seconds is None else max_seconds))
+
+
 def sparse_calibration_runs(seed: int, name: str = "sparse_calibration", tasks: tuple[str, ...] = tuple(SPARSE_TASKS),
                             algorithms: tuple[str, ...] = SPARSE_ALGORITHMS) -> list[Run]:
     """The sparse_calibration grid (`name`): every task of `tasks` with each of `algorithms` at its preset's
-    budget (its run.episodes and run.max_seconds), id "<name>_<task>_<algorithm>_s<seed>". The
-    sparse_recalibration grid is uniform MADDPG on SPARSE_RECALIBRATED."""
-    runs = []
-    for task in tasks:
-        config = SPARSE_TASKS[task]
-        preset = load_data(ROOT / "configs" / config)["run"]
-        for algorithm in algorithms:
-            runs.append(Run(f"{name}_{task}_{algorithm}_s{seed}", name, "own_env",
-                            algorithm, None, seed, int(preset["episodes"]), arm=algorithm, config=config,
-                            max_seconds=float(preset["max_seconds"]), env=task,
-                            sets=(f"teams.agent.algorithm={algorithm}",)))
-    return runs
+    budget, id "<name>_<task>_<algorithm>_s<seed>". The sparse_recalibration grid is uniform MADDPG on
+    SPARSE_RECALIBRATED."""
+    return [sparse_run(name, task, algorithm, seed, SPARSE_TASKS[task], (f"teams.agent.algorithm={algorithm}",),
+                       algorithm=algorithm) for task in tasks for algorithm in algorithms]
 
 
 def sparse_screen_runs(seed: int) -> list[Run]:
     """The sparse_screen grid: every candidate of SPARSE_SCREEN on each of its tasks at its preset's budget, id
     "sparse_screen_<task>_<candidate>_s<seed>"; none on a task whose screen stopped (SCREEN_STOPPED)."""
-    runs = []
-    for task in (t for t in SPARSE_SCREEN_TASKS if t not in SCREEN_STOPPED):
-        for candidate, (_, sets, tasks) in SPARSE_SCREEN.items():
-            if task not in tasks:
-                continue
-            config = config_of(task, candidate)
-            preset = load_data(ROOT / "configs" / config)["run"]
-            runs.append(Run(f"sparse_screen_{task}_{candidate}_s{seed}", "sparse_screen", "own_env", "maddpg", None,
-                            seed, int(preset["episodes"]), arm=candidate, config=config,
-                            max_seconds=float(preset["max_seconds"]), env=task, sets=sets))
-    return runs
+    return [sparse_run("sparse_screen", task, candidate, seed, config_of(task, candidate), sets)
+            for task in SPARSE_SCREEN_TASKS if task not in SCREEN_STOPPED
+            for candidate, (_, sets, tasks) in SPARSE_SCREEN.items() if task in tasks]
 
 
 def sparse_scale_runs(seed: int, screen: list[dict]) -> list[Run]:
@@ -316,10 +311,8 @@ def sparse_scale_runs(seed: int, screen: list[dict]) -> list[Run]:
         chosen = sparse_choice(screen, task).candidate
         if chosen is None or is_curriculum(chosen) or seed not in SPARSE_SCREEN_SEEDS:
             continue
-        runs.append(Run(f"sparse_scale_{task}_{chosen}_s{seed}", "sparse_scale", "own_env", "maddpg", None, seed,
-                        int(load_data(ROOT / "configs" / config_of(task, chosen))["run"]["episodes"]), arm=chosen,
-                        config=config_of(task, chosen), max_seconds=SCALE_SECONDS, env=task,
-                        sets=(*SPARSE_SCREEN[chosen][1], *FROZEN_AT_COEF_1)))
+        runs.append(sparse_run("sparse_scale", task, chosen, seed, config_of(task, chosen),
+                               (*SPARSE_SCREEN[chosen][1], *FROZEN_AT_COEF_1), max_seconds=SCALE_SECONDS))
     return runs
 
 
@@ -327,14 +320,9 @@ def sparse_confirm_runs(seed: int, screen: list[dict], scale: list[dict]) -> lis
     """The sparse_confirm grid: on each task the screen chose a candidate for, its three arms (experiments.sparse_arms
     .confirm_arms) at the preset's budget, id "sparse_confirm_<task>_<arm>_s<seed>", none on a task whose screen
     stopped; SparseNotReady while the screen or a control's reference runs miss a run."""
-    runs = []
-    for task in (t for t in SPARSE_SCREEN_TASKS if t not in SCREEN_STOPPED):
-        for arm, (config, sets) in confirm_arms(screen, scale, task).items():
-            preset = load_data(ROOT / "configs" / config)["run"]
-            runs.append(Run(f"sparse_confirm_{task}_{arm}_s{seed}", "sparse_confirm", "own_env", "maddpg", None, seed,
-                            int(preset["episodes"]), arm=arm, config=config, max_seconds=float(preset["max_seconds"]),
-                            env=task, sets=sets))
-    return runs
+    return [sparse_run("sparse_confirm", task, arm, seed, config, sets)
+            for task in SPARSE_SCREEN_TASKS if task not in SCREEN_STOPPED
+            for arm, (config, sets) in confirm_arms(screen, scale, task).items()]
 
 
 GRIDS = {  # name -> results folder (its summaries/ and runs/)
