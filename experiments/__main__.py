@@ -7,13 +7,12 @@
 `run` is resumable (experiments.runner): rerun the same command after a stop. With --ray (or --address) each run is
 a Ray Tune trial of 1 CPU, on an embedded Ray or the cluster at ADDR (experiments.on_ray), the path of `python -m cmcl
 tune`. Its results go to the grid's folder of the registry (experiments.grids.GRIDS, under lab/results/) unless --out
-names another. Seeds default to 0-4,
-and to 0-19 for the confirm grid alone, whose arms the screen's summaries select (--screen: their folder); alone, the
-sparse screen, sparse_scale and sparse_recalibration default to 0-2 and sparse_confirm, whose arms the sparse screen's
-summaries select, to 100-109. Exit code
-of `run`: 0 when every run finished, 1 when some failed (each is named in the output), 2 when it refused to start.
-The tables and figures drawn from the summaries are the research record's (`python -m lab report`, outside the
-package).
+names another. Seeds default to 0-4, and to 0-19 for the confirm grid alone, whose arms the screen's summaries
+select (--screen: their folder); alone, the sparse screen and sparse_scale default to every seed of their rounds
+(0-2, 200-202), sparse_recalibration to 0-2 and sparse_confirm, whose arms the sparse screen's summaries select, to
+100-109. Exit code of `run`: 0 when every run finished, 1 when some failed (each is named in the output), 2 when it
+refused to start. The tables and figures drawn from the summaries are the research record's (`python -m lab report`,
+outside the package).
 """
 
 from __future__ import annotations
@@ -40,7 +39,7 @@ from experiments.on_ray import GridOnRayError, run_grid_on_ray
 from experiments.run_spec import ROOT, Run
 from experiments.runner import run_grid
 from experiments.screen_arms import SCREEN_ARMS, SCREEN_REFERENCES, SCREEN_SEEDS, rule_algorithm
-from experiments.sparse_arms import SPARSE_CONFIRM_SEEDS, SPARSE_SCREEN_SEEDS
+from experiments.sparse_arms import CALIBRATION_SEEDS, SPARSE_CONFIRM_SEEDS, SPARSE_SCREEN_SEEDS
 from experiments.store import ResultsStore
 
 
@@ -49,7 +48,7 @@ def shown(path: Path) -> str:
 
 
 SEEDS = [0, 1, 2, 3, 4]  # a grid's seeds unless --seeds names others (alone, the confirm grid: CONFIRM_SEEDS; the
-# screen: SCREEN_SEEDS; the sparse screen and its scale: SPARSE_SCREEN_SEEDS; the sparse confirmation:
+# screen: SCREEN_SEEDS; the sparse screen and its scale: SPARSE_SCREEN_SEEDS, every round's; the sparse confirmation:
 # SPARSE_CONFIRM_SEEDS)
 # what --arms may name: the curriculum grids', the screen's and the confirmation's arms (a screen candidate's permuted
 # control is one of the latter once the screen selects it)
@@ -74,7 +73,7 @@ def grid_args(args: argparse.Namespace) -> tuple:
     own = args.out if len(args.grids) == 1 else None
     seeds = args.seeds or (
         {"confirm": list(CONFIRM_SEEDS), "screen": list(SCREEN_SEEDS), "sparse_screen": list(SPARSE_SCREEN_SEEDS),
-         "sparse_scale": list(SPARSE_SCREEN_SEEDS), "sparse_recalibration": list(SPARSE_SCREEN_SEEDS),
+         "sparse_scale": list(SPARSE_SCREEN_SEEDS), "sparse_recalibration": list(CALIBRATION_SEEDS),
          "sparse_confirm": list(SPARSE_CONFIRM_SEEDS)}
         .get(args.grids[0], SEEDS)
         if len(args.grids) == 1 else SEEDS)

@@ -35,8 +35,9 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
 * ``sparse_recalibration``: uniform MADDPG again on the tasks of SPARSE_RECALIBRATED, whose presets' learner
   settings changed after their calibration, the same way;
 * ``sparse_screen`` (docs/SPARSE_TASKS.md, its screen protocol): the task-curriculum and intrinsic-reward candidates
-  of SPARSE_SCREEN on vacl_n4 and push_box (presets configs/<task>_curriculum.toml, <task>_intrinsic.toml), uniform
-  MADDPG sampling, inline, the preset's budget, seeds 0, 1, 2;
+  of each round of SCREEN_ROUNDS on vacl_n4 and push_box (presets configs/<task>_curriculum.toml, _radius.toml,
+  _intrinsic.toml), uniform MADDPG sampling, inline, the preset's budget, at the round's seeds (0-2; vacl_n4's second
+  round 200-202);
 * ``sparse_scale``: on each task whose screen chose curiosity as a reward, that candidate with a frozen ICM at coef 1
   for 300 s at the screen's seeds (the scale of the confirmation's control);
 * ``sparse_confirm`` (its confirmation protocol): per task the screen chose a candidate for, the candidate, uniform
@@ -61,12 +62,12 @@ from experiments.screen_selection import round_two_arms
 from experiments.sparse_arms import (
     FROZEN_AT_COEF_1,
     SCALE_SECONDS,
-    SCREEN_STOPPED,
+    SCREEN_ROUNDS,
     SPARSE_SCREEN,
-    SPARSE_SCREEN_SEEDS,
     SPARSE_SCREEN_TASKS,
     config_of,
     confirm_arms,
+    current_round,
     is_curriculum,
     sparse_choice,
 )
@@ -294,22 +295,22 @@ def sparse_calibration_runs(seed: int, name: str = "sparse_calibration", tasks: 
 
 
 def sparse_screen_runs(seed: int) -> list[Run]:
-    """The sparse_screen grid: every candidate of SPARSE_SCREEN on each of its tasks at its preset's budget, id
-    "sparse_screen_<task>_<candidate>_s<seed>"; none on a task whose screen stopped (SCREEN_STOPPED)."""
-    return [sparse_run("sparse_screen", task, candidate, seed, config_of(task, candidate), sets)
-            for task in SPARSE_SCREEN_TASKS if task not in SCREEN_STOPPED
-            for candidate, (_, sets, tasks) in SPARSE_SCREEN.items() if task in tasks]
+    """The sparse_screen grid: on each task, every candidate of each round of its screen (SCREEN_ROUNDS) that runs at
+    `seed` and did not stop, at its preset's budget, id "sparse_screen_<task>_<candidate>_s<seed>"."""
+    return [sparse_run("sparse_screen", task, c, seed, config_of(task, c), SPARSE_SCREEN[c][1])
+            for task, rounds in SCREEN_ROUNDS.items() for r in rounds if seed in r.seeds and not r.stopped
+            for c in r.candidates]
 
 
 def sparse_scale_runs(seed: int, screen: list[dict]) -> list[Run]:
     """The sparse_scale grid: on each task whose screen chose curiosity as a reward, that candidate with a frozen
     ICM at coef 1 (FROZEN_AT_COEF_1) for SCALE_SECONDS at a screen seed, id "sparse_scale_<task>_<candidate>_s<seed>"
-    (the confirmation's control scale, experiments.sparse_arms.frozen_coef); none on a task whose screen stopped.
+    (the confirmation's control scale, experiments.sparse_arms.frozen_coef) at a seed of the task's current round.
     SparseNotReady while the screen misses a run."""
     runs = []
-    for task in (t for t in SPARSE_SCREEN_TASKS if t not in SCREEN_STOPPED):
+    for task in SPARSE_SCREEN_TASKS:
         chosen = sparse_choice(screen, task).candidate
-        if chosen is None or is_curriculum(chosen) or seed not in SPARSE_SCREEN_SEEDS:
+        if chosen is None or is_curriculum(chosen) or seed not in current_round(task).seeds:
             continue
         runs.append(sparse_run("sparse_scale", task, chosen, seed, config_of(task, chosen),
                                (*SPARSE_SCREEN[chosen][1], *FROZEN_AT_COEF_1), max_seconds=SCALE_SECONDS))
@@ -318,10 +319,9 @@ def sparse_scale_runs(seed: int, screen: list[dict]) -> list[Run]:
 
 def sparse_confirm_runs(seed: int, screen: list[dict], scale: list[dict]) -> list[Run]:
     """The sparse_confirm grid: on each task the screen chose a candidate for, its three arms (experiments.sparse_arms
-    .confirm_arms) at the preset's budget, id "sparse_confirm_<task>_<arm>_s<seed>", none on a task whose screen
-    stopped; SparseNotReady while the screen or a control's reference runs miss a run."""
-    return [sparse_run("sparse_confirm", task, arm, seed, config, sets)
-            for task in SPARSE_SCREEN_TASKS if task not in SCREEN_STOPPED
+    .confirm_arms) at the preset's budget, id "sparse_confirm_<task>_<arm>_s<seed>"; SparseNotReady while the screen
+    or a control's reference runs miss a run."""
+    return [sparse_run("sparse_confirm", task, arm, seed, config, sets) for task in SPARSE_SCREEN_TASKS
             for arm, (config, sets) in confirm_arms(screen, scale, task).items()]
 
 

@@ -1,8 +1,9 @@
 """The sparse screen's candidates and the confirmation's arms derived from them (docs/SPARSE_TASKS.md, "Screen
 protocol" and "Confirmation protocol").
 
-SPARSE_SCREEN names each candidate with its preset, overrides and tasks; `sparse_choice` reads the screen's summaries
-and picks one candidate per task (or none); `control_sets` gives the chosen candidate's control, the candidate's shape
+SPARSE_SCREEN names each candidate with its preset and overrides; SCREEN_ROUNDS gives each task's rounds of the screen
+(candidates, seeds, and why a round stopped, if it did); `sparse_choice` reads the summaries of a task's current round
+and picks one candidate (or none); `control_sets` gives the chosen candidate's control, the candidate's shape
 without its information: a curriculum's stages on a fixed schedule (`fixed_window`), or curiosity's reward from a frozen
 random ICM at the same scale (`frozen_coef`, from the `sparse_scale` reference runs). `confirm_arms` puts the three
 arms of a task together. SparseNotReady says what is still missing. The registry (experiments.grids) makes the runs of
@@ -20,25 +21,55 @@ import numpy as np
 from cmcl.config import load_config
 from experiments.run_spec import ROOT
 
-# candidate -> (its preset configs/<task>_<kind>.toml, --set overrides, the tasks it runs on), at the preset's budget
-SPARSE_SCREEN_TASKS = ("vacl_n4", "push_box")
+# candidate -> (its preset configs/<task>_<kind>.toml, --set overrides), at the preset's budget
 SPARSE_SCREEN = {
-    "curriculum": ("curriculum", (), SPARSE_SCREEN_TASKS),
-    "curriculum_progress": ("curriculum", ("task_curriculum.advance=progress", "task_curriculum.level=0.05"),
-                            SPARSE_SCREEN_TASKS),
-    "curriculum_nomix": ("curriculum", ("task_curriculum.mix=0.0",), SPARSE_SCREEN_TASKS),
-    "curriculum_radius": ("radius", (), ("vacl_n4",)),  # the cover radius from 2.0 down: navigation's own
-    "intrinsic": ("intrinsic", (), SPARSE_SCREEN_TASKS),
-    "intrinsic_strong": ("intrinsic", ("icm.intrinsic_reward_coef=1.0",), SPARSE_SCREEN_TASKS),
+    "curriculum": ("curriculum", ()),
+    "curriculum_progress": ("curriculum", ("task_curriculum.advance=progress", "task_curriculum.level=0.05")),
+    "curriculum_nomix": ("curriculum", ("task_curriculum.mix=0.0",)),
+    "curriculum_radius": ("radius", ()),  # the cover radius from 2.0 down: navigation's own
+    "intrinsic": ("intrinsic", ()),
+    "intrinsic_strong": ("intrinsic", ("icm.intrinsic_reward_coef=1.0",)),
+    # vacl_n4's second round: its first stage plateaus below 0.8 at the presets' new learner settings
+    "radius_half": ("radius", ("task_curriculum.level=0.5",)),
+    "radius_progress": ("radius", ("task_curriculum.advance=progress", "task_curriculum.level=0.05")),
+    "curriculum_half": ("curriculum", ("task_curriculum.level=0.5",)),
 }
-SPARSE_SCREEN_SEEDS = (0, 1, 2)
-# task -> why its screen stopped before every seed ran (an amendment in docs/SPARSE_TASKS.md, with its evidence): the
-# grid schedules no more of its runs and the report gives this in place of a choice
-SCREEN_STOPPED = {
-    "vacl_n4": "stopped after seed 0 (amendment of 2026-12-08): every arm's learner settings (maddpg.gamma 0.99, "
-               "replay.capacity 5000) drive MADDPG's actors to ±1 and off the map within 3,000 episodes even at the "
-               "easiest stage, so no candidate is compared with a working learner",
+FIRST_ROUND = ("curriculum", "curriculum_progress", "curriculum_nomix", "intrinsic", "intrinsic_strong")
+
+
+@dataclass(frozen=True)
+class ScreenRound:
+    """One round of a task's screen (docs/SPARSE_TASKS.md, its screen protocol and amendments): the candidates, in
+    the order that breaks the last tie, and the seeds each runs at; `stopped`: why the round stopped before every
+    seed ran ("" while it runs to its end; a stopped round's runs stay in the record and nothing chooses from
+    them)."""
+
+    candidates: tuple[str, ...]
+    seeds: tuple[int, ...]
+    stopped: str = ""
+
+
+# task -> its screen's rounds, the last one the round the choice reads
+SCREEN_ROUNDS = {
+    "vacl_n4": (
+        ScreenRound((*FIRST_ROUND[:3], "curriculum_radius", *FIRST_ROUND[3:]), (0, 1, 2), stopped=(
+            "stopped after seed 0 (amendment of 2026-12-08): every arm's learner settings (maddpg.gamma 0.99, "
+            "replay.capacity 5000) drive MADDPG's actors to ±1 and off the map within 3,000 episodes even at the "
+            "easiest stage, so no candidate is compared with a working learner")),
+        ScreenRound(("radius_half", "radius_progress", "curriculum_half"), (200, 201, 202)),  # fresh seeds
+    ),
+    "push_box": (ScreenRound(FIRST_ROUND, (0, 1, 2)),),
 }
+SPARSE_SCREEN_TASKS = tuple(SCREEN_ROUNDS)
+SPARSE_SCREEN_SEEDS = tuple(sorted({seed for rounds in SCREEN_ROUNDS.values() for r in rounds for seed in r.seeds}))
+
+
+def current_round(task: str) -> ScreenRound:
+    """The round of `task`'s screen the choice reads: its last."""
+    return SCREEN_ROUNDS[task][-1]
+
+
+CALIBRATION_SEEDS = (0, 1, 2)  # the calibration's and its recalibration's
 SPARSE_CONFIRM_SEEDS = tuple(range(100, 110))  # fresh: the screen's seeds are never reused
 SCALE_SECONDS = 300.0  # a frozen-ICM reference run: more than the first tenth of an 1,800 s run's updates
 FROZEN_AT_COEF_1 = ("icm.frozen=true", "icm.intrinsic_reward_coef=1.0")
@@ -72,9 +103,10 @@ class SparseChoice:
 
 
 def _screen_runs(summaries: Sequence[dict[str, Any]], task: str, candidates: Sequence[str]) -> dict[tuple, dict]:
-    """The screen's summary of every (candidate, seed) on `task`; SparseNotReady naming the runs still missing."""
+    """The screen's summary of every (candidate, seed) of `task`'s current round; SparseNotReady naming the runs
+    still missing."""
     have = {(s["arm"], s["seed"]): s for s in summaries if s.get("grid") == "sparse_screen" and s.get("env") == task}
-    missing = [f"sparse_screen_{task}_{c}_s{seed}" for seed in SPARSE_SCREEN_SEEDS for c in candidates
+    missing = [f"sparse_screen_{task}_{c}_s{seed}" for seed in current_round(task).seeds for c in candidates
                if (c, seed) not in have]
     if missing:
         more = f" and {len(missing) - 3} more" if len(missing) > 3 else ""
@@ -83,14 +115,16 @@ def _screen_runs(summaries: Sequence[dict[str, Any]], task: str, candidates: Seq
 
 
 def sparse_choice(summaries: Sequence[dict[str, Any]], task: str) -> SparseChoice:
-    """The screen protocol's choice on `task` from the screen's summaries: the highest mean held-out success over the
-    screen's seeds; ties broken by the higher mean `final_tenth_success`, then by SPARSE_SCREEN's order; None when the
-    best mean is 0 (then no candidate solved a held-out episode). SparseNotReady while a run is missing."""
-    candidates = [c for c, (_, _, tasks) in SPARSE_SCREEN.items() if task in tasks]
+    """The screen protocol's choice on `task` from the screen's summaries of its current round: the highest mean
+    held-out success over the round's seeds; ties broken by the higher mean `final_tenth_success`, then by the round's
+    order; None when the best mean is 0 (then no candidate solved a held-out episode). SparseNotReady while a run is
+    missing."""
+    this = current_round(task)
+    candidates = list(this.candidates)
     runs = _screen_runs(summaries, task, candidates)
 
     def mean(candidate: str, key: str) -> float:
-        return float(np.mean([runs[candidate, seed].get(key) or 0.0 for seed in SPARSE_SCREEN_SEEDS]))
+        return float(np.mean([runs[candidate, seed].get(key) or 0.0 for seed in this.seeds]))
 
     held = {c: mean(c, "held_out_success") for c in candidates}
     tenth = {c: mean(c, "final_tenth_success") for c in candidates}
@@ -104,7 +138,7 @@ def fixed_window(summaries: Sequence[dict[str, Any]], task: str, candidate: str)
     last), rounded to a multiple of the preset's env.num_envs (at least one). SparseNotReady when no run left its
     first stage."""
     runs = _screen_runs(summaries, task, [candidate])
-    left = [span["episodes_at_stage"] for seed in SPARSE_SCREEN_SEEDS
+    left = [span["episodes_at_stage"] for seed in current_round(task).seeds
             for span in (runs[candidate, seed].get("task_stages") or [])[:-1]]
     if not left:
         raise SparseNotReady(f"{candidate} on {task} never left its first stage in the screen: no schedule to fix")
@@ -120,7 +154,7 @@ def frozen_coef(screen: Sequence[dict[str, Any]], scale: Sequence[dict[str, Any]
     runs = _screen_runs(screen, task, [candidate])
     refs = {s["seed"]: s for s in scale if s.get("id", "").startswith(f"sparse_scale_{task}_{candidate}_")}
     ours, frozen = [], []
-    for seed in SPARSE_SCREEN_SEEDS:
+    for seed in current_round(task).seeds:
         run, ref = runs[candidate, seed], refs.get(seed)
         tenth = 0.1 * int(run["updates"])
         if ref is None or not ref.get("intrinsic_curve") or max(ref["intrinsic_curve"]["updates"]) < tenth:

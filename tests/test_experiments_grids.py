@@ -134,8 +134,8 @@ def test_a_summary_starts_with_the_fields_the_committed_summaries_have(finished_
 def test_every_grid_has_a_results_folder_and_the_time_to_solve_grids_stop_early():
     assert set(GRIDS) == {"spread", "tag", "winrate", "ablations", "curriculum", "curriculum_hard", "curriculum_tag",
                           "curriculum_stride", "curriculum_eta", "screen", "confirm", "make_run",
-                          "schedule", "algorithms", "own_envs", "scale", "sparse_calibration", "sparse_screen",
-                          "sparse_scale", "sparse_confirm"}
+                          "schedule", "algorithms", "own_envs", "scale", "sparse_calibration", "sparse_recalibration",
+                          "sparse_screen", "sparse_scale", "sparse_confirm"}
     schedule = grid(["schedule"], [0])
     assert len(schedule) == 8 and all(r.stop_coverage == 0.95 and r.max_seconds == 900 for r in schedule)
     assert {r.mode for r in grid(["algorithms"], [0])} == {"inline", "service"}

@@ -107,8 +107,7 @@ def test_every_grid_run_passes_the_check_of_its_runner(tmp_path, monkeypatch):
     screen = fake_screen(tmp_path / "screen")
     for name in ("sparse_screen", "sparse_scale"):  # a curriculum chosen on one task, curiosity on the other
         monkeypatch.setitem(grids.GRIDS, name, tmp_path / name)
-    monkeypatch.setattr(grids, "SCREEN_STOPPED", {})  # the mechanism on both tasks, whatever the record stopped
-    for summary in synthetic_screen(every_candidate("vacl_n4") | {("vacl_n4", "curriculum_radius"): 0.5}
+    for summary in synthetic_screen(every_candidate("vacl_n4") | {("vacl_n4", "radius_progress"): 0.5}
                                     | every_candidate("push_box") | {("push_box", "intrinsic_strong"): 0.1}):
         ResultsStore(tmp_path / "sparse_screen").write(summary)
     for summary in synthetic_scale("push_box", "intrinsic_strong"):

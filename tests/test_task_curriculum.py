@@ -193,16 +193,17 @@ def test_each_screen_preset_is_its_tasks_maddpg_preset_plus_one_section(task, ki
         assert config.task_curriculum.stages[-1] == {"spawn_scale": 1.0, "push_cells": 6, "cover_radius": 0.15}[setting]
 
 
-def test_the_sparse_screen_grid_has_every_candidate_on_each_of_its_tasks_per_seed():
-    from experiments.grids import SPARSE_SCREEN, grid
-    from experiments.sparse_arms import SCREEN_STOPPED
+def test_the_sparse_screen_grid_has_every_candidate_of_each_running_round_at_its_seeds():
+    from experiments.grids import grid
+    from experiments.sparse_arms import SCREEN_ROUNDS, SPARSE_SCREEN_SEEDS
 
-    runs = grid(["sparse_screen"], [0, 1, 2])
-    assert len(runs) == 3 * sum(len(set(tasks) - set(SCREEN_STOPPED)) for _, _, tasks in SPARSE_SCREEN.values())
-    assert runs and not {r.env for r in runs} & set(SCREEN_STOPPED)  # a stopped screen schedules nothing more
-    assert {r.id for r in runs if r.arm == "curriculum_progress"} == {
-        f"sparse_screen_{t}_curriculum_progress_s{s}" for s in (0, 1, 2) for t in ("vacl_n4", "push_box")
-        if t not in SCREEN_STOPPED}
+    runs = grid(["sparse_screen"], list(SPARSE_SCREEN_SEEDS))
+    want = {f"sparse_screen_{task}_{c}_s{seed}" for task, rounds in SCREEN_ROUNDS.items() for r in rounds
+            if not r.stopped for seed in r.seeds for c in r.candidates}
+    assert runs and [r.id for r in runs] == sorted(want, key=[r.id for r in runs].index) and len(runs) == len(want)
+    stopped = {f"sparse_screen_{task}_{c}_s{seed}" for task, rounds in SCREEN_ROUNDS.items() for r in rounds
+               if r.stopped for seed in r.seeds for c in r.candidates}
+    assert stopped and not stopped & {r.id for r in runs}  # a stopped round schedules nothing more
     assert [r.seed for r in runs] == sorted(r.seed for r in runs)
     for r in runs:
         config = load_config(ROOT / "configs" / r.config, list(r.sets))  # every candidate loads

@@ -5,7 +5,6 @@ confirmation per arm and its tests (one-sided Mann-Whitney U, Holm across every 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -16,11 +15,12 @@ from experiments.grids import SPARSE_TASKS
 from experiments.provenance import cell_versions
 from experiments.run_spec import ROOT
 from experiments.sparse_arms import (
-    SCREEN_STOPPED,
+    CALIBRATION_SEEDS,
+    SCREEN_ROUNDS,
     SPARSE_CONFIRM_SEEDS,
     SPARSE_SCREEN,
-    SPARSE_SCREEN_SEEDS,
     SPARSE_SCREEN_TASKS,
+    ScreenRound,
     SparseNotReady,
     config_of,
     is_curriculum,
@@ -68,7 +68,7 @@ def calibration_verdicts(runs: list[dict[str, Any]], tasks: tuple[str, ...] = tu
         mean = float(np.mean([r["held_out_success"] for r in rs]))
         seeds = ", ".join(str(r["seed"]) for r in rs)
         stays = "stays in the suite" if mean < SUITE_LEVEL else "leaves the suite"
-        planned = len(SPARSE_SCREEN_SEEDS)  # the calibration's seeds are the screen's: 0, 1, 2
+        planned = len(CALIBRATION_SEEDS)
         so_far = "" if len(rs) >= planned else f" (so far: {len(rs)} of {planned} seeds)"
         out.append(f"- {task}: uniform MADDPG's mean held-out success {mean:.3f} over seeds {seeds}: {stays} "
                    f"(< {SUITE_LEVEL} to stay){so_far}.")
@@ -84,38 +84,42 @@ def _stages(task: str, candidate: str) -> int:
 
 
 def screen_table(runs: list[dict[str, Any]]) -> str:
-    """Per task and candidate (SPARSE_SCREEN's order), over the screen's runs so far: the seeds, the code, held-out
+    """Per task, round (SCREEN_ROUNDS) and candidate, over the screen's runs so far: the seeds, the code, held-out
     success per seed and its mean, the training success over the last 10 % of episodes (mean), the last stage each
     seed reached of the schedule's (curricula), curiosity's mean reward over the first tenth of updates, episodes
     (mean)."""
     lines = ["| task | candidate | seeds | code | held-out success per seed | mean | training success, last tenth | "
              "stage reached per seed | intrinsic reward, first tenth | episodes (mean) |", "| --- " * 10 + "|"]
-    for task in SPARSE_SCREEN_TASKS:
-        for candidate, (_, _, tasks) in SPARSE_SCREEN.items():
-            rs = sorted((r for r in runs if r.get("env") == task and r.get("arm") == candidate
-                         and r["seed"] in SPARSE_SCREEN_SEEDS), key=lambda r: r["seed"])
-            if task not in tasks or not rs:
-                continue
-            held = [r["held_out_success"] for r in rs]
-            stages = _stages(task, candidate)
-            reached = ", ".join(f"{1 + max(s['stage'] for s in r['task_stages'])}/{stages}"
-                                for r in rs if r.get("task_stages")) if stages else "–"
-            intrinsic = [r["intrinsic_reward_first_tenth"] for r in rs if "intrinsic_reward_first_tenth" in r]
-            lines.append(f"| {task} | {candidate} | {', '.join(str(r['seed']) for r in rs)} | {cell_versions(rs)[0]} | "
-                         f"{', '.join(f'{h:.3f}' for h in held)} | {np.mean(held):.3f} | "
-                         f"{np.mean([r.get('final_tenth_success', 0.0) for r in rs]):.3f} | {reached or '–'} | "
-                         f"{f'{np.mean(intrinsic):.4f}' if intrinsic else '–'} | "
-                         f"{np.mean([r['episodes'] for r in rs]):,.0f} |")
+    for task, candidate, this in ((t, c, r) for t, rounds in SCREEN_ROUNDS.items() for r in rounds
+                                  for c in r.candidates):
+        rs = sorted((r for r in runs if r.get("env") == task and r.get("arm") == candidate
+                     and r["seed"] in this.seeds), key=lambda r: r["seed"])
+        if not rs:
+            continue
+        held = [r["held_out_success"] for r in rs]
+        stages = _stages(task, candidate)
+        reached = ", ".join(f"{1 + max(s['stage'] for s in r['task_stages'])}/{stages}"
+                            for r in rs if r.get("task_stages")) if stages else "–"
+        intrinsic = [r["intrinsic_reward_first_tenth"] for r in rs if "intrinsic_reward_first_tenth" in r]
+        lines.append(f"| {task} | {candidate} | {', '.join(str(r['seed']) for r in rs)} | {cell_versions(rs)[0]} | "
+                     f"{', '.join(f'{h:.3f}' for h in held)} | {np.mean(held):.3f} | "
+                     f"{np.mean([r.get('final_tenth_success', 0.0) for r in rs]):.3f} | {reached or '–'} | "
+                     f"{f'{np.mean(intrinsic):.4f}' if intrinsic else '–'} | "
+                     f"{np.mean([r['episodes'] for r in rs]):,.0f} |")
     return "\n".join(lines)
 
 
-def screen_choice_text(runs: list[dict[str, Any]], stopped: Mapping[str, str] = SCREEN_STOPPED) -> str:
-    """The screen protocol's choice per task (experiments.sparse_arms.sparse_choice), what it still waits for, or
-    why it stopped (`stopped`: task -> reason, the protocol's amendments)."""
+def _round_name(this: ScreenRound) -> str:
+    return f"round of seeds {', '.join(map(str, this.seeds))} ({', '.join(this.candidates)})"
+
+
+def screen_choice_text(runs: list[dict[str, Any]]) -> str:
+    """Per task: each stopped round of its screen and why (the protocol's amendments), then the choice of its current
+    round (experiments.sparse_arms.sparse_choice) or what that still waits for."""
     out = []
-    for task in SPARSE_SCREEN_TASKS:
-        if task in stopped:
-            out.append(f"- {task}: **no choice**: the screen was {stopped[task]}.")
+    for task, rounds in SCREEN_ROUNDS.items():
+        out += [f"- {task}, {_round_name(r)}: **no choice**: {r.stopped}." for r in rounds if r.stopped]
+        if rounds[-1].stopped:
             continue
         try:
             choice = sparse_choice(runs, task)
@@ -126,7 +130,7 @@ def screen_choice_text(runs: list[dict[str, Any]], stopped: Mapping[str, str] = 
         verdict = f"**{choice.candidate}** goes to the confirmation" if choice.candidate else \
             "**no candidate** (none solved a held-out episode): nothing is confirmed on this task"
         out.append(f"- {task}: {verdict}. Mean held-out success over seeds "
-                   f"{', '.join(map(str, SPARSE_SCREEN_SEEDS))}: {ranked}.")
+                   f"{', '.join(map(str, rounds[-1].seeds))}: {ranked}.")
     return "\n".join(out)
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from experiments.sparse_arms import SPARSE_CONFIRM_SEEDS
+from experiments.sparse_arms import SCREEN_ROUNDS, SPARSE_CONFIRM_SEEDS
 from lab.report.sparse_tables import (
     calibration_verdicts,
     confirm_table,
@@ -37,22 +37,28 @@ def test_a_task_stays_while_maddpgs_mean_is_below_the_level_and_says_so_far_unti
 
 
 def test_the_screen_table_and_choice_read_the_summaries():
-    held = every_candidate("vacl_n4", 0.0) | {("vacl_n4", "curriculum_radius"): (0.9, 0.6, 0.3)} \
+    held = every_candidate("vacl_n4", 0.0) | {("vacl_n4", "radius_progress"): (0.9, 0.6, 0.3)} \
         | every_candidate("push_box", 0.0)
     runs = synthetic_screen(held)
-    for r in runs:
+    stopped_round = SCREEN_ROUNDS["vacl_n4"][0]
+    first = [{**r, "arm": "curriculum_radius", "seed": seed, "held_out_success": 0.0}
+             for r, seed in zip(runs[:3], stopped_round.seeds, strict=True)]  # the stopped round's runs stay shown
+    for r in runs + first:
         r.update(episodes=1_000, provenance={"commit": "a" * 40, "dirty": False})
-    table = screen_table(runs)
-    radius = next(line for line in table.splitlines() if "| curriculum_radius |" in line)
-    assert "| 0.900, 0.600, 0.300 | 0.600 |" in radius and "| 2/8, 2/8, 2/8 |" in radius  # stage 1 of 8 stages
-    choice = dict(line[2:].split(": ", 1) for line in screen_choice_text(runs, stopped={}).splitlines())
-    assert choice["vacl_n4"].startswith("**curriculum_radius** goes to the confirmation")
+    table = screen_table(runs + first)
+    radius = next(line for line in table.splitlines() if "| radius_progress |" in line)
+    assert "| 200, 201, 202 |" in radius and "| 0.900, 0.600, 0.300 | 0.600 |" in radius
+    assert "| 2/8, 2/8, 2/8 |" in radius  # stage 1 of 8 stages
+    assert "| vacl_n4 | curriculum_radius | 0, 1, 2 |" in table
+    lines = screen_choice_text(runs + first).splitlines()
+    assert lines[0] == (f"- vacl_n4, round of seeds 0, 1, 2 ({', '.join(stopped_round.candidates)}): **no choice**: "
+                        f"{stopped_round.stopped}.")
+    choice = dict(line[2:].split(": ", 1) for line in lines[1:])
+    assert choice["vacl_n4"].startswith("**radius_progress** goes to the confirmation")
+    assert choice["vacl_n4"].endswith("over seeds 200, 201, 202: radius_progress 0.600; radius_half 0.000; "
+                                      "curriculum_half 0.000.")
     assert choice["push_box"].startswith("**no candidate**")
-    assert "misses 1 runs" in screen_choice_text(runs[:-1], stopped={})
-    lines = screen_choice_text(runs, {"vacl_n4": "stopped: why"}).splitlines()
-    stopped = dict(line[2:].split(": ", 1) for line in lines)
-    assert stopped["vacl_n4"] == "**no choice**: the screen was stopped: why."
-    assert stopped["push_box"] == choice["push_box"]
+    assert "misses 1 runs" in screen_choice_text(runs[:-1])
 
 
 def synthetic_confirm(task, means: dict, seed=0):
