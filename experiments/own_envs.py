@@ -75,8 +75,9 @@ def own_env_measures(config: Config, policy: MADDPG, series: dict[str, np.ndarra
                      episodes: int, seed: int) -> dict[str, Any]:
     """The own-env measures of one run: held-out return per team (`held_out` from evaluate_policy), the random
     policy's on the same `episodes` held-out worlds (same `seed`), each team against random others when there are
-    several, held-out success / coverage when the env provides them, and the last 100 training episodes' mean
-    return per team. series: the run's per-episode columns (cmcl.run.plots.episode_series)."""
+    several, held-out success / coverage when the env provides them, the share of saturated actions of a continuous
+    policy, and the last 100 training episodes' mean return per team. series: the run's per-episode columns
+    (cmcl.run.plots.episode_series)."""
     random = evaluate_policy(config, None, episodes=episodes, seed=seed)
     teams = list(held_out["reward"])
     out: dict[str, Any] = {"held_out_return": held_out["reward"], "random_return": random["reward"],
@@ -88,6 +89,8 @@ def own_env_measures(config: Config, policy: MADDPG, series: dict[str, np.ndarra
     for key in ("success", "coverage"):
         if key in held_out:
             out[f"held_out_{key}"], out[f"random_{key}"] = held_out[key], random[key]
+    if "saturated_actions" in held_out:
+        out["held_out_saturated_actions"] = held_out["saturated_actions"]
     if "success" in series and series["success"].size:  # the sparse screen's tie-break (docs/SPARSE_TASKS.md)
         out["final_tenth_success"] = float(series["success"][-max(1, series["success"].size // 10):].mean())
     if "task_stage" in series:

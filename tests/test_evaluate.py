@@ -25,6 +25,22 @@ def test_random_and_policy_statistics(task):
     assert evaluate_policy(config, maddpg, episodes=40, seed=1) == pol  # deterministic for a seed
 
 
+def test_a_saturated_policy_is_measured_and_warned_about_and_a_fresh_one_is_not():
+    import torch
+
+    from cmcl.run.evaluate import saturation_line
+
+    config = preset("maddpg", "spread")
+    maddpg = build_maddpg(config, agent_layout(config, make_batched_env(config, num_envs=1)), seed=0)
+    fresh = evaluate_policy(config, maddpg, episodes=20, seed=1)
+    assert 0.0 <= fresh["saturated_actions"] < 0.5 and saturation_line(fresh) == ""
+    with torch.no_grad():
+        maddpg.actor.layers[-1].bias.fill_(12.0)  # every pre-tanh output far past the bound
+    pushed = evaluate_policy(config, maddpg, episodes=20, seed=1)
+    assert pushed["saturated_actions"] == 1.0 and saturation_line(pushed).startswith("warning: 100% of the trained")
+    assert "saturated_actions" not in evaluate_policy(config, None, episodes=20, seed=1)  # random: not a policy's
+
+
 @pytest.mark.parametrize("task", ["spread", "tag"])
 def test_gif_has_one_frame_per_step(task, tmp_path):
     config = preset("maddpg", task)

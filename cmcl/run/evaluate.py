@@ -41,6 +41,8 @@ EVAL_SEED_OFFSET = 10_000  # evaluation worlds never reuse the training seed's w
 
 
 MEASURES = ("coverage", "success", "collisions", "wall_hits", "predator_win")  # an evaluation's named measures
+SATURATED = 0.99  # |a| at or beyond it: a tanh action at its bound
+SATURATION_WARNING = 0.5  # the share of saturated action entries from which the report warns
 
 
 def measures_text(result: dict[str, Any], keys: tuple[str, ...] | list[str]) -> str:
@@ -74,7 +76,10 @@ def evaluate_policy(config: Config, maddpg: MADDPG | None, episodes: int = 100, 
     random_teams: teams whose agents act uniformly at random while the others use `maddpg` (e.g. ("prey",) to
     pit trained predators against random prey). Returns means and standard deviations over episodes: coverage
     (final step), success, collisions, predator_win, the team returns {team: mean}, and in navigation "misses":
-    where the final step misses landmarks (`cmcl.run.stalls.MissAnatomy` as a dict).
+    where the final step misses landmarks (`cmcl.run.stalls.MissAnatomy` as a dict). A trained continuous policy
+    also gives "saturated_actions": the share of its agents' action entries with |a| >= SATURATED over every step
+    of the worlds still playing (near 1: the actors push every action to the bound, as unregularised tanh actors do
+    when the critic's gradient says little).
     """
     torch.set_num_threads(1)
     rng = np.random.default_rng(seed + EVAL_SEED_OFFSET)
@@ -85,12 +90,17 @@ def evaluate_policy(config: Config, maddpg: MADDPG | None, episodes: int = 100, 
     random_agents = [a for team in random_teams for a in env.teams[team]]
     obs = env.reset()
     ended, parts = np.zeros(episodes, bool), []  # parts: info["episode"] of the steps in which worlds ended
+    own = np.setdiff1d(np.arange(env.num_agents), random_agents)  # the trained agents
+    continuous = not (config.maddpg.discrete or getattr(env, "discrete", False))  # as cmcl.system.agent_layout
+    at_bound = []  # per step, continuous policies: the share of the trained agents' action entries at the bound
     for _ in range(env.episode_length):  # the twins end every world at the last step; an env.factory world any time
         uniform = rng.uniform(-1.0, 1.0, size=(episodes, env.num_agents, env.act_dim)).astype(np.float32)
         if maddpg is None:
             actions = uniform
         else:
             actions = to_env_actions(maddpg.act(obs, noise_std, rng=rng), config.maddpg.discrete)
+            if continuous and own.size and not ended.all():
+                at_bound.append(float((np.abs(actions[~ended][:, own]) >= SATURATED).mean()))
             actions[:, random_agents] = uniform[:, random_agents]
         obs, _, done, info = env.step(actions)
         if done.any():
@@ -109,7 +119,21 @@ def evaluate_policy(config: Config, maddpg: MADDPG | None, episodes: int = 100, 
             values = np.asarray(ep[key], dtype=np.float64)
             out[key], out[f"{key}_std"] = float(values.mean()), float(values.std())
     out["reward"] = {team: float(ep["return"][:, idx].sum(1).mean()) for team, idx in env.teams.items()}
+    if at_bound:
+        out["saturated_actions"] = float(np.mean(at_bound))
     return out
+
+
+def saturation_line(result: dict[str, Any]) -> str:
+    """A warning when a held-out evaluation's actions sit at their bound (`saturated_actions` >= SATURATION_WARNING),
+    else ''."""
+    share = result.get("saturated_actions", 0.0)
+    if share < SATURATION_WARNING:
+        return ""
+    return (f"warning: {share:.0%} of the trained actions are at their bound (|a| >= {SATURATED}): the actors' tanh "
+            "is saturated, each agent pushing as hard as it can whatever it sees. On a sparse reward this is what a "
+            "critic that has seen little reward teaches; a smaller maddpg.gamma and a larger replay.capacity let the "
+            "first rewards count (docs/SPARSE_TASKS.md)")
 
 
 def render_gif(config: Config, maddpg: MADDPG | None, path: str | Path, seed: int = 0, fps: int = 10) -> Path:
@@ -266,6 +290,8 @@ def evaluate_run(args: argparse.Namespace) -> int:
         print(beside_random(result, random, args.episodes), file=sys.stderr)  # stdout stays JSON
     if "misses" in result:
         print("\n".join(MissAnatomy(**result["misses"]).lines()), file=sys.stderr)
+    if saturation_line(result):
+        print(saturation_line(result), file=sys.stderr)
     out_dir = _output_dir(run.path)
     writable = out_dir != run.path or _writable(run.path)
     if not args.no_gif:

@@ -78,7 +78,7 @@ def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -
     beside the random policy's, within `eval_bound_s` (a line when it starts, naming --no-eval; its progress on an
     env.factory environment), a GIF of one episode and the learning curve, all in the run directory; printed. A run
     without a learner update says so first (`no_update_line`)."""
-    from cmcl.run.evaluate import beside_random, gif_line, load_policy
+    from cmcl.run.evaluate import beside_random, gif_line, load_policy, saturation_line
     from cmcl.run.plots import curve_line
     from cmcl.run.stalls import MissAnatomy
 
@@ -100,6 +100,8 @@ def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -
     trained = bounded_evaluation(config, policy, episodes, bound / 2, "trained")
     random = bounded_evaluation(config, None, trained["episodes"], bound / 2, "random")
     print(beside_random(trained, random, min(trained["episodes"], random["episodes"])))
+    if saturation_line(trained):
+        print(saturation_line(trained))
     if "misses" in trained:
         print("\n".join(MissAnatomy(**trained["misses"]).lines()))
     print(gif_line(config, policy, run_dir.path / "trained.gif"))
