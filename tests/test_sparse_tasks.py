@@ -310,14 +310,17 @@ def test_sparse_calibration_grid_has_both_algorithms_on_every_task_per_seed():
         assert r.max_seconds == (7200 if r.env.endswith("n8") else 1800)
 
 
+SPARSE_PRESETS = sorted(p.name for task in PRESETS for p in (ROOT / "configs").glob(f"{task}_*.toml"))
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("task", PRESETS)
-def test_each_preset_trains_a_few_hundred_episodes_end_to_end(task, tmp_path):
-    """Each preset, inline, 300 episodes (no wall-clock cap), then its held-out evaluation: the run finishes and
-    reports a success rate."""
-    run_dir = tmp_path / task
+@pytest.mark.parametrize("preset", SPARSE_PRESETS)
+def test_each_preset_trains_a_few_hundred_episodes_end_to_end(preset, tmp_path):
+    """Each sparse task's preset (uniform MADDPG, its curricula, curiosity as a reward), inline, 300 episodes (no
+    wall-clock cap, no held-out evaluation): the run finishes and its episodes report success."""
+    run_dir = tmp_path / preset.removesuffix(".toml")
     done = subprocess.run([sys.executable, "-m", "cmcl", "train", "--runner", "inline", "--config",
-                           str(ROOT / "configs" / f"{task}_maddpg.toml"), "--set", "run.episodes=300",
+                           str(ROOT / "configs" / preset), "--set", "run.episodes=300",
                            "--set", "run.max_seconds=0", "--set", f"run.dir={run_dir}", "--quiet", "--no-eval"],
                           cwd=ROOT, capture_output=True, text=True, timeout=1800)
     assert done.returncode == 0, done.stderr[-2000:]
