@@ -270,8 +270,8 @@ SPARSE_ALGORITHMS = ("maddpg", "per")  # uniform MADDPG and PER-MADDPG (arms; --
 
 
 # the tasks whose presets' learner settings changed after their calibration (docs/SPARSE_TASKS.md, "The learner's
-# settings on vacl_n4"): uniform MADDPG is calibrated again there at the new settings
-SPARSE_RECALIBRATED = ("vacl_n4",)
+# settings on vacl_n4" and "... on push_box"): uniform MADDPG is calibrated again there at the new settings
+SPARSE_RECALIBRATED = ("vacl_n4", "push_box")
 
 
 def sparse_run(grid_name: str, task: str, arm: str, seed: int, config: str, sets: tuple[str, ...],

@@ -23,6 +23,8 @@ from experiments.sparse_arms import (
 )
 from experiments.store import ResultsStore
 
+BOX_SEEDS = current_round("push_box").seeds  # the seeds of push_box's current round of the screen
+
 
 def synthetic_screen(held: dict, tenth: dict | None = None, spans=None, updates=20_000, intrinsic=0.05):
     """Synthetic screen summaries: per (task, candidate), held-out success held[task, candidate] (a number, or one per
@@ -70,7 +72,7 @@ def test_no_candidate_when_none_solved_a_held_out_episode_and_not_ready_while_a_
     assert none.candidate is None and list(none.held_out) == list(current_round("push_box").candidates)
     partial = synthetic_screen(every_candidate("push_box", 0.5))[:-1]
     with pytest.raises(SparseNotReady, match=r"^the sparse screen on push_box misses 1 runs: "
-                                             r"sparse_screen_push_box_intrinsic_strong_s2$"):
+                                             rf"sparse_screen_push_box_intrinsic_strong_s{current_round('push_box').seeds[-1]}$"):
         sparse_choice(partial, "push_box")
 
 
@@ -101,7 +103,7 @@ def test_the_intrinsic_controls_coef_matches_the_candidates_reward_over_its_firs
     assert frozen_coef(screen, synthetic_scale("push_box", "intrinsic", 0.02), "push_box", "intrinsic") == 2.5
     with pytest.raises(SparseNotReady, match="stopped before 2000 updates"):
         frozen_coef(screen, synthetic_scale("push_box", "intrinsic", last=1_500), "push_box", "intrinsic")
-    with pytest.raises(SparseNotReady, match="sparse_scale_push_box_intrinsic_s0 is missing"):
+    with pytest.raises(SparseNotReady, match=f"sparse_scale_push_box_intrinsic_s{BOX_SEEDS[0]} is missing"):
         frozen_coef(screen, [], "push_box", "intrinsic")
 
 
@@ -133,7 +135,7 @@ def test_the_grids_run_the_scale_references_then_the_confirmation_and_refuse_in_
     scale = grids.grid(["sparse_scale"], list(SPARSE_SCREEN_SEEDS))
     assert [r.id for r in scale] == [f"sparse_scale_push_box_intrinsic_s{s}" for s in current_round("push_box").seeds]
     assert all(r.max_seconds == 300 and "icm.frozen=true" in r.sets for r in scale)
-    with pytest.raises(SparseNotReady, match="sparse_scale_push_box_intrinsic_s0 is missing"):
+    with pytest.raises(SparseNotReady, match=f"sparse_scale_push_box_intrinsic_s{BOX_SEEDS[0]} is missing"):
         grids.grid(["sparse_confirm"], list(SPARSE_CONFIRM_SEEDS))
     for summary in synthetic_scale("push_box", "intrinsic"):
         ResultsStore(tmp_path / "sparse_scale").write(summary)
