@@ -125,7 +125,9 @@ class ReplayConfig:
     """Replay storage and prioritized sampling (ALGORITHM.md §3.1, §3.6)."""
 
     capacity: int = documented(5000, "rows the replay buffer holds (eq. 3's B), one per world step; the oldest is "
-                               "overwritten first", unit="transitions", rule=AT_LEAST_1)
+                               "overwritten first. 5000 holds 166 episodes of the built-in tasks' 30 steps but only 16 "
+                               "of Push-Box's 300: on sparse tasks the learner forgets the few rewards it found (the "
+                               "sparse presets use 500,000; docs/SPARSE_TASKS.md)", unit="transitions", rule=AT_LEAST_1)
     priority_eps: float = documented(1e-6, "ε_p, the floor added to every priority (no row has probability 0)",
                                      rule=POSITIVE)
     beta_is_start: float = documented(0.4, "PER importance-sampling exponent β at the start of training, annealed "
