@@ -177,7 +177,7 @@ def agent_layout(config: Config, env) -> AgentLayout:
             uniform_actor[agent] = spec.uniform_actor
     teams = [config.teams[t] for t in env.teams]
     act_dim = DISCRETE_ACT_DIM if config.maddpg.discrete else env.act_dim
-    discrete = config.maddpg.discrete or bool(getattr(env, "discrete", False))
+    discrete = acts_discretely(config, env)
     mask = getattr(env, "act_mask", None)
     return AgentLayout(num_agents=n, obs_dim=env.obs_dim, env_act_dim=env.act_dim, act_dim=act_dim,
                        teams={k: list(v) for k, v in env.teams.items()}, algorithms=tuple(algorithms),
@@ -194,6 +194,12 @@ def agent_layout(config: Config, env) -> AgentLayout:
                        icm_agents=np.asarray(sorted(icm), dtype=np.int64),
                        act_mask=None if mask is None or mask.all() else mask.copy(), discrete=discrete,
                        entities=entity_layout(getattr(env, "params", None)))
+
+
+def acts_discretely(config: Config, env: Any) -> bool:
+    """Whether `config`'s agents act through Gumbel-softmax actors in `env` (its batched world): maddpg.discrete for
+    the built-in tasks' 5-way action, or an env.factory world with Discrete action spaces (`env.discrete`)."""
+    return config.maddpg.discrete or bool(getattr(env, "discrete", False))
 
 
 def layout_of(config: Config) -> AgentLayout:

@@ -35,7 +35,14 @@ from cmcl.run.flags import add_evaluate_flags
 from cmcl.run.rundir import PolicyCheckpoint, RunDirectory
 from cmcl.run.stalls import MissAnatomy, miss_anatomy
 from cmcl.run.stopping import exit_without_teardown
-from cmcl.system import build_maddpg, layout_of, make_batched_env, make_parallel_env, to_env_actions
+from cmcl.system import (
+    acts_discretely,
+    build_maddpg,
+    layout_of,
+    make_batched_env,
+    make_parallel_env,
+    to_env_actions,
+)
 
 EVAL_SEED_OFFSET = 10_000  # evaluation worlds never reuse the training seed's worlds
 
@@ -91,7 +98,7 @@ def evaluate_policy(config: Config, maddpg: MADDPG | None, episodes: int = 100, 
     obs = env.reset()
     ended, parts = np.zeros(episodes, bool), []  # parts: info["episode"] of the steps in which worlds ended
     own = np.setdiff1d(np.arange(env.num_agents), random_agents)  # the trained agents
-    continuous = not (config.maddpg.discrete or getattr(env, "discrete", False))  # as cmcl.system.agent_layout
+    continuous = not acts_discretely(config, env)
     at_bound = []  # per step, continuous policies: the share of the trained agents' action entries at the bound
     for _ in range(env.episode_length):  # the twins end every world at the last step; an env.factory world any time
         uniform = rng.uniform(-1.0, 1.0, size=(episodes, env.num_agents, env.act_dim)).astype(np.float32)
