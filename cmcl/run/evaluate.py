@@ -297,8 +297,9 @@ def evaluate_run(args: argparse.Namespace) -> int:
         print(beside_random(result, random, args.episodes), file=sys.stderr)  # stdout stays JSON
     if "misses" in result:
         print("\n".join(MissAnatomy(**result["misses"]).lines()), file=sys.stderr)
-    if saturation_line(result):
-        print(saturation_line(result), file=sys.stderr)
+    saturated = saturation_line(result)
+    if saturated:
+        print(saturated, file=sys.stderr)
     out_dir = _output_dir(run.path)
     writable = out_dir != run.path or _writable(run.path)
     if not args.no_gif:

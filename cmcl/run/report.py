@@ -100,8 +100,9 @@ def report_trained(config: Config, run_dir: RunDirectory, episodes: int = 200) -
     trained = bounded_evaluation(config, policy, episodes, bound / 2, "trained")
     random = bounded_evaluation(config, None, trained["episodes"], bound / 2, "random")
     print(beside_random(trained, random, min(trained["episodes"], random["episodes"])))
-    if saturation_line(trained):
-        print(saturation_line(trained))
+    saturated = saturation_line(trained)
+    if saturated:
+        print(saturated)
     if "misses" in trained:
         print("\n".join(MissAnatomy(**trained["misses"]).lines()))
     print(gif_line(config, policy, run_dir.path / "trained.gif"))
