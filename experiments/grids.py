@@ -36,8 +36,8 @@ Grids (the shared defaults of cmcl/config/ for every algorithm unless a run name
   settings changed after their calibration, the same way;
 * ``sparse_screen`` (docs/SPARSE_TASKS.md, its screen protocol): the task-curriculum and intrinsic-reward candidates
   of each round of SCREEN_ROUNDS on vacl_n4 and push_box (presets configs/<task>_curriculum.toml, _radius.toml,
-  _intrinsic.toml), uniform MADDPG sampling, inline, the preset's budget, at the round's seeds (0-2; vacl_n4's second
-  round 200-202);
+  _intrinsic.toml), uniform MADDPG sampling, inline, the preset's budget, at the round's seeds (first rounds 0-2, second
+  rounds 200-202);
 * ``sparse_scale``: on each task whose screen chose curiosity as a reward, that candidate with a frozen ICM at coef 1
   for 300 s at the screen's seeds (the scale of the confirmation's control);
 * ``sparse_confirm`` (its confirmation protocol): per task the screen chose a candidate for, the candidate, uniform
